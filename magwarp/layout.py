@@ -1,0 +1,225 @@
+"""Tile layouts, tile and mover specs, and start-pose validation.
+
+A layout is a 0/1 array of shape ``(num_tiles_x, num_tiles_y)``: ``tiles[i, j] == 1`` means a tile is present at
+column ``i`` (x) and row ``j`` (y). Tile ``(i, j)`` is centred at ``((2i + 1) * h, (2j + 1) * h)`` where ``h`` is half
+the tile width, so the layout's lower-left corner is the world origin (MagBotSim's convention). Missing tiles are
+holes: a mover whose footprint overlaps a hole or leaves the grid has hit a "wall".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["TileSpec", "MoverSpec", "Layout", "LayoutError", "BENCHMARK_LAYOUTS", "benchmark_layout"]
+
+
+class LayoutError(ValueError):
+    """A layout, spec or start pose that cannot be simulated."""
+
+
+@dataclass(frozen=True)
+class TileSpec:
+    """An XPlanar APM4330-like tile: 0.24 m square; ``height`` is its thickness (top surface at z = 0)."""
+
+    size: float = 0.24
+    height: float = 0.0352
+    mass: float = 5.6
+
+    def __post_init__(self):
+        for name in ("size", "height", "mass"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0:
+                raise LayoutError(f"TileSpec.{name} must be a positive finite number, got {value!r}")
+
+    @property
+    def half(self) -> float:
+        return 0.5 * self.size
+
+
+@dataclass(frozen=True)
+class MoverSpec:
+    """An XPlanar APM4330-like mover (box 0.155 x 0.155 x 0.012 m, 1.24 kg), hovering ``hover_gap`` above the tiles.
+
+    ``collision_shape`` is ``"circle"`` (radius ``collision_radius``) or ``"box"`` (half extents
+    ``collision_half_size``, default half the mover's footprint). ``margin`` is a safety margin added to the collision
+    shape for mover-mover checks; ``wall_margin`` is added for mover-wall checks.
+    """
+
+    size: tuple[float, float, float] = (0.155, 0.155, 0.012)
+    mass: float = 1.24
+    hover_gap: float = 0.004
+    collision_shape: str = "circle"
+    collision_radius: float = 0.11
+    collision_half_size: tuple[float, float] | None = None
+    margin: float = 0.0
+    wall_margin: float = 0.0
+
+    def __post_init__(self):
+        size = tuple(float(s) for s in self.size)
+        if len(size) != 3 or not all(np.isfinite(s) and s > 0 for s in size):
+            raise LayoutError(f"MoverSpec.size must be three positive finite numbers, got {self.size!r}")
+        object.__setattr__(self, "size", size)
+        if not np.isfinite(self.mass) or self.mass <= 0:
+            raise LayoutError(f"MoverSpec.mass must be positive and finite, got {self.mass!r}")
+        if not np.isfinite(self.hover_gap) or self.hover_gap < 0:
+            raise LayoutError(f"MoverSpec.hover_gap must be >= 0, got {self.hover_gap!r}")
+        if self.collision_shape not in ("circle", "box"):
+            raise LayoutError(f"MoverSpec.collision_shape must be 'circle' or 'box', got {self.collision_shape!r}")
+        if not np.isfinite(self.collision_radius) or self.collision_radius <= 0:
+            raise LayoutError(f"MoverSpec.collision_radius must be positive, got {self.collision_radius!r}")
+        if self.collision_half_size is None:
+            object.__setattr__(self, "collision_half_size", (0.5 * size[0], 0.5 * size[1]))
+        half = tuple(float(s) for s in self.collision_half_size)
+        if len(half) != 2 or not all(np.isfinite(s) and s > 0 for s in half):
+            raise LayoutError(f"MoverSpec.collision_half_size must be two positive numbers, got {self.collision_half_size!r}")
+        object.__setattr__(self, "collision_half_size", half)
+        for name in ("margin", "wall_margin"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0:
+                raise LayoutError(f"MoverSpec.{name} must be >= 0 and finite, got {value!r}")
+
+    @property
+    def inertia(self) -> tuple[float, float, float]:
+        """Principal moments of inertia of a solid box (the mover's body frame)."""
+        sx, sy, sz = self.size
+        m = self.mass
+        return (m * (sy * sy + sz * sz) / 12.0, m * (sx * sx + sz * sz) / 12.0, m * (sx * sx + sy * sy) / 12.0)
+
+    @property
+    def hover_z(self) -> float:
+        """Height of the mover's centre when it hovers at its target gap above the tile surface (z = 0)."""
+        return self.hover_gap + 0.5 * self.size[2]
+
+    def bounding_radius(self, extra: float = 0.0) -> float:
+        """Radius of a circle around the mover's collision shape grown by ``extra``."""
+        if self.collision_shape == "circle":
+            return self.collision_radius + extra
+        hx, hy = self.collision_half_size
+        return float(np.hypot(hx + extra, hy + extra))
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A tile layout plus the tile spec. ``tiles`` is a 0/1 integer array of shape ``(num_tiles_x, num_tiles_y)``."""
+
+    tiles: np.ndarray
+    tile: TileSpec = field(default_factory=TileSpec)
+
+    def __post_init__(self):
+        tiles = np.asarray(self.tiles)
+        if tiles.ndim != 2:
+            raise LayoutError(f"layout must be a 2-D 0/1 array (num_tiles_x, num_tiles_y), got shape {tiles.shape}")
+        if tiles.size == 0:
+            raise LayoutError(f"layout is empty: shape {tiles.shape}")
+        if tiles.dtype == bool:
+            tiles = tiles.astype(np.int32)
+        if not np.issubdtype(tiles.dtype, np.number) or not np.all(np.isin(tiles, (0, 1))):
+            bad = tiles[~np.isin(tiles, (0, 1))] if np.issubdtype(tiles.dtype, np.number) else tiles.dtype
+            raise LayoutError(f"layout must contain only 0 and 1, found {np.unique(bad)[:5]!r}")
+        tiles = tiles.astype(np.int32)
+        if tiles.sum() == 0:
+            raise LayoutError(f"layout has no tiles (all zeros, shape {tiles.shape})")
+        tiles.setflags(write=False)
+        object.__setattr__(self, "tiles", tiles)
+
+    @classmethod
+    def grid(cls, num_tiles_x: int, num_tiles_y: int, tile: TileSpec | None = None) -> "Layout":
+        """A full rectangular grid of tiles."""
+        if int(num_tiles_x) < 1 or int(num_tiles_y) < 1:
+            raise LayoutError(f"grid needs at least 1x1 tiles, got {num_tiles_x}x{num_tiles_y}")
+        return cls(np.ones((int(num_tiles_x), int(num_tiles_y)), dtype=np.int32), tile or TileSpec())
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.tiles.shape
+
+    @property
+    def num_tiles(self) -> int:
+        return int(self.tiles.sum())
+
+    @property
+    def extent(self) -> tuple[float, float]:
+        """Width and height of the layout's bounding rectangle (lower-left corner at the origin)."""
+        return self.shape[0] * self.tile.size, self.shape[1] * self.tile.size
+
+    def tile_centers(self) -> np.ndarray:
+        """Centres of the present tiles, shape ``(num_tiles, 2)``, ordered by x index then y index."""
+        i, j = np.nonzero(self.tiles)
+        return np.stack([(2 * i + 1) * self.tile.half, (2 * j + 1) * self.tile.half], axis=1).astype(np.float64)
+
+    def tile_index(self, xy: np.ndarray) -> np.ndarray:
+        """Integer tile indices ``(i, j)`` under points ``xy`` (shape ``(..., 2)``); may lie outside the grid."""
+        return np.floor(np.asarray(xy, dtype=np.float64) / self.tile.size).astype(np.int64)
+
+    def on_tiles(self, xy: np.ndarray) -> np.ndarray:
+        """True where a point lies above a present tile."""
+        ij = self.tile_index(xy)
+        nx, ny = self.shape
+        inside = (ij[..., 0] >= 0) & (ij[..., 0] < nx) & (ij[..., 1] >= 0) & (ij[..., 1] < ny)
+        result = np.zeros(inside.shape, dtype=bool)
+        result[inside] = self.tiles[ij[inside][:, 0], ij[inside][:, 1]] == 1
+        return result
+
+    def default_starts(self, num_movers: int) -> np.ndarray:
+        """Start positions at tile centres, one mover per tile, in :meth:`tile_centers` order."""
+        centers = self.tile_centers()
+        if num_movers > len(centers):
+            raise LayoutError(
+                f"num_movers={num_movers} movers need default start poses at tile centres, "
+                f"but the layout has only {len(centers)} tiles; pass start positions explicitly"
+            )
+        return centers[:num_movers].copy()
+
+
+def validate_starts(layout: Layout, mover: MoverSpec, starts_xy: np.ndarray, yaw: np.ndarray | None = None) -> np.ndarray:
+    """Check start positions: shape ``(num_movers, 2)``, finite, footprints on tiles, no two overlapping.
+
+    Returns the positions as a float64 array. Uses the exact numpy collision reference, so the rule is the same one
+    the simulator applies every cycle (with margins).
+    """
+    from magwarp import reference  # local import: reference depends on this module
+
+    starts = np.asarray(starts_xy, dtype=np.float64)
+    if starts.ndim != 2 or starts.shape[1] != 2:
+        raise LayoutError(f"start positions must have shape (num_movers, 2), got {starts.shape}")
+    if not np.all(np.isfinite(starts)):
+        raise LayoutError(f"start positions must be finite, got {starts[~np.isfinite(starts).all(axis=1)][:3]!r}")
+    yaw = np.zeros(len(starts)) if yaw is None else np.asarray(yaw, dtype=np.float64).reshape(len(starts))
+    wall = reference.wall_collisions(layout, mover, starts[None], yaw[None])[0]
+    if wall.any():
+        k = int(np.flatnonzero(wall)[0])
+        raise LayoutError(f"mover {k} starts at {tuple(np.round(starts[k], 4))}, which is off the tiles (or too close to an edge)")
+    pairs = reference.mover_collision_pairs(mover, starts, yaw)
+    if len(pairs):
+        a, b = pairs[0]
+        raise LayoutError(
+            f"movers {a} and {b} overlap at their start positions {tuple(np.round(starts[a], 4))} and {tuple(np.round(starts[b], 4))}"
+        )
+    return starts
+
+
+# MagBotSim's trajectory planning benchmark variants B0..B9 (the paper's benchmark definition, not code): each
+# string is one x index (column of tiles), its characters the y indices; 0 marks a hole. Second item: mover count.
+_BENCHMARK_TILES = {
+    "B0": (("111", "111", "111", "111"), 3),
+    "B1": (("111", "111", "011", "111"), 3),
+    "B2": (("11111", "11111", "00011", "11111", "11111", "11000", "11111", "11111"), 4),
+    "B3": (("0011100", "0011100", "1111111", "1110111", "1111111", "0011100", "0011100"), 4),
+    "B4": (("111111", "111111", "111111", "100011", "110001", "111111", "111111", "111111"), 4),
+    "B5": (("111111", "111111", "111111", "001100", "001100", "001100", "001100", "001100", "111111", "111111", "111111"), 3),
+    "B6": (("000111", "000111", "000111", "111111", "111111", "111000", "111000", "111000"), 4),
+    "B7": (("1110111", "1110111", "1100011", "1100011", "1100011", "1111111", "1111111"), 4),
+    "B8": (("111111", "111111", "111100", "111100", "111111", "101111", "001111", "000100"), 5),
+    "B9": (("11111000", "11111100", "00111110", "00111111", "10011011", "11111011", "11111111", "11111110"), 5),
+}
+BENCHMARK_LAYOUTS = tuple(_BENCHMARK_TILES)
+
+
+def benchmark_layout(name: str) -> tuple[Layout, int]:
+    """The layout and mover count of a trajectory planning benchmark variant ``"B0"``..``"B9"``."""
+    if name not in _BENCHMARK_TILES:
+        raise LayoutError(f"unknown benchmark layout {name!r}; choose one of {list(_BENCHMARK_TILES)}")
+    rows, movers = _BENCHMARK_TILES[name]
+    return Layout(np.array([[int(c) for c in row] for row in rows], dtype=np.int32)), movers
