@@ -103,7 +103,7 @@ def wall_collisions(layout: Layout, mover: MoverSpec, xy: np.ndarray, yaw: np.nd
     out = np.zeros((num_worlds, m), dtype=bool)
     for w in range(num_worlds):
         for k in range(m):
-            reach = (r[k] if shape == SHAPE_CIRCLE else float(np.hypot(*h[k]))) + wall_margin
+            reach = r[k] + wall_margin if shape == SHAPE_CIRCLE else float(np.hypot(*(h[k] + wall_margin)))
             lo_i, lo_j = np.floor((xy[w, k] - reach) / size).astype(int)
             hi_i, hi_j = np.floor((xy[w, k] + reach) / size).astype(int)
             for i in range(lo_i, hi_i + 1):

@@ -1,0 +1,260 @@
+"""Geometric collision detection with safety margins: mover-mover (circle or oriented box) and mover-wall.
+
+Movers never touch physically (all such contacts are excluded), so collisions are detected, reported per mover and
+per world, and (optionally) stop the world for the rest of the step, as a real system stops on a lag error.
+
+Broad phase for large worlds: movers are binned into a uniform grid of cells at least one interaction distance
+wide, one block of cells per world, with per-cell linked lists built by ``atomic_exch`` (no sort and no scan, so it
+is capturable in a graph on CPU and GPU). Each mover then scans the 3x3 neighbouring cells. Positions outside the
+layout are clamped into the border cells, which never separates two nearby movers.
+"""
+
+import warp as wp
+
+from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, SHAPE_CIRCLE, Collision, Grid
+
+
+@wp.func
+def yaw_of(q: wp.quat) -> float:
+    """Heading of a (near-level) mover: the angle of its body x axis in the world x/y plane."""
+    ax = wp.quat_rotate(q, wp.vec3(1.0, 0.0, 0.0))
+    return wp.atan2(ax[1], ax[0])
+
+
+@wp.func
+def box_extent(axis: wp.vec2, c: float, s: float, half: wp.vec2) -> float:
+    """Half length of the projection onto ``axis`` of a box with half sizes ``half`` rotated by (c, s)."""
+    return half[0] * wp.abs(axis[0] * c + axis[1] * s) + half[1] * wp.abs(-axis[0] * s + axis[1] * c)
+
+
+@wp.func
+def boxes_overlap(d: wp.vec2, yaw_a: float, half_a: wp.vec2, yaw_b: float, half_b: wp.vec2) -> bool:
+    """Separating-axis test for two rectangles whose centres differ by ``d``; touching counts as overlap."""
+    ca = wp.cos(yaw_a)
+    sa = wp.sin(yaw_a)
+    cb = wp.cos(yaw_b)
+    sb = wp.sin(yaw_b)
+    for k in range(4):
+        axis = wp.vec2(ca, sa)
+        if k == 1:
+            axis = wp.vec2(-sa, ca)
+        elif k == 2:
+            axis = wp.vec2(cb, sb)
+        elif k == 3:
+            axis = wp.vec2(-sb, cb)
+        dist = wp.abs(wp.dot(d, axis))
+        if dist > box_extent(axis, ca, sa, half_a) + box_extent(axis, cb, sb, half_b):
+            return False
+    return True
+
+
+@wp.func
+def movers_collide(
+    col: Collision, d: wp.vec2, yaw_a: float, r_a: float, half_a: wp.vec2, yaw_b: float, r_b: float, half_b: wp.vec2
+) -> bool:
+    """Do two movers (centre offset ``d``) collide once both shapes are grown by the safety margin?"""
+    if col.shape == SHAPE_CIRCLE:
+        return wp.length(d) <= r_a + r_b + 2.0 * col.margin
+    m = wp.vec2(col.margin, col.margin)
+    return boxes_overlap(d, yaw_a, half_a + m, yaw_b, half_b + m)
+
+
+@wp.func
+def footprint_hits_square(shape: int, p: wp.vec2, yaw: float, radius: float, half: wp.vec2, lo: wp.vec2, size: float) -> bool:
+    """Does the footprint overlap the square ``[lo, lo + size]`` with positive area? (Touching is not a hit.)"""
+    if shape == SHAPE_CIRCLE:
+        nearest = wp.vec2(wp.clamp(p[0], lo[0], lo[0] + size), wp.clamp(p[1], lo[1], lo[1] + size))
+        return wp.length(p - nearest) < radius
+    hs = 0.5 * size
+    d = p - (lo + wp.vec2(hs, hs))
+    c = wp.cos(yaw)
+    s = wp.sin(yaw)
+    for k in range(4):
+        axis = wp.vec2(1.0, 0.0)
+        if k == 1:
+            axis = wp.vec2(0.0, 1.0)
+        elif k == 2:
+            axis = wp.vec2(c, s)
+        elif k == 3:
+            axis = wp.vec2(-s, c)
+        if wp.abs(wp.dot(d, axis)) >= box_extent(axis, c, s, half) + hs * (wp.abs(axis[0]) + wp.abs(axis[1])):
+            return False
+    return True
+
+
+@wp.func
+def hits_wall(tiles: wp.array2d(dtype=wp.int32), col: Collision, p: wp.vec2, yaw: float, radius: float, half: wp.vec2) -> bool:
+    """Does the footprint grown by the wall margin overlap a missing tile or leave the grid?"""
+    r = radius + col.wall_margin
+    h = half + wp.vec2(col.wall_margin, col.wall_margin)
+    reach = r
+    if col.shape != SHAPE_CIRCLE:
+        reach = wp.length(h)
+    size = col.tile_size
+    i0 = int(wp.floor((p[0] - reach) / size))
+    i1 = int(wp.floor((p[0] + reach) / size))
+    j0 = int(wp.floor((p[1] - reach) / size))
+    j1 = int(wp.floor((p[1] + reach) / size))
+    nx = tiles.shape[0]
+    ny = tiles.shape[1]
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            present = False
+            if i >= 0 and i < nx and j >= 0 and j < ny:
+                present = tiles[i, j] == 1
+            if not present:
+                if footprint_hits_square(col.shape, p, yaw, r, h, wp.vec2(float(i) * size, float(j) * size), size):
+                    return True
+    return False
+
+
+@wp.func
+def cell_coords(grid: Grid, p: wp.vec3) -> wp.vec2i:
+    cx = wp.clamp(int(wp.floor(p[0] / grid.cell_size)), 0, grid.ncx - 1)
+    cy = wp.clamp(int(wp.floor(p[1] / grid.cell_size)), 0, grid.ncy - 1)
+    return wp.vec2i(cx, cy)
+
+
+@wp.kernel
+def clear_cells(head: wp.array(dtype=wp.int32)):
+    head[wp.tid()] = -1
+
+
+@wp.kernel
+def bin_movers(
+    # Model:
+    grid: Grid,
+    # State in:
+    pos: wp.array2d(dtype=wp.vec3),
+    # State out:
+    head: wp.array(dtype=wp.int32),
+    next_in_cell: wp.array2d(dtype=wp.int32),
+):
+    """Push each mover onto its cell's linked list (lists hold mover indices within the world)."""
+    w, m = wp.tid()
+    c = cell_coords(grid, pos[w, m])
+    cell = (w * grid.ncy + c[1]) * grid.ncx + c[0]
+    next_in_cell[w, m] = wp.atomic_exch(head, cell, m)
+
+
+@wp.func
+def record_collisions(
+    w: int,
+    m: int,
+    partner: int,
+    pairs_owned: int,
+    wall: wp.array2d(dtype=wp.int32),
+    flags: wp.array2d(dtype=wp.int32),
+    flags_any: wp.array2d(dtype=wp.int32),
+    partner_out: wp.array2d(dtype=wp.int32),
+    world_pairs: wp.array(dtype=wp.int32),
+    world_walls: wp.array(dtype=wp.int32),
+    halted: wp.array(dtype=wp.int32),
+):
+    """Write one mover's collision outputs; each thread writes only its own mover plus per-world counters."""
+    f = int(0)
+    if partner >= 0:
+        f = f | COLLIDE_MOVER
+    if wall[w, m] != 0:
+        f = f | COLLIDE_WALL
+        wp.atomic_add(world_walls, w, 1)
+    if pairs_owned > 0:
+        wp.atomic_add(world_pairs, w, pairs_owned)
+    flags[w, m] = f
+    flags_any[w, m] = flags_any[w, m] | f
+    partner_out[w, m] = partner
+    if f != 0:
+        halted[w] = 1
+
+
+@wp.kernel
+def clear_world_counters(world_pairs: wp.array(dtype=wp.int32), world_walls: wp.array(dtype=wp.int32)):
+    w = wp.tid()
+    world_pairs[w] = 0
+    world_walls[w] = 0
+
+
+@wp.kernel
+def detect_collisions_grid(
+    # Model:
+    col: Collision,
+    grid: Grid,
+    radius: wp.array(dtype=float),
+    half_size: wp.array(dtype=wp.vec2),
+    # State in:
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    wall: wp.array2d(dtype=wp.int32),
+    head: wp.array(dtype=wp.int32),
+    next_in_cell: wp.array2d(dtype=wp.int32),
+    # State out:
+    flags: wp.array2d(dtype=wp.int32),
+    flags_any: wp.array2d(dtype=wp.int32),
+    partner_out: wp.array2d(dtype=wp.int32),
+    world_pairs: wp.array(dtype=wp.int32),
+    world_walls: wp.array(dtype=wp.int32),
+    halted: wp.array(dtype=wp.int32),
+):
+    """Mover-mover narrow phase over the 3x3 neighbouring cells, then the mover's flags."""
+    w, m = wp.tid()
+    p = pos[w, m]
+    yaw = yaw_of(quat[w, m])
+    c = cell_coords(grid, p)
+    partner = int(-1)
+    owned = int(0)
+    for dy in range(-1, 2):
+        cy = c[1] + dy
+        if cy < 0 or cy >= grid.ncy:
+            continue
+        for dx in range(-1, 2):
+            cx = c[0] + dx
+            if cx < 0 or cx >= grid.ncx:
+                continue
+            j = head[(w * grid.ncy + cy) * grid.ncx + cx]
+            while j >= 0:
+                if j != m:
+                    q = pos[w, j]
+                    d = wp.vec2(p[0] - q[0], p[1] - q[1])
+                    if movers_collide(col, d, yaw, radius[m], half_size[m], yaw_of(quat[w, j]), radius[j], half_size[j]):
+                        if partner < 0 or j < partner:
+                            partner = j
+                        if j > m:
+                            owned += 1
+                j = next_in_cell[w, j]
+    record_collisions(w, m, partner, owned, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)
+
+
+@wp.kernel
+def detect_collisions_brute(
+    # Model:
+    col: Collision,
+    radius: wp.array(dtype=float),
+    half_size: wp.array(dtype=wp.vec2),
+    # State in:
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    wall: wp.array2d(dtype=wp.int32),
+    # State out:
+    flags: wp.array2d(dtype=wp.int32),
+    flags_any: wp.array2d(dtype=wp.int32),
+    partner_out: wp.array2d(dtype=wp.int32),
+    world_pairs: wp.array(dtype=wp.int32),
+    world_walls: wp.array(dtype=wp.int32),
+    halted: wp.array(dtype=wp.int32),
+):
+    """Mover-mover check against every other mover of the world: the fast choice for small worlds."""
+    w, m = wp.tid()
+    p = pos[w, m]
+    yaw = yaw_of(quat[w, m])
+    partner = int(-1)
+    owned = int(0)
+    for j in range(pos.shape[1]):
+        if j != m:
+            q = pos[w, j]
+            d = wp.vec2(p[0] - q[0], p[1] - q[1])
+            if movers_collide(col, d, yaw, radius[m], half_size[m], yaw_of(quat[w, j]), radius[j], half_size[j]):
+                if partner < 0:
+                    partner = j
+                if j > m:
+                    owned += 1
+    record_collisions(w, m, partner, owned, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)

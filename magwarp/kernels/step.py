@@ -1,0 +1,225 @@
+"""Step kernels: one control cycle of one mover (command limits, force model, integration, wall check), composed
+into the two launch shapes the simulator uses.
+
+* :func:`make_advance_kernel` — one thread per mover for one cycle; the simulator launches it once per cycle,
+  followed by the collision kernels (grid broad phase for large worlds). Used for large worlds and whenever per-cycle
+  hooks (metrics) must run between cycles.
+* :func:`make_fused_kernel` — one thread per world runs every cycle of the step, movers and pair checks included,
+  without leaving the kernel: the fast shape for many small worlds (the RL regime).
+
+Both are built from a user-swappable force model (see :mod:`magwarp.kernels.impedance`), so a custom wrench law
+needs no fork of the kernels: pass another ``@wp.func`` with the same signature.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import warp as wp
+
+from magwarp.kernels.collision import hits_wall, movers_collide, yaw_of
+from magwarp.kernels.dynamics import integrate_body, planar_acceleration
+from magwarp.kernels.impedance import default_force
+from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Impedance, Limits, Pose
+
+
+@functools.cache
+def make_advance_kernel(force_fn=default_force):
+    @wp.func
+    def advance_mover(
+        w: int,
+        m: int,
+        lim: Limits,
+        imp: Impedance,
+        col: Collision,
+        tiles: wp.array2d(dtype=wp.int32),
+        body: wp.array(dtype=Body),
+        radius: wp.array(dtype=float),
+        half_size: wp.array(dtype=wp.vec2),
+        cmd: wp.array2d(dtype=wp.vec2),
+        target_pos: wp.array2d(dtype=wp.vec3),
+        target_quat: wp.array2d(dtype=wp.quat),
+        force_aux: wp.array3d(dtype=float),
+        pos: wp.array2d(dtype=wp.vec3),
+        quat: wp.array2d(dtype=wp.quat),
+        vel: wp.array2d(dtype=wp.vec3),
+        omega: wp.array2d(dtype=wp.vec3),
+        acc: wp.array2d(dtype=wp.vec2),
+        wall: wp.array2d(dtype=wp.int32),
+    ):
+        b = body[m]
+        p = Pose()
+        p.pos = pos[w, m]
+        p.quat = quat[w, m]
+        p.vel = vel[w, m]
+        p.omega = omega[w, m]
+        a = planar_acceleration(p.vel, acc[w, m], cmd[w, m], lim)
+        drive = wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0)
+        wrench = force_fn(p, b, drive, target_pos[w, m], target_quat[w, m], imp, lim, force_aux[w, m])
+        n = integrate_body(p, wrench, b, lim)
+        pos[w, m] = n.pos
+        quat[w, m] = n.quat
+        vel[w, m] = n.vel
+        omega[w, m] = n.omega
+        # The applied x/y acceleration (what MuJoCo reports as qacc): the state jerk commands integrate from.
+        acc[w, m] = wp.vec2(n.vel[0] - p.vel[0], n.vel[1] - p.vel[1]) / lim.dt
+        hit = int(0)
+        if hits_wall(tiles, col, wp.vec2(n.pos[0], n.pos[1]), yaw_of(n.quat), radius[m], half_size[m]):
+            hit = 1
+        wall[w, m] = hit
+
+    @wp.kernel(module="unique")
+    def advance_movers(
+        # Model:
+        lim: Limits,
+        imp: Impedance,
+        col: Collision,
+        tiles: wp.array2d(dtype=wp.int32),
+        body: wp.array(dtype=Body),
+        radius: wp.array(dtype=float),
+        half_size: wp.array(dtype=wp.vec2),
+        # State in:
+        cmd: wp.array2d(dtype=wp.vec2),
+        target_pos: wp.array2d(dtype=wp.vec3),
+        target_quat: wp.array2d(dtype=wp.quat),
+        force_aux: wp.array3d(dtype=float),
+        halted: wp.array(dtype=wp.int32),
+        # State out:
+        pos: wp.array2d(dtype=wp.vec3),
+        quat: wp.array2d(dtype=wp.quat),
+        vel: wp.array2d(dtype=wp.vec3),
+        omega: wp.array2d(dtype=wp.vec3),
+        acc: wp.array2d(dtype=wp.vec2),
+        wall: wp.array2d(dtype=wp.int32),
+        cycles: wp.array(dtype=wp.int32),
+    ):
+        w, m = wp.tid()
+        if col.stop_on_collision == 1 and halted[w] == 1:
+            return
+        advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, target_pos, target_quat, force_aux,
+                      pos, quat, vel, omega, acc, wall)
+        if m == 0:
+            cycles[w] = cycles[w] + 1
+
+    @wp.kernel(module="unique")
+    def fused_worlds(
+        num_cycles: int,
+        # Model:
+        lim: Limits,
+        imp: Impedance,
+        col: Collision,
+        tiles: wp.array2d(dtype=wp.int32),
+        body: wp.array(dtype=Body),
+        radius: wp.array(dtype=float),
+        half_size: wp.array(dtype=wp.vec2),
+        # State in:
+        cmd: wp.array2d(dtype=wp.vec2),
+        target_pos: wp.array2d(dtype=wp.vec3),
+        target_quat: wp.array2d(dtype=wp.quat),
+        force_aux: wp.array3d(dtype=float),
+        # State out:
+        pos: wp.array2d(dtype=wp.vec3),
+        quat: wp.array2d(dtype=wp.quat),
+        vel: wp.array2d(dtype=wp.vec3),
+        omega: wp.array2d(dtype=wp.vec3),
+        acc: wp.array2d(dtype=wp.vec2),
+        wall: wp.array2d(dtype=wp.int32),
+        flags: wp.array2d(dtype=wp.int32),
+        flags_any: wp.array2d(dtype=wp.int32),
+        partner: wp.array2d(dtype=wp.int32),
+        world_pairs: wp.array(dtype=wp.int32),
+        world_walls: wp.array(dtype=wp.int32),
+        halted: wp.array(dtype=wp.int32),
+        cycles: wp.array(dtype=wp.int32),
+    ):
+        w = wp.tid()
+        num_movers = pos.shape[1]
+        for _c in range(num_cycles):
+            if col.stop_on_collision == 1 and halted[w] == 1:
+                break
+            for m in range(num_movers):
+                advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, target_pos, target_quat,
+                              force_aux, pos, quat, vel, omega, acc, wall)
+            cycles[w] = cycles[w] + 1
+            # Brute-force pairs: each pair once, partner = lowest colliding index, same as the per-mover kernels.
+            for m in range(num_movers):
+                partner[w, m] = -1
+            pairs = int(0)
+            walls = int(0)
+            for i in range(num_movers):
+                pi = pos[w, i]
+                yi = yaw_of(quat[w, i])
+                for j in range(i + 1, num_movers):
+                    pj = pos[w, j]
+                    d = wp.vec2(pi[0] - pj[0], pi[1] - pj[1])
+                    if movers_collide(col, d, yi, radius[i], half_size[i], yaw_of(quat[w, j]), radius[j], half_size[j]):
+                        pairs += 1
+                        if partner[w, i] < 0:
+                            partner[w, i] = j
+                        if partner[w, j] < 0:
+                            partner[w, j] = i
+            for m in range(num_movers):
+                f = int(0)
+                if partner[w, m] >= 0:
+                    f = f | COLLIDE_MOVER
+                if wall[w, m] != 0:
+                    f = f | COLLIDE_WALL
+                    walls += 1
+                flags[w, m] = f
+                flags_any[w, m] = flags_any[w, m] | f
+            world_pairs[w] = pairs
+            world_walls[w] = walls
+            if pairs > 0 or walls > 0:
+                halted[w] = 1
+
+    return advance_movers, fused_worlds
+
+
+@wp.kernel
+def begin_step(
+    flags_any: wp.array2d(dtype=wp.int32), halted: wp.array(dtype=wp.int32), cycles: wp.array(dtype=wp.int32)
+):
+    """Clear the per-step accumulators (one thread per mover)."""
+    w, m = wp.tid()
+    flags_any[w, m] = 0
+    if m == 0:
+        halted[w] = 0
+        cycles[w] = 0
+
+
+@wp.kernel
+def reset_worlds(
+    mask: wp.array(dtype=wp.int32),
+    init_pos: wp.array2d(dtype=wp.vec3),
+    init_quat: wp.array2d(dtype=wp.quat),
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    vel: wp.array2d(dtype=wp.vec3),
+    omega: wp.array2d(dtype=wp.vec3),
+    acc: wp.array2d(dtype=wp.vec2),
+    cmd: wp.array2d(dtype=wp.vec2),
+    target_pos: wp.array2d(dtype=wp.vec3),
+    target_quat: wp.array2d(dtype=wp.quat),
+    flags: wp.array2d(dtype=wp.int32),
+    flags_any: wp.array2d(dtype=wp.int32),
+    partner: wp.array2d(dtype=wp.int32),
+    wall: wp.array2d(dtype=wp.int32),
+):
+    """Put the masked worlds back at their start poses, at rest, hovering, with cleared collision outputs."""
+    w, m = wp.tid()
+    if mask[w] == 0:
+        return
+    p = init_pos[w, m]
+    q = init_quat[w, m]
+    pos[w, m] = p
+    quat[w, m] = q
+    vel[w, m] = wp.vec3(0.0)
+    omega[w, m] = wp.vec3(0.0)
+    acc[w, m] = wp.vec2(0.0)
+    cmd[w, m] = wp.vec2(0.0)
+    target_pos[w, m] = p
+    target_quat[w, m] = q
+    flags[w, m] = 0
+    flags_any[w, m] = 0
+    partner[w, m] = -1
+    wall[w, m] = 0

@@ -1,0 +1,418 @@
+"""The batched planar simulator: ``num_worlds`` copies of one layout, each with ``num_movers`` 6-DoF movers.
+
+One call of :meth:`Simulator.step` runs ``num_cycles`` control cycles (control, integration, collision check) for
+every world as a single Warp graph replay, on CPU or GPU. State is exposed zero-copy as torch tensors.
+
+Two launch shapes (see :mod:`magwarp.kernels.step`): small worlds run *fused*, one thread per world for all cycles;
+large worlds run one kernel per stage per cycle with a grid broad phase. Per-cycle hooks (e.g. metrics) force the
+per-cycle shape so that they can run between cycles, still inside the same graph.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+import warp as wp
+
+from magwarp.kernels import collision as kcol
+from magwarp.kernels import step as kstep
+from magwarp.kernels.impedance import default_force
+from magwarp.layout import Layout, LayoutError, MoverSpec, validate_starts
+from magwarp.types import SHAPE_BOX, SHAPE_CIRCLE, Body, Collision, Grid, Impedance, Limits, Model, State
+
+__all__ = ["Simulator", "default_device"]
+
+
+def default_device() -> str:
+    """The first CUDA device when Warp sees one, else the CPU."""
+    wp.init()
+    return "cuda:0" if wp.is_cuda_available() else "cpu"
+
+
+def _vec(values, n: int, name: str) -> tuple[float, ...]:
+    arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    if arr.size == 1:
+        arr = np.repeat(arr, n)
+    if arr.size != n or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ValueError(f"{name} must be {n} finite non-negative numbers, got {values!r}")
+    return tuple(float(v) for v in arr)
+
+
+class Simulator:
+    """Batched mover simulator. See the module docstring; arguments:
+
+    layout: :class:`~magwarp.layout.Layout` or a 0/1 array. num_movers: movers per world (default: one per start
+    position given, else required). num_worlds: batch size. mover: :class:`~magwarp.layout.MoverSpec` (mass, size,
+    collision shape and margins). start_xy / start_yaw: ``(M, 2)`` / ``(M,)`` shared by all worlds or
+    ``(W, M, 2)`` / ``(W, M)`` per world (default: tile centres, yaw 0). collision_radii ``(M,)`` /
+    collision_half_sizes ``(M, 2)``: per-mover collision sizes. control: ``"acceleration"`` or ``"jerk"``.
+    stiffness_lin / stiffness_rot: impedance stiffness; hold_mask: 6 flags (x, y, z, roll, pitch, yaw) the
+    impedance controller holds. stop_on_collision: a world stops moving for the rest of a step after a collision
+    (MagBotSim's behaviour). force_model: a ``@wp.func`` with :func:`~magwarp.kernels.impedance.default_force`'s
+    signature; force_aux_dim: width of its free per-mover input row ``force_aux``. device: ``"cpu"``, ``"cuda:N"``
+    or None for the best one. fused_max_movers: worlds up to this size run fused. check_inputs: validate commands
+    (costs a device sync per command; turn off in tight loops that produce commands on the device).
+    """
+
+    def __init__(
+        self,
+        layout: Layout | np.ndarray,
+        num_movers: int | None = None,
+        num_worlds: int = 1,
+        *,
+        mover: MoverSpec | None = None,
+        start_xy=None,
+        start_yaw=None,
+        collision_radii=None,
+        collision_half_sizes=None,
+        dt: float = 0.001,
+        v_max: float = 2.0,
+        a_max: float = 10.0,
+        j_max: float = 100.0,
+        control: str = "acceleration",
+        stiffness_lin=(1.0, 1.0, 100.0),
+        stiffness_rot=(0.1, 0.1, 1.0),
+        hold_mask=(0, 0, 1, 1, 1, 1),
+        gravity: float = 9.81,
+        stop_on_collision: bool = True,
+        force_model=None,
+        force_aux_dim: int = 1,
+        device: str | None = None,
+        fused_max_movers: int = 16,
+        use_graph: bool = True,
+        check_inputs: bool = True,
+        validate_starts_: bool = True,
+    ):
+        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+        self.mover = mover or MoverSpec()
+        if int(num_worlds) < 1:
+            raise ValueError(f"num_worlds must be >= 1, got {num_worlds!r}")
+        if control not in ("acceleration", "jerk"):
+            raise ValueError(f"control must be 'acceleration' or 'jerk', got {control!r}")
+        for name, value in (("dt", dt), ("v_max", v_max), ("a_max", a_max), ("j_max", j_max)):
+            if not np.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        self.num_worlds = int(num_worlds)
+        self.device = wp.get_device(device or default_device())
+        self.control = control
+        self.check_inputs = check_inputs
+        self._use_graph = use_graph
+        self._hooks: list[Callable[[Simulator], None]] = []
+        self._graphs: dict[int, wp.Graph] = {}
+
+        start_xy_arr, start_yaw_arr = self._start_arrays(num_movers, start_xy, start_yaw)
+        self.num_movers = start_xy_arr.shape[1]
+        m = self.num_movers
+        radii, half = self._collision_sizes(collision_radii, collision_half_sizes)
+        if validate_starts_:
+            # Worlds that share their start poses need one check, not one per world.
+            unique = [0] if start_xy is None or np.ndim(start_xy) == 2 else range(self.num_worlds)
+            for w in unique:
+                validate_starts(self.layout, self.mover, start_xy_arr[w], start_yaw_arr[w], radii, half)
+        self._fused = m <= fused_max_movers
+
+        hold = np.asarray(hold_mask, dtype=np.float64).reshape(-1)
+        if hold.shape != (6,) or not np.all(np.isin(hold, (0, 1))):
+            raise ValueError(f"hold_mask must be six 0/1 flags (x, y, z, roll, pitch, yaw), got {hold_mask!r}")
+        self.model = self._build_model(dt, v_max, a_max, j_max, gravity, stiffness_lin, stiffness_rot, hold,
+                                       stop_on_collision, radii, half)
+        self.state = self._alloc_state(force_aux_dim)
+        self._advance_kernel, self._fused_kernel = kstep.make_advance_kernel(force_model or default_force)
+
+        # Start poses live on the device so that resets are a kernel, not a host round trip.
+        self._init_pos = wp.zeros((self.num_worlds, m), dtype=wp.vec3, device=self.device)
+        self._init_quat = wp.zeros((self.num_worlds, m), dtype=wp.quat, device=self.device)
+        self._reset_mask = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)
+        self.set_start_poses(start_xy_arr, start_yaw_arr)
+        self.reset()
+
+    # ------------------------------------------------------------------ construction helpers
+    def _start_arrays(self, num_movers, start_xy, start_yaw):
+        if start_xy is None:
+            if num_movers is None:
+                raise ValueError("give num_movers or start_xy")
+            if int(num_movers) < 1:
+                raise ValueError(f"num_movers must be >= 1, got {num_movers!r}")
+            start_xy = self.layout.default_starts(int(num_movers))
+        xy = np.asarray(start_xy, dtype=np.float64)
+        if xy.ndim == 2:
+            xy = np.broadcast_to(xy, (self.num_worlds, *xy.shape))
+        if xy.ndim != 3 or xy.shape[0] != self.num_worlds or xy.shape[2] != 2:
+            raise LayoutError(f"start_xy must have shape (num_movers, 2) or (num_worlds={self.num_worlds}, num_movers, 2), got {np.shape(start_xy)}")
+        if num_movers is not None and xy.shape[1] != int(num_movers):
+            raise LayoutError(f"start_xy has {xy.shape[1]} movers but num_movers={num_movers}")
+        yaw = np.zeros(xy.shape[:2]) if start_yaw is None else np.asarray(start_yaw, dtype=np.float64)
+        if yaw.ndim == 1:
+            yaw = np.broadcast_to(yaw, xy.shape[:2])
+        if yaw.shape != xy.shape[:2] or not np.all(np.isfinite(yaw)):
+            raise LayoutError(f"start_yaw must be finite with shape ({xy.shape[1]},) or {xy.shape[:2]}, got {np.shape(start_yaw)}")
+        return np.ascontiguousarray(xy), np.ascontiguousarray(yaw)
+
+    def _collision_sizes(self, radii, half):
+        m = self.num_movers
+        if radii is not None:
+            r = np.asarray(radii, dtype=np.float64).reshape(-1)
+            if r.shape != (m,) or not np.all(np.isfinite(r)) or np.any(r <= 0):
+                raise ValueError(f"collision_radii must be {m} positive finite numbers, got {radii!r}")
+        if half is not None:
+            h = np.asarray(half, dtype=np.float64)
+            if h.shape != (m, 2) or not np.all(np.isfinite(h)) or np.any(h <= 0):
+                raise ValueError(f"collision_half_sizes must have shape ({m}, 2) with positive entries, got shape {h.shape}")
+        self._radii_np = np.full(m, self.mover.collision_radius) if radii is None else r
+        self._half_np = np.tile(np.asarray(self.mover.collision_half_size), (m, 1)) if half is None else h
+        return self._radii_np, self._half_np
+
+    def _build_model(self, dt, v_max, a_max, j_max, gravity, k_lin, k_rot, hold, stop, radii, half) -> Model:
+        m, dev = self.num_movers, self.device
+        lim = Limits()
+        lim.dt, lim.v_max, lim.a_max, lim.j_max = float(dt), float(v_max), float(a_max), float(j_max)
+        lim.jerk_mode = 1 if self.control == "jerk" else 0
+        lim.gravity = float(gravity)
+        imp = Impedance()
+        imp.k_lin = wp.vec3(*_vec(k_lin, 3, "stiffness_lin"))
+        imp.k_rot = wp.vec3(*_vec(k_rot, 3, "stiffness_rot"))
+        imp.mask_lin = wp.vec3(*hold[:3])
+        imp.mask_rot = wp.vec3(*hold[3:])
+        col = Collision()
+        col.shape = SHAPE_CIRCLE if self.mover.collision_shape == "circle" else SHAPE_BOX
+        col.margin = float(self.mover.margin)
+        col.wall_margin = float(self.mover.wall_margin)
+        col.tile_size = float(self.layout.tile.size)
+        col.stop_on_collision = 1 if stop else 0
+        # Grid cells must span the largest interaction distance so that a 3x3 neighbourhood finds every pair.
+        if col.shape == SHAPE_CIRCLE:
+            reach = float(np.max(radii)) + col.margin
+        else:
+            reach = float(np.max(np.hypot(half[:, 0] + col.margin, half[:, 1] + col.margin)))
+        grid = Grid()
+        grid.cell_size = max(2.0 * reach, 1e-3)
+        ext = self.layout.extent
+        grid.ncx = max(1, int(np.ceil(ext[0] / grid.cell_size)))
+        grid.ncy = max(1, int(np.ceil(ext[1] / grid.cell_size)))
+        bodies = np.zeros(m, dtype=Body.numpy_dtype())
+        bodies["mass"] = self.mover.mass
+        bodies["inertia"] = np.asarray(self.mover.inertia)
+        return Model(
+            num_worlds=self.num_worlds,
+            num_movers=m,
+            device=dev,
+            limits=lim,
+            impedance=imp,
+            collision=col,
+            grid=grid,
+            tiles=wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=dev),
+            body=wp.array(bodies, dtype=Body, device=dev),
+            radius=wp.array(radii.astype(np.float32), dtype=float, device=dev),
+            half_size=wp.array(half.astype(np.float32), dtype=wp.vec2, device=dev),
+            hover_z=self.mover.hover_z,
+        )
+
+    def _alloc_state(self, aux_dim: int) -> State:
+        if int(aux_dim) < 1:
+            raise ValueError(f"force_aux_dim must be >= 1, got {aux_dim!r}")
+        shape, dev = (self.num_worlds, self.num_movers), self.device
+
+        def z(dtype, s=shape):
+            return wp.zeros(s, dtype=dtype, device=dev)
+
+        st = State(
+            pos=z(wp.vec3), quat=z(wp.quat), vel=z(wp.vec3), omega=z(wp.vec3), acc=z(wp.vec2), cmd=z(wp.vec2),
+            target_pos=z(wp.vec3), target_quat=z(wp.quat), wall=z(wp.int32), flags=z(wp.int32),
+            flags_any=z(wp.int32), partner=z(wp.int32), world_pairs=z(wp.int32, self.num_worlds),
+            world_walls=z(wp.int32, self.num_worlds), halted=z(wp.int32, self.num_worlds),
+            cycles=z(wp.int32, self.num_worlds), force_aux=z(float, (*shape, int(aux_dim))),
+        )
+        if not self._fused:
+            g = self.model.grid
+            self._cell_head = wp.zeros(self.num_worlds * g.ncx * g.ncy, dtype=wp.int32, device=dev)
+            self._next_in_cell = z(wp.int32)
+        return st
+
+    # ------------------------------------------------------------------ torch views
+    def _t(self, arr):
+        return wp.to_torch(arr)
+
+    @property
+    def torch_device(self) -> torch.device:
+        return torch.device("cuda", self.device.ordinal) if self.device.is_cuda else torch.device("cpu")
+
+    pos = property(lambda self: self._t(self.state.pos), doc="[W, M, 3] mover centres (m)")
+    quat = property(lambda self: self._t(self.state.quat), doc="[W, M, 4] orientations (x, y, z, w)")
+    vel = property(lambda self: self._t(self.state.vel), doc="[W, M, 3] linear velocities (m/s)")
+    omega = property(lambda self: self._t(self.state.omega), doc="[W, M, 3] angular velocities, world frame (rad/s)")
+    acc = property(lambda self: self._t(self.state.acc), doc="[W, M, 2] x/y accelerations applied last cycle")
+    cmd = property(lambda self: self._t(self.state.cmd), doc="[W, M, 2] current command buffer")
+    flags = property(lambda self: self._t(self.state.flags), doc="[W, M] collision bits of the last cycle")
+    flags_any = property(lambda self: self._t(self.state.flags_any), doc="[W, M] collision bits over the last step")
+    partner = property(lambda self: self._t(self.state.partner), doc="[W, M] lowest colliding mover index, -1 if none")
+    world_pairs = property(lambda self: self._t(self.state.world_pairs), doc="[W] colliding pairs, last cycle")
+    world_walls = property(lambda self: self._t(self.state.world_walls), doc="[W] movers off the tiles, last cycle")
+    halted = property(lambda self: self._t(self.state.halted), doc="[W] 1 where the world collided during the step")
+    cycles = property(lambda self: self._t(self.state.cycles), doc="[W] cycles integrated during the last step")
+    force_aux = property(lambda self: self._t(self.state.force_aux), doc="[W, M, K] free inputs of the force model")
+
+    @property
+    def yaw(self) -> torch.Tensor:
+        """[W, M] heading of each mover (rad)."""
+        q = self.quat
+        x, y, z, w = q.unbind(-1)
+        return torch.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+    @property
+    def radii(self) -> torch.Tensor:
+        return self._t(self.model.radius)
+
+    @property
+    def half_sizes(self) -> torch.Tensor:
+        return self._t(self.model.half_size)
+
+    # ------------------------------------------------------------------ inputs
+    def _check_tensor(self, name: str, value, shape: tuple[int, ...]) -> torch.Tensor:
+        if not isinstance(value, torch.Tensor):
+            value = torch.as_tensor(np.asarray(value, dtype=np.float32))
+        if not value.is_floating_point():
+            raise TypeError(f"{name} must be a floating point tensor, got dtype {value.dtype}")
+        if value.device != self.torch_device:
+            raise ValueError(f"{name} is on device {value.device}, but the simulator runs on {self.torch_device}")
+        if tuple(value.shape) != shape:
+            raise ValueError(f"{name} must have shape {shape}, got {tuple(value.shape)}")
+        if self.check_inputs and not bool(torch.isfinite(value).all()):
+            bad = torch.nonzero(~torch.isfinite(value))[0].tolist()
+            raise ValueError(f"{name} contains a non-finite value at index {bad}: {value[tuple(bad)].item()}")
+        return value
+
+    def set_command(self, cmd) -> None:
+        """Write x/y commands ``[W, M, 2]`` (accelerations or jerks); held for the following cycles."""
+        value = self._check_tensor("command", cmd, (self.num_worlds, self.num_movers, 2))
+        self.cmd.copy_(value)
+
+    def set_targets(self, yaw=None, z=None) -> None:
+        """Set the impedance targets: heading ``[W, M]`` (rad) and/or hover height ``[W, M]`` (m)."""
+        shape = (self.num_worlds, self.num_movers)
+        tgt_pos = self._t(self.state.target_pos)
+        if z is not None:
+            tgt_pos[..., 2].copy_(self._check_tensor("z target", z, shape))
+        if yaw is not None:
+            yaw = self._check_tensor("yaw target", yaw, shape)
+            q = self._t(self.state.target_quat)
+            q.zero_()
+            q[..., 2].copy_(torch.sin(0.5 * yaw))
+            q[..., 3].copy_(torch.cos(0.5 * yaw))
+
+    def set_start_poses(self, start_xy, start_yaw=None, validate: bool = False) -> None:
+        """Replace the start poses used by :meth:`reset`: ``(M, 2)`` or ``(W, M, 2)`` positions, yaw likewise."""
+        xy = np.asarray(start_xy.cpu() if isinstance(start_xy, torch.Tensor) else start_xy, dtype=np.float64)
+        if start_yaw is not None and isinstance(start_yaw, torch.Tensor):
+            start_yaw = start_yaw.cpu().numpy()
+        xy, yaw = self._start_arrays(self.num_movers, xy, start_yaw)
+        if validate:
+            for w in range(self.num_worlds):
+                validate_starts(self.layout, self.mover, xy[w], yaw[w], self._radii_np, self._half_np)
+        pos = np.concatenate([xy, np.full((*xy.shape[:2], 1), self.model.hover_z)], axis=-1)
+        quat = np.zeros((*xy.shape[:2], 4))
+        quat[..., 2] = np.sin(0.5 * yaw)
+        quat[..., 3] = np.cos(0.5 * yaw)
+        self._init_pos.assign(pos.astype(np.float32))
+        self._init_quat.assign(quat.astype(np.float32))
+
+    @property
+    def start_pos(self) -> torch.Tensor:
+        """[W, M, 3] start positions used by reset (write into it on the device to change starts without a sync)."""
+        return self._t(self._init_pos)
+
+    @property
+    def start_quat(self) -> torch.Tensor:
+        return self._t(self._init_quat)
+
+    # ------------------------------------------------------------------ stepping
+    def reset(self, mask=None) -> None:
+        """Reset the worlds where ``mask`` ([W] bool/int tensor) is true, or all worlds; others are untouched."""
+        if mask is None:
+            self._t(self._reset_mask).fill_(1)
+        else:
+            if not isinstance(mask, torch.Tensor):
+                mask = torch.as_tensor(np.asarray(mask))
+            if mask.shape != (self.num_worlds,):
+                raise ValueError(f"reset mask must have shape ({self.num_worlds},), got {tuple(mask.shape)}")
+            if mask.dtype not in (torch.bool, torch.int32, torch.int64, torch.uint8):
+                raise TypeError(f"reset mask must be bool or integer, got {mask.dtype}")
+            if mask.device != self.torch_device:
+                raise ValueError(f"reset mask is on {mask.device}, but the simulator runs on {self.torch_device}")
+            self._t(self._reset_mask).copy_(mask.to(torch.int32))
+        s = self.state
+        wp.launch(
+            kstep.reset_worlds, dim=(self.num_worlds, self.num_movers), device=self.device,
+            inputs=[self._reset_mask, self._init_pos, self._init_quat, s.pos, s.quat, s.vel, s.omega, s.acc, s.cmd,
+                    s.target_pos, s.target_quat, s.flags, s.flags_any, s.partner, s.wall],
+        )
+
+    def add_cycle_hook(self, hook: Callable[["Simulator"], None]) -> None:
+        """Run ``hook(sim)`` after every cycle, inside the step graph. It must only launch device work."""
+        self._hooks.append(hook)
+        self._fused = False
+        if not hasattr(self, "_cell_head"):
+            g = self.model.grid
+            self._cell_head = wp.zeros(self.num_worlds * g.ncx * g.ncy, dtype=wp.int32, device=self.device)
+            self._next_in_cell = wp.zeros((self.num_worlds, self.num_movers), dtype=wp.int32, device=self.device)
+        self._graphs.clear()
+
+    def step(self, num_cycles: int = 1, cmd=None) -> None:
+        """Advance every world ``num_cycles`` control cycles (optionally setting the command first)."""
+        if int(num_cycles) < 1:
+            raise ValueError(f"num_cycles must be >= 1, got {num_cycles!r}")
+        if cmd is not None:
+            self.set_command(cmd)
+        n = int(num_cycles)
+        if not self._use_graph:
+            self._launch_step(n)
+            return
+        graph = self._graphs.get(n)
+        if graph is None:
+            # Load modules before capture: compiling inside a capture is not allowed.
+            self._launch_step(n)  # this warm-up step is real: it advances the state once
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                self._launch_step(n)
+            self._graphs[n] = capture.graph
+            return
+        wp.capture_launch(graph)
+
+    def _launch_step(self, n: int) -> None:
+        m, s, dev = self.model, self.state, self.device
+        W, M = self.num_worlds, self.num_movers
+        wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
+        if self._fused:
+            wp.launch(
+                self._fused_kernel, dim=W, device=dev,
+                inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd,
+                        s.target_pos, s.target_quat, s.force_aux, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall,
+                        s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles],
+            )
+            return
+        for _ in range(n):
+            self._launch_cycle()
+            for hook in self._hooks:
+                hook(self)
+
+    def _launch_cycle(self) -> None:
+        m, s, dev = self.model, self.state, self.device
+        W, M = self.num_worlds, self.num_movers
+        wp.launch(
+            self._advance_kernel, dim=(W, M), device=dev,
+            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, s.target_pos,
+                    s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall, s.cycles],
+        )
+        wp.launch(kcol.clear_world_counters, dim=W, inputs=[s.world_pairs, s.world_walls], device=dev)
+        outputs = [s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted]
+        if M <= 32:
+            wp.launch(kcol.detect_collisions_brute, dim=(W, M), device=dev,
+                      inputs=[m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall, *outputs])
+            return
+        wp.launch(kcol.clear_cells, dim=self._cell_head.shape[0], inputs=[self._cell_head], device=dev)
+        wp.launch(kcol.bin_movers, dim=(W, M), inputs=[m.grid, s.pos, self._cell_head, self._next_in_cell], device=dev)
+        wp.launch(
+            kcol.detect_collisions_grid, dim=(W, M), device=dev,
+            inputs=[m.collision, m.grid, m.radius, m.half_size, s.pos, s.quat, s.wall, self._cell_head,
+                    self._next_in_cell, *outputs],
+        )

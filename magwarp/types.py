@@ -1,0 +1,125 @@
+"""Typed containers: :class:`Model` (static, per-mover parameters broadcast over worlds) and :class:`State` (batched
+structure-of-arrays, shape ``(num_worlds, num_movers)`` per field), plus the small Warp structs kernels take.
+
+Every field is a Warp array on the simulator's device; torch sees them zero-copy through ``wp.to_torch``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import warp as wp
+
+SHAPE_CIRCLE = 0
+SHAPE_BOX = 1
+
+# Bits of the per-mover collision flags.
+COLLIDE_MOVER = 1
+COLLIDE_WALL = 2
+
+
+@wp.struct
+class Limits:
+    """x/y motion limits and command mode (MagBotSim: 2 m/s, 10 m/s^2, 100 m/s^3)."""
+
+    dt: float
+    v_max: float
+    a_max: float
+    j_max: float
+    jerk_mode: int  # 0: commands are accelerations, 1: commands are jerks
+    gravity: float  # magnitude of gravity along -z (9.81)
+
+
+@wp.struct
+class Impedance:
+    """Impedance gains for the held axes: the law is ``K * error - D * velocity`` with ``D = 2 sqrt(K M)``."""
+
+    k_lin: wp.vec3
+    k_rot: wp.vec3
+    mask_lin: wp.vec3  # 1 for axes the controller holds (default z only)
+    mask_rot: wp.vec3  # default roll, pitch, yaw
+
+
+@wp.struct
+class Body:
+    """Rigid-body parameters of one mover."""
+
+    mass: float
+    inertia: wp.vec3  # principal moments in the body frame
+
+
+@wp.struct
+class Pose:
+    """Kinematic state of one mover (world frame velocities)."""
+
+    pos: wp.vec3
+    quat: wp.quat
+    vel: wp.vec3
+    omega: wp.vec3
+
+
+@wp.struct
+class Wrench:
+    force: wp.vec3
+    torque: wp.vec3
+
+
+@wp.struct
+class Collision:
+    """Collision-check parameters shared by all worlds."""
+
+    shape: int  # SHAPE_CIRCLE or SHAPE_BOX
+    margin: float  # added to every collision shape for mover-mover checks
+    wall_margin: float  # added to the footprint for wall checks
+    tile_size: float
+    stop_on_collision: int  # 1: a world stops integrating for the rest of the step after its first collision
+
+
+@wp.struct
+class Grid:
+    """Uniform binning grid for mover-mover broad phase, one block of cells per world."""
+
+    cell_size: float
+    ncx: int
+    ncy: int
+
+
+@dataclass
+class Model:
+    """Static parameters. Per-mover arrays have length ``num_movers`` and are shared by all worlds."""
+
+    num_worlds: int
+    num_movers: int
+    device: wp.context.Device
+    limits: Limits
+    impedance: Impedance
+    collision: Collision
+    grid: Grid
+    tiles: wp.array2d  # int32 (nx, ny), 1 = tile present
+    body: wp.array  # Body per mover
+    radius: wp.array  # float32 per mover, circle collision radius
+    half_size: wp.array  # vec2 per mover, box collision half extents
+    hover_z: float
+
+
+@dataclass
+class State:
+    """Batched simulation state; all fields have shape ``(num_worlds, num_movers)`` unless noted."""
+
+    pos: wp.array2d  # vec3, mover centre (m)
+    quat: wp.array2d  # quat (x, y, z, w)
+    vel: wp.array2d  # vec3, linear velocity (m/s)
+    omega: wp.array2d  # vec3, angular velocity in the world frame (rad/s)
+    acc: wp.array2d  # vec2, x/y acceleration applied in the last cycle (m/s^2)
+    cmd: wp.array2d  # vec2, command (acceleration or jerk, by Limits.jerk_mode)
+    target_pos: wp.array2d  # vec3, impedance target position (only held axes matter)
+    target_quat: wp.array2d  # quat, impedance target orientation (yaw target)
+    wall: wp.array2d  # int32, 1 when the footprint left the tiles in the last cycle
+    flags: wp.array2d  # int32, COLLIDE_* bits of the last cycle
+    flags_any: wp.array2d  # int32, COLLIDE_* bits OR-ed over the cycles of the current step
+    partner: wp.array2d  # int32, lowest index of a mover colliding with this one in the last cycle, -1 if none
+    world_pairs: wp.array  # int32 (num_worlds,), colliding pairs in the last cycle
+    world_walls: wp.array  # int32 (num_worlds,), movers off the tiles in the last cycle
+    halted: wp.array  # int32 (num_worlds,), 1 once the world collided in the current step (stop_on_collision)
+    cycles: wp.array  # int32 (num_worlds,), cycles integrated in the current step
+    force_aux: wp.array3d  # float32 (num_worlds, num_movers, K), free inputs for custom force models
