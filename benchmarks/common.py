@@ -1,0 +1,224 @@
+"""Shared plumbing for the benchmark scripts: machine info, timing, tables, JSON and the RESULTS.md header.
+
+Everything here is dependency-light on purpose (stdlib + numpy): the scripts import it before they know whether
+warp, torch or magbotsim are installed, and the header of every result must say which versions produced it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import importlib.metadata as _md
+import json
+import math
+import os
+import platform
+import shlex
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+# Distribution names whose versions every result records (import name differs for some: warp-lang -> warp).
+VERSIONED_PACKAGES = ("warp-lang", "torch", "mujoco", "mujoco-warp", "magbotsim", "numpy", "gymnasium")
+
+
+def package_version(dist: str) -> str | None:
+    """Installed version of a distribution, or None; reads metadata so nothing heavy (warp, torch) gets imported."""
+    try:
+        return _md.version(dist)
+    except _md.PackageNotFoundError:
+        return None
+
+
+def cpu_name() -> str:
+    """CPU model from /proc/cpuinfo (Linux); falls back to platform.processor() elsewhere."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown CPU"
+
+
+def gpu_name(device: str) -> str:
+    """Name of a CUDA device ("cuda", "cuda:1"): torch first (cheap when imported anyway), then warp."""
+    index = int(device.split(":", 1)[1]) if ":" in device else 0
+    try:
+        import torch
+
+        if torch.cuda.is_available():
+            return torch.cuda.get_device_name(index)
+    except Exception:  # torch missing or built without CUDA: try warp
+        pass
+    try:
+        import warp as wp
+
+        return wp.get_device(f"cuda:{index}").name
+    except Exception:
+        return f"unknown CUDA device ({device})"
+
+
+def git_commit(repo: str | os.PathLike | None = None) -> str | None:
+    """Short commit of the checkout that ran the benchmark, with '+dirty' when it has local changes."""
+    repo = Path(repo) if repo else Path(__file__).resolve().parent.parent
+    try:
+        sha = subprocess.run(["git", "-C", str(repo), "rev-parse", "--short", "HEAD"],
+                             capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+        return sha + ("+dirty" if dirty else "")
+    except Exception:
+        return None
+
+
+def machine_info(device: str = "cpu") -> dict[str, Any]:
+    """Everything a result needs to be reproduced: device name, date (UTC), versions, command line.
+
+    :param device: "cpu" or a CUDA device string; decides whether the CPU model or the GPU name is recorded.
+    """
+    on_gpu = str(device).startswith("cuda")
+    versions = {"python": platform.python_version()}
+    versions.update({dist: package_version(dist) for dist in VERSIONED_PACKAGES})
+    return {
+        "device": str(device),
+        "device_name": gpu_name(str(device)) if on_gpu else cpu_name(),
+        "cpu": cpu_name(),
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "date_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
+        "versions": versions,
+        "argv": list(sys.argv),
+        "command": command_line(),
+        "commit": git_commit(),
+    }
+
+
+def command_line(argv: Sequence[str] | None = None) -> str:
+    """The exact command as a copy-pastable shell line (python + sys.argv)."""
+    argv = list(sys.argv if argv is None else argv)
+    return shlex.join(["python", *argv])
+
+
+def _to_jsonable(obj: Any) -> Any:
+    """json.dump fallback for numpy scalars/arrays and paths, which benchmark rows often contain."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if hasattr(obj, "item"):
+        return obj.item()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def write_json(path: str | os.PathLike, rows: Any) -> Path:
+    """Write rows (usually a list of dicts) as indented JSON, creating parent folders; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump(rows, f, indent=2, default=_to_jsonable)
+        f.write("\n")
+    return path
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    """Counterpart of write_json (for tests and for scripts that merge earlier runs)."""
+    with open(path, encoding="utf-8") as f:
+        return json.load(f)
+
+
+def format_value(value: Any) -> str:
+    """Compact cell text: floats get 4 significant digits (no exponent for everyday magnitudes), None is '-'."""
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return str(value)
+    if isinstance(value, float) or type(value).__name__.startswith("float"):
+        value = float(value)
+        if math.isnan(value) or math.isinf(value):
+            return str(value)
+        if value != 0 and (abs(value) >= 1e6 or abs(value) < 1e-3):
+            return f"{value:.3e}"
+        return f"{value:.4g}" if abs(value) < 1e4 else f"{value:.0f}"
+    return str(value)
+
+
+def format_table(rows: Iterable[dict[str, Any]], columns: Sequence[str | tuple[str, str]]) -> str:
+    """Aligned plain-text table. Columns are keys or (key, header) pairs; numbers right-, text left-aligned."""
+    cols = [(c, c) if isinstance(c, str) else (c[0], c[1]) for c in columns]
+    rows = list(rows)
+    cells = [[format_value(r.get(key)) for key, _ in cols] for r in rows]
+    numeric = [all(isinstance(r.get(key), (int, float)) or r.get(key) is None or hasattr(r.get(key), "dtype")
+                   for r in rows) for key, _ in cols]
+    widths = [max([len(h)] + [len(row[i]) for row in cells]) for i, (_, h) in enumerate(cols)]
+
+    def line(values: Sequence[str]) -> str:
+        return "  ".join(v.rjust(w) if num else v.ljust(w) for v, w, num in zip(values, widths, numeric)).rstrip()
+
+    out = [line([h for _, h in cols]), "  ".join("-" * w for w in widths)]
+    out += [line(row) for row in cells]
+    return "\n".join(out)
+
+
+def print_table(rows: Iterable[dict[str, Any]], columns: Sequence[str | tuple[str, str]], file=None) -> str:
+    """Print format_table(rows, columns) and return the text (so scripts can also put it in RESULTS.md)."""
+    text = format_table(rows, columns)
+    print(text, file=file or sys.stdout, flush=True)
+    return text
+
+
+def time_samples(fn: Callable[[], Any], repeats: int, warmup: int = 0,
+                 sync: Callable[[], Any] | None = None) -> tuple[list[float], list[float]]:
+    """Per-call wall and process (CPU) times in ms of `repeats` calls of fn, after `warmup` untimed calls.
+
+    `sync` (e.g. ``wp.synchronize_device``) runs before the clock starts and inside the timed region after each
+    call, so asynchronous GPU work is charged to the call that launched it. Process time is recorded too because
+    on a shared CPU it is less disturbed by other users than wall time (the MagBotSim paper reports process time).
+    """
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
+    for _ in range(warmup):
+        fn()
+    if sync is not None:
+        sync()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn()
+        if sync is not None:
+            sync()
+        t1, c1 = time.perf_counter(), time.process_time()
+        wall.append((t1 - t0) * 1e3)
+        cpu.append((c1 - c0) * 1e3)
+    return wall, cpu
+
+
+def summarize_ms(samples: Sequence[float]) -> tuple[float, float, float]:
+    """(mean, population std, median) of timing samples in ms."""
+    return statistics.fmean(samples), statistics.pstdev(samples), statistics.median(samples)
+
+
+def time_call(fn: Callable[[], Any], repeats: int, warmup: int = 0,
+              sync: Callable[[], Any] | None = None) -> tuple[float, float, float]:
+    """Wall-clock (time.perf_counter) cost of one call of fn: (mean_ms, std_ms, median_ms). See time_samples."""
+    wall, _ = time_samples(fn, repeats, warmup, sync)
+    return summarize_ms(wall)
+
+
+def markdown_header(info: dict[str, Any]) -> str:
+    """Device/date/versions/command block that heads every section of benchmarks/RESULTS.md."""
+    versions = ", ".join(f"{name} {ver}" for name, ver in info.get("versions", {}).items() if ver)
+    lines = [
+        f"- **Device:** {info.get('device_name', '?')} (`{info.get('device', '?')}`"
+        + (f", {info['cpu_count']} CPU cores" if info.get("cpu_count") else "") + ")",
+        f"- **Date:** {info.get('date_utc', '?')}",
+        f"- **Versions:** {versions or '?'}",
+        f"- **Command:** `{info.get('command') or command_line(info.get('argv', []))}`",
+    ]
+    if info.get("commit"):
+        lines.append(f"- **Commit:** `{info['commit']}`")
+    return "\n".join(lines) + "\n"
