@@ -311,8 +311,9 @@ def env_steps_per_s(env_id: str, steps: int = 200, warmup: int = 5, seed: int = 
     Built with ``gymnasium.make`` (so the registered TimeLimit applies) and the passive env checker off (it only
     inspects the first calls). Actions are drawn before the clock starts.
 
-    :return: dict with steps_per_s (including resets), step_ms_mean/median (step calls only), resets, reset_ms_mean,
-        terminated/truncated counts, make_s (construction), ...
+    :return: dict with steps_per_s (wall clock, including resets), cpu_steps_per_s (process time), step_ms_mean/median
+        (step calls only), cycles_per_step (MuJoCo steps per env step: 40 unless a collision ends the step early),
+        resets, reset_ms_mean, terminated/truncated counts, make_s (construction), ...
     """
     import gymnasium as gym
 
@@ -336,18 +337,23 @@ def env_steps_per_s(env_id: str, steps: int = 200, warmup: int = 5, seed: int = 
             if term or trunc:
                 env.reset()
         env.reset()  # timed run starts from a fresh episode
-        start = time.perf_counter()
+        base = env.unwrapped
+        cycles = 0  # MuJoCo steps actually run: a step stops its 40-cycle loop early on a collision
+        cpu_start, start = time.process_time(), time.perf_counter()
         for a in actions[warmup:]:
+            sim_t0 = base.data.time
             t1 = time.perf_counter()
             _, _, term, trunc, _ = env.step(a)
             t2 = time.perf_counter()
             step_ms.append((t2 - t1) * 1e3)
+            cycles += round((base.data.time - sim_t0) / base.model.opt.timestep)
             if term or trunc:
                 counts["terminated"] += bool(term)
                 counts["truncated"] += bool(trunc and not term)
                 env.reset()
                 reset_ms.append((time.perf_counter() - t2) * 1e3)
         total_s = time.perf_counter() - start
+        cpu_s = time.process_time() - cpu_start
     env.close()
     return {
         "engine": "magbotsim",
@@ -356,6 +362,8 @@ def env_steps_per_s(env_id: str, steps: int = 200, warmup: int = 5, seed: int = 
         "num_envs": 1,
         "steps": steps,
         "steps_per_s": steps / total_s,
+        "cpu_steps_per_s": steps / cpu_s if cpu_s > 0 else None,
+        "cycles_per_step": cycles / steps,
         "step_ms_mean": float(np.mean(step_ms)),
         "step_ms_median": float(np.median(step_ms)),
         "resets": len(reset_ms),
@@ -366,3 +374,58 @@ def env_steps_per_s(env_id: str, steps: int = 200, warmup: int = 5, seed: int = 
         "make_s": make_s,
         "magbotsim": magbotsim_version(),
     }
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Convenience: the whole paper sweep, and a small CLI for running the reference on its own
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def paper_scaling_rows(configs=PAPER_SCALING_CONFIGS, shapes=("circle", "box"), controllers=(False, True),
+                       steps: int = 100, max_movers: int | None = None, verbose: bool = False) -> list[dict[str, Any]]:
+    """scaling_step_ms over the paper's (movers, tiles) configs x shapes x variants; max_movers trims the sweep."""
+    rows = []
+    for movers, tiles in configs:
+        if max_movers is not None and movers > max_movers:
+            continue
+        for shape in shapes:
+            for ctrl in controllers:
+                rows.append(scaling_step_ms(movers, tiles, shape, steps=steps, controllers=ctrl))
+                if verbose:
+                    r = rows[-1]
+                    print(f"  {r['engine']:22s} {movers:5d} movers {r['tiles']:>6s} {shape:6s} "
+                          f"{r['ms_per_step']:9.3f} ms (std {r['std_ms']:.3f}, built in {r['construct_s']:.2f} s)",
+                          flush=True)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    """python benchmarks/magbotsim_ref.py [--max-movers N] [--steps S] [--env-steps E] [--json PATH]"""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("--max-movers", type=int, default=50, help="largest paper config to run (1000 = all)")
+    parser.add_argument("--steps", type=int, default=100, help="timed simulation steps per config (paper: 100)")
+    parser.add_argument("--env-steps", type=int, default=100, help="timed env.step() calls per RL env (0: skip)")
+    parser.add_argument("--json", help="write all rows and the machine info to this file")
+    args = parser.parse_args(argv)
+    if not magbotsim_available():
+        print("magbotsim is not installed: nothing to measure")
+        return 1
+    info = common.machine_info("cpu")
+    print(common.markdown_header(info))
+    rows = paper_scaling_rows(steps=args.steps, max_movers=args.max_movers, verbose=True)
+    common.print_table(rows, ["engine", "movers", "tiles", "shape", ("ms_per_step", "ms/step"), ("std_ms", "std"),
+                              ("cpu_mean_ms", "cpu ms"), ("construct_s", "build s"), "collision_steps"])
+    env_rows = [env_steps_per_s(e, steps=args.env_steps) for e in RL_ENV_IDS] if args.env_steps > 0 else []
+    if env_rows:
+        print()
+        common.print_table(env_rows, ["env_id", "steps", "steps_per_s", "cpu_steps_per_s", "step_ms_median",
+                                           "cycles_per_step", "resets", "reset_ms_mean"])
+    if args.json:
+        common.write_json(args.json, {"machine": info, "scaling": rows, "env_throughput": env_rows})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -157,6 +157,7 @@ def test_env_steps_per_s_b0(ref):
     assert row["steps"] == 3 and row["steps_per_s"] > 0 and row["step_ms_mean"] > 0
     assert row["resets"] == row["terminated"] + row["truncated"] >= 0
     assert row["resets_timed"] is True
+    assert 0 < row["cycles_per_step"] <= 40  # 40 cycles per env step unless a collision cuts it short
 
 
 def test_rl_env_kwargs_fill_required_args(ref):
