@@ -1,0 +1,354 @@
+"""Batched mujoco-warp backend: many worlds of one MJCF model, movers driven by :mod:`magwarp.physics.control`.
+
+One call of :meth:`MjwBackend.step` runs ``num_cycles`` control cycles (control kernel -> ``mujoco_warp.step`` ->
+per-cycle hooks) for all worlds. The whole sequence is recorded once as a Warp graph and replayed, on CUDA and on
+CPU alike (Warp 1.19 records CPU graphs; mujoco-warp's step captures on CPU). Inputs are written into fixed buffers
+before each replay, so no allocation or host<->device sync happens inside a step. Resets by mask are a second graph
+(``mujoco_warp.reset_data`` restricted to the mask, then a copy of per-world initial ``qpos``/``qvel``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import torch
+import warp as wp
+
+from magwarp.physics.control import copy_rows_masked_kernel, mover_control_kernel, zero_vec2_masked_kernel
+
+__all__ = ["ControlParams", "MjwBackend", "PhysicsInputError"]
+
+
+class PhysicsInputError(ValueError):
+    """An input (action, mask, state, option) that the backend cannot use."""
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    """Mover control limits and impedance gains (MagBotSim's RL-env defaults).
+
+    ``jerk``: commands are jerks (else accelerations). Stiffness: translational (x, y, z) — only z is used, x/y are
+    commanded — and rotational (roll, pitch, yaw).
+    """
+
+    v_max: float = 2.0
+    a_max: float = 10.0
+    j_max: float = 100.0
+    jerk: bool = False
+    k_lin: tuple[float, float, float] = (1.0, 1.0, 100.0)
+    k_rot: tuple[float, float, float] = (0.1, 0.1, 1.0)
+    num_cycles: int = 40
+
+    def __post_init__(self):
+        for name in ("v_max", "a_max", "j_max"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v <= 0:
+                raise PhysicsInputError(f"ControlParams.{name} must be positive and finite, got {v!r}")
+        for name in ("k_lin", "k_rot"):
+            v = tuple(float(x) for x in getattr(self, name))
+            if len(v) != 3 or not all(np.isfinite(x) and x >= 0 for x in v):
+                raise PhysicsInputError(f"ControlParams.{name} must be three non-negative numbers, got {v!r}")
+            object.__setattr__(self, name, v)
+        if int(self.num_cycles) != self.num_cycles or self.num_cycles < 1:
+            raise PhysicsInputError(f"ControlParams.num_cycles must be a positive integer, got {self.num_cycles!r}")
+
+
+def _free_joint_addrs(mjm: mujoco.MjModel, body_names: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(body ids, qpos addresses, dof addresses) of the free joint of each named body."""
+    ids, qadr, dadr = [], [], []
+    for name in body_names:
+        bid = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, name)
+        if bid < 0:
+            raise PhysicsInputError(f"body {name!r} not found in the model")
+        jnt = mjm.body_jntadr[bid]
+        if mjm.body_jntnum[bid] < 1 or mjm.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_FREE:
+            raise PhysicsInputError(f"body {name!r} has no free joint as its first joint")
+        ids.append(bid)
+        qadr.append(mjm.jnt_qposadr[jnt])
+        dadr.append(mjm.jnt_dofadr[jnt])
+    return np.array(ids, dtype=np.int32), np.array(qadr, dtype=np.int32), np.array(dadr, dtype=np.int32)
+
+
+def _strided_view(t: torch.Tensor, starts: np.ndarray, width: int) -> torch.Tensor:
+    """``t[:, starts[k]:starts[k]+width]`` for all k as one ``[W, K, width]`` view (starts evenly spaced), else a gather."""
+    if len(starts) == 0:
+        return t[:, :0].reshape(t.shape[0], 0, width)
+    step = int(starts[1] - starts[0]) if len(starts) > 1 else width
+    if len(starts) == 1 or (step > 0 and np.all(np.diff(starts) == step)):
+        return t.as_strided((t.shape[0], len(starts), width), (t.stride(0), step * t.stride(1), t.stride(1)), int(starts[0]))
+    raise PhysicsInputError("free-joint addresses are not evenly spaced; use qpos/qvel with mover_qadr/mover_dadr instead")
+
+
+class MjwBackend:
+    """Steps ``num_worlds`` copies of an MJCF model with mujoco-warp; movers named ``mover_{k}`` are controlled.
+
+    :param xml: MJCF string (e.g. from :func:`magwarp.mjcf.generate_mjcf`) or a compiled ``mujoco.MjModel``.
+    :param num_worlds: number of parallel worlds.
+    :param control: limits, gains and cycles per step.
+    :param hover_z: target height of each mover's centre; default: the model's initial height of each mover.
+    :param nconmax/njmax: contacts and constraint rows per world (mujoco-warp's per-world limits).
+    :param device: Warp device (``"cpu"``, ``"cuda:0"``, ...); default Warp's default device.
+    :param use_graph: record step/reset as Warp graphs (default); ``False`` runs kernels eagerly (debugging).
+    """
+
+    def __init__(
+        self,
+        xml: str | mujoco.MjModel,
+        num_worlds: int,
+        *,
+        control: ControlParams | None = None,
+        hover_z: float | np.ndarray | None = None,
+        nconmax: int = 16,
+        njmax: int = 64,
+        device: str | wp.context.Device | None = None,
+        use_graph: bool = True,
+    ):
+        import mujoco_warp as mjw
+
+        self._mjw = mjw
+        if int(num_worlds) != num_worlds or num_worlds < 1:
+            raise PhysicsInputError(f"num_worlds must be a positive integer, got {num_worlds!r}")
+        self.num_worlds = int(num_worlds)
+        self.control = control or ControlParams()
+        if not isinstance(self.control, ControlParams):
+            raise PhysicsInputError(f"control must be a ControlParams, got {type(self.control).__name__}")
+        self.device = wp.get_device(device)
+        self.use_graph = bool(use_graph)
+
+        self.mjm = xml if isinstance(xml, mujoco.MjModel) else mujoco.MjModel.from_xml_string(xml)
+        mjm = self.mjm
+        self.dt = float(mjm.opt.timestep)
+        mover_names = []
+        while mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"mover_{len(mover_names)}") >= 0:
+            mover_names.append(f"mover_{len(mover_names)}")
+        self.num_movers = len(mover_names)
+        object_names = []
+        while mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"object_{len(object_names)}") >= 0:
+            object_names.append(f"object_{len(object_names)}")
+        self.num_objects = len(object_names)
+        self.mover_body, self.mover_qadr, self.mover_dadr = _free_joint_addrs(mjm, mover_names)
+        self.object_body, self.object_qadr, self.object_dadr = _free_joint_addrs(mjm, object_names)
+
+        mjd = mujoco.MjData(mjm)
+        mujoco.mj_forward(mjm, mjd)
+        # Mass of everything riding on the mover (its subtree); principal inertia of the mover body itself.
+        mass = mjm.body_subtreemass[self.mover_body].astype(np.float64)
+        inertia = mjm.body_inertia[self.mover_body].astype(np.float64)
+        if hover_z is None:
+            hz = mjd.qpos[self.mover_qadr + 2].copy() if self.num_movers else np.zeros(0)
+        else:
+            hz = np.broadcast_to(np.asarray(hover_z, dtype=np.float64), (self.num_movers,)).copy()
+            if not np.all(np.isfinite(hz)):
+                raise PhysicsInputError(f"hover_z must be finite, got {hover_z!r}")
+        self.hover_z = hz
+
+        with wp.ScopedDevice(self.device):
+            self.model = mjw.put_model(mjm)
+            self.data = mjw.put_data(mjm, mjd, nworld=self.num_worlds, nconmax=int(nconmax), njmax=int(njmax))
+            W, M = self.num_worlds, self.num_movers
+            self._qadr = wp.array(self.mover_qadr, dtype=int)
+            self._dadr = wp.array(self.mover_dadr, dtype=int)
+            self._mass = wp.array(mass, dtype=float)
+            self._inertia = wp.array(inertia, dtype=wp.vec3)
+            self._hover_z = wp.array(hz, dtype=float)
+            self.cmd = wp.zeros((W, max(M, 1)), dtype=wp.vec2)
+            self.acc = wp.zeros((W, max(M, 1)), dtype=wp.vec2)
+            self.reset_mask = wp.zeros(W, dtype=bool)
+            self.init_qpos = wp.array(np.tile(mjd.qpos, (W, 1)), dtype=float)
+            self.init_qvel = wp.array(np.tile(mjd.qvel, (W, 1)), dtype=float)
+            self.init_mocap_pos = wp.array(np.tile(mjd.mocap_pos, (W, 1, 1)), dtype=wp.vec3) if mjm.nmocap else None
+            self.init_mocap_quat = wp.array(np.tile(mjd.mocap_quat, (W, 1, 1)), dtype=wp.quat) if mjm.nmocap else None
+
+        self._cycle_hooks: list[Callable[[], None]] = []
+        self._step_graph = None
+        self._reset_graph = None
+        self._warm: set[str] = set()
+        self._make_torch_views()
+
+    # ------------------------------------------------------------------ torch views
+    def _make_torch_views(self):
+        d = self.data
+        self.qpos_t = wp.to_torch(d.qpos)
+        self.qvel_t = wp.to_torch(d.qvel)
+        self.qacc_t = wp.to_torch(d.qacc)
+        self.cmd_t = wp.to_torch(self.cmd)  # [W, M, 2]
+        self.acc_t = wp.to_torch(self.acc)
+        self.reset_mask_t = wp.to_torch(self.reset_mask)
+        self.init_qpos_t = wp.to_torch(self.init_qpos)
+        self.init_qvel_t = wp.to_torch(self.init_qvel)
+        #: ``[W, M, 7]`` views of mover free-joint qpos (x, y, z, qw, qx, qy, qz) and ``[W, M, 6]`` qvel
+        #: (world linear velocity, body-frame angular velocity); same for objects.
+        self.mover_qpos = _strided_view(self.qpos_t, self.mover_qadr, 7)
+        self.mover_qvel = _strided_view(self.qvel_t, self.mover_dadr, 6)
+        self.mover_qacc = _strided_view(self.qacc_t, self.mover_dadr, 6)
+        self.object_qpos = _strided_view(self.qpos_t, self.object_qadr, 7)
+        self.object_qvel = _strided_view(self.qvel_t, self.object_dadr, 6)
+        self.init_mover_qpos = _strided_view(self.init_qpos_t, self.mover_qadr, 7)
+        self.init_mover_qvel = _strided_view(self.init_qvel_t, self.mover_dadr, 6)
+        self.init_object_qpos = _strided_view(self.init_qpos_t, self.object_qadr, 7)
+        self.init_object_qvel = _strided_view(self.init_qvel_t, self.object_dadr, 6)
+        if self.mjm.nmocap:
+            self.mocap_pos = wp.to_torch(self.data.mocap_pos)
+            self.mocap_quat = wp.to_torch(self.data.mocap_quat)
+            self.init_mocap_pos_t = wp.to_torch(self.init_mocap_pos)
+            self.init_mocap_quat_t = wp.to_torch(self.init_mocap_quat)
+
+    @property
+    def torch_device(self) -> torch.device:
+        return self.qpos_t.device
+
+    # ------------------------------------------------------------------ hooks
+    def add_cycle_hook(self, fn: Callable[[], None]) -> None:
+        """Register ``fn()`` (which launches Warp kernels) to run after every ``mujoco_warp.step`` inside the step graph.
+
+        Hooks are how per-cycle checks (contacts, collisions, corrective-movement counters) stay inside one graph.
+        Registering a hook drops the recorded graph; it is re-recorded at the next step.
+        """
+        self._cycle_hooks.append(fn)
+        self._step_graph = None
+
+    # ------------------------------------------------------------------ stepping
+    def _launch_cycles(self):
+        c = self.control
+        W, M = self.num_worlds, self.num_movers
+        for _ in range(c.num_cycles):
+            if M:
+                wp.launch(
+                    mover_control_kernel,
+                    dim=(W, M),
+                    inputs=[
+                        self._qadr, self._dadr, self._mass, self._inertia, self._hover_z,
+                        float(c.k_lin[2]), wp.vec3(*c.k_rot), self.dt, float(c.v_max), float(c.a_max), float(c.j_max),
+                        int(c.jerk), self.data.qpos, self.data.qvel, self.cmd, self.acc,
+                    ],
+                    outputs=[self.data.qfrc_applied],
+                    device=self.device,
+                )
+            self._mjw.step(self.model, self.data)
+            for hook in self._cycle_hooks:
+                hook()
+
+    def _launch_reset(self):
+        W = self.num_worlds
+        d = self.data
+        self._mjw.reset_data(self.model, d, reset=self.reset_mask)
+        wp.launch(copy_rows_masked_kernel, dim=(W, self.mjm.nq), inputs=[self.reset_mask, self.init_qpos], outputs=[d.qpos],
+                  device=self.device)
+        wp.launch(copy_rows_masked_kernel, dim=(W, self.mjm.nv), inputs=[self.reset_mask, self.init_qvel], outputs=[d.qvel],
+                  device=self.device)
+        if self.num_movers:
+            wp.launch(zero_vec2_masked_kernel, dim=(W, self.num_movers), inputs=[self.reset_mask], outputs=[self.acc],
+                      device=self.device)
+        if self.mjm.nmocap:
+            self._copy_mocap()
+
+    def _copy_mocap(self):
+        W, nm = self.num_worlds, self.mjm.nmocap
+        d = self.data
+        wp.launch(_copy_mocap_kernel, dim=(W, nm),
+                  inputs=[self.reset_mask, self.init_mocap_pos, self.init_mocap_quat],
+                  outputs=[d.mocap_pos, d.mocap_quat], device=self.device)
+
+    def _run(self, attr: str, launcher: Callable[[], None]):
+        with wp.ScopedDevice(self.device):
+            if not self.use_graph:
+                launcher()
+                return
+            graph = getattr(self, attr)
+            if graph is None:
+                if attr not in self._warm:
+                    # First call runs eagerly: it loads (compiles) exactly the kernels used, which recording cannot do
+                    # without loading every registered module. The next call records the graph.
+                    self._warm.add(attr)
+                    launcher()
+                    return
+                with wp.ScopedCapture(device=self.device, force_module_load=False) as cap:
+                    launcher()
+                graph = cap.graph
+                setattr(self, attr, graph)
+            wp.capture_launch(graph)
+
+    def _check_actions(self, actions) -> torch.Tensor:
+        W, M = self.num_worlds, self.num_movers
+        if isinstance(actions, wp.array):
+            actions = wp.to_torch(actions)
+        if isinstance(actions, np.ndarray):
+            raise PhysicsInputError(
+                f"actions must be a torch.Tensor on {self.torch_device}, got a numpy array (use torch.as_tensor(a, device=...))"
+            )
+        if not isinstance(actions, torch.Tensor):
+            raise PhysicsInputError(f"actions must be a torch.Tensor, got {type(actions).__name__}")
+        if not actions.is_floating_point():
+            raise PhysicsInputError(f"actions must be a floating-point tensor, got dtype {actions.dtype}")
+        if actions.device != self.torch_device:
+            raise PhysicsInputError(f"actions are on device {actions.device}, but the backend runs on {self.torch_device}")
+        if tuple(actions.shape) not in ((W, M, 2), (W, 2 * M)):
+            raise PhysicsInputError(f"actions must have shape ({W}, {M}, 2) or ({W}, {2 * M}), got {tuple(actions.shape)}")
+        return actions.reshape(W, M, 2)
+
+    def set_actions(self, actions, check_finite: bool = True) -> None:
+        """Write x/y commands (acceleration or jerk, per ``control.jerk``) for all worlds: shape ``[W, M, 2]`` or ``[W, 2M]``.
+
+        ``check_finite`` rejects NaN/inf with an error naming the first bad world and mover (costs one device sync).
+        """
+        a = self._check_actions(actions)
+        if check_finite:
+            bad = ~torch.isfinite(a)
+            if bool(bad.any()):
+                w, k, j = (int(v) for v in torch.nonzero(bad)[0])
+                raise PhysicsInputError(f"actions contain a non-finite value {float(a[w, k, j])} at world {w}, mover {k}, axis {j}")
+        if self.num_movers:
+            self.cmd_t.copy_(a)
+
+    def step(self, actions=None, check_finite: bool = True) -> None:
+        """Set ``actions`` (if given) and run ``control.num_cycles`` cycles in all worlds (one graph replay)."""
+        if actions is not None:
+            self.set_actions(actions, check_finite=check_finite)
+        self._run("_step_graph", self._launch_cycles)
+
+    def _check_mask(self, mask) -> torch.Tensor:
+        W = self.num_worlds
+        if not isinstance(mask, torch.Tensor):
+            raise PhysicsInputError(f"reset mask must be a torch.Tensor of shape ({W},), got {type(mask).__name__}")
+        if mask.dtype != torch.bool:
+            raise PhysicsInputError(f"reset mask must have dtype torch.bool, got {mask.dtype}")
+        if tuple(mask.shape) != (W,):
+            raise PhysicsInputError(f"reset mask must have shape ({W},), got {tuple(mask.shape)}")
+        if mask.device != self.torch_device:
+            raise PhysicsInputError(f"reset mask is on device {mask.device}, but the backend runs on {self.torch_device}")
+        return mask
+
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Reset the worlds where ``mask`` is True (all if None) to ``init_qpos``/``init_qvel`` (set them first).
+
+        Other worlds are untouched. No model rebuild: change ``init_*`` views (e.g. sampled start poses) and reset.
+        """
+        if mask is None:
+            self.reset_mask_t.fill_(True)
+        else:
+            self.reset_mask_t.copy_(self._check_mask(mask))
+        self._run("_reset_graph", self._launch_reset)
+
+    def forward(self) -> None:
+        """Recompute derived quantities (positions, contacts) from qpos/qvel without stepping (e.g. after a reset)."""
+        with wp.ScopedDevice(self.device):
+            self._mjw.forward(self.model, self.data)
+
+
+@wp.kernel
+def _copy_mocap_kernel(
+    # In:
+    mask: wp.array[bool],
+    src_pos: wp.array2d[wp.vec3],
+    src_quat: wp.array2d[wp.quat],
+    # Out:
+    dst_pos: wp.array2d[wp.vec3],
+    dst_quat: wp.array2d[wp.quat],
+):
+    w, k = wp.tid()
+    if mask[w]:
+        dst_pos[w, k] = src_pos[w, k]
+        dst_quat[w, k] = src_quat[w, k]

@@ -1,0 +1,145 @@
+"""Warp kernels that drive movers inside mujoco-warp: x/y motion commands plus the impedance hold, and masked resets.
+
+The control law per mover and control cycle (dt = model timestep) is
+
+- x/y: MagBotSim's ``_before_mujoco_step_callback`` + ``ensure_max_dyn_val``. Acceleration mode: the command is
+  norm-clipped to ``a_max`` and reduced where ``|v + dt a| >= v_max`` so the speed stays at ``v_max``. Jerk mode:
+  the command is norm-clipped to ``j_max``, integrated into the commanded acceleration (capped at ``a_max``) and then
+  speed-limited the same way. The generalized force is ``m a`` on the free joint's x/y dofs, exactly what
+  MagBotSim's ``gainprm=mass`` actuators apply (its jerk actuators are integrators with ``actearly``, i.e. our
+  ``acc`` state). The acceleration state is the *commanded* one (MagBotSim reads ``qacc``, which equals it unless
+  the mover is in contact; the commanded value keeps the limits independent of contact noise).
+- z, roll, pitch, yaw: impedance hold towards the hover height and level, zero-yaw attitude,
+  ``f_z = K_z (z_d - z) - D_z v_z`` and ``tau = K_r e - D_r w`` (world frame, ``e`` the rotation vector from the
+  current to the target orientation) with critical damping ``D = 2 sqrt(K m)`` (translation) and
+  ``D = 2 sqrt(K I)`` (rotation, principal inertia). The torque enters the free joint's rotational dofs as
+  ``R^T tau`` (its angular dofs are body-frame). Gravity is compensated by the model (``gravcomp="1"``, see
+  :mod:`magwarp.mjcf`). Unlike MagBotSim, the law reads the current pose (not the previous cycle's ``xpos``),
+  targets the body centre at ``hover_z`` and damps rotation with the inertia.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+
+@wp.func
+def _limit_next(current: wp.vec2, deriv: wp.vec2, limit: float, dt: float) -> wp.vec2:
+    """Effective derivative so that ``|current + dt * deriv|`` stays below ``limit`` (MagBotSim's ensure_max_dyn_val)."""
+    nxt = current + dt * deriv
+    n = wp.length(nxt)
+    if n >= limit:
+        return (nxt * (limit / n) - current) / dt
+    return deriv
+
+
+@wp.func
+def _clip_norm(v: wp.vec2, limit: float) -> wp.vec2:
+    n = wp.length(v)
+    if n > limit:
+        return v * (limit / n)
+    return v
+
+
+@wp.func
+def _rotvec(q: wp.quat) -> wp.vec3:
+    """Rotation vector (shortest arc) of a unit quaternion in Warp's (x, y, z, w) order."""
+    v = wp.vec3(q[0], q[1], q[2])
+    w = q[3]
+    if w < 0.0:
+        v = -v
+        w = -w
+    s = wp.length(v)
+    if s < 1.0e-12:
+        return 2.0 * v
+    return v * (2.0 * wp.atan2(s, w) / s)
+
+
+@wp.kernel
+def mover_control_kernel(
+    # Model:
+    qadr: wp.array[int],
+    dadr: wp.array[int],
+    mass: wp.array[float],
+    inertia: wp.array[wp.vec3],
+    hover_z: wp.array[float],
+    k_lin_z: float,
+    k_rot: wp.vec3,
+    dt: float,
+    v_max: float,
+    a_max: float,
+    j_max: float,
+    jerk_mode: int,
+    # State in:
+    qpos: wp.array2d[float],
+    qvel: wp.array2d[float],
+    cmd: wp.array2d[wp.vec2],
+    # State in/out:
+    acc: wp.array2d[wp.vec2],
+    # State out:
+    qfrc_applied: wp.array2d[float],
+):
+    w, k = wp.tid()
+    qa = qadr[k]
+    da = dadr[k]
+    m = mass[k]
+
+    # x/y: limited acceleration, applied as m * a (semi-implicit Euler then matches MagBotSim's actuators).
+    vel = wp.vec2(qvel[w, da], qvel[w, da + 1])
+    if jerk_mode != 0:
+        jerk = _clip_norm(cmd[w, k], j_max)
+        a_prev = acc[w, k]
+        a_tmp = a_prev + dt * _limit_next(a_prev, jerk, a_max, dt)
+        a = _limit_next(vel, a_tmp, v_max, dt)
+    else:
+        a = _limit_next(vel, _clip_norm(cmd[w, k], a_max), v_max, dt)
+    acc[w, k] = a
+
+    # z: critically damped spring to the hover height.
+    d_lin_z = 2.0 * wp.sqrt(k_lin_z * m)
+    f_z = k_lin_z * (hover_z[k] - qpos[w, qa + 2]) - d_lin_z * qvel[w, da + 2]
+
+    # attitude: spring to identity orientation (MuJoCo stores w, x, y, z; Warp quats are x, y, z, w).
+    q = wp.normalize(wp.quat(qpos[w, qa + 4], qpos[w, qa + 5], qpos[w, qa + 6], qpos[w, qa + 3]))
+    err_world = wp.quat_rotate(q, _rotvec(wp.quat_inverse(q)))
+    omega_local = wp.vec3(qvel[w, da + 3], qvel[w, da + 4], qvel[w, da + 5])
+    omega_world = wp.quat_rotate(q, omega_local)
+    inert = inertia[k]
+    d_rot = wp.vec3(
+        2.0 * wp.sqrt(k_rot[0] * inert[0]), 2.0 * wp.sqrt(k_rot[1] * inert[1]), 2.0 * wp.sqrt(k_rot[2] * inert[2])
+    )
+    tau_world = wp.cw_mul(k_rot, err_world) - wp.cw_mul(d_rot, omega_world)
+    tau_local = wp.quat_rotate_inv(q, tau_world)
+
+    qfrc_applied[w, da + 0] = m * a[0]
+    qfrc_applied[w, da + 1] = m * a[1]
+    qfrc_applied[w, da + 2] = f_z
+    qfrc_applied[w, da + 3] = tau_local[0]
+    qfrc_applied[w, da + 4] = tau_local[1]
+    qfrc_applied[w, da + 5] = tau_local[2]
+
+
+@wp.kernel
+def copy_rows_masked_kernel(
+    # In:
+    mask: wp.array[bool],
+    src: wp.array2d[float],
+    # Out:
+    dst: wp.array2d[float],
+):
+    """``dst[w] = src[w]`` for worlds with ``mask[w]`` (initial qpos/qvel on reset)."""
+    w, i = wp.tid()
+    if mask[w]:
+        dst[w, i] = src[w, i]
+
+
+@wp.kernel
+def zero_vec2_masked_kernel(
+    # In:
+    mask: wp.array[bool],
+    # Out:
+    dst: wp.array2d[wp.vec2],
+):
+    w, k = wp.tid()
+    if mask[w]:
+        dst[w, k] = wp.vec2(0.0, 0.0)

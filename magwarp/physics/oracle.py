@@ -1,0 +1,94 @@
+"""Float64 MuJoCo C reference for the mujoco-warp backend: the same control law in numpy, stepped with ``mj_step``.
+
+Used by tests (and benchmarks) as the oracle; one world, plain Python loops, no speed ambitions.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from magwarp.physics.backend import ControlParams
+
+
+def _limit_next(cur: np.ndarray, deriv: np.ndarray, limit: float, dt: float) -> np.ndarray:
+    nxt = cur + dt * deriv
+    n = np.linalg.norm(nxt)
+    return (nxt * (limit / n) - cur) / dt if n >= limit else deriv
+
+
+def _clip_norm(v: np.ndarray, limit: float) -> np.ndarray:
+    n = np.linalg.norm(v)
+    return v * (limit / n) if n > limit else v
+
+
+def _rotvec_wxyz(q: np.ndarray) -> np.ndarray:
+    w, v = q[0], q[1:]
+    if w < 0:
+        w, v = -w, -v
+    s = np.linalg.norm(v)
+    return 2.0 * v if s < 1e-12 else v * (2.0 * np.arctan2(s, w) / s)
+
+
+def control_forces(mjm, mjd, mover_body, mover_qadr, mover_dadr, hover_z, cmd, acc, c: ControlParams) -> None:
+    """Write the movers' ``qfrc_applied`` for one cycle (float64) and update ``acc`` in place."""
+    dt = mjm.opt.timestep
+    for k, (b, qa, da) in enumerate(zip(mover_body, mover_qadr, mover_dadr)):
+        m = mjm.body_subtreemass[b]
+        inertia = mjm.body_inertia[b]
+        vel = mjd.qvel[da : da + 2]
+        if c.jerk:
+            a_tmp = acc[k] + dt * _limit_next(acc[k], _clip_norm(cmd[k], c.j_max), c.a_max, dt)
+            a = _limit_next(vel, a_tmp, c.v_max, dt)
+        else:
+            a = _limit_next(vel, _clip_norm(cmd[k], c.a_max), c.v_max, dt)
+        acc[k] = a
+        kz = c.k_lin[2]
+        fz = kz * (hover_z[k] - mjd.qpos[qa + 2]) - 2.0 * np.sqrt(kz * m) * mjd.qvel[da + 2]
+        q = mjd.qpos[qa + 3 : qa + 7] / np.linalg.norm(mjd.qpos[qa + 3 : qa + 7])
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, q)
+        rot = rot.reshape(3, 3)
+        err_world = -_rotvec_wxyz(q)  # rotation from q to identity, in world frame (axis is fixed by the rotation)
+        omega_world = rot @ mjd.qvel[da + 3 : da + 6]
+        k_rot = np.asarray(c.k_rot)
+        tau = k_rot * err_world - 2.0 * np.sqrt(k_rot * inertia) * omega_world
+        mjd.qfrc_applied[da : da + 6] = np.concatenate([m * a, [fz], rot.T @ tau])
+
+
+def rollout(
+    xml: str,
+    actions: np.ndarray,
+    control: ControlParams,
+    *,
+    init_qpos: np.ndarray | None = None,
+    init_qvel: np.ndarray | None = None,
+    hover_z: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Run ``actions`` (``[steps, M, 2]``, each held for ``control.num_cycles`` cycles) in MuJoCo C, float64.
+
+    Returns ``(qpos, qvel)`` after every env step, shapes ``[steps, nq]`` and ``[steps, nv]``.
+    """
+    from magwarp.physics.backend import _free_joint_addrs
+
+    mjm = mujoco.MjModel.from_xml_string(xml)
+    mjd = mujoco.MjData(mjm)
+    movers = []
+    while mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"mover_{len(movers)}") >= 0:
+        movers.append(f"mover_{len(movers)}")
+    body, qadr, dadr = _free_joint_addrs(mjm, movers)
+    if init_qpos is not None:
+        mjd.qpos[:] = init_qpos
+    if init_qvel is not None:
+        mjd.qvel[:] = init_qvel
+    mujoco.mj_forward(mjm, mjd)
+    hz = mjd.qpos[qadr + 2].copy() if hover_z is None else np.broadcast_to(hover_z, (len(movers),)).astype(float)
+    acc = np.zeros((len(movers), 2))
+    qs, vs = [], []
+    for cmd in np.asarray(actions, dtype=np.float64):
+        for _ in range(control.num_cycles):
+            control_forces(mjm, mjd, body, qadr, dadr, hz, cmd, acc, control)
+            mujoco.mj_step(mjm, mjd)
+        qs.append(mjd.qpos.copy())
+        vs.append(mjd.qvel.copy())
+    return np.array(qs), np.array(vs)
