@@ -10,6 +10,7 @@ per-cycle shape so that they can run between cycles, still inside the same graph
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 
 import numpy as np
@@ -101,6 +102,9 @@ class Simulator:
         self._use_graph = use_graph
         self._hooks: list[Callable[[Simulator], None]] = []
         self._graphs: dict[int, wp.Graph] = {}
+        # On CUDA, Warp launches on torch's current stream so that kernels and torch ops on the state are ordered
+        # without any host synchronisation.
+        self._stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device)) if self.device.is_cuda else None
 
         start_xy_arr, start_yaw_arr = self._start_arrays(num_movers, start_xy, start_yaw)
         self.num_movers = start_xy_arr.shape[1]
@@ -342,11 +346,15 @@ class Simulator:
                 raise ValueError(f"reset mask is on {mask.device}, but the simulator runs on {self.torch_device}")
             self._t(self._reset_mask).copy_(mask.to(torch.int32))
         s = self.state
-        wp.launch(
-            kstep.reset_worlds, dim=(self.num_worlds, self.num_movers), device=self.device,
-            inputs=[self._reset_mask, self._init_pos, self._init_quat, s.pos, s.quat, s.vel, s.omega, s.acc, s.cmd,
-                    s.target_pos, s.target_quat, s.flags, s.flags_any, s.partner, s.wall],
-        )
+        with self._on_stream():
+            wp.launch(
+                kstep.reset_worlds, dim=(self.num_worlds, self.num_movers), device=self.device,
+                inputs=[self._reset_mask, self._init_pos, self._init_quat, s.pos, s.quat, s.vel, s.omega, s.acc,
+                        s.cmd, s.target_pos, s.target_quat, s.flags, s.flags_any, s.partner, s.wall],
+            )
+
+    def _on_stream(self):
+        return wp.ScopedStream(self._stream) if self._stream is not None else contextlib.nullcontext()
 
     def add_cycle_hook(self, hook: Callable[["Simulator"], None]) -> None:
         """Run ``hook(sim)`` after every cycle, inside the step graph. It must only launch device work."""
@@ -365,18 +373,20 @@ class Simulator:
         if cmd is not None:
             self.set_command(cmd)
         n = int(num_cycles)
-        if not self._use_graph:
-            self._launch_step(n)
-            return
-        graph = self._graphs.get(n)
-        if graph is None:
-            # Load modules before capture: compiling inside a capture is not allowed.
-            self._launch_step(n)  # this warm-up step is real: it advances the state once
-            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+        with self._on_stream():
+            if not self._use_graph:
                 self._launch_step(n)
-            self._graphs[n] = capture.graph
-            return
-        wp.capture_launch(graph)
+                return
+            graph = self._graphs.get(n)
+            if graph is None:
+                # Modules must be loaded before a capture (no compiling inside one): this first, eager step does
+                # that, and it is a real step. The capture that follows records without executing.
+                self._launch_step(n)
+                with wp.ScopedCapture(device=self.device, stream=self._stream, force_module_load=False) as capture:
+                    self._launch_step(n)
+                self._graphs[n] = capture.graph
+                return
+            wp.capture_launch(graph)
 
     def _launch_step(self, n: int) -> None:
         m, s, dev = self.model, self.state, self.device
