@@ -3,7 +3,8 @@
 The generator is a single pass of string formatting (linear in tiles + movers + objects), so it is cheap enough to
 run at every reset that changes geometry. Naming (stable, used by :mod:`magwarp.physics`):
 
-- tiles ``tile_{i}_{j}`` (geoms in the world body; tile tops at z = 0),
+- tiles ``tile_{i}_{j}`` (geoms in the world body; tile tops at z = 0); with the default ``tile_collision="merged"``
+  they are visual only and ``tile_support_{r}`` boxes (tile contact bits) carry the objects,
 - movers ``mover_{k}`` (body), ``mover_joint_{k}`` (free joint), ``mover_geom_{k}``; movers come first in the body
   tree, so their free joints occupy ``qpos[7k:7k+7]`` / ``qvel[6k:6k+6]`` unless a mover hook adds joints,
 - objects ``object_{k}`` (body), ``object_joint_{k}``, ``object_{k}_geom_{g}``; optional visual-only goal markers
@@ -45,6 +46,7 @@ __all__ = [
     "ObstacleSpec",
     "XmlHooks",
     "generate_mjcf",
+    "tile_rectangles",
     "TILE_CONTYPE",
     "TILE_CONAFFINITY",
     "MOVER_CONTYPE",
@@ -269,6 +271,39 @@ def _as_vec(name: str, value, n: int) -> np.ndarray:
     return arr
 
 
+def tile_rectangles(tiles: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Cover the present tiles with few axis-aligned rectangles ``(i0, j0, ni, nj)`` (tile units), no overlaps.
+
+    Greedy: maximal runs along x per row j, then runs with the same x-extent in consecutive rows are merged.
+    Linear in the number of grid cells.
+    """
+    nx, ny = tiles.shape
+    open_runs: dict[tuple[int, int], list[int]] = {}  # (i0, ni) -> [j0, nj] of the rectangle still growing
+    done: list[tuple[int, int, int, int]] = []
+    for j in range(ny):
+        runs = []
+        i = 0
+        while i < nx:
+            if tiles[i, j]:
+                i0 = i
+                while i < nx and tiles[i, j]:
+                    i += 1
+                runs.append((i0, i - i0))
+            else:
+                i += 1
+        grown = {}
+        for run in runs:
+            if run in open_runs:
+                j0, nj = open_runs.pop(run)
+                grown[run] = [j0, nj + 1]
+            else:
+                grown[run] = [j, 1]
+        done.extend((i0, j0, ni, nj) for (i0, ni), (j0, nj) in open_runs.items())
+        open_runs = grown
+    done.extend((i0, j0, ni, nj) for (i0, ni), (j0, nj) in open_runs.items())
+    return sorted(done)
+
+
 def _quat_z(yaw: float) -> str:
     return f"{_f(np.cos(0.5 * yaw))} 0 0 {_f(np.sin(0.5 * yaw))}"
 
@@ -300,6 +335,7 @@ def generate_mjcf(
     timestep: float = 0.001,
     gravity: float = -9.81,
     mover_friction: tuple[float, float, float] = (1.0, 0.005, 0.0001),
+    tile_collision: str = "merged",
     model_name: str = "magwarp",
 ) -> str:
     """Return an MJCF string for ``layout`` with ``num_movers`` movers, pushable ``objects`` and static ``obstacles``.
@@ -309,6 +345,12 @@ def generate_mjcf(
     physics backend overrides start poses per world without regenerating the XML. ``goal_markers`` adds a
     transparent, non-colliding mocap copy of each object (its pose lives in ``mocap_pos``/``mocap_quat`` per world).
     Cost is linear in tiles + movers + objects + obstacles.
+
+    ``tile_collision`` chooses the support surface that objects touch: ``"merged"`` (default) draws the tiles but
+    collides against a few boxes covering the same area (:func:`tile_rectangles`; one box for a full grid), so an
+    object sliding across a seam between two flush tiles meets no spurious edge contacts (and needs half the contacts
+    while it straddles one); ``"tiles"`` collides with every tile box (MagBotSim's model); ``"plane"`` uses one
+    infinite plane at z = 0 (fastest; holes do not let objects fall).
     """
     if not isinstance(layout, Layout):
         raise LayoutError(f"layout must be a magwarp.layout.Layout, got {type(layout).__name__}")
@@ -327,6 +369,8 @@ def generate_mjcf(
         if not isinstance(o, ObstacleSpec):
             raise LayoutError(f"obstacles[{k}] must be an ObstacleSpec, got {type(o).__name__}")
     timestep = _positive("generate_mjcf", "timestep", timestep)
+    if tile_collision not in ("merged", "tiles", "plane"):
+        raise LayoutError(f"tile_collision must be 'merged', 'tiles' or 'plane', got {tile_collision!r}")
     hooks = XmlHooks.coerce(hooks)
     if hooks.mover_bodies is not None and len(hooks.mover_bodies) != num_movers:
         raise LayoutError(f"hooks.mover_bodies must have one entry per mover ({num_movers}), got {len(hooks.mover_bodies)}")
@@ -374,9 +418,23 @@ def generate_mjcf(
     cx = (2 * ii + 1) * tile.half
     cy = (2 * jj + 1) * tile.half
     z_tile = _f(-th)
+    tile_col = "" if tile_collision == "tiles" else ' contype="0" conaffinity="0"'
     out.extend(
-        f'<geom name="tile_{i}_{j}" class="tile" pos="{_f(x)} {_f(y)} {z_tile}"/>' for i, j, x, y in zip(ii, jj, cx, cy)
+        f'<geom name="tile_{i}_{j}" class="tile" pos="{_f(x)} {_f(y)} {z_tile}"{tile_col}/>'
+        for i, j, x, y in zip(ii, jj, cx, cy)
     )
+    if tile_collision == "merged":
+        for r, (i0, j0, ni, nj) in enumerate(tile_rectangles(layout.tiles)):
+            out.append(
+                f'<geom name="tile_support_{r}" class="tile" pos="{_f((i0 + 0.5 * ni) * tile.size)} '
+                f'{_f((j0 + 0.5 * nj) * tile.size)} {z_tile}" size="{_f(0.5 * ni * tile.size)} {_f(0.5 * nj * tile.size)} '
+                f'{_f(th)}" group="3" rgba="0 0 0 0"/>'
+            )
+    elif tile_collision == "plane":
+        out.append(
+            f'<geom name="tile_support_0" type="plane" size="0 0 1" contype="{TILE_CONTYPE}" '
+            f'conaffinity="{TILE_CONAFFINITY}" group="3" rgba="0 0 0 0"/>'
+        )
 
     # Movers first, so their free joints own the leading qpos/qvel slots.
     hx, hy, hz = (0.5 * s for s in mover.size)

@@ -9,6 +9,7 @@ before each replay, so no allocation or host<->device sync happens inside a step
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -117,6 +118,11 @@ class MjwBackend:
             raise PhysicsInputError(f"control must be a ControlParams, got {type(self.control).__name__}")
         self.device = wp.get_device(device)
         self.use_graph = bool(use_graph)
+        # On CUDA, launch on torch's current stream so Warp kernels and torch ops on the views are ordered without
+        # host synchronisation (the same convention as magwarp.sim).
+        self._stream = (
+            wp.stream_from_torch(torch.cuda.current_stream(torch.device(str(self.device)))) if self.device.is_cuda else None
+        )
 
         self.mjm = xml if isinstance(xml, mujoco.MjModel) else mujoco.MjModel.from_xml_string(xml)
         mjm = self.mjm
@@ -165,7 +171,6 @@ class MjwBackend:
         self._cycle_hooks: list[Callable[[], None]] = []
         self._step_graph = None
         self._reset_graph = None
-        self._warm: set[str] = set()
         self._make_torch_views()
 
     # ------------------------------------------------------------------ torch views
@@ -252,23 +257,24 @@ class MjwBackend:
                   inputs=[self.reset_mask, self.init_mocap_pos, self.init_mocap_quat],
                   outputs=[d.mocap_pos, d.mocap_quat], device=self.device)
 
+    def _on_stream(self):
+        return wp.ScopedStream(self._stream) if self._stream is not None else contextlib.nullcontext()
+
     def _run(self, attr: str, launcher: Callable[[], None]):
-        with wp.ScopedDevice(self.device):
+        with wp.ScopedDevice(self.device), self._on_stream():
             if not self.use_graph:
                 launcher()
                 return
             graph = getattr(self, attr)
             if graph is None:
-                if attr not in self._warm:
-                    # First call runs eagerly: it loads (compiles) exactly the kernels used, which recording cannot do
-                    # without loading every registered module. The next call records the graph.
-                    self._warm.add(attr)
+                # Modules must be loaded before a capture (no compiling inside one; force_module_load would compile
+                # every registered module): this first, eager call loads exactly the kernels used and is a real
+                # step/reset. The capture that follows records without executing.
+                launcher()
+                with wp.ScopedCapture(device=self.device, stream=self._stream, force_module_load=False) as cap:
                     launcher()
-                    return
-                with wp.ScopedCapture(device=self.device, force_module_load=False) as cap:
-                    launcher()
-                graph = cap.graph
-                setattr(self, attr, graph)
+                setattr(self, attr, cap.graph)
+                return
             wp.capture_launch(graph)
 
     def _check_actions(self, actions) -> torch.Tensor:
@@ -334,7 +340,7 @@ class MjwBackend:
 
     def forward(self) -> None:
         """Recompute derived quantities (positions, contacts) from qpos/qvel without stepping (e.g. after a reset)."""
-        with wp.ScopedDevice(self.device):
+        with wp.ScopedDevice(self.device), self._on_stream():
             self._mjw.forward(self.model, self.data)
 
 
