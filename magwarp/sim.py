@@ -198,6 +198,8 @@ class Simulator:
         bodies = np.zeros(m, dtype=Body.numpy_dtype())
         bodies["mass"] = self.mover.mass
         bodies["inertia"] = np.asarray(self.mover.inertia)
+        bodies["damp_lin"] = 2.0 * np.sqrt(np.asarray(imp.k_lin) * self.mover.mass)
+        bodies["damp_rot"] = 2.0 * np.sqrt(np.asarray(imp.k_rot) * np.asarray(self.mover.inertia))
         return Model(
             num_worlds=self.num_worlds,
             num_movers=m,

@@ -13,12 +13,23 @@ import warp as wp
 
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, SHAPE_CIRCLE, Collision, Grid
 
+# Forward simulation only: skipping adjoint code halves the (cold) compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def yaw_of(q: wp.quat) -> float:
     """Heading of a (near-level) mover: the angle of its body x axis in the world x/y plane."""
     ax = wp.quat_rotate(q, wp.vec3(1.0, 0.0, 0.0))
     return wp.atan2(ax[1], ax[0])
+
+
+@wp.func
+def shape_yaw(col: Collision, q: wp.quat) -> float:
+    """Heading when the collision shape depends on it (boxes); circles skip the trigonometry."""
+    if col.shape == SHAPE_CIRCLE:
+        return 0.0
+    return yaw_of(q)
 
 
 @wp.func
@@ -198,7 +209,7 @@ def detect_collisions_grid(
     """Mover-mover narrow phase over the 3x3 neighbouring cells, then the mover's flags."""
     w, m = wp.tid()
     p = pos[w, m]
-    yaw = yaw_of(quat[w, m])
+    yaw = shape_yaw(col, quat[w, m])
     c = cell_coords(grid, p)
     partner = int(-1)
     owned = int(0)
@@ -215,7 +226,7 @@ def detect_collisions_grid(
                 if j != m:
                     q = pos[w, j]
                     d = wp.vec2(p[0] - q[0], p[1] - q[1])
-                    if movers_collide(col, d, yaw, radius[m], half_size[m], yaw_of(quat[w, j]), radius[j], half_size[j]):
+                    if movers_collide(col, d, yaw, radius[m], half_size[m], shape_yaw(col, quat[w, j]), radius[j], half_size[j]):
                         if partner < 0 or j < partner:
                             partner = j
                         if j > m:
@@ -245,16 +256,40 @@ def detect_collisions_brute(
     """Mover-mover check against every other mover of the world: the fast choice for small worlds."""
     w, m = wp.tid()
     p = pos[w, m]
-    yaw = yaw_of(quat[w, m])
+    yaw = shape_yaw(col, quat[w, m])
     partner = int(-1)
     owned = int(0)
     for j in range(pos.shape[1]):
         if j != m:
             q = pos[w, j]
             d = wp.vec2(p[0] - q[0], p[1] - q[1])
-            if movers_collide(col, d, yaw, radius[m], half_size[m], yaw_of(quat[w, j]), radius[j], half_size[j]):
+            if movers_collide(col, d, yaw, radius[m], half_size[m], shape_yaw(col, quat[w, j]), radius[j], half_size[j]):
                 if partner < 0:
                     partner = j
                 if j > m:
                     owned += 1
     record_collisions(w, m, partner, owned, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)
+
+
+@wp.kernel
+def footprints_on_tiles(
+    # Model:
+    tiles: wp.array2d(dtype=wp.int32),
+    col: Collision,
+    radius: float,
+    half: wp.vec2,
+    extra: float,
+    # State in:
+    xy: wp.array(dtype=wp.vec2),
+    # State out:
+    valid: wp.array(dtype=wp.int32),
+):
+    """1 where an axis-aligned footprint at ``xy``, grown by ``extra`` on top of the wall margin, is fully on tiles.
+
+    Used to sample start poses and goals with exactly the rule the simulator applies every cycle.
+    """
+    i = wp.tid()
+    ok = int(1)
+    if hits_wall(tiles, col, xy[i], 0.0, radius + extra, half + wp.vec2(extra, extra)):
+        ok = 0
+    valid[i] = ok

@@ -71,6 +71,11 @@ def integrate_body(p: Pose, w: Wrench, body: Body, lim: Limits) -> Pose:
     out = Pose()
     out.vel = p.vel + lin_acc * lim.dt
     out.pos = p.pos + out.vel * lim.dt
+    # Exact early out for a mover with no spin and no torque (the common case): its attitude cannot change.
+    if p.omega == wp.vec3(0.0) and w.torque == wp.vec3(0.0):
+        out.omega = p.omega
+        out.quat = p.quat
+        return out
     out.omega = p.omega + angular_acceleration(p.quat, p.omega, w.torque, body.inertia) * lim.dt
     out.quat = integrate_rotation(p.quat, out.omega, lim.dt)
     return out

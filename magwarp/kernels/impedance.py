@@ -18,6 +18,9 @@ from magwarp.types import Body, Impedance, Limits, Pose, Wrench
 @wp.func
 def rotation_error(q: wp.quat, target: wp.quat) -> wp.vec3:
     """World-frame rotation vector from ``q`` to ``target`` (shortest arc)."""
+    if q == target:
+        # Exact early out: a mover that holds its attitude (the common case) skips the trigonometry.
+        return wp.vec3(0.0)
     rel = wp.quat_inverse(q) * target
     v = wp.vec3(rel[0], rel[1], rel[2])
     w = rel[3]
@@ -33,20 +36,12 @@ def rotation_error(q: wp.quat, target: wp.quat) -> wp.vec3:
 
 @wp.func
 def impedance_wrench(p: Pose, body: Body, target_pos: wp.vec3, target_quat: wp.quat, imp: Impedance) -> Wrench:
-    """Critically damped spring toward the target on the held axes."""
-    d_lin = wp.vec3(
-        2.0 * wp.sqrt(imp.k_lin[0] * body.mass),
-        2.0 * wp.sqrt(imp.k_lin[1] * body.mass),
-        2.0 * wp.sqrt(imp.k_lin[2] * body.mass),
-    )
-    d_rot = wp.vec3(
-        2.0 * wp.sqrt(imp.k_rot[0] * body.inertia[0]),
-        2.0 * wp.sqrt(imp.k_rot[1] * body.inertia[1]),
-        2.0 * wp.sqrt(imp.k_rot[2] * body.inertia[2]),
-    )
+    """Critically damped spring toward the target on the held axes (damping precomputed per body)."""
     out = Wrench()
-    out.force = wp.cw_mul(imp.mask_lin, wp.cw_mul(imp.k_lin, target_pos - p.pos) - wp.cw_mul(d_lin, p.vel))
-    out.torque = wp.cw_mul(imp.mask_rot, wp.cw_mul(imp.k_rot, rotation_error(p.quat, target_quat)) - wp.cw_mul(d_rot, p.omega))
+    out.force = wp.cw_mul(imp.mask_lin, wp.cw_mul(imp.k_lin, target_pos - p.pos) - wp.cw_mul(body.damp_lin, p.vel))
+    out.torque = wp.cw_mul(
+        imp.mask_rot, wp.cw_mul(imp.k_rot, rotation_error(p.quat, target_quat)) - wp.cw_mul(body.damp_rot, p.omega)
+    )
     return out
 
 

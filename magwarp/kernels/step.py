@@ -17,10 +17,13 @@ import functools
 
 import warp as wp
 
-from magwarp.kernels.collision import hits_wall, movers_collide, yaw_of
+from magwarp.kernels.collision import hits_wall, movers_collide, shape_yaw
 from magwarp.kernels.dynamics import integrate_body, planar_acceleration
 from magwarp.kernels.impedance import default_force
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Impedance, Limits, Pose
+
+# Forward simulation only: skipping adjoint code halves the (cold) compile time.
+wp.set_module_options({"enable_backward": False})
 
 
 @functools.cache
@@ -64,11 +67,11 @@ def make_advance_kernel(force_fn=default_force):
         # The applied x/y acceleration (what MuJoCo reports as qacc): the state jerk commands integrate from.
         acc[w, m] = wp.vec2(n.vel[0] - p.vel[0], n.vel[1] - p.vel[1]) / lim.dt
         hit = int(0)
-        if hits_wall(tiles, col, wp.vec2(n.pos[0], n.pos[1]), yaw_of(n.quat), radius[m], half_size[m]):
+        if hits_wall(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_yaw(col, n.quat), radius[m], half_size[m]):
             hit = 1
         wall[w, m] = hit
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def advance_movers(
         # Model:
         lim: Limits,
@@ -101,7 +104,7 @@ def make_advance_kernel(force_fn=default_force):
         if m == 0:
             cycles[w] = cycles[w] + 1
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def fused_worlds(
         num_cycles: int,
         # Model:
@@ -148,11 +151,11 @@ def make_advance_kernel(force_fn=default_force):
             walls = int(0)
             for i in range(num_movers):
                 pi = pos[w, i]
-                yi = yaw_of(quat[w, i])
+                yi = shape_yaw(col, quat[w, i])
                 for j in range(i + 1, num_movers):
                     pj = pos[w, j]
                     d = wp.vec2(pi[0] - pj[0], pi[1] - pj[1])
-                    if movers_collide(col, d, yi, radius[i], half_size[i], yaw_of(quat[w, j]), radius[j], half_size[j]):
+                    if movers_collide(col, d, yi, radius[i], half_size[i], shape_yaw(col, quat[w, j]), radius[j], half_size[j]):
                         pairs += 1
                         if partner[w, i] < 0:
                             partner[w, i] = j

@@ -1,0 +1,131 @@
+"""The batched, torch-native env base class.
+
+:class:`MagwarpVecEnv` is a :class:`gymnasium.vector.VectorEnv` whose observations, rewards, flags and actions are
+torch tensors on the simulator's device, shaped ``[num_envs, ...]``. A task implements five small hooks:
+
+* ``_reset_envs(mask)`` — new episodes for the envs where ``mask`` is true (start poses, goals, counters);
+* ``_apply_action(action)`` — write the validated ``[num_envs, *single_action_space.shape]`` action and simulate;
+* ``_get_obs()`` — the observation (a dict of tensors for goal-conditioned tasks);
+* ``_evaluate(obs)`` — ``reward, terminated, truncated, info`` for the step just simulated;
+* ``_end_step(obs, info)`` — bookkeeping after evaluation (e.g. resampling reached goals).
+
+Autoreset happens inside :meth:`step` in the *same step* (``metadata["autoreset_mode"]``): for envs that finished,
+the returned observation is the first one of the next episode, and the last observation of the finished episode is
+kept in ``info["final_obs"]`` (valid where ``info["_final_obs"]`` is true; the final ``info`` values are the ones
+returned). Nothing in a step synchronises with the host except the optional input check (``check_inputs``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+__all__ = ["MagwarpVecEnv"]
+
+Obs = dict[str, torch.Tensor] | torch.Tensor
+
+
+class MagwarpVecEnv(VectorEnv):
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"], "render_fps": 25}
+
+    def __init__(self, num_envs: int, device: torch.device, *, seed: int | None = None, render_mode: str | None = None,
+                 autoreset: bool = True, check_inputs: bool = True):
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.num_envs = int(num_envs)
+        self.device = torch.device(device)
+        self.render_mode = render_mode
+        self.autoreset = autoreset
+        self.check_inputs = check_inputs
+        self._generator = torch.Generator(device=self.device)
+        self._generator.manual_seed(0 if seed is None else int(seed))
+        self._all = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
+
+    def _set_spaces(self, single_observation_space: gym.Space, single_action_space: gym.Space) -> None:
+        self.single_observation_space = single_observation_space
+        self.single_action_space = single_action_space
+        self.observation_space = batch_space(single_observation_space, self.num_envs)
+        self.action_space = batch_space(single_action_space, self.num_envs)
+
+    # ------------------------------------------------------------------ hooks for tasks
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        raise NotImplementedError
+
+    def _apply_action(self, action: torch.Tensor) -> None:
+        raise NotImplementedError
+
+    def _get_obs(self) -> Obs:
+        raise NotImplementedError
+
+    def _evaluate(self, obs: Obs) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        raise NotImplementedError
+
+    def _end_step(self, obs: Obs, info: dict[str, Any]) -> None:
+        """Bookkeeping after the step's reward is computed (default: nothing)."""
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Obs, dict[str, Any]]:
+        """Reset all envs, or those in ``options["reset_mask"]`` (a ``[num_envs]`` bool tensor)."""
+        if seed is not None:
+            self._generator.manual_seed(int(seed))
+        mask = self._all
+        if options and options.get("reset_mask") is not None:
+            mask = self._check_mask(options["reset_mask"])
+        self._reset_envs(mask)
+        return self._get_obs(), {}
+
+    def step(self, action) -> tuple[Obs, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        action = self._check_action(action)
+        self._apply_action(action)
+        obs = self._get_obs()
+        reward, terminated, truncated, info = self._evaluate(obs)
+        self._end_step(obs, info)
+        if self.autoreset:
+            done = terminated | truncated
+            info["final_obs"] = obs
+            info["_final_obs"] = done
+            self._reset_envs(done)
+            obs = self._get_obs()
+        return obs, reward, terminated, truncated, info
+
+    def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
+        """Batched reward for hindsight relabelling; tasks with goals override it."""
+        raise NotImplementedError(f"{type(self).__name__} has no goal-conditioned reward")
+
+    # ------------------------------------------------------------------ input checks
+    def _check_action(self, action) -> torch.Tensor:
+        if isinstance(action, np.ndarray):
+            action = torch.from_numpy(action).to(self.device)
+        if not isinstance(action, torch.Tensor):
+            raise TypeError(f"action must be a torch tensor or numpy array, got {type(action).__name__}")
+        expected = (self.num_envs, *self.single_action_space.shape)
+        if tuple(action.shape) != expected:
+            raise ValueError(f"action must have shape {expected}, got {tuple(action.shape)}")
+        if not action.is_floating_point():
+            raise TypeError(f"action must be a floating point tensor, got dtype {action.dtype}")
+        if action.device != self.device:
+            raise ValueError(f"action is on device {action.device}, but the env runs on {self.device}")
+        if self.check_inputs and not bool(torch.isfinite(action).all()):
+            bad = torch.nonzero(~torch.isfinite(action))[0].tolist()
+            raise ValueError(f"action contains a non-finite value at index {bad}: {action[tuple(bad)].item()}")
+        return action.to(torch.float32)
+
+    def _check_mask(self, mask) -> torch.Tensor:
+        mask = torch.as_tensor(mask, device=self.device)
+        if mask.shape != (self.num_envs,) or mask.dtype != torch.bool:
+            raise ValueError(f"reset_mask must be a bool tensor of shape ({self.num_envs},), got {mask.dtype} {tuple(mask.shape)}")
+        return mask
+
+    # ------------------------------------------------------------------ helpers for tasks
+    def _rand(self, *shape: int) -> torch.Tensor:
+        return torch.rand(shape, generator=self._generator, device=self.device)
+
+    def _randint(self, high: int, *shape: int) -> torch.Tensor:
+        return torch.randint(high, shape, generator=self._generator, device=self.device)

@@ -1,0 +1,215 @@
+"""Long-horizon global trajectory planning (MagBotSim's ``LongHorizonGlobalTrajectoryPlanningEnv``), batched.
+
+Every mover has a goal. Per env step (``num_cycles`` control cycles at 1 ms, the same action held):
+
+* observation: x/y velocities of all movers (plus x/y accelerations when learning jerk), flattened mover by mover;
+  achieved_goal: mover x/y positions; desired_goal: goal x/y positions;
+* reward: ``reward_collision`` on a mover-mover or wall collision, else ``reward_success`` times the number of
+  movers within ``threshold_pos`` of their goals, else ``reward_per_step``;
+* terminated on collision (the world stops moving at the cycle of the collision, as MagBotSim's does);
+* truncated when no goal was reached for more than ``timeout_steps`` steps;
+* reached goals are resampled after the reward is computed, so the returned observation still shows the goal the
+  reward was computed for (consistent for hindsight relabelling); the new goal appears from the next step on.
+
+Differences from MagBotSim, on purpose: observations are float32 and noise-free; an action outside the action space
+is not box-clipped (its norm is clipped by the mover's acceleration/jerk limit, the physical rule).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.sampling import PoseSampler
+from magwarp.layout import Layout, MoverSpec, benchmark_layout
+from magwarp.sim import Simulator, default_device
+
+__all__ = ["TrajectoryPlanningEnv"]
+
+
+class TrajectoryPlanningEnv(MagwarpVecEnv):
+    """Batched trajectory planning. ``layout`` is a benchmark name ("B0".."B9"), a :class:`Layout` or a 0/1 array.
+
+    Collision options follow MagBotSim's ``collision_params``: ``collision_shape`` ("circle" or "box"),
+    ``collision_size`` (radius, or box half sizes (2,)), ``collision_offset`` (safety offset used when sampling
+    starts and goals), ``collision_offset_wall`` (margin added for wall checks). ``safety_margin`` grows every
+    collision shape in the per-cycle mover-mover check (MagBotSim: none).
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        layout: str | Layout | np.ndarray = "B0",
+        num_movers: int | None = None,
+        *,
+        collision_shape: str = "circle",
+        collision_size: float | tuple[float, float] | None = None,
+        collision_offset: float = 0.0,
+        collision_offset_wall: float = 0.0,
+        safety_margin: float = 0.0,
+        learn_jerk: bool = False,
+        v_max: float = 2.0,
+        a_max: float = 10.0,
+        j_max: float = 100.0,
+        num_cycles: int = 40,
+        threshold_pos: float = 0.1,
+        reward_success: float = 20.0,
+        reward_collision: float = -20.0,
+        reward_per_step: float = -1.0,
+        timeout_steps: int | None = 50,
+        device: str | None = None,
+        seed: int | None = None,
+        render_mode: str | None = None,
+        autoreset: bool = True,
+        check_inputs: bool = True,
+    ):
+        if isinstance(layout, str):
+            layout_obj, default_movers = benchmark_layout(layout)
+            self.layout_name = layout
+        else:
+            layout_obj = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+            default_movers = None
+            self.layout_name = "custom"
+        num_movers = num_movers if num_movers is not None else default_movers
+        if num_movers is None or int(num_movers) < 1:
+            raise ValueError(f"num_movers must be a positive integer for a custom layout, got {num_movers!r}")
+        if collision_shape not in ("circle", "box"):
+            raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
+        if num_cycles < 1:
+            raise ValueError(f"num_cycles must be >= 1, got {num_cycles!r}")
+        if not threshold_pos > 0:
+            raise ValueError(f"threshold_pos must be positive, got {threshold_pos!r}")
+        if timeout_steps is not None and timeout_steps < 1:
+            raise ValueError(f"timeout_steps must be None or >= 1, got {timeout_steps!r}")
+        spec_kwargs: dict[str, Any] = dict(collision_shape=collision_shape, margin=safety_margin,
+                                           wall_margin=collision_offset_wall)
+        if collision_size is not None:
+            if collision_shape == "circle":
+                spec_kwargs["collision_radius"] = float(collision_size)
+            else:
+                spec_kwargs["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
+        mover = MoverSpec(**spec_kwargs)
+        device = device or default_device()
+        self.sim = Simulator(
+            layout_obj, int(num_movers), int(num_envs), mover=mover, control="jerk" if learn_jerk else "acceleration",
+            v_max=v_max, a_max=a_max, j_max=j_max, device=device, check_inputs=False, validate_starts_=True,
+        )
+        super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
+                         check_inputs=check_inputs)
+        self.layout = layout_obj
+        self.num_movers = int(num_movers)
+        self.learn_jerk = learn_jerk
+        self.num_cycles = int(num_cycles)
+        self.threshold_pos = float(threshold_pos)
+        self.reward_success = float(reward_success)
+        self.reward_collision = float(reward_collision)
+        self.reward_per_step = float(reward_per_step)
+        self.timeout_steps = timeout_steps
+        # The pools are drawn with their own fixed-seed generator, so that reset(seed=...) alone fixes a run.
+        pool_gen = torch.Generator(device=self.device)
+        pool_gen.manual_seed(0 if seed is None else int(seed))
+        self.sampler = PoseSampler(self.sim, collision_offset, pool_gen)
+        self.sampler.generator = self._generator
+
+        n, m = self.num_envs, self.num_movers
+        self.goals = torch.zeros(n, m, 2, device=self.device)
+        self.num_steps = torch.zeros(n, dtype=torch.int64, device=self.device)
+        self.last_goal_step = torch.zeros(n, dtype=torch.int64, device=self.device)
+        self.collected_goals = torch.zeros(n, m, dtype=torch.int64, device=self.device)
+
+        limit = j_max if learn_jerk else a_max
+        ext = np.array(layout_obj.extent * m, dtype=np.float32)
+        obs_dim = m * 2 * (2 if learn_jerk else 1)
+        self._set_spaces(
+            gym.spaces.Dict({
+                "observation": gym.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32),
+                "achieved_goal": gym.spaces.Box(np.zeros_like(ext), ext, dtype=np.float32),
+                "desired_goal": gym.spaces.Box(np.zeros_like(ext), ext, dtype=np.float32),
+            }),
+            gym.spaces.Box(-limit, limit, (m * 2,), np.float32),
+        )
+        self.reset()
+
+    # ------------------------------------------------------------------ task hooks
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        n = self.num_envs
+        starts = self.sampler.sample_starts(n)
+        start_pos = self.sim.start_pos
+        start_pos[..., :2] = torch.where(mask[:, None, None], starts, start_pos[..., :2])
+        self.sim.reset(mask)
+        self.goals.copy_(torch.where(mask[:, None, None], self.sampler.sample_goals(n, self.num_movers), self.goals))
+        zero = torch.zeros_like(self.num_steps)
+        self.num_steps.copy_(torch.where(mask, zero, self.num_steps))
+        self.last_goal_step.copy_(torch.where(mask, zero, self.last_goal_step))
+        self.collected_goals.masked_fill_(mask[:, None], 0)
+
+    def _apply_action(self, action: torch.Tensor) -> None:
+        self.sim.step(self.num_cycles, action.view(self.num_envs, self.num_movers, 2))
+
+    def _get_obs(self) -> dict[str, torch.Tensor]:
+        n = self.num_envs
+        obs = self.sim.vel[..., :2].reshape(n, -1)
+        if self.learn_jerk:
+            obs = torch.cat([obs, self.sim.acc.reshape(n, -1)], dim=1)
+        return {
+            "observation": obs.clone(),
+            "achieved_goal": self.sim.pos[..., :2].reshape(n, -1).clone(),
+            "desired_goal": self.goals.reshape(n, -1).clone(),
+        }
+
+    def _collisions(self) -> tuple[torch.Tensor, torch.Tensor]:
+        flags = self.sim.flags_any
+        return (flags & 1).any(dim=1), (flags & 2).any(dim=1)
+
+    def _evaluate(self, obs):
+        mover_collision, wall_collision = self._collisions()
+        info = {
+            "mover_collision": mover_collision,
+            "wall_collision": wall_collision,
+            "steps_since_goal": self.num_steps - self.last_goal_step,
+        }
+        reward = self.compute_reward(obs["achieved_goal"], obs["desired_goal"], info)
+        terminated = mover_collision | wall_collision
+        if self.timeout_steps is None:
+            truncated = torch.zeros_like(terminated)
+        else:
+            truncated = info["steps_since_goal"] > self.timeout_steps
+        info["collected_goals"] = self.collected_goals
+        return reward, terminated, truncated, info
+
+    def _end_step(self, obs, info) -> None:
+        self.num_steps += 1
+        reached = self.goal_distance(obs["achieved_goal"], obs["desired_goal"]) <= self.threshold_pos
+        self.collected_goals += reached
+        self.last_goal_step.copy_(torch.where(reached.any(dim=1), self.num_steps, self.last_goal_step))
+        new_goals = self.sampler.sample_goals(self.num_envs, self.num_movers)
+        self.goals.copy_(torch.where(reached[..., None], new_goals, self.goals))
+        info["collected_goals"] = self.collected_goals.clone()
+        info["goals_reached"] = reached
+
+    # ------------------------------------------------------------------ reward (batched, for HER)
+    def goal_distance(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor) -> torch.Tensor:
+        """Per-mover distance ``(..., num_movers)`` between flattened x/y achieved and desired goals."""
+        a = torch.as_tensor(achieved_goal).reshape(*achieved_goal.shape[:-1], self.num_movers, 2)
+        d = torch.as_tensor(desired_goal).reshape(*desired_goal.shape[:-1], self.num_movers, 2)
+        return (a - d).norm(dim=-1)
+
+    def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
+        """Reward for a batch ``(..., num_movers * 2)``; ``info`` holds ``mover_collision`` and ``wall_collision``
+        (bool tensors of the batch shape) or may be ``None`` (no collisions)."""
+        achieved_goal = torch.as_tensor(achieved_goal)
+        desired_goal = torch.as_tensor(desired_goal, device=achieved_goal.device)
+        batch = achieved_goal.shape[:-1]
+        collision = torch.zeros(batch, dtype=torch.bool, device=achieved_goal.device)
+        if info is not None:
+            for key in ("mover_collision", "wall_collision"):
+                if key in info:
+                    collision = collision | torch.as_tensor(info[key], device=achieved_goal.device).reshape(batch).bool()
+        reached = (self.goal_distance(achieved_goal, desired_goal) <= self.threshold_pos).sum(dim=-1)
+        reward = torch.where(reached > 0, self.reward_success * reached.to(torch.float32),
+                             torch.full(batch, self.reward_per_step, device=achieved_goal.device))
+        return torch.where(collision, torch.full_like(reward, self.reward_collision), reward)
