@@ -95,6 +95,23 @@ class MagwarpVecEnv(VectorEnv):
             obs = self._get_obs()
         return obs, reward, terminated, truncated, info
 
+    def render(self):
+        """``None`` without a render mode; with ``"rgb_array"``, a top-down ``uint8 [H, W, 3]`` numpy image of the
+        worlds chosen by :meth:`set_render_worlds` (default: up to 16 worlds as a mosaic)."""
+        if self.render_mode is None:
+            return None
+        from magwarp.render import to_numpy_image
+
+        return to_numpy_image(self._render_frame())
+
+    def set_render_worlds(self, worlds) -> None:
+        """Choose the worlds ``render()`` draws: a count (worlds ``0..n-1``) or a list of indices."""
+        self._render_worlds = worlds
+        self._renderer = None
+
+    def _render_frame(self) -> torch.Tensor:
+        raise NotImplementedError(f"{type(self).__name__} does not implement rendering")
+
     def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
         """Batched reward for hindsight relabelling; tasks with goals override it."""
         raise NotImplementedError(f"{type(self).__name__} has no goal-conditioned reward")

@@ -191,6 +191,16 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         info["collected_goals"] = self.collected_goals.clone()
         info["goals_reached"] = reached
 
+    def _render_frame(self) -> torch.Tensor:
+        if getattr(self, "_renderer", None) is None:
+            from magwarp.render import TopDownRenderer
+
+            worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 16)
+            self._renderer = TopDownRenderer(self.layout, self.sim.mover, worlds=worlds, device=self.sim.device)
+        sim = self.sim
+        return self._renderer.draw(sim.pos, sim.quat, flags=sim.flags_any, radii=sim.radii, half_sizes=sim.half_sizes,
+                                   goals=self.goals)
+
     # ------------------------------------------------------------------ reward (batched, for HER)
     def goal_distance(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor) -> torch.Tensor:
         """Per-mover distance ``(..., num_movers)`` between flattened x/y achieved and desired goals."""
