@@ -1,0 +1,79 @@
+"""Frames per second of the top-down renderer (magwarp.render.TopDownRenderer).
+
+Draws a mosaic of worlds of a benchmark layout (default B0: 4 x 3 tiles, 3 movers) from a synthetic scene, for a
+few resolutions, and prints a table with the device, date, versions and the command line. Timing is the best of
+several repeats of ``--frames`` draws (the machine may be shared), with a device synchronisation at the end.
+
+    python benchmarks/render_fps.py                       # 64 worlds (8 x 8) of B0, Warp's default device
+    python benchmarks/render_fps.py --device cpu --worlds 1 16 64 --px-per-tile 16 24 32 --png out/render_fps.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import platform
+import sys
+import time
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--layout", default="B0", help="benchmark layout B0..B9 (default B0)")
+    p.add_argument("--worlds", type=int, nargs="+", default=[64], help="worlds in the mosaic (default 64)")
+    p.add_argument("--px-per-tile", type=int, nargs="+", default=[16, 24, 32], help="resolutions (pixels per tile)")
+    p.add_argument("--frames", type=int, default=50, help="draws per repeat")
+    p.add_argument("--repeats", type=int, default=5, help="repeats; the best is reported")
+    p.add_argument("--device", default=None, help="Warp device (default: Warp's preferred device)")
+    p.add_argument("--png", default=None, help="also write one frame per configuration to this PNG prefix")
+    return p.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    import numpy as np
+    import torch
+    import warp as wp
+
+    wp.config.quiet = True
+    from magwarp.layout import benchmark_layout
+    from magwarp.render import SyntheticScene, save_png
+
+    wp.init()
+    device = wp.get_device(args.device)
+    layout, num_movers = benchmark_layout(args.layout)
+    print(f"# magwarp top-down renderer fps   date {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M UTC}")
+    print(f"# device {device.alias} ({device.name}), host {platform.processor() or platform.machine()}, "
+          f"python {platform.python_version()}, warp {wp.__version__}, torch {torch.__version__}, numpy {np.__version__}")
+    print(f"# command: {' '.join([sys.executable.split('/')[-1]] + sys.argv)}")
+    print(f"# layout {args.layout} {layout.shape[0]}x{layout.shape[1]} tiles, {num_movers} movers, goals and collision "
+          f"flags drawn; best of {args.repeats} x {args.frames} frames")
+    print(f"{'worlds':>6} {'px/tile':>7} {'image HxW':>11} {'ms/frame':>9} {'frames/s':>9} {'Mpixel/s':>9}")
+    rows = []
+    for num_worlds in args.worlds:
+        scene = SyntheticScene(layout, num_worlds=num_worlds, num_movers=num_movers, seed=0,
+                               device=wp.device_to_torch(device))
+        for _ in range(10):
+            scene.step()
+        a = scene.arrays()
+        for ppt in args.px_per_tile:
+            renderer = scene.make_renderer(px_per_tile=ppt)
+            frame = renderer.draw(a["pos"], a["quat"], flags=a["collision"], goals=a["goals"])  # compile + warm up
+            wp.synchronize_device(device)
+            best = float("inf")
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                for _ in range(args.frames):
+                    frame = renderer.draw(a["pos"], a["quat"], flags=a["collision"], goals=a["goals"])
+                wp.synchronize_device(device)
+                best = min(best, (time.perf_counter() - t0) / args.frames)
+            h, w = renderer.height, renderer.width
+            rows.append((num_worlds, ppt, h, w, best))
+            print(f"{num_worlds:>6} {ppt:>7} {f'{h}x{w}':>11} {best * 1e3:>9.2f} {1.0 / best:>9.1f} {h * w / best / 1e6:>9.1f}")
+            if args.png:
+                save_png(f"{args.png}_{num_worlds}w_{ppt}px.png", frame)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,193 @@
+"""``magwarp render``: run an env (or a synthetic scene) for some steps and write top-down images or a video.
+
+    magwarp render --synthetic --layout B1 --worlds 4 --steps 60 -o run.gif -o last.png
+    magwarp render magwarp/TrajectoryPlanning-v0 --worlds 16 --steps 100 --policy random -o tp.mp4
+
+Outputs by extension: ``.png`` (the last frame), ``.gif`` / ``.mp4`` (every frame). Several ``-o`` are allowed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from magwarp.commands import UsageError
+
+HELP = "render steps of an env (or a synthetic scene) top-down to PNG, gif or mp4"
+POLICIES = ("scripted", "random", "zero")
+
+
+def add_common_scene_args(p: argparse.ArgumentParser) -> None:
+    """Options shared by ``render`` and ``view``: which scene, how many worlds and steps, which policy."""
+    p.add_argument("env_id", nargs="?", default=None, metavar="ENV_ID",
+                   help="gymnasium env id, e.g. magwarp/TrajectoryPlanning-v0 (omit with --synthetic)")
+    p.add_argument("--synthetic", action="store_true",
+                   help="no simulator: movers glide to random goals (for trying the renderer/viewer)")
+    p.add_argument("--layout", default="B0", help="synthetic scene: benchmark layout B0..B9 (default B0)")
+    p.add_argument("--movers", type=int, default=None, help="synthetic scene: movers per world (default: layout's)")
+    p.add_argument("--objects", action="store_true", help="synthetic scene: add a T object, its goal and 2 obstacles")
+    p.add_argument("--worlds", type=int, default=1, help="worlds to simulate (default 1)")
+    p.add_argument("--show", type=int, default=None, metavar="N", help="worlds to draw (default: all, at most 64)")
+    p.add_argument("--steps", type=int, default=50, help="steps to run (default 50)")
+    p.add_argument("--policy", choices=POLICIES, default="scripted",
+                   help="env actions: the env's scripted planner, random or zero (default scripted)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default: Warp's preferred)")
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("render", help=HELP, description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_common_scene_args(p)
+    p.add_argument("-o", "--out", action="append", default=None, metavar="PATH",
+                   help="output .png (last frame), .gif or .mp4; repeat for several (default: magwarp_render.gif)")
+    p.add_argument("--fps", type=float, default=25.0, help="video frame rate (default 25: one frame per env step)")
+    p.add_argument("--px-per-tile", type=int, default=None, help="resolution (default: 64 for one world, less for more)")
+    p.add_argument("--scale", type=int, default=1, help="integer upscaling of the written images (default 1)")
+    return p
+
+
+def check_scene_args(args) -> None:
+    if args.env_id is None and not args.synthetic:
+        raise UsageError("give an ENV_ID, or --synthetic for a scene without the simulator")
+    if args.env_id is not None and args.synthetic:
+        raise UsageError("give either an ENV_ID or --synthetic, not both")
+    for name in ("worlds", "steps"):
+        if getattr(args, name) < 1:
+            raise UsageError(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if args.show is not None and not 1 <= args.show <= args.worlds:
+        raise UsageError(f"--show must be between 1 and --worlds ({args.worlds}), got {args.show}")
+    if args.synthetic and args.policy != "scripted":
+        raise UsageError("a --synthetic scene moves by its own script; --policy applies to envs")
+
+
+def shown_worlds(args) -> int:
+    return args.show if args.show is not None else min(args.worlds, 64)
+
+
+def default_px_per_tile(num_shown: int) -> int:
+    return 64 if num_shown == 1 else 40 if num_shown <= 4 else 24 if num_shown <= 16 else 16
+
+
+def make_synthetic(args):
+    """The synthetic scene of the parsed args (layout name checked with a clear error)."""
+    from magwarp.layout import benchmark_layout
+    from magwarp.render import SyntheticScene
+
+    layout, movers = benchmark_layout(args.layout)
+    movers = args.movers if args.movers is not None else movers
+    if movers < 1:
+        raise UsageError(f"--movers must be >= 1, got {movers}")
+    import warp as wp
+
+    device = wp.device_to_torch(wp.get_device(args.device))
+    return SyntheticScene(layout, num_worlds=args.worlds, num_movers=movers, seed=args.seed, objects=args.objects,
+                          device=device)
+
+
+def make_env(args, render_mode: str | None = "rgb_array"):
+    """A gymnasium vector env of the magwarp suite, with a clear error while the env is not available."""
+    try:
+        import gymnasium as gym
+    except ImportError as e:
+        raise ImportError("envs need gymnasium: pip install gymnasium") from e
+    try:
+        import magwarp.envs  # noqa: F401 - registers the magwarp/... ids
+    except ImportError:
+        pass
+    kwargs = {"render_mode": render_mode} if render_mode else {}
+    if args.device:
+        kwargs["device"] = args.device
+    try:
+        return gym.make_vec(args.env_id, num_envs=args.worlds, **kwargs)
+    except gym.error.Error as e:
+        raise UsageError(f"cannot make env {args.env_id!r}: {e}") from e
+
+
+def env_policy(env, name: str):
+    """A function obs -> actions for a vector env: the env's scripted planner, random or zero actions."""
+    if name == "scripted":
+        planner = getattr(env.unwrapped if hasattr(env, "unwrapped") else env, "scripted_policy", None)
+        if planner is None:
+            raise UsageError("this env has no scripted planner; use --policy random or --policy zero")
+        return planner
+    space = env.action_space
+    if name == "random":
+        return lambda obs: space.sample()
+    import numpy as np
+
+    return lambda obs: np.zeros(space.shape, dtype=space.dtype)
+
+
+def check_outputs(paths: list[str]) -> list[str]:
+    from magwarp.record import VIDEO_FORMATS
+
+    for path in paths:
+        ext = os.path.splitext(path)[1].lower()
+        if ext not in (".png",) + VIDEO_FORMATS:
+            raise UsageError(f"output {path!r}: use a .png, .gif or .mp4 file name")
+        parent = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(parent):
+            raise UsageError(f"output {path!r}: folder {parent} does not exist")
+    return paths
+
+
+def run(args) -> int:
+    check_scene_args(args)
+    outputs = check_outputs(args.out or ["magwarp_render.gif"])
+    if args.scale < 1:
+        raise UsageError(f"--scale must be >= 1, got {args.scale}")
+    if args.fps <= 0:
+        raise UsageError(f"--fps must be > 0, got {args.fps}")
+    from tqdm import tqdm
+
+    from magwarp.record import VideoRecorder
+    from magwarp.render import save_png, to_numpy_image
+
+    show = shown_worlds(args)
+    ppt = args.px_per_tile or default_px_per_tile(show)
+    if ppt < 4:
+        raise UsageError(f"--px-per-tile must be >= 4, got {ppt}")
+    if args.synthetic:
+        scene = make_synthetic(args)
+        renderer = scene.make_renderer(worlds=show, px_per_tile=ppt)
+
+        def step():
+            scene.step()
+
+        def frame():
+            return scene.draw(renderer)
+    else:
+        env = make_env(args)
+        base = env.unwrapped if hasattr(env, "unwrapped") else env
+        if hasattr(base, "set_render_worlds"):
+            base.set_render_worlds(show)
+        policy = env_policy(env, args.policy)
+        obs, _ = env.reset(seed=args.seed)
+        state = {"obs": obs}
+
+        def step():
+            state["obs"] = env.step(policy(state["obs"]))[0]
+
+        def frame():
+            f = env.render()
+            return f[0] if isinstance(f, (list, tuple)) else f
+
+    videos = [VideoRecorder(p, args.fps, scale=args.scale) for p in outputs if not p.lower().endswith(".png")]
+    last = None
+    try:
+        for _ in tqdm(range(args.steps), desc="render", unit="step", disable=None, leave=False):
+            step()
+            last = frame()
+            for v in videos:
+                v.add(last)
+    finally:
+        for v in videos:
+            if v.num_frames:
+                v.close()
+    for p in outputs:
+        if p.lower().endswith(".png"):
+            save_png(p, last, scale=args.scale)
+    h, w = to_numpy_image(last).shape[:2]
+    print(f"wrote {', '.join(outputs)} ({args.steps} steps, {show} of {args.worlds} worlds, {h * args.scale}x{w * args.scale} px)")
+    return 0

@@ -1,0 +1,337 @@
+"""The top-down drawing kernel: one thread per pixel of a mosaic of worlds, one launch per frame.
+
+Each thread finds its mosaic cell (one world) and its pixel centre in world metres from per-row/per-column lookup
+tables, starts from the static layer (tiles, grid lines, hatched holes, drawn once by ``draw_background``), then
+paints layer by layer, bottom to top: static obstacles, object goal areas, mover-to-goal lines, objects, each
+mover's safety zone (collision shape grown by the margin) and footprint, and finally goals. Painting per pixel in
+a fixed order means no atomics and no sorting, and the whole frame is a single kernel launch.
+
+Per-world inputs may have a leading size of 1: they are then shared by every world (e.g. static obstacles).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from magwarp.render import colors
+
+# Forward-only drawing: no adjoints (faster compile); -O3 helps the per-pixel loops on CPU.
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+# Indices into the fixed-colour table (see magwarp.render.colors, packed by topdown.py).
+C_BACKGROUND = wp.constant(0)
+C_TILE = wp.constant(1)
+C_TILE_LINE = wp.constant(2)
+C_HOLE = wp.constant(3)
+C_HOLE_HATCH = wp.constant(4)
+C_OBSTACLE = wp.constant(5)
+C_OBSTACLE_EDGE = wp.constant(6)
+C_OBJECT = wp.constant(7)
+C_OBJECT_EDGE = wp.constant(8)
+C_OBJECT_GOAL = wp.constant(9)
+C_COLLISION = wp.constant(10)
+C_HEADING = wp.constant(11)
+C_GOAL_RING = wp.constant(12)
+NUM_FIXED_COLORS = 13
+
+SHAPE_CIRCLE = wp.constant(0)
+SHAPE_BOX = wp.constant(1)
+
+# Style bits.
+DRAW_GRID = wp.constant(1)
+DRAW_SAFETY_ZONE = wp.constant(2)
+DRAW_HEADING = wp.constant(4)
+DRAW_GOAL_LINES = wp.constant(8)
+
+# Blend factors, from the palette module so legends and tests agree with the kernel.
+SAFETY_ZONE_ALPHA = wp.constant(colors.SAFETY_ZONE_ALPHA)
+GOAL_LINE_ALPHA = wp.constant(colors.GOAL_LINE_ALPHA)
+OBJECT_GOAL_ALPHA = wp.constant(colors.OBJECT_GOAL_ALPHA)
+COLLIDED_ZONE_ALPHA = wp.constant(colors.COLLIDED_ZONE_ALPHA)
+
+
+@wp.func
+def blend(base: wp.vec3, over: wp.vec3, alpha: float) -> wp.vec3:
+    return base + (over - base) * alpha
+
+
+@wp.func
+def to_body(d: wp.vec2, c: float, s: float) -> wp.vec2:
+    """A world-frame offset expressed in the frame of a body with yaw (cos, sin) = (c, s)."""
+    return wp.vec2(c * d[0] + s * d[1], -s * d[0] + c * d[1])
+
+
+@wp.func
+def box_sdf(q: wp.vec2, half: wp.vec2) -> float:
+    """Signed distance from body-frame point q to an axis-aligned box of half sizes ``half`` (negative inside)."""
+    dx = wp.abs(q[0]) - half[0]
+    dy = wp.abs(q[1]) - half[1]
+    outside = wp.sqrt(wp.max(dx, 0.0) * wp.max(dx, 0.0) + wp.max(dy, 0.0) * wp.max(dy, 0.0))
+    return outside + wp.min(wp.max(dx, dy), 0.0)
+
+
+@wp.func
+def part_sdf(q: wp.vec2, part: wp.vec4) -> float:
+    """Signed distance to one object part (cx, cy, hx, hy) in the object frame; hy <= 0 marks a disc of radius hx."""
+    d = wp.vec2(q[0] - part[0], q[1] - part[1])
+    if part[3] <= 0.0:
+        return wp.length(d) - part[2]
+    return box_sdf(d, wp.vec2(part[2], part[3]))
+
+
+@wp.func
+def object_sdf(p: wp.vec2, pose_x: float, pose_y: float, pose_yaw: float, parts: wp.array2d[wp.vec4], o: int) -> float:
+    """Signed distance (min over parts, i.e. the union) from world point p to object o at the given pose."""
+    q = to_body(wp.vec2(p[0] - pose_x, p[1] - pose_y), wp.cos(pose_yaw), wp.sin(pose_yaw))
+    best = float(1.0e9)
+    for k in range(parts.shape[1]):
+        best = wp.min(best, part_sdf(q, parts[o, k]))
+    return best
+
+
+@wp.func
+def mover_yaw(rot: wp.array3d[wp.float32], w: int, m: int) -> float:
+    """Yaw from either a yaw array (last dim 1) or a quaternion (x, y, z, w) array (last dim 4)."""
+    if rot.shape[2] == 1:
+        return rot[w, m, 0]
+    x = rot[w, m, 0]
+    y = rot[w, m, 1]
+    z = rot[w, m, 2]
+    qw = rot[w, m, 3]
+    return wp.atan2(2.0 * (qw * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+@wp.func
+def segment_distance(p: wp.vec2, a: wp.vec2, b: wp.vec2) -> float:
+    ab = b - a
+    denom = wp.dot(ab, ab)
+    t = float(0.0)
+    if denom > 0.0:
+        t = wp.clamp(wp.dot(p - a, ab) / denom, 0.0, 1.0)
+    return wp.length(p - (a + ab * t))
+
+
+@wp.func
+def shared(index: int, arr_len: int) -> int:
+    """Index into a per-world array that may be shared (leading size 1) by all worlds."""
+    return wp.min(index, arr_len - 1)
+
+
+@wp.kernel
+def draw_background(
+    # Model:
+    tiles: wp.array2d[wp.int32],
+    tile_size: float,
+    px_per_m: float,
+    num_cells: int,
+    cols: int,
+    row_cell: wp.array[wp.int32],
+    col_cell: wp.array[wp.int32],
+    row_local: wp.array[wp.int32],
+    col_local: wp.array[wp.int32],
+    row_y: wp.array[wp.float32],
+    col_x: wp.array[wp.float32],
+    fixed_colors: wp.array[wp.vec3],
+    style: int,
+    # State out:
+    background: wp.array3d[wp.uint8],
+):
+    """The static layer (separators, tiles, grid lines, hatched holes), drawn once when the renderer is built."""
+    row, col = wp.tid()
+    color = fixed_colors[C_BACKGROUND]
+    rc = row_cell[row]
+    cc = col_cell[col]
+    if rc >= 0 and cc >= 0 and rc * cols + cc < num_cells:
+        x = col_x[col]
+        y = row_y[row]
+        px = 1.0 / px_per_m
+        ti = int(wp.floor(x / tile_size))
+        tj = int(wp.floor(y / tile_size))
+        present = 0
+        if ti >= 0 and tj >= 0 and ti < tiles.shape[0] and tj < tiles.shape[1]:
+            present = tiles[ti, tj]
+        if present != 0:
+            color = fixed_colors[C_TILE]
+            if style & DRAW_GRID:
+                # A pixel-wide line at every tile edge: distance to the nearest multiple of the tile size.
+                ex = wp.abs(x - wp.round(x / tile_size) * tile_size)
+                ey = wp.abs(y - wp.round(y / tile_size) * tile_size)
+                if wp.min(ex, ey) < 0.75 * px:
+                    color = fixed_colors[C_TILE_LINE]
+        else:
+            color = fixed_colors[C_HOLE]
+            if (row_local[row] + col_local[col]) % 8 < 2:  # diagonal hatch: reads as "no floor here"
+                color = fixed_colors[C_HOLE_HATCH]
+    background[row, col, 0] = wp.uint8(int(color[0] + 0.5))
+    background[row, col, 1] = wp.uint8(int(color[1] + 0.5))
+    background[row, col, 2] = wp.uint8(int(color[2] + 0.5))
+
+
+@wp.kernel
+def draw_topdown(
+    # Model: mosaic geometry (per-row / per-column lookup tables, so no divisions per pixel)
+    background: wp.array3d[wp.uint8],
+    num_cells: int,
+    cols: int,
+    row_cell: wp.array[wp.int32],
+    col_cell: wp.array[wp.int32],
+    row_y: wp.array[wp.float32],
+    col_x: wp.array[wp.float32],
+    px_per_m: float,
+    cell_worlds: wp.array[wp.int32],
+    run_length: int,
+    # Model: shapes and style
+    shape_kind: int,
+    footprint_half: wp.vec2,
+    margin: float,
+    reject_radius: float,
+    radii: wp.array2d[wp.float32],
+    half_sizes: wp.array3d[wp.float32],
+    object_parts: wp.array2d[wp.vec4],
+    fixed_colors: wp.array[wp.vec3],
+    mover_colors: wp.array[wp.vec3],
+    goal_radius: float,
+    style: int,
+    # State in:
+    pos: wp.array3d[wp.float32],
+    rot: wp.array3d[wp.float32],
+    flags: wp.array2d[wp.int32],
+    goals: wp.array3d[wp.float32],
+    object_poses: wp.array3d[wp.float32],
+    object_goals: wp.array3d[wp.float32],
+    obstacles: wp.array3d[wp.float32],
+    # State out:
+    image: wp.array3d[wp.uint8],
+):
+    row, chunk = wp.tid()
+    # Each thread draws a run of `run_length` pixels of one row: 1 on GPUs (one thread per pixel); longer runs on
+    # CPUs, where every thread call copies the kernel's arguments and that copy would dominate a cheap pixel.
+    col_start = chunk * run_length
+    col_end = wp.min(col_start + run_length, image.shape[1])
+    rc = row_cell[row]
+    px = 1.0 / px_per_m
+    y = row_y[row]
+    for col in range(col_start, col_end):
+        cc = col_cell[col]
+        cell = rc * cols + cc
+        if rc < 0 or cc < 0 or cell >= num_cells:  # separator: copy the static layer
+            image[row, col, 0] = background[row, col, 0]
+            image[row, col, 1] = background[row, col, 1]
+            image[row, col, 2] = background[row, col, 2]
+            continue
+        w = cell_worlds[cell]
+        color = wp.vec3(float(background[row, col, 0]), float(background[row, col, 1]), float(background[row, col, 2]))
+        # Pixel centre in world metres (image rows grow downwards, world y upwards: the tables already flip it).
+        p = wp.vec2(col_x[col], y)
+
+        # --- static obstacles: oriented rectangles (cx, cy, hx, hy, yaw)
+        wo = shared(w, obstacles.shape[0])
+        for k in range(obstacles.shape[1]):
+            yaw = obstacles[wo, k, 4]
+            q = to_body(wp.vec2(p[0] - obstacles[wo, k, 0], p[1] - obstacles[wo, k, 1]), wp.cos(yaw), wp.sin(yaw))
+            d = box_sdf(q, wp.vec2(obstacles[wo, k, 2], obstacles[wo, k, 3]))
+            if d <= 0.0:
+                color = fixed_colors[C_OBSTACLE]
+                if d > -1.5 * px:
+                    color = fixed_colors[C_OBSTACLE_EDGE]
+
+        # --- object goal poses: translucent green silhouettes of the objects
+        wg = shared(w, object_goals.shape[0])
+        for o in range(object_goals.shape[1]):
+            d = object_sdf(p, object_goals[wg, o, 0], object_goals[wg, o, 1], object_goals[wg, o, 2], object_parts, o)
+            if d <= 0.0:
+                color = blend(color, fixed_colors[C_OBJECT_GOAL], OBJECT_GOAL_ALPHA)
+                if d > -1.5 * px:
+                    color = fixed_colors[C_OBJECT_GOAL]
+
+        num_movers = pos.shape[1]
+        wm = shared(w, pos.shape[0])
+        wr = shared(w, rot.shape[0])
+        wgl = shared(w, goals.shape[0])
+        has_goals = goals.shape[1] == num_movers and num_movers > 0
+
+        # --- thin translucent lines from each mover to its goal (which goal is whose)
+        if has_goals and (style & DRAW_GOAL_LINES):
+            for m in range(num_movers):
+                ax = pos[wm, m, 0]
+                ay = pos[wm, m, 1]
+                bx = goals[wgl, m, 0]
+                by = goals[wgl, m, 1]
+                # Cheap reject with the segment's bounding box before the exact distance.
+                if p[0] < wp.min(ax, bx) - px or p[0] > wp.max(ax, bx) + px:
+                    continue
+                if p[1] < wp.min(ay, by) - px or p[1] > wp.max(ay, by) + px:
+                    continue
+                if segment_distance(p, wp.vec2(ax, ay), wp.vec2(bx, by)) < 0.6 * px:
+                    color = blend(color, mover_colors[m % mover_colors.shape[0]], GOAL_LINE_ALPHA)
+
+        # --- objects: opaque union of parts with a dark rim
+        wob = shared(w, object_poses.shape[0])
+        for o in range(object_poses.shape[1]):
+            d = object_sdf(p, object_poses[wob, o, 0], object_poses[wob, o, 1], object_poses[wob, o, 2], object_parts, o)
+            if d <= 0.0:
+                color = fixed_colors[C_OBJECT]
+                if d > -1.5 * px:
+                    color = fixed_colors[C_OBJECT_EDGE]
+
+        # --- movers: safety zone (collision shape + margin), footprint, heading mark
+        wf = shared(w, flags.shape[0])
+        wrad = shared(w, radii.shape[0])
+        whs = shared(w, half_sizes.shape[0])
+        for m in range(num_movers):
+            # Cheap reject: outside a square/circle that holds everything drawn for any mover.
+            dx = p[0] - pos[wm, m, 0]
+            if wp.abs(dx) > reject_radius:
+                continue
+            dy = p[1] - pos[wm, m, 1]
+            if wp.abs(dy) > reject_radius or dx * dx + dy * dy > reject_radius * reject_radius:
+                continue
+            dm = wp.vec2(dx, dy)
+            yaw = mover_yaw(rot, wr, m)
+            q = to_body(dm, wp.cos(yaw), wp.sin(yaw))
+            mc = mover_colors[m % mover_colors.shape[0]]
+            # A collided mover keeps its own colour (so you can tell which one it is) inside a red halo: its safety
+            # zone turns red, more opaque, with a thicker rim.
+            zc = mc
+            zone_alpha = float(SAFETY_ZONE_ALPHA)
+            rim = 1.5 * px
+            collided = False
+            if flags.shape[1] == num_movers:
+                if flags[wf, m] != 0:
+                    collided = True
+                    zc = fixed_colors[C_COLLISION]
+                    zone_alpha = COLLIDED_ZONE_ALPHA
+                    rim = 2.5 * px
+            if (style & DRAW_SAFETY_ZONE) or collided:
+                zone = wp.length(dm) - (radii[wrad, m] + margin)
+                if shape_kind == SHAPE_BOX:
+                    zone = box_sdf(q, wp.vec2(half_sizes[whs, m, 0] + margin, half_sizes[whs, m, 1] + margin))
+                if zone <= 0.0:
+                    color = blend(color, zc, zone_alpha)
+                    if zone > -rim:
+                        color = zc
+            foot = box_sdf(q, footprint_half)
+            if foot <= 0.0:
+                color = mc
+                if foot > -1.0 * px:
+                    color = mc * 0.6  # darker rim separates touching movers
+                if style & DRAW_HEADING:
+                    if q[0] >= 0.0 and q[0] <= footprint_half[0] - 1.5 * px and wp.abs(q[1]) <= 0.75 * px:
+                        color = fixed_colors[C_HEADING]
+
+        # --- goals on top: a disc in the mover's colour with a dark ring (still visible under its own mover)
+        if has_goals:
+            for m in range(num_movers):
+                gx = p[0] - goals[wgl, m, 0]
+                gy = p[1] - goals[wgl, m, 1]
+                if wp.abs(gx) > goal_radius or wp.abs(gy) > goal_radius:
+                    continue
+                dist = wp.sqrt(gx * gx + gy * gy)
+                if dist <= goal_radius:
+                    color = mover_colors[m % mover_colors.shape[0]]
+                    if dist > goal_radius - 1.0 * px:
+                        color = fixed_colors[C_GOAL_RING]
+
+        image[row, col, 0] = wp.uint8(int(color[0] + 0.5))
+        image[row, col, 1] = wp.uint8(int(color[1] + 0.5))
+        image[row, col, 2] = wp.uint8(int(color[2] + 0.5))
