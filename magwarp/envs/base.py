@@ -30,6 +30,13 @@ __all__ = ["MagwarpVecEnv"]
 Obs = dict[str, torch.Tensor] | torch.Tensor
 
 
+def _where(mask: torch.Tensor, new: Obs, old: Obs) -> Obs:
+    """Per env: ``new`` where ``mask`` (``[num_envs]``) is true, else ``old`` (tensors or dicts of tensors)."""
+    if isinstance(new, dict):
+        return {k: _where(mask, v, old[k]) for k, v in new.items()}
+    return torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, old)
+
+
 class MagwarpVecEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"], "render_fps": 25}
 
@@ -92,7 +99,8 @@ class MagwarpVecEnv(VectorEnv):
             info["final_obs"] = obs
             info["_final_obs"] = done
             self._reset_envs(done)
-            obs = self._get_obs()
+            # Only finished envs show their new episode; the others keep the observation the reward was computed for.
+            obs = _where(done, self._get_obs(), obs)
         return obs, reward, terminated, truncated, info
 
     def render(self):
