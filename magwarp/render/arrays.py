@@ -63,3 +63,10 @@ def to_numpy_image(frame) -> np.ndarray:
     if arr.ndim != 3 or arr.shape[2] not in (3, 4) or arr.dtype != np.uint8:
         raise ValueError(f"a frame must be an [H, W, 3] uint8 image, got shape {arr.shape} dtype {arr.dtype}")
     return np.array(arr[:, :, :3], copy=True)
+
+
+def warp_device(device) -> wp.Device:
+    """A Warp device from a Warp device, a name ("cpu", "cuda:0"), a ``torch.device`` or ``None`` (Warp's default)."""
+    if isinstance(device, torch.device):
+        return wp.device_from_torch(device)
+    return wp.get_device(device)

@@ -22,7 +22,7 @@ import warp as wp
 from magwarp.layout import Layout, MoverSpec
 from magwarp.render import colors
 from magwarp.render import kernels as K
-from magwarp.render.arrays import as_tensor, per_world, to_numpy_image
+from magwarp.render.arrays import as_tensor, per_world, to_numpy_image, warp_device
 
 __all__ = ["TopDownRenderer", "object_parts"]
 
@@ -84,7 +84,7 @@ class TopDownRenderer:
         goal_radius: radius of the goal disc in metres (at least 2.5 pixels).
         grid, safety_zone, heading, goal_lines: toggle tile lines, collision-shape zone, yaw mark, mover->goal lines
             (``goal_lines=None``: on for up to 4 worlds, off in bigger mosaics where they are clutter).
-        device: Warp device (default: Warp's preferred device); inputs are moved to it.
+        device: Warp device, name or ``torch.device`` (default: Warp's preferred device); inputs are moved to it.
     """
 
     def __init__(
@@ -112,7 +112,7 @@ class TopDownRenderer:
             raise ValueError(f"px_per_tile must be >= 4, got {px_per_tile}")
         if int(border_px) < 0:
             raise ValueError(f"border_px must be >= 0, got {border_px}")
-        self.device = wp.get_device(device)
+        self.device = warp_device(device)
         self.torch_device = wp.device_to_torch(self.device)
         self.px_per_tile = int(px_per_tile)
         self.px_per_m = self.px_per_tile / layout.tile.size
