@@ -90,15 +90,24 @@ def object_sdf(p: wp.vec2, pose_x: float, pose_y: float, pose_yaw: float, parts:
 
 
 @wp.func
-def mover_yaw(rot: wp.array3d[wp.float32], w: int, m: int) -> float:
-    """Yaw from either a yaw array (last dim 1) or a quaternion (x, y, z, w) array (last dim 4)."""
+def mover_heading(rot: wp.array3d[wp.float32], w: int, m: int) -> wp.vec2:
+    """(cos yaw, sin yaw) from a yaw array (last dim 1) or a quaternion (x, y, z, w) array (last dim 4).
+
+    For quaternions it is the body x axis projected on the floor, normalised: no trigonometry per pixel, which
+    matters because every pixel near a mover needs it."""
     if rot.shape[2] == 1:
-        return rot[w, m, 0]
+        yaw = rot[w, m, 0]
+        return wp.vec2(wp.cos(yaw), wp.sin(yaw))
     x = rot[w, m, 0]
     y = rot[w, m, 1]
     z = rot[w, m, 2]
     qw = rot[w, m, 3]
-    return wp.atan2(2.0 * (qw * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    c = 1.0 - 2.0 * (y * y + z * z)
+    s = 2.0 * (qw * z + x * y)
+    n = wp.sqrt(c * c + s * s)
+    if n < 1.0e-12:
+        return wp.vec2(1.0, 0.0)
+    return wp.vec2(c / n, s / n)
 
 
 @wp.func
@@ -211,6 +220,13 @@ def draw_topdown(
     rc = row_cell[row]
     px = 1.0 / px_per_m
     y = row_y[row]
+    num_movers = pos.shape[1]
+    has_goals = goals.shape[1] == num_movers and num_movers > 0
+    static_only = obstacles.shape[1] == 0 and object_goals.shape[1] == 0 and object_poses.shape[1] == 0
+    # Row band: bit m is set when this row can touch mover m, its goal or its goal line. Computed once per cell
+    # along the run; most rows of a cell meet few movers, so most mover tests are skipped (movers >= 31: tested).
+    last_cell = int(-1)
+    band = int(0)
     for col in range(col_start, col_end):
         cc = col_cell[col]
         cell = rc * cols + cc
@@ -220,6 +236,24 @@ def draw_topdown(
             image[row, col, 2] = background[row, col, 2]
             continue
         w = cell_worlds[cell]
+        if cell != last_cell:
+            last_cell = cell
+            band = int(0)
+            wb = shared(w, pos.shape[0])
+            wbg = shared(w, goals.shape[0])
+            for m in range(wp.min(num_movers, 31)):
+                lo = pos[wb, m, 1] - reject_radius
+                hi = pos[wb, m, 1] + reject_radius
+                if has_goals:
+                    lo = wp.min(lo, goals[wbg, m, 1] - goal_radius - px)
+                    hi = wp.max(hi, goals[wbg, m, 1] + goal_radius + px)
+                if y >= lo and y <= hi:
+                    band = band | (1 << m)
+        if band == 0 and static_only and num_movers <= 31:  # nothing dynamic on this pixel's row
+            image[row, col, 0] = background[row, col, 0]
+            image[row, col, 1] = background[row, col, 1]
+            image[row, col, 2] = background[row, col, 2]
+            continue
         color = wp.vec3(float(background[row, col, 0]), float(background[row, col, 1]), float(background[row, col, 2]))
         # Pixel centre in world metres (image rows grow downwards, world y upwards: the tables already flip it).
         p = wp.vec2(col_x[col], y)
@@ -244,15 +278,15 @@ def draw_topdown(
                 if d > -1.5 * px:
                     color = fixed_colors[C_OBJECT_GOAL]
 
-        num_movers = pos.shape[1]
         wm = shared(w, pos.shape[0])
         wr = shared(w, rot.shape[0])
         wgl = shared(w, goals.shape[0])
-        has_goals = goals.shape[1] == num_movers and num_movers > 0
 
         # --- thin translucent lines from each mover to its goal (which goal is whose)
         if has_goals and (style & DRAW_GOAL_LINES):
             for m in range(num_movers):
+                if m < 31 and ((band >> m) & 1) == 0:
+                    continue
                 ax = pos[wm, m, 0]
                 ay = pos[wm, m, 1]
                 bx = goals[wgl, m, 0]
@@ -279,6 +313,8 @@ def draw_topdown(
         wrad = shared(w, radii.shape[0])
         whs = shared(w, half_sizes.shape[0])
         for m in range(num_movers):
+            if m < 31 and ((band >> m) & 1) == 0:
+                continue
             # Cheap reject: outside a square/circle that holds everything drawn for any mover.
             dx = p[0] - pos[wm, m, 0]
             if wp.abs(dx) > reject_radius:
@@ -287,8 +323,8 @@ def draw_topdown(
             if wp.abs(dy) > reject_radius or dx * dx + dy * dy > reject_radius * reject_radius:
                 continue
             dm = wp.vec2(dx, dy)
-            yaw = mover_yaw(rot, wr, m)
-            q = to_body(dm, wp.cos(yaw), wp.sin(yaw))
+            cs = mover_heading(rot, wr, m)
+            q = to_body(dm, cs[0], cs[1])
             mc = mover_colors[m % mover_colors.shape[0]]
             # A collided mover keeps its own colour (so you can tell which one it is) inside a red halo: its safety
             # zone turns red, more opaque, with a thicker rim.
@@ -322,6 +358,8 @@ def draw_topdown(
         # --- goals on top: a disc in the mover's colour with a dark ring (still visible under its own mover)
         if has_goals:
             for m in range(num_movers):
+                if m < 31 and ((band >> m) & 1) == 0:
+                    continue
                 gx = p[0] - goals[wgl, m, 0]
                 gy = p[1] - goals[wgl, m, 1]
                 if wp.abs(gx) > goal_radius or wp.abs(gy) > goal_radius:
