@@ -1,0 +1,531 @@
+"""Object pushing on mujoco-warp (MagBotSim's ``StateBasedGlobalPushingEnv`` family), batched and torch-native.
+
+One or more movers push an object (box, square box, cylinder, T, L, X) to a goal position (``learn_pose=False``)
+or a goal pose (``learn_pose=True``). Per env step (``num_cycles`` control cycles of 1 ms, the same action held):
+
+* observation: mover x/y positions then x/y velocities (then x/y accelerations when learning jerk), each flattened
+  mover by mover; achieved_goal: object x/y (plus sin/cos of its yaw for poses); desired_goal: the goal likewise;
+* success: distance <= ``max_position_err`` (position goals) or coverage = area(object ∩ goal) / area(goal) >=
+  ``min_coverage`` (pose goals; the paper's 0.7 by default, MagBotSim's library uses 0.95), and no collision;
+* reward: ``collision_penalty`` on a mover-mover or wall collision, else ``object_at_goal_reward`` at the goal
+  (position goals, or ``use_sparse_pose_reward``), else the coverage where it is positive (dense pose reward), else
+  ``per_step_penalty``;
+* terminated on a collision (or after ``early_termination_steps`` consecutive steps at the goal, if set);
+  truncated after ``max_episode_steps`` (25 for Push-Box, 50 for Push-T/L/X, as MagBotSim registers them).
+
+Start sampling follows MagBotSim's definition (start and goal ranges with its safety margins, mover-object distance
+above the sum of their half-extents, object-goal distance above 0.15 m, uniform start and goal yaw), drawn on the
+device with a fixed number of candidates per reset instead of a Python rejection loop.
+
+Differences from MagBotSim, on purpose: observations are float32 and noise-free; the mover controller is the
+physically right impedance law of :mod:`magwarp.physics.control`; collisions are checked after every cycle inside
+the step graph but a world is not frozen at its collision cycle (the episode ends at the step either way);
+coverage rotates the object about its body origin (MagBotSim's shapely code rotates the L about its bounding-box
+centre); jerk-mode observations use mujoco-warp's ``qacc`` as MagBotSim does.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from magwarp.envs.base import MagwarpVecEnv
+from magwarp.layout import Layout, MoverSpec
+from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
+from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
+from magwarp.physics.mover_checks import MoverChecks
+
+__all__ = ["PushEnv", "PushBoxEnv", "PushTEnv", "PushLEnv", "PushXEnv", "PushWithObstaclesEnv"]
+
+_CANDIDATES = 32  # start configurations drawn per env and reset; the first valid one is used
+
+
+def _default_device() -> str:
+    from magwarp.sim import default_device
+
+    return default_device()
+
+
+def _yaw_from_quat(q: torch.Tensor) -> torch.Tensor:
+    """Yaw of MuJoCo quaternions ``[..., 4]`` (w, x, y, z)."""
+    w, x, y, z = q.unbind(-1)
+    return torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+class PushEnv(MagwarpVecEnv):
+    """Batched object pushing. ``layout`` is a :class:`Layout` or 0/1 array (default: 4 x 3 tiles).
+
+    ``object_type`` is one of ``box``, ``square_box``, ``cylinder``, ``t_shape``, ``l_shape``, ``plus_shape`` (or
+    ``T``, ``L``, ``X``); ``object_*`` set its half-sizes (m), mass (kg) and friction. Collision options follow
+    MagBotSim's ``collision_params``: ``collision_shape``, ``collision_size``, ``collision_offset`` (sampling
+    margin), ``collision_offset_wall`` (wall margin).
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        object_type: str = "square_box",
+        layout: Layout | np.ndarray | None = None,
+        num_movers: int = 1,
+        *,
+        learn_pose: bool = False,
+        learn_jerk: bool = False,
+        object_width: float = 0.06,
+        object_height: float = 0.06,
+        object_depth: float = 0.02,
+        object_segment_width: float = 0.02,
+        object_radius: float = 0.05,
+        object_mass: float = 0.3,
+        object_sliding_friction: float = 0.6,
+        object_torsional_friction: float = 0.0001,
+        v_max: float = 2.0,
+        a_max: float = 10.0,
+        j_max: float = 100.0,
+        num_cycles: int = 40,
+        max_position_err: float = 0.05,
+        min_coverage: float = 0.7,
+        use_sparse_pose_reward: bool = False,
+        collision_penalty: float = -10.0,
+        per_step_penalty: float = -0.01,
+        object_at_goal_reward: float = 1.0,
+        early_termination_steps: int | None = None,
+        max_episode_steps: int = 25,
+        collision_shape: str = "circle",
+        collision_size: float | tuple[float, float] | None = None,
+        collision_offset: float = 0.0,
+        collision_offset_wall: float = 0.0,
+        initial_mover_zpos: float = 0.003,
+        obstacles: tuple[ObstacleSpec, ...] = (),
+        nconmax: int | None = None,
+        njmax: int | None = None,
+        device: str | None = None,
+        seed: int | None = None,
+        render_mode: str | None = None,
+        autoreset: bool = True,
+        check_inputs: bool = True,
+    ):
+        layout = Layout(np.ones((4, 3), dtype=np.int32)) if layout is None else layout
+        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+        if int(num_movers) != num_movers or num_movers < 1:
+            raise ValueError(f"num_movers must be a positive integer, got {num_movers!r}")
+        if collision_shape not in ("circle", "box"):
+            raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
+        for name, value in (("num_cycles", num_cycles), ("max_episode_steps", max_episode_steps)):
+            if int(value) != value or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not 0.0 <= min_coverage <= 1.0:
+            raise ValueError(f"min_coverage must lie in [0, 1], got {min_coverage!r}")
+        if not max_position_err > 0:
+            raise ValueError(f"max_position_err must be positive, got {max_position_err!r}")
+        if early_termination_steps is not None and early_termination_steps < 1:
+            raise ValueError(f"early_termination_steps must be None or >= 1, got {early_termination_steps!r}")
+        self.num_movers = int(num_movers)
+        self.learn_pose = bool(learn_pose)
+        self.learn_jerk = bool(learn_jerk)
+        self.max_position_err = float(max_position_err)
+        self.min_coverage = float(min_coverage)
+        self.use_sparse_pose_reward = bool(use_sparse_pose_reward)
+        self.collision_penalty = float(collision_penalty)
+        self.per_step_penalty = float(per_step_penalty)
+        self.object_at_goal_reward = float(object_at_goal_reward)
+        self.early_termination_steps = early_termination_steps
+        self.max_episode_steps = int(max_episode_steps)
+        self.object = ObjectSpec(object_type, width=object_width, height=object_height, depth=object_depth,
+                                 segment_width=object_segment_width, radius=object_radius, mass=object_mass,
+                                 friction=(object_sliding_friction, object_torsional_friction, 0.0001))
+        spec: dict[str, Any] = dict(hover_gap=initial_mover_zpos, collision_shape=collision_shape,
+                                    wall_margin=collision_offset_wall)
+        if collision_size is not None:
+            if collision_shape == "circle":
+                spec["collision_radius"] = float(collision_size)
+            else:
+                spec["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
+        self.mover = MoverSpec(**spec)
+        self.collision_offset = float(collision_offset)
+        self.obstacles = tuple(obstacles)
+
+        # Model: built once; starts and goals change per world without a rebuild.
+        self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
+                                 objects=[self.object], obstacles=self.obstacles)
+        device = device or _default_device()
+        # contacts per world: up to 8 per object part on the support, 8 per mover and per obstacle touching it
+        parts = max(len(self.object.rects()), 1)
+        ncon = nconmax or 8 * (parts + self.num_movers + len(self.obstacles) + 1)
+        self.backend = MjwBackend(
+            self.xml, int(num_envs), control=ControlParams(v_max=v_max, a_max=a_max, j_max=j_max, jerk=learn_jerk,
+                                                         num_cycles=int(num_cycles)),
+            nconmax=ncon, njmax=njmax or 4 * ncon, device=device,
+        )
+        self.checks = MoverChecks(self.backend, self.layout, self.mover)
+        self.contacts = None
+        if self.obstacles:
+            self.contacts = ContactFlags(
+                self.backend,
+                {"mover": ["mover_geom_"], "object": ["object_0_geom_"], "obstacle": ["obstacle_geom_"]},
+                [("mover", "obstacle"), ("object", "obstacle")],
+            )
+        super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
+                         check_inputs=check_inputs)
+
+        self._init_sampling_ranges()
+        n, dev = self.num_envs, self.device
+        self.goal_xy = torch.zeros(n, 2, device=dev)
+        self.goal_yaw = torch.zeros(n, device=dev)
+        self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
+        self.steps_at_goal = torch.zeros(n, dtype=torch.int64, device=dev)
+        self._set_spaces(self._observation_space(), self._action_space())
+        self.reset()
+
+    # ------------------------------------------------------------------ definitions (MagBotSim's)
+    def _placeholder_starts(self) -> np.ndarray:
+        # Any positions do for the model's qpos0 (every reset overrides them); spread them so the XML is sensible.
+        ext = np.asarray(self.layout.extent)
+        return np.stack([np.linspace(0.2, 0.8, self.num_movers) * ext[0], np.full(self.num_movers, 0.2 * ext[1])], 1)
+
+    def _c_size_xy(self) -> np.ndarray:
+        m = self.mover
+        return np.full(2, m.collision_radius) if m.collision_shape == "circle" else np.asarray(m.collision_half_size)
+
+    def _init_sampling_ranges(self) -> None:
+        """Start/goal ranges and distances of MagBotSim's global pushing env (its definition, in its units)."""
+        tile_half = self.layout.tile.half
+        centres = self.layout.tile_centers()
+        margin = self._c_size_xy() + self.mover.wall_margin + self.collision_offset + 0.03
+        # MagBotSim bounds the range by the outermost tile centres plus half of the tile's *half* size.
+        self.min_xy = margin
+        self.max_xy = centres.max(axis=0) + tile_half / 2 - margin
+        obj_margin = margin + 0.02
+        self.object_min_xy = self.min_xy + obj_margin
+        self.object_max_xy = self.max_xy - obj_margin
+        if np.any(self.object_max_xy < self.object_min_xy) or np.any(self.max_xy < self.min_xy):
+            raise ValueError(f"layout of shape {self.layout.shape} is too small for pushing with these margins")
+        obj = self.object
+        side = obj.radius if obj.shape == "cylinder" else max(obj.width, obj.height)
+        mover_half = 0.5 * np.asarray(self.mover.size[:2])
+        c = self._c_size_xy() + self.collision_offset
+        c_offset = c[0] if self.mover.collision_shape == "circle" else float(np.linalg.norm(c))
+        self.min_mover_object_dist = max(float(np.linalg.norm(side + mover_half)), c_offset)
+        self.min_object_goal_dist = 0.15
+        self.mover_pair_dist = 2 * float(np.linalg.norm(c)) if self.mover.collision_shape == "box" else 2 * c[0]
+        self._continuous = bool(self.layout.tiles.all())
+
+    def _observation_space(self) -> gym.spaces.Dict:
+        m = self.num_movers
+        obs_dim = m * 2 * (3 if self.learn_jerk else 2)
+        ext = np.asarray(self.layout.extent, dtype=np.float32)
+        if self.learn_pose:
+            lo, hi = np.array([0, 0, -1, -1], np.float32), np.array([ext[0], ext[1], 1, 1], np.float32)
+        else:
+            lo, hi = np.zeros(2, np.float32), ext
+        return gym.spaces.Dict({
+            "observation": gym.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32),
+            "achieved_goal": gym.spaces.Box(lo, hi, dtype=np.float32),
+            "desired_goal": gym.spaces.Box(lo, hi, dtype=np.float32),
+        })
+
+    def _action_space(self) -> gym.spaces.Box:
+        c = self.backend.control
+        limit = c.j_max if c.jerk else c.a_max
+        return gym.spaces.Box(-limit, limit, (self.num_movers * 2,), np.float32)
+
+    # ------------------------------------------------------------------ sampling (device, batched)
+    def _uniform(self, lo, hi, *shape: int) -> torch.Tensor:
+        lo_t = torch.as_tensor(np.asarray(lo, np.float32), device=self.device)
+        hi_t = torch.as_tensor(np.asarray(hi, np.float32), device=self.device)
+        return lo_t + (hi_t - lo_t) * self._rand(*shape, lo_t.shape[-1] if lo_t.ndim else 1)
+
+    def _on_tiles(self, xy: torch.Tensor, radius: float) -> torch.Tensor:
+        """Circle of ``radius`` at ``xy`` ``[..., 2]`` lies on present tiles (conservative for box footprints)."""
+        size = self.layout.tile.size
+        tiles = torch.as_tensor(self.layout.tiles, device=self.device)
+        nx, ny = tiles.shape
+        reach = int(math.ceil(radius / size))
+        base = torch.floor(xy / size).long()
+        ok = torch.ones(xy.shape[:-1], dtype=torch.bool, device=self.device)
+        for di in range(-reach, reach + 1):
+            for dj in range(-reach, reach + 1):
+                cell = base + torch.tensor([di, dj], device=self.device)
+                inside = (cell[..., 0] >= 0) & (cell[..., 0] < nx) & (cell[..., 1] >= 0) & (cell[..., 1] < ny)
+                present = inside & (tiles[cell[..., 0].clamp(0, nx - 1), cell[..., 1].clamp(0, ny - 1)] == 1)
+                lo = cell.to(xy.dtype) * size
+                nearest = torch.maximum(torch.minimum(xy, lo + size), lo)
+                hits = (xy - nearest).norm(dim=-1) < radius
+                ok &= present | ~hits
+        return ok
+
+    def _tile_points(self, *shape: int) -> torch.Tensor:
+        """MagBotSim's ``_sample_position_on_tile``: a random present tile, offset towards present neighbours."""
+        t = self.layout.tiles
+        ii, jj = np.nonzero(t)
+        nx, ny = t.shape
+        h = self.layout.tile.half
+        lo = np.stack([np.where((ii > 0) & (t[np.maximum(ii - 1, 0), jj] == 1), -h, 0.0),
+                       np.where((jj > 0) & (t[ii, np.maximum(jj - 1, 0)] == 1), -h, 0.0)], 1)
+        hi = np.stack([np.where((ii < nx - 1) & (t[np.minimum(ii + 1, nx - 1), jj] == 1), h, 0.0),
+                       np.where((jj < ny - 1) & (t[ii, np.minimum(jj + 1, ny - 1)] == 1), h, 0.0)], 1)
+        centres = torch.as_tensor(self.layout.tile_centers(), dtype=torch.float32, device=self.device)
+        lo_t = torch.as_tensor(lo, dtype=torch.float32, device=self.device)
+        hi_t = torch.as_tensor(hi, dtype=torch.float32, device=self.device)
+        k = self._randint(len(ii), *shape)
+        return centres[k] + lo_t[k] + (hi_t[k] - lo_t[k]) * self._rand(*shape, 2)
+
+    def _sample_episode(self, n: int) -> dict[str, torch.Tensor]:
+        """Starts and goals for ``n`` envs: ``_CANDIDATES`` candidates each, the first valid one chosen."""
+        k, m = _CANDIDATES, self.num_movers
+        movers = self._uniform(self.min_xy, self.max_xy, n, k, m)
+        if self._continuous:
+            goal = self._uniform(self.object_min_xy, self.object_max_xy, n, 1).expand(n, k, 2)
+            obj = self._uniform(self.object_min_xy, self.object_max_xy, n, k)
+        else:
+            goal, obj = self._tile_points(n, k), self._tile_points(n, k)
+        ok = (movers - obj[:, :, None, :]).norm(dim=-1).gt(self.min_mover_object_dist).all(-1)
+        ok &= (obj - goal).norm(dim=-1) > self.min_object_goal_dist
+        reach = self.mover.bounding_radius(self.mover.wall_margin + self.collision_offset)
+        if not self._continuous:
+            ok &= self._on_tiles(movers, reach).all(-1)
+        if m > 1:
+            d = (movers[:, :, :, None, :] - movers[:, :, None, :, :]).norm(dim=-1)
+            d = d + torch.eye(m, device=self.device) * 1e9
+            ok &= (d > self.mover_pair_dist).flatten(2).all(-1)
+        first = torch.argmax(ok.to(torch.int8), dim=1)  # first valid candidate (0 if none: vanishingly rare)
+        rows = torch.arange(n, device=self.device)
+        two_pi = 2 * math.pi
+        return {
+            "mover_xy": movers[rows, first],
+            "object_xy": obj[rows, first],
+            "goal_xy": goal[rows, first],
+            "object_yaw": self._rand(n) * two_pi - math.pi,
+            "goal_yaw": self._rand(n) * two_pi - math.pi,
+        }
+
+    # ------------------------------------------------------------------ task hooks
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        b = self.backend
+        s = self._sample_episode(self.num_envs)
+        m3 = mask[:, None, None]
+        mover_q = b.init_mover_qpos
+        new_mover = mover_q.clone()
+        new_mover[..., :2] = s["mover_xy"]
+        new_mover[..., 2] = float(b.hover_z[0])
+        new_mover[..., 3:] = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device)
+        mover_q.copy_(torch.where(m3, new_mover, mover_q))
+        obj_q = b.init_object_qpos
+        half = 0.5 * s["object_yaw"]
+        new_obj = torch.zeros_like(obj_q)
+        new_obj[:, 0, :2] = s["object_xy"]
+        # 10 um into the support: a contact at exactly zero distance flips between float32 and float64 rounding
+        new_obj[:, 0, 2] = self.object.depth - 1e-5
+        new_obj[:, 0, 3] = torch.cos(half)
+        new_obj[:, 0, 6] = torch.sin(half)
+        obj_q.copy_(torch.where(m3, new_obj, obj_q))
+        b.init_qvel_t.masked_fill_(mask[:, None], 0.0)
+        b.reset(mask)
+        self.goal_xy.copy_(torch.where(mask[:, None], s["goal_xy"], self.goal_xy))
+        self.goal_yaw.copy_(torch.where(mask, s["goal_yaw"], self.goal_yaw))
+        self.num_steps.masked_fill_(mask, 0)
+        self.steps_at_goal.masked_fill_(mask, 0)
+
+    def _apply_action(self, action: torch.Tensor) -> None:
+        self.checks.clear()
+        if self.contacts is not None:
+            self.contacts.clear()
+        self.backend.step(action.view(self.num_envs, self.num_movers, 2), check_finite=False)
+
+    def _mover_obs(self) -> torch.Tensor:
+        b, n = self.backend, self.num_envs
+        parts = [b.mover_qpos[..., :2].reshape(n, -1), b.mover_qvel[..., :2].reshape(n, -1)]
+        if self.learn_jerk:
+            parts.append(b.mover_qacc[..., :2].reshape(n, -1))
+        return torch.cat(parts, dim=1)
+
+    def _goals(self) -> tuple[torch.Tensor, torch.Tensor]:
+        q = self.backend.object_qpos[:, 0]
+        achieved = q[:, :2]
+        desired = self.goal_xy
+        if self.learn_pose:
+            yaw = _yaw_from_quat(q[:, 3:])
+            achieved = torch.cat([achieved, torch.sin(yaw)[:, None], torch.cos(yaw)[:, None]], 1)
+            desired = torch.cat([desired, torch.sin(self.goal_yaw)[:, None], torch.cos(self.goal_yaw)[:, None]], 1)
+        return achieved.clone(), desired.clone()
+
+    def _get_obs(self) -> dict[str, torch.Tensor]:
+        achieved, desired = self._goals()
+        return {"observation": self._mover_obs(), "achieved_goal": achieved, "desired_goal": desired}
+
+    def _collision_info(self) -> dict[str, torch.Tensor]:
+        return {"mover_collision": self.checks.mover_collision.clone(), "wall_collision": self.checks.wall_collision.clone()}
+
+    def _evaluate(self, obs):
+        info = self._collision_info()
+        reached, metric = self.goal_reached(obs["achieved_goal"], obs["desired_goal"])
+        collision = self._any_collision(info)
+        self.num_steps += 1
+        self.steps_at_goal.copy_(torch.where(reached, self.steps_at_goal + 1, torch.zeros_like(self.steps_at_goal)))
+        reward = self._reward(reached, metric, info)
+        terminated = collision.clone()
+        if self.early_termination_steps is not None:
+            terminated |= self.steps_at_goal >= self.early_termination_steps
+        truncated = self.num_steps >= self.max_episode_steps
+        info.update({"is_success": reached & ~collision, "goal_metric": metric, "steps_at_goal": self.steps_at_goal.clone()})
+        return reward, terminated, truncated, info
+
+    # ------------------------------------------------------------------ reward (batched, for HER)
+    def goal_reached(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(reached, metric): metric is the distance (position goals) or the coverage (pose goals)."""
+        if self.learn_pose:
+            cov = coverage(achieved_goal, desired_goal, self.object)
+            return cov >= self.min_coverage, cov
+        dist = (achieved_goal[..., :2] - desired_goal[..., :2]).norm(dim=-1)
+        return dist <= self.max_position_err, dist
+
+    def _any_collision(self, info: dict[str, Any] | None, batch=None, device=None) -> torch.Tensor:
+        keys = ("mover_collision", "wall_collision")
+        out = None
+        for key in keys:
+            if info is not None and key in info:
+                v = torch.as_tensor(info[key], device=device).bool()
+                v = v.reshape(batch) if batch is not None else v
+                out = v if out is None else out | v
+        if out is None:
+            out = torch.zeros(batch if batch is not None else (self.num_envs,), dtype=torch.bool, device=device or self.device)
+        return out
+
+    def _reward(self, reached: torch.Tensor, metric: torch.Tensor, info: dict[str, Any] | None) -> torch.Tensor:
+        collision = self._any_collision(info, reached.shape, reached.device)
+        reward = torch.full(reached.shape, self.per_step_penalty, device=reached.device)
+        if self.learn_pose and not self.use_sparse_pose_reward:
+            reward = torch.where(metric > 0, metric.to(reward.dtype), reward)
+        else:
+            reward = torch.where(reached, torch.full_like(reward, self.object_at_goal_reward), reward)
+        return torch.where(collision, torch.full_like(reward, self.collision_penalty), reward)
+
+    def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
+        """Reward for a batch ``(..., goal_dim)``; ``info`` holds collision flags of the batch shape (or is None)."""
+        achieved_goal = torch.as_tensor(achieved_goal)
+        desired_goal = torch.as_tensor(desired_goal, device=achieved_goal.device)
+        reached, metric = self.goal_reached(achieved_goal, desired_goal)
+        return self._reward(reached, metric, info)
+
+
+class PushBoxEnv(PushEnv):
+    """Push-Box (MagBotSim ``StateBasedPushBoxEnv``): a square box to a goal position, 25 steps."""
+
+    def __init__(self, num_envs: int = 1, **kwargs):
+        kwargs.setdefault("max_episode_steps", 25)
+        super().__init__(num_envs, "square_box", learn_pose=False, **kwargs)
+
+
+class PushTEnv(PushEnv):
+    """Push-T (MagBotSim ``StateBasedPushTEnv``): a T to a goal pose (coverage >= ``min_coverage``), 50 steps."""
+
+    _shape = "t_shape"
+
+    def __init__(self, num_envs: int = 1, **kwargs):
+        kwargs.setdefault("max_episode_steps", 50)
+        super().__init__(num_envs, self._shape, learn_pose=True, **kwargs)
+
+
+class PushLEnv(PushTEnv):
+    """Push-L: like Push-T with an L-shaped object."""
+
+    _shape = "l_shape"
+
+
+class PushXEnv(PushTEnv):
+    """Push-X: like Push-T with an X (plus) shaped object."""
+
+    _shape = "plus_shape"
+
+
+# MagBotSim's static obstacle modes: (obstacle half length in y, y of obstacle 0, y of obstacle 1).
+_OBSTACLE_MODES = {"simple": (0.1, 0.1, 0.62), "medium": (0.115, 0.115, 0.605), "hard": (0.13, 0.13, 0.59)}
+
+
+class PushWithObstaclesEnv(PushEnv):
+    """Pushing past two static obstacles (MagBotSim ``StateBasedStaticObstaclePushingEnv``), 25 steps.
+
+    4 x 3 tiles, one mover, a 7 x 7 x 4 cm box of 30 g; two walls at x = 0.48 leave a gap the box must pass to reach
+    a goal behind them. Observation adds the obstacles' corner x/y (8 numbers each). Reward: -50 on a wall
+    collision or any mover/object contact with an obstacle (and the episode terminates), 0 at the goal
+    (distance <= ``threshold_pos``), else -1. ``obstacle_mode``: ``simple``, ``medium`` or ``hard`` (gap width).
+    """
+
+    def __init__(self, num_envs: int = 1, obstacle_mode: str = "simple", threshold_pos: float = 0.05,
+                 initial_mover_zpos: float = 0.002, **kwargs):
+        if obstacle_mode not in _OBSTACLE_MODES:
+            raise ValueError(f"obstacle_mode must be one of {sorted(_OBSTACLE_MODES)}, got {obstacle_mode!r}")
+        size_y, y0, y1 = _OBSTACLE_MODES[obstacle_mode]
+        self.obstacle_mode = obstacle_mode
+        self.obstacle_x, self.obstacle_size_x = 0.48, 0.03
+        obstacles = (ObstacleSpec((0.48, y0), (0.03, size_y, 0.03)), ObstacleSpec((0.48, y1), (0.03, size_y, 0.03)))
+        self._obstacle_vertices = np.concatenate([
+            [[x + sx, y + sy], [x + sx, y - sy], [x - sx, y - sy], [x - sx, y + sy]]
+            for (x, y), (sx, sy, _) in ((o.xy, o.half_size) for o in obstacles)
+        ]).astype(np.float32).reshape(-1)
+        kwargs.setdefault("max_episode_steps", 25)
+        super().__init__(num_envs, "square_box", learn_pose=False, object_width=0.035, object_height=0.035,
+                         object_depth=0.02, object_mass=0.03, object_sliding_friction=0.6,
+                         object_torsional_friction=0.0001, max_position_err=threshold_pos,
+                         initial_mover_zpos=initial_mover_zpos, obstacles=obstacles, collision_penalty=-50.0,
+                         per_step_penalty=-1.0, object_at_goal_reward=0.0, **kwargs)
+
+    def _init_sampling_ranges(self) -> None:
+        super()._init_sampling_ranges()
+        c = self._c_size_xy()[0] + self.collision_offset + self.mover.wall_margin
+        top = float(self.layout.tile_centers()[:, 1].max() + self.layout.tile.half)
+        right = float(self.layout.tile_centers()[:, 0].max() + self.layout.tile.half)
+        small, obj_half = 0.1, self.object.width
+        self.object_min_xy = np.full(2, c + small + 0.05)
+        self.object_max_xy = np.array([self.obstacle_x - self.obstacle_size_x - obj_half - 0.05, top - (c + small + 0.05)])
+        self.min_xy = np.full(2, c + 0.05)
+        self.max_xy = np.array([self.obstacle_x - self.obstacle_size_x, top]) - c - 0.05
+        self.goal_min_xy = np.array([self.obstacle_x + max(self.obstacle_size_x, obj_half), 0.0]) + small
+        self.goal_max_xy = np.array([right, top]) - small
+        mover_half = 0.5 * np.asarray(self.mover.size[:2])
+        self.min_mover_object_dist = max(float(np.linalg.norm(obj_half + mover_half)), c)
+        self._vertices_t = torch.as_tensor(self._obstacle_vertices, device=self.device)
+
+    def _sample_episode(self, n: int) -> dict[str, torch.Tensor]:
+        k = _CANDIDATES
+        movers = self._uniform(self.min_xy, self.max_xy, n, 1, self.num_movers).expand(n, k, self.num_movers, 2)
+        obj = self._uniform(self.object_min_xy, self.object_max_xy, n, k)
+        ok = (movers - obj[:, :, None, :]).norm(dim=-1).gt(self.min_mover_object_dist).all(-1)
+        first = torch.argmax(ok.to(torch.int8), dim=1)
+        rows = torch.arange(n, device=self.device)
+        return {
+            "mover_xy": movers[rows, first],
+            "object_xy": obj[rows, first],
+            "goal_xy": self._uniform(self.goal_min_xy, self.goal_max_xy, n),
+            "object_yaw": torch.zeros(n, device=self.device),  # MagBotSim's obstacle task starts the box unrotated
+            "goal_yaw": torch.zeros(n, device=self.device),
+        }
+
+    def _observation_space(self) -> gym.spaces.Dict:
+        space = super()._observation_space()
+        dim = space["observation"].shape[0] + 16
+        space["observation"] = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float32)
+        return space
+
+    def _get_obs(self) -> dict[str, torch.Tensor]:
+        obs = super()._get_obs()
+        verts = self._vertices_t.expand(self.num_envs, -1)
+        obs["observation"] = torch.cat([obs["observation"], verts], dim=1)
+        return obs
+
+    def _collision_info(self) -> dict[str, torch.Tensor]:
+        info = super()._collision_info()
+        info["obstacle_mover_collision"] = self.contacts.pair("mover", "obstacle").clone()
+        info["obstacle_object_collision"] = self.contacts.pair("object", "obstacle").clone()
+        return info
+
+    def _any_collision(self, info, batch=None, device=None) -> torch.Tensor:
+        out = super()._any_collision(info, batch, device)
+        for key in ("obstacle_mover_collision", "obstacle_object_collision"):
+            if info is not None and key in info:
+                v = torch.as_tensor(info[key], device=device).bool()
+                out = out | (v.reshape(batch) if batch is not None else v)
+        return out

@@ -1,0 +1,92 @@
+"""Per-cycle geometric mover checks inside the mujoco-warp step graph: mover-mover and mover-wall collisions.
+
+Movers never touch physically (contacts excluded in the MJCF), so, as in MagBotSim and :mod:`magwarp.sim`, their
+collisions are detected geometrically after every control cycle with the same rules as the planar simulator
+(circle or oriented-box footprints; a wall hit is any part of the footprint over a missing tile or off the grid).
+The per-step result is ``flags_t[w]``: bit ``COLLIDE_MOVER`` (1) and/or ``COLLIDE_WALL`` (2), OR-ed over cycles.
+Mover counts in pushing tasks are small, so the pair loop is all-pairs per world.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from magwarp.kernels.collision import hits_wall, movers_collide, yaw_of
+from magwarp.layout import Layout, MoverSpec
+from magwarp.physics.backend import MjwBackend
+from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Collision
+
+__all__ = ["MoverChecks"]
+
+
+@wp.func
+def _mover_xy_yaw(qpos: wp.array2d[float], w: int, qa: int):
+    q = wp.quat(qpos[w, qa + 4], qpos[w, qa + 5], qpos[w, qa + 6], qpos[w, qa + 3])
+    return wp.vec2(qpos[w, qa], qpos[w, qa + 1]), yaw_of(q)
+
+
+@wp.kernel
+def mover_checks_kernel(
+    # Model:
+    tiles: wp.array2d[wp.int32],
+    col: Collision,
+    qadr: wp.array[int],
+    radius: wp.array[float],
+    half: wp.array[wp.vec2],
+    # State in:
+    qpos: wp.array2d[float],
+    # State out:
+    flags: wp.array[wp.int32],
+):
+    w, k = wp.tid()
+    p, yaw = _mover_xy_yaw(qpos, w, qadr[k])
+    if hits_wall(tiles, col, p, yaw, radius[k], half[k]):
+        wp.atomic_or(flags, w, COLLIDE_WALL)
+    for j in range(k + 1, qadr.shape[0]):
+        pj, yawj = _mover_xy_yaw(qpos, w, qadr[j])
+        if movers_collide(col, pj - p, yaw, radius[k], half[k], yawj, radius[j], half[j]):
+            wp.atomic_or(flags, w, COLLIDE_MOVER)
+
+
+class MoverChecks:
+    """Registers the per-cycle check on ``backend``; ``flags_t`` ``[W]`` int32 holds this step's collision bits.
+
+    ``mover`` gives the collision shape (``collision_shape``, ``collision_radius``/``collision_half_size``),
+    ``margin`` (mover-mover) and ``wall_margin``. Call :meth:`clear` before each step.
+    """
+
+    def __init__(self, backend: MjwBackend, layout: Layout, mover: MoverSpec):
+        self.backend = backend
+        dev = backend.device
+        m = backend.num_movers
+        self._tiles = wp.array(layout.tiles.astype(np.int32), dtype=wp.int32, device=dev)
+        col = Collision()
+        col.shape = SHAPE_CIRCLE if mover.collision_shape == "circle" else SHAPE_BOX
+        col.margin = float(mover.margin)
+        col.wall_margin = float(mover.wall_margin)
+        col.tile_size = float(layout.tile.size)
+        col.stop_on_collision = 0
+        self._col = col
+        self._radius = wp.array(np.full(m, mover.collision_radius), dtype=float, device=dev)
+        self._half = wp.array(np.tile(mover.collision_half_size, (m, 1)), dtype=wp.vec2, device=dev)
+        self.flags = wp.zeros(backend.num_worlds, dtype=wp.int32, device=dev)
+        self.flags_t = wp.to_torch(self.flags)
+        backend.add_cycle_hook(self._launch)
+
+    def _launch(self) -> None:
+        b = self.backend
+        wp.launch(mover_checks_kernel, dim=(b.num_worlds, b.num_movers),
+                  inputs=[self._tiles, self._col, b._qadr, self._radius, self._half, b.data.qpos], outputs=[self.flags],
+                  device=b.device)
+
+    def clear(self) -> None:
+        self.flags_t.zero_()
+
+    @property
+    def mover_collision(self):
+        return (self.flags_t & COLLIDE_MOVER) != 0
+
+    @property
+    def wall_collision(self):
+        return (self.flags_t & COLLIDE_WALL) != 0
