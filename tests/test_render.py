@@ -187,3 +187,16 @@ def test_bad_inputs_raise_clear_errors():
         TopDownRenderer(layout, px_per_tile=2)
     with pytest.raises(TypeError, match="layout must be"):
         TopDownRenderer(np.ones((2, 2)))
+
+
+@pytest.mark.parametrize("width", [120, 400, 900])
+def test_legend_strip_fits_under_frames(width):
+    from magwarp.render.legend import legend_strip, with_legend
+
+    strip = legend_strip(width, objects=True, obstacles=True)
+    assert strip.dtype == np.uint8 and strip.shape[1] == width and strip.shape[2] == 3 and strip.shape[0] >= 18
+    assert (strip != np.array(colors.BACKGROUND)).any(axis=-1).mean() > 0.02, "the strip shows swatches and text"
+    frame = np.zeros((30, width, 3), np.uint8)
+    assert with_legend(frame, strip).shape == (30 + strip.shape[0], width, 3)
+    with pytest.raises(ValueError, match="does not match the frame width"):
+        with_legend(np.zeros((30, width + 1, 3), np.uint8), strip)

@@ -44,6 +44,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--fps", type=float, default=25.0, help="video frame rate (default 25: one frame per env step)")
     p.add_argument("--px-per-tile", type=int, default=None, help="resolution (default: 64 for one world, less for more)")
     p.add_argument("--scale", type=int, default=1, help="integer upscaling of the written images (default 1)")
+    p.add_argument("--legend", action=argparse.BooleanOptionalAction, default=True,
+                   help="colour key under the images (default on)")
     return p
 
 
@@ -173,12 +175,30 @@ def run(args) -> int:
             f = env.render()
             return f[0] if isinstance(f, (list, tuple)) else f
 
+    if args.synthetic:
+        has_objects, has_obstacles = scene.objects, scene.objects
+    else:
+        has_objects = getattr(base, "object_poses", None) is not None
+        has_obstacles = getattr(base, "obstacles", None) is not None
+    strip = None
+
+    def annotated(image):
+        nonlocal strip
+        if not args.legend:
+            return image
+        from magwarp.render.legend import legend_strip, with_legend
+
+        image = to_numpy_image(image)
+        if strip is None:
+            strip = legend_strip(image.shape[1], objects=has_objects, obstacles=has_obstacles)
+        return with_legend(image, strip)
+
     videos = [VideoRecorder(p, args.fps, scale=args.scale) for p in outputs if not p.lower().endswith(".png")]
     last = None
     try:
         for _ in tqdm(range(args.steps), desc="render", unit="step", disable=None, leave=False):
             step()
-            last = frame()
+            last = annotated(frame())
             for v in videos:
                 v.add(last)
     finally:
