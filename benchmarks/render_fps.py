@@ -5,13 +5,14 @@ few resolutions, and prints a table with the device, date, versions and the comm
 several repeats of ``--frames`` draws (the machine may be shared), with a device synchronisation at the end.
 
     python benchmarks/render_fps.py                       # 64 worlds (8 x 8) of B0, Warp's default device
-    python benchmarks/render_fps.py --device cpu --worlds 1 16 64 --px-per-tile 16 24 32 --png out/render_fps.png
+    python benchmarks/render_fps.py --device cpu --worlds 1 16 64 --px-per-tile 16 24 32 --plot out/render_fps.png
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import platform
 import sys
 import time
@@ -26,6 +27,7 @@ def parse_args(argv=None):
     p.add_argument("--repeats", type=int, default=5, help="repeats; the best is reported")
     p.add_argument("--device", default=None, help="Warp device (default: Warp's preferred device)")
     p.add_argument("--png", default=None, help="also write one frame per configuration to this PNG prefix")
+    p.add_argument("--plot", default=None, help="write a plot of frames/s against image size to this PNG")
     return p.parse_args(argv)
 
 
@@ -46,6 +48,8 @@ def main(argv=None) -> int:
     print(f"# device {device.alias} ({device.name}), host {platform.processor() or platform.machine()}, "
           f"python {platform.python_version()}, warp {wp.__version__}, torch {torch.__version__}, numpy {np.__version__}")
     print(f"# command: {' '.join([sys.executable.split('/')[-1]] + sys.argv)}")
+    if hasattr(os, "getloadavg"):  # the machine may be shared: say how busy it was
+        print(f"# load average at start: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     print(f"# layout {args.layout} {layout.shape[0]}x{layout.shape[1]} tiles, {num_movers} movers, goals and collision "
           f"flags drawn; best of {args.repeats} x {args.frames} frames")
     print(f"{'worlds':>6} {'px/tile':>7} {'image HxW':>11} {'ms/frame':>9} {'frames/s':>9} {'Mpixel/s':>9}")
@@ -72,7 +76,33 @@ def main(argv=None) -> int:
             print(f"{num_worlds:>6} {ppt:>7} {f'{h}x{w}':>11} {best * 1e3:>9.2f} {1.0 / best:>9.1f} {h * w / best / 1e6:>9.1f}")
             if args.png:
                 save_png(f"{args.png}_{num_worlds}w_{ppt}px.png", frame)
+    if args.plot:
+        plot(rows, args, device)
     return 0
+
+
+def plot(rows, args, device) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
+    for num_worlds in sorted({r[0] for r in rows}):
+        pts = [(h * w / 1e6, 1.0 / t, ppt) for n, ppt, h, w, t in rows if n == num_worlds]
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"{num_worlds} worlds ({args.layout})")
+        for mp, fps, ppt in pts:
+            ax.annotate(f"{ppt} px/tile", (mp, fps), textcoords="offset points", xytext=(4, 4), fontsize=7)
+    ax.axhline(100, color="grey", ls="--", lw=0.8, label="100 frames/s")
+    ax.set_xlabel("image size (megapixels)")
+    ax.set_ylabel("frames / s (log scale)")
+    ax.set_yscale("log")
+    ax.set_title(f"magwarp top-down renderer, one Warp launch per frame ({device.alias})", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(args.plot)
+    print(f"# plot: {args.plot}")
 
 
 if __name__ == "__main__":
