@@ -67,6 +67,8 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
     ):
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
         if isinstance(layout, str):
             layout_obj, default_movers = benchmark_layout(layout)
             self.layout_name = layout
