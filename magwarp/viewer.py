@@ -267,6 +267,23 @@ class SceneViewer:
         viewer.log_geo(_CYLINDER, newton.GeoType.CYLINDER, (1.0, 1.0), 0.0, True)
         viewer.log_geo(_SPHERE, newton.GeoType.SPHERE, (1.0,), 0.0, True)
         self._tiles = self._tile_instances()
+        self.frame_camera()
+
+    def frame_camera(self, pitch: float = -55.0) -> None:
+        """Point the viewer's camera at the whole grid of worlds, from the -y side and above (z up)."""
+        ex, ey = self.layout.extent
+        lo = self.offsets_np[:, :2].min(axis=0)
+        hi = self.offsets_np[:, :2].max(axis=0) + (ex, ey)
+        centre = 0.5 * (lo + hi)
+        size = float(max(hi - lo))
+        dist = 1.4 * size + 0.3
+        yaw = 90.0  # looking towards +y
+        front = np.array([0.0, np.cos(np.radians(pitch)), np.sin(np.radians(pitch))])
+        pos = np.array([centre[0], centre[1], 0.0]) - front * dist
+        try:
+            self.viewer.set_camera(wp.vec3(*pos.astype(np.float32)), pitch=pitch, yaw=yaw)
+        except Exception:  # noqa: BLE001 - a backend without a camera (file, null) just ignores it
+            pass
 
     # ------------------------------------------------------------------ helpers
     def _buffer(self, name: str, n: int, dtype) -> wp.array:

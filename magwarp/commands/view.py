@@ -73,8 +73,11 @@ def run(args) -> int:
 
         def step():
             state["obs"] = env.step(policy(state["obs"]))[0]
-            goals = getattr(base, "goals", None)
-            sv.log(sim.pos, sim.quat, flags=getattr(sim, "collision", None), goals=goals)
+            flags = getattr(sim, "flags_any", None)  # collisions during the whole env step, not only its last cycle
+            if flags is None:
+                flags = getattr(sim, "flags", None)
+            sv.log(sim.pos, sim.quat, flags=flags, radii=getattr(sim, "radii", None),
+                   half_sizes=getattr(sim, "half_sizes", None), goals=getattr(base, "goals", None))
 
     if args.viewer == "viser":
         print(f"viewer at http://{args.host}:{args.port} (Ctrl-C to stop)")
