@@ -15,7 +15,8 @@ or a goal pose (``learn_pose=True``). Per env step (``num_cycles`` control cycle
 
 Start sampling follows MagBotSim's definition (start and goal ranges with its safety margins, mover-object distance
 above the sum of their half-extents, object-goal distance above 0.15 m, uniform start and goal yaw), drawn on the
-device with a fixed number of candidates per reset instead of a Python rejection loop.
+device with a fixed number of candidates per reset instead of a Python rejection loop (start and goal are drawn
+together, so goals whose neighbourhood leaves no valid start are slightly less likely than in MagBotSim).
 
 Differences from MagBotSim, on purpose: observations are float32 and noise-free; the mover controller is the
 physically right impedance law of :mod:`magwarp.physics.control`; collisions are checked after every cycle inside
@@ -41,7 +42,7 @@ from magwarp.physics.mover_checks import MoverChecks
 
 __all__ = ["PushEnv", "PushBoxEnv", "PushTEnv", "PushLEnv", "PushXEnv", "PushWithObstaclesEnv"]
 
-_CANDIDATES = 32  # start configurations drawn per env and reset; the first valid one is used
+_CANDIDATES = 64  # start configurations drawn per env and reset; the first valid one is used
 
 
 def _default_device() -> str:
@@ -278,7 +279,9 @@ class PushEnv(MagwarpVecEnv):
         k, m = _CANDIDATES, self.num_movers
         movers = self._uniform(self.min_xy, self.max_xy, n, k, m)
         if self._continuous:
-            goal = self._uniform(self.object_min_xy, self.object_max_xy, n, 1).expand(n, k, 2)
+            # Goals are drawn per candidate: MagBotSim draws one goal and loops over starts, which can take very long
+            # for goals in the middle of its narrow default range (4 x 3 tiles: 0.30 x 0.06 m).
+            goal = self._uniform(self.object_min_xy, self.object_max_xy, n, k)
             obj = self._uniform(self.object_min_xy, self.object_max_xy, n, k)
         else:
             goal, obj = self._tile_points(n, k), self._tile_points(n, k)

@@ -1,0 +1,166 @@
+"""Batched pushing envs: gymnasium check_env, MagBotSim's start/goal definitions, rewards, terminations."""
+
+import numpy as np
+import pytest
+import torch
+from gymnasium.utils.env_checker import check_env
+
+from magwarp.envs.push import PushBoxEnv, PushEnv, PushLEnv, PushTEnv, PushWithObstaclesEnv, PushXEnv
+from magwarp.envs.single import SingleEnv
+
+ALL = [PushBoxEnv, PushTEnv, PushLEnv, PushXEnv, PushWithObstaclesEnv]
+
+
+@pytest.mark.parametrize("cls", ALL)
+def test_check_env_single_view(cls):
+    env = SingleEnv(cls, device="cpu", seed=0)
+    check_env(env, skip_render_check=True)
+    obs, _ = env.reset(seed=1)
+    assert env.observation_space.contains(obs)
+
+
+def test_spaces_match_magbotsim_layout_of_observations():
+    box = PushBoxEnv(2, device="cpu", seed=0)
+    assert box.single_observation_space["observation"].shape == (4,)
+    assert box.single_observation_space["desired_goal"].shape == (2,)
+    assert box.single_action_space.shape == (2,) and box.single_action_space.high[0] == 10.0
+    t = PushTEnv(2, device="cpu", seed=0, learn_jerk=True, num_movers=2, layout=np.ones((5, 4)))
+    assert t.single_observation_space["observation"].shape == (12,)  # pos, vel, acc of 2 movers
+    assert t.single_observation_space["achieved_goal"].shape == (4,)  # x, y, sin, cos
+    assert t.single_action_space.high[0] == 100.0
+    assert t.max_episode_steps == 50 and box.max_episode_steps == 25
+    obs = PushWithObstaclesEnv(1, device="cpu", seed=0)._get_obs()["observation"]
+    np.testing.assert_allclose(obs[0, 4:12].numpy(), [0.51, 0.2, 0.51, 0.0, 0.45, 0.0, 0.45, 0.2], atol=1e-6)
+
+
+def test_reset_sampling_follows_magbotsim_definition(rng):
+    env = PushBoxEnv(128, device="cpu", seed=int(rng.integers(1 << 30)))
+    # 4 x 3 tiles, circle 0.11: margin 0.14; mover range [0.14, 0.76] x [0.14, 0.52]; object/goal [0.30, 0.60] x [0.30, 0.36]
+    np.testing.assert_allclose(env.min_xy, [0.14, 0.14])
+    np.testing.assert_allclose(env.max_xy, [0.76, 0.52])
+    np.testing.assert_allclose(env.object_min_xy, [0.30, 0.30])
+    np.testing.assert_allclose(env.object_max_xy, [0.60, 0.36])
+    assert env.min_mover_object_dist == pytest.approx(np.hypot(0.1375, 0.1375))
+    for _ in range(2):
+        obs, _ = env.reset()
+        mover = obs["observation"][:, :2]
+        obj, goal = obs["achieved_goal"], obs["desired_goal"]
+        assert torch.all(mover >= 0.14 - 1e-6) and torch.all(mover <= torch.tensor([0.76, 0.52]) + 1e-6), rng
+        assert torch.all(obj >= 0.30 - 1e-4) and torch.all(obj <= torch.tensor([0.60, 0.36]) + 1e-4), rng
+        assert torch.all((mover - obj).norm(dim=1) > env.min_mover_object_dist - 1e-4), rng
+        assert torch.all((obj - goal).norm(dim=1) > 0.15), rng
+        yaw = 2 * torch.atan2(env.backend.object_qpos[:, 0, 6], env.backend.object_qpos[:, 0, 3])
+        assert yaw.std() > 1.0  # uniform start yaw in (-pi, pi)
+        assert torch.all(obs["observation"][:, 2:] == 0)
+
+
+def test_layout_with_holes_samples_on_tiles(rng):
+    tiles = np.array([[1, 1, 1, 1], [1, 1, 0, 1], [1, 1, 1, 1], [1, 1, 1, 1], [0, 1, 1, 1]])
+    env = PushTEnv(64, layout=tiles, device="cpu", seed=int(rng.integers(1 << 30)))
+    obs, _ = env.reset()
+    for key in ("achieved_goal", "desired_goal"):
+        cells = torch.floor(obs[key][:, :2] / 0.24).long()
+        assert torch.all(torch.as_tensor(tiles)[cells[:, 0], cells[:, 1]] == 1), rng
+    # mover footprints (circle 0.11) clear of holes and the border
+    assert not env.checks.wall_collision.any()
+    mover = obs["observation"][:, :2]
+    assert env._on_tiles(mover, 0.11).all(), rng
+
+
+def _place(env: PushEnv, mover_xy, object_xy, goal_xy, object_yaw=0.0, goal_yaw=0.0):
+    """Put world 0 into a chosen configuration (test helper; the env's own reset samples these)."""
+    b = env.backend
+    b.init_mover_qpos[0, 0, :2] = torch.tensor(mover_xy)
+    b.init_object_qpos[0, 0, :2] = torch.tensor(object_xy)
+    b.init_object_qpos[0, 0, 3] = float(np.cos(object_yaw / 2))
+    b.init_object_qpos[0, 0, 6] = float(np.sin(object_yaw / 2))
+    mask = torch.zeros(env.num_envs, dtype=torch.bool)
+    mask[0] = True
+    b.reset(mask)
+    env.goal_xy[0] = torch.tensor(goal_xy)
+    env.goal_yaw[0] = goal_yaw
+    env.num_steps[0] = 0
+
+
+def test_push_box_to_goal_gives_success_and_reward():
+    env = PushBoxEnv(1, device="cpu", seed=0, object_sliding_friction=0.3)
+    env.reset()
+    # mover just behind the box, goal 6 cm ahead: accelerate, then brake, pushing the box there
+    _place(env, (0.20, 0.30), (0.34, 0.30), (0.40, 0.30))
+    success = False
+    for k in range(12):
+        a = torch.tensor([[4.0, 0.0]]) if k < 2 else torch.tensor([[-1.5, 0.0]])
+        obs, reward, term, trunc, info = env.step(a)
+        if info["is_success"][0]:
+            success = True
+            assert reward[0] == 1.0 and not term[0]
+            assert (obs["achieved_goal"][0] - obs["desired_goal"][0]).norm() <= 0.05
+            break
+        assert reward[0] == pytest.approx(-0.01)
+    assert success, f"box ended at {obs['achieved_goal'][0].tolist()}"
+
+
+def test_wall_collision_terminates_with_penalty_and_autoresets():
+    env = PushBoxEnv(2, device="cpu", seed=0)
+    env.reset()
+    _place(env, (0.20, 0.30), (0.60, 0.30), (0.50, 0.30))
+    for k in range(10):
+        a = torch.tensor([[-10.0, 0.0], [0.0, 0.0]])
+        obs, reward, term, trunc, info = env.step(a)
+        if term[0]:
+            break
+    assert term[0] and info["wall_collision"][0] and reward[0] == -10.0
+    assert not term[1] and reward[1] == pytest.approx(-0.01)
+    # autoreset: the final observation shows the mover at the wall, the returned one a fresh start
+    assert info["final_obs"]["observation"][0, 0] < 0.11 + 1e-3
+    assert obs["observation"][0, 0] >= 0.14 - 1e-6 and env.num_steps[0] == 0
+
+
+def test_truncation_after_max_episode_steps():
+    env = PushTEnv(1, device="cpu", seed=0, max_episode_steps=3)
+    env.reset()
+    flags = [env.step(torch.zeros(1, 2))[3][0].item() for _ in range(4)]
+    assert flags == [False, False, True, False]
+
+
+def test_pose_reward_dense_sparse_and_threshold():
+    env = PushTEnv(1, device="cpu", seed=0)
+    goal = torch.tensor([[0.4, 0.3, 0.0, 1.0]])
+    same = goal.clone()
+    shifted = torch.tensor([[0.4, 0.3 + 0.01, 0.0, 1.0]])  # T: 6 x 12 cm outline; 1 cm shift keeps most of it
+    far = torch.tensor([[0.9, 0.9, 0.0, 1.0]])
+    batch_a, batch_g = torch.cat([same, shifted, far]), goal.expand(3, 4)
+    cov = env.goal_reached(batch_a, batch_g)[1]
+    assert cov[0] == pytest.approx(1.0, abs=1e-6) and 0.7 < cov[1] < 1.0 and cov[2] == 0
+    torch.testing.assert_close(env.compute_reward(batch_a, batch_g, None), torch.tensor([cov[0], cov[1], -0.01]))
+    info = {"mover_collision": torch.tensor([True, False, False]), "wall_collision": torch.tensor([False, False, True])}
+    assert env.compute_reward(batch_a, batch_g, info).tolist() == pytest.approx([-10.0, float(cov[1]), -10.0])
+    sparse = PushTEnv(1, device="cpu", seed=0, use_sparse_pose_reward=True, min_coverage=0.95)
+    assert sparse.compute_reward(batch_a, batch_g, None).tolist() == pytest.approx([1.0, -0.01 if cov[1] < 0.95 else 1.0, -0.01])
+
+
+def test_obstacle_contact_penalty_and_termination():
+    env = PushWithObstaclesEnv(1, device="cpu", seed=0)
+    env.reset()
+    # mover in front of the lower obstacle (x = 0.45 .. 0.51, y <= 0.2), driven into it
+    _place(env, (0.30, 0.14), (0.20, 0.40), (0.70, 0.40))
+    for _ in range(10):
+        obs, reward, term, trunc, info = env.step(torch.tensor([[10.0, 0.0]]))
+        if term[0]:
+            break
+    assert term[0] and info["obstacle_mover_collision"][0] and reward[0] == -50.0
+    assert not info["wall_collision"][0]
+
+
+def test_bad_arguments_name_the_value():
+    with pytest.raises(ValueError, match="min_coverage"):
+        PushTEnv(1, device="cpu", min_coverage=1.5)
+    with pytest.raises(ValueError, match="obstacle_mode"):
+        PushWithObstaclesEnv(1, device="cpu", obstacle_mode="nightmare")
+    with pytest.raises(Exception, match="hexagon"):
+        PushEnv(1, "hexagon", device="cpu")
+    env = PushBoxEnv(2, device="cpu", seed=0)
+    with pytest.raises(ValueError, match=r"shape \(2, 2\)"):
+        env.step(torch.zeros(2, 3))
+    with pytest.raises(ValueError, match="non-finite"):
+        env.step(torch.tensor([[0.0, float("nan")], [0.0, 0.0]]))
