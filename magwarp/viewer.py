@@ -263,9 +263,10 @@ class SceneViewer:
         import newton
 
         self._geo = newton.GeoType
-        viewer.log_geo(_BOX, newton.GeoType.BOX, (1.0, 1.0, 1.0), 0.0, True)
-        viewer.log_geo(_CYLINDER, newton.GeoType.CYLINDER, (1.0, 1.0), 0.0, True)
-        viewer.log_geo(_SPHERE, newton.GeoType.SPHERE, (1.0,), 0.0, True)
+        # Prototypes are hidden (else some backends draw them, 1 m large, at the origin); instances are shown.
+        viewer.log_geo(_BOX, newton.GeoType.BOX, (1.0, 1.0, 1.0), 0.0, True, hidden=True)
+        viewer.log_geo(_CYLINDER, newton.GeoType.CYLINDER, (1.0, 1.0), 0.0, True, hidden=True)
+        viewer.log_geo(_SPHERE, newton.GeoType.SPHERE, (1.0,), 0.0, True, hidden=True)
         self._tiles = self._tile_instances()
         self.frame_camera()
 

@@ -68,3 +68,49 @@ def test_make_viewer_errors(tmp_path):
         make_viewer("vr")
     with pytest.raises(ValueError, match="needs an output path"):
         make_viewer("usd")
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_viser_page_shows_the_movers_in_headless_chromium(tmp_path):
+    """The browser viewer binds to 127.0.0.1 and serves a page that draws the scene (screenshot via Chromium)."""
+    pytest.importorskip("viser")
+    import shutil
+    import subprocess
+
+    import imageio.v3 as iio
+
+    from magwarp.render import colors
+
+    port = _free_port()
+    layout, m = benchmark_layout("B0")
+    scene = SyntheticScene(layout, num_worlds=1, num_movers=m, seed=0)
+    viewer = make_viewer("viser", port=port)
+    try:
+        assert viewer._server.get_host() == "127.0.0.1"
+        sv = SceneViewer(viewer, layout)
+        for _ in range(3):
+            scene.step()
+            _log_all(sv, scene)
+        chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+        if chromium is None:
+            pytest.skip("chromium not installed: page not checked")
+        shot = tmp_path / "viser.png"
+        subprocess.run([chromium, "--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+                        "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--window-size=960,600",
+                        "--virtual-time-budget=15000", f"--screenshot={shot}", f"http://127.0.0.1:{port}/"],
+                       capture_output=True, timeout=120)
+        image = iio.imread(shot)[..., :3].astype(int)
+        # Some pixels close to each mover's colour (lit, so allow shading).
+        for k in range(m):
+            c = np.array(colors.mover_color(k))
+            close = np.abs(image - c).sum(axis=-1) < 90
+            assert close.sum() > 30, f"mover {k}'s colour {tuple(c)} not on the page screenshot"
+    finally:
+        viewer.close()
