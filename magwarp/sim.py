@@ -352,7 +352,8 @@ class Simulator:
             wp.launch(
                 kstep.reset_worlds, dim=(self.num_worlds, self.num_movers), device=self.device,
                 inputs=[self._reset_mask, self._init_pos, self._init_quat, s.pos, s.quat, s.vel, s.omega, s.acc,
-                        s.cmd, s.target_pos, s.target_quat, s.flags, s.flags_any, s.partner, s.wall],
+                        s.cmd, s.target_pos, s.target_quat, s.flags, s.flags_any, s.partner, s.wall,
+                        s.world_pairs, s.world_walls, s.halted, s.cycles],
             )
 
     def _on_stream(self):

@@ -207,11 +207,21 @@ def reset_worlds(
     flags_any: wp.array2d(dtype=wp.int32),
     partner: wp.array2d(dtype=wp.int32),
     wall: wp.array2d(dtype=wp.int32),
+    world_pairs: wp.array(dtype=wp.int32),
+    world_walls: wp.array(dtype=wp.int32),
+    halted: wp.array(dtype=wp.int32),
+    cycles: wp.array(dtype=wp.int32),
 ):
-    """Put the masked worlds back at their start poses, at rest, hovering, with cleared collision outputs."""
+    """Put the masked worlds back at their start poses, at rest, hovering, with cleared collision outputs (per mover
+    and per world: a reset world reports no pairs, no walls, not halted, no cycles)."""
     w, m = wp.tid()
     if mask[w] == 0:
         return
+    if m == 0:
+        world_pairs[w] = 0
+        world_walls[w] = 0
+        halted[w] = 0
+        cycles[w] = 0
     p = init_pos[w, m]
     q = init_quat[w, m]
     pos[w, m] = p
