@@ -148,7 +148,7 @@ class Simulator:
         if num_movers is not None and xy.shape[1] != int(num_movers):
             raise LayoutError(f"start_xy has {xy.shape[1]} movers but num_movers={num_movers}")
         yaw = np.zeros(xy.shape[:2]) if start_yaw is None else np.asarray(start_yaw, dtype=np.float64)
-        if yaw.ndim == 1:
+        if yaw.ndim == 1 and yaw.shape[0] == xy.shape[1]:  # (M,) shared by all worlds; other shapes fail below
             yaw = np.broadcast_to(yaw, xy.shape[:2])
         if yaw.shape != xy.shape[:2] or not np.all(np.isfinite(yaw)):
             raise LayoutError(f"start_yaw must be finite with shape ({xy.shape[1]},) or {xy.shape[:2]}, got {np.shape(start_yaw)}")
