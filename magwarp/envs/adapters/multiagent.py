@@ -1,0 +1,158 @@
+"""A batched, torch-native multi-agent view of a trajectory-planning-like env: one agent per mover.
+
+The per-agent observations are gathered from the env's goal-dict observation with a few batched tensor ops (no loop
+over envs or movers), so the same code serves the PettingZoo adapter (one world, numpy) and the TorchRL multi-agent
+group (thousands of worlds, on the device).
+
+Per-agent observation of mover ``i`` (``obs_mode="flat"``, a ``float32`` vector)::
+
+    [ v_i (2), a_i (2, jerk mode only), p_i (2), g_i (2),
+      p_j - p_i for every other mover j in index order (2 (M-1)),
+      v_j        for every other mover j in index order (2 (M-1)) ]
+
+with ``v`` velocities, ``a`` accelerations, ``p`` positions and ``g`` goals, all x/y in the layout frame (m, m/s,
+m/s²). ``obs_mode="dict"`` gives a per-agent goal dict instead, ready for per-agent hindsight relabelling:
+``observation`` = ``[v_i, (a_i), p_j - p_i ..., v_j ...]``, ``achieved_goal`` = ``p_i``, ``desired_goal`` = ``g_i``.
+
+Per-agent action: mover ``i``'s x/y acceleration (or jerk) command, shape ``(2,)``. Rewards are *shared*: every
+agent gets the task's reward for the world (MagBotSim's trajectory planning reward is a team reward); termination
+and truncation are per world and so the same for every agent of a world.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+__all__ = ["AgentObservations", "MultiAgentVecEnv", "agent_names"]
+
+OBS_MODES = ("flat", "dict")
+
+
+def agent_names(num_movers: int) -> list[str]:
+    return [f"mover_{i}" for i in range(num_movers)]
+
+
+def _check_task(env) -> tuple[int, bool]:
+    """The mover count and jerk flag of ``env``, after checking it has the trajectory-planning observation layout."""
+    m = getattr(env, "num_movers", None)
+    if not isinstance(m, int) or m < 1:
+        raise TypeError(f"a multi-agent view needs an env with an integer num_movers, got {type(env).__name__} "
+                        f"with num_movers={m!r}")
+    jerk = bool(getattr(env, "learn_jerk", False))
+    space = env.single_observation_space
+    keys = ("observation", "achieved_goal", "desired_goal")
+    if not isinstance(space, gym.spaces.Dict) or any(k not in space.spaces for k in keys):
+        raise TypeError(f"a multi-agent view needs goal-dict observations {keys}, got {space}")
+    want = {"observation": (m * 2 * (2 if jerk else 1),), "achieved_goal": (m * 2,), "desired_goal": (m * 2,)}
+    for k, shape in want.items():
+        if space[k].shape != shape:
+            raise TypeError(f"observation {k!r} must have shape {shape} for {m} movers, got {space[k].shape}")
+    if env.single_action_space.shape != (m * 2,):
+        raise TypeError(f"the action space must have shape ({m * 2},) (x/y per mover), got {env.single_action_space.shape}")
+    return m, jerk
+
+
+class AgentObservations:
+    """Splits batched goal-dict observations ``[..., ...]`` into per-mover observations ``[..., M, D]``."""
+
+    def __init__(self, num_movers: int, learn_jerk: bool, obs_mode: str = "flat", device=None):
+        if obs_mode not in OBS_MODES:
+            raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
+        self.num_movers = m = int(num_movers)
+        self.learn_jerk = bool(learn_jerk)
+        self.obs_mode = obs_mode
+        idx = torch.arange(m)
+        # others[i] = the indices of every mover but i, ascending: (M, M-1)
+        self.others = torch.stack([torch.cat([idx[:i], idx[i + 1:]]) for i in range(m)]).to(device)
+        own = 4 if learn_jerk else 2
+        self.dim_flat = own + 4 + 4 * (m - 1)
+        self.dim_dict_obs = own + 4 * (m - 1)
+
+    def spaces(self) -> gym.Space:
+        """The observation space of one agent."""
+        if self.obs_mode == "flat":
+            return gym.spaces.Box(-np.inf, np.inf, (self.dim_flat,), np.float32)
+        return gym.spaces.Dict({
+            "observation": gym.spaces.Box(-np.inf, np.inf, (self.dim_dict_obs,), np.float32),
+            "achieved_goal": gym.spaces.Box(-np.inf, np.inf, (2,), np.float32),
+            "desired_goal": gym.spaces.Box(-np.inf, np.inf, (2,), np.float32),
+        })
+
+    def __call__(self, obs: dict[str, torch.Tensor]) -> torch.Tensor | dict[str, torch.Tensor]:
+        lead = obs["achieved_goal"].shape[:-1]
+        m = self.num_movers
+        ob = obs["observation"]
+        vel = ob[..., : 2 * m].reshape(*lead, m, 2)
+        pos = obs["achieved_goal"].reshape(*lead, m, 2)
+        goal = obs["desired_goal"].reshape(*lead, m, 2)
+        own = [vel, ob[..., 2 * m:].reshape(*lead, m, 2)] if self.learn_jerk else [vel]
+        others = self.others.to(pos.device)
+        rel = (pos[..., others, :] - pos.unsqueeze(-2)).flatten(-2)  # (..., M, 2 (M-1))
+        other_vel = vel[..., others, :].flatten(-2)
+        if self.obs_mode == "flat":
+            return torch.cat([*own, pos, goal, rel, other_vel], dim=-1)
+        return {"observation": torch.cat([*own, rel, other_vel], dim=-1), "achieved_goal": pos.clone(),
+                "desired_goal": goal.clone()}
+
+
+def global_state(obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """The flat world state ``[observation, achieved_goal, desired_goal]`` (for centralised critics)."""
+    return torch.cat([obs["observation"], obs["achieved_goal"], obs["desired_goal"]], dim=-1)
+
+
+class MultiAgentVecEnv:
+    """Batched multi-agent view of ``env`` (a :class:`~magwarp.envs.MagwarpVecEnv` with the trajectory-planning
+    observation layout, e.g. :class:`~magwarp.envs.TrajectoryPlanningEnv`); torch in and out, on the env's device.
+
+    * ``reset(seed=None, options=None)`` -> ``obs, info``;
+    * ``step(actions)`` with ``actions`` ``[num_envs, num_movers, 2]`` -> ``obs, reward, terminated, truncated, info``
+      where ``obs`` is ``[num_envs, num_movers, D]`` (or a dict of such tensors), ``reward``, ``terminated`` and
+      ``truncated`` are ``[num_envs, num_movers]`` (shared within a world) and ``info`` is the env's info, plus
+      ``info["state"]`` ``[num_envs, S]`` (the flat world state). With the env's autoreset on, ``info["final_obs"]``
+      holds the per-agent final observations of finished worlds.
+    """
+
+    def __init__(self, env, obs_mode: str = "flat"):
+        self.env = env
+        self.num_envs = env.num_envs
+        self.device = env.device
+        self.num_movers, self.learn_jerk = _check_task(env)
+        self.agents = agent_names(self.num_movers)
+        self.split = AgentObservations(self.num_movers, self.learn_jerk, obs_mode, env.device)
+        self.single_agent_observation_space = self.split.spaces()
+        high = float(env.single_action_space.high.reshape(-1)[0])
+        self.single_agent_action_space = gym.spaces.Box(-high, high, (2,), np.float32)
+        s_dim = sum(int(np.prod(env.single_observation_space[k].shape)) for k in ("observation", "achieved_goal", "desired_goal"))
+        self.state_space = gym.spaces.Box(-np.inf, np.inf, (s_dim,), np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        info = dict(info)
+        info["state"] = global_state(obs)
+        return self.split(obs), info
+
+    def step(self, actions):
+        n, m = self.num_envs, self.num_movers
+        if isinstance(actions, np.ndarray):
+            actions = torch.from_numpy(actions)
+        if not isinstance(actions, torch.Tensor):
+            raise TypeError(f"actions must be a torch tensor or numpy array, got {type(actions).__name__}")
+        if tuple(actions.shape) != (n, m, 2):
+            raise ValueError(f"actions must have shape ({n}, {m}, 2) (env, mover, x/y), got {tuple(actions.shape)}")
+        obs, reward, terminated, truncated, info = self.env.step(actions.reshape(n, 2 * m))
+        info["state"] = global_state(obs)
+        if "final_obs" in info:
+            info["final_obs"] = self.split(info["final_obs"])
+        shape = (n, m)
+        return (self.split(obs), reward[:, None].expand(shape), terminated[:, None].expand(shape),
+                truncated[:, None].expand(shape), info)
+
+    def render(self):
+        return self.env.render()
+
+    def close(self):
+        self.env.close()
