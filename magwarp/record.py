@@ -24,7 +24,7 @@ import numpy as np
 
 from magwarp.render.arrays import to_numpy_image
 
-__all__ = ["VideoRecorder", "RecordVideo", "VIDEO_FORMATS", "ffmpeg_available"]
+__all__ = ["VideoRecorder", "RecordVideo", "VIDEO_FORMATS", "ffmpeg_available", "tile_frames", "as_frame"]
 
 VIDEO_FORMATS = (".mp4", ".gif")
 
@@ -39,11 +39,41 @@ def ffmpeg_available() -> bool:
         return False
 
 
+def tile_frames(frames, cols: int | None = None, border: int = 2) -> np.ndarray:
+    """Equal-size ``[H, W, 3]`` frames (e.g. one per sub-env of a gymnasium vector env) as one grid image."""
+    images = [to_numpy_image(f) for f in frames]
+    if not images:
+        raise ValueError("tile_frames needs at least one frame")
+    h, w = images[0].shape[:2]
+    if any(im.shape[:2] != (h, w) for im in images):
+        raise ValueError(f"tile_frames needs frames of one size, got {sorted({im.shape[:2] for im in images})}")
+    cols = int(cols) if cols else int(np.ceil(np.sqrt(len(images))))
+    rows = -(-len(images) // cols)
+    from magwarp.render import colors
+
+    grid = np.empty((rows * (h + border) + border, cols * (w + border) + border, 3), np.uint8)
+    grid[:] = colors.BACKGROUND
+    for k, im in enumerate(images):
+        r, c = divmod(k, cols)
+        y, x = border + r * (h + border), border + c * (w + border)
+        grid[y:y + h, x:x + w] = im
+    return grid
+
+
+def as_frame(rendered) -> np.ndarray:
+    """What an env's ``render()`` returned, as one ``uint8 [H, W, 3]`` image: an image as is, a list/tuple of
+    images (gymnasium vector envs may return one per sub-env) as a grid."""
+    if isinstance(rendered, (list, tuple)):
+        return rendered[0] if len(rendered) == 1 else tile_frames(rendered)
+    return rendered
+
+
 class VideoRecorder:
     """Writes frames to ``path`` (``.mp4`` or ``.gif``) at ``fps`` frames per second.
 
     mp4 frames are streamed to ffmpeg as they come (memory stays flat); gif frames are kept and written on
-    :meth:`close` (gifs are for short clips). All frames must have the size of the first. ``scale`` upsamples by an
+    :meth:`close` (gifs are for short clips; identical consecutive gif frames are merged into one longer frame, so
+    the timing is kept). All frames must have the size of the first. ``scale`` upsamples by an
     integer factor (nearest neighbour), handy for small mosaics.
     """
 
@@ -177,7 +207,7 @@ class RecordVideo:
         frame = self.env.render()
         if frame is None:
             raise RuntimeError("env.render() returned None: make the env with render_mode='rgb_array'")
-        self._recorder.add(frame)
+        self._recorder.add(as_frame(frame))
 
     def _stop(self) -> None:
         if self._recorder is not None:

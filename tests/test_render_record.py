@@ -113,3 +113,35 @@ def test_record_video_wrapper(tmp_path):
 def test_record_video_needs_render():
     with pytest.raises(TypeError, match="needs an env with render"):
         RecordVideo(object(), "x")
+
+
+def test_tile_frames_and_as_frame():
+    from magwarp.record import as_frame, tile_frames
+
+    frames = [np.full((4, 5, 3), k * 40, np.uint8) for k in range(3)]
+    grid = tile_frames(frames, border=1)
+    assert grid.shape == (2 * 5 + 1, 2 * 6 + 1, 3)
+    assert np.all(grid[1:5, 7:12] == 40) and np.all(grid[6:10, 1:6] == 80)
+    assert as_frame(frames[:1]) is frames[0]
+    assert as_frame(tuple(frames)).shape == tile_frames(frames).shape
+    with pytest.raises(ValueError, match="one size"):
+        tile_frames([np.zeros((4, 5, 3), np.uint8), np.zeros((5, 5, 3), np.uint8)])
+
+
+def test_record_video_with_a_magwarp_env(tmp_path):
+    gym = pytest.importorskip("gymnasium")
+    try:
+        import magwarp.envs  # noqa: F401
+    except Exception as e:  # noqa: BLE001 - envs are another module's job
+        pytest.skip(f"magwarp.envs not importable: {e}")
+    if "magwarp/TrajectoryPlanningB0-v0" not in gym.registry:
+        pytest.skip("trajectory planning env not registered")
+    env = gym.make_vec("magwarp/TrajectoryPlanningB0-v0", num_envs=2, render_mode="rgb_array")
+    env = RecordVideo(env, tmp_path, video_length=3, format="gif")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(3):  # moving movers: gif writers merge identical consecutive frames
+        env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+    env.close()
+    assert len(env.videos) == 1
+    assert iio.imread(env.videos[0]).shape[0] == 4

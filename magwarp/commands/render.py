@@ -172,8 +172,9 @@ def run(args) -> int:
             state["obs"] = env.step(policy(state["obs"]))[0]
 
         def frame():
-            f = env.render()
-            return f[0] if isinstance(f, (list, tuple)) else f
+            from magwarp.record import as_frame
+
+            return as_frame(env.render())
 
     if args.synthetic:
         has_objects, has_obstacles = scene.objects, scene.objects
