@@ -20,8 +20,8 @@ import warp as wp
 from magwarp.kernels import collision as kcol
 from magwarp.kernels import step as kstep
 from magwarp.kernels.impedance import default_force
-from magwarp.layout import Layout, LayoutError, MoverSpec, validate_starts
-from magwarp.types import SHAPE_BOX, SHAPE_CIRCLE, Body, Collision, Grid, Impedance, Limits, Model, State
+from magwarp.layout import Layout, LayoutError, MoverSpec
+from magwarp.types import COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Body, Collision, Grid, Impedance, Limits, Model, State
 
 __all__ = ["Simulator", "default_device"]
 
@@ -110,11 +110,6 @@ class Simulator:
         self.num_movers = start_xy_arr.shape[1]
         m = self.num_movers
         radii, half = self._collision_sizes(collision_radii, collision_half_sizes)
-        if validate_starts_:
-            # Worlds that share their start poses need one check, not one per world.
-            unique = [0] if start_xy is None or np.ndim(start_xy) == 2 else range(self.num_worlds)
-            for w in unique:
-                validate_starts(self.layout, self.mover, start_xy_arr[w], start_yaw_arr[w], radii, half)
         self._fused = m <= fused_max_movers
 
         hold = np.asarray(hold_mask, dtype=np.float64).reshape(-1)
@@ -131,6 +126,8 @@ class Simulator:
         self._reset_mask = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)
         self.set_start_poses(start_xy_arr, start_yaw_arr)
         self.reset()
+        if validate_starts_:
+            self._raise_on_start_collisions()
 
     # ------------------------------------------------------------------ construction helpers
     def _start_arrays(self, num_movers, start_xy, start_yaw):
@@ -230,7 +227,7 @@ class Simulator:
             world_walls=z(wp.int32, self.num_worlds), halted=z(wp.int32, self.num_worlds),
             cycles=z(wp.int32, self.num_worlds), force_aux=z(float, (*shape, int(aux_dim))),
         )
-        if not self._fused:
+        if self.num_movers > 32:
             g = self.model.grid
             self._cell_head = wp.zeros(self.num_worlds * g.ncx * g.ncy, dtype=wp.int32, device=dev)
             self._next_in_cell = z(wp.int32)
@@ -307,15 +304,14 @@ class Simulator:
             q[..., 2].copy_(torch.sin(0.5 * yaw))
             q[..., 3].copy_(torch.cos(0.5 * yaw))
 
-    def set_start_poses(self, start_xy, start_yaw=None, validate: bool = False) -> None:
-        """Replace the start poses used by :meth:`reset`: ``(M, 2)`` or ``(W, M, 2)`` positions, yaw likewise."""
+    def set_start_poses(self, start_xy, start_yaw=None) -> None:
+        """Replace the start poses used by :meth:`reset`: ``(M, 2)`` or ``(W, M, 2)`` positions, yaw likewise.
+
+        The poses are checked when the worlds are reset and then by :meth:`check_collisions`, not here."""
         xy = np.asarray(start_xy.cpu() if isinstance(start_xy, torch.Tensor) else start_xy, dtype=np.float64)
         if start_yaw is not None and isinstance(start_yaw, torch.Tensor):
             start_yaw = start_yaw.cpu().numpy()
         xy, yaw = self._start_arrays(self.num_movers, xy, start_yaw)
-        if validate:
-            for w in range(self.num_worlds):
-                validate_starts(self.layout, self.mover, xy[w], yaw[w], self._radii_np, self._half_np)
         pos = np.concatenate([xy, np.full((*xy.shape[:2], 1), self.model.hover_z)], axis=-1)
         quat = np.zeros((*xy.shape[:2], 4))
         quat[..., 2] = np.sin(0.5 * yaw)
@@ -359,14 +355,34 @@ class Simulator:
     def _on_stream(self):
         return wp.ScopedStream(self._stream) if self._stream is not None else contextlib.nullcontext()
 
+    def check_collisions(self) -> None:
+        """Recompute the collision outputs (flags, partner, per-world counts) for the current poses, without moving."""
+        m, s, dev = self.model, self.state, self.device
+        W, M = self.num_worlds, self.num_movers
+        with self._on_stream():
+            wp.launch(kcol.detect_walls, dim=(W, M), device=dev,
+                      inputs=[m.tiles, m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall])
+            self._detect_pairs()
+
+    def _raise_on_start_collisions(self) -> None:
+        """Start poses must be on the tiles and collision free: checked with the simulator's own kernels (O(M))."""
+        self.check_collisions()
+        flags = self.flags.cpu().numpy()
+        if not flags.any():
+            self.flags_any.zero_()
+            return
+        w, k = (int(v) for v in np.argwhere(flags)[0])
+        xy = tuple(round(float(v), 4) for v in self.pos[w, k, :2].cpu())
+        if flags[w, k] & COLLIDE_WALL:
+            raise LayoutError(f"mover {k} (world {w}) starts at {xy}, which is off the tiles or too close to an edge")
+        j = int(self.partner[w, k])
+        other = tuple(round(float(v), 4) for v in self.pos[w, j, :2].cpu())
+        raise LayoutError(f"movers {k} and {j} (world {w}) overlap at their start positions {xy} and {other}")
+
     def add_cycle_hook(self, hook: Callable[["Simulator"], None]) -> None:
         """Run ``hook(sim)`` after every cycle, inside the step graph. It must only launch device work."""
         self._hooks.append(hook)
         self._fused = False
-        if not hasattr(self, "_cell_head"):
-            g = self.model.grid
-            self._cell_head = wp.zeros(self.num_worlds * g.ncx * g.ncy, dtype=wp.int32, device=self.device)
-            self._next_in_cell = wp.zeros((self.num_worlds, self.num_movers), dtype=wp.int32, device=self.device)
         self._graphs.clear()
 
     def step(self, num_cycles: int = 1, cmd=None) -> None:
@@ -416,6 +432,12 @@ class Simulator:
             inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, s.target_pos,
                     s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall, s.cycles],
         )
+        self._detect_pairs()
+
+    def _detect_pairs(self) -> None:
+        """Mover-mover check and flag/counter outputs from the current poses and wall flags."""
+        m, s, dev = self.model, self.state, self.device
+        W, M = self.num_worlds, self.num_movers
         wp.launch(kcol.clear_world_counters, dim=W, inputs=[s.world_pairs, s.world_walls], device=dev)
         outputs = [s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted]
         if M <= 32:

@@ -293,3 +293,25 @@ def footprints_on_tiles(
     if hits_wall(tiles, col, xy[i], 0.0, radius + extra, half + wp.vec2(extra, extra)):
         ok = 0
     valid[i] = ok
+
+
+@wp.kernel
+def detect_walls(
+    # Model:
+    tiles: wp.array2d(dtype=wp.int32),
+    col: Collision,
+    radius: wp.array(dtype=float),
+    half_size: wp.array(dtype=wp.vec2),
+    # State in:
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    # State out:
+    wall: wp.array2d(dtype=wp.int32),
+):
+    """Wall flags of the current poses, without integrating (start-pose validation, queries)."""
+    w, m = wp.tid()
+    p = pos[w, m]
+    hit = int(0)
+    if hits_wall(tiles, col, wp.vec2(p[0], p[1]), shape_yaw(col, quat[w, m]), radius[m], half_size[m]):
+        hit = 1
+    wall[w, m] = hit

@@ -1,0 +1,196 @@
+"""RL env throughput: env-steps per second against num_envs (one env step = 40 cycles of 1 ms), on CPU and CUDA,
+beside MagBotSim's ``env.step()`` measured in the same run, and the cost of the adapters over the raw tensor env.
+
+    python benchmarks/env_throughput.py                          # B0 on cpu (+cuda:0), adapters, MagBotSim
+    python benchmarks/env_throughput.py --device cuda:0 --num-envs 4096,65536,1048576 --json out.json --plot out.png
+
+Actions are uniform random in the action space, drawn on the device from a pre-generated bank (so the timing is the
+env's, not the random generator's). Autoreset is on and included. ``check_inputs`` is off in the timed loop (it is a
+device sync per step on a GPU); the row ``check_inputs=on`` shows its cost at one size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import warp as wp  # noqa: E402
+
+from common import machine_info, print_table, write_json  # noqa: E402
+
+
+def _sync(device) -> None:
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def time_steps(step, actions: torch.Tensor, steps: int, device) -> dict:
+    for i in range(3):
+        step(actions[i % len(actions)])
+    _sync(device)
+    samples = []
+    chunk = max(1, steps // 5)
+    for r in range(5):
+        t = time.perf_counter()
+        for i in range(chunk):
+            step(actions[(r * chunk + i) % len(actions)])
+        _sync(device)
+        samples.append((time.perf_counter() - t) / chunk)
+    return {"step_ms": float(np.median(samples) * 1e3), "std_ms": float(np.std(samples) * 1e3)}
+
+
+def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_inputs: bool = False) -> dict:
+    import gymnasium as gym
+
+    import magwarp  # noqa: F401  (registers the ids)
+
+    env = gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=check_inputs)
+    env.reset(seed=0)
+    space = env.single_action_space
+    gen = torch.Generator(device=env.device).manual_seed(0)
+    low = torch.as_tensor(space.low, device=env.device)
+    high = torch.as_tensor(space.high, device=env.device)
+    actions = low + (high - low) * torch.rand((8, num_envs, *space.shape), generator=gen, device=env.device)
+    res = time_steps(env.step, actions, steps, device)
+    res["env_steps_per_s"] = num_envs / (res["step_ms"] / 1e3)
+    return res
+
+
+def adapter_rows(env_id: str, num_envs: int, device: str, steps: int) -> list[dict]:
+    """The same workload through each adapter that is importable (numpy adapters pay their host copies)."""
+    rows = []
+    try:
+        from magwarp.envs.adapters.sb3 import MagwarpSB3VecEnv
+    except Exception:  # noqa: BLE001 - adapter or SB3 missing
+        MagwarpSB3VecEnv = None
+    if MagwarpSB3VecEnv is not None:
+        try:
+            import gymnasium as gym
+
+            venv = MagwarpSB3VecEnv(gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False))
+            venv.reset()
+            acts = np.random.default_rng(0).uniform(-10, 10, (8, num_envs, *venv.action_space.shape)).astype(np.float32)
+
+            def step(a):
+                venv.step_async(a)
+                venv.step_wait()
+
+            res = time_steps(step, acts, steps, device)
+            rows.append({"adapter": "sb3 VecEnv (numpy)", **res, "env_steps_per_s": num_envs / (res["step_ms"] / 1e3)})
+        except Exception as e:  # noqa: BLE001
+            print(f"sb3 adapter skipped: {e}", file=sys.stderr)
+    try:
+        from magwarp.envs.adapters.torchrl import MagwarpTorchRLEnv
+    except Exception:  # noqa: BLE001
+        MagwarpTorchRLEnv = None
+    if MagwarpTorchRLEnv is not None:
+        try:
+            import gymnasium as gym
+
+            tenv = MagwarpTorchRLEnv(gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False))
+            td = tenv.reset()
+            spec = tenv.action_spec
+            acts = torch.stack([spec.rand() for _ in range(8)])
+
+            def step(a):
+                nonlocal td
+                td.set("action", a)
+                td = tenv.step_and_maybe_reset(td)[1]
+
+            res = time_steps(step, acts, steps, device)
+            rows.append({"adapter": "torchrl EnvBase", **res, "env_steps_per_s": num_envs / (res["step_ms"] / 1e3)})
+        except Exception as e:  # noqa: BLE001
+            print(f"torchrl adapter skipped: {e}", file=sys.stderr)
+    return rows
+
+
+def plot(rows: list[dict], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5))
+    series: dict[str, list] = {}
+    for r in rows:
+        if r.get("adapter") in (None, "raw") and not r.get("check_inputs"):
+            series.setdefault(f"{r['engine']} {r['env']} ({r['device']})", []).append((r["num_envs"], r["env_steps_per_s"]))
+    for name, pts in sorted(series.items()):
+        pts.sort()
+        x, y = zip(*pts)
+        style = "s--" if name.startswith("magbotsim") else "o-"
+        ax.plot(x, y, style, label=name)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("num_envs")
+    ax.set_ylabel("env steps per second (1 step = 40 x 1 ms cycles)")
+    ax.set_title("RL env throughput: magwarp (batched) vs MagBotSim (one env per process)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    print(f"wrote {path}")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--device", default=None, help="cpu or cuda:N (default: cpu, plus cuda:0 when present)")
+    p.add_argument("--envs", default="magwarp/TrajectoryPlanningB0-v0", help="comma-separated magwarp env ids")
+    p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 1..4096 on CPU, up to 1M on GPU)")
+    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--adapters-at", type=int, default=4096, help="num_envs at which adapters are compared")
+    p.add_argument("--no-magbotsim", action="store_true")
+    p.add_argument("--magbotsim-steps", type=int, default=200)
+    p.add_argument("--json", default=None)
+    p.add_argument("--plot", default=None)
+    args = p.parse_args(argv)
+    wp.config.quiet = True
+    torch.set_num_threads(1)
+    info = machine_info(args.device or "cpu")
+    print(f"# {info['date_utc']}  {info['device_name']}  warp {info['versions'].get('warp-lang')}  "
+          f"torch {info['versions'].get('torch')}  command: {info['command']}")
+    devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
+    rows: list[dict] = []
+    for device in devices:
+        sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else
+                 ([1, 64, 1024, 4096] if device == "cpu" else [1024, 16384, 262144, 1048576]))
+        for env_id in args.envs.split(","):
+            for n in sizes:
+                res = raw_env_row(env_id, n, device, args.steps)
+                rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, "adapter": "raw", **res})
+                print(f"  {env_id} {device} num_envs={n}: {res['env_steps_per_s']:.4g} env-steps/s", flush=True)
+            n = args.adapters_at
+            res = raw_env_row(env_id, n, device, args.steps, check_inputs=True)
+            rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, "adapter": "raw",
+                         "check_inputs": True, **res})
+            for r in adapter_rows(env_id, n, device, args.steps):
+                rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, **r})
+    if not args.no_magbotsim:
+        import magbotsim_ref as ref
+
+        if ref.magbotsim_available():
+            mapping = {"magwarp/TrajectoryPlanningB0-v0": "LongHorizonGlobalTrajectoryPlanningEnvB0-v0",
+                       "magwarp/PushBox-v0": "StateBasedPushBoxEnv-v0", "magwarp/PushT-v0": "StateBasedPushTEnv-v0"}
+            for env_id in args.envs.split(","):
+                if env_id in mapping:
+                    res = ref.env_steps_per_s(mapping[env_id], steps=args.magbotsim_steps)
+                    rows.append({"engine": "magbotsim", "env": env_id, "device": "cpu", "num_envs": 1, "adapter": "raw",
+                                 "step_ms": res["step_ms_mean"], "env_steps_per_s": res["steps_per_s"]})
+    print_table(rows, ["engine", "env", "device", "num_envs", "adapter", "check_inputs", ("step_ms", "ms/step"),
+                       ("env_steps_per_s", "env-steps/s")])
+    if args.json:
+        stamp = {k: info[k] for k in ("device_name", "cpu", "date_utc", "versions", "command", "commit")}
+        write_json(args.json, [{**r, **stamp} for r in rows])
+    if args.plot:
+        plot(rows, args.plot)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
