@@ -84,3 +84,57 @@ def test_rgb_render_of_the_batched_env():
     env = TrajectoryPlanningEnv(num_envs=2, render_mode="rgb_array", seed=0)
     img = env.render()
     assert isinstance(img, np.ndarray) and img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
+
+
+# ---------------------------------------------------------------------------------------------------- the tutorial
+def _tutorial():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "examples" / "custom_env_tutorial.py"
+    spec = importlib.util.spec_from_file_location("custom_env_tutorial", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_custom_env_tutorial_runs():
+    tut = _tutorial()
+    stats = tut.main(["--envs", "8", "--steps", "40", "--device", "cpu"])
+    assert stats["episodes"] == stats["successes"] + stats["collisions"] + stats["timeouts"] > 0
+    env = tut.ParkingEnv(num_envs=4, device="cpu", seed=1, max_steps=5)
+    assert isinstance(env, VectorEnv) and env.single_action_space.shape == (6,)
+    obs, _ = env.reset(seed=3)
+    assert env.single_observation_space.contains(obs[0].numpy())
+    # slots: the last tile column, assigned by start y rank
+    np.testing.assert_allclose(env.slots[..., 0].numpy(), 0.84, rtol=1e-6)
+    y = env.sim.pos[..., 1]
+    assert (y.argsort(dim=1) == env.slots[..., 1].argsort(dim=1)).all()
+    # the base class's machinery works for it unchanged: bad input checks, autoreset with final_obs, partial reset
+    with pytest.raises(ValueError, match=r"\(4, 6\)"):
+        env.step(torch.zeros(4, 5))
+    for _ in range(5):
+        obs, reward, terminated, truncated, info = env.step(tut.pd_policy(obs, env.num_movers))
+    assert (terminated | truncated).all() and info["_final_obs"].all()
+    assert (obs.view(4, 3, 4)[..., 2:] == 0).all()  # new episodes start at rest
+    keep = env.sim.pos.clone()
+    env.reset(options={"reset_mask": torch.tensor([True, False, False, False])})
+    assert torch.equal(env.sim.pos[1:], keep[1:])
+
+
+def test_custom_env_with_adapters():
+    tut = _tutorial()
+    pytest.importorskip("stable_baselines3")
+    from magwarp.envs.adapters import SB3VecEnv
+
+    venv = SB3VecEnv(tut.ParkingEnv(num_envs=3, device="cpu", seed=0, max_steps=3))
+    obs = venv.reset()
+    for _ in range(3):  # max_steps=3: the third step truncates every env
+        obs, rew, done, infos = venv.step(np.zeros((3, 6), np.float32))
+    assert obs.shape == (3, 12) and done.any() and all("terminal_observation" in i for i, d in zip(infos, done) if d)
+    pytest.importorskip("torchrl")
+    from torchrl.envs.utils import check_env_specs
+
+    from magwarp.envs.adapters import TorchRLEnv
+
+    check_env_specs(TorchRLEnv(tut.ParkingEnv(num_envs=3, device="cpu", seed=0)))
