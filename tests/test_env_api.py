@@ -138,3 +138,16 @@ def test_custom_env_with_adapters():
     from magwarp.envs.adapters import TorchRLEnv
 
     check_env_specs(TorchRLEnv(tut.ParkingEnv(num_envs=3, device="cpu", seed=0)))
+
+
+def test_random_agents_example_runs():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "examples" / "random_agents.py"
+    spec = importlib.util.spec_from_file_location("random_agents", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    out = module.main(["--envs", "4", "--steps", "15", "--device", "cpu"])
+    assert out["batched"]["episodes"] >= out["batched"]["collisions"]
+    assert set(out) == {"batched", "multi_agent", "pettingzoo", "sb3", "torchrl"}
