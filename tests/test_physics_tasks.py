@@ -25,9 +25,7 @@ def _shapely_poly(obj: ObjectSpec, pose):
 
 
 @pytest.mark.parametrize("shape", OBJECT_SHAPES)
-def test_coverage_matches_shapely_on_random_poses(shape):
-    seed = int(np.random.SeedSequence().entropy % 2**32)
-    rng = np.random.default_rng(seed)
+def test_coverage_matches_shapely_on_random_poses(shape, rng):
     obj = ObjectSpec(shape, width=rng.uniform(0.04, 0.08), height=rng.uniform(0.04, 0.08), segment_width=0.015,
                      radius=rng.uniform(0.03, 0.06))
     n = 300
@@ -40,7 +38,7 @@ def test_coverage_matches_shapely_on_random_poses(shape):
                      for a, g in zip(ach, goal)])
     # float32 clipping: exact to ~1e-6; the disc reference is a 2048-gon (area deficit ~2e-6 relative)
     tol = 1e-5 if shape == "cylinder" else 2e-6
-    assert np.abs(got - want).max() < tol, f"seed {seed}: max error {np.abs(got - want).max():.3g}"
+    assert np.abs(got - want).max() < tol, f"{rng}: max error {np.abs(got - want).max():.3g}"
     assert np.all(got[:20] > 1 - 1e-5) and np.all(got[20:40] == 0)
     assert 0.05 < np.median(got[40:]) < 0.95  # the random poses exercise partial overlaps
 

@@ -164,3 +164,20 @@ def test_bad_arguments_name_the_value():
         env.step(torch.zeros(2, 3))
     with pytest.raises(ValueError, match="non-finite"):
         env.step(torch.tensor([[0.0, float("nan")], [0.0, 0.0]]))
+
+
+@pytest.mark.parametrize("name", ["B0", "B1", "B3"])
+def test_benchmark_variants(name, rng):
+    from magwarp.envs.push import push_benchmark
+
+    layout, movers = push_benchmark(name)
+    env = PushBoxEnv(16, benchmark=name, device="cpu", seed=int(rng.integers(1 << 30)))
+    assert env.num_movers == movers and env.layout.shape == layout.shape
+    assert env.single_action_space.shape == (2 * movers,)
+    obs, _ = env.reset()
+    xy = obs["observation"][:, : 2 * movers].reshape(16, movers, 2)
+    assert env._on_tiles(xy, 0.11).all(), rng
+    if movers == 2:
+        assert torch.all((xy[:, 0] - xy[:, 1]).norm(dim=1) > 0.22), rng
+    env.step(torch.zeros(16, 2 * movers))
+    assert not env.checks.flags_t.any()

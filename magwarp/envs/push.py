@@ -40,7 +40,24 @@ from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
 from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
 from magwarp.physics.mover_checks import MoverChecks
 
-__all__ = ["PushEnv", "PushBoxEnv", "PushTEnv", "PushLEnv", "PushXEnv", "PushWithObstaclesEnv"]
+__all__ = ["PUSH_BENCHMARKS", "PushEnv", "PushBoxEnv", "PushTEnv", "PushLEnv", "PushXEnv", "PushWithObstaclesEnv",
+           "push_benchmark"]
+
+# MagBotSim's pushing benchmark variants: B0 is a 3 x 3 grid with one mover; B1..B9 use the trajectory planning
+# benchmark layouts (magwarp.layout) with 1, 1, 2, 2, 2, 2, 2, 2, 2 movers.
+PUSH_BENCHMARKS = tuple(f"B{i}" for i in range(10))
+_PUSH_BENCHMARK_MOVERS = (1, 1, 1, 2, 2, 2, 2, 2, 2, 2)
+
+
+def push_benchmark(name: str) -> tuple[Layout, int]:
+    """Layout and mover count of pushing benchmark variant ``"B0"``..``"B9"``."""
+    from magwarp.layout import benchmark_layout
+
+    if name not in PUSH_BENCHMARKS:
+        raise ValueError(f"unknown pushing benchmark {name!r}; choose one of {list(PUSH_BENCHMARKS)}")
+    i = PUSH_BENCHMARKS.index(name)
+    layout = Layout(np.ones((3, 3), dtype=np.int32)) if i == 0 else benchmark_layout(name)[0]
+    return layout, _PUSH_BENCHMARK_MOVERS[i]
 
 _CANDIDATES = 64  # start configurations drawn per env and reset; the first valid one is used
 
@@ -58,7 +75,8 @@ def _yaw_from_quat(q: torch.Tensor) -> torch.Tensor:
 
 
 class PushEnv(MagwarpVecEnv):
-    """Batched object pushing. ``layout`` is a :class:`Layout` or 0/1 array (default: 4 x 3 tiles).
+    """Batched object pushing. ``layout`` is a :class:`Layout` or 0/1 array (default: 4 x 3 tiles); ``benchmark``
+    (``"B0"``..``"B9"``) picks MagBotSim's pushing benchmark layout and mover count instead.
 
     ``object_type`` is one of ``box``, ``square_box``, ``cylinder``, ``t_shape``, ``l_shape``, ``plus_shape`` (or
     ``T``, ``L``, ``X``); ``object_*`` set its half-sizes (m), mass (kg) and friction. Collision options follow
@@ -101,6 +119,7 @@ class PushEnv(MagwarpVecEnv):
         collision_offset_wall: float = 0.0,
         initial_mover_zpos: float = 0.003,
         obstacles: tuple[ObstacleSpec, ...] = (),
+        benchmark: str | None = None,
         nconmax: int | None = None,
         njmax: int | None = None,
         device: str | None = None,
@@ -109,6 +128,8 @@ class PushEnv(MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
     ):
+        if benchmark is not None:
+            layout, num_movers = push_benchmark(benchmark)
         layout = Layout(np.ones((4, 3), dtype=np.int32)) if layout is None else layout
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
         if int(num_movers) != num_movers or num_movers < 1:
@@ -336,7 +357,7 @@ class PushEnv(MagwarpVecEnv):
         self.checks.clear()
         if self.contacts is not None:
             self.contacts.clear()
-        self.backend.step(action.view(self.num_envs, self.num_movers, 2), check_finite=False)
+        self.backend.step(action.reshape(self.num_envs, self.num_movers, 2), check_finite=False)
 
     def _mover_obs(self) -> torch.Tensor:
         b, n = self.backend, self.num_envs
