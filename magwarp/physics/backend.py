@@ -73,14 +73,14 @@ def _free_joint_addrs(mjm: mujoco.MjModel, body_names: list[str]) -> tuple[np.nd
     return np.array(ids, dtype=np.int32), np.array(qadr, dtype=np.int32), np.array(dadr, dtype=np.int32)
 
 
-def _strided_view(t: torch.Tensor, starts: np.ndarray, width: int) -> torch.Tensor:
-    """``t[:, starts[k]:starts[k]+width]`` for all k as one ``[W, K, width]`` view (starts evenly spaced), else a gather."""
+def _strided_view(t: torch.Tensor, starts: np.ndarray, width: int) -> torch.Tensor | None:
+    """``t[:, starts[k]:starts[k]+width]`` for all k as one ``[W, K, width]`` view; None unless starts are evenly spaced."""
     if len(starts) == 0:
         return t[:, :0].reshape(t.shape[0], 0, width)
     step = int(starts[1] - starts[0]) if len(starts) > 1 else width
     if len(starts) == 1 or (step > 0 and np.all(np.diff(starts) == step)):
         return t.as_strided((t.shape[0], len(starts), width), (t.stride(0), step * t.stride(1), t.stride(1)), int(starts[0]))
-    raise PhysicsInputError("free-joint addresses are not evenly spaced; use qpos/qvel with mover_qadr/mover_dadr instead")
+    return None  # e.g. a hook gave only some movers extra joints: use qpos_t/qvel_t with mover_qadr/mover_dadr
 
 
 class MjwBackend:
@@ -185,7 +185,8 @@ class MjwBackend:
         self.init_qpos_t = wp.to_torch(self.init_qpos)
         self.init_qvel_t = wp.to_torch(self.init_qvel)
         #: ``[W, M, 7]`` views of mover free-joint qpos (x, y, z, qw, qx, qy, qz) and ``[W, M, 6]`` qvel
-        #: (world linear velocity, body-frame angular velocity); same for objects.
+        #: (world linear velocity, body-frame angular velocity); same for objects. ``None`` if user hooks made the
+        #: joint addresses unevenly spaced (then index ``qpos_t``/``qvel_t`` with ``mover_qadr``/``mover_dadr``).
         self.mover_qpos = _strided_view(self.qpos_t, self.mover_qadr, 7)
         self.mover_qvel = _strided_view(self.qvel_t, self.mover_dadr, 6)
         self.mover_qacc = _strided_view(self.qacc_t, self.mover_dadr, 6)
