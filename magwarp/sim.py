@@ -281,6 +281,8 @@ class Simulator:
             raise ValueError(f"{name} is on device {value.device}, but the simulator runs on {self.torch_device}")
         if tuple(value.shape) != shape:
             raise ValueError(f"{name} must have shape {shape}, got {tuple(value.shape)}")
+        # The state is float32: check what will be stored (a finite float64 such as 1e40 overflows to inf).
+        value = value.to(torch.float32)
         if self.check_inputs and not bool(torch.isfinite(value).all()):
             bad = torch.nonzero(~torch.isfinite(value))[0].tolist()
             raise ValueError(f"{name} contains a non-finite value at index {bad}: {value[tuple(bad)].item()}")
