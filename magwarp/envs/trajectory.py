@@ -193,6 +193,12 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         info["collected_goals"] = self.collected_goals.clone()
         info["goals_reached"] = reached
 
+    def scripted_policy(self):
+        """The built-in collision-aware goal-seeking planner for this env (a baseline: ``action = policy(obs)``)."""
+        from magwarp.policies.planner import GoalSeekingPlanner
+
+        return GoalSeekingPlanner(self)
+
     def _render_frame(self) -> torch.Tensor:
         if getattr(self, "_renderer", None) is None:
             from magwarp.render import TopDownRenderer
