@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import math
 import os
 import platform
 import sys
@@ -23,6 +24,8 @@ def parse_args(argv=None):
     p.add_argument("--layout", default="B0", help="benchmark layout B0..B9 (default B0)")
     p.add_argument("--worlds", type=int, nargs="+", default=[64], help="worlds in the mosaic (default 64)")
     p.add_argument("--px-per-tile", type=int, nargs="+", default=[16, 24, 32], help="resolutions (pixels per tile)")
+    p.add_argument("--swarm", type=int, nargs="*", default=[], help="also: one world with this many movers on a "
+                   "square grid of tiles, one mover per tile (e.g. --swarm 100 1000)")
     p.add_argument("--frames", type=int, default=50, help="draws per repeat")
     p.add_argument("--repeats", type=int, default=5, help="repeats; the best is reported")
     p.add_argument("--device", default=None, help="Warp device (default: Warp's preferred device)")
@@ -38,7 +41,7 @@ def main(argv=None) -> int:
     import warp as wp
 
     wp.config.quiet = True
-    from magwarp.layout import benchmark_layout
+    from magwarp.layout import Layout, benchmark_layout
     from magwarp.render import SyntheticScene, save_png
 
     wp.init()
@@ -50,13 +53,17 @@ def main(argv=None) -> int:
     print(f"# command: {' '.join([sys.executable.split('/')[-1]] + sys.argv)}")
     if hasattr(os, "getloadavg"):  # the machine may be shared: say how busy it was
         print(f"# load average at start: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
-    print(f"# layout {args.layout} {layout.shape[0]}x{layout.shape[1]} tiles, {num_movers} movers, goals and collision "
-          f"flags drawn; best of {args.repeats} x {args.frames} frames")
-    print(f"{'worlds':>6} {'px/tile':>7} {'image HxW':>11} {'ms/frame':>9} {'frames/s':>9} {'Mpixel/s':>9}")
+    print(f"# layout {args.layout} {layout.shape[0]}x{layout.shape[1]} tiles, {num_movers} movers (swarms: one per tile), "
+          f"goals and collision flags drawn; best of {args.repeats} repeats of {args.frames} frames (/10 for swarms)")
+    print(f"{'layout':>6} {'worlds':>6} {'movers':>6} {'px/tile':>7} {'image HxW':>11} {'ms/frame':>9} {'frames/s':>9} "
+          f"{'Mpixel/s':>9}")
     rows = []
-    for num_worlds in args.worlds:
-        scene = SyntheticScene(layout, num_worlds=num_worlds, num_movers=num_movers, seed=0,
-                               device=wp.device_to_torch(device))
+    configs = [(layout, n, num_movers, f"{args.layout}") for n in args.worlds]
+    for n in args.swarm:
+        side = math.ceil(math.sqrt(n))
+        configs.append((Layout.grid(side, side), 1, n, f"{side}x{side}"))
+    for lay, num_worlds, movers, name in configs:
+        scene = SyntheticScene(lay, num_worlds=num_worlds, num_movers=movers, seed=0, device=wp.device_to_torch(device))
         for _ in range(10):
             scene.step()
         a = scene.arrays()
@@ -65,17 +72,19 @@ def main(argv=None) -> int:
             frame = renderer.draw(a["pos"], a["quat"], flags=a["collision"], goals=a["goals"])  # compile + warm up
             wp.synchronize_device(device)
             best = float("inf")
+            frames = args.frames if movers <= 100 else max(2, args.frames // 10)
             for _ in range(args.repeats):
                 t0 = time.perf_counter()
-                for _ in range(args.frames):
+                for _ in range(frames):
                     frame = renderer.draw(a["pos"], a["quat"], flags=a["collision"], goals=a["goals"])
                 wp.synchronize_device(device)
-                best = min(best, (time.perf_counter() - t0) / args.frames)
+                best = min(best, (time.perf_counter() - t0) / frames)
             h, w = renderer.height, renderer.width
-            rows.append((num_worlds, ppt, h, w, best))
-            print(f"{num_worlds:>6} {ppt:>7} {f'{h}x{w}':>11} {best * 1e3:>9.2f} {1.0 / best:>9.1f} {h * w / best / 1e6:>9.1f}")
+            rows.append((num_worlds, ppt, h, w, best, movers, name))
+            print(f"{name:>6} {num_worlds:>6} {movers:>6} {ppt:>7} {f'{h}x{w}':>11} {best * 1e3:>9.2f} {1.0 / best:>9.1f} "
+                  f"{h * w / best / 1e6:>9.1f}")
             if args.png:
-                save_png(f"{args.png}_{num_worlds}w_{ppt}px.png", frame)
+                save_png(f"{args.png}_{name}_{num_worlds}w_{movers}m_{ppt}px.png", frame)
     if args.plot:
         plot(rows, args, device)
     return 0
@@ -88,9 +97,9 @@ def plot(rows, args, device) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
-    for num_worlds in sorted({r[0] for r in rows}):
-        pts = [(h * w / 1e6, 1.0 / t, ppt) for n, ppt, h, w, t in rows if n == num_worlds]
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"{num_worlds} worlds ({args.layout})")
+    for key in dict.fromkeys((r[6], r[0], r[5]) for r in rows):
+        pts = [(h * w / 1e6, 1.0 / t, ppt) for n, ppt, h, w, t, m, name in rows if (name, n, m) == key]
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"{key[1]} world(s) of {key[0]}, {key[2]} movers")
         for mp, fps, ppt in pts:
             ax.annotate(f"{ppt} px/tile", (mp, fps), textcoords="offset points", xytext=(4, 4), fontsize=7)
     ax.axhline(100, color="grey", ls="--", lw=0.8, label="100 frames/s")

@@ -200,3 +200,33 @@ def test_legend_strip_fits_under_frames(width):
     assert with_legend(frame, strip).shape == (30 + strip.shape[0], width, 3)
     with pytest.raises(ValueError, match="does not match the frame width"):
         with_legend(np.zeros((30, width + 1, 3), np.uint8), strip)
+
+
+@pytest.mark.parametrize("crowded", [False, True])
+def test_big_swarms_binned_path_matches_the_direct_path(monkeypatch, crowded):
+    """Above BAND_MOVERS movers the kernel sorts movers into per-tile bins first; the picture must not change.
+    ``crowded`` piles 12 movers onto one tile: the bin overflows and the cell falls back to testing every mover."""
+    from magwarp.render import kernels as K
+
+    layout = Layout.grid(8, 6)
+    num_movers = 40
+    pos = np.zeros((2, num_movers, 3), np.float32)
+    centres = layout.tile_centers()
+    pos[:, :, :2] = centres[:num_movers]
+    if crowded:
+        pos[1, :12, :2] = centres[0] + np.linspace(-0.05, 0.05, 12)[:, None]
+    goals = np.roll(pos[:, :, :2], 3, axis=1) + 0.05
+    yaw = np.linspace(0, 3, 2 * num_movers, dtype=np.float32).reshape(2, num_movers)
+    flags = (np.arange(2 * num_movers).reshape(2, num_movers) % 5 == 0).astype(np.int32)
+    r = TopDownRenderer(layout, worlds=2, px_per_tile=20, goal_lines=False, device="cpu")
+    binned = r.draw_numpy(pos, yaw, flags=flags, goals=goals)
+    assert r._bins is not None, "40 movers use the binned path"
+    assert r._bins[4].numpy().tolist() == ([0, 1] if crowded else [0, 0])
+    monkeypatch.setattr(K, "BAND_MOVERS", 1000)
+    direct = TopDownRenderer(layout, worlds=2, px_per_tile=20, goal_lines=False, device="cpu").draw_numpy(
+        pos, yaw, flags=flags, goals=goals)
+    differ = np.any(binned != direct, axis=-1)
+    if crowded:  # overlapping movers may be painted in another order in the crowded tile only
+        r0, c0 = r.cell_origin(1)
+        differ[r0 + r.cell_h - 30:r0 + r.cell_h, c0:c0 + 30] = False
+    assert not differ.any(), f"{differ.sum()} pixels differ, first at {np.argwhere(differ)[:3]}"

@@ -183,6 +183,8 @@ class TopDownRenderer:
         self._image_torch = wp.to_torch(self._image)
         self._keep = None  # inputs of the last launch, kept alive until the next one
         self._reject_cache = (None, 0.0)
+        self._bins = None  # per-tile mover/goal bins, allocated for the first big swarm
+        self._no_bins = None
 
     def _axis_tables(self, length: int, cell: int) -> tuple[np.ndarray, np.ndarray]:
         s = np.arange(length) - self.border
@@ -313,24 +315,52 @@ class TopDownRenderer:
                 obst_t = torch.cat([obst_t, torch.zeros_like(obst_t[..., :1])], dim=-1)
 
         reject = self._reject_radius(radii_t, half_t, radii is not None or half_sizes is not None)
+        bins = self._bin(pos_t, goals_t, num_movers)
         inputs = [
             self._background, self.num_cells, self.cols, self._row_cell, self._col_cell, self._row_y, self._col_x,
             float(self.px_per_m), self._cell_worlds, int(self.run_length),
             K.SHAPE_BOX if self.mover.collision_shape == "box" else K.SHAPE_CIRCLE,
             wp.vec2(0.5 * self.mover.size[0], 0.5 * self.mover.size[1]), float(self.mover.margin), float(reject),
             wp.from_torch(radii_t), wp.from_torch(half_t), self._parts, self._fixed_colors, self._mover_colors,
-            float(self.goal_radius), int(self.style),
+            float(self.goal_radius), int(self.style), float(self.layout.tile.size),
+            max(1, math.ceil(reject / self.layout.tile.size)),
             wp.from_torch(pos_t), wp.from_torch(rot_t), wp.from_torch(flags_t), wp.from_torch(goals_t),
-            wp.from_torch(obj_t), wp.from_torch(objg_t), wp.from_torch(obst_t),
+            wp.from_torch(obj_t), wp.from_torch(objg_t), wp.from_torch(obst_t), *bins,
         ]
         self._keep = (pos_t, rot_t, flags_t, radii_t, half_t, goals_t, obj_t, objg_t, obst_t)
         if self.device.is_cuda:
             # Launch on torch's current stream so the frame is ordered with the caller's torch work.
             with wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(td))):
-                wp.launch(K.draw_topdown, dim=self._launch_dim, inputs=inputs, outputs=[self._image], device=dev)
+                self._launch(inputs, pos_t, goals_t, bins)
         else:
-            wp.launch(K.draw_topdown, dim=self._launch_dim, inputs=inputs, outputs=[self._image], device=dev)
+            self._launch(inputs, pos_t, goals_t, bins)
         return self._image_torch
+
+    def _launch(self, inputs, pos_t, goals_t, bins) -> None:
+        dev = self.device
+        if bins[0].shape[0] > 0:  # big swarm: bin movers and goals by tile first (3 small ops + 1 launch)
+            for arr in (bins[0], bins[2], bins[4]):
+                arr.zero_()
+            wp.launch(K.bin_movers, dim=(self.num_cells, pos_t.shape[1]), device=dev,
+                      inputs=[self._cell_worlds, float(self.layout.tile.size), wp.from_torch(pos_t), wp.from_torch(goals_t)],
+                      outputs=list(bins))
+        wp.launch(K.draw_topdown, dim=self._launch_dim, inputs=inputs, outputs=[self._image], device=dev)
+
+    def _bin(self, pos_t, goals_t, num_movers: int) -> tuple:
+        """Per-tile bins for big swarms (more movers than the kernel's 31-bit row band covers), else empty arrays."""
+        if num_movers <= K.BAND_MOVERS:
+            if self._no_bins is None:
+                dev = self.device
+                self._no_bins = (wp.zeros((0, 1, 1), dtype=wp.int32, device=dev), wp.zeros((0, 1, 1, 1), dtype=wp.int32, device=dev),
+                                 wp.zeros((0, 1, 1), dtype=wp.int32, device=dev), wp.zeros((0, 1, 1, 1), dtype=wp.int32, device=dev),
+                                 wp.zeros(0, dtype=wp.int32, device=dev))
+            return self._no_bins
+        if self._bins is None:
+            dev, (nx, ny), c, cap = self.device, self.layout.shape, self.num_cells, K.BIN_CAPACITY
+            self._bins = (wp.zeros((c, nx, ny), dtype=wp.int32, device=dev), wp.zeros((c, nx, ny, cap), dtype=wp.int32, device=dev),
+                          wp.zeros((c, nx, ny), dtype=wp.int32, device=dev), wp.zeros((c, nx, ny, cap), dtype=wp.int32, device=dev),
+                          wp.zeros(c, dtype=wp.int32, device=dev))
+        return self._bins
 
     def draw_numpy(self, *args, **kwargs) -> np.ndarray:
         """:meth:`draw`, returned as a fresh numpy ``uint8 [H, W, 3]`` array."""
