@@ -401,13 +401,21 @@ class Simulator:
             graph = self._graphs.get(n)
             if graph is None:
                 # Modules must be loaded before a capture (no compiling inside one): this first, eager step does
-                # that, and it is a real step. The capture that follows records without executing.
+                # that, and it is a real step. The capture that follows records without executing. CUDA cannot
+                # capture on torch's default (legacy) stream, so capture on a stream of our own and replay on torch's.
                 self._launch_step(n)
-                with wp.ScopedCapture(device=self.device, stream=self._stream, force_module_load=False) as capture:
-                    self._launch_step(n)
-                self._graphs[n] = capture.graph
+                self._graphs[n] = self._capture(lambda: self._launch_step(n))
                 return
-            wp.capture_launch(graph)
+            wp.capture_launch(graph, stream=self._stream)
+
+    def _capture(self, launches) -> wp.Graph:
+        """Record ``launches()`` as a graph. CUDA cannot capture on torch's default (legacy) stream, so the capture
+        runs on a stream of our own; the graph is replayed on torch's stream."""
+        stream = wp.Stream(self.device) if self.device.is_cuda else None
+        with wp.ScopedStream(stream) if stream is not None else contextlib.nullcontext():
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                launches()
+        return capture.graph
 
     def _launch_step(self, n: int) -> None:
         m, s, dev = self.model, self.state, self.device
