@@ -344,3 +344,35 @@ def test_grid_path_finds_pairs_outside_the_layout(rng):
     pairs = ref.mover_collision_pairs(mover, f32(xy), np.zeros(m))
     assert int(sim.world_pairs[0]) == len(pairs) == 19 + 19, rng
     assert (sim.flags[0, 20:].numpy() == COLLIDE_MOVER | COLLIDE_WALL).all()
+
+
+@pytest.mark.parametrize("shape", ["circle", "box"])
+@pytest.mark.parametrize("layout_name", ["L", "holes", "B3", "B9"])
+def test_footprints_on_tiles_matches_reference(layout_name, shape, rng):
+    """The sampling kernel (start poses, goals): valid = the axis-aligned footprint grown by ``extra`` (on top of
+    the wall margin) stays on the tiles."""
+    from magwarp.kernels.collision import footprints_on_tiles
+
+    layout = Layout(WALL_LAYOUTS[layout_name])
+    n = 400
+    radius, half = float(rng.uniform(0.03, 0.11)), f32(rng.uniform(0.02, 0.08, 2))
+    extra, wall_margin = float(rng.uniform(0.0, 0.02)), float(rng.uniform(0.0, 0.01))
+    ext = np.array(layout.extent)
+    xy = f32(rng.uniform(-0.02, 1.02, (n, 2)) * ext)
+    mover = MoverSpec(collision_shape=shape)
+    r = np.full(n, radius + extra)
+    h = np.tile(half + extra, (n, 1))
+
+    def reference(wm):
+        return ~ref.wall_collisions(layout, mover, xy[None], np.zeros((1, n)), r, h, wall_margin=wm)[0]
+
+    expected = reference(wall_margin)
+    ambiguous = reference(wall_margin - EPS) != reference(wall_margin + EPS)
+    valid = wp.zeros(n, dtype=wp.int32, device="cpu")
+    wp.launch(footprints_on_tiles, dim=n, device="cpu",
+              inputs=[wp.array(layout.tiles, dtype=wp.int32, device="cpu"), make_col(shape, 0.0, wall_margin),
+                      radius, wp.vec2(*half), extra, wp.array(xy.astype(np.float32), dtype=wp.vec2, device="cpu"), valid])
+    got = valid.numpy().astype(bool)
+    bad = np.flatnonzero((got != expected) & ~ambiguous)
+    assert bad.size == 0, f"{rng}: {bad.size} mismatches, first xy={xy[bad[:1]]}"
+    assert expected.any() and not expected.all(), rng

@@ -196,3 +196,14 @@ def test_bad_reset_masks(sim):
     assert_state_equal(before, state_copy(sim))
     sim.reset(np.array([False, False]))  # an all-false mask is valid and changes nothing
     assert_state_equal(before, state_copy(sim))
+
+
+def test_float64_command_overflowing_float32_is_rejected(sim):
+    """The state is float32: a finite float64 command of 1e40 would be stored as inf (and poison the state)."""
+    before = state_copy(sim)
+    cmd = torch.zeros(2, 3, 2, dtype=torch.float64)
+    cmd[0, 1, 1] = 1e40
+    with pytest.raises(ValueError, match=r"non-finite.*\[0, 1, 1\]"):
+        sim.step(3, cmd=cmd)
+    assert_state_equal(before, state_copy(sim))
+    assert torch.isfinite(sim.pos).all()
