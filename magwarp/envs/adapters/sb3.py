@@ -68,8 +68,7 @@ class SB3VecEnv(VecEnv):
         return _obs_np(obs)
 
     def step_async(self, actions: np.ndarray) -> None:
-        actions = np.asarray(actions)
-        self._actions = torch.from_numpy(actions).to(self.env.device)
+        self._actions = torch.from_numpy(np.ascontiguousarray(actions)).to(self.env.device)
 
     def step_wait(self):
         if self._actions is None:
@@ -90,7 +89,7 @@ class SB3VecEnv(VecEnv):
         finished = np.flatnonzero(done_np)
         if len(finished):
             final = _obs_np(info["final_obs"])
-            for i in finished.tolist():
+            for i in finished.tolist():  # only the envs that finished: no loop over the whole batch
                 infos[i]["terminal_observation"] = (
                     {k: v[i] for k, v in final.items()} if isinstance(final, dict) else final[i]
                 )

@@ -95,10 +95,11 @@ class TorchRLEnv(EnvBase):
     # ------------------------------------------------------------------ conversion
     def _obs_td(self, obs) -> dict:
         if self.multi_agent:
-            per = self._split(obs)
+            state = global_state(obs)
+            per = self._split(obs, state)
             agents = {"observation": per} if isinstance(per, torch.Tensor) else per
             return {"agents": TensorDict(agents, batch_size=(self.env.num_envs, self.num_movers), device=self.device),
-                    "state": global_state(obs)}
+                    "state": state}
         return dict(obs) if isinstance(obs, dict) else {"observation": obs}
 
     # ------------------------------------------------------------------ EnvBase hooks
