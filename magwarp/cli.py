@@ -12,7 +12,7 @@ import importlib.util
 import pkgutil
 import sys
 
-from magwarp.commands import SUBCOMMANDS, UsageError
+from magwarp.commands import SUBCOMMANDS, CommandError, UsageError
 
 EXIT_USAGE = 2
 EXIT_MISSING = 2
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         kind, hint = ("", "") if plain else (f"{type(e).__name__}: ", " (--debug for the traceback)")
         sys.stderr.write(f"magwarp {args.command}: error: {kind}{e}{hint}\n")
         return EXIT_USAGE
-    except ImportError as e:  # an optional dependency is missing: say which, in one line
+    except (ImportError, CommandError) as e:  # a missing optional dependency or machine feature, in one line
         if debug:
             raise
         sys.stderr.write(f"magwarp {args.command}: error: {e}\n")

@@ -99,3 +99,14 @@ def test_view_synthetic_usd_and_null(capsys, tmp_path):
     rc, out, err = run_cli(capsys, "view", "--synthetic", "--objects", "--viewer", "usd", "-o", usd, "--steps", "4")
     assert rc == 0, err
     assert os.path.getsize(usd) > 0 and "wrote" in out
+
+
+def test_viewer_that_cannot_start_is_one_line_exit_1(capsys, monkeypatch):
+    import magwarp.viewer
+
+    def no_window(*args, **kwargs):
+        raise RuntimeError("the OpenGL viewer could not start (no display)")
+
+    monkeypatch.setattr(magwarp.viewer, "make_viewer", no_window)
+    rc, _, err = run_cli(capsys, "view", "--synthetic", "--viewer", "gl", "--steps", "1")
+    assert rc == 1 and err.count("\n") == 1 and "could not start" in err

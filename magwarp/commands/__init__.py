@@ -7,16 +7,22 @@ A subcommand module ``magwarp/commands/<name>.py`` defines:
 * ``run(args) -> int``: do the work and return the exit code.
 
 User mistakes (bad names, paths, sizes) should raise :class:`UsageError` (or a ``ValueError``/``LayoutError`` with a
-clear message): the CLI prints them as one line on stderr and exits with code 2, without a traceback.
+clear message): the CLI prints them as one line on stderr and exits with code 2, without a traceback. Problems of the
+machine rather than the call (no display for a window, a missing optional package) raise :class:`CommandError`
+(one line, exit code 1).
 """
 
 from __future__ import annotations
 
-__all__ = ["UsageError", "SUBCOMMANDS"]
+__all__ = ["UsageError", "CommandError", "SUBCOMMANDS"]
 
 
 class UsageError(ValueError):
     """A mistake in how the command was called; reported as one line, exit code 2."""
+
+
+class CommandError(RuntimeError):
+    """Something this machine cannot do (no display, missing optional package); reported as one line, exit code 1."""
 
 
 # Known subcommands and their one-line help, listed here so ``magwarp --help`` needs no imports. A module present in

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from magwarp.commands import UsageError
+from magwarp.commands import CommandError, UsageError
 from magwarp.commands.render import add_common_scene_args, check_scene_args, env_policy, make_env, make_synthetic, shown_worlds
 
 HELP = "live 3D viewer through Newton: GL window, browser (viser), USD file, Rerun"
@@ -49,8 +49,11 @@ def run(args) -> int:
     from magwarp.viewer import SceneViewer, make_viewer
 
     show = shown_worlds(args)
-    viewer = make_viewer(args.viewer, path=args.out, host=args.host, port=args.port, fps=args.fps,
-                         num_frames=args.steps if args.viewer in ("usd", "null") else None)
+    try:
+        viewer = make_viewer(args.viewer, path=args.out, host=args.host, port=args.port, fps=args.fps,
+                             num_frames=args.steps if args.viewer in ("usd", "null") else None)
+    except RuntimeError as e:  # e.g. no display for the OpenGL window
+        raise CommandError(str(e)) from e
     if args.synthetic:
         scene = make_synthetic(args)
         shapes = [scene.object_shape] if scene.objects else None
