@@ -18,7 +18,7 @@ import warp as wp
 
 from magwarp import reference as ref
 from magwarp.kernels.collision import hits_wall, movers_collide
-from magwarp.layout import BENCHMARK_LAYOUTS, Layout, MoverSpec, benchmark_layout
+from magwarp.layout import BENCHMARK_LAYOUTS, Layout, LayoutError, MoverSpec, benchmark_layout
 from magwarp.sim import Simulator
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Collision
 
@@ -376,3 +376,65 @@ def test_footprints_on_tiles_matches_reference(layout_name, shape, rng):
     bad = np.flatnonzero((got != expected) & ~ambiguous)
     assert bad.size == 0, f"{rng}: {bad.size} mismatches, first xy={xy[bad[:1]]}"
     assert expected.any() and not expected.all(), rng
+
+
+@pytest.mark.parametrize("shape", ["circle", "box"])
+@pytest.mark.parametrize("m", [12, 90])  # brute force (M <= 32) and grid broad phase
+def test_check_collisions_matches_reference(m, shape, rng):
+    """``Simulator.check_collisions`` (detect_walls + pair kernels) on poses written into the state: no motion."""
+    w = 2
+    layout = Layout(DENSE_LAYOUT)
+    margin, wall_margin = float(rng.uniform(0.0, 0.01)), float(rng.uniform(0.0, 0.01))
+    mover = MoverSpec(collision_shape=shape, margin=margin, wall_margin=wall_margin)
+    scale = min(1.0, np.sqrt(24.0 / m))
+    radii = f32(rng.uniform(0.02, 0.07, m) * scale)
+    half = f32(rng.uniform(0.015, 0.055, (m, 2)) * scale)
+    sim = Simulator(layout, num_worlds=w, mover=mover, start_xy=np.full((m, 2), 0.0), collision_radii=radii,
+                    collision_half_sizes=half, device="cpu", validate_starts_=False)
+    worlds = [random_world(rng, shape, m, margin, wall_margin, radii, half, layout) for _ in range(w)]
+    xy = np.stack([x for x, _ in worlds])
+    yaw = np.stack([y for _, y in worlds])
+    sim.pos[..., :2] = torch.as_tensor(xy, dtype=torch.float32)
+    sim.quat[..., 2] = torch.as_tensor(np.sin(0.5 * yaw), dtype=torch.float32)
+    sim.quat[..., 3] = torch.as_tensor(np.cos(0.5 * yaw), dtype=torch.float32)
+    pos_before = sim.pos.clone()
+    sim.check_collisions()
+    assert torch.equal(sim.pos, pos_before)
+    got_yaw = yaw_from_quat(sim.quat.numpy())
+    for k in range(w):
+        flags, partner, pairs, walls = expected_outputs(mover, layout, xy[k], got_yaw[k], radii, half)
+        msg = f"{rng}, M={m}/{shape}, world {k}"
+        np.testing.assert_array_equal(sim.flags[k].numpy(), flags, err_msg=msg)
+        np.testing.assert_array_equal(sim.partner[k].numpy(), partner, err_msg=msg)
+        assert int(sim.world_pairs[k]) == pairs and int(sim.world_walls[k]) == walls, msg
+
+
+@pytest.mark.parametrize("shape", ["circle", "box"])
+def test_start_validation_agrees_with_reference(shape, rng):
+    """The simulator's kernel-based start check rejects exactly the start poses the numpy reference rejects."""
+    layout = Layout(np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]]))
+    mover = MoverSpec(collision_shape=shape, collision_radius=0.09, collision_half_size=(0.07, 0.06),
+                      margin=0.005, wall_margin=0.003)
+    outcomes = []
+    for _trial in range(25):
+        m = int(rng.integers(2, 5))
+        centres = layout.tile_centers()[rng.permutation(layout.num_tiles)[:m]]
+        xy = f32(centres + rng.uniform(-0.05, 0.05, (m, 2)))  # jittered tile centres: valid and invalid mixed
+        yaw = yaw_from_quat(np.stack([np.zeros(m), np.zeros(m), np.sin(0.5 * (y := rng.uniform(-np.pi, np.pi, m))),
+                                      np.cos(0.5 * y)], -1).astype(np.float32))
+        verdicts = set()
+        for eps in (-EPS, 0.0, EPS):
+            bad_pair = bool(ref.mover_collision_pairs(mover, xy, yaw, margin=mover.margin + eps))
+            bad_wall = bool(ref.wall_collisions(layout, mover, xy[None], yaw[None], wall_margin=mover.wall_margin + eps).any())
+            verdicts.add(bad_pair or bad_wall)
+        if len(verdicts) > 1:
+            continue  # within float32 reach of a boundary
+        invalid = verdicts.pop()
+        outcomes.append(invalid)
+        if invalid:
+            with pytest.raises(LayoutError, match="off the tiles|overlap"):
+                Simulator(layout, start_xy=xy, start_yaw=y, mover=mover, device="cpu")
+        else:
+            sim = Simulator(layout, start_xy=xy, start_yaw=y, mover=mover, device="cpu")
+            assert int(sim.flags.sum()) == 0 and int(sim.flags_any.sum()) == 0
+    assert any(outcomes) and not all(outcomes), f"{rng}: only one outcome in {len(outcomes)} trials"
