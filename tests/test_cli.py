@@ -83,11 +83,12 @@ def test_render_env_if_registered(capsys, tmp_path):
         pytest.skip(f"magwarp.envs not importable: {e}")
     if "magwarp/TrajectoryPlanningB0-v0" not in gym.registry:
         pytest.skip("trajectory planning env not registered")
-    png = str(tmp_path / "tp.png")
-    rc, _, err = run_cli(capsys, "render", "magwarp/TrajectoryPlanningB0-v0", "--worlds", "2", "--steps", "3",
-                         "--policy", "zero", "-o", png)
-    assert rc == 0, err
-    assert iio.imread(png).ndim == 3
+    for policy in ("zero", "scripted"):
+        png = str(tmp_path / f"tp_{policy}.png")
+        rc, _, err = run_cli(capsys, "render", "magwarp/TrajectoryPlanningB0-v0", "--worlds", "2", "--steps", "3",
+                             "--policy", policy, "-o", png)
+        assert rc == 0, err
+        assert iio.imread(png).ndim == 3
 
 
 def test_view_synthetic_usd_and_null(capsys, tmp_path):

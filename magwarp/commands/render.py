@@ -109,10 +109,10 @@ def make_env(args, render_mode: str | None = "rgb_array"):
 def env_policy(env, name: str):
     """A function obs -> actions for a vector env: the env's scripted planner, random or zero actions."""
     if name == "scripted":
-        planner = getattr(env.unwrapped if hasattr(env, "unwrapped") else env, "scripted_policy", None)
-        if planner is None:
+        factory = getattr(env.unwrapped if hasattr(env, "unwrapped") else env, "scripted_policy", None)
+        if factory is None:
             raise UsageError("this env has no scripted planner; use --policy random or --policy zero")
-        return planner
+        return factory()  # env.scripted_policy() builds the planner: action = planner(obs)
     space = env.action_space
     if name == "random":
         return lambda obs: space.sample()
