@@ -181,3 +181,44 @@ def test_benchmark_variants(name, rng):
         assert torch.all((xy[:, 0] - xy[:, 1]).norm(dim=1) > 0.22), rng
     env.step(torch.zeros(16, 2 * movers))
     assert not env.checks.flags_t.any()
+
+
+def test_corrective_movement_metrics_match_magbotsim_per_cycle(rng):
+    from magbotsim.utils.benchmark_utils import CorrectiveMovementMeasurement
+
+    env = PushBoxEnv(2, device="cpu", seed=0, num_cycles=1, max_episode_steps=1000)
+    env.reset()
+    obj = env.backend.object_qpos[:, 0, :2].clone()
+    # The object rests; moving the goal every cycle scripts the distance sequence (crossing the 5 cm threshold,
+    # rising and falling by more and by less than MagBotSim's 2e-5 tolerance).
+    n = 300
+    dists = 0.05 + 0.03 * np.sin(np.linspace(0, 6 * np.pi, n)) + rng.normal(0, 2e-5, n)
+    dists[100:120] = 0.02  # a streak at the goal
+    refs = [CorrectiveMovementMeasurement(lambda a, b: np.linalg.norm(np.atleast_2d(a - b), axis=1), 0.05) for _ in range(2)]
+    # MagBotSim's throughput bookkeeping (its _after_mujoco_step_callback), re-implemented as the reference
+    elapsed, streak, tts = [0, 0], [0, 0], [-1.0, -1.0]
+    for t in range(n):
+        offs = torch.tensor([[dists[t], 0.0], [0.0, dists[t] * (1 + 0.5 * (t % 2))]], dtype=torch.float32)
+        env.goal_xy.copy_(obj + offs)
+        env.step(torch.zeros(2, 2))
+        q = env.backend.object_qpos[:, 0, :2].numpy().astype(np.float64)
+        g = env.goal_xy.numpy().astype(np.float64)
+        for w in range(2):
+            refs[w].update_distance_corrections(q[w], g[w])
+            refs[w].update_overshoot_corrections(q[w], g[w])
+            if streak[w] < 150:
+                elapsed[w] += 1
+                if np.linalg.norm(q[w] - g[w]) <= 0.05:
+                    tts[w] = elapsed[w] * 1e-3 if streak[w] == 0 else tts[w]
+                    streak[w] += 1
+                else:
+                    streak[w] = 0
+    got_over = env.metrics.t["overshoots"].tolist()
+    got_dist = env.metrics.t["dist_corrections"].tolist()
+    assert got_over == [r.get_current_num_overshoot_corrections() for r in refs], rng
+    assert got_dist == [r.get_current_num_distance_corrections() for r in refs], rng
+    assert min(got_over) > 0 and min(got_dist) > 0
+    np.testing.assert_allclose(env.metrics.t["time_to_success"].numpy(), tts, rtol=1e-6, err_msg=str(rng))
+    assert min(tts) > 0
+    env.reset()
+    assert env.metrics.t["overshoots"].tolist() == [0, 0] and env.metrics.t["time_to_success"].tolist() == [-1, -1]

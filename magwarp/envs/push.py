@@ -39,6 +39,7 @@ from magwarp.layout import Layout, MoverSpec
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
 from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
 from magwarp.physics.mover_checks import MoverChecks
+from magwarp.physics.push_metrics import PushMetrics
 
 __all__ = ["PUSH_BENCHMARKS", "PushEnv", "PushBoxEnv", "PushTEnv", "PushLEnv", "PushXEnv", "PushWithObstaclesEnv",
            "push_benchmark"]
@@ -199,6 +200,8 @@ class PushEnv(MagwarpVecEnv):
         self.goal_yaw = torch.zeros(n, device=dev)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
         self.steps_at_goal = torch.zeros(n, dtype=torch.int64, device=dev)
+        self.metrics = PushMetrics(self.backend, self.object, self.goal_xy, self.goal_yaw, threshold=self.max_position_err,
+                                   learn_pose=self.learn_pose, min_coverage=self.min_coverage)
         self._set_spaces(self._observation_space(), self._action_space())
         self.reset()
 
@@ -352,6 +355,7 @@ class PushEnv(MagwarpVecEnv):
         self.goal_yaw.copy_(torch.where(mask, s["goal_yaw"], self.goal_yaw))
         self.num_steps.masked_fill_(mask, 0)
         self.steps_at_goal.masked_fill_(mask, 0)
+        self.metrics.reset(mask)
 
     def _apply_action(self, action: torch.Tensor) -> None:
         self.checks.clear()
@@ -394,7 +398,14 @@ class PushEnv(MagwarpVecEnv):
         if self.early_termination_steps is not None:
             terminated |= self.steps_at_goal >= self.early_termination_steps
         truncated = self.num_steps >= self.max_episode_steps
-        info.update({"is_success": reached & ~collision, "goal_metric": metric, "steps_at_goal": self.steps_at_goal.clone()})
+        info.update({
+            "is_success": reached & ~collision,
+            "goal_metric": metric,
+            "steps_at_goal": self.steps_at_goal.clone(),
+            "num_overshoot_corrections": self.metrics.t["overshoots"].clone(),
+            "num_distance_corrections": self.metrics.t["dist_corrections"].clone(),
+            "time_to_success_s": self.metrics.t["time_to_success"].clone(),
+        })
         return reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ reward (batched, for HER)
