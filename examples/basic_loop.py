@@ -1,9 +1,10 @@
 """The simulator driven from a plain Python loop: a basic environment without an RL API.
 
-Movers on an L-shaped layout follow a simple P controller toward target tile centres; when a mover arrives it gets a new
-target. Every step (40 control cycles = 40 ms) the loop prints the arrivals and the collisions of each world: which
-movers collided with which (mover-mover) and which left the tiles (wall). A world that collides stops for the rest
-of its step (``stop_on_collision``) and is then reset to its start poses, without touching the other worlds.
+Movers on an L-shaped layout follow a simple P controller (with a repulsive term between movers) toward target tile
+centres; when a mover arrives it gets a new target. Every step (40 control cycles = 40 ms) the loop prints the
+arrivals and the collisions of each world: which movers collided with which (mover-mover) and which left the tiles
+(wall). A world that collides stops for the rest of its step (``stop_on_collision``) and is then reset to its start
+poses, without touching the other worlds.
 
     python examples/basic_loop.py                    # 3 worlds x 3 movers, 100 steps (4 s), CPU or first GPU
     python examples/basic_loop.py --steps 5 --worlds 2 --device cpu
@@ -52,7 +53,8 @@ def main(argv=None) -> None:
     sim_a_max = sim.model.limits.a_max
     gen = torch.Generator().manual_seed(args.seed)
     centres = torch.as_tensor(layout.tile_centers(), dtype=torch.float32, device=sim.torch_device)
-    print(f"{args.worlds} worlds x {args.movers} movers on a {layout.num_tiles}-tile L-shaped layout, device {sim.device}")
+    print(f"{args.worlds} worlds x {args.movers} movers on a {layout.num_tiles}-tile L-shaped layout, "
+          f"device {sim.device}")
 
     def new_targets():
         """A different tile centre for each mover of each world."""
