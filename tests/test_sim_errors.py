@@ -131,9 +131,10 @@ def test_bad_simulator_arguments(kwargs, exc, match):
         Simulator(L3, device="cpu", **kwargs)
 
 
-def test_unknown_device():
-    with pytest.raises(Exception, match="cuda:7|tpu"):
-        Simulator(L3, num_movers=1, device="tpu")
+@pytest.mark.parametrize("device", ["tpu", "cuda:7"])
+def test_unknown_device(device):
+    with pytest.raises(ValueError, match=device):
+        Simulator(L3, num_movers=1, device=device)
 
 
 # ---------------------------------------------------------------------------------------------- commands
