@@ -1,5 +1,6 @@
 """Device-side task math for pushing: exact coverage vs shapely, obstacle contact flags from mujoco-warp contacts."""
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -84,3 +85,76 @@ def test_obstacle_contact_flags_per_world():
     first = int(torch.nonzero(hm[:, 0])[0])
     assert first >= 6
     assert b.mover_qpos[0, 0, 0] + 0.0775 > 0.31 - 1e-3
+
+
+@pytest.mark.parametrize("shape", ["circle", "box"])
+def test_mover_checks_match_numpy_reference(shape, rng):
+    from magwarp import reference
+    from magwarp.layout import MoverSpec
+    from magwarp.physics.mover_checks import MoverChecks
+
+    tiles = np.ones((6, 5), dtype=np.int32)
+    tiles[2, 2] = tiles[4, 0] = 0
+    layout = Layout(tiles)
+    mover = MoverSpec(collision_shape=shape, wall_margin=0.01, margin=0.005)
+    W, M = 64, 2
+    b = MjwBackend(generate_mjcf(layout, M, mover), W, device="cpu")
+    checks = MoverChecks(b, layout, mover)
+    xy = rng.uniform(0.05, np.array(layout.extent) - 0.05, (W, M, 2))
+    xy[:, 1] = xy[:, 0] + rng.normal(0, 0.12, (W, 2))  # near pairs
+    yaw = rng.uniform(-np.pi, np.pi, (W, M))
+    tilt = rng.normal(0, 0.02, (W, M, 2))  # small roll/pitch: the check uses the heading only
+    q = np.zeros((W, M, 4))
+    for w in range(W):
+        for k in range(M):
+            r = np.array([np.cos(tilt[w, k, 0] / 2), np.sin(tilt[w, k, 0] / 2), 0, 0])
+            z = np.array([np.cos(yaw[w, k] / 2), 0, 0, np.sin(yaw[w, k] / 2)])
+            out = np.zeros(4)
+            mujoco.mju_mulQuat(out, z, r)
+            q[w, k] = out
+    b.mover_qpos[..., :2] = torch.as_tensor(xy, dtype=torch.float32)
+    b.mover_qpos[..., 3:] = torch.as_tensor(q, dtype=torch.float32)
+    checks.clear()
+    checks._launch()
+    wall = reference.wall_collisions(layout, mover, xy, yaw).any(axis=1)
+    pairs = np.array([len(reference.mover_collision_pairs(mover, xy[w], yaw[w])) > 0 for w in range(W)])
+    # float32 positions: skip configurations within 1e-5 m of a decision boundary
+    got_wall, got_pair = checks.wall_collision.numpy(), checks.mover_collision.numpy()
+    assert (got_wall != wall).sum() <= 1 and (got_pair != pairs).sum() <= 1, rng
+    assert wall.any() and (~wall).any() and pairs.any() and (~pairs).any()
+
+
+def test_control_kernel_matches_numpy_law_on_random_states(rng):
+    from magwarp.physics import oracle
+    from magwarp.physics.control import mover_control_kernel
+
+    W, M = 16, 2
+    for jerk in (False, True):
+        control = ControlParams(jerk=jerk)
+        b = MjwBackend(generate_mjcf(Layout.grid(3, 3), M), W, control=control, device="cpu", use_graph=False)
+        mjm, mjd = b.mjm, mujoco.MjData(b.mjm)
+        qpos = np.tile(mjm.qpos0, (W, 1))
+        qvel = rng.normal(0, 1.0, (W, mjm.nv))
+        for w in range(W):
+            for k in range(M):
+                qa = b.mover_qadr[k]
+                qpos[w, qa + 2] += rng.normal(0, 0.003)
+                quat = rng.normal(0, 1, 4) * [1, 0.1, 0.1, 1]  # tilts up to ~0.2 rad and any heading
+                qpos[w, qa + 3: qa + 7] = quat / np.linalg.norm(quat)
+        qvel[:, b.mover_dadr[0]:b.mover_dadr[0] + 2] *= 2.5  # some movers above v_max
+        cmd = rng.normal(0, 80 if jerk else 8, (W, M, 2))
+        acc0 = rng.normal(0, 6, (W, M, 2))
+        b.qpos_t.copy_(torch.as_tensor(qpos)), b.qvel_t.copy_(torch.as_tensor(qvel))
+        b.cmd_t.copy_(torch.as_tensor(cmd)), b.acc_t.copy_(torch.as_tensor(acc0))
+        c = b.control
+        wp.launch(mover_control_kernel, dim=(W, M), inputs=[
+            b._qadr, b._dadr, b._mass, b._inertia, b._hover_z, float(c.k_lin[2]), wp.vec3(*c.k_rot), b.dt,
+            c.v_max, c.a_max, c.j_max, int(c.jerk), b.data.qpos, b.data.qvel, b.cmd, b.acc], outputs=[b.data.qfrc_applied],
+            device="cpu")
+        got = b.data.qfrc_applied.numpy()
+        for w in range(W):
+            mjd.qpos[:], mjd.qvel[:] = qpos[w], qvel[w]
+            acc = acc0[w].copy()
+            oracle.control_forces(mjm, mjd, b.mover_body, b.mover_qadr, b.mover_dadr, b.hover_z, cmd[w], acc, c)
+            np.testing.assert_allclose(got[w], mjd.qfrc_applied, rtol=2e-4, atol=2e-5, err_msg=f"{rng} jerk={jerk} w={w}")
+            np.testing.assert_allclose(b.acc_t[w].numpy(), acc, rtol=1e-4, atol=1e-4, err_msg=str(rng))
