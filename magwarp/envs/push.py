@@ -258,22 +258,30 @@ class PushEnv(MagwarpVecEnv):
         return gym.spaces.Box(-limit, limit, (self.num_movers * 2,), np.float32)
 
     # ------------------------------------------------------------------ sampling (device, batched)
+    def _const(self, value, dtype=torch.float32) -> torch.Tensor:
+        """A device copy of a constant array, made once (resets then issue no host-to-device copies)."""
+        arr = np.ascontiguousarray(value)
+        key = (arr.tobytes(), arr.shape, dtype)
+        cache = self.__dict__.setdefault("_consts", {})
+        if key not in cache:
+            cache[key] = torch.as_tensor(arr, device=self.device).to(dtype)
+        return cache[key]
+
     def _uniform(self, lo, hi, *shape: int) -> torch.Tensor:
-        lo_t = torch.as_tensor(np.asarray(lo, np.float32), device=self.device)
-        hi_t = torch.as_tensor(np.asarray(hi, np.float32), device=self.device)
+        lo_t, hi_t = self._const(np.asarray(lo, np.float32)), self._const(np.asarray(hi, np.float32))
         return lo_t + (hi_t - lo_t) * self._rand(*shape, lo_t.shape[-1] if lo_t.ndim else 1)
 
     def _on_tiles(self, xy: torch.Tensor, radius: float) -> torch.Tensor:
         """Circle of ``radius`` at ``xy`` ``[..., 2]`` lies on present tiles (conservative for box footprints)."""
         size = self.layout.tile.size
-        tiles = torch.as_tensor(self.layout.tiles, device=self.device)
+        tiles = self._const(self.layout.tiles, torch.int32)
         nx, ny = tiles.shape
         reach = int(math.ceil(radius / size))
         base = torch.floor(xy / size).long()
         ok = torch.ones(xy.shape[:-1], dtype=torch.bool, device=self.device)
         for di in range(-reach, reach + 1):
             for dj in range(-reach, reach + 1):
-                cell = base + torch.tensor([di, dj], device=self.device)
+                cell = torch.stack([base[..., 0] + di, base[..., 1] + dj], dim=-1)
                 inside = (cell[..., 0] >= 0) & (cell[..., 0] < nx) & (cell[..., 1] >= 0) & (cell[..., 1] < ny)
                 present = inside & (tiles[cell[..., 0].clamp(0, nx - 1), cell[..., 1].clamp(0, ny - 1)] == 1)
                 lo = cell.to(xy.dtype) * size
@@ -292,9 +300,7 @@ class PushEnv(MagwarpVecEnv):
                        np.where((jj > 0) & (t[ii, np.maximum(jj - 1, 0)] == 1), -h, 0.0)], 1)
         hi = np.stack([np.where((ii < nx - 1) & (t[np.minimum(ii + 1, nx - 1), jj] == 1), h, 0.0),
                        np.where((jj < ny - 1) & (t[ii, np.minimum(jj + 1, ny - 1)] == 1), h, 0.0)], 1)
-        centres = torch.as_tensor(self.layout.tile_centers(), dtype=torch.float32, device=self.device)
-        lo_t = torch.as_tensor(lo, dtype=torch.float32, device=self.device)
-        hi_t = torch.as_tensor(hi, dtype=torch.float32, device=self.device)
+        centres, lo_t, hi_t = self._const(self.layout.tile_centers()), self._const(lo), self._const(hi)
         k = self._randint(len(ii), *shape)
         return centres[k] + lo_t[k] + (hi_t[k] - lo_t[k]) * self._rand(*shape, 2)
 
@@ -338,7 +344,7 @@ class PushEnv(MagwarpVecEnv):
         new_mover = mover_q.clone()
         new_mover[..., :2] = s["mover_xy"]
         new_mover[..., 2] = float(b.hover_z[0])
-        new_mover[..., 3:] = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device)
+        new_mover[..., 3:] = self._const(np.array([1.0, 0.0, 0.0, 0.0]))
         mover_q.copy_(torch.where(m3, new_mover, mover_q))
         obj_q = b.init_object_qpos
         half = 0.5 * s["object_yaw"]
