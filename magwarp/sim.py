@@ -25,6 +25,9 @@ from magwarp.types import COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Body, Collision
 
 __all__ = ["Simulator", "default_device"]
 
+# Worlds up to this many movers run the register-resident fused kernel (one specialisation per mover count).
+REGISTER_MAX_MOVERS = 8
+
 
 def default_device() -> str:
     """The first CUDA device when Warp sees one, else the CPU."""
@@ -118,7 +121,11 @@ class Simulator:
         self.model = self._build_model(dt, v_max, a_max, j_max, gravity, stiffness_lin, stiffness_rot, hold,
                                        stop_on_collision, radii, half)
         self.state = self._alloc_state(force_aux_dim)
-        self._advance_kernel, self._fused_kernel = kstep.make_advance_kernel(force_model or default_force)
+        force_model = force_model or default_force
+        self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(force_model)
+        if m <= REGISTER_MAX_MOVERS:
+            # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
+            self._fused_kernel = kstep.make_register_kernel(force_model, m)
 
         # Start poses live on the device so that resets are a kernel, not a host round trip.
         self._init_pos = wp.zeros((self.num_worlds, m), dtype=wp.vec3, device=self.device)
@@ -448,13 +455,14 @@ class Simulator:
         """Mover-mover check and flag/counter outputs from the current poses and wall flags."""
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
-        wp.launch(kcol.clear_world_counters, dim=W, inputs=[s.world_pairs, s.world_walls], device=dev)
         outputs = [s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted]
         if M <= 32:
+            wp.launch(kcol.clear_world_counters, dim=W, inputs=[s.world_pairs, s.world_walls], device=dev)
             wp.launch(kcol.detect_collisions_brute, dim=(W, M), device=dev,
                       inputs=[m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall, *outputs])
             return
-        wp.launch(kcol.clear_cells, dim=self._cell_head.shape[0], inputs=[self._cell_head], device=dev)
+        wp.launch(kcol.clear_cells, dim=max(self._cell_head.shape[0], W), device=dev,
+                  inputs=[self._cell_head, s.world_pairs, s.world_walls])
         wp.launch(kcol.bin_movers, dim=(W, M), inputs=[m.grid, s.pos, self._cell_head, self._next_in_cell], device=dev)
         wp.launch(
             kcol.detect_collisions_grid, dim=(W, M), device=dev,

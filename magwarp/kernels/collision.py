@@ -127,8 +127,14 @@ def cell_coords(grid: Grid, p: wp.vec3) -> wp.vec2i:
 
 
 @wp.kernel
-def clear_cells(head: wp.array(dtype=wp.int32)):
-    head[wp.tid()] = -1
+def clear_cells(head: wp.array(dtype=wp.int32), world_pairs: wp.array(dtype=wp.int32), world_walls: wp.array(dtype=wp.int32)):
+    """Empty every cell list and zero the per-world counters (one launch: launches dominate small steps)."""
+    i = wp.tid()
+    if i < head.shape[0]:
+        head[i] = -1
+    if i < world_pairs.shape[0]:
+        world_pairs[i] = 0
+        world_walls[i] = 0
 
 
 @wp.kernel

@@ -29,6 +29,19 @@ wp.set_module_options({"enable_backward": False})
 @functools.cache
 def make_advance_kernel(force_fn=default_force):
     @wp.func
+    def advance_pose(
+        p: Pose, acc_prev: wp.vec2, cmd: wp.vec2, b: Body, target_pos: wp.vec3, target_quat: wp.quat,
+        aux: wp.array(dtype=float), lim: Limits, imp: Impedance,
+    ):
+        """One cycle of one mover: limited x/y drive, force model, semi-implicit Euler. Returns the new pose and the
+        applied x/y acceleration (what MuJoCo reports as qacc: the state jerk commands integrate from)."""
+        a = planar_acceleration(p.vel, acc_prev, cmd, lim)
+        drive = wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0)
+        wrench = force_fn(p, b, drive, target_pos, target_quat, imp, lim, aux)
+        n = integrate_body(p, wrench, b, lim)
+        return n, wp.vec2(n.vel[0] - p.vel[0], n.vel[1] - p.vel[1]) / lim.dt
+
+    @wp.func
     def advance_mover(
         w: int,
         m: int,
@@ -50,22 +63,18 @@ def make_advance_kernel(force_fn=default_force):
         acc: wp.array2d(dtype=wp.vec2),
         wall: wp.array2d(dtype=wp.int32),
     ):
-        b = body[m]
         p = Pose()
         p.pos = pos[w, m]
         p.quat = quat[w, m]
         p.vel = vel[w, m]
         p.omega = omega[w, m]
-        a = planar_acceleration(p.vel, acc[w, m], cmd[w, m], lim)
-        drive = wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0)
-        wrench = force_fn(p, b, drive, target_pos[w, m], target_quat[w, m], imp, lim, force_aux[w, m])
-        n = integrate_body(p, wrench, b, lim)
+        n, a = advance_pose(p, acc[w, m], cmd[w, m], body[m], target_pos[w, m], target_quat[w, m], force_aux[w, m],
+                            lim, imp)
         pos[w, m] = n.pos
         quat[w, m] = n.quat
         vel[w, m] = n.vel
         omega[w, m] = n.omega
-        # The applied x/y acceleration (what MuJoCo reports as qacc): the state jerk commands integrate from.
-        acc[w, m] = wp.vec2(n.vel[0] - p.vel[0], n.vel[1] - p.vel[1]) / lim.dt
+        acc[w, m] = a
         hit = int(0)
         if hits_wall(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_yaw(col, n.quat), radius[m], half_size[m]):
             hit = 1
@@ -175,7 +184,142 @@ def make_advance_kernel(force_fn=default_force):
             if pairs > 0 or walls > 0:
                 halted[w] = 1
 
-    return advance_movers, fused_worlds
+    return advance_movers, fused_worlds, advance_pose
+
+
+@functools.cache
+def make_register_kernel(force_fn, num_movers: int):
+    """The fused small-world kernel with every mover's state held in registers for the whole step.
+
+    Specialised for ``num_movers`` (loops over movers unroll), it reads the world's state once, runs all cycles and
+    writes the state back once: global memory traffic no longer scales with the cycle count. Same semantics as
+    ``fused_worlds``.
+    """
+    M = int(num_movers)
+    advance_pose = make_advance_kernel(force_fn)[2]
+    Rows3 = wp.types.matrix(shape=(M, 3), dtype=wp.float32)
+    Rows4 = wp.types.matrix(shape=(M, 4), dtype=wp.float32)
+    Rows2 = wp.types.matrix(shape=(M, 2), dtype=wp.float32)
+    Ints = wp.types.vector(length=M, dtype=wp.int32)
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def fused_registers(
+        num_cycles: int,
+        # Model:
+        lim: Limits,
+        imp: Impedance,
+        col: Collision,
+        tiles: wp.array2d(dtype=wp.int32),
+        body: wp.array(dtype=Body),
+        radius: wp.array(dtype=float),
+        half_size: wp.array(dtype=wp.vec2),
+        # State in:
+        cmd: wp.array2d(dtype=wp.vec2),
+        target_pos: wp.array2d(dtype=wp.vec3),
+        target_quat: wp.array2d(dtype=wp.quat),
+        force_aux: wp.array3d(dtype=float),
+        # State out:
+        pos: wp.array2d(dtype=wp.vec3),
+        quat: wp.array2d(dtype=wp.quat),
+        vel: wp.array2d(dtype=wp.vec3),
+        omega: wp.array2d(dtype=wp.vec3),
+        acc: wp.array2d(dtype=wp.vec2),
+        wall: wp.array2d(dtype=wp.int32),
+        flags: wp.array2d(dtype=wp.int32),
+        flags_any: wp.array2d(dtype=wp.int32),
+        partner: wp.array2d(dtype=wp.int32),
+        world_pairs: wp.array(dtype=wp.int32),
+        world_walls: wp.array(dtype=wp.int32),
+        halted: wp.array(dtype=wp.int32),
+        cycles: wp.array(dtype=wp.int32),
+    ):
+        w = wp.tid()
+        P = Rows3()
+        V = Rows3()
+        Om = Rows3()
+        Q = Rows4()
+        A = Rows2()
+        Wl = Ints()
+        F = Ints()
+        Fa = Ints()
+        Pr = Ints()
+        for m in range(M):
+            P[m] = pos[w, m]
+            V[m] = vel[w, m]
+            Om[m] = omega[w, m]
+            q = quat[w, m]
+            Q[m] = wp.vec4(q[0], q[1], q[2], q[3])
+            A[m] = acc[w, m]
+            Wl[m] = wall[w, m]
+            F[m] = flags[w, m]
+            Fa[m] = flags_any[w, m]
+            Pr[m] = partner[w, m]
+        pairs = world_pairs[w]
+        walls = world_walls[w]
+        stopped = halted[w]
+        done = int(0)
+        for _c in range(num_cycles):
+            if col.stop_on_collision == 1 and stopped == 1:
+                break
+            for m in range(M):
+                p = Pose()
+                p.pos = P[m]
+                p.vel = V[m]
+                p.omega = Om[m]
+                p.quat = wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3])
+                n, a = advance_pose(p, A[m], cmd[w, m], body[m], target_pos[w, m], target_quat[w, m],
+                                    force_aux[w, m], lim, imp)
+                P[m] = n.pos
+                V[m] = n.vel
+                Om[m] = n.omega
+                Q[m] = wp.vec4(n.quat[0], n.quat[1], n.quat[2], n.quat[3])
+                A[m] = a
+                hit = int(0)
+                if hits_wall(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_yaw(col, n.quat), radius[m], half_size[m]):
+                    hit = 1
+                Wl[m] = hit
+                Pr[m] = -1
+            done += 1
+            pairs = int(0)
+            walls = int(0)
+            for i in range(M):
+                yi = shape_yaw(col, wp.quat(Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]))
+                for j in range(i + 1, M):
+                    d = wp.vec2(P[i, 0] - P[j, 0], P[i, 1] - P[j, 1])
+                    yj = shape_yaw(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
+                    if movers_collide(col, d, yi, radius[i], half_size[i], yj, radius[j], half_size[j]):
+                        pairs += 1
+                        if Pr[i] < 0:
+                            Pr[i] = j
+                        if Pr[j] < 0:
+                            Pr[j] = i
+            for m in range(M):
+                f = int(0)
+                if Pr[m] >= 0:
+                    f = f | COLLIDE_MOVER
+                if Wl[m] != 0:
+                    f = f | COLLIDE_WALL
+                    walls += 1
+                F[m] = f
+                Fa[m] = Fa[m] | f
+            if pairs > 0 or walls > 0:
+                stopped = 1
+        for m in range(M):
+            pos[w, m] = P[m]
+            vel[w, m] = V[m]
+            omega[w, m] = Om[m]
+            quat[w, m] = wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3])
+            acc[w, m] = A[m]
+            wall[w, m] = Wl[m]
+            flags[w, m] = F[m]
+            flags_any[w, m] = Fa[m]
+            partner[w, m] = Pr[m]
+        world_pairs[w] = pairs
+        world_walls[w] = walls
+        halted[w] = stopped
+        cycles[w] = cycles[w] + done
+
+    return fused_registers
 
 
 @wp.kernel
