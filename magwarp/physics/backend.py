@@ -306,7 +306,9 @@ class MjwBackend:
             bad = ~torch.isfinite(a)
             if bool(bad.any()):
                 w, k, j = (int(v) for v in torch.nonzero(bad)[0])
-                raise PhysicsInputError(f"actions contain a non-finite value {float(a[w, k, j])} at world {w}, mover {k}, axis {j}")
+                raise PhysicsInputError(
+                    f"actions contain a non-finite value {float(a[w, k, j])} at world {w}, mover {k}, axis {j}"
+                )
         if self.num_movers:
             self.cmd_t.copy_(a)
 
