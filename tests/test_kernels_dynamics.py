@@ -57,8 +57,9 @@ def test_planar_acceleration_matches_reference(mode, rng):
     out = wp.zeros(n, dtype=wp.vec2, device="cpu")
     vel3 = np.concatenate([vel, rng.normal(size=(n, 1))], 1).astype(np.float32)
     wp.launch(_planar_kernel, dim=n, device="cpu",
-              inputs=[make_limits(jerk), wp.array(vel3, dtype=wp.vec3), wp.array(acc.astype(np.float32), dtype=wp.vec2),
-                      wp.array(cmd.astype(np.float32), dtype=wp.vec2), out])
+              inputs=[make_limits(jerk), wp.array(vel3, dtype=wp.vec3, device="cpu"),
+                      wp.array(acc.astype(np.float32), dtype=wp.vec2, device="cpu"),
+                      wp.array(cmd.astype(np.float32), dtype=wp.vec2, device="cpu"), out])
     got = out.numpy().astype(np.float64)
     want, want_vel, _ = ref.planar_cycle(vel, acc, cmd, dt=DT, v_max=V_MAX, a_max=A_MAX, j_max=J_MAX, jerk_mode=jerk)
     # (capped velocity - velocity) / dt loses ~1e-4 m/s^2 to float32 cancellation; everything else is exact.
