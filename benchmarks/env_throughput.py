@@ -59,6 +59,17 @@ def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_input
     actions = low + (high - low) * torch.rand((8, num_envs, *space.shape), generator=gen, device=env.device)
     res = time_steps(env.step, actions, steps, device)
     res["env_steps_per_s"] = num_envs / (res["step_ms"] / 1e3)
+    sim = getattr(env, "sim", None)
+    if sim is not None:
+        # The physics alone (the graph the env replays, plus a reset so that no world sits halted after a
+        # collision), to show what the env's torch work adds.
+        def physics(a):
+            sim.reset()
+            sim.set_command(a.view(num_envs, -1, 2))
+            sim.step(env.num_cycles)
+
+        sim.check_inputs = False
+        res["sim_ms"] = time_steps(physics, actions, steps, device)["step_ms"]
     return res
 
 
@@ -183,7 +194,7 @@ def main(argv=None) -> int:
                     rows.append({"engine": "magbotsim", "env": env_id, "device": "cpu", "num_envs": 1, "adapter": "raw",
                                  "step_ms": res["step_ms_mean"], "env_steps_per_s": res["steps_per_s"]})
     print_table(rows, ["engine", "env", "device", "num_envs", "adapter", "check_inputs", ("step_ms", "ms/step"),
-                       ("env_steps_per_s", "env-steps/s")])
+                       ("sim_ms", "physics ms"), ("env_steps_per_s", "env-steps/s")])
     if args.json:
         stamp = {k: info[k] for k in ("device_name", "cpu", "date_utc", "versions", "command", "commit")}
         write_json(args.json, [{**r, **stamp} for r in rows])
