@@ -12,7 +12,7 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
 python3 -c "import torch, warp as wp; wp.init(); print('torch', torch.__version__, 'warp', wp.__version__, wp.get_cuda_devices())"
 log "GPU tests (CPU/GPU agreement, env on cuda)"
 timeout 300 python3 -X faulthandler -m pytest -v -p no:cacheprovider tests/test_sim.py tests/test_kernels_collision.py \
-  tests/test_kernels_dynamics.py tests/test_env_trajectory.py > "$OUT/pytest_gpu.log" 2>&1
+  tests/test_kernels_dynamics.py tests/test_kernels_impedance.py tests/test_sim_errors.py tests/test_env_trajectory.py > "$OUT/pytest_gpu.log" 2>&1
 grep -E "PASS|FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_gpu.log" | grep -v PASSED | tail -25
 if [ "${1:-}" = "quick" ]; then
   python3 benchmarks/scaling.py --device cuda:0 --no-magbotsim --steps 50 --max-movers 1000 --json "$OUT/scaling_gpu.json"
