@@ -184,8 +184,7 @@ def test_benchmark_variants(name, rng):
 
 
 def test_corrective_movement_metrics_match_magbotsim_per_cycle(rng):
-    from magbotsim.utils.benchmark_utils import CorrectiveMovementMeasurement
-
+    CorrectiveMovementMeasurement = pytest.importorskip("magbotsim.utils.benchmark_utils").CorrectiveMovementMeasurement
     env = PushBoxEnv(2, device="cpu", seed=0, num_cycles=1, max_episode_steps=1000)
     env.reset()
     obj = env.backend.object_qpos[:, 0, :2].clone()
