@@ -283,7 +283,7 @@ def test_simulator_collisions_match_reference(path, shape, rng):
     # Per-mover sizes; denser worlds get smaller movers so that each mover has a few neighbours, not all.
     scale = min(1.0, np.sqrt(24.0 / m))
     radii = f32(rng.uniform(0.02, 0.07, m) * scale)
-    half = f32(rng.uniform(0.015, 0.055, (m, 2)) * scale)
+    half = f32(rng.uniform(0.025, 0.065, (m, 2)) * scale)
     worlds = [random_world(rng, shape, m, margin, wall_margin, radii, half, layout) for _ in range(w)]
     xy = np.stack([x for x, _ in worlds])
     yaw = np.stack([y for _, y in worlds])
@@ -308,7 +308,7 @@ def test_simulator_collisions_match_reference(path, shape, rng):
         assert int(sim.world_walls[k]) == walls, msg
         assert int(sim.halted[k]) == int(pairs > 0 or walls > 0), msg
     # The sample is dense enough that many pairs collide (and not all of them).
-    assert total_pairs >= w * m // 4, f"{rng}: only {total_pairs} colliding pairs"
+    assert total_pairs >= max(w, w * m // 8), f"{rng}: only {total_pairs} colliding pairs"
     assert total_pairs < w * m * (m - 1) // 2, rng
 
     # Same poses, moved around: a second cycle after rewriting the state gives the new answer, not a stale one.
