@@ -189,6 +189,8 @@ class Simulator:
         col.wall_margin = float(self.mover.wall_margin)
         col.tile_size = float(self.layout.tile.size)
         col.stop_on_collision = 1 if stop else 0
+        col.full_rect = 1 if bool(self.layout.tiles.all()) else 0
+        col.extent = wp.vec2(*self.layout.extent)
         # Grid cells must span the largest interaction distance so that a 3x3 neighbourhood finds every pair.
         if col.shape == SHAPE_CIRCLE:
             reach = float(np.max(radii)) + col.margin

@@ -75,6 +75,8 @@ class Collision:
     wall_margin: float  # added to the footprint for wall checks
     tile_size: float
     stop_on_collision: int  # 1: a world stops integrating for the rest of the step after its first collision
+    full_rect: int  # 1 when every tile of the layout is present: the wall check is then four comparisons
+    extent: wp.vec2  # the layout's size (m), used when full_rect is 1
 
 
 @wp.struct

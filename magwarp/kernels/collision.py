@@ -65,7 +65,8 @@ def movers_collide(
 ) -> bool:
     """Do two movers (centre offset ``d``) collide once both shapes are grown by the safety margin?"""
     if col.shape == SHAPE_CIRCLE:
-        return wp.length(d) <= r_a + r_b + 2.0 * col.margin
+        reach = r_a + r_b + 2.0 * col.margin
+        return wp.dot(d, d) <= reach * reach  # squared: no square root in the hottest test
     m = wp.vec2(col.margin, col.margin)
     return boxes_overlap(d, yaw_a, half_a + m, yaw_b, half_b + m)
 
@@ -101,6 +102,17 @@ def hits_wall(tiles: wp.array2d(dtype=wp.int32), col: Collision, p: wp.vec2, yaw
     reach = r
     if col.shape != SHAPE_CIRCLE:
         reach = wp.length(h)
+    if col.full_rect == 1:
+        # Every tile present: the footprint leaves the tiles exactly when its bounding box leaves the rectangle (a
+        # box's extreme corner then lies outside). Same answer as the per-cell test below, in four comparisons.
+        ex = r
+        ey = r
+        if col.shape != SHAPE_CIRCLE:
+            c = wp.abs(wp.cos(yaw))
+            s = wp.abs(wp.sin(yaw))
+            ex = h[0] * c + h[1] * s
+            ey = h[0] * s + h[1] * c
+        return p[0] - ex < 0.0 or p[1] - ey < 0.0 or p[0] + ex > col.extent[0] or p[1] + ey > col.extent[1]
     size = col.tile_size
     i0 = int(wp.floor((p[0] - reach) / size))
     i1 = int(wp.floor((p[0] + reach) / size))
