@@ -14,6 +14,9 @@ import torch
 
 __all__ = ["SingleEnv", "to_numpy"]
 
+# The info entries that rewards depend on (collisions of every kind), forwarded to the batched compute_reward.
+_REWARD_INFO_KEYS = ("mover_collision", "wall_collision", "obstacle_mover_collision", "obstacle_object_collision")
+
 
 def to_numpy(value: Any, index: int | None = None) -> Any:
     """Tensors (and dicts of them) to numpy, optionally taking batch entry ``index``."""
@@ -51,11 +54,10 @@ class SingleEnv(gym.Env):
     def compute_reward(self, achieved_goal, desired_goal, info):
         """Numpy-in, numpy-out batched reward (SB3's HER calls it with a list of info dicts)."""
         if isinstance(info, (list, tuple, np.ndarray)):
-            keys = ("mover_collision", "wall_collision")
-            info = {k: np.array([bool(i.get(k, False)) for i in info]) for k in keys}
+            info = {k: np.array([bool(i.get(k, False)) for i in info]) for k in _REWARD_INFO_KEYS}
         device = self.vec.device
         info_t = None if info is None else {
-            k: torch.as_tensor(np.asarray(v), device=device) for k, v in info.items() if k in ("mover_collision", "wall_collision")
+            k: torch.as_tensor(np.asarray(v), device=device) for k, v in info.items() if k in _REWARD_INFO_KEYS
         }
         reward = self.vec.compute_reward(torch.as_tensor(np.asarray(achieved_goal, np.float32), device=device),
                                          torch.as_tensor(np.asarray(desired_goal, np.float32), device=device), info_t)

@@ -272,11 +272,15 @@ class MjwBackend:
                 # every registered module): this first, eager call loads exactly the kernels used and is a real
                 # step/reset. The capture that follows records without executing.
                 launcher()
-                with wp.ScopedCapture(device=self.device, stream=self._stream, force_module_load=False) as cap:
-                    launcher()
+                # CUDA cannot capture on torch's default (legacy) stream: capture on a stream of our own, replay
+                # on torch's.
+                capture_stream = wp.Stream(self.device) if self.device.is_cuda else None
+                with wp.ScopedStream(capture_stream) if capture_stream is not None else contextlib.nullcontext():
+                    with wp.ScopedCapture(device=self.device, force_module_load=False) as cap:
+                        launcher()
                 setattr(self, attr, cap.graph)
                 return
-            wp.capture_launch(graph)
+            wp.capture_launch(graph, stream=self._stream)
 
     def _check_actions(self, actions) -> torch.Tensor:
         W, M = self.num_worlds, self.num_movers
