@@ -59,6 +59,10 @@ def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_input
     actions = low + (high - low) * torch.rand((8, num_envs, *space.shape), generator=gen, device=env.device)
     res = time_steps(env.step, actions, steps, device)
     res["env_steps_per_s"] = num_envs / (res["step_ms"] / 1e3)
+    backend = getattr(env, "backend", None)
+    if backend is not None:
+        res["raw_mjw_ms"] = raw_mujoco_warp_ms(backend, steps, device)
+        res["x_raw_mjw"] = res["step_ms"] / res["raw_mjw_ms"]
     sim = getattr(env, "sim", None)
     if sim is not None:
         # The physics alone (the graph the env replays, plus a reset so that no world sits halted after a
@@ -71,6 +75,21 @@ def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_input
         sim.check_inputs = False
         res["sim_ms"] = time_steps(physics, actions, steps, device)["step_ms"]
     return res
+
+
+def raw_mujoco_warp_ms(backend, steps: int, device) -> float:
+    """Bare ``mujoco_warp.step`` x num_cycles on the env's own model and data, one graph: what the push env adds
+    (mover control, checks, task code) is the env time over this."""
+    import contextlib
+
+    import mujoco_warp as mjw
+
+    stream = wp.Stream(backend.device) if backend.device.is_cuda else None
+    with wp.ScopedDevice(backend.device), (wp.ScopedStream(stream) if stream else contextlib.nullcontext()):
+        with wp.ScopedCapture(device=backend.device, force_module_load=False) as cap:
+            for _ in range(backend.control.num_cycles):
+                mjw.step(backend.model, backend.data)
+    return time_steps(lambda _: wp.capture_launch(cap.graph), [None], steps, device)["step_ms"]
 
 
 def adapter_rows(env_id: str, num_envs: int, device: str, steps: int) -> list[dict]:
@@ -152,7 +171,9 @@ def plot(rows: list[dict], path: str) -> None:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help="cpu or cuda:N (default: cpu, plus cuda:0 when present)")
-    p.add_argument("--envs", default="magwarp/TrajectoryPlanningB0-v0", help="comma-separated magwarp env ids")
+    p.add_argument("--envs", default="magwarp/TrajectoryPlanningB0-v0,magwarp/PushBox-v0,magwarp/PushT-v0",
+                   help="comma-separated magwarp env ids")
+    p.add_argument("--push-num-envs", default=None, help="sizes for push envs (default: 1..64 on CPU, up to 16384 on GPU)")
     p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 1..4096 on CPU, up to 1M on GPU)")
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--adapters-at", type=int, default=4096, help="num_envs at which adapters are compared")
@@ -171,11 +192,16 @@ def main(argv=None) -> int:
     for device in devices:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else
                  ([1, 64, 1024, 4096] if device == "cpu" else [1024, 16384, 262144, 1048576]))
+        push_sizes = ([int(x) for x in args.push_num_envs.split(",")] if args.push_num_envs else
+                      ([1, 16, 64] if device == "cpu" else [1024, 4096, 16384]))
         for env_id in args.envs.split(","):
-            for n in sizes:
+            is_push = "/Push" in env_id
+            for n in (push_sizes if is_push else sizes):
                 res = raw_env_row(env_id, n, device, args.steps)
                 rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, "adapter": "raw", **res})
                 print(f"  {env_id} {device} num_envs={n}: {res['env_steps_per_s']:.4g} env-steps/s", flush=True)
+            if is_push:
+                continue
             n = args.adapters_at
             res = raw_env_row(env_id, n, device, args.steps, check_inputs=True)
             rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, "adapter": "raw",
@@ -194,7 +220,8 @@ def main(argv=None) -> int:
                     rows.append({"engine": "magbotsim", "env": env_id, "device": "cpu", "num_envs": 1, "adapter": "raw",
                                  "step_ms": res["step_ms_mean"], "env_steps_per_s": res["steps_per_s"]})
     print_table(rows, ["engine", "env", "device", "num_envs", "adapter", "check_inputs", ("step_ms", "ms/step"),
-                       ("sim_ms", "physics ms"), ("env_steps_per_s", "env-steps/s")])
+                       ("sim_ms", "physics ms"), ("raw_mjw_ms", "raw mjw ms"), ("x_raw_mjw", "x raw mjw"),
+                       ("env_steps_per_s", "env-steps/s")])
     if args.json:
         stamp = {k: info[k] for k in ("device_name", "cpu", "date_utc", "versions", "command", "commit")}
         write_json(args.json, [{**r, **stamp} for r in rows])
