@@ -355,7 +355,7 @@ def test_footprints_on_tiles_matches_reference(layout_name, shape, rng):
 
     layout = Layout(WALL_LAYOUTS[layout_name])
     n = 400
-    radius, half = float(rng.uniform(0.03, 0.11)), f32(rng.uniform(0.02, 0.08, 2))
+    radius, half = float(rng.uniform(0.03, 0.08)), f32(rng.uniform(0.02, 0.08, 2))  # fits a 1-tile-wide L
     extra, wall_margin = float(rng.uniform(0.0, 0.02)), float(rng.uniform(0.0, 0.01))
     ext = np.array(layout.extent)
     xy = f32(rng.uniform(-0.02, 1.02, (n, 2)) * ext)
