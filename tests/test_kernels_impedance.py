@@ -92,8 +92,8 @@ def test_impedance_wrench_matches_reference(rng):
     imp.k_lin, imp.k_rot, imp.mask_lin, imp.mask_rot = (wp.vec3(*x) for x in (k_lin, k_rot, mask_lin, mask_rot))
     f_out, t_out = wp.zeros(n, dtype=wp.vec3, device="cpu"), wp.zeros(n, dtype=wp.vec3, device="cpu")
     wp.launch(_wrench_kernel, dim=n, device="cpu",
-              inputs=[wp.array(poses, dtype=Pose, device="cpu"), body, wp.array(tpos.astype(np.float32), dtype=wp.vec3),
-                      wp.array(tq.astype(np.float32), dtype=wp.quat), imp, f_out, t_out])
+              inputs=[wp.array(poses, dtype=Pose, device="cpu"), body, wp.array(tpos.astype(np.float32), dtype=wp.vec3, device="cpu"),
+                      wp.array(tq.astype(np.float32), dtype=wp.quat, device="cpu"), imp, f_out, t_out])
     want = [ref.impedance_wrench(pos[k], q[k], vel[k], omega[k], tpos[k], tq[k], k_lin, k_rot, d_lin, d_rot, mask_lin,
                                  mask_rot) for k in range(n)]
     want_f = np.array([f for f, _ in want])
