@@ -203,6 +203,7 @@ class Simulator:
         grid.ncy = max(1, int(np.ceil(ext[1] / grid.cell_size)))
         bodies = np.zeros(m, dtype=Body.numpy_dtype())
         bodies["mass"] = self.mover.mass
+        bodies["inv_mass"] = 1.0 / self.mover.mass
         bodies["inertia"] = np.asarray(self.mover.inertia)
         bodies["damp_lin"] = 2.0 * np.sqrt(np.asarray(imp.k_lin) * self.mover.mass)
         bodies["damp_rot"] = 2.0 * np.sqrt(np.asarray(imp.k_rot) * np.asarray(self.mover.inertia))

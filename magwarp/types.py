@@ -45,6 +45,7 @@ class Body:
     """Rigid-body parameters of one mover."""
 
     mass: float
+    inv_mass: float  # 1 / mass, so that the integrator multiplies instead of dividing every cycle
     inertia: wp.vec3  # principal moments in the body frame
     damp_lin: wp.vec3  # critical damping of the impedance hold, 2 sqrt(K m), per world axis
     damp_rot: wp.vec3  # 2 sqrt(K I) per axis, with the principal inertia (not the mass, as MagBotSim does)

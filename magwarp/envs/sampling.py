@@ -49,6 +49,8 @@ class PoseSampler:
             raise ValueError(f"the layout ({sim.layout.extent[0]:.3f} x {sim.layout.extent[1]:.3f} m) is too small for a mover of reach {reach.tolist()}")
         # On a full rectangle of tiles every point of the sampling box is valid: no kernel needed per step.
         self.full_rectangle = bool(sim.layout.tiles.all())
+        if self.full_rectangle:
+            self.candidates = 1  # every candidate is valid: drawing more would only cost memory traffic
         self.lo = reach.to(self.device)
         self.span = (ext - 2 * reach).to(self.device)
         self.goal_pool = self._valid_point_pool(pool_size, max_rounds)

@@ -67,7 +67,7 @@ def angular_acceleration(q: wp.quat, omega: wp.vec3, torque: wp.vec3, inertia: w
 @wp.func
 def integrate_body(p: Pose, w: Wrench, body: Body, lim: Limits) -> Pose:
     """One semi-implicit Euler step under wrench ``w`` plus gravity."""
-    lin_acc = w.force / body.mass - wp.vec3(0.0, 0.0, lim.gravity)
+    lin_acc = w.force * body.inv_mass - wp.vec3(0.0, 0.0, lim.gravity)
     out = Pose()
     out.vel = p.vel + lin_acc * lim.dt
     out.pos = p.pos + out.vel * lim.dt

@@ -243,7 +243,14 @@ def make_register_kernel(force_fn, num_movers: int):
         F = Ints()
         Fa = Ints()
         Pr = Ints()
+        C = Rows2()  # the command and the targets hold for the whole step: load them once
+        TP = Rows3()
+        TQ = Rows4()
         for m in range(M):
+            C[m] = cmd[w, m]
+            TP[m] = target_pos[w, m]
+            tq = target_quat[w, m]
+            TQ[m] = wp.vec4(tq[0], tq[1], tq[2], tq[3])
             P[m] = pos[w, m]
             V[m] = vel[w, m]
             Om[m] = omega[w, m]
@@ -267,7 +274,7 @@ def make_register_kernel(force_fn, num_movers: int):
                 p.vel = V[m]
                 p.omega = Om[m]
                 p.quat = wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3])
-                n, a = advance_pose(p, A[m], cmd[w, m], body[m], target_pos[w, m], target_quat[w, m],
+                n, a = advance_pose(p, A[m], C[m], body[m], TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
                                     force_aux[w, m], lim, imp)
                 P[m] = n.pos
                 V[m] = n.vel
