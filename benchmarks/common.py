@@ -73,7 +73,8 @@ def git_commit(repo: str | os.PathLike | None = None) -> str | None:
                                capture_output=True, text=True, timeout=10).stdout.strip()
         return sha + ("+dirty" if dirty else "")
     except Exception:
-        return None
+        # A copy of the tree without .git (e.g. on a remote GPU machine): the caller may name the commit.
+        return os.environ.get("MAGWARP_COMMIT")
 
 
 def machine_info(device: str = "cpu") -> dict[str, Any]:
