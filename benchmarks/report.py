@@ -1,0 +1,91 @@
+"""Markdown tables for RESULTS.md from the JSON rows that scaling.py and env_throughput.py write (``--json``).
+
+    python benchmarks/report.py benchmarks/results/*.json > /tmp/tables.md
+
+Every table carries where its numbers come from: device, date, versions, commit and the exact command.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections import OrderedDict
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        if v >= 1e6:
+            return f"{v / 1e6:,.1f} M"
+        if v >= 100:
+            return f"{v:,.0f}"
+        return f"{v:.4g}"
+    return str(v)
+
+
+def _provenance(rows: list[dict]) -> str:
+    r = rows[0]
+    v = r.get("versions", {})
+    versions = ", ".join(f"{k} {v[k]}" for k in ("warp-lang", "torch", "mujoco-warp", "mujoco", "magbotsim", "python")
+                         if v.get(k))
+    return (f"*{r.get('device_name')}, {r.get('date_utc')}, {versions}, commit {r.get('commit') or '?'}.*  \n"
+            f"*Command: `{r.get('command')}`*\n")
+
+
+def table(rows: list[dict], columns: list[tuple[str, str]]) -> str:
+    head = "| " + " | ".join(h for _, h in columns) + " |\n|" + "---|" * len(columns) + "\n"
+    body = "".join("| " + " | ".join(_fmt(r.get(k)) for k, _ in columns) + " |\n" for r in rows)
+    return head + body
+
+
+def scaling_tables(rows: list[dict]) -> str:
+    one = [r for r in rows if r.get("worlds", 1) == 1]
+    out = _provenance(rows) + "\n"
+    # One row per (movers, shape): engines side by side.
+    grid: "OrderedDict[tuple, dict]" = OrderedDict()
+    for r in sorted(one, key=lambda r: (r["shape"], r["movers"])):
+        key = (r["shape"], r["movers"], r["tiles"])
+        name = r["engine"] if r["engine"] != "magwarp" else f"magwarp {r['device']}"
+        grid.setdefault(key, {"shape": key[0], "movers": key[1], "tiles": key[2]})[name] = r["ms_per_step"] * 1e3
+    engines = sorted({k for g in grid.values() for k in g if k not in ("shape", "movers", "tiles")})
+    cols = [("shape", "shape"), ("movers", "movers"), ("tiles", "tiles")] + [(e, f"{e} (µs/step)") for e in engines]
+    rows_out = list(grid.values())
+    for g in rows_out:
+        for ref in ("magbotsim", "magbotsim-controllers"):
+            for e in engines:
+                if e.startswith("magwarp") and g.get(ref) and g.get(e):
+                    g[f"x {ref} / {e}"] = g[ref] / g[e]
+    extra = sorted({k for g in rows_out for k in g if k.startswith("x ")})
+    out += table(rows_out, cols + [(k, k.replace("x ", "speed-up vs ")) for k in extra])
+    small = [r for r in rows if r.get("worlds", 1) > 1]
+    if small:
+        out += "\nMany small worlds (one step = 40 cycles of 1 ms):\n\n"
+        out += table([{**r, "us": r["ms_per_step"] * 1e3} for r in small],
+                     [("device", "device"), ("worlds", "worlds"), ("movers", "movers per world"), ("tiles", "layout"),
+                      ("cycles", "cycles"), ("us", "µs per step")])
+    return out
+
+
+def env_tables(rows: list[dict]) -> str:
+    out = _provenance(rows) + "\n"
+    cols = [("engine", "engine"), ("env", "env"), ("device", "device"), ("num_envs", "num_envs"),
+            ("adapter", "adapter"), ("check_inputs", "check_inputs"), ("step_ms", "ms/step"),
+            ("sim_ms", "physics ms"), ("raw_mjw_ms", "raw mujoco-warp ms"), ("x_raw_mjw", "x raw"),
+            ("env_steps_per_s", "env-steps/s")]
+    return out + table(rows, cols)
+
+
+def main(paths: list[str]) -> int:
+    for path in paths:
+        with open(path) as f:
+            rows = json.load(f)
+        if not rows:
+            continue
+        print(f"### `{path}`\n")
+        print(scaling_tables(rows) if "ms_per_step" in rows[0] and "movers" in rows[0] else env_tables(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
