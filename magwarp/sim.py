@@ -56,7 +56,8 @@ class Simulator:
     impedance controller holds. stop_on_collision: a world stops moving for the rest of a step after a collision
     (MagBotSim's behaviour). force_model: a ``@wp.func`` with :func:`~magwarp.kernels.impedance.default_force`'s
     signature; force_aux_dim: width of its free per-mover input row ``force_aux``. device: ``"cpu"``, ``"cuda:N"``
-    or None for the best one. fused_max_movers: worlds up to this size run fused. check_inputs: validate commands
+    or None for the best one. fused_max_movers: worlds up to this size run fused. max_pairs: room per world in
+    ``pair_list`` (the list of colliding pairs; ``world_pairs`` always counts all of them). check_inputs: validate commands
     (costs a device sync per command; turn off in tight loops that produce commands on the device).
     """
 
@@ -85,6 +86,7 @@ class Simulator:
         force_aux_dim: int = 1,
         device: str | None = None,
         fused_max_movers: int = 16,
+        max_pairs: int = 256,
         use_graph: bool = True,
         check_inputs: bool = True,
         validate_starts_: bool = True,
@@ -112,6 +114,9 @@ class Simulator:
         start_xy_arr, start_yaw_arr = self._start_arrays(num_movers, start_xy, start_yaw)
         self.num_movers = start_xy_arr.shape[1]
         m = self.num_movers
+        if int(max_pairs) < 1:
+            raise ValueError(f"max_pairs must be >= 1, got {max_pairs!r}")
+        self.max_pairs = min(int(max_pairs), max(1, m * (m - 1) // 2))
         radii, half = self._collision_sizes(collision_radii, collision_half_sizes)
         self._fused = m <= fused_max_movers
 
@@ -236,6 +241,7 @@ class Simulator:
             flags_any=z(wp.int32), partner=z(wp.int32), world_pairs=z(wp.int32, self.num_worlds),
             world_walls=z(wp.int32, self.num_worlds), halted=z(wp.int32, self.num_worlds),
             cycles=z(wp.int32, self.num_worlds), force_aux=z(float, (*shape, int(aux_dim))),
+            pair_list=z(wp.vec2i, (self.num_worlds, self.max_pairs)),
         )
         if self.num_movers > 32:
             g = self.model.grid
@@ -261,6 +267,8 @@ class Simulator:
     flags_any = property(lambda self: self._t(self.state.flags_any), doc="[W, M] collision bits over the last step")
     partner = property(lambda self: self._t(self.state.partner), doc="[W, M] lowest colliding mover index, -1 if none")
     world_pairs = property(lambda self: self._t(self.state.world_pairs), doc="[W] colliding pairs, last cycle")
+    pair_list = property(lambda self: self._t(self.state.pair_list),
+                         doc="[W, max_pairs, 2] colliding pairs (i < j), last cycle; first min(world_pairs, max_pairs) valid")
     world_walls = property(lambda self: self._t(self.state.world_walls), doc="[W] movers off the tiles, last cycle")
     halted = property(lambda self: self._t(self.state.halted), doc="[W] 1 where the world collided during the step")
     cycles = property(lambda self: self._t(self.state.cycles), doc="[W] cycles integrated during the last step")
@@ -427,16 +435,25 @@ class Simulator:
                 launches()
         return capture.graph
 
+    def _block_dim(self, threads: int) -> int:
+        """Threads per block on a GPU: small enough that a modest launch still spreads over every SM (the
+        fused kernel's threads are long and latency bound), 256 once there is plenty of work."""
+        if not self.device.is_cuda:
+            return 256
+        per_sm = max(1, threads // (4 * self.device.sm_count))
+        return int(min(256, max(32, 1 << (per_sm.bit_length() - 1))))
+
     def _launch_step(self, n: int) -> None:
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
         wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
         if self._fused:
             wp.launch(
-                self._fused_kernel, dim=W, device=dev,
+                self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
                 inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd,
                         s.target_pos, s.target_quat, s.force_aux, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall,
-                        s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles],
+                        s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles,
+                        s.pair_list],
             )
             return
         for _ in range(n):
@@ -448,7 +465,7 @@ class Simulator:
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
         wp.launch(
-            self._advance_kernel, dim=(W, M), device=dev,
+            self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
             inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, s.target_pos,
                     s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall, s.cycles],
         )
@@ -458,17 +475,17 @@ class Simulator:
         """Mover-mover check and flag/counter outputs from the current poses and wall flags."""
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
-        outputs = [s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted]
+        outputs = [s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.pair_list]
         if M <= 32:
             wp.launch(kcol.clear_world_counters, dim=W, inputs=[s.world_pairs, s.world_walls], device=dev)
-            wp.launch(kcol.detect_collisions_brute, dim=(W, M), device=dev,
+            wp.launch(kcol.detect_collisions_brute, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
                       inputs=[m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall, *outputs])
             return
         wp.launch(kcol.clear_cells, dim=max(self._cell_head.shape[0], W), device=dev,
                   inputs=[self._cell_head, s.world_pairs, s.world_walls])
         wp.launch(kcol.bin_movers, dim=(W, M), inputs=[m.grid, s.pos, self._cell_head, self._next_in_cell], device=dev)
         wp.launch(
-            kcol.detect_collisions_grid, dim=(W, M), device=dev,
+            kcol.detect_collisions_grid, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
             inputs=[m.collision, m.grid, m.radius, m.half_size, s.pos, s.quat, s.wall, self._cell_head,
                     self._next_in_cell, *outputs],
         )

@@ -124,6 +124,8 @@ class State:
     flags_any: wp.array2d  # int32, COLLIDE_* bits OR-ed over the cycles of the current step
     partner: wp.array2d  # int32, lowest index of a mover colliding with this one in the last cycle, -1 if none
     world_pairs: wp.array  # int32 (num_worlds,), colliding pairs in the last cycle
+    pair_list: wp.array2d  # vec2i (num_worlds, max_pairs): the colliding pairs (i < j) of the last cycle; the first
+    # min(world_pairs, max_pairs) rows are valid, in no particular order on a GPU
     world_walls: wp.array  # int32 (num_worlds,), movers off the tiles in the last cycle
     halted: wp.array  # int32 (num_worlds,), 1 once the world collided in the current step (stop_on_collision)
     cycles: wp.array  # int32 (num_worlds,), cycles integrated in the current step

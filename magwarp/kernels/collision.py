@@ -167,11 +167,18 @@ def bin_movers(
 
 
 @wp.func
+def add_pair(w: int, i: int, j: int, world_pairs: wp.array(dtype=wp.int32), pair_list: wp.array2d(dtype=wp.vec2i)):
+    """Count a colliding pair (found by its lower index ``i``) and list it while the world's list has room."""
+    k = wp.atomic_add(world_pairs, w, 1)
+    if k < pair_list.shape[1]:
+        pair_list[w, k] = wp.vec2i(i, j)
+
+
+@wp.func
 def record_collisions(
     w: int,
     m: int,
     partner: int,
-    pairs_owned: int,
     wall: wp.array2d(dtype=wp.int32),
     flags: wp.array2d(dtype=wp.int32),
     flags_any: wp.array2d(dtype=wp.int32),
@@ -187,8 +194,6 @@ def record_collisions(
     if wall[w, m] != 0:
         f = f | COLLIDE_WALL
         wp.atomic_add(world_walls, w, 1)
-    if pairs_owned > 0:
-        wp.atomic_add(world_pairs, w, pairs_owned)
     flags[w, m] = f
     flags_any[w, m] = flags_any[w, m] | f
     partner_out[w, m] = partner
@@ -223,6 +228,7 @@ def detect_collisions_grid(
     world_pairs: wp.array(dtype=wp.int32),
     world_walls: wp.array(dtype=wp.int32),
     halted: wp.array(dtype=wp.int32),
+    pair_list: wp.array2d(dtype=wp.vec2i),
 ):
     """Mover-mover narrow phase over the 3x3 neighbouring cells, then the mover's flags."""
     w, m = wp.tid()
@@ -230,7 +236,6 @@ def detect_collisions_grid(
     yaw = shape_yaw(col, quat[w, m])
     c = cell_coords(grid, p)
     partner = int(-1)
-    owned = int(0)
     for dy in range(-1, 2):
         cy = c[1] + dy
         if cy < 0 or cy >= grid.ncy:
@@ -248,9 +253,9 @@ def detect_collisions_grid(
                         if partner < 0 or j < partner:
                             partner = j
                         if j > m:
-                            owned += 1
+                            add_pair(w, m, j, world_pairs, pair_list)
                 j = next_in_cell[w, j]
-    record_collisions(w, m, partner, owned, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)
+    record_collisions(w, m, partner, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)
 
 
 @wp.kernel
@@ -270,13 +275,13 @@ def detect_collisions_brute(
     world_pairs: wp.array(dtype=wp.int32),
     world_walls: wp.array(dtype=wp.int32),
     halted: wp.array(dtype=wp.int32),
+    pair_list: wp.array2d(dtype=wp.vec2i),
 ):
     """Mover-mover check against every other mover of the world: the fast choice for small worlds."""
     w, m = wp.tid()
     p = pos[w, m]
     yaw = shape_yaw(col, quat[w, m])
     partner = int(-1)
-    owned = int(0)
     for j in range(pos.shape[1]):
         if j != m:
             q = pos[w, j]
@@ -285,8 +290,8 @@ def detect_collisions_brute(
                 if partner < 0:
                     partner = j
                 if j > m:
-                    owned += 1
-    record_collisions(w, m, partner, owned, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)
+                    add_pair(w, m, j, world_pairs, pair_list)
+    record_collisions(w, m, partner, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)
 
 
 @wp.kernel

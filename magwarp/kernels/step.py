@@ -143,6 +143,7 @@ def make_advance_kernel(force_fn=default_force):
         world_walls: wp.array(dtype=wp.int32),
         halted: wp.array(dtype=wp.int32),
         cycles: wp.array(dtype=wp.int32),
+        pair_list: wp.array2d(dtype=wp.vec2i),
     ):
         w = wp.tid()
         num_movers = pos.shape[1]
@@ -165,6 +166,8 @@ def make_advance_kernel(force_fn=default_force):
                     pj = pos[w, j]
                     d = wp.vec2(pi[0] - pj[0], pi[1] - pj[1])
                     if movers_collide(col, d, yi, radius[i], half_size[i], shape_yaw(col, quat[w, j]), radius[j], half_size[j]):
+                        if pairs < pair_list.shape[1]:
+                            pair_list[w, pairs] = wp.vec2i(i, j)
                         pairs += 1
                         if partner[w, i] < 0:
                             partner[w, i] = j
@@ -232,6 +235,7 @@ def make_register_kernel(force_fn, num_movers: int):
         world_walls: wp.array(dtype=wp.int32),
         halted: wp.array(dtype=wp.int32),
         cycles: wp.array(dtype=wp.int32),
+        pair_list: wp.array2d(dtype=wp.vec2i),
     ):
         w = wp.tid()
         P = Rows3()
@@ -295,6 +299,8 @@ def make_register_kernel(force_fn, num_movers: int):
                     d = wp.vec2(P[i, 0] - P[j, 0], P[i, 1] - P[j, 1])
                     yj = shape_yaw(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
                     if movers_collide(col, d, yi, radius[i], half_size[i], yj, radius[j], half_size[j]):
+                        if pairs < pair_list.shape[1]:
+                            pair_list[w, pairs] = wp.vec2i(i, j)
                         pairs += 1
                         if Pr[i] < 0:
                             Pr[i] = j
