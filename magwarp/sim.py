@@ -292,7 +292,8 @@ class Simulator:
     # ------------------------------------------------------------------ inputs
     def _check_tensor(self, name: str, value, shape: tuple[int, ...]) -> torch.Tensor:
         if not isinstance(value, torch.Tensor):
-            value = torch.as_tensor(np.asarray(value, dtype=np.float32))
+            # Host data (numpy, lists) is copied to the simulator's device; tensors must already be there.
+            value = torch.as_tensor(np.asarray(value, dtype=np.float32), device=self.torch_device)
         if not value.is_floating_point():
             raise TypeError(f"{name} must be a floating point tensor, got dtype {value.dtype}")
         if value.device != self.torch_device:
