@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One GPU session's work, in one call on the device machine (see the device tool's METHOD.md): checks first, then
 # every GPU benchmark, each writing JSON under $OUT. Usage there (after the wheels are staged):
-#   export PYTHONPATH=/tmp/site:$PWD; bash benchmarks/gpu_session.sh [quick]
+#   export PYTHONPATH=/tmp/site:$PWD MAGWARP_COMMIT=<sha>; bash benchmarks/gpu_session.sh [perf|quick]
 set -u
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
@@ -10,6 +10,12 @@ log() { echo "=== $* ($(date -u +%H:%M:%S))"; }
 log "devices"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
 python3 -c "import torch, warp as wp; wp.init(); print('torch', torch.__version__, 'warp', wp.__version__, wp.get_cuda_devices())"
+if [ "${1:-}" = "perf" ]; then
+  python3 benchmarks/scaling.py --device cuda:0 --no-magbotsim --steps 200 --json "$OUT/scaling_gpu.json"
+  python3 benchmarks/env_throughput.py --device cuda:0 --no-magbotsim --envs magwarp/TrajectoryPlanningB0-v0 \
+    --num-envs 1024,16384,262144,1048576,2097152 --steps 50 --json "$OUT/env_throughput_gpu.json"
+  exit 0
+fi
 log "GPU tests (CPU/GPU agreement, env on cuda)"
 timeout 300 python3 -X faulthandler -m pytest -v -p no:cacheprovider tests/test_sim.py tests/test_kernels_collision.py \
   tests/test_kernels_dynamics.py tests/test_sim_errors.py tests/test_env_trajectory.py tests/test_physics.py \
