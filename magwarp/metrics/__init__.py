@@ -1,0 +1,28 @@
+"""The paper's benchmark metrics as device-side accumulators, updated every 1 ms cycle inside the step graph.
+
+``m = Metrics(env)`` attaches a tracker to a batched env (trajectory planning or pushing). From then on every
+``env.step`` returns ``info["metrics"]`` (per-world counters, no host sync), ``m.summary(num_groups)`` reduces the
+accumulators per group of consecutive worlds (e.g. one evaluation repeat each), ``m.reset(mask)`` zeroes worlds and
+``m.freeze(mask)`` stops counting in worlds whose evaluation episode is over. Definitions:
+:mod:`magwarp.kernels.metrics`, :mod:`magwarp.metrics.trajectory`, :mod:`magwarp.metrics.push`.
+"""
+
+from __future__ import annotations
+
+from magwarp.metrics.push import PushTaskMetrics
+from magwarp.metrics.trajectory import TrajectoryMetrics
+
+__all__ = ["Metrics", "PushTaskMetrics", "TrajectoryMetrics"]
+
+
+def Metrics(env, **kwargs):  # noqa: N802 - a factory that reads like the class it returns
+    """The tracker for ``env``'s task family (``env`` may be a gymnasium wrapper of a magwarp vector env)."""
+    from magwarp.envs.push import PushEnv
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    base = getattr(env, "unwrapped", env)
+    if isinstance(base, TrajectoryPlanningEnv):
+        return TrajectoryMetrics(base, **kwargs)
+    if isinstance(base, PushEnv):
+        return PushTaskMetrics(base, **kwargs)
+    raise TypeError(f"no benchmark metrics for {type(base).__name__}; expected a trajectory planning or push env")
