@@ -85,6 +85,9 @@ class PushEnv(MagwarpVecEnv):
     margin), ``collision_offset_wall`` (wall margin).
     """
 
+    #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
+    benchmark_metrics = None
+
     def __init__(
         self,
         num_envs: int = 1,
@@ -362,6 +365,8 @@ class PushEnv(MagwarpVecEnv):
         self.num_steps.masked_fill_(mask, 0)
         self.steps_at_goal.masked_fill_(mask, 0)
         self.metrics.reset(mask)
+        if self.benchmark_metrics is not None:
+            self.benchmark_metrics.episode_reset(mask)
 
     def _apply_action(self, action: torch.Tensor) -> None:
         self.checks.clear()
@@ -412,6 +417,8 @@ class PushEnv(MagwarpVecEnv):
             "num_distance_corrections": self.metrics.t["dist_corrections"].clone(),
             "time_to_success_s": self.metrics.t["time_to_success"].clone(),
         })
+        if self.benchmark_metrics is not None:
+            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
         return reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ reward (batched, for HER)

@@ -40,6 +40,9 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
     collision shape in the per-cycle mover-mover check (MagBotSim: none).
     """
 
+    #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
+    benchmark_metrics = None
+
     def __init__(
         self,
         num_envs: int = 1,
@@ -148,6 +151,8 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         self.num_steps.copy_(torch.where(mask, zero, self.num_steps))
         self.last_goal_step.copy_(torch.where(mask, zero, self.last_goal_step))
         self.collected_goals.masked_fill_(mask[:, None], 0)
+        if self.benchmark_metrics is not None:
+            self.benchmark_metrics.episode_reset(mask)
 
     def _apply_action(self, action: torch.Tensor) -> None:
         self.sim.step(self.num_cycles, action.view(self.num_envs, self.num_movers, 2))
@@ -181,6 +186,8 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         else:
             truncated = info["steps_since_goal"] > self.timeout_steps
         info["collected_goals"] = self.collected_goals
+        if self.benchmark_metrics is not None:
+            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
         return reward, terminated, truncated, info
 
     def _end_step(self, obs, info) -> None:
