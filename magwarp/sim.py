@@ -11,6 +11,7 @@ per-cycle shape so that they can run between cycles, still inside the same graph
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Callable
 
 import numpy as np
@@ -441,6 +442,8 @@ class Simulator:
         fused kernel's threads are long and latency bound), 256 once there is plenty of work."""
         if not self.device.is_cuda:
             return 256
+        if os.environ.get("MAGWARP_BLOCK_DIM"):  # fixed override, for tuning
+            return int(os.environ["MAGWARP_BLOCK_DIM"])
         per_sm = max(1, threads // (4 * self.device.sm_count))
         return int(min(256, max(32, 1 << (per_sm.bit_length() - 1))))
 
