@@ -83,10 +83,16 @@ class PushEnv(MagwarpVecEnv):
     ``T``, ``L``, ``X``); ``object_*`` set its half-sizes (m), mass (kg) and friction. Collision options follow
     MagBotSim's ``collision_params``: ``collision_shape``, ``collision_size``, ``collision_offset`` (sampling
     margin), ``collision_offset_wall`` (wall margin).
+
+    Rendering: ``render_mode="rgb_array"`` draws the worlds of :meth:`set_render_worlds` from above (tiles, movers,
+    the object, its goal and obstacles); ``"rgb_array_3d"`` renders them in 3D through MuJoCo's offscreen renderer
+    (:mod:`magwarp.render.mujoco3d`; needs EGL or OSMesa).
     """
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
+
+    metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
 
     def __init__(
         self,
@@ -457,6 +463,54 @@ class PushEnv(MagwarpVecEnv):
         desired_goal = torch.as_tensor(desired_goal, device=achieved_goal.device)
         reached, metric = self.goal_reached(achieved_goal, desired_goal)
         return self._reward(reached, metric, info)
+
+    # ------------------------------------------------------------------ rendering
+    def object_parts(self) -> list[tuple[float, float, float, float]]:
+        """The object's footprint as drawing parts ``(cx, cy, hx, hy)`` in its body frame (a disc: ``hy = 0``)."""
+        if self.object.shape == "cylinder":
+            return [(0.0, 0.0, float(self.object.radius), 0.0)]
+        return [tuple(float(v) for v in r) for r in self.object.rects()]
+
+    def render_state(self) -> dict[str, torch.Tensor]:
+        """What a frame shows, as device tensors (shared by the top-down renderer and the 3D viewers): mover
+        ``pos [W, M, 3]`` and ``yaw [W, M]``, collision ``flags [W, M]`` (the world's flags, per mover), object
+        ``object_poses`` and goal ``object_goals`` ``[W, 1, 3]`` (x, y, yaw; position goals are drawn unrotated)
+        and static ``obstacles [K, 5]`` (cx, cy, hx, hy, yaw)."""
+        b, n, m = self.backend, self.num_envs, self.num_movers
+        q = b.mover_qpos
+        flags = self.checks.flags_t
+        if self.contacts is not None:  # touching an obstacle counts as a collision in this task
+            flags = flags | self.contacts.pair("mover", "obstacle").to(flags.dtype)
+        obj = b.object_qpos[:, 0]
+        goal_yaw = self.goal_yaw if self.learn_pose else torch.zeros_like(self.goal_yaw)
+        out = {
+            "pos": q[..., :3],
+            "yaw": _yaw_from_quat(q[..., 3:]),
+            "flags": flags[:, None].expand(n, m),
+            "object_poses": torch.cat([obj[:, :2], _yaw_from_quat(obj[:, 3:])[:, None]], 1)[:, None],
+            "object_goals": torch.cat([self.goal_xy, goal_yaw[:, None]], 1)[:, None],
+        }
+        if self.obstacles:
+            out["obstacles"] = self._const(np.array([[o.xy[0], o.xy[1], o.half_size[0], o.half_size[1], o.yaw]
+                                                     for o in self.obstacles], dtype=np.float32))
+        return out
+
+    def _render_frame(self):
+        worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 16)
+        if self.render_mode == "rgb_array_3d":
+            from magwarp.render.mujoco3d import render_worlds
+
+            return render_worlds(self, worlds)
+        if getattr(self, "_renderer", None) is None:
+            from magwarp.render import TopDownRenderer
+
+            count = worlds if np.ndim(worlds) == 0 else len(worlds)
+            ppt = 96 if count == 1 else 48 if count <= 4 else 32
+            self._renderer = TopDownRenderer(self.layout, self.mover, worlds=worlds, px_per_tile=ppt,
+                                             object_shapes=[self.object_parts()], device=self.backend.device)
+        s = self.render_state()
+        return self._renderer.draw(s["pos"], s["yaw"], flags=s["flags"], object_poses=s["object_poses"],
+                                   object_goals=s["object_goals"], obstacles=s.get("obstacles"))
 
 
 class PushBoxEnv(PushEnv):
