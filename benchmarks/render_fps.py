@@ -31,6 +31,7 @@ def parse_args(argv=None):
     p.add_argument("--device", default=None, help="Warp device (default: Warp's preferred device)")
     p.add_argument("--png", default=None, help="also write one frame per configuration to this PNG prefix")
     p.add_argument("--plot", default=None, help="write a plot of frames/s against image size to this PNG")
+    p.add_argument("--json", default=None, help="write the rows (with device, date, versions, command) as JSON")
     return p.parse_args(argv)
 
 
@@ -87,7 +88,21 @@ def main(argv=None) -> int:
                 save_png(f"{args.png}_{name}_{num_worlds}w_{movers}m_{ppt}px.png", frame)
     if args.plot:
         plot(rows, args, device)
+    if args.json:
+        write_rows(args.json, rows, device)
     return 0
+
+
+def write_rows(path: str, rows, device) -> None:
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from common import machine_info, write_json
+
+    info = machine_info("cuda" if device.is_cuda else "cpu")
+    stamp = {k: info[k] for k in ("device_name", "cpu", "date_utc", "versions", "command", "commit")}
+    write_json(path, [{"layout": name, "worlds": n, "movers": m, "px_per_tile": ppt, "height": h, "width": w,
+                       "ms_per_frame": t * 1e3, "frames_per_s": 1.0 / t, "device": device.alias, **stamp}
+                      for n, ppt, h, w, t, m, name in rows])
+    print(f"# json: {path}")
 
 
 def plot(rows, args, device) -> None:
