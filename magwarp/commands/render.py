@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from magwarp.commands import UsageError
+from magwarp.commands import CommandError, UsageError
 
 HELP = "render steps of an env (or a synthetic scene) top-down to PNG, gif or mp4"
 POLICIES = ("scripted", "random", "zero")
@@ -29,8 +29,9 @@ def add_common_scene_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--worlds", type=int, default=1, help="worlds to simulate (default 1)")
     p.add_argument("--show", type=int, default=None, metavar="N", help="worlds to draw (default: all, at most 64)")
     p.add_argument("--steps", type=int, default=50, help="steps to run (default 50)")
-    p.add_argument("--policy", choices=POLICIES, default="scripted",
-                   help="env actions: the env's scripted planner, random or zero (default scripted)")
+    p.add_argument("--policy", choices=POLICIES, default=None,
+                   help="env actions: the env's scripted planner, random or zero (default: scripted where the env "
+                        "has a planner, else random)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default: Warp's preferred)")
 
@@ -46,6 +47,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--scale", type=int, default=1, help="integer upscaling of the written images (default 1)")
     p.add_argument("--legend", action=argparse.BooleanOptionalAction, default=True,
                    help="colour key under the images (default on)")
+    p.add_argument("--3d", dest="three_d", action="store_true",
+                   help="push envs: 3D images through MuJoCo's offscreen renderer (EGL/OSMesa) instead of top-down")
     return p
 
 
@@ -59,7 +62,7 @@ def check_scene_args(args) -> None:
             raise UsageError(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.show is not None and not 1 <= args.show <= args.worlds:
         raise UsageError(f"--show must be between 1 and --worlds ({args.worlds}), got {args.show}")
-    if args.synthetic and args.policy != "scripted":
+    if args.synthetic and args.policy not in (None, "scripted"):
         raise UsageError("a --synthetic scene moves by its own script; --policy applies to envs")
 
 
@@ -107,9 +110,12 @@ def make_env(args, render_mode: str | None = "rgb_array"):
 
 
 def env_policy(env, name: str):
-    """A function obs -> actions for a vector env: the env's scripted planner, random or zero actions."""
+    """A function obs -> actions for a vector env: the env's scripted planner, random or zero actions
+    (``None``: the planner where the env has one, else random)."""
+    factory = getattr(env.unwrapped if hasattr(env, "unwrapped") else env, "scripted_policy", None)
+    if name is None:
+        name = "scripted" if factory is not None else "random"
     if name == "scripted":
-        factory = getattr(env.unwrapped if hasattr(env, "unwrapped") else env, "scripted_policy", None)
         if factory is None:
             raise UsageError("this env has no scripted planner; use --policy random or --policy zero")
         return factory()  # env.scripted_policy() builds the planner: action = planner(obs)
@@ -146,6 +152,8 @@ def run(args) -> int:
     from magwarp.record import VideoRecorder
     from magwarp.render import save_png, to_numpy_image
 
+    if args.three_d and args.synthetic:
+        raise UsageError("--3d renders the MuJoCo scene of a push env (e.g. magwarp/PushT-v0), not --synthetic")
     show = shown_worlds(args)
     ppt = args.px_per_tile or default_px_per_tile(show)
     if ppt < 4:
@@ -160,8 +168,15 @@ def run(args) -> int:
         def frame():
             return scene.draw(renderer)
     else:
-        env = make_env(args)
+        env = make_env(args, render_mode="rgb_array_3d" if args.three_d else "rgb_array")
         base = env.unwrapped if hasattr(env, "unwrapped") else env
+        if args.three_d:
+            from magwarp.render.mujoco3d import GLUnavailableError, gl_backend
+
+            try:
+                gl_backend()
+            except GLUnavailableError as e:
+                raise CommandError(str(e)) from e
         if hasattr(base, "set_render_worlds"):
             base.set_render_worlds(show)
         policy = env_policy(env, args.policy)
@@ -179,13 +194,13 @@ def run(args) -> int:
     if args.synthetic:
         has_objects, has_obstacles = scene.objects, scene.objects
     else:
-        has_objects = getattr(base, "object_poses", None) is not None
-        has_obstacles = getattr(base, "obstacles", None) is not None
+        has_objects = getattr(base, "object_poses", None) is not None or hasattr(base, "object_parts")
+        has_obstacles = bool(getattr(base, "obstacles", None))
     strip = None
 
     def annotated(image):
         nonlocal strip
-        if not args.legend:
+        if not args.legend or args.three_d:  # the key describes the top-down colours
             return image
         from magwarp.render.legend import legend_strip, with_legend
 

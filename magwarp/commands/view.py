@@ -3,6 +3,7 @@
     magwarp view --synthetic --worlds 4 --viewer usd -o run.usda      # file for Omniverse / Isaac / usdview
     magwarp view --synthetic --viewer viser                          # browser at http://127.0.0.1:8080
     magwarp view magwarp/PushT-v0 --viewer gl                        # OpenGL window (needs a display)
+    magwarp view magwarp/PushBox-v0 --worlds 4 --viewer usd -o push.usda   # object, goal, obstacles too
 
 The browser viewer binds to 127.0.0.1 unless --host says otherwise.
 """
@@ -68,14 +69,24 @@ def run(args) -> int:
         env = make_env(args, render_mode=None)
         base = env.unwrapped if hasattr(env, "unwrapped") else env
         sim = getattr(base, "sim", None)
-        if sim is None:
+        push = hasattr(base, "render_state")  # push envs (mujoco-warp): object, its goal, obstacles
+        if sim is None and not push:
             raise UsageError(f"env {args.env_id!r} does not expose .sim; the viewer needs the simulator's state arrays")
         policy = env_policy(env, args.policy)
-        sv = SceneViewer(viewer, sim.layout, sim.mover, worlds=show, fps=args.fps)
+        if push:
+            sv = SceneViewer(viewer, base.layout, base.mover, worlds=show, object_shapes=[base.object_parts()],
+                             fps=args.fps)
+        else:
+            sv = SceneViewer(viewer, sim.layout, sim.mover, worlds=show, fps=args.fps)
         state = {"obs": env.reset(seed=args.seed)[0]}
 
         def step():
             state["obs"] = env.step(policy(state["obs"]))[0]
+            if push:
+                s = base.render_state()
+                sv.log(s["pos"], s["yaw"], flags=s["flags"], object_poses=s["object_poses"],
+                       object_goals=s["object_goals"], obstacles=s.get("obstacles"))
+                return
             flags = getattr(sim, "flags_any", None)  # collisions during the whole env step, not only its last cycle
             if flags is None:
                 flags = getattr(sim, "flags", None)
