@@ -165,3 +165,25 @@ def test_render_mode_none_and_bad_mode():
     assert env.render() is None
     with pytest.raises(ValueError, match="render_mode"):
         PushTEnv(num_envs=1, device="cpu", render_mode="human")
+
+
+def test_cli_render_and_view_push_env(capsys, tmp_path):
+    import imageio.v3 as iio
+
+    from magwarp import cli
+
+    gif, png = str(tmp_path / "push.gif"), str(tmp_path / "push.png")
+    rc = cli.main(["render", "magwarp/PushT-v0", "--worlds", "2", "--steps", "3", "--device", "cpu", "-o", gif, "-o", png])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    frames = iio.imread(gif)
+    assert frames.shape[0] == 3 and iio.imread(png).shape == frames.shape[1:]
+    pytest.importorskip("newton")
+    pytest.importorskip("pxr")
+    usd = str(tmp_path / "push.usda")
+    rc = cli.main(["view", "magwarp/PushWithObstacles-v0", "--worlds", "2", "--steps", "3", "--device", "cpu",
+                   "--viewer", "usd", "-o", usd])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    text = open(usd).read()
+    assert "objects" in text and "object_goals" in text and "obstacles" in text

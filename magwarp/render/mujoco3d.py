@@ -6,7 +6,8 @@
 
 The world's ``qpos`` is copied from the mujoco-warp backend (device) into a host ``MjData``, its kinematics are
 computed and MuJoCo draws it: tiles, movers (red when the world collided), the object, its goal as a translucent
-green copy, and obstacles. Push envs expose it as ``render_mode="rgb_array_3d"``.
+green copy, and obstacles, in the top-down renderer's colours. Push envs expose it as
+``render_mode="rgb_array_3d"``.
 
 Headless OpenGL: EGL (GPU, or Mesa's software EGL) or OSMesa (CPU, Debian ``libosmesa6``). The backend is chosen
 from ``MUJOCO_GL`` (``egl`` or ``osmesa``) when set, else EGL when ``libEGL`` is found, else OSMesa. PyOpenGL binds
@@ -27,6 +28,7 @@ __all__ = ["GLUnavailableError", "gl_backend", "MujocoSceneRenderer", "render_wo
 
 GOAL_RGBA = (0.24, 0.67, 0.35, 0.45)  # colors.OBJECT_GOAL, translucent
 COLLISION_RGBA = (0.84, 0.15, 0.16, 1.0)  # colors.COLLISION
+OBJECT_RGBA = (0.77, 0.56, 0.29, 1.0)  # colors.OBJECT (wood-like tan)
 _BACKEND: str | None = None
 _BACKEND_ERROR: str | None = None
 
@@ -177,6 +179,7 @@ def _env_renderer(env, width: int, height: int) -> MujocoSceneRenderer:
                                          distance=distance)
         names = [model.geom(i).name for i in range(model.ngeom)]
         cache[key].mover_geoms = [i for i, n in enumerate(names) if n.startswith("mover_geom_")]
+        cache[key].object_geoms = [i for i, n in enumerate(names) if n.startswith("object_") and "_geom_" in n]
     return cache[key]
 
 
@@ -221,6 +224,7 @@ def render_world(env, world: int = 0, width: int = 640, height: int = 480) -> np
     collided = bool(env.render_state()["flags"][world].any())
     # Movers in the top-down renderer's palette (red when the world collided), so both views read alike.
     rgba = {g: COLLISION_RGBA if collided else _palette(k) for k, g in enumerate(r.mover_geoms)}
+    rgba.update({g: OBJECT_RGBA for g in r.object_geoms})  # red would read as "collided"
     return r.draw(qpos, **mocap, extra_boxes=_goal_ghosts(env, world), geom_rgba=rgba)
 
 
