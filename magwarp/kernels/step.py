@@ -293,19 +293,22 @@ def make_register_kernel(force_fn, num_movers: int):
             done += 1
             pairs = int(0)
             walls = int(0)
+            # Both loops have constant bounds so that they unroll and every index is a constant: a dynamic index
+            # would push the whole register block (P, Q, Pr) out to local memory.
             for i in range(M):
                 yi = shape_yaw(col, wp.quat(Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]))
-                for j in range(i + 1, M):
-                    d = wp.vec2(P[i, 0] - P[j, 0], P[i, 1] - P[j, 1])
-                    yj = shape_yaw(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
-                    if movers_collide(col, d, yi, radius[i], half_size[i], yj, radius[j], half_size[j]):
-                        if pairs < pair_list.shape[1]:
-                            pair_list[w, pairs] = wp.vec2i(i, j)
-                        pairs += 1
-                        if Pr[i] < 0:
-                            Pr[i] = j
-                        if Pr[j] < 0:
-                            Pr[j] = i
+                for j in range(M):
+                    if j > i:
+                        d = wp.vec2(P[i, 0] - P[j, 0], P[i, 1] - P[j, 1])
+                        yj = shape_yaw(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
+                        if movers_collide(col, d, yi, radius[i], half_size[i], yj, radius[j], half_size[j]):
+                            if pairs < pair_list.shape[1]:
+                                pair_list[w, pairs] = wp.vec2i(i, j)
+                            pairs += 1
+                            if Pr[i] < 0:
+                                Pr[i] = j
+                            if Pr[j] < 0:
+                                Pr[j] = i
             for m in range(M):
                 f = int(0)
                 if Pr[m] >= 0:
