@@ -1,0 +1,291 @@
+"""Batched benchmark evaluation: the paper's tables (metric, n, mean ± std over repeats) for any magwarp env.
+
+All episodes of a repeat run in parallel worlds, and as many repeats as fit in ``max_worlds`` run together (world
+``w`` belongs to repeat ``w // episodes``); the metrics are the device-side accumulators of :mod:`magwarp.metrics`,
+read back once per batch of repeats.
+
+* **Pushing** (Table 1): every world plays one episode (``max_episode_steps``, ending early on a collision); a
+  repeat is ``episodes`` goals.
+* **Trajectory planning** (Table 2): every world is one long-horizon run of ``steps`` env steps in which reached
+  goals are replaced; a collision or a timeout ends the world's episode (its movers' pending goals fail) and a new
+  one starts. Makespan: time at which the slowest mover of a world reached ``makespan_goals`` goals.
+
+Process time is the wall-clock time of the batched run (policy and simulation) per goal (trajectory planning) or
+per episode (pushing).
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+
+__all__ = ["EvalResult", "evaluate", "format_table", "load_policy", "resolve_env_id"]
+
+
+class EvalError(ValueError):
+    """A bad evaluation argument (env id, policy, sizes); the CLI reports it as one line."""
+
+
+@dataclass
+class Row:
+    key: str
+    label: str
+    n: float
+    mean: float
+    std: float
+    values: list[float] = field(default_factory=list)
+
+
+@dataclass
+class EvalResult:
+    env_id: str
+    policy: str
+    family: str
+    device: str
+    episodes: int
+    repeats: int
+    steps_per_world: int
+    wall_s: float
+    rows: list[Row]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+# ---------------------------------------------------------------------------------------------------------- env ids
+def resolve_env_id(env_id: str) -> str:
+    """``magwarp/PushBox-v0``, ``PushBox-v0`` and ``PushBox`` all name the same env."""
+    import gymnasium as gym
+
+    import magwarp  # noqa: F401 - registers the envs
+
+    for cand in (env_id, f"magwarp/{env_id}", f"magwarp/{env_id}-v0", f"{env_id}-v0"):
+        if cand in gym.registry and cand.startswith("magwarp/"):
+            return cand
+    known = sorted(k for k in gym.registry if k.startswith("magwarp/"))
+    raise EvalError(f"unknown env {env_id!r}; magwarp envs are e.g. {', '.join(known[:4])}, ... "
+                    f"({len(known)} in all, see gymnasium.registry)")
+
+
+# ---------------------------------------------------------------------------------------------------------- policies
+def _flatten_obs(obs) -> torch.Tensor:
+    """Dict observations as one tensor, keys in sorted order (achieved_goal, desired_goal, observation: SB3's)."""
+    if isinstance(obs, dict):
+        return torch.cat([obs[k].reshape(obs[k].shape[0], -1) for k in sorted(obs)], dim=1)
+    return obs
+
+
+class ModulePolicy:
+    """A torch module (TorchScript or ``torch.save``d) as a policy: flattened observation in, actions out."""
+
+    def __init__(self, module, env):
+        self.module = module
+        self.num_envs = env.num_envs
+        if isinstance(module, torch.nn.Module):
+            module.eval()
+
+    @torch.no_grad()
+    def __call__(self, obs) -> torch.Tensor:
+        out = self.module(_flatten_obs(obs))
+        if isinstance(out, (tuple, list)):
+            out = out[0]
+        return out.reshape(self.num_envs, -1).to(torch.float32)
+
+
+def scripted_policy(env) -> Callable:
+    """The built-in baseline: the env's own ``scripted_policy()``, or the push heuristic for pushing tasks."""
+    if hasattr(env, "scripted_policy"):
+        return env.scripted_policy()
+    from magwarp.envs.push import PushEnv
+
+    if isinstance(env, PushEnv):
+        from magwarp.policies.push import PushHeuristic
+
+        return PushHeuristic(env)
+    raise EvalError(f"no scripted policy for {type(env).__name__}")
+
+
+def load_policy(spec: str, env) -> Callable:
+    """``scripted``, a TorchScript / ``torch.save``d module file, or ``module:callable`` (a class is instantiated
+    with the env; a function is the policy ``fn(obs) -> actions``)."""
+    if spec == "scripted":
+        return scripted_policy(env)
+    if os.path.isfile(spec):
+        try:
+            module = torch.jit.load(spec, map_location=env.device)
+        except (RuntimeError, ValueError):
+            try:
+                module = torch.load(spec, map_location=env.device, weights_only=False)
+            except Exception as e:  # noqa: BLE001 - any unreadable file is the user's input problem
+                raise EvalError(f"policy file {spec!r} is neither TorchScript nor a torch.save'd module ({e})") from None
+        if not callable(module):
+            raise EvalError(f"policy file {spec!r} holds a {type(module).__name__}, not a callable module")
+        return ModulePolicy(module, env)
+    if ":" in spec:
+        mod_name, _, attr = spec.partition(":")
+        try:
+            obj = getattr(importlib.import_module(mod_name), attr)
+        except ImportError as e:
+            raise EvalError(f"cannot import policy module {mod_name!r}: {e}") from None
+        except AttributeError:
+            raise EvalError(f"module {mod_name!r} has no attribute {attr!r}") from None
+        if isinstance(obj, type):
+            obj = obj(env)
+        if not callable(obj):
+            raise EvalError(f"policy {spec!r} is not callable")
+        return obj
+    raise EvalError(f"policy {spec!r} is not 'scripted', an existing file, or module:callable")
+
+
+# ---------------------------------------------------------------------------------------------------------- running
+def _family(env) -> str:
+    from magwarp.envs.push import PushEnv
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    if isinstance(env, TrajectoryPlanningEnv):
+        return "trajectory"
+    if isinstance(env, PushEnv):
+        return "push"
+    raise EvalError(f"magwarp eval supports trajectory planning and pushing envs, not {type(env).__name__}")
+
+
+def _check_device(device: str | None) -> str:
+    from magwarp.sim import default_device
+
+    if device is None:
+        return default_device()
+    import warp as wp
+
+    wp.init()
+    if device != "cpu" and not (device.startswith("cuda") and device in {str(d) for d in wp.get_cuda_devices()}
+                                or device == "cuda" and wp.is_cuda_available()):
+        raise EvalError(f"device {device!r} is not available here (choose cpu{' or cuda:N' if wp.is_cuda_available() else ''})")
+    return "cuda:0" if device == "cuda" else device
+
+
+def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats: int = 10, *, device: str | None = None,
+             steps: int | None = None, makespan_goals: int = 5, max_worlds: int | None = None, seed: int = 0,
+             progress: bool | None = None, env_kwargs: dict | None = None) -> EvalResult:
+    """Evaluate ``policy`` on ``env_id``; see the module docstring. ``steps``: env steps per world (trajectory
+    planning, default 250 = 10 s; pushing: the episode length). ``max_worlds``: worlds simulated at once (default
+    65536 on a GPU, 2048 on the CPU)."""
+    import gymnasium as gym
+    from tqdm import tqdm
+
+    from magwarp.metrics import Metrics
+
+    for name, value in (("episodes", episodes), ("repeats", repeats), ("makespan_goals", makespan_goals)):
+        if int(value) != value or value < 1:
+            raise EvalError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
+    if steps is not None and (int(steps) != steps or steps < 1):
+        raise EvalError(f"--steps must be a positive integer, got {steps!r}")
+    env_id = resolve_env_id(env_id)
+    device = _check_device(device)
+    max_worlds = max_worlds or (65536 if device.startswith("cuda") else 2048)
+    per_batch = max(1, min(repeats, max_worlds // episodes))
+    num_batches = math.ceil(repeats / per_batch)
+    worlds = per_batch * episodes
+
+    family_kwargs = dict(env_kwargs or {})
+    env = gym.make_vec(env_id, num_envs=worlds, device=device, check_inputs=False, seed=seed, **family_kwargs)
+    env = env.unwrapped if hasattr(env, "unwrapped") else env
+    family = _family(env)
+    if family == "push":
+        env.autoreset = False  # one episode per world; a finished world is frozen by the metrics
+        num_steps = int(steps or env.max_episode_steps)
+        metrics = Metrics(env)
+    else:
+        num_steps = int(steps or 250)
+        metrics = Metrics(env, makespan_goals=makespan_goals)
+    act = load_policy(policy, env)
+
+    values: dict[str, list[float]] = {}
+    process: list[float] = []
+    total = num_batches * num_steps
+    bar = tqdm(total=total, desc=f"eval {env_id}", unit="step", leave=False,
+               disable=(total < 100) if progress is None else not progress)
+    start_all = time.perf_counter()
+    with torch.no_grad():
+        for batch in range(num_batches):
+            obs, _ = env.reset(seed=seed + batch)
+            metrics.reset()
+            _sync(device)
+            start = time.perf_counter()
+            for _ in range(num_steps):
+                obs, _, terminated, truncated, _ = env.step(act(obs))
+                if family == "push":
+                    metrics.freeze(terminated | truncated)
+                bar.update(1)
+            if family == "push":  # episodes cut short by --steps still count, as unfinished (not successful)
+                still = metrics.t["active"].bool()
+                metrics.t["episodes"] += still
+                metrics.freeze(still)
+            summary = {k: v.cpu().numpy() for k, v in metrics.summary(per_batch).items()}  # one sync per batch
+            wall = time.perf_counter() - start
+            keep = min(per_batch, repeats - batch * per_batch)
+            for k, v in summary.items():
+                values.setdefault(k, []).extend(float(x) for x in v[:keep])
+            units = summary["goals_reached"].sum() if family == "trajectory" else summary["episodes"].sum()
+            process.append(1000.0 * wall / max(float(units), 1.0))
+    bar.close()
+    wall_all = time.perf_counter() - start_all
+    rows = _rows(type(metrics).ROWS, values, env.num_movers)
+    unit = "goal" if family == "trajectory" else "episode"
+    count = values["goals_reached" if family == "trajectory" else "episodes"]
+    rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
+                    float(np.mean(process)), float(np.std(process)), process))
+    return EvalResult(env_id, policy, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize(torch.device(device))
+
+
+def _rows(spec, values: dict[str, list[float]], num_movers: int) -> list[Row]:
+    rows = []
+    for key, label, count_key in spec:
+        v = np.asarray(values[key], dtype=np.float64)
+        n = float(np.mean(values[count_key]))
+        if key.startswith("mover_mover") and num_movers < 2:
+            rows.append(Row(key, label, n, float("nan"), float("nan"), []))  # shown as '---', as in the paper
+            continue
+        finite = v[np.isfinite(v)]
+        mean = float(finite.mean()) if finite.size else float("nan")
+        std = float(finite.std()) if finite.size else float("nan")
+        rows.append(Row(key, label, n, mean, std, [float(x) for x in v]))
+    return rows
+
+
+def _fmt(x: float) -> str:
+    if not math.isfinite(x):
+        return "---"
+    if x == 0:
+        return "0"
+    if abs(x) >= 1000:
+        return f"{x:.2f}"
+    digits = max(2, 4 - int(math.floor(math.log10(abs(x)))) - 1)
+    return f"{x:.{min(digits, 6)}f}"
+
+
+def format_table(result: EvalResult) -> str:
+    """The paper's table: metric, n (mean count per repeat), mean ± std over repeats."""
+    header = (f"{result.env_id}  policy={result.policy}  {result.repeats} repeats x {result.episodes} "
+              f"{'episodes' if result.family == 'push' else f'worlds x {result.steps_per_world} steps'}  "
+              f"device={result.device}  ({result.wall_s:.1f} s)")
+    lines = [header]
+    w = max(len(r.label) for r in result.rows)
+    lines.append(f"| {'Metric'.ljust(w)} | {'n':>8} | {'mean ± std':<24} |")
+    lines.append(f"|{'-' * (w + 2)}|{'-' * 10}|{'-' * 26}|")
+    for r in result.rows:
+        n = f"{r.n:.0f}" if abs(r.n - round(r.n)) < 1e-9 else f"{r.n:.1f}"
+        cell = "---" if not math.isfinite(r.mean) else f"{_fmt(r.mean)} ± {_fmt(r.std)}"
+        lines.append(f"| {r.label.ljust(w)} | {n:>8} | {cell:<24} |")
+    return "\n".join(lines)
