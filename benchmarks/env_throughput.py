@@ -93,50 +93,49 @@ def raw_mujoco_warp_ms(backend, steps: int, device) -> float:
 
 
 def adapter_rows(env_id: str, num_envs: int, device: str, steps: int) -> list[dict]:
-    """The same workload through each adapter that is importable (numpy adapters pay their host copies)."""
+    """The same workload through each adapter that is importable (the numpy SB3 adapter pays its host copies)."""
+    import gymnasium as gym
+
     rows = []
+
+    def make():
+        return gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False)
+
     try:
-        from magwarp.envs.adapters.sb3 import MagwarpSB3VecEnv
-    except Exception:  # noqa: BLE001 - adapter or SB3 missing
-        MagwarpSB3VecEnv = None
-    if MagwarpSB3VecEnv is not None:
-        try:
-            import gymnasium as gym
+        from magwarp.envs.adapters.sb3 import SB3VecEnv
 
-            venv = MagwarpSB3VecEnv(gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False))
-            venv.reset()
-            acts = np.random.default_rng(0).uniform(-10, 10, (8, num_envs, *venv.action_space.shape)).astype(np.float32)
+        venv = SB3VecEnv(make())
+        venv.reset()
+        rng = np.random.default_rng(0)
+        acts = rng.uniform(venv.action_space.low, venv.action_space.high,
+                           (8, num_envs, *venv.action_space.shape)).astype(np.float32)
 
-            def step(a):
-                venv.step_async(a)
-                venv.step_wait()
+        def sb3_step(a):
+            venv.step_async(a)
+            venv.step_wait()
 
-            res = time_steps(step, acts, steps, device)
-            rows.append({"adapter": "sb3 VecEnv (numpy)", **res, "env_steps_per_s": num_envs / (res["step_ms"] / 1e3)})
-        except Exception as e:  # noqa: BLE001
-            print(f"sb3 adapter skipped: {e}", file=sys.stderr)
+        res = time_steps(sb3_step, acts, steps, device)
+        rows.append({"adapter": "sb3 VecEnv (numpy)", **res, "env_steps_per_s": num_envs / (res["step_ms"] / 1e3)})
+    except ImportError as e:
+        print(f"sb3 adapter skipped: {e}", file=sys.stderr)
     try:
-        from magwarp.envs.adapters.torchrl import MagwarpTorchRLEnv
-    except Exception:  # noqa: BLE001
-        MagwarpTorchRLEnv = None
-    if MagwarpTorchRLEnv is not None:
-        try:
-            import gymnasium as gym
+        from magwarp.envs.adapters.torchrl import TorchRLEnv
 
-            tenv = MagwarpTorchRLEnv(gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False))
+        for multi in (False, True):
+            tenv = TorchRLEnv(make(), multi_agent=multi)
             td = tenv.reset()
-            spec = tenv.action_spec
-            acts = torch.stack([spec.rand() for _ in range(8)])
+            acts = [tenv.full_action_spec.rand() for _ in range(8)]
 
-            def step(a):
+            def trl_step(a):
                 nonlocal td
-                td.set("action", a)
+                td.update(a)
                 td = tenv.step_and_maybe_reset(td)[1]
 
-            res = time_steps(step, acts, steps, device)
-            rows.append({"adapter": "torchrl EnvBase", **res, "env_steps_per_s": num_envs / (res["step_ms"] / 1e3)})
-        except Exception as e:  # noqa: BLE001
-            print(f"torchrl adapter skipped: {e}", file=sys.stderr)
+            res = time_steps(trl_step, acts, steps, device)
+            name = "torchrl EnvBase" + (" (multi-agent)" if multi else "")
+            rows.append({"adapter": name, **res, "env_steps_per_s": num_envs / (res["step_ms"] / 1e3)})
+    except ImportError as e:
+        print(f"torchrl adapter skipped: {e}", file=sys.stderr)
     return rows
 
 
