@@ -18,8 +18,8 @@ if [ "${1:-}" = "perf" ]; then
 fi
 log "GPU tests (CPU/GPU agreement, env on cuda)"
 timeout 300 python3 -X faulthandler -m pytest -v -p no:cacheprovider tests/test_sim.py tests/test_kernels_collision.py \
-  tests/test_kernels_dynamics.py tests/test_sim_errors.py tests/test_env_trajectory.py tests/test_physics.py \
-  tests/test_push_envs.py > "$OUT/pytest_gpu.log" 2>&1
+  tests/test_kernels_dynamics.py tests/test_kernels_impedance.py tests/test_sim_errors.py tests/test_sim_pairs.py \
+  tests/test_env_trajectory.py tests/test_physics.py tests/test_push_envs.py tests/test_render.py > "$OUT/pytest_gpu.log" 2>&1
 grep -E "PASS|FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_gpu.log" | grep -v PASSED | tail -25
 if [ "${1:-}" = "quick" ]; then
   python3 benchmarks/scaling.py --device cuda:0 --no-magbotsim --steps 50 --max-movers 1000 --json "$OUT/scaling_gpu.json"
