@@ -1,0 +1,274 @@
+"""Training helpers: env construction, flattened and normalised observations, success tracking, logging, checkpoints.
+
+Everything that touches per-step data stays on the env's device (no host sync inside a rollout); the host reads
+the accumulated statistics only when a log line is written.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import random
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+__all__ = ["OBS_KEYS", "make_env", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
+           "plot_curve", "save_checkpoint", "load_checkpoint", "seed_everything", "parse_env_kwargs", "Timer"]
+
+#: order in which a goal-dict observation is flattened (the exported policy's input layout)
+OBS_KEYS = ("observation", "achieved_goal", "desired_goal")
+
+
+def seed_everything(seed: int, deterministic: bool = False) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+    if deterministic:
+        torch.use_deterministic_algorithms(True, warn_only=True)
+
+
+def parse_env_kwargs(text: str | None) -> dict[str, Any]:
+    """``--env-kwargs`` JSON (e.g. ``'{"layout": [[1,1],[1,1]], "num_movers": 1}'``) -> dict (lists of lists
+    named ``layout`` become numpy arrays)."""
+    if not text:
+        return {}
+    try:
+        kwargs = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"--env-kwargs must be a JSON object, got {text!r}: {e}") from None
+    if not isinstance(kwargs, dict):
+        raise ValueError(f"--env-kwargs must be a JSON object, got {text!r}")
+    if isinstance(kwargs.get("layout"), list):
+        kwargs["layout"] = np.asarray(kwargs["layout"], dtype=np.int32)
+    return kwargs
+
+
+def make_env(env_id: str, num_envs: int, device: str, seed: int, env_kwargs: dict[str, Any] | None = None):
+    """A batched magwarp env (``gymnasium.make_vec``), its unwrapped base, and the flattened observation size."""
+    import gymnasium as gym
+    import warp as wp
+
+    import magwarp  # noqa: F401 - registers the env ids
+
+    wp.config.quiet = True
+    if env_id not in gym.registry:
+        known = sorted(k for k in gym.registry if k.startswith("magwarp/"))
+        raise ValueError(f"unknown env id {env_id!r}; magwarp ids look like {known[:4]} ...")
+    env = gym.make_vec(env_id, num_envs=int(num_envs), device=device, seed=int(seed), check_inputs=False,
+                       **(env_kwargs or {}))
+    base = getattr(env, "unwrapped", env)
+    return env, base
+
+
+def flatten_obs(obs) -> torch.Tensor:
+    """A goal-dict observation -> ``[..., obs + achieved + desired]`` (a tensor passes through)."""
+    if isinstance(obs, dict):
+        return torch.cat([obs[k] for k in OBS_KEYS], dim=-1)
+    return obs
+
+
+def obs_dim(space) -> int:
+    import gymnasium as gym
+
+    if isinstance(space, gym.spaces.Dict):
+        return int(sum(int(np.prod(space[k].shape)) for k in OBS_KEYS))
+    return int(np.prod(space.shape))
+
+
+class RunningMeanStd(torch.nn.Module):
+    """Running mean/variance of a batch stream (parallel Welford), on the device; ``normalize`` clips to ±clip."""
+
+    def __init__(self, shape: int, device, clip: float = 10.0, eps: float = 1e-4):
+        super().__init__()
+        self.register_buffer("mean", torch.zeros(shape, device=device, dtype=torch.float64))
+        self.register_buffer("var", torch.ones(shape, device=device, dtype=torch.float64))
+        self.register_buffer("count", torch.full((), eps, device=device, dtype=torch.float64))
+        self.clip = float(clip)
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        x = x.reshape(-1, x.shape[-1]).to(torch.float64)
+        b_mean, b_var, b_count = x.mean(0), x.var(0, unbiased=False), x.shape[0]
+        delta = b_mean - self.mean
+        tot = self.count + b_count
+        self.mean += delta * b_count / tot
+        m2 = self.var * self.count + b_var * b_count + delta.square() * self.count * b_count / tot
+        self.var.copy_(m2 / tot)
+        self.count.copy_(tot)
+
+    def normalize(self, x: torch.Tensor) -> torch.Tensor:
+        std = torch.sqrt(self.var + 1e-8).to(x.dtype)
+        return ((x - self.mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
+
+
+class SuccessTracker:
+    """Device-side success, return and episode-length counters since the last :meth:`pop`.
+
+    Success rate: for envs that report ``info["is_success"]`` (pushing), the fraction of finished episodes that end
+    in success; for trajectory planning (``info["goals_reached"]``), goals reached / (goals reached + goals lost),
+    where every mover's pending goal is lost when an episode ends (collision or timeout): the benchmark's rule.
+    """
+
+    def __init__(self, num_envs: int, device):
+        self.device = torch.device(device)
+        self.ep_return = torch.zeros(num_envs, device=device)
+        self.ep_len = torch.zeros(num_envs, device=device)
+        self._zero()
+
+    def _zero(self):
+        z = lambda: torch.zeros((), device=self.device, dtype=torch.float64)  # noqa: E731
+        self.s = {k: z() for k in ("episodes", "return", "length", "success", "trials", "collisions")}
+
+    @torch.no_grad()
+    def update(self, reward: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor, info: dict) -> None:
+        done = terminated | truncated
+        self.ep_return += reward
+        self.ep_len += 1
+        s = self.s
+        s["episodes"] += done.sum()
+        s["return"] += (self.ep_return * done).sum()
+        s["length"] += (self.ep_len * done).sum()
+        coll = torch.zeros_like(done)
+        for k, v in info.items():
+            if k.endswith("collision") and isinstance(v, torch.Tensor) and v.shape == done.shape:
+                coll = coll | v.bool()
+        s["collisions"] += coll.sum()
+        if "is_success" in info:
+            s["success"] += (info["is_success"] & done).sum()
+            s["trials"] += done.sum()
+        elif "goals_reached" in info:
+            reached = info["goals_reached"]
+            s["success"] += reached.sum()
+            s["trials"] += reached.sum() + done.sum() * reached.shape[-1]
+        self.ep_return.masked_fill_(done, 0.0)
+        self.ep_len.masked_fill_(done, 0.0)
+
+    def pop(self) -> dict[str, float]:
+        """Host values since the last pop (one sync): success_rate, episodes, mean return/length, collisions."""
+        v = {k: float(t) for k, t in self.s.items()}
+        self._zero()
+        eps = max(v["episodes"], 1.0)
+        return {
+            "success_rate": v["success"] / v["trials"] if v["trials"] > 0 else float("nan"),
+            "episodes": v["episodes"],
+            "ep_return": v["return"] / eps if v["episodes"] else float("nan"),
+            "ep_length": v["length"] / eps if v["episodes"] else float("nan"),
+            "collisions_per_episode": v["collisions"] / eps if v["episodes"] else float("nan"),
+        }
+
+
+class CsvLogger:
+    """Appends rows to ``OUT/progress.csv`` (and TensorBoard scalars to ``OUT/tb`` when asked and installed)."""
+
+    def __init__(self, out: str, tensorboard: bool = False, resume: bool = False):
+        os.makedirs(out, exist_ok=True)
+        self.path = os.path.join(out, "progress.csv")
+        self.fields: list[str] | None = None
+        if resume and os.path.exists(self.path):
+            with open(self.path, newline="") as f:
+                header = next(csv.reader(f), None)
+            self.fields = header
+        elif os.path.exists(self.path):
+            os.remove(self.path)
+        self.tb = None
+        if tensorboard:
+            try:
+                from torch.utils.tensorboard import SummaryWriter
+
+                self.tb = SummaryWriter(os.path.join(out, "tb"))
+            except ImportError:
+                print("tensorboard is not installed: logging to CSV only")
+
+    def log(self, row: dict[str, float]) -> None:
+        if self.fields is None:
+            self.fields = list(row)
+            with open(self.path, "w", newline="") as f:
+                csv.writer(f).writerow(self.fields)
+        with open(self.path, "a", newline="") as f:
+            csv.writer(f).writerow([row.get(k, "") for k in self.fields])
+        if self.tb is not None:
+            step = int(row.get("global_step", 0))
+            for k, v in row.items():
+                if k != "global_step" and isinstance(v, (int, float)):
+                    self.tb.add_scalar(k, v, step)
+
+    def close(self) -> None:
+        if self.tb is not None:
+            self.tb.close()
+
+
+def plot_curve(csv_path: str, png_path: str, title: str = "") -> None:
+    """Success rate and episode return against env steps and wall-clock minutes, from a progress CSV."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(csv_path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return
+
+    def col(name):
+        return np.array([float(r[name]) if r.get(name) not in (None, "") else np.nan for r in rows])
+
+    steps, minutes = col("global_step"), col("wall_s") / 60.0
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    marker = "o" if len(rows) < 3 else None
+    axes[0].plot(steps, 100 * col("success_rate"), color="tab:green", marker=marker)
+    axes[0].set_xlabel("env steps")
+    axes[0].set_ylabel("success rate (%)")
+    axes[0].set_ylim(-2, 102)
+    axes[0].grid(alpha=0.3)
+    if len(rows) > 1 and steps[-1] > steps[0] and minutes[-1] > minutes[0]:
+        top = axes[0].secondary_xaxis("top", functions=(lambda s: np.interp(s, steps, minutes),
+                                                        lambda m: np.interp(m, minutes, steps)))
+        top.set_xlabel("wall-clock (min)")
+    axes[1].plot(steps, col("ep_return"), color="tab:blue", marker=marker)
+    axes[1].set_xlabel("env steps")
+    axes[1].set_ylabel("episode return")
+    axes[1].grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=100)
+    plt.close(fig)
+
+
+def save_checkpoint(path: str, state: dict[str, Any]) -> None:
+    """Atomic ``torch.save`` (a crash while writing never leaves a broken checkpoint)."""
+    tmp = f"{path}.tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str, device) -> dict[str, Any]:
+    if os.path.isdir(path):
+        path = os.path.join(path, "checkpoint.pt")
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no checkpoint at {path!r}")
+    return torch.load(path, map_location=device, weights_only=False)
+
+
+class Timer:
+    """Wall-clock budget: ``expired`` after ``minutes`` (None: never)."""
+
+    def __init__(self, minutes: float | None, already: float = 0.0):
+        self.start = time.perf_counter()
+        self.limit = None if minutes is None else 60.0 * float(minutes)
+        self.already = already  # wall seconds of earlier sessions (resume), for the log only
+
+    @property
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.start
+
+    @property
+    def total(self) -> float:
+        return self.already + self.elapsed
+
+    @property
+    def expired(self) -> bool:
+        return self.limit is not None and self.elapsed >= self.limit
