@@ -92,7 +92,8 @@ def test_each_backend_in_a_fresh_process(backend, lib):
         import mujoco
         from magwarp.render.mujoco3d import MujocoSceneRenderer, gl_backend
         print("backend", gl_backend())
-        m = mujoco.MjModel.from_xml_string(generate_mjcf(Layout(np.ones((3, 3), int)), 1, objects=[ObjectSpec("t_shape")]))
+        xml = generate_mjcf(Layout(np.ones((3, 3), int)), 1, objects=[ObjectSpec("t_shape")])
+        m = mujoco.MjModel.from_xml_string(xml)
         r = MujocoSceneRenderer(m, 96, 64)
         img = r.draw(m.qpos0)
         assert img.shape == (64, 96, 3) and img.dtype == np.uint8 and img.std() > 5, (img.shape, img.std())

@@ -173,7 +173,8 @@ def test_cli_render_and_view_push_env(capsys, tmp_path):
     from magwarp import cli
 
     gif, png = str(tmp_path / "push.gif"), str(tmp_path / "push.png")
-    rc = cli.main(["render", "magwarp/PushT-v0", "--worlds", "2", "--steps", "3", "--device", "cpu", "-o", gif, "-o", png])
+    rc = cli.main(["render", "magwarp/PushT-v0", "--worlds", "2", "--steps", "3", "--device", "cpu",
+                   "-o", gif, "-o", png])
     out, err = capsys.readouterr()
     assert rc == 0, err
     frames = iio.imread(gif)

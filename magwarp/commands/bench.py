@@ -41,19 +41,23 @@ NO_MAGBOTSIM = {"scaling": ["--no-magbotsim"], "env": ["--no-magbotsim"], "rende
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    p = subparsers.add_parser("bench", help=HELP, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = subparsers.add_parser("bench", help=HELP, description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("kind", nargs="?", default="all", choices=KINDS + ("all",),
                    help="which benchmark (default: all three)")
-    p.add_argument("--device", default=None, help="cpu or cuda:N (default: the script's: cpu, plus cuda:0 when present)")
+    p.add_argument("--device", default=None,
+                   help="cpu or cuda:N (default: the script's: cpu, plus cuda:0 when present)")
     p.add_argument("--steps", type=int, default=None,
                    help="timed steps per configuration (render: frames per repeat)")
-    p.add_argument("--full", action="store_true", help="the scripts' own defaults (paper-sized; long) instead of small ones")
+    p.add_argument("--full", action="store_true",
+                   help="the scripts' own defaults (paper-sized; long) instead of small ones")
     p.add_argument("--magbotsim", action="store_true",
                    help="also time MagBotSim in the same run (scaling, env; needs `pip install magbotsim`; slow)")
     p.add_argument("--plot", nargs="?", const=".", default=None, metavar="PATH",
                    help="write PNG plots: a .png file (one kind) or a folder for bench_<kind>.png (default: .)")
     p.add_argument("--json", nargs="?", const=".", default=None, metavar="PATH",
-                   help="write the rows as JSON: a .json file (one kind) or a folder for bench_<kind>.json (default: .)")
+                   help="write the rows as JSON: a .json file (one kind) or a folder for bench_<kind>.json "
+                        "(default: .)")
     p.set_defaults(script_args=[])
     p.usage = f"{p.prog} [{{{','.join(KINDS + ('all',))}}}] [options] [-- SCRIPT_OPTIONS]"
     _split_at_double_dash(p)

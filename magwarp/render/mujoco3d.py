@@ -120,7 +120,8 @@ class MujocoSceneRenderer:
         self._rect = mujoco.MjrRect(0, 0, self.width, self.height)
         self._rgb = np.empty((self.height, self.width, 3), dtype=np.uint8)
 
-    def draw(self, qpos, mocap_pos=None, mocap_quat=None, *, extra_boxes=(), geom_rgba: dict | None = None) -> np.ndarray:
+    def draw(self, qpos, mocap_pos=None, mocap_quat=None, *, extra_boxes=(),
+             geom_rgba: dict | None = None) -> np.ndarray:
         """Render the model at ``qpos`` (host array ``[nq]``). ``extra_boxes``: ``(pos, yaw, size, rgba, kind)``
         with ``kind`` ``"box"`` (``size`` = half sizes) or ``"cylinder"`` (radius, half height); ``geom_rgba``:
         geom id -> rgba overrides for this frame."""
