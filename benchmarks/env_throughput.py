@@ -149,7 +149,8 @@ def plot(rows: list[dict], path: str) -> None:
     series: dict[str, list] = {}
     for r in rows:
         if r.get("adapter") in (None, "raw") and not r.get("check_inputs"):
-            series.setdefault(f"{r['engine']} {r['env']} ({r['device']})", []).append((r["num_envs"], r["env_steps_per_s"]))
+            name = f"MagBotSim {r['magbotsim_env']}" if r["engine"] == "magbotsim" else f"magwarp {r['env']}"
+            series.setdefault(f"{name} ({r['device']})", []).append((r["num_envs"], r["env_steps_per_s"]))
     for name, pts in sorted(series.items()):
         pts.sort()
         x, y = zip(*pts)
@@ -216,7 +217,8 @@ def main(argv=None) -> int:
             for env_id in args.envs.split(","):
                 if env_id in mapping:
                     res = ref.env_steps_per_s(mapping[env_id], steps=args.magbotsim_steps)
-                    rows.append({"engine": "magbotsim", "env": env_id, "device": "cpu", "num_envs": 1, "adapter": "raw",
+                    rows.append({"engine": "magbotsim", "env": env_id, "magbotsim_env": mapping[env_id], "device": "cpu",
+                                 "num_envs": 1, "adapter": "raw",
                                  "step_ms": res["step_ms_mean"], "env_steps_per_s": res["steps_per_s"]})
     print_table(rows, ["engine", "env", "device", "num_envs", "adapter", "check_inputs", ("step_ms", "ms/step"),
                        ("sim_ms", "physics ms"), ("raw_mjw_ms", "raw mjw ms"), ("x_raw_mjw", "x raw mjw"),
