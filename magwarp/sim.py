@@ -450,8 +450,7 @@ class Simulator:
     def _launch_step(self, n: int) -> None:
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
-        wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
-        if self._fused:
+        if self._fused:  # the fused kernels clear their per-step accumulators themselves
             wp.launch(
                 self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
                 inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd,
@@ -460,6 +459,7 @@ class Simulator:
                         s.pair_list],
             )
             return
+        wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
         for _ in range(n):
             self._launch_cycle()
             for hook in self._hooks:

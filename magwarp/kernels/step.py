@@ -147,6 +147,11 @@ def make_advance_kernel(force_fn=default_force):
     ):
         w = wp.tid()
         num_movers = pos.shape[1]
+        # The per-step accumulators start here (no separate begin_step launch for fused steps).
+        halted[w] = 0
+        cycles[w] = 0
+        for m in range(num_movers):
+            flags_any[w, m] = 0
         for _c in range(num_cycles):
             if col.stop_on_collision == 1 and halted[w] == 1:
                 break
@@ -263,11 +268,11 @@ def make_register_kernel(force_fn, num_movers: int):
             A[m] = acc[w, m]
             Wl[m] = wall[w, m]
             F[m] = flags[w, m]
-            Fa[m] = flags_any[w, m]
+            Fa[m] = 0  # per-step accumulators start here: fused steps need no begin_step launch
             Pr[m] = partner[w, m]
         pairs = world_pairs[w]
         walls = world_walls[w]
-        stopped = halted[w]
+        stopped = int(0)
         done = int(0)
         for _c in range(num_cycles):
             if col.stop_on_collision == 1 and stopped == 1:
@@ -333,7 +338,7 @@ def make_register_kernel(force_fn, num_movers: int):
         world_pairs[w] = pairs
         world_walls[w] = walls
         halted[w] = stopped
-        cycles[w] = cycles[w] + done
+        cycles[w] = done
 
     return fused_registers
 
