@@ -4,7 +4,6 @@ file contract of :mod:`magwarp.training.policy` (TorchScript, dict or flat obser
 from __future__ import annotations
 
 import importlib.util
-import os
 from pathlib import Path
 
 import pytest
@@ -97,7 +96,6 @@ def test_budget_is_required(tmp_path):
         ppo.resolve_args(args)
 
 
-@pytest.mark.skipif(not os.environ.get("MAGWARP_SLOW_TESTS"), reason="set MAGWARP_SLOW_TESTS=1")
 def test_ppo_is_deterministic(tmp_path):
     ppo = _example("train_ppo")
     ppo.train(_ppo_args(tmp_path / "a", "--total-steps", "2048"))
@@ -105,3 +103,56 @@ def test_ppo_is_deterministic(tmp_path):
     a = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=False)["agent"]
     b = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=False)["agent"]
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_her_buffer_future_goals_stay_in_their_episode():
+    """Relabelled goals come from the same env and episode, at or after the sampled step (ring wrap-around too)."""
+    sac = _example("train_sac_her")
+    T, N, steps = 16, 3, 40
+    dims = {k: 2 for k in ("observation", "achieved_goal", "desired_goal")}
+    dims.update({"next_" + k: 2 for k in list(dims)}, action=1)
+    buf = sac.HerReplayBuffer(T, N, dims, ["mover_collision"], "cpu")
+    gen = torch.Generator().manual_seed(0)
+    episode = torch.zeros(N, dtype=torch.int64)
+    for g in range(steps):
+        done = torch.rand(N, generator=gen) < 0.2
+        # achieved goal after step g encodes (episode, step): episode ids differ per env, so are the envs' goals
+        ag = torch.stack([(episode * 10 + torch.arange(N)).float(), torch.full((N,), float(g))], -1)
+        obs = {"observation": torch.zeros(N, 2), "achieved_goal": ag, "desired_goal": torch.zeros(N, 2)}
+        nxt = {"observation": torch.zeros(N, 2), "achieved_goal": ag, "desired_goal": torch.zeros(N, 2)}
+        buf.add(obs, torch.zeros(N, 1), torch.zeros(N), nxt, torch.zeros(N, dtype=torch.bool), done,
+                {"mover_collision": torch.zeros(N, dtype=torch.bool)})
+        episode += done.long()
+    calls = []
+
+    def compute_reward(achieved, desired, info):
+        calls.append(info)
+        return (achieved == desired).all(-1).float()
+
+    out = buf.sample(4096, 1.0, compute_reward)
+    goal, ach = out["desired_goal"], out["next_achieved_goal"]
+    assert torch.equal(goal[:, 0], ach[:, 0]), "relabelled goal from another env or episode"
+    assert bool((goal[:, 1] >= ach[:, 1]).all()), "relabelled goal from an earlier step"
+    assert bool((goal[:, 1] >= steps - T).all()) and bool((goal[:, 1] <= steps - 1).all())
+    assert bool((goal[:, 1] > ach[:, 1]).any()), "future strategy never looked ahead"
+    assert set(calls[0]) == {"mover_collision"}
+    assert torch.equal(out["reward"], (ach == goal).all(-1).float())
+
+
+def test_sac_her_runs_resumes_and_saves(tmp_path):
+    sac = _example("train_sac_her")
+    common = ["--env-id", TINY_ENV, "--env-kwargs", TINY_KWARGS, "--device", "cpu", "--seed", "0", "--num-envs", "16",
+              "--batch-size", "128", "--hidden", "32,32", "--learning-starts", "4", "--buffer-steps", "64",
+              "--no-progress", "--log-every", "1000"]
+    summary = sac.train(sac.parse_args([*common, "--out", str(tmp_path), "--total-steps", "320"]))
+    assert summary["global_step"] == 320
+    for name in ("policy.pt", "checkpoint.pt", "progress.csv", "curve.png"):
+        assert (tmp_path / name).is_file(), name
+    summary = sac.train(sac.parse_args(["--resume", str(tmp_path), "--total-steps", "480", "--no-progress"]))
+    assert summary["global_step"] == 480
+    policy = torch.jit.load(str(tmp_path / "policy.pt"), map_location="cpu")
+    obs = {"observation": torch.zeros(4, 2), "achieved_goal": torch.rand(4, 2), "desired_goal": torch.rand(4, 2)}
+    a = policy(obs)
+    assert a.shape == (4, 2) and float(a.abs().max()) <= 10.0
+    ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert ckpt["algo"] == "sac-her" and ckpt["updates"] > 0
