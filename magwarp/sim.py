@@ -244,6 +244,9 @@ class Simulator:
             cycles=z(wp.int32, self.num_worlds), force_aux=z(float, (*shape, int(aux_dim))),
             pair_list=z(wp.vec2i, (self.num_worlds, self.max_pairs)),
         )
+        # Placeholders the integration kernel takes when there is no grid (worlds of up to 32 movers).
+        self._no_cells = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._no_next = wp.zeros((1, 1), dtype=wp.int32, device=dev)
         if self.num_movers > 32:
             g = self.model.grid
             self._cell_head = wp.zeros(self.num_worlds * g.ncx * g.ncy, dtype=wp.int32, device=dev)
@@ -466,30 +469,45 @@ class Simulator:
                 hook(self)
 
     def _launch_cycle(self) -> None:
+        """One cycle on the per-cycle path: integrate (+ bin into the grid), then detect. Two or three launches."""
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
+        use_grid = M > 32
+        if use_grid:
+            wp.launch(kcol.clear_cells, dim=max(self._cell_head.shape[0], W), device=dev,
+                      inputs=[self._cell_head, s.world_pairs, s.world_walls])
+        head, nxt = (self._cell_head, self._next_in_cell) if use_grid else (self._no_cells, self._no_next)
         wp.launch(
             self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
             inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, s.target_pos,
-                    s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall, s.cycles],
+                    s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall, s.cycles,
+                    m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
         )
-        self._detect_pairs()
+        self._launch_narrow_phase()
 
-    def _detect_pairs(self) -> None:
-        """Mover-mover check and flag/counter outputs from the current poses and wall flags."""
+    def _launch_narrow_phase(self) -> None:
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
         outputs = [s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.pair_list]
         if M <= 32:
-            wp.launch(kcol.clear_world_counters, dim=W, inputs=[s.world_pairs, s.world_walls], device=dev)
             wp.launch(kcol.detect_collisions_brute, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
                       inputs=[m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall, *outputs])
             return
-        wp.launch(kcol.clear_cells, dim=max(self._cell_head.shape[0], W), device=dev,
-                  inputs=[self._cell_head, s.world_pairs, s.world_walls])
-        wp.launch(kcol.bin_movers, dim=(W, M), inputs=[m.grid, s.pos, self._cell_head, self._next_in_cell], device=dev)
         wp.launch(
             kcol.detect_collisions_grid, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
             inputs=[m.collision, m.grid, m.radius, m.half_size, s.pos, s.quat, s.wall, self._cell_head,
                     self._next_in_cell, *outputs],
         )
+
+    def _detect_pairs(self) -> None:
+        """Mover-mover check and flag/counter outputs from the current poses and wall flags."""
+        m, s, dev = self.model, self.state, self.device
+        W, M = self.num_worlds, self.num_movers
+        if M <= 32:
+            wp.launch(kcol.clear_world_counters, dim=W, inputs=[s.world_pairs, s.world_walls], device=dev)
+        else:
+            wp.launch(kcol.clear_cells, dim=max(self._cell_head.shape[0], W), device=dev,
+                      inputs=[self._cell_head, s.world_pairs, s.world_walls])
+            wp.launch(kcol.bin_movers, dim=(W, M), inputs=[m.grid, s.pos, self._cell_head, self._next_in_cell],
+                      device=dev)
+        self._launch_narrow_phase()

@@ -149,6 +149,15 @@ def clear_cells(head: wp.array(dtype=wp.int32), world_pairs: wp.array(dtype=wp.i
         world_walls[i] = 0
 
 
+@wp.func
+def push_to_cell(w: int, m: int, grid: Grid, pos: wp.array2d(dtype=wp.vec3), head: wp.array(dtype=wp.int32),
+                 next_in_cell: wp.array2d(dtype=wp.int32)):
+    """Push mover ``m`` onto its cell's linked list (lists hold mover indices within the world)."""
+    c = cell_coords(grid, pos[w, m])
+    cell = (w * grid.ncy + c[1]) * grid.ncx + c[0]
+    next_in_cell[w, m] = wp.atomic_exch(head, cell, m)
+
+
 @wp.kernel
 def bin_movers(
     # Model:
@@ -159,11 +168,9 @@ def bin_movers(
     head: wp.array(dtype=wp.int32),
     next_in_cell: wp.array2d(dtype=wp.int32),
 ):
-    """Push each mover onto its cell's linked list (lists hold mover indices within the world)."""
+    """Bin every mover (used where no integration kernel does it on the way, e.g. :meth:`check_collisions`)."""
     w, m = wp.tid()
-    c = cell_coords(grid, pos[w, m])
-    cell = (w * grid.ncy + c[1]) * grid.ncx + c[0]
-    next_in_cell[w, m] = wp.atomic_exch(head, cell, m)
+    push_to_cell(w, m, grid, pos, head, next_in_cell)
 
 
 @wp.func

@@ -17,10 +17,10 @@ import functools
 
 import warp as wp
 
-from magwarp.kernels.collision import hits_wall, movers_collide, shape_yaw
+from magwarp.kernels.collision import hits_wall, movers_collide, push_to_cell, shape_yaw
 from magwarp.kernels.dynamics import integrate_body, planar_acceleration
 from magwarp.kernels.impedance import default_force
-from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Impedance, Limits, Pose
+from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, Impedance, Limits, Pose
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
 wp.set_module_options({"enable_backward": False})
@@ -104,14 +104,25 @@ def make_advance_kernel(force_fn=default_force):
         acc: wp.array2d(dtype=wp.vec2),
         wall: wp.array2d(dtype=wp.int32),
         cycles: wp.array(dtype=wp.int32),
+        # Broad phase, folded in to save launches (bin_cells = 0: brute-force worlds, which clear the counters here):
+        grid: Grid,
+        bin_cells: int,
+        head: wp.array(dtype=wp.int32),
+        next_in_cell: wp.array2d(dtype=wp.int32),
+        world_pairs: wp.array(dtype=wp.int32),
+        world_walls: wp.array(dtype=wp.int32),
     ):
         w, m = wp.tid()
-        if col.stop_on_collision == 1 and halted[w] == 1:
-            return
-        advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, target_pos, target_quat, force_aux,
-                      pos, quat, vel, omega, acc, wall)
-        if m == 0:
-            cycles[w] = cycles[w] + 1
+        if bin_cells == 0 and m == 0:
+            world_pairs[w] = 0
+            world_walls[w] = 0
+        if col.stop_on_collision == 0 or halted[w] == 0:
+            advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, target_pos, target_quat,
+                          force_aux, pos, quat, vel, omega, acc, wall)
+            if m == 0:
+                cycles[w] = cycles[w] + 1
+        if bin_cells == 1:  # halted worlds are binned too: the collision check still runs on them
+            push_to_cell(w, m, grid, pos, head, next_in_cell)
 
     @wp.kernel(module="unique", enable_backward=False)
     def fused_worlds(
