@@ -278,7 +278,7 @@ def _train(args: argparse.Namespace) -> dict:
         from tqdm import tqdm
 
         bar = tqdm(total=total if total else int(60 * args.minutes), unit="step" if total else "s",
-                   unit_scale=bool(total), desc=f"sac-her {args.env_id.split('/')[-1]}", dynamic_ncols=True)
+                   unit_scale=bool(total), desc=f"sac-her {args.env_id.split('/')[-1]}", dynamic_ncols=True, mininterval=1.0)
 
     def save_all(summary: dict | None = None) -> None:
         state = {"algo": "sac-her", "args": {k: v for k, v in vars(args).items() if k != "resume"},
@@ -362,8 +362,8 @@ def _train(args: argparse.Namespace) -> dict:
         if bar is not None:
             bar.n = min(global_step, total) if total else min(int(timer.elapsed), bar.total)
             bar.set_postfix_str(f"{global_step:,} steps, {global_step / max(timer.elapsed, 1e-9):,.0f} steps/s, "
-                                f"success {stats['success_rate']:.3f}")
-            bar.refresh()
+                                f"success {stats['success_rate']:.3f}", refresh=False)
+            bar.update(0)  # redraws at most once per mininterval
         if now - last_ckpt >= args.checkpoint_every:
             save_all()
             last_ckpt = now

@@ -156,3 +156,21 @@ def test_sac_her_runs_resumes_and_saves(tmp_path):
     assert a.shape == (4, 2) and float(a.abs().max()) <= 10.0
     ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
     assert ckpt["algo"] == "sac-her" and ckpt["updates"] > 0
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac-her"])
+def test_train_command(tmp_path, algo, capsys):
+    from magwarp.cli import main
+
+    out = tmp_path / algo
+    extra = "--num-steps 8 --hidden 16,16" if algo == "ppo" else "--hidden 16,16 --batch-size 64 --learning-starts 2"
+    argv = ["train", TINY_ENV, "--algo", algo, "--device", "cpu", "--num-envs", "16", "--total-steps", "256",
+            "--out", str(out), "--env-kwargs", TINY_KWARGS, "--args", extra]
+    assert main(argv) == 0
+    assert f"{algo} done" in capsys.readouterr().out
+    assert (out / "policy.pt").is_file() and (out / "curve.png").is_file()
+    # --resume picks the checkpoint's algorithm; a mismatching --algo is a usage error
+    other = "sac-her" if algo == "ppo" else "ppo"
+    assert main(["train", "--resume", str(out), "--algo", other, "--total-steps", "512"]) == 2
+    assert "trained with" in capsys.readouterr().err
+    assert main(["train", "magwarp/NoSuchEnv-v0", "--minutes", "1"]) == 2

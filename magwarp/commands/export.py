@@ -1,0 +1,50 @@
+"""``magwarp export``: write a trained policy as ONNX (for industrial runtimes, e.g. Beckhoff TwinCAT's ML runtime).
+
+    magwarp export runs/b0_ppo/policy.pt --onnx b0.onnx
+    magwarp export runs/pushbox --onnx pushbox.onnx        # a run folder means its policy.pt
+
+The ONNX graph takes ``obs`` float32 [batch, obs_dim] (the goal-dict observation flattened as observation,
+achieved_goal, desired_goal) and returns ``action`` float32 [batch, action_dim] in the env's units (normalisation and
+action scaling inside). After writing, onnxruntime (when installed) is checked against torch on random inputs.
+Needs the optional packages onnx and onnxruntime (pip install 'magwarp[onnx]').
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from magwarp.commands import CommandError, UsageError
+
+HELP = "export a trained policy as ONNX"
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("export", help=HELP, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("policy", metavar="POLICY", help="policy.pt (TorchScript or torch.save'd module) or a run folder")
+    p.add_argument("--onnx", required=True, metavar="OUT", help="the .onnx file to write")
+    p.add_argument("--opset", type=int, default=17, help="ONNX opset (default 17)")
+    p.add_argument("--obs-dim", type=int, default=None, help="observation size, for modules that do not record it")
+    p.add_argument("--atol", type=float, default=1e-5, help="largest accepted |onnxruntime - torch| (default 1e-5)")
+    p.add_argument("--no-check", action="store_true", help="skip the onnxruntime comparison")
+    return p
+
+
+def run(args) -> int:
+    if not os.path.exists(args.policy):
+        raise UsageError(f"no policy at {args.policy!r}")
+    if os.path.isdir(args.policy) and not os.path.isfile(os.path.join(args.policy, "policy.pt")):
+        raise UsageError(f"{args.policy!r} is a folder without a policy.pt")
+    if os.path.isdir(args.onnx):
+        raise UsageError(f"--onnx {args.onnx!r} is a folder; give a file name")
+    from magwarp.training.export import export_onnx
+
+    try:
+        info = export_onnx(args.policy, args.onnx, opset=args.opset, obs_dim=args.obs_dim, check=not args.no_check,
+                           atol=args.atol)
+    except RuntimeError as e:
+        raise CommandError(str(e)) from None
+    check = ("not checked (onnxruntime missing)" if info["max_abs_diff"] is None and not args.no_check else
+             "not checked" if info["max_abs_diff"] is None else f"onnxruntime matches torch (max diff {info['max_abs_diff']:.2g})")
+    print(f"wrote {args.onnx}: obs [batch, {info['obs_dim']}] -> action [batch, {info['action_dim']}]; {check}")
+    return 0

@@ -1,0 +1,80 @@
+"""ONNX export of a trained policy (what industrial runtimes load, e.g. Beckhoff TwinCAT's machine-learning runtime).
+
+The ONNX graph is the policy's flat path: input ``obs`` ``float32 [batch, obs_dim]`` (the goal-dict observation
+flattened as ``observation, achieved_goal, desired_goal``), output ``action`` ``float32 [batch, action_dim]`` in the
+env's units; observation normalisation, the squashing and the action scale are inside. ``batch`` is dynamic.
+Needs the optional packages ``onnx`` (and ``onnxruntime`` for the check).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+
+import numpy as np
+import torch
+
+__all__ = ["export_onnx", "check_onnx"]
+
+
+def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn.Module, int]:
+    flat = getattr(policy, "flat", policy)
+    dim = obs_dim if obs_dim is not None else getattr(policy, "obs_dim", None)
+    if dim is None:
+        raise ValueError("the policy does not record its observation size: pass obs_dim (--obs-dim)")
+    return flat, int(dim)
+
+
+def export_onnx(policy_path: str, out: str, *, opset: int = 17, obs_dim: int | None = None, check: bool = True,
+                atol: float = 1e-5) -> dict:
+    """Write ``policy_path`` (TorchScript policy, ``torch.save``d module or training folder) as ONNX to ``out``.
+
+    Returns ``{"obs_dim", "action_dim", "max_abs_diff"}`` (the diff is None without onnxruntime or ``check``).
+    """
+    try:
+        import onnx
+    except ImportError:
+        raise ImportError("ONNX export needs the optional packages onnx and onnxruntime: "
+                          "pip install 'magwarp[onnx]' (or pip install onnx onnxruntime)") from None
+    from magwarp.training.policy import load_policy
+
+    policy = load_policy(policy_path, "cpu")
+    flat, dim = _flat_module(policy, obs_dim)
+    example = torch.zeros(2, dim)
+    with torch.no_grad():
+        action_dim = int(flat(example).shape[-1])
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(flat, (example,), out, dynamo=False, opset_version=int(opset), input_names=["obs"],
+                          output_names=["action"], dynamic_axes={"obs": {0: "batch"}, "action": {0: "batch"}})
+    model = onnx.load(out)
+    meta = {"obs_dim": dim, "action_dim": action_dim, "obs_layout": "observation, achieved_goal, desired_goal",
+            "env_id": getattr(policy, "env_id", "")}
+    for k, v in meta.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = f"magwarp.{k}", json.dumps(v) if not isinstance(v, str) else v
+    onnx.checker.check_model(model)
+    onnx.save(model, out)
+    diff = check_onnx(out, flat, dim, atol=atol) if check else None
+    return {"obs_dim": dim, "action_dim": action_dim, "max_abs_diff": diff}
+
+
+def check_onnx(path: str, flat: torch.nn.Module, obs_dim: int, *, atol: float = 1e-5, batch: int = 64,
+               seed: int = 0) -> float | None:
+    """Largest |onnxruntime - torch| over random observations (None when onnxruntime is missing); raises if > atol."""
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        return None
+    gen = torch.Generator().manual_seed(seed)
+    obs = torch.randn(batch, obs_dim, generator=gen) * 2.0
+    with torch.no_grad():
+        ref = flat(obs).numpy()
+    sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    got = sess.run(["action"], {"obs": obs.numpy().astype(np.float32)})[0]
+    diff = float(np.abs(got - ref).max())
+    if not diff <= atol:
+        raise RuntimeError(f"onnxruntime output differs from torch by {diff:.3g} (> {atol:g})")
+    return diff
