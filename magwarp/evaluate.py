@@ -187,6 +187,8 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
     if steps is not None and (int(steps) != steps or steps < 1):
         raise EvalError(f"--steps must be a positive integer, got {steps!r}")
     env_id = resolve_env_id(env_id)
+    if policy != "scripted" and not os.path.isfile(policy) and ":" not in policy:
+        raise EvalError(f"policy {policy!r} is not 'scripted', an existing file, or module:callable")
     device = _check_device(device)
     max_worlds = max_worlds or (65536 if device.startswith("cuda") else 2048)
     per_batch = max(1, min(repeats, max_worlds // episodes))
@@ -213,6 +215,9 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
                disable=(total < 100) if progress is None else not progress)
     start_all = time.perf_counter()
     with torch.no_grad():
+        # Warm-up: the first step compiles kernels and records the step graph; keep it out of the process time.
+        obs, _ = env.reset(seed=seed)
+        env.step(act(obs))
         for batch in range(num_batches):
             obs, _ = env.reset(seed=seed + batch)
             metrics.reset()
