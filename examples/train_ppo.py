@@ -23,8 +23,9 @@ import time
 import torch
 from torch import nn
 
-from magwarp.training import (CsvLogger, RunningMeanStd, SuccessTracker, Timer, flatten_obs, load_checkpoint, make_env,
-                              mlp, obs_dim, parse_env_kwargs, plot_curve, save_checkpoint, save_policy, seed_everything)
+from magwarp.training import (CsvLogger, RunningMeanStd, SuccessTracker, Timer, evaluate, flatten_obs, load_checkpoint,
+                              make_env, mlp, obs_dim, parse_env_kwargs, plot_curve, save_checkpoint, save_policy,
+                              seed_everything)
 
 # Hyper-parameters per task family (any option given on the command line wins). Tuned for thousands of worlds on
 # one GPU; "default" is used for env ids that match no family.
@@ -63,6 +64,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--no-norm-reward", action="store_true", help="do not scale rewards by the return's running std")
     p.add_argument("--log-every", type=float, default=10.0, help="seconds between log lines")
     p.add_argument("--checkpoint-every", type=float, default=60.0, help="seconds between checkpoints")
+    p.add_argument("--eval-steps", type=int, default=200,
+                   help="batched steps of a final deterministic evaluation on the training env (0: none)")
     p.add_argument("--tensorboard", action="store_true", help="also log to OUT/tb (needs tensorboard)")
     p.add_argument("--no-progress", action="store_true", help="no tqdm bar")
     p.add_argument("--torch-threads", type=int, default=None,
@@ -290,6 +293,14 @@ def _train(args: argparse.Namespace) -> dict:
     if bar is not None:
         bar.close()
     summary = {"success_rate": stats["success_rate"], "global_step": global_step, "wall_s": round(timer.total, 1)}
+    if args.eval_steps > 0:  # the deterministic policy (what policy.pt runs), from fresh episodes
+        def act(o):
+            return agent.actor_mean(obs_rms.normalize(flatten_obs(o))).clamp(-1.0, 1.0) * action_scale
+
+        ev = evaluate(env, act, args.eval_steps, seed=args.seed + 10_000)
+        summary.update({f"eval_{k}": v for k, v in ev.items()})
+        print(f"deterministic evaluation ({args.eval_steps} steps x {N} envs): success {ev['success_rate']:.4f}, "
+              f"collisions/episode {ev['collisions_per_episode']:.4f}, {ev['episodes']:.0f} episodes")
     save_all(summary)
     logger.close()
     plot_curve(logger.path, os.path.join(args.out, "curve.png"), f"PPO {args.env_id} ({args.device})")

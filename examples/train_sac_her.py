@@ -27,9 +27,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from magwarp.training import (OBS_KEYS, CsvLogger, RunningMeanStd, SuccessTracker, Timer, flatten_obs, load_checkpoint,
-                              make_env, mlp, obs_dim, parse_env_kwargs, plot_curve, save_checkpoint, save_policy,
-                              seed_everything)
+from magwarp.training import (OBS_KEYS, CsvLogger, RunningMeanStd, SuccessTracker, Timer, evaluate, flatten_obs,
+                              load_checkpoint, make_env, mlp, obs_dim, parse_env_kwargs, plot_curve, save_checkpoint,
+                              save_policy, seed_everything)
 
 # Hyper-parameters per task family (any option given on the command line wins), for one GPU.
 PRESETS = {
@@ -65,6 +65,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--policy-delay", type=int, default=None, help="actor update every N critic updates")
     p.add_argument("--log-every", type=float, default=10.0, help="seconds between log lines")
     p.add_argument("--checkpoint-every", type=float, default=60.0, help="seconds between checkpoints")
+    p.add_argument("--eval-steps", type=int, default=200,
+                   help="batched steps of a final deterministic evaluation on the training env (0: none)")
     p.add_argument("--tensorboard", action="store_true")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--torch-threads", type=int, default=None,
@@ -370,6 +372,12 @@ def _train(args: argparse.Namespace) -> dict:
     if bar is not None:
         bar.close()
     summary = {"success_rate": stats["success_rate"], "global_step": global_step, "wall_s": round(timer.total, 1)}
+    if args.eval_steps > 0:  # the deterministic policy (what policy.pt runs), from fresh episodes
+        ev = evaluate(env, lambda o: actor(norm(o), deterministic=True)[0] * action_scale, args.eval_steps,
+                      seed=args.seed + 10_000)
+        summary.update({f"eval_{k}": v for k, v in ev.items()})
+        print(f"deterministic evaluation ({args.eval_steps} steps x {N} envs): success {ev['success_rate']:.4f}, "
+              f"collisions/episode {ev['collisions_per_episode']:.4f}, {ev['episodes']:.0f} episodes")
     save_all(summary)
     logger.close()
     plot_curve(logger.path, os.path.join(args.out, "curve.png"), f"SAC+HER {args.env_id} ({args.device})")

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["OBS_KEYS", "make_env", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
+__all__ = ["OBS_KEYS", "make_env", "evaluate", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
            "plot_curve", "save_checkpoint", "load_checkpoint", "seed_everything", "parse_env_kwargs", "Timer"]
 
 #: order in which a goal-dict observation is flattened (the exported policy's input layout)
@@ -55,6 +55,8 @@ def make_env(env_id: str, num_envs: int, device: str, seed: int, env_kwargs: dic
     import magwarp  # noqa: F401 - registers the env ids
 
     wp.config.quiet = True
+    if str(device).startswith("cuda"):
+        torch.set_float32_matmul_precision("high")  # TF32 matmuls for the networks
     if env_id not in gym.registry:
         known = sorted(k for k in gym.registry if k.startswith("magwarp/"))
         raise ValueError(f"unknown env id {env_id!r}; magwarp ids look like {known[:4]} ...")
@@ -159,6 +161,19 @@ class SuccessTracker:
             "ep_length": v["length"] / eps if v["episodes"] else float("nan"),
             "collisions_per_episode": v["collisions"] / eps if v["episodes"] else float("nan"),
         }
+
+
+@torch.no_grad()
+def evaluate(env, act, steps: int, seed: int = 12345) -> dict[str, float]:
+    """Run ``act(obs) -> action`` (deterministic) for ``steps`` batched steps from a fresh reset of ``env``; the
+    :class:`SuccessTracker` statistics of those steps (the env is reset again by the caller if it keeps training)."""
+    base = getattr(env, "unwrapped", env)
+    tracker = SuccessTracker(base.num_envs, base.device)
+    obs, _ = env.reset(seed=seed)
+    for _ in range(int(steps)):
+        obs, reward, terminated, truncated, info = env.step(act(obs))
+        tracker.update(reward, terminated, truncated, info)
+    return tracker.pop()
 
 
 class CsvLogger:
