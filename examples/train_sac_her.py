@@ -224,8 +224,8 @@ def train(args: argparse.Namespace) -> dict:
 
 def _train(args: argparse.Namespace) -> dict:
     seed_everything(args.seed, args.deterministic)
-    device = torch.device(args.device)
     env, base = make_env(args.env_id, args.num_envs, args.device, args.seed, parse_env_kwargs(args.env_kwargs))
+    device = base.device  # the env's device, with its index (cuda -> cuda:0)
     N = args.num_envs
     space = base.single_observation_space
     n_obs, n_act = obs_dim(space), int(base.single_action_space.shape[0])
@@ -257,7 +257,8 @@ def _train(args: argparse.Namespace) -> dict:
         print(f"resumed from {args.resume} at step {global_step:,} ({updates:,} updates)")
 
     obs, info = env.reset(seed=args.seed)
-    # Collision flags the env's compute_reward reads: keep them with every transition (learned from one step).
+    # Collision flags the env's compute_reward reads: keep them with every transition (learned from one step, which
+    # also compiles the kernels and captures the step graph before the clock starts).
     probe = {k: v.shape for k, v in env.step(torch.zeros(N, n_act, device=device))[4].items()
              if k.endswith("collision") and isinstance(v, torch.Tensor)}
     flag_keys = sorted(probe)
