@@ -166,7 +166,8 @@ def _check_device(device: str | None) -> str:
     wp.init()
     if device != "cpu" and not (device.startswith("cuda") and device in {str(d) for d in wp.get_cuda_devices()}
                                 or device == "cuda" and wp.is_cuda_available()):
-        raise EvalError(f"device {device!r} is not available here (choose cpu{' or cuda:N' if wp.is_cuda_available() else ''})")
+        choices = "cpu or cuda:N" if wp.is_cuda_available() else "cpu"
+        raise EvalError(f"device {device!r} is not available here (choose {choices})")
     return "cuda:0" if device == "cuda" else device
 
 

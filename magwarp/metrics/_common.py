@@ -93,7 +93,8 @@ class Tracker:
             return self._all
         mask = torch.as_tensor(mask, device=self.torch_device)
         if mask.shape != (self.num_worlds,) or mask.dtype != torch.bool:
-            raise ValueError(f"mask must be a bool tensor of shape ({self.num_worlds},), got {mask.dtype} {tuple(mask.shape)}")
+            raise ValueError(f"mask must be a bool tensor of shape ({self.num_worlds},), "
+                             f"got {mask.dtype} {tuple(mask.shape)}")
         return mask
 
     def reset(self, mask=None) -> None:

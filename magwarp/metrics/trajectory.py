@@ -107,7 +107,7 @@ class TrajectoryMetrics(Tracker):
         per_1k = 1000.0 / goals
         nth = t["nth_goal_cycle"]
         valid = (nth >= 0).all(1)
-        makespan = torch.where(valid, nth.amax(1).to(torch.float64) * self.dt * 1000.0, torch.zeros((), dtype=torch.float64, device=nth.device))
+        makespan = (nth.amax(1).to(torch.float64) * self.dt * 1000.0) * valid  # ms; worlds without it count 0
         worlds = group_sum(valid, G)
         return {
             "goals": goals,

@@ -2,16 +2,19 @@
 
 Per world, mover 0 does the pushing (other movers hold still):
 
-* **approach**: fly to a staging point behind the object on the goal line (the object between mover and goal),
-  around the object when the mover is on the wrong side (via a point beside it), braking so that it arrives slowly;
-* **push**: once behind and roughly on the line, drive along the object-to-goal direction with a speed profile that
-  brakes below the box's friction deceleration (so the box stays against the mover and stops at the goal), and
-  steer sideways to keep mover, object and goal aligned.
+* **approach**: fly straight to a staging point behind the object on the object-to-goal line, braking so that it
+  arrives with a little push speed; while that straight segment would clip the object, go around the object on a
+  circle at a small clearance instead (the shorter way unless it leaves the safe region);
+* **push**: inside a narrow cone behind the object, drive along the goal line with a speed profile that brakes
+  below the box's friction deceleration (the box stays against the mover and stops at the goal), steering
+  sideways back onto the line through the object's centre.
 
-Contact distances use the exact support of the (rotated) object parts and of the mover's square footprint along
-the push direction. Targets are clamped into the region where the mover's wall-collision shape stays on the tiles.
-The desired velocity becomes an acceleration through a deadbeat velocity loop over one held env step. All batched
-torch on the env's device (no Python loop over worlds); pose goals (Push-T/L/X) are treated as position goals.
+Contact distances use the exact support of the (rotated) object parts and of the mover's square footprint. Speeds
+toward the sides of the safe rectangle (where the wall-collision shape stays on the tiles) are capped to what can
+still brake, and that braking has priority in the acceleration (layouts with holes are only approximated by their
+bounding rectangle). The desired velocity becomes an acceleration through a deadbeat velocity loop over one held
+env step. Batched torch on the env's device, no Python loop over worlds; pose goals (Push-T/L/X) are pushed as
+position goals.
 """
 
 from __future__ import annotations
@@ -37,17 +40,21 @@ class PushHeuristic:
         env: the batched push env (layout, object, mover sizes and limits are read from it).
         cruise: top speed (m/s) while approaching; push_speed: top speed while pushing.
         push_brake: deceleration (m/s^2) planned while pushing (below the box's friction deceleration, ~6 m/s^2).
+        approach_brake: deceleration (m/s^2) planned when arriving at points and before the sides of the area.
         clearance: gap (m) kept between mover and object while going around it.
+        engage: fraction of the push speed the mover already has when it reaches the staging point.
+        cone: lateral tolerance (per metre of gap) of the cone behind the object in which it pushes.
     """
 
-    def __init__(self, env, cruise: float = 1.8, push_speed: float = 1.5, push_brake: float = 4.5,
-                 approach_brake: float = 7.0, clearance: float = 0.015, align_width: float = 0.5):
+    def __init__(self, env, cruise: float = 1.8, push_speed: float = 2.0, push_brake: float = 5.0,
+                 approach_brake: float = 5.0, clearance: float = 0.008, engage: float = 0.5,
+                 cone: float = 0.3):
         self.env = env
         self.backend = env.backend
         self.cruise, self.push_speed = cruise, push_speed
         self.push_brake, self.approach_brake = push_brake, approach_brake
         self.clearance = clearance
-        self.align_width = align_width
+        self.engage, self.cone = engage, cone
         c = self.backend.control
         self.latency = c.num_cycles * self.backend.dt  # one held env step
         self.a_max, self.v_max = c.a_max, c.v_max
@@ -135,29 +142,47 @@ class PushHeuristic:
         to_goal = env.goal_xy - obj
         dist = to_goal.norm(dim=-1, keepdim=True)
         u = _unit(to_goal)
+        n = _perp(u)
 
-        # Polar coordinates of the mover around the object; the push position is at angle(-u).
         rel = pos - obj
         r = rel.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         e_r = rel / r
+        along = (rel * u).sum(-1, keepdim=True)  # < 0: behind the object
+        lateral = (rel * n).sum(-1, keepdim=True)
+        contact_u = (self._object_support(yaw, -u) + self._mover_support(u))[:, None]
+        gap = (-along - contact_u).clamp_min(0.0)
+
+        # Push: inside a narrow cone behind the object, drive along the goal line (speed planned over the gap and
+        # the object's way to the goal, braking below its friction deceleration) and steer onto the line.
+        cone = (along < -(contact_u - 0.01)) & (lateral.abs() < 0.015 + self.cone * gap)
+        speed = torch.sqrt(2 * self.push_brake * (dist + gap - 0.005).clamp_min(0.0)).clamp(max=self.push_speed)
+        v_push = u * speed - n * (lateral * 15.0).clamp(-self.cruise, self.cruise)
+
+        # Direct approach: straight to the staging point behind the object, arriving with a little push speed.
+        stage = obj - u * (contact_u + self.clearance)
+        d = stage - pos
+        dn = d.norm(dim=-1, keepdim=True)
+        engage = self.engage * speed * (1.0 - dn / 0.05).clamp(0.0, 1.0)
+        v_direct = _unit(d) * self._profile(dn).clamp(max=self.cruise) + u * engage
+        # ... unless that segment passes the object: then go around it on a circle at a clearance.
+        t = ((obj - pos) * d).sum(-1, keepdim=True) / (dn * dn).clamp_min(1e-9)
+        closest = pos + t.clamp(0.0, 1.0) * d
+        keep_out = (self._object_support(yaw, _unit(closest - obj)) + self._mover_support(_unit(closest - obj)))[:, None]
+        blocked = (closest - obj).norm(dim=-1, keepdim=True) < keep_out + 0.5 * self.clearance
+
         e_t = _perp(e_r)  # counter-clockwise
         theta = torch.atan2(e_r[:, 1], e_r[:, 0])
         theta_push = torch.atan2(-u[:, 1], -u[:, 0])
         err = torch.remainder(theta - theta_push + torch.pi, 2 * torch.pi)[:, None] - torch.pi
-        aligned = (1.0 - err.abs() / self.align_width).clamp(0.0, 1.0)
-
-        # Orbit at a clearance from the object (direction-exact contact distance), closing in once aligned.
         contact = (self._object_support(yaw, e_r) + self._mover_support(e_r))[:, None]
-        r_des = contact + self.clearance * (1.0 - aligned) - 0.004 * aligned
+        r_des = contact + self.clearance
         dr = r_des - r
         v_rad = e_r * torch.sign(dr) * self._profile(dr.abs()).clamp(max=self.cruise)
         sign = self._orbit_sign(obj, theta, err, r_des)
-        v_tan = e_t * sign * self._profile(err.abs() * r).clamp(max=self.cruise)
-        speed = torch.sqrt(2 * self.push_brake * (dist - 0.005).clamp_min(0.0)).clamp(max=self.push_speed)
-        # The object's velocity is fed forward only while going around it: when pushing it would feed back.
-        v = obj_vel * (1.0 - aligned) + v_rad + v_tan + u * speed * aligned
-        v = self._wall_limit(pos, vel, v)
+        v_orbit = obj_vel + v_rad + e_t * sign * self._profile(err.abs() * r).clamp(max=self.cruise)
 
+        v = torch.where(cone, v_push, torch.where(blocked, v_orbit, v_direct))
+        v = self._wall_limit(pos, vel, v)
         acc = self._wall_brake(pos, vel, self._clip((v - vel) / self.latency))
         out = torch.zeros(env.num_envs, env.num_movers, 2, device=env.device)
         out[:, 0] = acc
