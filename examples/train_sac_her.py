@@ -34,7 +34,7 @@ from magwarp.training import (OBS_KEYS, CsvLogger, RunningMeanStd, SuccessTracke
 # Hyper-parameters per task family (any option given on the command line wins), for one GPU.
 PRESETS = {
     "default": dict(num_envs=1024, buffer_steps=1000, batch_size=8192, updates_per_step=2, learning_starts=20,
-                    gamma=0.98, tau=0.01, lr=3e-4, her_ratio=0.8, hidden="256,256,256", policy_delay=1),
+                    gamma=0.98, tau=0.01, lr=3e-4, init_alpha=0.1, her_ratio=0.8, hidden="256,256,256", policy_delay=1),
     "TrajectoryPlanning": dict(num_envs=1024, buffer_steps=1000, gamma=0.99, her_ratio=0.5),
     "PushBox": dict(num_envs=1024, buffer_steps=1000, gamma=0.95),
     "PushWithObstacles": dict(num_envs=1024, buffer_steps=1000, gamma=0.95),
@@ -60,6 +60,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--gamma", type=float, default=None)
     p.add_argument("--tau", type=float, default=None)
     p.add_argument("--lr", type=float, default=None)
+    p.add_argument("--init-alpha", type=float, default=None, help="initial entropy temperature (auto-tuned after)")
     p.add_argument("--her-ratio", type=float, default=None, help="fraction of sampled goals relabelled (future)")
     p.add_argument("--hidden", default=None, help="hidden layer sizes, comma separated")
     p.add_argument("--policy-delay", type=int, default=None, help="actor update every N critic updates")
@@ -235,7 +236,7 @@ def _train(args: argparse.Namespace) -> dict:
     actor = Actor(n_obs, n_act, hidden).to(device)
     critic = Critic(n_obs, n_act, hidden).to(device)
     critic_target = copy.deepcopy(critic).requires_grad_(False)
-    log_alpha = torch.zeros((), device=device, requires_grad=True)
+    log_alpha = torch.full((), float(args.init_alpha), device=device).log().requires_grad_(True)
     target_entropy = -float(n_act)
     actor_opt = torch.optim.Adam(actor.parameters(), lr=args.lr)
     critic_opt = torch.optim.Adam(critic.parameters(), lr=args.lr)
@@ -294,6 +295,8 @@ def _train(args: argparse.Namespace) -> dict:
                     env_id=args.env_id, metadata={"algo": "sac-her", "env_kwargs": args.env_kwargs,
                                                   "global_step": global_step, "wall_s": timer.total, **(summary or {})})
 
+    online_params, target_params = list(critic.parameters()), list(critic_target.parameters())
+
     def update(batch: dict) -> dict[str, torch.Tensor]:
         nonlocal updates
         x = norm({k: batch[k] for k in OBS_KEYS})
@@ -322,9 +325,8 @@ def _train(args: argparse.Namespace) -> dict:
             alpha_loss.backward()
             alpha_opt.step()
             out["loss_pi"] = pi_loss.detach()
-        with torch.no_grad():
-            for p, pt in zip(critic.parameters(), critic_target.parameters()):
-                pt.lerp_(p, args.tau)
+        with torch.no_grad():  # Polyak averaging of the target critic, one fused call
+            torch._foreach_lerp_(target_params, online_params, args.tau)
         return out
 
     last_log = last_ckpt = time.perf_counter()

@@ -57,7 +57,7 @@ def test_ppo_learns_tiny_reaching_task(tmp_path):
     torch.manual_seed(1)
     agent = ppo.Agent(6, 2, [64, 64], -0.5)
     untrained = lambda obs: agent.actor_mean(  # noqa: E731 - same normalisation-free scale as an initial policy
-        torch.cat([obs[k] for k in ("observation", "achieved_goal", "desired_goal")], -1)).clamp(-1, 1) * 10.0
+        torch.cat([obs[k] for k in ("achieved_goal", "desired_goal", "observation")], -1)).clamp(-1, 1) * 10.0
     before, after = _success_rate(untrained), _success_rate(trained)
     print(f"success untrained {before:.3f} trained {after:.3f}")
     assert after >= 0.9, f"trained success {after:.3f} (untrained {before:.3f})"
@@ -71,16 +71,24 @@ def test_policy_file_contract_and_resume(tmp_path):
     assert policy.obs_dim == 6 and policy.action_dim == 2 and policy.env_id == TINY_ENV
     obs = {"observation": torch.randn(5, 2), "achieved_goal": torch.rand(5, 2) * 0.48,
            "desired_goal": torch.rand(5, 2) * 0.48}
-    flat = torch.cat([obs["observation"], obs["achieved_goal"], obs["desired_goal"]], -1)
+    flat = torch.cat([obs["achieved_goal"], obs["desired_goal"], obs["observation"]], -1)
     a_dict, a_flat, a_sub = policy(obs), policy(flat), policy.flat(flat)
     assert a_dict.shape == (5, 2) and a_dict.dtype == torch.float32
     assert torch.equal(a_dict, a_flat) and torch.equal(a_flat, a_sub)
     assert float(a_dict.abs().max()) <= 10.0 + 1e-5  # within the action space (a_max = 10 m/s^2)
 
+    # magwarp eval's loader (flattens the dict in sorted key order) gives the same actions as the dict call
+    from magwarp.evaluate import load_policy as eval_load_policy
+    from magwarp.training import make_env, parse_env_kwargs
+
+    env, base = make_env(TINY_ENV, 5, "cpu", 0, parse_env_kwargs(TINY_KWARGS))
+    env_obs, _ = env.reset(seed=0)
+    assert torch.equal(eval_load_policy(str(tmp_path / "policy.pt"), base)(env_obs), policy(env_obs))
+
     from magwarp.training.policy import policy_metadata
 
     meta = policy_metadata(str(tmp_path / "policy.pt"))
-    assert meta["env_id"] == TINY_ENV and meta["algo"] == "ppo" and meta["obs_keys"][0] == "observation"
+    assert meta["env_id"] == TINY_ENV and meta["algo"] == "ppo" and meta["obs_keys"] == ["achieved_goal", "desired_goal", "observation"]
 
     # Resume: the step counter continues and the CSV keeps its earlier rows.
     rows_before = (tmp_path / "progress.csv").read_text().count("\n")

@@ -3,8 +3,8 @@
     magwarp export runs/b0_ppo/policy.pt --onnx b0.onnx
     magwarp export runs/pushbox --onnx pushbox.onnx        # a run folder means its policy.pt
 
-The ONNX graph takes ``obs`` float32 [batch, obs_dim] (the goal-dict observation flattened as observation,
-achieved_goal, desired_goal) and returns ``action`` float32 [batch, action_dim] in the env's units (normalisation and
+The ONNX graph takes ``obs`` float32 [batch, obs_dim] (the goal-dict observation flattened in sorted key order:
+achieved_goal, desired_goal, observation) and returns ``action`` float32 [batch, action_dim] in the env's units (normalisation and
 action scaling inside). After writing, onnxruntime (when installed) is checked against torch on random inputs.
 Needs the optional packages onnx and onnxruntime (pip install 'magwarp[onnx]').
 """

@@ -19,8 +19,9 @@ import torch
 __all__ = ["OBS_KEYS", "make_env", "evaluate", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
            "plot_curve", "save_checkpoint", "load_checkpoint", "seed_everything", "parse_env_kwargs", "Timer"]
 
-#: order in which a goal-dict observation is flattened (the exported policy's input layout)
-OBS_KEYS = ("observation", "achieved_goal", "desired_goal")
+#: order in which a goal-dict observation is flattened (the exported policy's input layout): sorted key order, as
+#: gymnasium's Dict space, SB3 and ``magwarp eval`` flatten it
+OBS_KEYS = ("achieved_goal", "desired_goal", "observation")
 
 
 def seed_everything(seed: int, deterministic: bool = False) -> None:
@@ -67,7 +68,7 @@ def make_env(env_id: str, num_envs: int, device: str, seed: int, env_kwargs: dic
 
 
 def flatten_obs(obs) -> torch.Tensor:
-    """A goal-dict observation -> ``[..., obs + achieved + desired]`` (a tensor passes through)."""
+    """A goal-dict observation -> ``[..., achieved_goal + desired_goal + observation]`` (a tensor passes through)."""
     if isinstance(obs, dict):
         return torch.cat([obs[k] for k in OBS_KEYS], dim=-1)
     return obs

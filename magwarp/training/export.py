@@ -1,7 +1,7 @@
 """ONNX export of a trained policy (what industrial runtimes load, e.g. Beckhoff TwinCAT's machine-learning runtime).
 
 The ONNX graph is the policy's flat path: input ``obs`` ``float32 [batch, obs_dim]`` (the goal-dict observation
-flattened as ``observation, achieved_goal, desired_goal``), output ``action`` ``float32 [batch, action_dim]`` in the
+flattened in sorted key order ``achieved_goal, desired_goal, observation``), output ``action`` ``float32 [batch, action_dim]`` in the
 env's units; observation normalisation, the squashing and the action scale are inside. ``batch`` is dynamic.
 Needs the optional packages ``onnx`` (and ``onnxruntime`` for the check).
 """
@@ -50,7 +50,7 @@ def export_onnx(policy_path: str, out: str, *, opset: int = 17, obs_dim: int | N
         torch.onnx.export(flat, (example,), out, dynamo=False, opset_version=int(opset), input_names=["obs"],
                           output_names=["action"], dynamic_axes={"obs": {0: "batch"}, "action": {0: "batch"}})
     model = onnx.load(out)
-    meta = {"obs_dim": dim, "action_dim": action_dim, "obs_layout": "observation, achieved_goal, desired_goal",
+    meta = {"obs_dim": dim, "action_dim": action_dim, "obs_layout": "achieved_goal, desired_goal, observation",
             "env_id": getattr(policy, "env_id", "")}
     for k, v in meta.items():
         entry = model.metadata_props.add()

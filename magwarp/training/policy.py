@@ -5,7 +5,8 @@ Contract (what ``magwarp eval`` and ``magwarp export`` rely on):
 * ``policy = torch.jit.load("policy.pt", map_location=device)``; ``policy.eval()``.
 * ``action = policy(obs)`` where ``obs`` is either the env's goal-dict observation (a ``Dict[str, Tensor]`` with
   ``observation``, ``achieved_goal``, ``desired_goal``, each ``[num_envs, k]``) or the flattened tensor
-  ``torch.cat([observation, achieved_goal, desired_goal], -1)`` of shape ``[num_envs, policy.obs_dim]``.
+  ``torch.cat([achieved_goal, desired_goal, observation], -1)`` (sorted key order: what gymnasium's Dict
+  space, SB3 and ``magwarp eval`` produce) of shape ``[num_envs, policy.obs_dim]``.
   ``action`` is ``[num_envs, policy.action_dim]`` float32 in the env's units (already scaled to the action space,
   deterministic: the mean action), ready for ``env.step``. Observation normalisation is inside the module.
 * ``policy.flat`` is the flat-tensor-only submodule (what ONNX export writes: input ``obs [B, obs_dim]``, output
@@ -70,7 +71,7 @@ class Policy(nn.Module):
     def __init__(self, flat: FlatPolicy, obs_dim: int, action_dim: int, env_id: str = ""):
         super().__init__()
         self.flat = flat
-        self.obs_keys = ["observation", "achieved_goal", "desired_goal"]
+        self.obs_keys = ["achieved_goal", "desired_goal", "observation"]
         self.obs_dim = int(obs_dim)
         self.action_dim = int(action_dim)
         self.env_id = str(env_id)
@@ -79,7 +80,7 @@ class Policy(nn.Module):
         if isinstance(obs, torch.Tensor):
             x = obs
         else:
-            x = torch.cat([obs["observation"], obs["achieved_goal"], obs["desired_goal"]], -1)
+            x = torch.cat([obs["achieved_goal"], obs["desired_goal"], obs["observation"]], -1)
         return self.flat(x)
 
 
