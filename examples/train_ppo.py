@@ -172,7 +172,8 @@ def _train(args: argparse.Namespace) -> dict:
         from tqdm import tqdm
 
         bar = tqdm(total=total if total else int(60 * args.minutes), unit="step" if total else "s",
-                   unit_scale=bool(total), desc=f"ppo {args.env_id.split('/')[-1]}", dynamic_ncols=True, mininterval=1.0)
+                   unit_scale=bool(total), desc=f"ppo {args.env_id.split('/')[-1]}", dynamic_ncols=True,
+                   mininterval=1.0)
 
     def save_all(summary: dict | None = None) -> None:
         state = {"algo": "ppo", "args": {k: v for k, v in vars(args).items() if k != "resume"},
@@ -276,9 +277,9 @@ def _train(args: argparse.Namespace) -> dict:
         if now - last_log >= args.log_every or final:
             stats = tracker.pop()
             sps = (global_step - steps_at_log) / max(now - last_log, 1e-9)
-            row = {"global_step": global_step, "iteration": iteration, "wall_s": round(timer.total, 2), "sps": round(sps),
-                   **stats, "lr": lr, "policy_std": float(agent.log_std.exp().mean()), "loss_pg": float(pg_loss.detach()),
-                   "loss_v": float(v_loss.detach())}
+            row = {"global_step": global_step, "iteration": iteration, "wall_s": round(timer.total, 2),
+                   "sps": round(sps), **stats, "lr": lr, "policy_std": float(agent.log_std.detach().exp().mean()),
+                   "loss_pg": float(pg_loss.detach()), "loss_v": float(v_loss.detach())}
             logger.log(row)
             last_log, steps_at_log = now, global_step
             if bar is None:
@@ -306,7 +307,8 @@ def _train(args: argparse.Namespace) -> dict:
     save_all(summary)
     logger.close()
     plot_curve(logger.path, os.path.join(args.out, "curve.png"), f"PPO {args.env_id} ({args.device})")
-    print(f"saved {args.out}/policy.pt, checkpoint.pt, progress.csv, curve.png; final success {stats['success_rate']:.3f}")
+    print(f"saved {args.out}/policy.pt, checkpoint.pt, progress.csv, curve.png; "
+          f"final success {stats['success_rate']:.3f}")
     env.close()
     return summary
 

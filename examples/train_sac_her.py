@@ -136,10 +136,12 @@ class HerReplayBuffer:
             self.flags[k][i] = info[k].bool()
         self.ep_id[i] = self.cur_id
         col = (self.cur_id % (self.T + 1))[:, None]
-        self.ep_end.scatter_(1, col, torch.where(done[:, None], torch.full_like(col, self.g), self.ep_end.gather(1, col)))
+        end = torch.where(done[:, None], torch.full_like(col, self.g), self.ep_end.gather(1, col))
+        self.ep_end.scatter_(1, col, end)
         self.cur_id += done.long()
         col = (self.cur_id % (self.T + 1))[:, None]  # a new episode starts: its end is unknown
-        self.ep_end.scatter_(1, col, torch.where(done[:, None], torch.full_like(col, 2**62), self.ep_end.gather(1, col)))
+        end = torch.where(done[:, None], torch.full_like(col, 2**62), self.ep_end.gather(1, col))
+        self.ep_end.scatter_(1, col, end)
         self.g += 1
 
     @torch.no_grad()
@@ -282,7 +284,8 @@ def _train(args: argparse.Namespace) -> dict:
         from tqdm import tqdm
 
         bar = tqdm(total=total if total else int(60 * args.minutes), unit="step" if total else "s",
-                   unit_scale=bool(total), desc=f"sac-her {args.env_id.split('/')[-1]}", dynamic_ncols=True, mininterval=1.0)
+                   unit_scale=bool(total), desc=f"sac-her {args.env_id.split('/')[-1]}", dynamic_ncols=True,
+                   mininterval=1.0)
 
     def save_all(summary: dict | None = None) -> None:
         state = {"algo": "sac-her", "args": {k: v for k, v in vars(args).items() if k != "resume"},
@@ -305,7 +308,8 @@ def _train(args: argparse.Namespace) -> dict:
         with torch.no_grad():
             a2, logp2 = actor(x2)
             q1t, q2t = critic_target(x2, a2)
-            target = batch["reward"] + args.gamma * (~batch["terminated"]).float() * (torch.min(q1t, q2t) - alpha * logp2)
+            not_done = (~batch["terminated"]).float()
+            target = batch["reward"] + args.gamma * not_done * (torch.min(q1t, q2t) - alpha * logp2)
         q1, q2 = critic(x, batch["action"])
         q_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
         critic_opt.zero_grad(set_to_none=True)
@@ -384,7 +388,8 @@ def _train(args: argparse.Namespace) -> dict:
     save_all(summary)
     logger.close()
     plot_curve(logger.path, os.path.join(args.out, "curve.png"), f"SAC+HER {args.env_id} ({args.device})")
-    print(f"saved {args.out}/policy.pt, checkpoint.pt, progress.csv, curve.png; final success {stats['success_rate']:.3f}")
+    print(f"saved {args.out}/policy.pt, checkpoint.pt, progress.csv, curve.png; "
+          f"final success {stats['success_rate']:.3f}")
     env.close()
     return summary
 

@@ -11,7 +11,8 @@ import torch
 
 REPO = Path(__file__).resolve().parent.parent
 TINY_ENV = "magwarp/TrajectoryPlanning-v0"
-TINY_KWARGS = '{"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]], "num_movers": 1}'  # one mover reaching goals on 3 x 3 tiles
+# one mover reaching goals on 3 x 3 tiles
+TINY_KWARGS = '{"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]], "num_movers": 1}'
 
 
 def _example(name: str):
@@ -88,7 +89,8 @@ def test_policy_file_contract_and_resume(tmp_path):
     from magwarp.training.policy import policy_metadata
 
     meta = policy_metadata(str(tmp_path / "policy.pt"))
-    assert meta["env_id"] == TINY_ENV and meta["algo"] == "ppo" and meta["obs_keys"] == ["achieved_goal", "desired_goal", "observation"]
+    assert meta["env_id"] == TINY_ENV and meta["algo"] == "ppo"
+    assert meta["obs_keys"] == ["achieved_goal", "desired_goal", "observation"]
 
     # Resume: the step counter continues and the CSV keeps its earlier rows.
     rows_before = (tmp_path / "progress.csv").read_text().count("\n")

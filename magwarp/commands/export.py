@@ -4,8 +4,8 @@
     magwarp export runs/pushbox --onnx pushbox.onnx        # a run folder means its policy.pt
 
 The ONNX graph takes ``obs`` float32 [batch, obs_dim] (the goal-dict observation flattened in sorted key order:
-achieved_goal, desired_goal, observation) and returns ``action`` float32 [batch, action_dim] in the env's units (normalisation and
-action scaling inside). After writing, onnxruntime (when installed) is checked against torch on random inputs.
+achieved_goal, desired_goal, observation) and returns ``action`` float32 [batch, action_dim] in the env's units
+(normalisation and action scaling inside). After writing, onnxruntime (when installed) is checked against torch on random inputs.
 Needs the optional packages onnx and onnxruntime (pip install 'magwarp[onnx]').
 """
 
@@ -44,7 +44,8 @@ def run(args) -> int:
                            atol=args.atol)
     except RuntimeError as e:
         raise CommandError(str(e)) from None
-    check = ("not checked (onnxruntime missing)" if info["max_abs_diff"] is None and not args.no_check else
-             "not checked" if info["max_abs_diff"] is None else f"onnxruntime matches torch (max diff {info['max_abs_diff']:.2g})")
+    diff = info["max_abs_diff"]
+    check = ("not checked (onnxruntime missing)" if diff is None and not args.no_check else
+             "not checked" if diff is None else f"onnxruntime matches torch (max diff {diff:.2g})")
     print(f"wrote {args.onnx}: obs [batch, {info['obs_dim']}] -> action [batch, {info['action_dim']}]; {check}")
     return 0

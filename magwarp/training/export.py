@@ -1,8 +1,8 @@
 """ONNX export of a trained policy (what industrial runtimes load, e.g. Beckhoff TwinCAT's machine-learning runtime).
 
 The ONNX graph is the policy's flat path: input ``obs`` ``float32 [batch, obs_dim]`` (the goal-dict observation
-flattened in sorted key order ``achieved_goal, desired_goal, observation``), output ``action`` ``float32 [batch, action_dim]`` in the
-env's units; observation normalisation, the squashing and the action scale are inside. ``batch`` is dynamic.
+flattened in sorted key order ``achieved_goal, desired_goal, observation``), output ``action``
+``float32 [batch, action_dim]`` in the env's units; observation normalisation, the squashing and the action scale are inside. ``batch`` is dynamic.
 Needs the optional packages ``onnx`` (and ``onnxruntime`` for the check).
 """
 
