@@ -49,7 +49,8 @@ def run(args) -> int:
 
     from magwarp.evaluate import EvalError, evaluate, format_table
 
-    wp.config.quiet = True
+    wp.config.quiet = True  # Warp < 1.19
+    wp.config.log_level = getattr(wp, "LOG_WARNING", 30)  # no init banner or module-load lines around the table
     try:
         result = evaluate(args.env_id, args.policy, args.episodes, args.repeats, device=args.device, steps=args.steps,
                           makespan_goals=args.makespan_goals, max_worlds=args.max_worlds, seed=args.seed)
