@@ -233,21 +233,21 @@ def plot_curve(csv_path: str, png_path: str, title: str = "") -> None:
         return np.array([float(r[name]) if r.get(name) not in (None, "") else np.nan for r in rows])
 
     steps, minutes = col("global_step"), col("wall_s") / 60.0
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    success = 100 * col("success_rate")
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     marker = "o" if len(rows) < 3 else None
-    axes[0].plot(steps, 100 * col("success_rate"), color="tab:green", marker=marker)
-    axes[0].set_xlabel("env steps")
-    axes[0].set_ylabel("success rate (%)")
-    axes[0].set_ylim(-2, 102)
-    axes[0].grid(alpha=0.3)
-    if len(rows) > 1 and steps[-1] > steps[0] and minutes[-1] > minutes[0]:
-        top = axes[0].secondary_xaxis("top", functions=(lambda s: np.interp(s, steps, minutes),
-                                                        lambda m: np.interp(m, minutes, steps)))
-        top.set_xlabel("wall-clock (min)")
-    axes[1].plot(steps, col("ep_return"), color="tab:blue", marker=marker)
-    axes[1].set_xlabel("env steps")
-    axes[1].set_ylabel("episode return")
-    axes[1].grid(alpha=0.3)
+    for ax, x, label in ((axes[0], steps, "env steps"), (axes[1], minutes, "wall-clock (min)")):
+        ax.plot(x, success, color="tab:green", marker=marker)
+        ax.set_xlabel(label)
+        ax.set_ylabel("success rate (%)")
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+    axes[2].plot(steps, col("ep_return"), color="tab:blue", marker=marker)
+    axes[2].set_xlabel("env steps")
+    axes[2].set_ylabel("episode return")
+    axes[2].grid(alpha=0.3)
+    for ax in (axes[0], axes[2]):
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 3))
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(png_path, dpi=100)
