@@ -68,5 +68,7 @@ def to_numpy_image(frame) -> np.ndarray:
 def warp_device(device) -> wp.Device:
     """A Warp device from a Warp device, a name ("cpu", "cuda:0"), a ``torch.device`` or ``None`` (Warp's default)."""
     if isinstance(device, torch.device):
+        if device.type == "cuda" and device.index is None:  # torch's "cuda" means its current device
+            device = torch.device("cuda", torch.cuda.current_device())
         return wp.device_from_torch(device)
     return wp.get_device(device)
