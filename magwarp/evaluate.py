@@ -56,7 +56,16 @@ class EvalResult:
     rows: list[Row]
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """Plain data for JSON (undefined values, e.g. corrections without a success, become None)."""
+        def clean(x):
+            if isinstance(x, float) and not math.isfinite(x):
+                return None
+            if isinstance(x, dict):
+                return {k: clean(v) for k, v in x.items()}
+            if isinstance(x, list):
+                return [clean(v) for v in x]
+            return x
+        return clean(asdict(self))
 
 
 # ---------------------------------------------------------------------------------------------------------- env ids

@@ -59,6 +59,6 @@ def run(args) -> int:
     print(format_table(result))
     if args.json is not None:
         with open(args.json, "w") as f:
-            json.dump(result.to_dict(), f, indent=2, allow_nan=True)
+            json.dump(result.to_dict(), f, indent=2, allow_nan=False)
         print(f"wrote {args.json}")
     return 0
