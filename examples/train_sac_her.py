@@ -52,6 +52,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--resume", default=None, help="checkpoint file or run folder to continue (its options are reused)")
     p.add_argument("--minutes", type=float, default=None, help="wall-clock training budget of this session")
     p.add_argument("--total-steps", type=float, default=None, help="stop after this many env steps (all worlds)")
+    p.add_argument("--stop-after", type=float, default=None,
+                   help="stop training once the process has run this many seconds (start-up and compilation included)")
     p.add_argument("--num-envs", type=int, default=None)
     p.add_argument("--buffer-steps", type=int, default=None, help="replay capacity in env steps per env")
     p.add_argument("--batch-size", type=int, default=None)
@@ -80,6 +82,8 @@ def resolve_args(args: argparse.Namespace) -> argparse.Namespace:
     if args.resume:
         saved = load_checkpoint(args.resume, "cpu")["args"]
         for k, v in saved.items():
+            if k == "stop_after":  # a limit of the earlier process, not of this one
+                continue
             if getattr(args, k, None) is None:
                 setattr(args, k, v)
         if args.out is None:
@@ -93,8 +97,8 @@ def resolve_args(args: argparse.Namespace) -> argparse.Namespace:
         args.device = "cuda" if torch.cuda.is_available() else "cpu"
     args.seed = 0 if args.seed is None else args.seed
     args.out = args.out or os.path.join("runs", args.env_id.split("/")[-1] + "_sac_her")
-    if args.minutes is None and args.total_steps is None:
-        raise ValueError("give a budget: --minutes and/or --total-steps")
+    if args.minutes is None and args.total_steps is None and args.stop_after is None:
+        raise ValueError("give a budget: --minutes, --total-steps and/or --stop-after")
     return args
 
 
@@ -277,7 +281,7 @@ def _train(args: argparse.Namespace) -> dict:
 
     tracker = SuccessTracker(N, device)
     logger = CsvLogger(args.out, args.tensorboard, resume=bool(args.resume))
-    timer = Timer(args.minutes, wall_before)
+    timer = Timer(args.minutes, wall_before, args.stop_after)
     total = None if args.total_steps is None else int(args.total_steps)
     bar = None
     if not args.no_progress:

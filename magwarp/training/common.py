@@ -269,12 +269,21 @@ def load_checkpoint(path: str, device) -> dict[str, Any]:
     return torch.load(path, map_location=device, weights_only=False)
 
 
-class Timer:
-    """Wall-clock budget: ``expired`` after ``minutes`` (None: never)."""
+#: when this process imported magwarp.training (for --stop-after, a limit on the whole process)
+PROCESS_START = time.perf_counter()
 
-    def __init__(self, minutes: float | None, already: float = 0.0):
+
+class Timer:
+    """Wall-clock budget: ``expired`` after ``minutes`` of training (None: never), or once the whole process has run
+    ``stop_after`` seconds (start-up and kernel compilation included: for machines that kill commands after a fixed
+    time; keep a margin for the final evaluation and saving)."""
+
+    def __init__(self, minutes: float | None, already: float = 0.0, stop_after: float | None = None):
         self.start = time.perf_counter()
         self.limit = None if minutes is None else 60.0 * float(minutes)
+        if stop_after is not None:
+            left = PROCESS_START + float(stop_after) - self.start
+            self.limit = left if self.limit is None else min(self.limit, left)
         self.already = already  # wall seconds of earlier sessions (resume), for the log only
 
     @property
