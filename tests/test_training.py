@@ -184,3 +184,18 @@ def test_train_command(tmp_path, algo, capsys):
     assert main(["train", "--resume", str(out), "--algo", other, "--total-steps", "512"]) == 2
     assert "trained with" in capsys.readouterr().err
     assert main(["train", "magwarp/NoSuchEnv-v0", "--minutes", "1"]) == 2
+
+
+def test_suite_runs_and_packs(tmp_path, capsys):
+    from magwarp.training import suite
+
+    work, out = tmp_path / "runs", tmp_path / "out"
+    rc = suite.main(["--minutes", "0.01", "--runs", "b0_ppo", "--work", str(work), "--out", str(out), "--device", "cpu",
+                     "--args", "--num-envs 8 --num-steps 4 --hidden 16,16 --eval-steps 2"])
+    assert rc == 0, (work / "b0_ppo.log").read_text()[-2000:]
+    import tarfile
+
+    with tarfile.open(out / "b0_ppo.tgz") as tar:
+        names = set(tar.getnames())
+    assert {"b0_ppo/policy.pt", "b0_ppo/checkpoint.pt", "b0_ppo/progress.csv", "b0_ppo.log"} <= names
+    assert "| b0_ppo | magwarp/TrajectoryPlanningB0-v0 |" in capsys.readouterr().out
