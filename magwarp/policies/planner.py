@@ -22,10 +22,12 @@ class GoalSeekingPlanner:
         cruise_speed: top planning speed (m/s); brake: deceleration (m/s^2) assumed for stopping distances.
         buffer: extra distance (m) kept between collision shapes and to the walls.
         horizon: gap (m) under which a yielding mover starts to sidestep, at speed ``sidestep`` (m/s).
+        leader_share: the part of a conflict's speed correction the higher-priority mover takes (1: as much as the
+            yielding one: fewer collisions, more deadlocks).
     """
 
     def __init__(self, env: TrajectoryPlanningEnv, cruise_speed: float = 1.2, brake: float = 5.0,
-                 buffer: float = 0.015, horizon: float = 0.15, sidestep: float = 0.25, wall_resolution: float = 0.005):
+                 buffer: float = 0.015, horizon: float = 0.15, sidestep: float = 0.25, leader_share: float = 0.35, wall_resolution: float = 0.005):
         self.env = env
         self.sim = env.sim
         self.cruise = cruise_speed
@@ -38,6 +40,7 @@ class GoalSeekingPlanner:
         self.a_max = lim.a_max
         self.v_max = lim.v_max
         self.sidestep = sidestep
+        self.leader_share = leader_share
         self._scales = torch.tensor([1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.1], device=env.device)
         self.reach = float(self.sim._radii_np.max()) if self.sim.mover.collision_shape == "circle" else float(
             (self.sim._half_np ** 2).sum(axis=1).max() ** 0.5)
@@ -123,7 +126,7 @@ class GoalSeekingPlanner:
         gap = dn - 2 * self.reach - self.buffer
         idx = torch.arange(m, device=pos.device)
         lower = idx.view(m, 1) > idx.view(1, m)  # i yields to j
-        share = torch.where(lower, 1.0, 0.35) * (idx.view(m, 1) != idx.view(1, m))
+        share = torch.where(lower, 1.0, self.leader_share) * (idx.view(m, 1) != idx.view(1, m))
         side = torch.stack([-u[..., 1], u[..., 0]], dim=-1)
         near = ((gap < self.horizon) & lower).float().unsqueeze(-1)
         for _ in range(2):  # two passes settle most three-body conflicts
