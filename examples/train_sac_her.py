@@ -287,7 +287,7 @@ def _train(args: argparse.Namespace) -> dict:
     if not args.no_progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=total if total else int(60 * args.minutes), unit="step" if total else "s",
+        bar = tqdm(total=total if total else max(int(timer.limit), 1), unit="step" if total else "s",
                    unit_scale=bool(total), desc=f"sac-her {args.env_id.split('/')[-1]}", dynamic_ncols=True,
                    mininterval=1.0)
 
