@@ -33,5 +33,6 @@ SUBCOMMANDS = {
     "eval": "evaluate a policy on an env: success rate, collisions, makespan, ...",
     "render": "render steps of an env (or a synthetic scene) top-down to PNG, gif or mp4",
     "view": "live 3D viewer through Newton: GL window, browser (viser), USD file, Rerun",
-    "train": "train a policy on an env",
+    "train": "train a policy on an env (PPO or SAC + HER)",
+    "export": "export a trained policy as ONNX",
 }
