@@ -7,7 +7,9 @@ Per world, mover 0 does the pushing (other movers hold still):
   circle at a small clearance instead (the shorter way unless it leaves the safe region);
 * **push**: inside a narrow cone behind the object, drive along the goal line with a speed profile that brakes
   below the box's friction deceleration (the box stays against the mover and stops at the goal), steering
-  sideways back onto the line through the object's centre.
+  sideways back onto the line through the object's centre;
+* **settle**: once the object is well inside the success threshold, hold still (near the goal the push direction
+  turns erratic, and chasing it pushes the object out again).
 
 Contact distances use the exact support of the (rotated) object parts and of the mover's square footprint. Speeds
 toward the sides of the safe rectangle (where the wall-collision shape stays on the tiles) are capped to what can
@@ -44,17 +46,19 @@ class PushHeuristic:
         clearance: gap (m) kept between mover and object while going around it.
         engage: fraction of the push speed the mover already has when it reaches the staging point.
         cone: lateral tolerance (per metre of gap) of the cone behind the object in which it pushes.
+        settle: the mover holds still once the object is within this fraction of the success threshold.
+        stop_at: distance (m) short of the goal at which the planned push speed reaches zero.
     """
 
     def __init__(self, env, cruise: float = 1.8, push_speed: float = 2.0, push_brake: float = 5.0,
                  approach_brake: float = 5.0, clearance: float = 0.008, engage: float = 0.5,
-                 cone: float = 0.3):
+                 cone: float = 0.3, settle: float = 0.8, stop_at: float = 0.005):
         self.env = env
         self.backend = env.backend
         self.cruise, self.push_speed = cruise, push_speed
         self.push_brake, self.approach_brake = push_brake, approach_brake
         self.clearance = clearance
-        self.engage, self.cone = engage, cone
+        self.engage, self.cone, self.settle, self.stop_at = engage, cone, settle, stop_at
         c = self.backend.control
         self.latency = c.num_cycles * self.backend.dt  # one held env step
         self.a_max, self.v_max = c.a_max, c.v_max
@@ -154,8 +158,10 @@ class PushHeuristic:
 
         # Push: inside a narrow cone behind the object, drive along the goal line (speed planned over the gap and
         # the object's way to the goal, braking below its friction deceleration) and steer onto the line.
-        cone = (along < -(contact_u - 0.01)) & (lateral.abs() < 0.015 + self.cone * gap)
-        speed = torch.sqrt(2 * self.push_brake * (dist + gap - 0.005).clamp_min(0.0)).clamp(max=self.push_speed)
+        # (contact_u is the support sum: an upper bound of the touching distance when u is off the face normals,
+        # so the cone does not end there; it would flip between pushing and backing off to the staging point)
+        cone = (along < -0.5 * contact_u) & (lateral.abs() < 0.015 + self.cone * gap)
+        speed = torch.sqrt(2 * self.push_brake * (dist + gap - self.stop_at).clamp_min(0.0)).clamp(max=self.push_speed)
         v_push = u * speed - n * (lateral * 15.0).clamp(-self.cruise, self.cruise)
 
         # Direct approach: straight to the staging point behind the object, arriving with a little push speed.
@@ -182,6 +188,8 @@ class PushHeuristic:
         v_orbit = obj_vel + v_rad + e_t * sign * self._profile(err.abs() * r).clamp(max=self.cruise)
 
         v = torch.where(cone, v_push, torch.where(blocked, v_orbit, v_direct))
+        # Near the goal the push direction turns erratic: hold still there (MagBotSim scores the final state).
+        v = torch.where(dist < self.settle * env.max_position_err, torch.zeros_like(v), v)
         v = self._wall_limit(pos, vel, v)
         acc = self._wall_brake(pos, vel, self._clip((v - vel) / self.latency))
         out = torch.zeros(env.num_envs, env.num_movers, 2, device=env.device)
