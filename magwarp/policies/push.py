@@ -75,6 +75,7 @@ class PushHeuristic:
         ext = np.asarray(env.layout.extent, np.float32)
         self._lo = torch.full((2,), reach, device=dev)
         self._hi = torch.as_tensor(ext - reach, device=dev)
+        self._way = torch.zeros(env.num_envs, 1, device=dev)  # per world: direction around the object (0: none)
 
     def _object_support(self, yaw: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         """Extent of the object (yaw ``[N]``) along unit directions ``w`` ``[N, 2]`` from its centre."""
@@ -184,7 +185,10 @@ class PushHeuristic:
         r_des = contact + self.clearance
         dr = r_des - r
         v_rad = e_r * torch.sign(dr) * self._profile(dr.abs()).clamp(max=self.cruise)
+        # Keep the way round once chosen: in front of the object the shorter arc flips with every step.
         sign = self._orbit_sign(obj, theta, err, r_des)
+        sign = torch.where(blocked & (self._way != 0), self._way, sign)
+        self._way = torch.where(blocked, sign, torch.zeros_like(sign))
         v_orbit = obj_vel + v_rad + e_t * sign * self._profile(err.abs() * r).clamp(max=self.cruise)
 
         v = torch.where(cone, v_push, torch.where(blocked, v_orbit, v_direct))
