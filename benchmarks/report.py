@@ -76,6 +76,19 @@ def env_tables(rows: list[dict]) -> str:
     return out + table(rows, cols)
 
 
+def eval_table(result: dict) -> str:
+    """A ``magwarp eval --json`` result as the paper's table: metric, n, mean ± std over repeats."""
+    head = (f"*{result['env_id']}, policy `{result['policy']}`, {result['repeats']} repeats x {result['episodes']} "
+            f"{'episodes' if result['family'] == 'push' else 'worlds'}, {result['device']}, "
+            f"{result['wall_s']:.1f} s wall-clock.*\n\n")
+    rows = []
+    for r in result["rows"]:
+        mean, std = r.get("mean"), r.get("std")
+        value = "---" if mean is None else f"{mean:.4g} ± {std:.3g}"
+        rows.append({"label": r["label"], "n": r.get("n"), "value": value})
+    return head + table(rows, [("label", "Metric"), ("n", "n"), ("value", "mean ± std")])
+
+
 def main(paths: list[str]) -> int:
     for path in paths:
         with open(path) as f:
@@ -83,7 +96,12 @@ def main(paths: list[str]) -> int:
         if not rows:
             continue
         print(f"### `{path}`\n")
-        print(scaling_tables(rows) if "ms_per_step" in rows[0] and "movers" in rows[0] else env_tables(rows))
+        if isinstance(rows, dict) and "rows" in rows:
+            print(eval_table(rows))
+        elif "ms_per_step" in rows[0] and "movers" in rows[0]:
+            print(scaling_tables(rows))
+        else:
+            print(env_tables(rows))
     return 0
 
 
