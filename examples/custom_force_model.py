@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from magwarp.kernels.impedance import impedance_wrench
+from magwarp.kernels.impedance import default_force
 from magwarp.layout import Layout
 from magwarp.sim import Simulator
 from magwarp.types import Body, Impedance, Limits, Pose, Wrench
@@ -42,11 +42,11 @@ def coil_force(
     lim: Limits,
     aux: wp.array(dtype=float),
 ) -> Wrench:
-    """Default model (gravity compensation, x/y drive, impedance hold) + coil force + viscous drag on x/y."""
-    w = impedance_wrench(p, body, target_pos, target_quat, imp)
+    """The default model (gravity compensation, x/y drive, impedance hold), plus a coil force and x/y drag."""
+    w = default_force(p, body, drive, target_pos, target_quat, imp, lim, aux)
     coil = wp.vec3(K_COIL * aux[0], K_COIL * aux[1], 0.0)
     drag = wp.vec3(-C_DRAG * p.vel[0], -C_DRAG * p.vel[1], 0.0)
-    w.force = w.force + drive + coil + drag + wp.vec3(0.0, 0.0, body.mass * lim.gravity)
+    w.force = w.force + coil + drag
     return w
 
 
