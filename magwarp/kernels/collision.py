@@ -33,18 +33,38 @@ def shape_yaw(col: Collision, q: wp.quat) -> float:
 
 
 @wp.func
+def heading_of(q: wp.quat) -> wp.vec2:
+    """(cos, sin) of a mover's heading straight from its orientation: no trigonometric call in the hot loops."""
+    ax = wp.quat_rotate(q, wp.vec3(1.0, 0.0, 0.0))
+    v = wp.vec2(ax[0], ax[1])
+    n = wp.length(v)
+    if n > 0.0:
+        return v / n
+    return wp.vec2(1.0, 0.0)
+
+
+@wp.func
+def shape_heading(col: Collision, q: wp.quat) -> wp.vec2:
+    """The heading when the collision shape depends on it (boxes); circles skip the work."""
+    if col.shape == SHAPE_CIRCLE:
+        return wp.vec2(1.0, 0.0)
+    return heading_of(q)
+
+
+@wp.func
 def box_extent(axis: wp.vec2, c: float, s: float, half: wp.vec2) -> float:
     """Half length of the projection onto ``axis`` of a box with half sizes ``half`` rotated by (c, s)."""
     return half[0] * wp.abs(axis[0] * c + axis[1] * s) + half[1] * wp.abs(-axis[0] * s + axis[1] * c)
 
 
 @wp.func
-def boxes_overlap(d: wp.vec2, yaw_a: float, half_a: wp.vec2, yaw_b: float, half_b: wp.vec2) -> bool:
-    """Separating-axis test for two rectangles whose centres differ by ``d``; touching counts as overlap."""
-    ca = wp.cos(yaw_a)
-    sa = wp.sin(yaw_a)
-    cb = wp.cos(yaw_b)
-    sb = wp.sin(yaw_b)
+def boxes_overlap_cs(d: wp.vec2, ha: wp.vec2, half_a: wp.vec2, hb: wp.vec2, half_b: wp.vec2) -> bool:
+    """Separating-axis test for two rectangles (headings ``ha``, ``hb`` as (cos, sin)) whose centres differ by
+    ``d``; touching counts as overlap."""
+    ca = ha[0]
+    sa = ha[1]
+    cb = hb[0]
+    sb = hb[1]
     for k in range(4):
         axis = wp.vec2(ca, sa)
         if k == 1:
@@ -60,27 +80,44 @@ def boxes_overlap(d: wp.vec2, yaw_a: float, half_a: wp.vec2, yaw_b: float, half_
 
 
 @wp.func
-def movers_collide(
-    col: Collision, d: wp.vec2, yaw_a: float, r_a: float, half_a: wp.vec2, yaw_b: float, r_b: float, half_b: wp.vec2
+def boxes_overlap(d: wp.vec2, yaw_a: float, half_a: wp.vec2, yaw_b: float, half_b: wp.vec2) -> bool:
+    """:func:`boxes_overlap_cs` with headings given as angles."""
+    return boxes_overlap_cs(d, wp.vec2(wp.cos(yaw_a), wp.sin(yaw_a)), half_a, wp.vec2(wp.cos(yaw_b), wp.sin(yaw_b)), half_b)
+
+
+@wp.func
+def movers_collide_cs(
+    col: Collision, d: wp.vec2, ha: wp.vec2, r_a: float, half_a: wp.vec2, hb: wp.vec2, r_b: float, half_b: wp.vec2
 ) -> bool:
-    """Do two movers (centre offset ``d``) collide once both shapes are grown by the safety margin?"""
+    """Do two movers (centre offset ``d``, headings as (cos, sin)) collide once both shapes are grown by the safety
+    margin?"""
     if col.shape == SHAPE_CIRCLE:
         reach = r_a + r_b + 2.0 * col.margin
         return wp.dot(d, d) <= reach * reach  # squared: no square root in the hottest test
     m = wp.vec2(col.margin, col.margin)
-    return boxes_overlap(d, yaw_a, half_a + m, yaw_b, half_b + m)
+    return boxes_overlap_cs(d, ha, half_a + m, hb, half_b + m)
 
 
 @wp.func
-def footprint_hits_square(shape: int, p: wp.vec2, yaw: float, radius: float, half: wp.vec2, lo: wp.vec2, size: float) -> bool:
-    """Does the footprint overlap the square ``[lo, lo + size]`` with positive area? (Touching is not a hit.)"""
+def movers_collide(
+    col: Collision, d: wp.vec2, yaw_a: float, r_a: float, half_a: wp.vec2, yaw_b: float, r_b: float, half_b: wp.vec2
+) -> bool:
+    """:func:`movers_collide_cs` with headings given as angles."""
+    return movers_collide_cs(col, d, wp.vec2(wp.cos(yaw_a), wp.sin(yaw_a)), r_a, half_a,
+                             wp.vec2(wp.cos(yaw_b), wp.sin(yaw_b)), r_b, half_b)
+
+
+@wp.func
+def footprint_hits_square(shape: int, p: wp.vec2, h: wp.vec2, radius: float, half: wp.vec2, lo: wp.vec2, size: float) -> bool:
+    """Does the footprint (heading ``h`` as (cos, sin)) overlap the square ``[lo, lo + size]`` with positive area?
+    (Touching is not a hit.)"""
     if shape == SHAPE_CIRCLE:
         nearest = wp.vec2(wp.clamp(p[0], lo[0], lo[0] + size), wp.clamp(p[1], lo[1], lo[1] + size))
         return wp.length(p - nearest) < radius
     hs = 0.5 * size
     d = p - (lo + wp.vec2(hs, hs))
-    c = wp.cos(yaw)
-    s = wp.sin(yaw)
+    c = h[0]
+    s = h[1]
     for k in range(4):
         axis = wp.vec2(1.0, 0.0)
         if k == 1:
@@ -96,22 +133,30 @@ def footprint_hits_square(shape: int, p: wp.vec2, yaw: float, radius: float, hal
 
 @wp.func
 def hits_wall(tiles: wp.array2d(dtype=wp.int32), col: Collision, p: wp.vec2, yaw: float, radius: float, half: wp.vec2) -> bool:
-    """Does the footprint grown by the wall margin overlap a missing tile or leave the grid?"""
+    """:func:`hits_wall_cs` with the heading given as an angle."""
+    return hits_wall_cs(tiles, col, p, wp.vec2(wp.cos(yaw), wp.sin(yaw)), radius, half)
+
+
+@wp.func
+def hits_wall_cs(tiles: wp.array2d(dtype=wp.int32), col: Collision, p: wp.vec2, h: wp.vec2, radius: float,
+                 half: wp.vec2) -> bool:
+    """Does the footprint (heading ``h`` as (cos, sin)) grown by the wall margin overlap a missing tile or leave
+    the grid?"""
     r = radius + col.wall_margin
-    h = half + wp.vec2(col.wall_margin, col.wall_margin)
+    hh = half + wp.vec2(col.wall_margin, col.wall_margin)
     reach = r
     if col.shape != SHAPE_CIRCLE:
-        reach = wp.length(h)
+        reach = wp.length(hh)
     if col.full_rect == 1:
         # Every tile present: the footprint leaves the tiles exactly when its bounding box leaves the rectangle (a
         # box's extreme corner then lies outside). Same answer as the per-cell test below, in four comparisons.
         ex = r
         ey = r
         if col.shape != SHAPE_CIRCLE:
-            c = wp.abs(wp.cos(yaw))
-            s = wp.abs(wp.sin(yaw))
-            ex = h[0] * c + h[1] * s
-            ey = h[0] * s + h[1] * c
+            c = wp.abs(h[0])
+            s = wp.abs(h[1])
+            ex = hh[0] * c + hh[1] * s
+            ey = hh[0] * s + hh[1] * c
         return p[0] - ex < 0.0 or p[1] - ey < 0.0 or p[0] + ex > col.extent[0] or p[1] + ey > col.extent[1]
     size = col.tile_size
     i0 = int(wp.floor((p[0] - reach) / size))
@@ -126,7 +171,7 @@ def hits_wall(tiles: wp.array2d(dtype=wp.int32), col: Collision, p: wp.vec2, yaw
             if i >= 0 and i < nx and j >= 0 and j < ny:
                 present = tiles[i, j] == 1
             if not present:
-                if footprint_hits_square(col.shape, p, yaw, r, h, wp.vec2(float(i) * size, float(j) * size), size):
+                if footprint_hits_square(col.shape, p, h, r, hh, wp.vec2(float(i) * size, float(j) * size), size):
                     return True
     return False
 
@@ -240,7 +285,7 @@ def detect_collisions_grid(
     """Mover-mover narrow phase over the 3x3 neighbouring cells, then the mover's flags."""
     w, m = wp.tid()
     p = pos[w, m]
-    yaw = shape_yaw(col, quat[w, m])
+    hd = shape_heading(col, quat[w, m])
     c = cell_coords(grid, p)
     partner = int(-1)
     for dy in range(-1, 2):
@@ -256,7 +301,8 @@ def detect_collisions_grid(
                 if j != m:
                     q = pos[w, j]
                     d = wp.vec2(p[0] - q[0], p[1] - q[1])
-                    if movers_collide(col, d, yaw, radius[m], half_size[m], shape_yaw(col, quat[w, j]), radius[j], half_size[j]):
+                    if movers_collide_cs(col, d, hd, radius[m], half_size[m], shape_heading(col, quat[w, j]), radius[j],
+                                         half_size[j]):
                         if partner < 0 or j < partner:
                             partner = j
                         if j > m:
@@ -287,13 +333,14 @@ def detect_collisions_brute(
     """Mover-mover check against every other mover of the world: the fast choice for small worlds."""
     w, m = wp.tid()
     p = pos[w, m]
-    yaw = shape_yaw(col, quat[w, m])
+    hd = shape_heading(col, quat[w, m])
     partner = int(-1)
     for j in range(pos.shape[1]):
         if j != m:
             q = pos[w, j]
             d = wp.vec2(p[0] - q[0], p[1] - q[1])
-            if movers_collide(col, d, yaw, radius[m], half_size[m], shape_yaw(col, quat[w, j]), radius[j], half_size[j]):
+            if movers_collide_cs(col, d, hd, radius[m], half_size[m], shape_heading(col, quat[w, j]), radius[j],
+                                 half_size[j]):
                 if partner < 0:
                     partner = j
                 if j > m:
@@ -320,7 +367,7 @@ def footprints_on_tiles(
     """
     i = wp.tid()
     ok = int(1)
-    if hits_wall(tiles, col, xy[i], 0.0, radius + extra, half + wp.vec2(extra, extra)):
+    if hits_wall_cs(tiles, col, xy[i], wp.vec2(1.0, 0.0), radius + extra, half + wp.vec2(extra, extra)):
         ok = 0
     valid[i] = ok
 
@@ -342,6 +389,6 @@ def detect_walls(
     w, m = wp.tid()
     p = pos[w, m]
     hit = int(0)
-    if hits_wall(tiles, col, wp.vec2(p[0], p[1]), shape_yaw(col, quat[w, m]), radius[m], half_size[m]):
+    if hits_wall_cs(tiles, col, wp.vec2(p[0], p[1]), shape_heading(col, quat[w, m]), radius[m], half_size[m]):
         hit = 1
     wall[w, m] = hit

@@ -17,7 +17,7 @@ import functools
 
 import warp as wp
 
-from magwarp.kernels.collision import hits_wall, movers_collide, push_to_cell, shape_yaw
+from magwarp.kernels.collision import hits_wall_cs, movers_collide_cs, push_to_cell, shape_heading
 from magwarp.kernels.dynamics import integrate_body, planar_acceleration
 from magwarp.kernels.impedance import default_force
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, Impedance, Limits, Pose
@@ -76,7 +76,7 @@ def make_advance_kernel(force_fn=default_force):
         omega[w, m] = n.omega
         acc[w, m] = a
         hit = int(0)
-        if hits_wall(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_yaw(col, n.quat), radius[m], half_size[m]):
+        if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[m], half_size[m]):
             hit = 1
         wall[w, m] = hit
 
@@ -177,11 +177,12 @@ def make_advance_kernel(force_fn=default_force):
             walls = int(0)
             for i in range(num_movers):
                 pi = pos[w, i]
-                yi = shape_yaw(col, quat[w, i])
+                yi = shape_heading(col, quat[w, i])
                 for j in range(i + 1, num_movers):
                     pj = pos[w, j]
                     d = wp.vec2(pi[0] - pj[0], pi[1] - pj[1])
-                    if movers_collide(col, d, yi, radius[i], half_size[i], shape_yaw(col, quat[w, j]), radius[j], half_size[j]):
+                    if movers_collide_cs(col, d, yi, radius[i], half_size[i], shape_heading(col, quat[w, j]), radius[j],
+                                         half_size[j]):
                         if pairs < pair_list.shape[1]:
                             pair_list[w, pairs] = wp.vec2i(i, j)
                         pairs += 1
@@ -302,7 +303,7 @@ def make_register_kernel(force_fn, num_movers: int):
                 Q[m] = wp.vec4(n.quat[0], n.quat[1], n.quat[2], n.quat[3])
                 A[m] = a
                 hit = int(0)
-                if hits_wall(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_yaw(col, n.quat), radius[m], half_size[m]):
+                if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[m], half_size[m]):
                     hit = 1
                 Wl[m] = hit
                 Pr[m] = -1
@@ -312,12 +313,12 @@ def make_register_kernel(force_fn, num_movers: int):
             # Both loops have constant bounds so that they unroll and every index is a constant: a dynamic index
             # would push the whole register block (P, Q, Pr) out to local memory.
             for i in range(M):
-                yi = shape_yaw(col, wp.quat(Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]))
+                yi = shape_heading(col, wp.quat(Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3]))
                 for j in range(M):
                     if j > i:
                         d = wp.vec2(P[i, 0] - P[j, 0], P[i, 1] - P[j, 1])
-                        yj = shape_yaw(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
-                        if movers_collide(col, d, yi, radius[i], half_size[i], yj, radius[j], half_size[j]):
+                        yj = shape_heading(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
+                        if movers_collide_cs(col, d, yi, radius[i], half_size[i], yj, radius[j], half_size[j]):
                             if pairs < pair_list.shape[1]:
                                 pair_list[w, pairs] = wp.vec2i(i, j)
                             pairs += 1
