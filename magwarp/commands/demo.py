@@ -45,6 +45,7 @@ def run(args) -> int:
     from magwarp.render import save_png
 
     wp.config.quiet = True
+    wp.config.log_level = getattr(wp, "LOG_WARNING", 30)  # Warp 1.19: no banner or module-load lines
     device = args.device or magwarp.default_device()
     num_envs = args.num_envs or (65536 if device.startswith("cuda") else 4096)
     if num_envs < 1:
