@@ -69,7 +69,7 @@ def run(args) -> int:
     steps_per_s = num_envs * args.steps / elapsed
     sim_seconds = num_envs * args.steps * env.num_cycles * env.sim.model.limits.dt
     print(f"  {steps_per_s:,.0f} env-steps/s ({sim_seconds / elapsed:,.0f}x real time summed over worlds; "
-          f"MagBotSim steps one env at ~17-80 env-steps/s)")
+          f"MagBotSim: ~80 env-steps/s, one env per process, see benchmarks/RESULTS.md)")
     print(f"  planner: {int(goals) / (num_envs * args.steps):.3f} goals per world-step, "
           f"{int(collisions) / max(int(goals), 1):.3f} collisions per goal")
 
