@@ -89,7 +89,30 @@ def eval_table(result: dict) -> str:
     return head + table(rows, [("label", "Metric"), ("n", "n"), ("value", "mean ± std")])
 
 
+def eval_summary(results: list[dict]) -> str:
+    """One row per ``magwarp eval`` result: success, throughput and collisions (mean ± std over repeats)."""
+    rows = []
+    for res in results:
+        by_key = {r["key"]: r for r in res["rows"]}
+
+        def cell(key):
+            r = by_key.get(key)
+            return "-" if r is None or r.get("mean") is None else f"{r['mean']:.4g} ± {r['std']:.2g}"
+
+        rows.append({"env": res["env_id"].removeprefix("magwarp/"), "device": res["device"],
+                     "runs": f"{res['repeats']} x {res['episodes']}", "success": cell("success_rate"),
+                     "throughput": cell("throughput"),
+                     "collisions": cell("collisions") if "collisions" in by_key else cell("collisions_per_1k"),
+                     "wall": f"{res['wall_s']:.1f}"})
+    return table(rows, [("env", "env"), ("device", "device"), ("runs", "repeats x episodes"),
+                        ("success", "success rate (%)"), ("throughput", "throughput (goals/s)"),
+                        ("collisions", "collisions*"), ("wall", "wall-clock (s)")])
+
+
 def main(paths: list[str]) -> int:
+    if paths and paths[0] == "--eval-summary":
+        print(eval_summary([json.load(open(p)) for p in paths[1:]]))
+        return 0
     for path in paths:
         with open(path) as f:
             rows = json.load(f)
