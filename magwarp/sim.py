@@ -3,9 +3,10 @@
 One call of :meth:`Simulator.step` runs ``num_cycles`` control cycles (control, integration, collision check) for
 every world as a single Warp graph replay, on CPU or GPU. State is exposed zero-copy as torch tensors.
 
-Two launch shapes (see :mod:`magwarp.kernels.step`): small worlds run *fused*, one thread per world for all cycles;
-large worlds run one kernel per stage per cycle with a grid broad phase. Per-cycle hooks (e.g. metrics) force the
-per-cycle shape so that they can run between cycles, still inside the same graph.
+Launch shapes (see :mod:`magwarp.kernels.step`): small worlds run *fused*, one thread per world for all cycles (with
+the whole world in registers up to ``REGISTER_MAX_MOVERS`` movers); larger worlds run two or three kernels per cycle,
+with a uniform-grid broad phase above 32 movers. Per-cycle hooks (e.g. metrics) force the per-cycle shape so that they
+can run between cycles, still inside the same graph.
 """
 
 from __future__ import annotations

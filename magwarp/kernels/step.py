@@ -1,13 +1,14 @@
 """Step kernels: one control cycle of one mover (command limits, force model, integration, wall check), composed
-into the two launch shapes the simulator uses.
+into the launch shapes the simulator uses.
 
-* :func:`make_advance_kernel` — one thread per mover for one cycle; the simulator launches it once per cycle,
-  followed by the collision kernels (grid broad phase for large worlds). Used for large worlds and whenever per-cycle
-  hooks (metrics) must run between cycles.
-* :func:`make_fused_kernel` — one thread per world runs every cycle of the step, movers and pair checks included,
-  without leaving the kernel: the fast shape for many small worlds (the RL regime).
+* :func:`make_advance_kernel` returns ``advance_movers`` — one thread per mover for one cycle (binning it into the
+  grid on the way); the simulator launches it once per cycle, followed by the narrow phase. Used for large worlds and
+  whenever per-cycle hooks (metrics) must run between cycles — and ``fused_worlds`` — one thread per world runs every
+  cycle of the step, movers and pair checks included, reading the state from memory.
+* :func:`make_register_kernel` — the same fused step with the whole world held in registers, specialised for a mover
+  count: the fast shape for many small worlds (the RL regime).
 
-Both are built from a user-swappable force model (see :mod:`magwarp.kernels.impedance`), so a custom wrench law
+All are built from a user-swappable force model (see :mod:`magwarp.kernels.impedance`), so a custom wrench law
 needs no fork of the kernels: pass another ``@wp.func`` with the same signature.
 """
 
