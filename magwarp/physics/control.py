@@ -22,37 +22,12 @@ from __future__ import annotations
 
 import warp as wp
 
+from magwarp.kernels.dynamics import planar_acceleration
+from magwarp.kernels.impedance import rotation_error
+from magwarp.types import Limits
 
-@wp.func
-def _limit_next(current: wp.vec2, deriv: wp.vec2, limit: float, dt: float) -> wp.vec2:
-    """Effective derivative so that ``|current + dt * deriv|`` stays below ``limit`` (MagBotSim's ensure_max_dyn_val)."""
-    nxt = current + dt * deriv
-    n = wp.length(nxt)
-    if n >= limit:
-        return (nxt * (limit / n) - current) / dt
-    return deriv
-
-
-@wp.func
-def _clip_norm(v: wp.vec2, limit: float) -> wp.vec2:
-    n = wp.length(v)
-    if n > limit:
-        return v * (limit / n)
-    return v
-
-
-@wp.func
-def _rotvec(q: wp.quat) -> wp.vec3:
-    """Rotation vector (shortest arc) of a unit quaternion in Warp's (x, y, z, w) order."""
-    v = wp.vec3(q[0], q[1], q[2])
-    w = q[3]
-    if w < 0.0:
-        v = -v
-        w = -w
-    s = wp.length(v)
-    if s < 1.0e-12:
-        return 2.0 * v
-    return v * (2.0 * wp.atan2(s, w) / s)
+# The x/y limits and the rotation-vector error are the planar simulator's own functions: one law for both engines.
+_IDENTITY = wp.constant(wp.quat(0.0, 0.0, 0.0, 1.0))
 
 
 @wp.kernel
@@ -85,14 +60,13 @@ def mover_control_kernel(
     m = mass[k]
 
     # x/y: limited acceleration, applied as m * a (semi-implicit Euler then matches MagBotSim's actuators).
-    vel = wp.vec2(qvel[w, da], qvel[w, da + 1])
-    if jerk_mode != 0:
-        jerk = _clip_norm(cmd[w, k], j_max)
-        a_prev = acc[w, k]
-        a_tmp = a_prev + dt * _limit_next(a_prev, jerk, a_max, dt)
-        a = _limit_next(vel, a_tmp, v_max, dt)
-    else:
-        a = _limit_next(vel, _clip_norm(cmd[w, k], a_max), v_max, dt)
+    lim = Limits()
+    lim.dt = dt
+    lim.v_max = v_max
+    lim.a_max = a_max
+    lim.j_max = j_max
+    lim.jerk_mode = jerk_mode
+    a = planar_acceleration(wp.vec3(qvel[w, da], qvel[w, da + 1], 0.0), acc[w, k], cmd[w, k], lim)
     acc[w, k] = a
 
     # z: critically damped spring to the hover height.
@@ -101,7 +75,7 @@ def mover_control_kernel(
 
     # attitude: spring to identity orientation (MuJoCo stores w, x, y, z; Warp quats are x, y, z, w).
     q = wp.normalize(wp.quat(qpos[w, qa + 4], qpos[w, qa + 5], qpos[w, qa + 6], qpos[w, qa + 3]))
-    err_world = wp.quat_rotate(q, _rotvec(wp.quat_inverse(q)))
+    err_world = rotation_error(q, _IDENTITY)
     omega_local = wp.vec3(qvel[w, da + 3], qvel[w, da + 4], qvel[w, da + 5])
     omega_world = wp.quat_rotate(q, omega_local)
     inert = inertia[k]

@@ -8,26 +8,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from magwarp import reference
 from magwarp.physics.backend import ControlParams
-
-
-def _limit_next(cur: np.ndarray, deriv: np.ndarray, limit: float, dt: float) -> np.ndarray:
-    nxt = cur + dt * deriv
-    n = np.linalg.norm(nxt)
-    return (nxt * (limit / n) - cur) / dt if n >= limit else deriv
-
-
-def _clip_norm(v: np.ndarray, limit: float) -> np.ndarray:
-    n = np.linalg.norm(v)
-    return v * (limit / n) if n > limit else v
-
-
-def _rotvec_wxyz(q: np.ndarray) -> np.ndarray:
-    w, v = q[0], q[1:]
-    if w < 0:
-        w, v = -w, -v
-    s = np.linalg.norm(v)
-    return 2.0 * v if s < 1e-12 else v * (2.0 * np.arctan2(s, w) / s)
 
 
 def control_forces(mjm, mjd, mover_body, mover_qadr, mover_dadr, hover_z, cmd, acc, c: ControlParams) -> None:
@@ -37,11 +19,9 @@ def control_forces(mjm, mjd, mover_body, mover_qadr, mover_dadr, hover_z, cmd, a
         m = mjm.body_subtreemass[b]
         inertia = mjm.body_inertia[b]
         vel = mjd.qvel[da : da + 2]
-        if c.jerk:
-            a_tmp = acc[k] + dt * _limit_next(acc[k], _clip_norm(cmd[k], c.j_max), c.a_max, dt)
-            a = _limit_next(vel, a_tmp, c.v_max, dt)
-        else:
-            a = _limit_next(vel, _clip_norm(cmd[k], c.a_max), c.v_max, dt)
+        # The planar simulator's numpy reference law: one definition of the x/y limits for every oracle.
+        a, _, _ = reference.planar_cycle(vel, acc[k], cmd[k], dt=dt, v_max=c.v_max, a_max=c.a_max, j_max=c.j_max,
+                                         jerk_mode=c.jerk)
         acc[k] = a
         kz = c.k_lin[2]
         fz = kz * (hover_z[k] - mjd.qpos[qa + 2]) - 2.0 * np.sqrt(kz * m) * mjd.qvel[da + 2]
@@ -49,7 +29,8 @@ def control_forces(mjm, mjd, mover_body, mover_qadr, mover_dadr, hover_z, cmd, a
         rot = np.zeros(9)
         mujoco.mju_quat2Mat(rot, q)
         rot = rot.reshape(3, 3)
-        err_world = -_rotvec_wxyz(q)  # rotation from q to identity, in world frame (axis is fixed by the rotation)
+        # Rotation from q to identity, in the world frame (the axis is fixed by the rotation); q is (w, x, y, z).
+        err_world = -reference.quat_to_rotvec(np.array([q[1], q[2], q[3], q[0]]))
         omega_world = rot @ mjd.qvel[da + 3 : da + 6]
         k_rot = np.asarray(c.k_rot)
         tau = k_rot * err_world - 2.0 * np.sqrt(k_rot * inertia) * omega_world
