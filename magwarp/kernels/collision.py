@@ -25,6 +25,13 @@ def yaw_of(q: wp.quat) -> float:
 
 
 @wp.func
+def free_joint_xy_yaw(qpos: wp.array2d(dtype=float), w: int, qa: int):
+    """x, y and heading of a body on a MuJoCo free joint at qpos address ``qa`` (quaternion stored w, x, y, z)."""
+    q = wp.quat(qpos[w, qa + 4], qpos[w, qa + 5], qpos[w, qa + 6], qpos[w, qa + 3])
+    return wp.vec2(qpos[w, qa], qpos[w, qa + 1]), yaw_of(q)
+
+
+@wp.func
 def shape_yaw(col: Collision, q: wp.quat) -> float:
     """Heading when the collision shape depends on it (boxes); circles skip the trigonometry."""
     if col.shape == SHAPE_CIRCLE:

@@ -17,7 +17,7 @@ stops counting a world once its episode is over).
 
 import warp as wp
 
-from magwarp.kernels.collision import hits_wall, movers_collide, yaw_of
+from magwarp.kernels.collision import free_joint_xy_yaw, hits_wall, movers_collide
 from magwarp.types import Collision
 
 wp.set_module_options({"enable_backward": False})
@@ -135,12 +135,6 @@ def trajectory_world_kernel(
     count_rise(int(world_walls[w]), w, EV_MOVER_WALL, prev, events)
 
 
-@wp.func
-def _mover_xy_yaw(qpos: wp.array2d[float], w: int, qa: int):
-    q = wp.quat(qpos[w, qa + 4], qpos[w, qa + 5], qpos[w, qa + 6], qpos[w, qa + 3])
-    return wp.vec2(qpos[w, qa], qpos[w, qa + 1]), yaw_of(q)
-
-
 @wp.kernel
 def push_world_kernel(
     # Model:
@@ -183,11 +177,11 @@ def push_world_kernel(
     pairs = int(0)
     effort = float(0.0)
     for k in range(num_movers):
-        p, yaw = _mover_xy_yaw(qpos, w, qadr[k])
+        p, yaw = free_joint_xy_yaw(qpos, w, qadr[k])
         if hits_wall(tiles, col, p, yaw, radius[k], half[k]):
             walls += 1
         for j in range(k + 1, num_movers):
-            pj, yawj = _mover_xy_yaw(qpos, w, qadr[j])
+            pj, yawj = free_joint_xy_yaw(qpos, w, qadr[j])
             if movers_collide(col, pj - p, yaw, radius[k], half[k], yawj, radius[j], half[j]):
                 pairs += 1
         a = acc[w, k]

@@ -12,18 +12,12 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from magwarp.kernels.collision import hits_wall, movers_collide, yaw_of
+from magwarp.kernels.collision import free_joint_xy_yaw, hits_wall, movers_collide
 from magwarp.layout import Layout, MoverSpec
 from magwarp.physics.backend import MjwBackend
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Collision
 
 __all__ = ["MoverChecks"]
-
-
-@wp.func
-def _mover_xy_yaw(qpos: wp.array2d[float], w: int, qa: int):
-    q = wp.quat(qpos[w, qa + 4], qpos[w, qa + 5], qpos[w, qa + 6], qpos[w, qa + 3])
-    return wp.vec2(qpos[w, qa], qpos[w, qa + 1]), yaw_of(q)
 
 
 @wp.kernel
@@ -40,11 +34,11 @@ def mover_checks_kernel(
     flags: wp.array[wp.int32],
 ):
     w, k = wp.tid()
-    p, yaw = _mover_xy_yaw(qpos, w, qadr[k])
+    p, yaw = free_joint_xy_yaw(qpos, w, qadr[k])
     if hits_wall(tiles, col, p, yaw, radius[k], half[k]):
         wp.atomic_or(flags, w, COLLIDE_WALL)
     for j in range(k + 1, qadr.shape[0]):
-        pj, yawj = _mover_xy_yaw(qpos, w, qadr[j])
+        pj, yawj = free_joint_xy_yaw(qpos, w, qadr[j])
         if movers_collide(col, pj - p, yaw, radius[k], half[k], yawj, radius[j], half[j]):
             wp.atomic_or(flags, w, COLLIDE_MOVER)
 
