@@ -17,12 +17,12 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp.kernels.metrics import corrective_update
 from magwarp.physics.backend import MjwBackend
 from magwarp.physics.coverage import _disc_overlap, _rect_overlap, shape_parts
 
 __all__ = ["PushMetrics"]
 
-_EPS = wp.constant(2.0e-5)  # MagBotSim's tolerance for "changed" distances
 _STREAK = wp.constant(150)  # cycles at the goal after which time to success is frozen
 
 
@@ -59,17 +59,12 @@ def push_metrics_kernel(
     w = wp.tid()
     p = wp.vec2(qpos[w, qadr], qpos[w, qadr + 1])
     dist = wp.length(p - goal_xy[w])
-    # corrective movements (MagBotSim: strict '<' for "at goal" here)
-    at_goal = dist < goal.threshold
-    if success_last[w] != 0 and not at_goal and wp.abs(dist - goal.threshold) > _EPS:
-        overshoots[w] += 1
-    success_last[w] = wp.where(at_goal, 1, 0)
-    last = last_dist[w]
-    if last < dist and wp.abs(last - dist) > _EPS:
-        dist_increased[w] = 1
-    elif dist_increased[w] != 0 and dist < last and wp.abs(last - dist) > _EPS:
-        dist_increased[w] = 0
-        dist_corrections[w] += 1
+    # corrective movements: the shared rule (MagBotSim: strict '<' for "at goal" here)
+    over, corr, succ, inc = corrective_update(dist, goal.threshold, success_last[w], last_dist[w], dist_increased[w])
+    overshoots[w] += over
+    dist_corrections[w] += corr
+    success_last[w] = succ
+    dist_increased[w] = inc
     last_dist[w] = dist
     # time to success
     if streak[w] < _STREAK:
