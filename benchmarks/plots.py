@@ -1,0 +1,48 @@
+"""Combined plots from benchmark JSON files of several machines (e.g. the CPU run here and a GPU run elsewhere).
+
+    python benchmarks/plots.py --scaling benchmarks/results/scaling_cpu.json benchmarks/results/scaling_gpu_vs_magbotsim.json \
+        --env benchmarks/results/env_throughput_cpu.json benchmarks/results/env_throughput_gpu.json --out benchmarks/results
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+
+def _rows(paths: list[str], tag_engine: bool) -> list[dict]:
+    rows = []
+    for path in paths:
+        with open(path) as f:
+            for r in json.load(f):
+                r = dict(r)
+                # MagBotSim rows measured on different machines are different series: name the machine.
+                if tag_engine and r["engine"].startswith("magbotsim"):
+                    r["device"] = f"cpu of {r.get('device_name', '?')}"
+                rows.append(r)
+    return rows
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scaling", nargs="*", default=[])
+    p.add_argument("--env", nargs="*", default=[])
+    p.add_argument("--out", default=".")
+    args = p.parse_args(argv)
+    if args.scaling:
+        import scaling
+
+        scaling.plot(_rows(args.scaling, True), os.path.join(args.out, "scaling_cpu_gpu.png"))
+    if args.env:
+        import env_throughput
+
+        env_throughput.plot(_rows(args.env, False), os.path.join(args.out, "env_throughput_cpu_gpu.png"))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
