@@ -88,11 +88,16 @@ class SB3VecEnv(VecEnv):
             infos = [{"TimeLimit.truncated": to} for to in timeout]
         finished = np.flatnonzero(done_np)
         if len(finished):
-            final = _obs_np(info["final_obs"])
-            for i in finished.tolist():  # only the envs that finished: no loop over the whole batch
-                infos[i]["terminal_observation"] = (
-                    {k: v[i] for k, v in final.items()} if isinstance(final, dict) else final[i]
-                )
+            final = info["final_obs"]
+            # One gather per key for all finished envs, then one small dict (or row) per finished env only.
+            if isinstance(final, dict):
+                keys = list(final)
+                rows = zip(*(list(_np(final[k][torch.as_tensor(finished, device=final[k].device)])) for k in keys))
+                terminal = [dict(zip(keys, r)) for r in rows]
+            else:
+                terminal = list(_np(final[torch.as_tensor(finished, device=final.device)]))
+            for i, t in zip(finished.tolist(), terminal):
+                infos[i]["terminal_observation"] = t
         return obs_np, rew_np, done_np, infos
 
     # ------------------------------------------------------------------ HER
