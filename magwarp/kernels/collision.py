@@ -234,6 +234,38 @@ def add_pair(w: int, i: int, j: int, world_pairs: wp.array(dtype=wp.int32), pair
 
 
 @wp.func
+def visit_pair(
+    col: Collision,
+    w: int,
+    m: int,
+    j: int,
+    p: wp.vec3,
+    hd: wp.vec2,
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    radius: wp.array(dtype=float),
+    half_size: wp.array(dtype=wp.vec2),
+    partner: int,
+    world_pairs: wp.array(dtype=wp.int32),
+    pair_list: wp.array2d(dtype=wp.vec2i),
+) -> int:
+    """Narrow phase of mover ``m`` against candidate ``j``: returns the updated partner (the lowest colliding
+    index) and lists the pair once, from its lower index."""
+    if j == m:
+        return partner
+    q = pos[w, j]
+    d = wp.vec2(p[0] - q[0], p[1] - q[1])
+    if not movers_collide_cs(col, d, hd, radius[m], half_size[m], shape_heading(col, quat[w, j]), radius[j],
+                             half_size[j]):
+        return partner
+    if j > m:
+        add_pair(w, m, j, world_pairs, pair_list)
+    if partner < 0 or j < partner:
+        return j
+    return partner
+
+
+@wp.func
 def record_collisions(
     w: int,
     m: int,
@@ -305,15 +337,7 @@ def detect_collisions_grid(
                 continue
             j = head[(w * grid.ncy + cy) * grid.ncx + cx]
             while j >= 0:
-                if j != m:
-                    q = pos[w, j]
-                    d = wp.vec2(p[0] - q[0], p[1] - q[1])
-                    if movers_collide_cs(col, d, hd, radius[m], half_size[m], shape_heading(col, quat[w, j]), radius[j],
-                                         half_size[j]):
-                        if partner < 0 or j < partner:
-                            partner = j
-                        if j > m:
-                            add_pair(w, m, j, world_pairs, pair_list)
+                partner = visit_pair(col, w, m, j, p, hd, pos, quat, radius, half_size, partner, world_pairs, pair_list)
                 j = next_in_cell[w, j]
     record_collisions(w, m, partner, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)
 
@@ -343,15 +367,7 @@ def detect_collisions_brute(
     hd = shape_heading(col, quat[w, m])
     partner = int(-1)
     for j in range(pos.shape[1]):
-        if j != m:
-            q = pos[w, j]
-            d = wp.vec2(p[0] - q[0], p[1] - q[1])
-            if movers_collide_cs(col, d, hd, radius[m], half_size[m], shape_heading(col, quat[w, j]), radius[j],
-                                 half_size[j]):
-                if partner < 0:
-                    partner = j
-                if j > m:
-                    add_pair(w, m, j, world_pairs, pair_list)
+        partner = visit_pair(col, w, m, j, p, hd, pos, quat, radius, half_size, partner, world_pairs, pair_list)
     record_collisions(w, m, partner, wall, flags, flags_any, partner_out, world_pairs, world_walls, halted)
 
 
