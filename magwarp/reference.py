@@ -171,6 +171,23 @@ def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return p[:3]
 
 
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def angular_acceleration(q: np.ndarray, omega: np.ndarray, torque: np.ndarray, inertia: np.ndarray) -> np.ndarray:
+    """World-frame angular acceleration from Euler's equations in the body frame (diagonal inertia)."""
+    r = quat_to_matrix(q)
+    wb, tb = r.T @ omega, r.T @ torque
+    return r @ ((tb - np.cross(wb, inertia * wb)) / inertia)
+
+
 def yaw_quat(yaw: float) -> np.ndarray:
     return np.array([0.0, 0.0, np.sin(0.5 * yaw), np.cos(0.5 * yaw)])
 

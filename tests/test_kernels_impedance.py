@@ -36,21 +36,6 @@ def quat_from_rotvec(v):
     return np.concatenate([v / a * np.sin(0.5 * a), [np.cos(0.5 * a)]])
 
 
-def rotmat(q):
-    x, y, z, w = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def euler_alpha(q, omega, torque, inertia):
-    r = rotmat(q)
-    wb, tb = r.T @ omega, r.T @ torque
-    return r @ ((tb - np.cross(wb, inertia * wb)) / inertia)
-
-
 # ---------------------------------------------------------------------------------------------- wrench function
 @wp.kernel
 def _wrench_kernel(pose: wp.array(dtype=Pose), body: Body, tp: wp.array(dtype=wp.vec3), tq: wp.array(dtype=wp.quat),
@@ -118,7 +103,7 @@ def numpy_hover(mover: MoverSpec, pos, quat, tpos, tquat, dt, n, k_lin=K_LIN, k_
         f, t = ref.impedance_wrench(pos, quat, vel, omega, tpos, tquat, k_lin, k_rot, d_lin, d_rot, hold_lin, hold_rot)
         vel = vel + (f / m) * dt  # gravity compensation cancels gravity exactly
         pos = pos + vel * dt
-        omega = omega + euler_alpha(quat, omega, t, inertia) * dt
+        omega = omega + ref.angular_acceleration(quat, omega, t, inertia) * dt
         quat = ref.integrate_rotation(quat, omega, dt)
         out_pos.append(pos)
         out_quat.append(quat)
