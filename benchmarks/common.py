@@ -99,6 +99,18 @@ def machine_info(device: str = "cpu") -> dict[str, Any]:
     }
 
 
+def provenance(info: dict[str, Any]) -> dict[str, Any]:
+    """The fields of :func:`machine_info` that every result row carries (what reproduces it)."""
+    return {k: info[k] for k in ("device_name", "cpu", "date_utc", "versions", "command", "commit")}
+
+
+def header_line(info: dict[str, Any]) -> str:
+    """One line naming date, device, versions and command, printed above a benchmark's table."""
+    v = info["versions"]
+    return (f"# {info['date_utc']}  {info['device_name']}  warp {v.get('warp-lang')}  torch {v.get('torch')}  "
+            f"command: {info['command']}")
+
+
 def command_line(argv: Sequence[str] | None = None) -> str:
     """The exact command as a copy-pastable shell line (python + sys.argv)."""
     argv = list(sys.argv if argv is None else argv)

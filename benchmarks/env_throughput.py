@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import warp as wp  # noqa: E402
 
-from common import machine_info, print_table, write_json  # noqa: E402
+from common import header_line, machine_info, print_table, provenance, write_json  # noqa: E402
 
 
 def _sync(device) -> None:
@@ -185,8 +185,7 @@ def main(argv=None) -> int:
     wp.config.quiet = True
     torch.set_num_threads(1)
     info = machine_info(args.device or "cpu")
-    print(f"# {info['date_utc']}  {info['device_name']}  warp {info['versions'].get('warp-lang')}  "
-          f"torch {info['versions'].get('torch')}  command: {info['command']}")
+    print(header_line(info))
     devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
     rows: list[dict] = []
     for device in devices:
@@ -224,7 +223,7 @@ def main(argv=None) -> int:
                        ("sim_ms", "physics ms"), ("raw_mjw_ms", "raw mjw ms"), ("x_raw_mjw", "x raw mjw"),
                        ("env_steps_per_s", "env-steps/s")])
     if args.json:
-        stamp = {k: info[k] for k in ("device_name", "cpu", "date_utc", "versions", "command", "commit")}
+        stamp = provenance(info)
         write_json(args.json, [{**r, **stamp} for r in rows])
     if args.plot:
         plot(rows, args.plot)

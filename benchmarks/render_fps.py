@@ -95,10 +95,10 @@ def main(argv=None) -> int:
 
 def write_rows(path: str, rows, device) -> None:
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from common import machine_info, write_json
+    from common import machine_info, provenance, write_json
 
     info = machine_info("cuda" if device.is_cuda else "cpu")
-    stamp = {k: info[k] for k in ("device_name", "cpu", "date_utc", "versions", "command", "commit")}
+    stamp = provenance(info)
     write_json(path, [{"layout": name, "worlds": n, "movers": m, "px_per_tile": ppt, "height": h, "width": w,
                        "ms_per_frame": t * 1e3, "frames_per_s": 1.0 / t, "device": device.alias, **stamp}
                       for n, ppt, h, w, t, m, name in rows])

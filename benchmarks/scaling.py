@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import warp as wp  # noqa: E402
 
-from common import machine_info, print_table, write_json  # noqa: E402
+from common import header_line, machine_info, print_table, provenance, write_json  # noqa: E402
 
 PAPER_CONFIGS = ((50, 10), (100, 12), (200, 17), (400, 27), (1000, 57))
 GPU_LARGE = ((10_000, 100), (100_000, 317), (1_000_000, 1000))
@@ -186,8 +186,7 @@ def main(argv=None) -> int:
     wp.config.quiet = True
     torch.set_num_threads(1)  # Warp's CPU kernels are single-threaded; keep torch from competing for the cores
     info = machine_info(args.device or "cpu")
-    print(f"# {info['date_utc']}  {info['device_name']}  warp {info['versions'].get('warp-lang')}  "
-          f"torch {info['versions'].get('torch')}  command: {info['command']}")
+    print(header_line(info))
     rows = run(args)
     cols = ["engine", "device", "shape", "movers", "tiles", "worlds", "cycles", ("ms_per_step", "ms/step"), ("std_ms", "std")]
     print_table(rows, cols)
@@ -198,7 +197,7 @@ def main(argv=None) -> int:
                           ("x_vs_magbotsim-controllers", "x with controllers")])
     if args.json:
         # A list of rows; each row carries what reproduces it (device name, date, versions, command).
-        stamp = {k: info[k] for k in ("device_name", "cpu", "date_utc", "versions", "command", "commit")}
+        stamp = provenance(info)
         write_json(args.json, [{**r, **stamp} for r in rows])
     if args.plot:
         plot(rows, args.plot)
