@@ -11,10 +11,11 @@ layout are clamped into the border cells, which never separates two nearby mover
 
 import warp as wp
 
+from magwarp.kernels.options import MODULE_OPTIONS
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, SHAPE_CIRCLE, Collision, Grid
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 
 @wp.func

@@ -21,10 +21,11 @@ import warp as wp
 from magwarp.kernels.collision import hits_wall_cs, movers_collide_cs, push_to_cell, shape_heading
 from magwarp.kernels.dynamics import integrate_body, planar_acceleration
 from magwarp.kernels.impedance import default_force
+from magwarp.kernels.options import MODULE_OPTIONS
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, Impedance, Limits, Pose
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 
 @functools.cache
@@ -81,7 +82,7 @@ def make_advance_kernel(force_fn=default_force):
             hit = 1
         wall[w, m] = hit
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
     def advance_movers(
         # Model:
         lim: Limits,
@@ -125,7 +126,7 @@ def make_advance_kernel(force_fn=default_force):
         if bin_cells == 1:  # halted worlds are binned too: the collision check still runs on them
             push_to_cell(w, m, grid, pos, head, next_in_cell)
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
     def fused_worlds(
         num_cycles: int,
         # Model:
@@ -223,7 +224,7 @@ def make_register_kernel(force_fn, num_movers: int):
     Rows2 = wp.types.matrix(shape=(M, 2), dtype=wp.float32)
     Ints = wp.types.vector(length=M, dtype=wp.int32)
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
     def fused_registers(
         num_cycles: int,
         # Model:
