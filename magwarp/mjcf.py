@@ -336,6 +336,7 @@ def generate_mjcf(
     gravity: float = -9.81,
     mover_friction: tuple[float, float, float] = (1.0, 0.005, 0.0001),
     tile_collision: str = "auto",
+    solver: str = "Newton",
     model_name: str = "magwarp",
 ) -> str:
     """Return an MJCF string for ``layout`` with ``num_movers`` movers, pushable ``objects`` and static ``obstacles``.
@@ -354,6 +355,9 @@ def generate_mjcf(
     infinite plane at z = 0 (fastest and numerically the most robust: mujoco-warp's float32 box-box test can miss
     a resting contact shallower than ~1e-4 m that MuJoCo C sees, while plane-box contacts agree to ~1e-8; objects
     are not dropped at the layout's outer edge).
+
+    ``solver`` is MuJoCo's constraint solver (``"Newton"``, MuJoCo's default and MagBotSim's, or ``"CG"``):
+    the contact problem and its converged solution are the same, only the optimiser and its cost per step differ.
     """
     if not isinstance(layout, Layout):
         raise LayoutError(f"layout must be a magwarp.layout.Layout, got {type(layout).__name__}")
@@ -372,6 +376,8 @@ def generate_mjcf(
         if not isinstance(o, ObstacleSpec):
             raise LayoutError(f"obstacles[{k}] must be an ObstacleSpec, got {type(o).__name__}")
     timestep = _positive("generate_mjcf", "timestep", timestep)
+    if solver not in ("Newton", "CG"):
+        raise LayoutError(f"solver must be 'Newton' or 'CG' (the solvers mujoco-warp has), got {solver!r}")
     if tile_collision not in ("auto", "merged", "tiles", "plane"):
         raise LayoutError(f"tile_collision must be 'auto', 'merged', 'tiles' or 'plane', got {tile_collision!r}")
     if tile_collision == "auto":
@@ -400,7 +406,7 @@ def generate_mjcf(
         hooks.compiler if hooks.compiler is not None else '<compiler angle="radian" autolimits="true"/>',
         hooks.option
         if hooks.option is not None
-        else f'<option timestep="{_f(timestep)}" gravity="0 0 {_f(gravity)}" cone="elliptic"/>',
+        else f'<option timestep="{_f(timestep)}" gravity="0 0 {_f(gravity)}" cone="elliptic" solver="{solver}"/>',
         hooks.visual if hooks.visual is not None else '<visual><global offwidth="1280" offheight="960"/></visual>',
         "<asset>",
         _ASSETS,

@@ -85,6 +85,10 @@ class PushEnv(MagwarpVecEnv):
     MagBotSim's ``collision_params``: ``collision_shape``, ``collision_size``, ``collision_offset`` (sampling
     margin), ``collision_offset_wall`` (wall margin).
 
+    Physics: ``solver`` is MuJoCo's constraint solver for the contacts (``"Newton"``, MagBotSim's, or ``"CG"``; the
+    same elliptic-cone contact problem, a different optimiser). ``nconmax``/``njmax`` (contacts and constraint rows
+    per world) default to the most the scene can produce: 8 contacts per colliding geom pair, 3 rows per contact.
+
     Rendering: ``render_mode="rgb_array"`` draws the worlds of :meth:`set_render_worlds` from above (tiles, movers,
     the object, its goal and obstacles); ``"rgb_array_3d"`` renders them in 3D through MuJoCo's offscreen renderer
     (:mod:`magwarp.render.mujoco3d`; needs EGL or OSMesa).
@@ -131,6 +135,7 @@ class PushEnv(MagwarpVecEnv):
         initial_mover_zpos: float = 0.003,
         obstacles: tuple[ObstacleSpec, ...] = (),
         benchmark: str | None = None,
+        solver: str = "Newton",
         nconmax: int | None = None,
         njmax: int | None = None,
         device: str | None = None,
@@ -183,15 +188,19 @@ class PushEnv(MagwarpVecEnv):
 
         # Model: built once; starts and goals change per world without a rebuild.
         self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
-                                 objects=[self.object], obstacles=self.obstacles)
+                                 objects=[self.object], obstacles=self.obstacles, solver=solver)
         device = device or _default_device()
-        # contacts per world: up to 8 per object part on the support, 8 per mover and per obstacle touching it
+        # Contacts per world: up to 8 per colliding geom pair (MuJoCo's box-box and plane-box tests return at most 8):
+        # every object part with the support, each mover and each obstacle, and each mover with each obstacle. An
+        # elliptic-cone contact (condim 3) is 3 constraint rows. mujoco-warp's solver kernels run over njmax rows
+        # per world, so a tight bound is speed (Push-Box: 48 rows, not a generous 96).
         parts = max(len(self.object.rects()), 1)
-        ncon = nconmax or 8 * (parts + self.num_movers + len(self.obstacles) + 1)
+        n_obs = len(self.obstacles)
+        ncon = nconmax or 8 * (parts * (1 + self.num_movers + n_obs) + self.num_movers * n_obs)
         self.backend = MjwBackend(
             self.xml, int(num_envs), control=ControlParams(v_max=v_max, a_max=a_max, j_max=j_max, jerk=learn_jerk,
                                                          num_cycles=int(num_cycles)),
-            nconmax=ncon, njmax=njmax or 4 * ncon, device=device,
+            nconmax=ncon, njmax=njmax or 3 * ncon, device=device,
         )
         self.checks = MoverChecks(self.backend, self.layout, self.mover)
         self.contacts = None
