@@ -45,12 +45,12 @@ def time_steps(step, actions: torch.Tensor, steps: int, device) -> dict:
     return {"step_ms": float(np.median(samples) * 1e3), "std_ms": float(np.std(samples) * 1e3)}
 
 
-def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_inputs: bool = False) -> dict:
+def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_inputs: bool = False, **env_kwargs) -> dict:
     import gymnasium as gym
 
     import magwarp  # noqa: F401  (registers the ids)
 
-    env = gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=check_inputs)
+    env = gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=check_inputs, **env_kwargs)
     env.reset(seed=0)
     space = env.single_action_space
     gen = torch.Generator(device=env.device).manual_seed(0)
@@ -175,6 +175,8 @@ def main(argv=None) -> int:
                    help="comma-separated magwarp env ids")
     p.add_argument("--push-num-envs", default=None, help="sizes for push envs (default: 1..64 on CPU, up to 16384 on GPU)")
     p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 1..4096 on CPU, up to 1M on GPU)")
+    p.add_argument("--push-solvers", default="Newton",
+                   help="comma-separated MuJoCo solvers to time the push envs with (Newton, CG)")
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--adapters-at", type=int, default=4096, help="num_envs at which adapters are compared")
     p.add_argument("--no-magbotsim", action="store_true")
@@ -195,10 +197,14 @@ def main(argv=None) -> int:
                       ([1, 16, 64] if device == "cpu" else [1024, 4096, 16384]))
         for env_id in args.envs.split(","):
             is_push = "/Push" in env_id
-            for n in (push_sizes if is_push else sizes):
-                res = raw_env_row(env_id, n, device, args.steps)
-                rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, "adapter": "raw", **res})
-                print(f"  {env_id} {device} num_envs={n}: {res['env_steps_per_s']:.4g} env-steps/s", flush=True)
+            for solver in (args.push_solvers.split(",") if is_push else [None]):
+                extra = {"solver": solver} if solver else {}
+                for n in (push_sizes if is_push else sizes):
+                    res = raw_env_row(env_id, n, device, args.steps, **extra)
+                    rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, "adapter": "raw",
+                                 **extra, **res})
+                    print(f"  {env_id} {solver or ''} {device} num_envs={n}: {res['env_steps_per_s']:.4g} env-steps/s",
+                          flush=True)
             if is_push:
                 continue
             n = args.adapters_at
@@ -219,7 +225,7 @@ def main(argv=None) -> int:
                     rows.append({"engine": "magbotsim", "env": env_id, "magbotsim_env": mapping[env_id], "device": "cpu",
                                  "num_envs": 1, "adapter": "raw",
                                  "step_ms": res["step_ms_mean"], "env_steps_per_s": res["steps_per_s"]})
-    print_table(rows, ["engine", "env", "device", "num_envs", "adapter", "check_inputs", ("step_ms", "ms/step"),
+    print_table(rows, ["engine", "env", "device", "num_envs", "solver", "adapter", "check_inputs", ("step_ms", "ms/step"),
                        ("sim_ms", "physics ms"), ("raw_mjw_ms", "raw mjw ms"), ("x_raw_mjw", "x raw mjw"),
                        ("env_steps_per_s", "env-steps/s")])
     if args.json:
