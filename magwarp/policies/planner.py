@@ -1,13 +1,30 @@
 """A scripted, collision-aware goal-seeking planner for trajectory planning (a baseline, no learning).
 
-Each mover flies toward its goal on a braking velocity profile; movers closer than a safety distance push each other
-apart, with the lower-index mover keeping priority (the other yields sideways), and a repulsive field keeps the
-footprint away from the edges of the tiled area. The desired velocity becomes an acceleration command through a
-velocity loop. All of it is batched torch on the env's device: no Python loop over envs or movers.
+Every env step each mover picks its next velocity from a small fixed set of candidates reachable within the held
+step (acceleration norm <= ``a_max``), scored like a sampling-based reciprocal velocity obstacle: distance to a
+preferred velocity plus a penalty on the time to collision with every other mover.
+
+* Preferred velocity: toward the goal on a braking profile; on layouts with holes, toward the first waypoint of a
+  shortest path through a visibility graph whose nodes sit off the convex corners of the holes (corner-to-corner
+  distances precomputed once).
+* Hard safety ("brake-safe" invariant): a candidate is allowed only if its trajectory -- the held step, then full
+  braking along a straight line, sampled in time -- keeps its footprint off every edge of the tiles and, against
+  every other mover, off that mover's braking trajectory and off the trajectory chosen by any mover of higher
+  priority. Movers choose in parallel for a fixed number of rounds; a mover whose final choice conflicts with a
+  higher-priority final choice brakes. Braking is then always allowed, so a world that starts at rest never collides
+  (up to the time sampling, covered by a buffer).
+* Priority: movers nearer to their goal go first; a mover stuck for a while is promoted (deadlock breaking).
+
+All of it is batched torch on the env's device: no Python loop over worlds or movers (only fixed small loops over
+choice rounds). Written for acceleration control; with ``learn_jerk`` the chosen acceleration is tracked by a jerk
+command.
 """
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -18,130 +35,317 @@ class GoalSeekingPlanner:
     """``planner(obs) -> action`` for a :class:`TrajectoryPlanningEnv` (batched, torch in and out).
 
     Args:
-        env: the batched env (the planner reads layout, limits and collision sizes from it).
-        cruise_speed: top planning speed (m/s); brake: deceleration (m/s^2) assumed for stopping distances.
-        buffer: extra distance (m) kept between collision shapes and to the walls.
-        horizon: gap (m) under which a yielding mover starts to sidestep, at speed ``sidestep`` (m/s).
-        leader_share: the part of a conflict's speed correction the higher-priority mover takes (1: as much as the
-            yielding one: fewer collisions, more deadlocks).
+        env: the batched env (the planner reads layout, limits, collision sizes and the exact state from it).
+        cruise_speed: top planning speed (m/s); brake: deceleration (m/s^2) of the speed profile toward a goal.
+        buffer: extra distance (m) kept between collision shapes and to the walls, on top of the safety margins.
+        horizon: time horizon (s) of the time-to-collision penalty.
+        sidestep: weight of the time-to-collision penalty ((m/s)^2 at zero time to collision).
+        leader_share: kept for compatibility (unused).
+        wall_resolution: grid step (m) of the precomputed distance-to-edge field.
+        arrive_speed: speed (m/s) the profile still allows at the goal (a goal counts once within ``threshold_pos``).
+        rounds: parallel choice rounds per step.
     """
 
-    def __init__(self, env: TrajectoryPlanningEnv, cruise_speed: float = 1.2, brake: float = 5.0,
-                 buffer: float = 0.015, horizon: float = 0.15, sidestep: float = 0.25, leader_share: float = 0.35, wall_resolution: float = 0.005):
+    def __init__(self, env: TrajectoryPlanningEnv, cruise_speed: float = 2.0, brake: float = 6.0,
+                 buffer: float = 0.006, horizon: float = 0.6, sidestep: float = 2.0, leader_share: float = 0.35,
+                 wall_resolution: float = 0.005, arrive_speed: float = 0.5, rounds: int = 3):
         self.env = env
         self.sim = env.sim
-        self.cruise = cruise_speed
-        self.brake = brake
-        self.buffer = buffer
-        self.horizon = horizon
+        self.device = env.device
         lim = self.sim.model.limits
-        self.latency = env.num_cycles * lim.dt  # the action is held for one env step
-        self.gain = 1.0 / self.latency  # deadbeat velocity loop over one held step
-        self.a_max = lim.a_max
-        self.v_max = lim.v_max
-        self.sidestep = sidestep
+        self.dt = float(lim.dt)
+        self.T = env.num_cycles * self.dt  # the action is held for one env step
+        self.a_max = float(lim.a_max)
+        self.v_max = float(lim.v_max)
+        self.j_max = float(lim.j_max)
+        self.cruise = min(float(cruise_speed), self.v_max)
+        self.brake = float(brake)
+        self.buffer = float(buffer)
+        self.horizon = float(horizon)
+        self.w_ttc = float(sidestep)
         self.leader_share = leader_share
-        self._scales = torch.tensor([1.0, 0.8, 0.6, 0.45, 0.3, 0.2, 0.1], device=env.device)
-        self.reach = float(self.sim._radii_np.max()) if self.sim.mover.collision_shape == "circle" else float(
-            (self.sim._half_np ** 2).sum(axis=1).max() ** 0.5)
+        self.arrive = float(arrive_speed)
+        self.rounds = int(rounds)
+        mover = self.sim.mover
+        if mover.collision_shape == "circle":
+            r = float(self.sim._radii_np.max())
+            self.reach_m = r + mover.margin
+            self.reach_w = r + mover.wall_margin
+        else:  # boxes may turn: their circumscribed circle
+            half = self.sim._half_np.max(axis=0)
+            self.reach_m = float(np.linalg.norm(half + mover.margin))
+            self.reach_w = float(np.linalg.norm(half + mover.wall_margin))
+        self._build_times()
+        self._build_candidates()
         self._build_wall_field(wall_resolution)
+        self._build_waypoints()
+        n, m = env.num_envs, env.num_movers
+        self._stuck = torch.zeros(n, m, device=self.device)
+        self._best = torch.full((n, m), float("inf"), device=self.device)
+        self._goal_prev = torch.zeros(n, m, 2, device=self.device)
+
+    # ------------------------------------------------------------------ precomputation
+    def _build_times(self) -> None:
+        """Sample times (s) of a plan: the held step, then braking until a stop from ``v_max`` (~20 ms apart)."""
+        T, dt = self.T, self.dt
+        n1 = max(1, math.ceil(T / 0.02 - 1e-9))
+        t1 = [T * (k + 1) / n1 for k in range(n1)]
+        steps_b = math.ceil(self.v_max / (self.a_max * T) - 1e-9) + 1
+        tb = steps_b * T
+        n2 = max(1, math.ceil(tb / 0.02 - 1e-9))
+        t2 = [T + tb * (k + 1) / n2 for k in range(n2)]
+        t = torch.tensor(t1 + t2, dtype=torch.float32, device=self.device)
+        self.times = torch.round(t / dt) * dt  # on the cycle grid: the integration formulas below are exact there
+
+    def _build_candidates(self) -> None:
+        """Velocity changes (fraction of ``a_max * T``) tried besides the preferred one, braking and coasting."""
+        dirs = 16
+        ang = torch.arange(dirs, dtype=torch.float32) * (2 * math.pi / dirs)
+        unit = torch.stack([torch.cos(ang), torch.sin(ang)], dim=-1)
+        ring = [unit * 1.0, unit[::2] * 0.5 + 0 * unit[::2], unit[1::2] * 0.25]
+        self._dv = torch.cat([torch.zeros(1, 2)] + ring).to(self.device)  # (K0, 2)
 
     def _build_wall_field(self, res: float) -> None:
-        """Distance (m) from each point to the nearest point off the tiles, on a grid, and its gradient."""
-        import numpy as np
-        from scipy import ndimage
-
+        """Exact distance (m) from grid points to the nearest point off the tiles (holes and outside), for sampling."""
         lay = self.env.layout
         ext = lay.extent
-        nx, ny = int(round(ext[0] / res)), int(round(ext[1] / res))
-        pad = 10
-        xs = (np.arange(-pad, nx + pad) + 0.5) * res
-        ys = (np.arange(-pad, ny + pad) + 0.5) * res
+        ts = lay.tile.size
+        pad = 4
+        nx, ny = int(math.ceil(ext[0] / res)) + 2 * pad + 1, int(math.ceil(ext[1] / res)) + 2 * pad + 1
+        xs = (np.arange(nx) - pad) * res
+        ys = (np.arange(ny) - pad) * res
         X, Y = np.meshgrid(xs, ys, indexing="ij")
-        on = lay.on_tiles(np.stack([X, Y], axis=-1))
-        dist = ndimage.distance_transform_edt(on) * res
-        gx, gy = np.gradient(dist, res)
-        self._field = torch.tensor(np.stack([dist, gx, gy]), dtype=torch.float32, device=self.env.device)[None]
-        self._origin = -pad * res
-        self._size = (len(xs) * res, len(ys) * res)
+        d = np.minimum(np.minimum(X, Y), np.minimum(ext[0] - X, ext[1] - Y))  # to the outside (<0 outside)
+        holes = np.argwhere(lay.tiles == 0)
+        for i, j in holes:
+            lo = np.array([i * ts, j * ts])
+            dx = np.maximum(np.maximum(lo[0] - X, X - lo[0] - ts), 0.0)
+            dy = np.maximum(np.maximum(lo[1] - Y, Y - lo[1] - ts), 0.0)
+            d = np.minimum(d, np.hypot(dx, dy))
+        self._field = torch.tensor(d, dtype=torch.float32, device=self.device)[None, None]
+        self._f_lo = (xs[0], ys[0])
+        self._f_span = (xs[-1] - xs[0], ys[-1] - ys[0])
+        self._holes = holes
 
-    def _sample_field(self, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        n, m, _ = xy.shape
-        gx = (xy[..., 0] - self._origin) / self._size[0] * 2 - 1
-        gy = (xy[..., 1] - self._origin) / self._size[1] * 2 - 1
-        grid = torch.stack([gy, gx], dim=-1).reshape(1, n * m, 1, 2)  # grid_sample: (x -> last dim = W = our y)
-        out = F.grid_sample(self._field, grid, align_corners=False, padding_mode="border").reshape(3, n, m)
-        return out[0], out[1:].permute(1, 2, 0)
+    def _wall_dist(self, xy: torch.Tensor) -> torch.Tensor:
+        """Distance to the nearest off-tile point for points ``(..., 2)`` (bilinear in the field; border: clamped)."""
+        shape = xy.shape[:-1]
+        flat = xy.reshape(1, -1, 1, 2)
+        gx = (flat[..., 0] - self._f_lo[0]) / self._f_span[0] * 2 - 1
+        gy = (flat[..., 1] - self._f_lo[1]) / self._f_span[1] * 2 - 1
+        grid = torch.stack([gy, gx], dim=-1)  # grid_sample: last dim (x) indexes W = our y
+        out = F.grid_sample(self._field, grid, mode="bilinear", align_corners=True, padding_mode="border")
+        return out.reshape(shape)
 
-    def _allowed_closing(self, gap: torch.Tensor) -> torch.Tensor:
-        """Closing speed from which the mover still stops within ``gap``, with one policy step of latency."""
-        g = gap.clamp_min(0.0)
-        lat = self.latency
-        return (-self.brake * lat + torch.sqrt((self.brake * lat) ** 2 + 2 * self.brake * g)).clamp_min(0.0)
+    def _build_waypoints(self) -> None:
+        """Waypoints off the convex corners of the holes and their shortest corner-to-corner path lengths."""
+        lay = self.env.layout
+        self.has_holes = bool((lay.tiles == 0).any())
+        self._wp = torch.zeros(0, 2, device=self.device)
+        if not self.has_holes:
+            return
+        tiles = lay.tiles
+        nx, ny = tiles.shape
+        ts = lay.tile.size
 
-    def _limit_walls(self, pos: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-        """Remove the part of the speed toward the nearest edge that could no longer brake before it."""
-        w_dist, w_grad = self._sample_field(pos)
-        n_in = w_grad / w_grad.norm(dim=-1, keepdim=True).clamp_min(1e-6)
-        toward = -(v * n_in).sum(-1)
-        excess = (toward - self._allowed_closing(w_dist - self.reach - self.buffer)).clamp_min(0.0)
-        return v + excess.unsqueeze(-1) * n_in
+        def present(i, j):
+            return 0 <= i < nx and 0 <= j < ny and tiles[i, j] == 1
 
-    def _stop_point(self, pos: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-        return pos + v * self.latency + v * v.norm(dim=-1, keepdim=True) / (2 * self.brake)
+        clear = self.reach_w + self.buffer + 0.01
+        pts = []
+        for vi in range(nx + 1):
+            for vj in range(ny + 1):
+                for sx in (-1, 1):
+                    for sy in (-1, 1):
+                        # quadrant tiles around vertex (vi, vj): toward (sx, sy) present, the opposite one absent
+                        qi, qj = vi + (0 if sx > 0 else -1), vj + (0 if sy > 0 else -1)
+                        oi, oj = vi + (-1 if sx > 0 else 0), vj + (-1 if sy > 0 else 0)
+                        ai, aj = vi + (0 if sx > 0 else -1), vj + (-1 if sy > 0 else 0)
+                        bi, bj = vi + (-1 if sx > 0 else 0), vj + (0 if sy > 0 else -1)
+                        if present(qi, qj) and not present(oi, oj) and present(ai, aj) and present(bi, bj):
+                            pts.append((vi * ts + sx * clear, vj * ts + sy * clear))
+        if not pts:
+            self.has_holes = False
+            return
+        wp_ = torch.tensor(pts, dtype=torch.float32, device=self.device)
+        ok = self._wall_dist(wp_) >= clear - 1e-4
+        wp_ = wp_[ok]
+        if len(wp_) == 0:
+            self.has_holes = False
+            return
+        self._wp = wp_
+        c = len(wp_)
+        vis = self._visible(wp_.view(c, 1, 2).expand(c, c, 2), wp_.view(1, c, 2).expand(c, c, 2))
+        d = (wp_.view(c, 1, 2) - wp_.view(1, c, 2)).norm(dim=-1)
+        d = torch.where(vis, d, torch.full_like(d, float("inf"))).cpu().numpy().astype(np.float64)
+        np.fill_diagonal(d, 0.0)
+        for k in range(c):  # Floyd-Warshall, once
+            d = np.minimum(d, d[:, k:k + 1] + d[k:k + 1, :])
+        self._wp_dist = torch.tensor(d, dtype=torch.float32, device=self.device)
 
-    def _safe_scale(self, pos: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-        """Largest of a few speed scales whose stopping point keeps the footprint off the walls (0 if none)."""
-        scales = self._scales
-        cand = v.unsqueeze(2) * scales.view(1, 1, -1, 1)  # (N, M, S, 2)
-        stops = self._stop_point(pos.unsqueeze(2), cand)
-        n, m, k, _ = stops.shape
-        d, _ = self._sample_field(stops.reshape(n, m * k, 2))
-        ok = d.reshape(n, m, k) >= self.reach + self.buffer
-        return torch.where(ok, scales.view(1, 1, -1), torch.zeros_like(scales).view(1, 1, -1)).amax(dim=-1)
+    def _visible(self, a: torch.Tensor, b: torch.Tensor, samples: int = 24) -> torch.Tensor:
+        """Whether the straight segment a -> b keeps the footprint off the walls (sampled), for ``(..., 2)``."""
+        s = torch.linspace(0.0, 1.0, samples, device=self.device).view(*([1] * (a.dim() - 1)), samples, 1)
+        pts = a.unsqueeze(-2) + (b - a).unsqueeze(-2) * s
+        return (self._wall_dist(pts) >= self.reach_w + 0.5 * self.buffer).all(dim=-1)
+
+    # ------------------------------------------------------------------ per step
+    def _preferred(self, pos: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Preferred velocity (N, M, 2) and remaining path length (N, M)."""
+        to_goal = goal - pos
+        direct = to_goal.norm(dim=-1)
+        target, length = goal, direct
+        if self.has_holes:
+            wp_, c = self._wp, len(self._wp)
+            n, m, _ = pos.shape
+            inf = torch.tensor(float("inf"), device=self.device)
+            see_goal = self._visible(pos, goal)
+            P = pos.unsqueeze(2).expand(n, m, c, 2)
+            G = goal.unsqueeze(2).expand(n, m, c, 2)
+            W = wp_.view(1, 1, c, 2).expand(n, m, c, 2)
+            from_pos = torch.where(self._visible(P, W), (W - P).norm(dim=-1), inf)  # (N, M, C)
+            to_goal_c = torch.where(self._visible(W, G), (G - W).norm(dim=-1), inf)
+            # length via first waypoint c1 and last waypoint c2: |p - c1| + D[c1, c2] + |c2 - g|
+            via = (self._wp_dist.view(1, 1, c, c) + to_goal_c.unsqueeze(2)).amin(dim=-1)  # from c1 to goal
+            total = from_pos + via
+            best, first = total.min(dim=-1)
+            use_wp = ~see_goal & torch.isfinite(best)
+            target = torch.where(use_wp.unsqueeze(-1), wp_[first], goal)
+            length = torch.where(use_wp, best, direct)
+        d = target - pos
+        dn = d.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        speed = torch.sqrt(self.arrive ** 2 + 2 * self.brake * length).clamp(max=self.cruise).unsqueeze(-1)
+        speed = torch.minimum(speed, length.unsqueeze(-1) / self.T + 0.0)  # no overshoot of the goal in one step
+        return d / dn * speed, length
+
+    def _trajectories(self, pos, vel, cand):
+        """Plan positions at ``self.times``, x and y apart, each (N, M, K, S): reach velocity ``cand`` (N, M, K, 2)
+        over the held step, then brake at ``a_max`` along a straight line (the braking candidate's own rule)."""
+        T, dt, ab = self.T, self.dt, self.a_max
+        tt = self.times.view(1, 1, 1, -1)
+        tin = tt.clamp(max=T)
+        q_in = 0.5 * tin * (tin + dt) / T  # semi-implicit Euler, exact on the cycle grid
+        q_1 = 0.5 * (T + dt)
+        s1 = cand.norm(dim=-1, keepdim=True)  # (N, M, K, 1)
+        nfull = torch.floor(s1 / (ab * T) + 1e-6)
+        tk = nfull * T
+        sk = (s1 - ab * tk).clamp_min(0.0)
+        tau = (tt - T).clamp_min(0.0)
+        t_a = torch.minimum(tau, tk)
+        t_b = (tau - tk).clamp(0.0, T)
+        d = s1 * t_a - 0.5 * ab * t_a * (t_a + dt) + sk * t_b - 0.5 * (sk / T) * t_b * (t_b + dt)  # (N, M, K, S)
+        d_over_s = d / s1.clamp_min(1e-9)
+        inside = tt <= T
+        out = []
+        for c in range(2):
+            p0 = pos[..., c].unsqueeze(-1).unsqueeze(-1)
+            v0 = vel[..., c].unsqueeze(-1).unsqueeze(-1)
+            v1 = cand[..., c].unsqueeze(-1)
+            p_in = p0 + v0 * tin + (v1 - v0) * q_in
+            p_out = p0 + v0 * T + (v1 - v0) * q_1 + v1 * d_over_s
+            out.append(torch.where(inside, p_in, p_out))
+        return out
+
+    def _ttc_penalty(self, pos, vel, cand):
+        """Time-to-collision penalty (N, M, K) of candidate velocities against every other mover (reciprocal)."""
+        n, m, k, _ = cand.shape
+        rel_p = pos.unsqueeze(2) - pos.unsqueeze(1)  # (N, i, j, 2): p_j - p_i negated below
+        rel_p = -rel_p  # p_j - p_i
+        # reciprocal: i takes half the avoidance, so test 2 v' - v_i against v_j
+        vr = 2 * cand.unsqueeze(3) - vel.unsqueeze(2).unsqueeze(2) - vel.unsqueeze(1).unsqueeze(2)  # (N,i,K,j,2)
+        p = rel_p.unsqueeze(2)  # (N,i,1,j,2)
+        R = 2 * self.reach_m + 0.04
+        b = (p * vr).sum(-1)
+        vv = (vr * vr).sum(-1).clamp_min(1e-9)
+        pp = (p * p).sum(-1)
+        disc = b * b - vv * (pp - R * R)
+        ttc = (b - torch.sqrt(disc.clamp_min(0.0))) / vv
+        hit = (disc > 0) & (b > 0)
+        inside = pp < R * R
+        ttc = torch.where(inside, torch.zeros_like(ttc), ttc)
+        hit = hit | (inside & (b > 0))
+        pen = torch.where(hit & (ttc < self.horizon), (self.horizon - ttc) / self.horizon, torch.zeros_like(ttc))
+        eye = torch.eye(m, dtype=torch.bool, device=self.device).view(1, m, 1, m)
+        pen = pen.masked_fill(eye, 0.0)
+        return pen.sum(-1)
+
+    @staticmethod
+    def _pair_clearance(tx, ty, ox, oy):
+        """min over time of squared centre distance (N, i, K, j): candidate plans (N, i, K, S) of i (x and y apart)
+        vs one plan (N, j, S) of each j."""
+        dx = tx.unsqueeze(3) - ox.unsqueeze(1).unsqueeze(1)  # (N, i, K, j, S)
+        dy = ty.unsqueeze(3) - oy.unsqueeze(1).unsqueeze(1)
+        return torch.addcmul(dx * dx, dy, dy).amin(-1)
 
     def __call__(self, obs=None) -> torch.Tensor:
         sim, env = self.sim, self.env
         pos = sim.pos[..., :2]
         vel = sim.vel[..., :2]
-        m = pos.shape[1]
-
-        # Target: the goal, pulled inward where it lies closer to an edge than the footprint plus a buffer allows
-        # (the goal only has to be reached within threshold_pos).
+        n, m, _ = pos.shape
+        dev = pos.device
+        T = self.T
         goal = env.goals
-        g_dist, g_grad = self._sample_field(goal)
-        g_norm = g_grad / g_grad.norm(dim=-1, keepdim=True).clamp_min(1e-6)
-        pull = (self.reach + self.buffer - g_dist).clamp(0.0, 0.5 * env.threshold_pos).unsqueeze(-1)
-        target = goal + g_norm * pull
-        to_goal = target - pos
-        dist = to_goal.norm(dim=-1, keepdim=True).clamp_min(1e-6)
-        speed = torch.minimum(torch.full_like(dist, self.cruise), self._allowed_closing(dist - 0.01) + 0.05)
-        v = to_goal / dist * speed
 
-        # Mover-mover: limit each pair's closing speed to what can still brake before the shapes meet. The higher
-        # index yields (takes the whole correction and sidesteps when close); the lower index takes a share.
-        d = pos.unsqueeze(2) - pos.unsqueeze(1)  # (N, i, j, 2) = p_i - p_j
-        dn = d.norm(dim=-1).clamp_min(1e-6)
-        u = d / dn.unsqueeze(-1)  # from j toward i
-        gap = dn - 2 * self.reach - self.buffer
-        idx = torch.arange(m, device=pos.device)
-        lower = idx.view(m, 1) > idx.view(1, m)  # i yields to j
-        share = torch.where(lower, 1.0, self.leader_share) * (idx.view(m, 1) != idx.view(1, m))
-        side = torch.stack([-u[..., 1], u[..., 0]], dim=-1)
-        near = ((gap < self.horizon) & lower).float().unsqueeze(-1)
-        for _ in range(2):  # two passes settle most three-body conflicts
-            closing = -((v.unsqueeze(2) - v.unsqueeze(1)) * u).sum(-1)  # > 0: i and j approach
-            excess = (closing - self._allowed_closing(gap)).clamp_min(0.0)
-            v = v + ((excess * share).unsqueeze(-1) * u).sum(2) + (near * side).sum(2) * self.sidestep
+        v_pref, length = self._preferred(pos, goal)
 
-        # Walls: the same limit against the nearest edge, then the largest speed scale whose stopping point (one
-        # held step plus braking) keeps the footprint off every edge, corners included.
-        v = self._limit_walls(pos, v)
-        v = v * self._safe_scale(pos, v).unsqueeze(-1)
+        # Candidates: preferred, brake, coast and a fixed ring of velocity changes.
+        dvm = self.a_max * T
+        ideal = v_pref - vel
+        ideal = ideal * (dvm / ideal.norm(dim=-1, keepdim=True).clamp_min(dvm))
+        brake = -vel * (dvm / vel.norm(dim=-1, keepdim=True).clamp_min(dvm))
+        dv = torch.cat([brake.unsqueeze(2), ideal.unsqueeze(2), (self._dv * dvm).view(1, 1, -1, 2).expand(n, m, -1, 2)],
+                       dim=2)
+        cand = vel.unsqueeze(2) + dv
+        cn = cand.norm(dim=-1, keepdim=True)
+        vcap = self.v_max * 0.999
+        cand = torch.where(cn > vcap, cand * (vcap / cn.clamp_min(1e-9)), cand)
+        K = cand.shape[2]
 
-        vn = v.norm(dim=-1, keepdim=True)
-        v = torch.where(vn > self.v_max, v * (self.v_max / vn.clamp_min(1e-9)), v)
-        acc = (v - vel) * self.gain
-        n = acc.norm(dim=-1, keepdim=True)
-        acc = torch.where(n > self.a_max, acc * (self.a_max / n.clamp_min(1e-9)), acc)
+        tx, ty = self._trajectories(pos, vel, cand)  # (N, M, K, S) each
+        S = tx.shape[-1]
+        wall_ok = self._wall_dist(torch.stack([tx, ty], dim=-1)).amin(-1) >= self.reach_w + self.buffer  # (N, M, K)
+        rr = (2 * self.reach_m + self.buffer) ** 2
+        eye = torch.eye(m, dtype=torch.bool, device=dev).view(1, m, 1, m)
+        vs_brake = (self._pair_clearance(tx, ty, tx[:, :, 0], ty[:, :, 0]) >= rr) | eye  # (N, i, K, j)
+        base_ok = wall_ok & vs_brake.all(-1)
+
+        cost = ((cand - v_pref.unsqueeze(2)) ** 2).sum(-1) + self.w_ttc * self._ttc_penalty(pos, vel, cand)
+
+        # Priority: nearer to the goal first; long-stuck movers first of all.
+        score = length - 10.0 * (self._stuck > 25).float()
+        rank = score.argsort(dim=1).argsort(dim=1)  # 0 = highest priority
+        lower = (rank.unsqueeze(1) < rank.unsqueeze(2)).view(n, m, 1, m) & ~eye  # [i, j]: j has priority over i
+        free = ~lower
+
+        big = torch.tensor(1e9, device=dev)
+
+        def pick(ok):
+            ch = torch.where(ok, cost, cost + big).argmin(dim=2)  # (N, M)
+            idx = ch.view(n, m, 1, 1).expand(n, m, 1, S)
+            return ch, tx.gather(2, idx).squeeze(2), ty.gather(2, idx).squeeze(2)
+
+        choice, cx, cy = pick(base_ok)
+        for _ in range(self.rounds):
+            ok = base_ok & ((self._pair_clearance(tx, ty, cx, cy) >= rr) | free).all(-1)
+            choice, cx, cy = pick(ok)
+        # Final fix: a choice that meets a higher-priority final choice becomes braking (always allowed).
+        final_ok = ((self._pair_clearance(cx.unsqueeze(2), cy.unsqueeze(2), cx, cy) >= rr) | free).all(-1).squeeze(2)
+        choice = torch.where(final_ok, choice, torch.zeros_like(choice))
+        v_new = cand.gather(2, choice.view(n, m, 1, 1).expand(n, m, 1, 2)).squeeze(2)
+
+        # Stuck bookkeeping: steps without getting closer to the current goal.
+        new_goal = (goal - self._goal_prev).abs().sum(-1) > 0
+        self._goal_prev = goal.clone()
+        best = torch.where(new_goal, torch.full_like(self._best, float("inf")), self._best)
+        better = length < best - 0.01
+        self._best = torch.where(better, length, best)
+        self._stuck = torch.where(better | new_goal, torch.zeros_like(self._stuck), self._stuck + 1)
+
+        acc = (v_new - vel) / T
+        an = acc.norm(dim=-1, keepdim=True)
+        acc = torch.where(an > self.a_max, acc * (self.a_max / an.clamp_min(1e-9)), acc)
+        if env.learn_jerk:
+            jerk = (acc - sim.acc[..., :2]) / self.dt
+            jn = jerk.norm(dim=-1, keepdim=True)
+            acc = torch.where(jn > self.j_max, jerk * (self.j_max / jn.clamp_min(1e-9)), jerk)
         return acc.reshape(env.num_envs, -1)
