@@ -1,30 +1,47 @@
-"""A scripted push-behind-the-object heuristic for the pushing tasks (a baseline, no learning).
+"""A scripted contact-selecting push heuristic for the pushing tasks (a baseline, no learning).
 
-Per world, mover 0 does the pushing (other movers hold still):
+Per world, mover 0 does the pushing (other movers hold still). Every env step it re-plans:
 
-* **approach**: fly straight to a staging point behind the object on the object-to-goal line, braking so that it
-  arrives with a little push speed; while that straight segment would clip the object, go around the object on a
-  circle at a small clearance instead (the shorter way unless it leaves the safe region);
-* **push**: inside a narrow cone behind the object, drive along the goal line with a speed profile that brakes
-  below the box's friction deceleration (the box stays against the mover and stops at the goal), steering
-  sideways back onto the line through the object's centre;
-* **settle**: once the object is well inside the success threshold, hold still (near the goal the push direction
-  turns erratic, and chasing it pushes the object out again).
+* **candidates**: push directions (a fixed fan of world directions plus the straight object-to-goal direction)
+  times lateral offsets of the mover's line from the object's centre of area. For each, the mover's square
+  footprint is swept along the direction into the object's parts (slab tests of mover corners against the rotated
+  part rectangles and of part corners against the mover square): where it first touches gives the contact point,
+  the contact normal and the mover's position at contact (the swept line behind it is free of the object);
+* **prediction**: a quasi-static point push with an ellipsoidal limit surface (the object's centre of area and
+  mean lever arm, Coulomb friction at the contact: sticking inside the friction cone, sliding on its edge) gives
+  the object's twist per unit mover speed; its rate of decrease of the weighted pose error ``(dx, dy, rho*dyaw)``
+  (yaw error modulo the shape's rotational symmetry; zero weight for position goals) scores the candidate;
+* **choice**: the candidate with the smallest estimated time (way round the object to its staging point at cruise
+  speed plus the pose error over its predicted rate at push speed) wins; the choice is kept unless another one is
+  clearly faster (hysteresis against dithering);
+* **motion**: on the swept line behind the contact (a narrow cone) the mover pushes along it with a speed that
+  brakes below the object's friction deceleration as the predicted remaining push shrinks, steering back onto the
+  line; elsewhere it flies straight to a point on that line clear of the object, or goes around the object on a
+  circle at a small clearance while the straight way would clip it (the shorter way unless it leaves the area);
+* **obstacles** (``PushWithObstacles``): the object is first pushed to a waypoint in front of the gap between the
+  walls, then through the gap to the goal; the mover's speed toward the walls is capped to what can still brake
+  before touching them, and it never enters the gap itself;
+* **settle**: once the goal is well inside the success threshold (position distance, or the exact coverage for
+  pose goals), hold still: the episode is scored on its final state.
 
 Contact distances use the exact support of the (rotated) object parts and of the mover's square footprint. Speeds
 toward the sides of the safe rectangle (where the wall-collision shape stays on the tiles) are capped to what can
 still brake, and that braking has priority in the acceleration (layouts with holes are only approximated by their
 bounding rectangle). The desired velocity becomes an acceleration through a deadbeat velocity loop over one held
-env step. Batched torch on the env's device, no Python loop over worlds; pose goals (Push-T/L/X) are pushed as
-position goals.
+env step. Batched torch on the env's device, no Python loop over worlds (only small fixed loops over candidate
+offsets).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import torch
 
 __all__ = ["PushHeuristic"]
+
+_INF = 1e9
 
 
 def _unit(v: torch.Tensor) -> torch.Tensor:
@@ -35,56 +52,156 @@ def _perp(v: torch.Tensor) -> torch.Tensor:
     return torch.stack([-v[..., 1], v[..., 0]], dim=-1)
 
 
+def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _rot(c: torch.Tensor, s: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Rotate ``v [..., 2]`` by the angle with cosine ``c`` and sine ``s`` (broadcast against ``v[..., 0]``)."""
+    return torch.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], dim=-1)
+
+
+def _slab(start: torch.Tensor, direction: torch.Tensor, half: torch.Tensor):
+    """Entry time of rays ``start + t * direction`` into the boxes ``|x| <= half`` (per axis), and the entry axis.
+
+    Returns ``(t_enter, axis)``; ``t_enter`` is ``_INF`` where the ray misses or starts inside."""
+    small = direction.abs() < 1e-7
+    safe = torch.where(small, torch.ones_like(direction), direction)
+    t1 = (-half - start) / safe
+    t2 = (half - start) / safe
+    lo, hi = torch.minimum(t1, t2), torch.maximum(t1, t2)
+    inside = start.abs() <= half
+    lo = torch.where(small, torch.where(inside, torch.full_like(lo, -_INF), torch.full_like(lo, _INF)), lo)
+    hi = torch.where(small, torch.where(inside, torch.full_like(hi, _INF), torch.full_like(hi, -_INF)), hi)
+    enter, axis = lo.max(dim=-1)
+    leave = hi.min(dim=-1).values
+    hit = (enter <= leave) & (enter > 0.0)
+    return torch.where(hit, enter, torch.full_like(enter, _INF)), axis
+
+
+def _symmetry(rects: np.ndarray) -> float:
+    """Smallest rotation (pi/2, pi or 2 pi) about the body origin that maps the union of rectangles onto itself."""
+
+    def same(a: np.ndarray, b: np.ndarray) -> bool:
+        key = lambda r: np.lexsort(np.round(r.T[::-1], 6))  # noqa: E731
+        return a.shape == b.shape and np.allclose(a[key(a)], b[key(b)], atol=1e-6)
+
+    quarter = np.stack([-rects[:, 1], rects[:, 0], rects[:, 3], rects[:, 2]], 1)
+    half = np.stack([-rects[:, 0], -rects[:, 1], rects[:, 2], rects[:, 3]], 1)
+    if same(rects, quarter):
+        return math.pi / 2
+    if same(rects, half):
+        return math.pi
+    return 2 * math.pi
+
+
 class PushHeuristic:
     """``policy(obs) -> action`` for a :class:`~magwarp.envs.push.PushEnv` (batched, torch in and out).
 
     Args:
-        env: the batched push env (layout, object, mover sizes and limits are read from it).
+        env: the batched push env (layout, object, mover sizes, limits and obstacles are read from it).
         cruise: top speed (m/s) while approaching; push_speed: top speed while pushing.
         push_brake: deceleration (m/s^2) planned while pushing (below the box's friction deceleration, ~6 m/s^2).
         approach_brake: deceleration (m/s^2) planned when arriving at points and before the sides of the area.
         clearance: gap (m) kept between mover and object while going around it.
         engage: fraction of the push speed the mover already has when it reaches the staging point.
-        cone: lateral tolerance (per metre of gap) of the cone behind the object in which it pushes.
-        settle: the mover holds still once the object is within this fraction of the success threshold.
+        cone: lateral tolerance (per metre of gap) of the cone behind the contact in which it pushes.
+        settle: the mover holds still once the object is within this fraction of the position threshold.
         stop_at: distance (m) short of the goal at which the planned push speed reaches zero.
+        directions: number of world push directions in the candidate fan (plus the object-to-goal direction).
+        offsets: number of lateral offsets of the push line per direction; spread: their half-range (m).
+        yaw_scale: metres of position error one radian of yaw error weighs (pose goals).
+        friction: mover-object friction coefficient assumed by the prediction.
+        hold_coverage: pose goals: hold still once the coverage exceeds the success threshold by this much.
+        switch: a new candidate replaces the kept one only if its estimated time is below this fraction of it.
     """
 
-    def __init__(self, env, cruise: float = 1.8, push_speed: float = 2.0, push_brake: float = 5.0,
+    def __init__(self, env, cruise: float = 1.8, push_speed: float = 1.0, push_brake: float = 5.0,
                  approach_brake: float = 5.0, clearance: float = 0.008, engage: float = 0.5,
-                 cone: float = 0.3, settle: float = 0.8, stop_at: float = 0.005):
+                 cone: float = 0.3, settle: float = 0.8, stop_at: float = 0.005, directions: int = 16,
+                 offsets: int = 9, spread: float | None = None, yaw_scale: float = 0.08, friction: float = 0.5,
+                 hold_coverage: float = 0.12, switch: float = 0.75, approach_speed: float = 1.0,
+                 residual_cost: float = 20.0, lateral_tol: float = 0.012):
         self.env = env
         self.backend = env.backend
         self.cruise, self.push_speed = cruise, push_speed
         self.push_brake, self.approach_brake = push_brake, approach_brake
         self.clearance = clearance
         self.engage, self.cone, self.settle, self.stop_at = engage, cone, settle, stop_at
+        self.yaw_scale, self.hold_coverage, self.switch = yaw_scale, hold_coverage, switch
+        self.approach_speed, self.residual_cost = approach_speed, residual_cost
+        self.lateral_tol = lateral_tol
+        self.mu = float(friction)
         c = self.backend.control
         self.latency = c.num_cycles * self.backend.dt  # one held env step
         self.a_max, self.v_max = c.a_max, c.v_max
-        dev = env.device
+        dev = self.device = env.device
         obj = env.object
-        if obj.shape == "cylinder":
-            self._parts = None
-            self._radius = float(obj.radius)
+        self.pose_goal = bool(getattr(env, "learn_pose", False))
+        if obj.shape == "cylinder":  # swept as its bounding square with the yaw held at zero
+            rects = np.array([[0.0, 0.0, obj.radius, obj.radius]], np.float32)
+            self._round, self._radius = True, float(obj.radius)
         else:
-            self._parts = torch.as_tensor(np.asarray(obj.rects(), np.float32), device=dev)  # (K, 4) cx, cy, hx, hy
+            rects = np.asarray(obj.rects(), np.float32)
+            self._round, self._radius = False, 0.0
+        self._parts = torch.as_tensor(rects, device=dev)  # (K, 4) cx, cy, hx, hy in the body frame
+        area = 4 * rects[:, 2] * rects[:, 3]
+        com = (rects[:, :2] * area[:, None]).sum(0) / area.sum()
+        # mean lever arm about the centre of area (uniform pressure): the limit surface's m_max / f_max
+        g = (np.arange(16) + 0.5) / 16 * 2 - 1
+        gx, gy = np.meshgrid(g, g)
+        pts = rects[:, None, :2] + np.stack([gx.ravel(), gy.ravel()], 1)[None] * rects[:, None, 2:]
+        lever = (np.linalg.norm(pts - com, axis=-1).mean(1) * area).sum() / area.sum()
+        self._com = torch.as_tensor(com, device=dev)
+        self._c2 = float(lever) ** 2
+        self._period = 2 * math.pi if self._round else _symmetry(rects.astype(np.float64))
+        corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], np.float32)
+        self._verts = torch.as_tensor((rects[:, None, :2] + corners[None] * rects[:, None, 2:]).reshape(-1, 2), device=dev)
         self._mover_half = float(0.5 * env.mover.size[0])
+        self._mover_corners = torch.as_tensor(corners * self._mover_half, device=dev)
+        extent = float(np.max(np.hypot(np.abs(rects[:, 0] - com[0]) + rects[:, 2], np.abs(rects[:, 1] - com[1]) + rects[:, 3])))
+        self._reach = extent + self._mover_half * math.sqrt(2) + 0.02  # sweep start distance
+        spread = 0.9 * extent if spread is None else spread
+        ang = torch.arange(directions, device=dev, dtype=torch.float32) * (2 * math.pi / directions)
+        self._dirs = torch.stack([torch.cos(ang), torch.sin(ang)], -1)  # (D, 2) world directions
+        self._offs = torch.linspace(-spread, spread, offsets, device=dev) if offsets > 1 else torch.zeros(1, device=dev)
         # Where the mover's wall-collision footprint stays on the tiles (full rectangles; others are approximated).
         reach = env.mover.bounding_radius(env.mover.wall_margin) + 0.01
         ext = np.asarray(env.layout.extent, np.float32)
         self._lo = torch.full((2,), reach, device=dev)
         self._hi = torch.as_tensor(ext - reach, device=dev)
-        self._way = torch.zeros(env.num_envs, 1, device=dev)  # per world: direction around the object (0: none)
+        n = env.num_envs
+        self._way = torch.zeros(n, 1, device=dev)  # per world: direction around the object (0: none)
+        self._choice = torch.full((n,), -1, dtype=torch.long, device=dev)  # kept candidate (-1: none)
+        self._holding = torch.zeros(n, dtype=torch.bool, device=dev)
+        self._obstacles = None
+        obstacles = getattr(env, "obstacles", ())
+        if obstacles:
+            o = np.array([[ob.xy[0], ob.xy[1], ob.half_size[0], ob.half_size[1], ob.yaw] for ob in obstacles], np.float32)
+            self._obstacles = torch.as_tensor(o, device=dev)
+            self._init_gap(o)
+
+    # ------------------------------------------------------------------ geometry
+    def _init_gap(self, o: np.ndarray) -> None:
+        """The passage between two axis-aligned walls sharing their x span (PushWithObstacles' layout): the object's
+        waypoints in front of and behind it, and the mover's keep-out rectangles (walls grown by its half-size)."""
+        self._walls = torch.as_tensor(np.stack([o[:, 0] - o[:, 2], o[:, 1] - o[:, 3], o[:, 0] + o[:, 2], o[:, 1] + o[:, 3]], 1),
+                                      device=self.device)  # (K, 4) x0, y0, x1, y1
+        lower, upper = np.argsort(o[:, 1])[:2]
+        y_lo = o[lower, 1] + o[lower, 3]
+        y_hi = o[upper, 1] - o[upper, 3]
+        self._gap_x = (float(min(o[:, 0] - o[:, 2])), float(max(o[:, 0] + o[:, 2])))
+        self._gap_y = (float(y_lo), float(y_hi))
 
     def _object_support(self, yaw: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-        """Extent of the object (yaw ``[N]``) along unit directions ``w`` ``[N, 2]`` from its centre."""
-        if self._parts is None:
+        """Extent of the object (yaw ``[N]``) along unit directions ``w`` ``[N, 2]`` from its centre of area."""
+        if self._round:
             return torch.full(w.shape[:-1], self._radius, device=w.device)
         c, s = torch.cos(yaw)[:, None], torch.sin(yaw)[:, None]  # (N, 1)
         p = self._parts
-        cx = c * p[:, 0] - s * p[:, 1]  # part centres in the world frame (N, K)
-        cy = s * p[:, 0] + c * p[:, 1]
+        px, py = p[:, 0] - self._com[0], p[:, 1] - self._com[1]
+        cx = c * px - s * py  # part centres relative to the centre of area, world frame (N, K)
+        cy = s * px + c * py
         wx, wy = w[:, 0:1], w[:, 1:2]
         along_x = (wx * c + wy * s).abs()  # |w . body x|
         along_y = (-wx * s + wy * c).abs()
@@ -93,6 +210,67 @@ class PushHeuristic:
     def _mover_support(self, w: torch.Tensor) -> torch.Tensor:
         return self._mover_half * (w[..., 0].abs() + w[..., 1].abs())
 
+    def _clear(self, x: torch.Tensor, com: torch.Tensor, yaw: torch.Tensor, margin: float) -> torch.Tensor:
+        """Mover centres ``x [N, 2]`` whose footprint is separated from the object by at least ``margin``
+        (sufficient test: the support sum along the centre line)."""
+        rel = x - com
+        e = _unit(rel)
+        need = self._object_support(yaw, e) + self._mover_support(e) + margin
+        return rel.norm(dim=-1) >= need
+
+    def _sweep(self, origin: torch.Tensor, yaw: torch.Tensor, start: torch.Tensor, d: torch.Tensor):
+        """Sweep the mover square from centres ``start [N, C, 2]`` along unit ``d [N, C, 2]`` into the object (body
+        origin ``origin [N, 2]``, ``yaw [N]``). Returns (travel ``[N, C]`` (``_INF``: miss), contact point and
+        contact normal into the object ``[N, C, 2]``)."""
+        c, s = torch.cos(yaw), torch.sin(yaw)
+        p = self._parts
+        # A: object corners entering the mover square (the mover moves +d, so in its frame the corners move -d).
+        verts = origin[:, None] + _rot(c[:, None], s[:, None], self._verts[None])  # (N, J, 2)
+        rel = verts[:, None] - start[:, :, None]  # (N, C, J, 2)
+        ta, axa = _slab(rel, -d[:, :, None].expand_as(rel), torch.full_like(rel, self._mover_half))
+        axis_a = torch.nn.functional.one_hot(axa, 2).to(d.dtype)
+        na = axis_a * torch.sign(d[:, :, None])  # the mover face's outward normal
+        pa = verts[:, None].expand_as(rel)
+        # B: mover corners entering the object's parts (in each part's frame).
+        centres = origin[:, None] + _rot(c[:, None], s[:, None], p[None, :, :2])  # (N, K, 2)
+        q = start[:, :, None] + self._mover_corners  # (N, C, 4, 2)
+        z = q[:, :, :, None] - centres[:, None, None]  # (N, C, 4, K, 2)
+        cc, ss = c[:, None, None, None], s[:, None, None, None]
+        z = _rot(cc, -ss, z)
+        dl = _rot(c[:, None], -s[:, None], d)[:, :, None, None].expand_as(z)  # d in the body frame
+        tb, axb = _slab(z, dl, p[:, 2:].expand_as(z))
+        nb_local = torch.nn.functional.one_hot(axb, 2).to(d.dtype) * torch.sign(dl)  # into the part
+        nb = _rot(cc, ss, nb_local)
+        pb = (q[:, :, :, None] + tb[..., None].clamp(max=1.0) * d[:, :, None, None]).expand_as(z)
+        n_, c_ = d.shape[:2]
+        t = torch.cat([ta, tb.reshape(n_, c_, -1)], dim=2)
+        pts = torch.cat([pa, pb.reshape(n_, c_, -1, 2)], dim=2)
+        nrm = torch.cat([na, nb.reshape(n_, c_, -1, 2)], dim=2)
+        tmin = t.min(dim=2).values
+        near = (t <= tmin[..., None] + 1e-3).to(d.dtype)[..., None]  # touching along a face: average its ends
+        point = (pts * near).sum(2) / near.sum(2).clamp_min(1.0)
+        normal = _unit((nrm * near).sum(2))
+        return tmin, point, normal
+
+    def _twist(self, r: torch.Tensor, n: torch.Tensor, d: torch.Tensor):
+        """Object twist (velocity of its centre of area, yaw rate) per unit mover speed along ``d``, pushing at
+        ``r`` (from the centre of area) with contact normal ``n`` (into the object): quasi-static, ellipsoidal limit
+        surface ``V = k F``, ``w = k (r x F) / c^2``, Coulomb friction at the contact."""
+        c2 = self._c2
+        pp = _perp(r)  # velocity of the contact point per unit yaw rate
+        # sticking: the contact point moves with the mover: (I + pp pp^T / c2) F = d
+        f_stick = d - pp * ((pp * d).sum(-1, keepdim=True) / (c2 + (pp * pp).sum(-1, keepdim=True)))
+        fn = (f_stick * n).sum(-1, keepdim=True)
+        ft = (f_stick * _perp(n)).sum(-1, keepdim=True)
+        stick = ft.abs() <= self.mu * fn
+        # sliding: the force on the friction cone's edge, scaled so the contact's normal speed matches the mover's
+        edge = n + self.mu * torch.sign(ft) * _perp(n)
+        normal_speed = (edge * n).sum(-1, keepdim=True) + (pp * n).sum(-1, keepdim=True) * (pp * edge).sum(-1, keepdim=True) / c2
+        f_slide = edge * ((d * n).sum(-1, keepdim=True) / normal_speed.clamp_min(1e-6))
+        f = torch.where(stick, f_stick, f_slide)
+        return f, _cross(r, f) / c2
+
+    # ------------------------------------------------------------------ motion helpers
     def _profile(self, gap: torch.Tensor) -> torch.Tensor:
         """Speed from which the mover still stops within ``gap`` (m), with one held step of latency."""
         bl = self.approach_brake * self.latency
@@ -136,68 +314,165 @@ class PushHeuristic:
         ok = ((pts >= self._lo) & (pts <= self._hi)).all(-1).all(-1)  # (N, 2)
         return torch.where(ok[:, :1] | ~ok[:, 1:], cands[:, 0], cands[:, 1])
 
+    # ------------------------------------------------------------------ policy
+    def _goal(self, com: torch.Tensor, yaw: torch.Tensor):
+        """Target of the object's centre of area and its yaw error (wrapped to the shape's symmetry)."""
+        env = self.env
+        if self.pose_goal:
+            gyaw = env.goal_yaw
+            goal = env.goal_xy + _rot(torch.cos(gyaw), torch.sin(gyaw), self._com.expand_as(env.goal_xy))
+            per = self._period
+            dyaw = torch.remainder(gyaw - yaw + per / 2, per) - per / 2
+        else:
+            goal = env.goal_xy + _rot(torch.cos(yaw), torch.sin(yaw), self._com.expand_as(env.goal_xy))
+            dyaw = torch.zeros_like(yaw)
+        return goal, dyaw
+
     def __call__(self, obs=None) -> torch.Tensor:
         b, env = self.backend, self.env
+        n = env.num_envs
+        fresh = env.num_steps == 0  # first step of an episode: forget the kept choices
+        self._choice = torch.where(fresh, torch.full_like(self._choice, -1), self._choice)
+        self._way = torch.where(fresh[:, None], torch.zeros_like(self._way), self._way)
+        self._holding &= ~fresh
         q = b.mover_qpos
         pos, vel = q[:, 0, :2], b.mover_qvel[:, 0, :2]
         oq = b.object_qpos[:, 0]
-        obj, obj_vel = oq[:, :2], b.object_qvel[:, 0, :2]
         w, x, y, z = oq[:, 3], oq[:, 4], oq[:, 5], oq[:, 6]
         yaw = torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-        to_goal = env.goal_xy - obj
-        dist = to_goal.norm(dim=-1, keepdim=True)
-        u = _unit(to_goal)
-        n = _perp(u)
+        if self._round:
+            yaw = torch.zeros_like(yaw)
+        origin = oq[:, :2]
+        com = origin + _rot(torch.cos(yaw), torch.sin(yaw), self._com.expand_as(origin))
+        goal, dyaw = self._goal(com, yaw)
+        target = goal
+        if self._obstacles is not None:
+            target = self._waypoint(com, goal)
+        e_p = target - com
+        e_w = torch.cat([e_p, (self.yaw_scale * dyaw)[:, None]], -1)  # (N, 3)
+        e_norm = e_w.norm(dim=-1, keepdim=True).clamp_min(1e-6)
 
-        rel = pos - obj
-        r = rel.norm(dim=-1, keepdim=True).clamp_min(1e-6)
-        e_r = rel / r
-        along = (rel * u).sum(-1, keepdim=True)  # < 0: behind the object
-        lateral = (rel * n).sum(-1, keepdim=True)
-        contact_u = (self._object_support(yaw, -u) + self._mover_support(u))[:, None]
-        gap = (-along - contact_u).clamp_min(0.0)
+        # Candidates: world directions and the straight direction to the target, times lateral offsets.
+        u = _unit(e_p)
+        dirs = torch.cat([self._dirs[None].expand(n, -1, -1), u[:, None]], 1)  # (N, D + 1, 2)
+        nd, no = dirs.shape[1], self._offs.shape[0]
+        d = dirs[:, :, None].expand(n, nd, no, 2).reshape(n, nd * no, 2)
+        off = self._offs[None, None, :, None].expand(n, nd, no, 1).reshape(n, nd * no, 1)
+        start = com[:, None] - d * self._reach + _perp(d) * off
+        travel, point, normal = self._sweep(origin, yaw, start, d)
+        valid = travel < _INF / 2
+        m_c = start + travel.clamp(max=1.0)[..., None] * d  # mover centre at contact
+        r = point - com[:, None]
+        dn = (d * normal).sum(-1)
+        f, omega = self._twist(r, normal, d)
+        t3 = torch.cat([f, (self.yaw_scale * omega)[..., None]], -1)  # weighted twist per unit mover travel
+        gain = (t3 * e_w[:, None]).sum(-1)
+        rate = gain / e_norm
+        amount = gain / (t3 * t3).sum(-1).clamp_min(1e-9)  # mover travel that best reduces the error
+        residual = (e_w[:, None] - amount[..., None] * t3).norm(dim=-1)
+        valid &= (dn > 0.2) & (rate > 0.02)
+        m_pre = m_c - d * self.clearance
+        valid &= ((m_pre >= self._lo) & (m_pre <= self._hi)).all(-1)
+        if self._obstacles is not None:
+            valid &= ~self._in_walls(m_pre, 0.004)
+        # Estimated time: the way round the object to the staging point, the push, and what it leaves undone.
+        rel_now, rel_pre = pos - com, m_pre - com[:, None]
+        r_now, r_pre = rel_now.norm(dim=-1, keepdim=True), rel_pre.norm(dim=-1)
+        dphi = torch.remainder(torch.atan2(rel_pre[..., 1], rel_pre[..., 0])
+                               - torch.atan2(rel_now[:, 1:2], rel_now[:, 0:1]) + math.pi, 2 * math.pi) - math.pi
+        way = torch.maximum(r_now, r_pre) * dphi.abs() + (r_now - r_pre).abs()
+        way = torch.minimum(way, (pos[:, None] - m_pre).norm(dim=-1) * (1.0 + 2.0 * (dphi.abs() > 1.2)))
+        cost = way / self.approach_speed + amount / self.push_speed + self.residual_cost * residual
+        cost = torch.where(valid, cost, torch.full_like(cost, _INF))
+        best_cost, best = cost.min(dim=1)
+        kept = self._choice.clamp_min(0)
+        kept_cost = cost.gather(1, kept[:, None])[:, 0]
+        keep = (self._choice >= 0) & (kept_cost < _INF / 2) & (best_cost > self.switch * kept_cost)
+        choice = torch.where(keep, kept, best)
+        changed = choice != self._choice
+        self._choice = torch.where(best_cost < _INF / 2, choice, torch.full_like(choice, -1))
+        any_valid = best_cost < _INF / 2
 
-        # Push: inside a narrow cone behind the object, drive along the goal line (speed planned over the gap and
-        # the object's way to the goal, braking below its friction deceleration) and steer onto the line.
-        # (contact_u is the support sum: an upper bound of the touching distance when u is off the face normals,
-        # so the cone does not end there; it would flip between pushing and backing off to the staging point)
-        cone = (along < -0.5 * contact_u) & (lateral.abs() < 0.015 + self.cone * gap)
-        speed = torch.sqrt(2 * self.push_brake * (dist + gap - self.stop_at).clamp_min(0.0)).clamp(max=self.push_speed)
-        v_push = u * speed - n * (lateral * 15.0).clamp(-self.cruise, self.cruise)
+        idx = choice[:, None, None].expand(n, 1, 2)
+        dc = d.gather(1, idx)[:, 0]
+        mc = m_c.gather(1, idx)[:, 0]
+        rc = rate.gather(1, choice[:, None])
+        nc = _perp(dc)
 
-        # Direct approach: straight to the staging point behind the object, arriving with a little push speed.
-        stage = obj - u * (contact_u + self.clearance)
-        d = stage - pos
-        dn = d.norm(dim=-1, keepdim=True)
-        engage = self.engage * speed * (1.0 - dn / 0.05).clamp(0.0, 1.0)
-        v_direct = _unit(d) * self._profile(dn).clamp(max=self.cruise) + u * engage
+        # Push: inside a narrow cone behind the contact, drive along the line (speed planned over the gap and the
+        # predicted remaining push, braking below the object's friction deceleration) and steer onto the line.
+        rel = pos - mc
+        along = (rel * dc).sum(-1, keepdim=True)
+        lateral = (rel * nc).sum(-1, keepdim=True)
+        gap = (-along).clamp_min(0.0)
+        need = amount.gather(1, choice[:, None]).clamp_min(0.0)
+        speed = torch.sqrt(2 * self.push_brake * (need + gap - self.stop_at).clamp_min(0.0)).clamp(max=self.push_speed)
+        cone = (along < 0.01) & (lateral.abs() < self.lateral_tol + self.cone * gap)
+        v_push = dc * speed - nc * (lateral * 15.0).clamp(-self.cruise, self.cruise)
+
+        # Approach: straight to a point on the line behind the contact that is clear of the object ...
+        back = mc - dc * self.clearance
+        for s in (0.03, 0.06, 0.1, 0.15, 0.22):
+            cand = mc - dc * s
+            back = torch.where((back == mc - dc * self.clearance).all(-1, keepdim=True)
+                               & ~self._clear(back, com, yaw, 0.5 * self.clearance)[:, None], cand, back)
+        dvec = back - pos
+        dist_b = dvec.norm(dim=-1, keepdim=True)
+        v_direct = _unit(dvec) * self._profile(dist_b).clamp(max=self.cruise) + dc * self.engage * speed * (
+            1.0 - dist_b / 0.05).clamp(0.0, 1.0)
         # ... unless that segment passes the object: then go around it on a circle at a clearance.
-        t = ((obj - pos) * d).sum(-1, keepdim=True) / (dn * dn).clamp_min(1e-9)
-        closest = pos + t.clamp(0.0, 1.0) * d
-        keep_out = (self._object_support(yaw, _unit(closest - obj)) + self._mover_support(_unit(closest - obj)))[:, None]
-        blocked = (closest - obj).norm(dim=-1, keepdim=True) < keep_out + 0.5 * self.clearance
+        t = ((com - pos) * dvec).sum(-1, keepdim=True) / (dist_b * dist_b).clamp_min(1e-9)
+        closest = pos + t.clamp(0.0, 1.0) * dvec
+        blocked = ~self._clear(closest, com, yaw, 0.5 * self.clearance)[:, None]
 
+        rel_o = pos - com
+        r_o = rel_o.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        e_r = rel_o / r_o
         e_t = _perp(e_r)  # counter-clockwise
         theta = torch.atan2(e_r[:, 1], e_r[:, 0])
-        theta_push = torch.atan2(-u[:, 1], -u[:, 0])
-        err = torch.remainder(theta - theta_push + torch.pi, 2 * torch.pi)[:, None] - torch.pi
+        to_back = back - com
+        theta_t = torch.atan2(to_back[:, 1], to_back[:, 0])
+        err = torch.remainder(theta - theta_t + torch.pi, 2 * torch.pi)[:, None] - torch.pi
         contact = (self._object_support(yaw, e_r) + self._mover_support(e_r))[:, None]
         r_des = contact + self.clearance
-        dr = r_des - r
+        dr = r_des - r_o
         v_rad = e_r * torch.sign(dr) * self._profile(dr.abs()).clamp(max=self.cruise)
         # Keep the way round once chosen: in front of the object the shorter arc flips with every step.
-        sign = self._orbit_sign(obj, theta, err, r_des)
-        sign = torch.where(blocked & (self._way != 0), self._way, sign)
+        sign = self._orbit_sign(com, theta, err, r_des)
+        sign = torch.where(blocked & (self._way != 0) & ~changed[:, None], self._way, sign)
         self._way = torch.where(blocked, sign, torch.zeros_like(sign))
-        v_orbit = obj_vel + v_rad + e_t * sign * self._profile(err.abs() * r).clamp(max=self.cruise)
+        v_orbit = b.object_qvel[:, 0, :2] + v_rad + e_t * sign * self._profile(err.abs() * r_o).clamp(max=self.cruise)
 
         v = torch.where(cone, v_push, torch.where(blocked, v_orbit, v_direct))
-        # Near the goal the push direction turns erratic: hold still there (MagBotSim scores the final state).
-        v = torch.where(dist < self.settle * env.max_position_err, torch.zeros_like(v), v)
+        self._info = {"mode": torch.where(cone, 0, torch.where(blocked, 1, 2))[:, 0], "omega": omega.gather(1, choice[:, None])[:, 0],
+                      "force": f.gather(1, idx)[:, 0], "point": point.gather(1, idx)[:, 0] - com, "normal": normal.gather(1, idx)[:, 0]}
+        v = torch.where(any_valid[:, None], v, torch.zeros_like(v))
+        # Settle: hold still once well inside the success threshold (the final state is scored).
+        if self.pose_goal:
+            from magwarp.physics import coverage
+
+            pose = torch.stack([origin[:, 0], origin[:, 1], yaw], -1)
+            gpose = torch.stack([env.goal_xy[:, 0], env.goal_xy[:, 1], env.goal_yaw], -1)
+            done = coverage(pose, gpose, env.object) >= min(env.min_coverage + self.hold_coverage, 0.99)
+        else:
+            done = (env.goal_xy - origin).norm(dim=-1) < self.settle * env.max_position_err
+        v = torch.where(done[:, None], torch.zeros_like(v), v)
+        if self._obstacles is not None:
+            v = self._wall_guard(pos, vel, v)
         v = self._wall_limit(pos, vel, v)
         acc = self._wall_brake(pos, vel, self._clip((v - vel) / self.latency))
-        out = torch.zeros(env.num_envs, env.num_movers, 2, device=env.device)
+        out = torch.zeros(n, env.num_movers, 2, device=env.device)
         out[:, 0] = acc
         if env.num_movers > 1:  # helpers hold still
             out[:, 1:] = (-b.mover_qvel[:, 1:, :2] / self.latency).clamp(-self.a_max, self.a_max)
-        return out.reshape(env.num_envs, -1)
+        return out.reshape(n, -1)
+
+    # ------------------------------------------------------------------ obstacles
+    def _waypoint(self, com: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        return goal
+
+    def _in_walls(self, x: torch.Tensor, margin: float) -> torch.Tensor:
+        return torch.zeros(x.shape[:-1], dtype=torch.bool, device=x.device)
+
+    def _wall_guard(self, pos, vel, v):
+        return v
