@@ -47,8 +47,9 @@ class GoalSeekingPlanner:
     """
 
     def __init__(self, env: TrajectoryPlanningEnv, cruise_speed: float = 2.0, brake: float = 6.0,
-                 buffer: float = 0.006, horizon: float = 0.6, sidestep: float = 2.0, leader_share: float = 0.35,
-                 wall_resolution: float = 0.005, arrive_speed: float = 0.5, rounds: int = 3):
+                 buffer: float = 0.006, horizon: float = 0.3, sidestep: float = 2.0, leader_share: float = 0.35,
+                 wall_resolution: float = 0.005, arrive_speed: float = 0.5, rounds: int = 3,
+                 detour_margin: float = 0.03, ttc_margin: float = 0.01, wall_buffer: float = 0.003):
         self.env = env
         self.sim = env.sim
         self.device = env.device
@@ -61,11 +62,14 @@ class GoalSeekingPlanner:
         self.cruise = min(float(cruise_speed), self.v_max)
         self.brake = float(brake)
         self.buffer = float(buffer)
+        self.wall_buffer = float(wall_buffer)
         self.horizon = float(horizon)
         self.w_ttc = float(sidestep)
         self.leader_share = leader_share
         self.arrive = float(arrive_speed)
         self.rounds = int(rounds)
+        self.detour_margin = float(detour_margin)
+        self.ttc_margin = float(ttc_margin)
         mover = self.sim.mover
         if mover.collision_shape == "circle":
             r = float(self.sim._radii_np.max())
@@ -151,7 +155,12 @@ class GoalSeekingPlanner:
         def present(i, j):
             return 0 <= i < nx and 0 <= j < ny and tiles[i, j] == 1
 
-        clear = self.reach_w + self.buffer + 0.01
+        clear = self.reach_w + self.wall_buffer + 0.01
+        need = self.reach_w + self.wall_buffer + 0.002
+        offs = np.linspace(clear, self.reach_w, 7)
+        cx, cy = np.meshgrid(offs, offs, indexing="ij")
+        order = np.argsort(-(cx + cy).ravel(), kind="stable")  # widest around the corner first
+        cx, cy = cx.ravel()[order], cy.ravel()[order]
         pts = []
         for vi in range(nx + 1):
             for vj in range(ny + 1):
@@ -163,13 +172,16 @@ class GoalSeekingPlanner:
                         ai, aj = vi + (0 if sx > 0 else -1), vj + (-1 if sy > 0 else 0)
                         bi, bj = vi + (-1 if sx > 0 else 0), vj + (0 if sy > 0 else -1)
                         if present(qi, qj) and not present(oi, oj) and present(ai, aj) and present(bi, bj):
-                            pts.append((vi * ts + sx * clear, vj * ts + sy * clear))
+                            pts.append(np.stack([vi * ts + sx * cx, vj * ts + sy * cy], axis=-1))
         if not pts:
             self.has_holes = False
             return
-        wp_ = torch.tensor(pts, dtype=torch.float32, device=self.device)
-        ok = self._wall_dist(wp_) >= clear - 1e-4
-        wp_ = wp_[ok]
+        # per corner: the offset nearest the corner that still leaves room (narrow passages: their centre line)
+        opts = torch.tensor(np.stack(pts), dtype=torch.float32, device=self.device)  # (P, O, 2)
+        fits = self._wall_dist(opts) >= need
+        first = torch.where(fits, torch.arange(opts.shape[1], device=self.device), opts.shape[1]).amin(dim=1)
+        keep = first < opts.shape[1]
+        wp_ = opts[keep, first[keep].clamp(max=opts.shape[1] - 1)]
         if len(wp_) == 0:
             self.has_holes = False
             return
@@ -187,7 +199,7 @@ class GoalSeekingPlanner:
         """Whether the straight segment a -> b keeps the footprint off the walls (sampled), for ``(..., 2)``."""
         s = torch.linspace(0.0, 1.0, samples, device=self.device).view(*([1] * (a.dim() - 1)), samples, 1)
         pts = a.unsqueeze(-2) + (b - a).unsqueeze(-2) * s
-        return (self._wall_dist(pts) >= self.reach_w + 0.5 * self.buffer).all(dim=-1)
+        return (self._wall_dist(pts) >= self.reach_w + 0.5 * self.wall_buffer).all(dim=-1)
 
     # ------------------------------------------------------------------ per step
     def _preferred(self, pos: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -214,9 +226,42 @@ class GoalSeekingPlanner:
             length = torch.where(use_wp, best, direct)
         d = target - pos
         dn = d.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        e = self._detour(pos, d / dn, dn.squeeze(-1))
         speed = torch.sqrt(self.arrive ** 2 + 2 * self.brake * length).clamp(max=self.cruise).unsqueeze(-1)
         speed = torch.minimum(speed, length.unsqueeze(-1) / self.T + 0.0)  # no overshoot of the goal in one step
-        return d / dn * speed, length
+        return e * speed, length
+
+    def _detour(self, pos, e, dist):
+        """Heading (N, M, 2) that passes the nearest mover lying across the straight way to the target tangentially:
+        with it on the left (right-hand traffic, so two movers meeting head-on pick consistent sides) unless it
+        lies to the right of the way or that side is walled off."""
+        n, m, _ = pos.shape
+        q = pos.unsqueeze(1) - pos.unsqueeze(2)  # (N, i, j, 2) = p_j - p_i
+        left = torch.stack([-e[..., 1], e[..., 0]], dim=-1)
+        along = (q * e.unsqueeze(2)).sum(-1)
+        perp = (q * left.unsqueeze(2)).sum(-1)
+        rc = 2 * self.reach_m + self.detour_margin
+        eye = torch.eye(m, dtype=torch.bool, device=pos.device)
+        block = (along > 0) & (along < dist.unsqueeze(-1)) & (perp.abs() < rc) & ~eye
+        key = torch.where(block, along, torch.full_like(along, float("inf")))
+        jn = key.argmin(dim=-1, keepdim=True)  # nearest blocker
+        any_block = block.any(-1)
+        qj = q.gather(2, jn.unsqueeze(-1).expand(n, m, 1, 2)).squeeze(2)
+        pj = pos + qj
+        pp = perp.gather(2, jn).squeeze(-1)
+        # side: +1 passes with the blocker on our right (we go left), -1 with it on our left (we go right)
+        side = torch.where(pp < -0.02, torch.ones_like(pp), -torch.ones_like(pp))
+        need = self.reach_w + self.wall_buffer
+        ok_side = self._wall_dist(pj + left * (side * rc).unsqueeze(-1)) >= need
+        ok_other = self._wall_dist(pj - left * (side * rc).unsqueeze(-1)) >= need
+        side = torch.where(ok_side | ~ok_other, side, -side)
+        use = any_block & (ok_side | ok_other)
+        qn = qj.norm(dim=-1).clamp_min(1e-6)
+        th = torch.asin((rc / qn).clamp(max=1.0)) * side
+        qh = qj / qn.unsqueeze(-1)
+        c, s_ = torch.cos(th).unsqueeze(-1), torch.sin(th).unsqueeze(-1)
+        rot = torch.cat([qh[..., :1] * c - qh[..., 1:] * s_, qh[..., :1] * s_ + qh[..., 1:] * c], dim=-1)
+        return torch.where(use.unsqueeze(-1), rot, e)
 
     def _trajectories(self, pos, vel, cand):
         """Plan positions at ``self.times``, x and y apart, each (N, M, K, S): reach velocity ``cand`` (N, M, K, 2)
@@ -254,7 +299,7 @@ class GoalSeekingPlanner:
         # reciprocal: i takes half the avoidance, so test 2 v' - v_i against v_j
         vr = 2 * cand.unsqueeze(3) - vel.unsqueeze(2).unsqueeze(2) - vel.unsqueeze(1).unsqueeze(2)  # (N,i,K,j,2)
         p = rel_p.unsqueeze(2)  # (N,i,1,j,2)
-        R = 2 * self.reach_m + 0.04
+        R = 2 * self.reach_m + self.ttc_margin
         b = (p * vr).sum(-1)
         vv = (vr * vr).sum(-1).clamp_min(1e-9)
         pp = (p * p).sum(-1)
@@ -281,6 +326,7 @@ class GoalSeekingPlanner:
         sim, env = self.sim, self.env
         pos = sim.pos[..., :2]
         vel = sim.vel[..., :2]
+        vel = torch.where(vel.abs() < 1e-12, torch.zeros_like(vel), vel)  # denormals (braked to rest) are slow
         n, m, _ = pos.shape
         dev = pos.device
         T = self.T
@@ -303,7 +349,7 @@ class GoalSeekingPlanner:
 
         tx, ty = self._trajectories(pos, vel, cand)  # (N, M, K, S) each
         S = tx.shape[-1]
-        wall_ok = self._wall_dist(torch.stack([tx, ty], dim=-1)).amin(-1) >= self.reach_w + self.buffer  # (N, M, K)
+        wall_ok = self._wall_dist(torch.stack([tx, ty], dim=-1)).amin(-1) >= self.reach_w + self.wall_buffer  # (N, M, K)
         rr = (2 * self.reach_m + self.buffer) ** 2
         eye = torch.eye(m, dtype=torch.bool, device=dev).view(1, m, 1, m)
         vs_brake = (self._pair_clearance(tx, ty, tx[:, :, 0], ty[:, :, 0]) >= rr) | eye  # (N, i, K, j)
