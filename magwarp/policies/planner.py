@@ -49,7 +49,8 @@ class GoalSeekingPlanner:
     def __init__(self, env: TrajectoryPlanningEnv, cruise_speed: float = 2.0, brake: float = 6.0,
                  buffer: float = 0.006, horizon: float = 0.3, sidestep: float = 2.0, leader_share: float = 0.35,
                  wall_resolution: float = 0.005, arrive_speed: float = 0.5, rounds: int = 3,
-                 detour_margin: float = 0.03, ttc_margin: float = 0.01, wall_buffer: float = 0.003):
+                 detour_margin: float = 0.03, ttc_margin: float = 0.01, wall_buffer: float = 0.003,
+                 stuck_steps: int = 10, escape_steps: int = 5, idle_steps: int = 0, seed: int = 0):
         self.env = env
         self.sim = env.sim
         self.device = env.device
@@ -70,6 +71,9 @@ class GoalSeekingPlanner:
         self.rounds = int(rounds)
         self.detour_margin = float(detour_margin)
         self.ttc_margin = float(ttc_margin)
+        self.stuck_steps = int(stuck_steps)
+        self.escape_steps = int(escape_steps)
+        self.idle_steps = int(idle_steps)
         mover = self.sim.mover
         if mover.collision_shape == "circle":
             r = float(self.sim._radii_np.max())
@@ -87,6 +91,10 @@ class GoalSeekingPlanner:
         self._stuck = torch.zeros(n, m, device=self.device)
         self._best = torch.full((n, m), float("inf"), device=self.device)
         self._goal_prev = torch.zeros(n, m, 2, device=self.device)
+        self._esc_target = torch.zeros(n, m, 2, device=self.device)
+        self._esc_left = torch.zeros(n, m, dtype=torch.int64, device=self.device)
+        self._gen = torch.Generator(device=self.device)
+        self._gen.manual_seed(int(seed))
 
     # ------------------------------------------------------------------ precomputation
     def _build_times(self) -> None:
@@ -322,6 +330,40 @@ class GoalSeekingPlanner:
         dy = ty.unsqueeze(3) - oy.unsqueeze(1).unsqueeze(1)
         return torch.addcmul(dx * dx, dy, dy).amin(-1)
 
+    def _bookkeeping(self, pos, goal, length, esc) -> None:
+        """Count steps without progress toward the goal; a mover stuck for ``stuck_steps`` may leave for a short
+        escape to a random free point (deadlock breaking), and one stuck for long gets priority."""
+        new_goal = (goal - self._goal_prev).abs().sum(-1) > 0  # reached, or the world was reset
+        self._goal_prev = goal.clone()
+        inf = torch.full_like(self._best, float("inf"))
+        best = torch.where(new_goal | esc, inf, self._best)
+        better = length < best - 0.01
+        self._best = torch.where(esc, inf, torch.where(better, length, best))
+        stuck = torch.where(better | new_goal | esc, torch.zeros_like(self._stuck), self._stuck + 1)
+        arrived = (pos - self._esc_target).norm(dim=-1) < 0.03
+        left = torch.where(esc & ~arrived & ~new_goal, self._esc_left - 1, torch.zeros_like(self._esc_left))
+        coin = torch.rand(stuck.shape, generator=self._gen, device=self.device) < 0.5
+        idle = (self.env.num_steps - self.env.last_goal_step).unsqueeze(-1) >= self.idle_steps  # world: no goal lately
+        trigger = (left <= 0) & ~esc & (stuck >= self.stuck_steps) & coin & idle
+        n, m, _ = pos.shape
+        k = 8
+        ang = torch.rand(n, m, k, generator=self._gen, device=self.device) * (2 * math.pi)
+        rad = 0.15 + 0.2 * torch.rand(n, m, k, generator=self._gen, device=self.device)
+        pts = pos.unsqueeze(2) + rad.unsqueeze(-1) * torch.stack([torch.cos(ang), torch.sin(ang)], dim=-1)
+        free = self._wall_dist(pts) >= self.reach_w + self.wall_buffer + 0.01
+        if self.has_holes:
+            free = free & self._visible(pos.unsqueeze(2).expand_as(pts), pts)
+        others = (pts.unsqueeze(3) - pos.unsqueeze(1).unsqueeze(1)).norm(dim=-1)  # (N, i, K, j)
+        eye = torch.eye(m, dtype=torch.bool, device=self.device).view(1, m, 1, m)
+        room = others.masked_fill(eye, float("inf")).amin(-1)
+        room = torch.where(free, room, torch.full_like(room, -1.0))
+        score, pick = room.max(dim=-1)
+        trigger = trigger & (score > 0)
+        target = pts.gather(2, pick.view(n, m, 1, 1).expand(n, m, 1, 2)).squeeze(2)
+        self._esc_target = torch.where(trigger.unsqueeze(-1), target, self._esc_target)
+        self._esc_left = torch.where(trigger, torch.full_like(left, self.escape_steps), left)
+        self._stuck = torch.where(trigger, torch.zeros_like(stuck), stuck)
+
     def __call__(self, obs=None) -> torch.Tensor:
         sim, env = self.sim, self.env
         pos = sim.pos[..., :2]
@@ -332,7 +374,8 @@ class GoalSeekingPlanner:
         T = self.T
         goal = env.goals
 
-        v_pref, length = self._preferred(pos, goal)
+        esc = self._esc_left > 0
+        v_pref, length = self._preferred(pos, torch.where(esc.unsqueeze(-1), self._esc_target, goal))
 
         # Candidates: preferred, brake, coast and a fixed ring of velocity changes.
         dvm = self.a_max * T
@@ -379,14 +422,7 @@ class GoalSeekingPlanner:
         choice = torch.where(final_ok, choice, torch.zeros_like(choice))
         v_new = cand.gather(2, choice.view(n, m, 1, 1).expand(n, m, 1, 2)).squeeze(2)
 
-        # Stuck bookkeeping: steps without getting closer to the current goal.
-        new_goal = (goal - self._goal_prev).abs().sum(-1) > 0
-        self._goal_prev = goal.clone()
-        best = torch.where(new_goal, torch.full_like(self._best, float("inf")), self._best)
-        better = length < best - 0.01
-        self._best = torch.where(better, length, best)
-        self._stuck = torch.where(better | new_goal, torch.zeros_like(self._stuck), self._stuck + 1)
-
+        self._bookkeeping(pos, goal, length, esc)
         acc = (v_new - vel) / T
         an = acc.norm(dim=-1, keepdim=True)
         acc = torch.where(an > self.a_max, acc * (self.a_max / an.clamp_min(1e-9)), acc)
