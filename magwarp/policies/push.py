@@ -18,9 +18,10 @@ Per world, mover 0 does the pushing (other movers hold still). Every env step it
   brakes below the object's friction deceleration as the predicted remaining push shrinks, steering back onto the
   line; elsewhere it flies straight to a point on that line clear of the object, or goes around the object on a
   circle at a small clearance while the straight way would clip it (the shorter way unless it leaves the area);
-* **obstacles** (``PushWithObstacles``): the object is first pushed to a waypoint in front of the gap between the
-  walls, then through the gap to the goal; the mover's speed toward the walls is capped to what can still brake
-  before touching them, and it never enters the gap itself;
+* **obstacles** (``PushWithObstacles``): until it is past the walls the object is aimed at a point in front of the
+  gap between them, then at one behind it (at a height where the mover pushing it fits through the gap too), then
+  at the goal; the mover's speed toward each wall is capped to what can still brake before touching it, and that
+  braking has priority in the acceleration;
 * **settle**: once the goal is well inside the success threshold (position distance, or the exact coverage for
   pose goals), hold still: the episode is scored on its final state.
 
@@ -80,18 +81,20 @@ def _slab(start: torch.Tensor, direction: torch.Tensor, half: torch.Tensor):
 
 
 def _symmetry(rects: np.ndarray) -> float:
-    """Smallest rotation (pi/2, pi or 2 pi) about the body origin that maps the union of rectangles onto itself."""
+    """Smallest rotation (pi/2, pi or 2 pi) about the body origin that maps the union of rectangles onto itself
+    (compared on a grid of points; the parts of a rotated shape need not be the same rectangles)."""
+    ext = float(np.max(np.abs(rects[:, :2]) + rects[:, 2:])) * 1.1
+    g = (np.arange(61) + 0.5) / 61 * 2 * ext - ext
+    pts = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
 
-    def same(a: np.ndarray, b: np.ndarray) -> bool:
-        key = lambda r: np.lexsort(np.round(r.T[::-1], 6))  # noqa: E731
-        return a.shape == b.shape and np.allclose(a[key(a)], b[key(b)], atol=1e-6)
+    def inside(p: np.ndarray) -> np.ndarray:
+        return (np.abs(p[:, None] - rects[None, :, :2]) <= rects[None, :, 2:]).all(-1).any(-1)
 
-    quarter = np.stack([-rects[:, 1], rects[:, 0], rects[:, 3], rects[:, 2]], 1)
-    half = np.stack([-rects[:, 0], -rects[:, 1], rects[:, 2], rects[:, 3]], 1)
-    if same(rects, quarter):
-        return math.pi / 2
-    if same(rects, half):
-        return math.pi
+    base = inside(pts)
+    for angle in (math.pi / 2, math.pi):
+        c, s = math.cos(angle), math.sin(angle)
+        if np.mean(inside(pts @ np.array([[c, s], [-s, c]])) != base) < 1e-3:
+            return angle
     return 2 * math.pi
 
 
@@ -121,7 +124,8 @@ class PushHeuristic:
                  cone: float = 0.3, settle: float = 0.8, stop_at: float = 0.005, directions: int = 16,
                  offsets: int = 9, spread: float | None = None, yaw_scale: float = 0.08, friction: float = 0.5,
                  hold_coverage: float = 0.12, switch: float = 0.75, approach_speed: float = 1.0,
-                 residual_cost: float = 20.0, lateral_tol: float = 0.012):
+                 residual_cost: float = 20.0, lateral_tol: float = 0.012, pass_margin: float = 0.03,
+                 wall_gap: float = 0.01):
         self.env = env
         self.backend = env.backend
         self.cruise, self.push_speed = cruise, push_speed
@@ -130,7 +134,7 @@ class PushHeuristic:
         self.engage, self.cone, self.settle, self.stop_at = engage, cone, settle, stop_at
         self.yaw_scale, self.hold_coverage, self.switch = yaw_scale, hold_coverage, switch
         self.approach_speed, self.residual_cost = approach_speed, residual_cost
-        self.lateral_tol = lateral_tol
+        self.lateral_tol, self.pass_margin, self.wall_gap = lateral_tol, pass_margin, wall_gap
         self.mu = float(friction)
         c = self.backend.control
         self.latency = c.num_cycles * self.backend.dt  # one held env step
@@ -160,6 +164,7 @@ class PushHeuristic:
         self._mover_half = float(0.5 * env.mover.size[0])
         self._mover_corners = torch.as_tensor(corners * self._mover_half, device=dev)
         extent = float(np.max(np.hypot(np.abs(rects[:, 0] - com[0]) + rects[:, 2], np.abs(rects[:, 1] - com[1]) + rects[:, 3])))
+        self._extent = extent
         self._reach = extent + self._mover_half * math.sqrt(2) + 0.02  # sweep start distance
         spread = 0.9 * extent if spread is None else spread
         ang = torch.arange(directions, device=dev, dtype=torch.float32) * (2 * math.pi / directions)
@@ -290,10 +295,14 @@ class PushHeuristic:
         return torch.where(nrm > self.a_max, acc * (self.a_max / nrm.clamp_min(1e-9)), acc)
 
     def _wall_brake(self, pos: torch.Tensor, vel: torch.Tensor, acc: torch.Tensor) -> torch.Tensor:
-        """Braking toward a wall takes priority over the rest of the command (the norm clip would dilute it)."""
+        """Braking toward a wall (the sides of the area, and obstacles) takes priority over the rest of the command
+        (the norm clip would dilute it)."""
         ahead = pos + vel * self.latency
         v_lo = -torch.sqrt(2 * self.approach_brake * (ahead - self._lo).clamp_min(0.0))
         v_hi = torch.sqrt(2 * self.approach_brake * (self._hi - ahead).clamp_min(0.0))
+        if self._obstacles is not None:
+            o_lo, o_hi = self._obstacle_bounds(pos)
+            v_lo, v_hi = torch.maximum(v_lo, o_lo), torch.minimum(v_hi, o_hi)
         lo = ((v_lo - vel) / self.latency).clamp(max=self.a_max)
         hi = ((v_hi - vel) / self.latency).clamp(min=-self.a_max)
         bounded = torch.maximum(torch.minimum(acc, hi), lo).clamp(-self.a_max, self.a_max)
@@ -345,9 +354,9 @@ class PushHeuristic:
         origin = oq[:, :2]
         com = origin + _rot(torch.cos(yaw), torch.sin(yaw), self._com.expand_as(origin))
         goal, dyaw = self._goal(com, yaw)
-        target = goal
+        target, rest = goal, torch.zeros_like(com[:, :1])
         if self._obstacles is not None:
-            target = self._waypoint(com, goal)
+            target, rest = self._waypoint(com, goal)
         e_p = target - com
         e_w = torch.cat([e_p, (self.yaw_scale * dyaw)[:, None]], -1)  # (N, 3)
         e_norm = e_w.norm(dim=-1, keepdim=True).clamp_min(1e-6)
@@ -405,7 +414,7 @@ class PushHeuristic:
         along = (rel * dc).sum(-1, keepdim=True)
         lateral = (rel * nc).sum(-1, keepdim=True)
         gap = (-along).clamp_min(0.0)
-        need = amount.gather(1, choice[:, None]).clamp_min(0.0)
+        need = amount.gather(1, choice[:, None]).clamp_min(0.0) + rest
         speed = torch.sqrt(2 * self.push_brake * (need + gap - self.stop_at).clamp_min(0.0)).clamp(max=self.push_speed)
         cone = (along < 0.01) & (lateral.abs() < self.lateral_tol + self.cone * gap)
         v_push = dc * speed - nc * (lateral * 15.0).clamp(-self.cruise, self.cruise)
@@ -453,7 +462,9 @@ class PushHeuristic:
 
             pose = torch.stack([origin[:, 0], origin[:, 1], yaw], -1)
             gpose = torch.stack([env.goal_xy[:, 0], env.goal_xy[:, 1], env.goal_yaw], -1)
-            done = coverage(pose, gpose, env.object) >= min(env.min_coverage + self.hold_coverage, 0.99)
+            left = (env.max_episode_steps - env.num_steps).clamp_min(0).to(pose.dtype)
+            margin = self.hold_coverage * (left / 8.0).clamp(0.1, 1.0)  # late in the episode, keep what is reached
+            done = coverage(pose, gpose, env.object) >= (env.min_coverage + margin).clamp(max=0.99)
         else:
             done = (env.goal_xy - origin).norm(dim=-1) < self.settle * env.max_position_err
         v = torch.where(done[:, None], torch.zeros_like(v), v)
@@ -468,11 +479,54 @@ class PushHeuristic:
         return out.reshape(n, -1)
 
     # ------------------------------------------------------------------ obstacles
-    def _waypoint(self, com: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        return goal
+    def _waypoint(self, com: torch.Tensor, goal: torch.Tensor):
+        """Until the object is past the walls, aim it at points in front of and behind the gap, at a height where
+        the mover pushing it fits through too (the goal's height, clamped to that range); returns the target and
+        the way left from it to the goal."""
+        x_pass = self._gap_x[1] + self._extent + self.pass_margin
+        margin = self._mover_half + 0.02
+        y_pass = goal[:, 1].clamp(self._gap_y[0] + margin, self._gap_y[1] - margin)
+        entry = torch.stack([torch.full_like(y_pass, self._gap_x[0]), y_pass], -1)
+        exit_ = torch.stack([torch.full_like(y_pass, x_pass + 0.05), y_pass], -1)
+        before = (com[:, 0] < self._gap_x[0] - 0.05)[:, None]
+        inside = (com[:, 0] < x_pass)[:, None]
+        target = torch.where(before, entry, torch.where(inside, exit_, goal))
+        rest = torch.where(before, (exit_ - entry).norm(dim=-1, keepdim=True), torch.zeros_like(com[:, :1]))
+        rest = torch.where(inside, rest + (goal - exit_).norm(dim=-1, keepdim=True), rest)
+        return target, rest
 
     def _in_walls(self, x: torch.Tensor, margin: float) -> torch.Tensor:
-        return torch.zeros(x.shape[:-1], dtype=torch.bool, device=x.device)
+        """Mover centres ``x [..., 2]`` whose footprint comes within ``margin`` of a wall."""
+        if self._obstacles is None:
+            return torch.zeros(x.shape[:-1], dtype=torch.bool, device=x.device)
+        g = self._mover_half + margin
+        w = self._walls
+        xx, yy = x[..., 0:1], x[..., 1:2]
+        inside = (xx > w[:, 0] - g) & (xx < w[:, 2] + g) & (yy > w[:, 1] - g) & (yy < w[:, 3] + g)
+        return inside.any(-1)
 
-    def _wall_guard(self, pos, vel, v):
-        return v
+    def _obstacle_bounds(self, ahead: torch.Tensor):
+        """Per-axis velocity bounds ``(lo, hi) [N, 2]`` that can still brake before each wall (grown by the mover's
+        half-size), for a mover at ``ahead [N, 2]`` within the wall's other span (plus a band)."""
+        g = self._mover_half + self.wall_gap
+        w = self._walls
+        band = 0.03
+        ax, ay = ahead[:, 0:1], ahead[:, 1:2]
+        in_x = (ax > w[:, 0] - g - band) & (ax < w[:, 2] + g + band)  # (N, K): within the wall's x span
+        in_y = (ay > w[:, 1] - g - band) & (ay < w[:, 3] + g + band)
+        big = torch.full_like(in_x, 1e3, dtype=ahead.dtype)
+
+        def cap(mask, room):  # from where the mover is now (one held step of latency in the profile)
+            return torch.where(mask, self._profile(room.clamp_min(0.0)), big).amin(-1)
+
+        left, below = ax < 0.5 * (w[:, 0] + w[:, 2]), ay < 0.5 * (w[:, 1] + w[:, 3])
+        hi_x = cap(in_y & left, w[:, 0] - g - ax)
+        lo_x = -cap(in_y & ~left, ax - (w[:, 2] + g))
+        hi_y = cap(in_x & below, w[:, 1] - g - ay)
+        lo_y = -cap(in_x & ~below, ay - (w[:, 3] + g))
+        return torch.stack([lo_x, lo_y], -1), torch.stack([hi_x, hi_y], -1)
+
+    def _wall_guard(self, pos: torch.Tensor, vel: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """Cap the desired velocity to the obstacle bounds."""
+        lo, hi = self._obstacle_bounds(pos)
+        return torch.maximum(torch.minimum(v, hi), lo)
