@@ -1,23 +1,30 @@
 """A scripted, collision-aware goal-seeking planner for trajectory planning (a baseline, no learning).
 
 Every env step each mover picks its next velocity from a small fixed set of candidates reachable within the held
-step (acceleration norm <= ``a_max``), scored like a sampling-based reciprocal velocity obstacle: distance to a
-preferred velocity plus a penalty on the time to collision with every other mover.
+step (the preferred change, braking, coasting and rings of velocity changes up to ``a_max`` times the step), scored
+like a sampling-based reciprocal velocity obstacle: squared distance to a preferred velocity plus a penalty that
+grows as the time to collision with another mover (each taking half the avoidance) falls below a horizon.
 
-* Preferred velocity: toward the goal on a braking profile; on layouts with holes, toward the first waypoint of a
-  shortest path through a visibility graph whose nodes sit off the convex corners of the holes (corner-to-corner
-  distances precomputed once).
-* Hard safety ("brake-safe" invariant): a candidate is allowed only if its trajectory -- the held step, then full
-  braking along a straight line, sampled in time -- keeps its footprint off every edge of the tiles and, against
-  every other mover, off that mover's braking trajectory and off the trajectory chosen by any mover of higher
-  priority. Movers choose in parallel for a fixed number of rounds; a mover whose final choice conflicts with a
-  higher-priority final choice brakes. Braking is then always allowed, so a world that starts at rest never collides
-  (up to the time sampling, covered by a buffer).
-* Priority: movers nearer to their goal go first; a mover stuck for a while is promoted (deadlock breaking).
+* Preferred velocity: toward the goal on a braking profile. On layouts with holes, toward the first waypoint of the
+  shortest path through a visibility graph whose nodes sit just off the convex corners of the holes (on the centre
+  line of one-tile passages); corner-to-corner distances are precomputed once. A mover lying across the straight way
+  is passed tangentially, with it on the left (right-hand traffic: two movers meeting head-on pick consistent sides)
+  unless that side is walled off.
+* Hard safety (a "brake-safe" invariant): a candidate is allowed only if its plan -- the held step, then braking at
+  ``a_max`` along a straight line, sampled every ~20 ms on the 1 ms cycle grid -- keeps the footprint off every edge
+  of the tiles (an exact distance-to-edge field) and, against every other mover, off that mover's braking plan and
+  off the plan chosen by any mover of higher priority. Movers choose in parallel (``rounds`` refinements); a mover
+  whose choice still meets a higher-priority choice brakes. Braking is therefore always allowed and every pair of
+  final plans is checked, so a world that starts at rest does not collide (up to the time sampling and the
+  integration rounding, which ``buffer`` and ``wall_buffer`` cover). Boxes are checked as their circumscribed
+  circles.
+* Priority: movers nearer to their goal first; a mover stuck for long first of all.
+* Deadlock breaking: a mover that made no progress toward its goal for ``stuck_steps`` steps may leave for a short
+  escape (``escape_steps``) to a random free point away from the other movers.
 
-All of it is batched torch on the env's device: no Python loop over worlds or movers (only fixed small loops over
-choice rounds). Written for acceleration control; with ``learn_jerk`` the chosen acceleration is tracked by a jerk
-command.
+Everything is batched torch on the env's device: no Python loop over worlds or movers (only fixed small loops over
+choice rounds and the two coordinates). Written for acceleration control; with ``learn_jerk`` the chosen acceleration
+is tracked by a jerk command (no safety guarantee then).
 """
 
 from __future__ import annotations
@@ -37,20 +44,28 @@ class GoalSeekingPlanner:
     Args:
         env: the batched env (the planner reads layout, limits, collision sizes and the exact state from it).
         cruise_speed: top planning speed (m/s); brake: deceleration (m/s^2) of the speed profile toward a goal.
-        buffer: extra distance (m) kept between collision shapes and to the walls, on top of the safety margins.
-        horizon: time horizon (s) of the time-to-collision penalty.
-        sidestep: weight of the time-to-collision penalty ((m/s)^2 at zero time to collision).
+        buffer: extra distance (m) kept between two movers' collision shapes, on top of the safety margin.
+        horizon: time horizon (s) of the time-to-collision penalty; sidestep: its weight ((m/s)^2 at contact).
         leader_share: kept for compatibility (unused).
         wall_resolution: grid step (m) of the precomputed distance-to-edge field.
-        arrive_speed: speed (m/s) the profile still allows at the goal (a goal counts once within ``threshold_pos``).
-        rounds: parallel choice rounds per step.
+        arrive_speed: speed (m/s) the profile still allows ``slack`` (m) from the goal (a goal counts as reached
+            anywhere within ``threshold_pos``, so there is no need to stop on it).
+        rounds: parallel refinements of the choices per step.
+        detour_margin: clearance (m) added to two collision shapes when passing a mover tangentially.
+        ttc_margin: clearance (m) added to two collision shapes in the time-to-collision penalty.
+        wall_buffer: extra distance (m) kept between a collision shape and the edges of the tiles.
+        stuck_steps, escape_steps: deadlock breaking (see the module docstring); idle_steps: escape only in worlds
+            where no goal was reached for this many steps.
+        ring: number of velocity-change directions at full, half, quarter, ... change.
+        seed: seed of the escape sampling.
     """
 
     def __init__(self, env: TrajectoryPlanningEnv, cruise_speed: float = 2.0, brake: float = 6.0,
                  buffer: float = 0.006, horizon: float = 0.3, sidestep: float = 2.0, leader_share: float = 0.35,
-                 wall_resolution: float = 0.005, arrive_speed: float = 0.5, rounds: int = 3,
+                 wall_resolution: float = 0.005, arrive_speed: float = 0.5, rounds: int = 1,
                  detour_margin: float = 0.03, ttc_margin: float = 0.01, wall_buffer: float = 0.003,
-                 stuck_steps: int = 10, escape_steps: int = 5, idle_steps: int = 0, seed: int = 0):
+                 stuck_steps: int = 10, escape_steps: int = 5, idle_steps: int = 0, slack: float = 0.06,
+                 ring: tuple[int, ...] = (12, 6, 6), seed: int = 0):
         self.env = env
         self.sim = env.sim
         self.device = env.device
@@ -74,6 +89,7 @@ class GoalSeekingPlanner:
         self.stuck_steps = int(stuck_steps)
         self.escape_steps = int(escape_steps)
         self.idle_steps = int(idle_steps)
+        self.slack = float(slack)
         mover = self.sim.mover
         if mover.collision_shape == "circle":
             r = float(self.sim._radii_np.max())
@@ -84,7 +100,7 @@ class GoalSeekingPlanner:
             self.reach_m = float(np.linalg.norm(half + mover.margin))
             self.reach_w = float(np.linalg.norm(half + mover.wall_margin))
         self._build_times()
-        self._build_candidates()
+        self._build_candidates(ring)
         self._build_wall_field(wall_resolution)
         self._build_waypoints()
         n, m = env.num_envs, env.num_movers
@@ -109,13 +125,16 @@ class GoalSeekingPlanner:
         t = torch.tensor(t1 + t2, dtype=torch.float32, device=self.device)
         self.times = torch.round(t / dt) * dt  # on the cycle grid: the integration formulas below are exact there
 
-    def _build_candidates(self) -> None:
-        """Velocity changes (fraction of ``a_max * T``) tried besides the preferred one, braking and coasting."""
-        dirs = 16
-        ang = torch.arange(dirs, dtype=torch.float32) * (2 * math.pi / dirs)
-        unit = torch.stack([torch.cos(ang), torch.sin(ang)], dim=-1)
-        ring = [unit * 1.0, unit[::2] * 0.5 + 0 * unit[::2], unit[1::2] * 0.25]
-        self._dv = torch.cat([torch.zeros(1, 2)] + ring).to(self.device)  # (K0, 2)
+    def _build_candidates(self, ring) -> None:
+        """Velocity changes (fraction of ``a_max * T``) tried besides the preferred one and braking: coasting, then
+        ``ring[k]`` evenly spread directions at 1, 1/2, 1/4, ... of the largest change (alternate rings turned)."""
+        parts = [torch.zeros(1, 2)]
+        for k, count in enumerate(ring):
+            if count <= 0:
+                continue
+            ang = (torch.arange(count, dtype=torch.float32) + 0.5 * (k % 2)) * (2 * math.pi / count)
+            parts.append(torch.stack([torch.cos(ang), torch.sin(ang)], dim=-1) * 0.5 ** k)
+        self._dv = torch.cat(parts).to(self.device)  # (K0, 2)
 
     def _build_wall_field(self, res: float) -> None:
         """Exact distance (m) from grid points to the nearest point off the tiles (holes and outside), for sampling."""
@@ -235,8 +254,9 @@ class GoalSeekingPlanner:
         d = target - pos
         dn = d.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         e = self._detour(pos, d / dn, dn.squeeze(-1))
-        speed = torch.sqrt(self.arrive ** 2 + 2 * self.brake * length).clamp(max=self.cruise).unsqueeze(-1)
-        speed = torch.minimum(speed, length.unsqueeze(-1) / self.T + 0.0)  # no overshoot of the goal in one step
+        rest = (length - self.slack).clamp_min(0.0)
+        speed = torch.sqrt(self.arrive ** 2 + 2 * self.brake * rest).clamp(max=self.cruise).unsqueeze(-1)
+        speed = torch.minimum(speed, length.unsqueeze(-1) / self.T)  # no overshoot of the goal in one step
         return e * speed, length
 
     def _detour(self, pos, e, dist):
