@@ -61,8 +61,8 @@ def test_reaches_more_goals_with_fewer_collisions_than_flying_straight():
     goals, rate, hits = _run(env, GoalSeekingPlanner(env), 120)
     assert naive_hits >= 10  # the comparison means something: flying straight does collide here
     assert hits == 0
-    assert rate >= 0.9 and rate > naive_rate + 0.15
-    assert goals >= naive_goals
+    assert rate >= 0.95 and rate > naive_rate + 0.3  # success rate as the benchmark counts it
+    assert goals >= 0.85 * naive_goals  # and about as many goals in the same time, without a restart per collision
 
 
 def test_no_collisions_on_a_layout_with_holes():
