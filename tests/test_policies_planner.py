@@ -11,6 +11,15 @@ from magwarp.envs.trajectory import TrajectoryPlanningEnv
 from magwarp.policies import GoalSeekingPlanner
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """Small batches: one intra-op thread is faster, and far faster on a busy machine (no thread hand-offs)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def _naive(env):
     """Straight at the goal on a braking profile: no regard for other movers or walls."""
     T = env.num_cycles * env.sim.model.limits.dt
@@ -66,9 +75,9 @@ def test_reaches_more_goals_with_fewer_collisions_than_flying_straight():
 
 
 def test_no_collisions_on_a_layout_with_holes():
-    env = TrajectoryPlanningEnv(8, "B4", device="cpu", seed=0)  # a central obstacle, one-tile passages
-    goals, rate, hits = _run(env, GoalSeekingPlanner(env), 100)
-    assert hits == 0 and goals >= 8 * 4 and rate >= 0.7
+    env = TrajectoryPlanningEnv(6, "B4", device="cpu", seed=0)  # a central obstacle, one-tile passages
+    goals, rate, hits = _run(env, GoalSeekingPlanner(env), 80)
+    assert hits == 0 and goals >= 6 * 6 and rate >= 0.7
 
 
 def _place(env, starts, goals):

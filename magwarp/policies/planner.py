@@ -447,7 +447,7 @@ class GoalSeekingPlanner:
         an = acc.norm(dim=-1, keepdim=True)
         acc = torch.where(an > self.a_max, acc * (self.a_max / an.clamp_min(1e-9)), acc)
         if env.learn_jerk:
-            jerk = (acc - sim.acc[..., :2]) / self.dt
+            jerk = (acc - sim.acc[..., :2]) / self.T  # the acceleration reaches the choice by the step end
             jn = jerk.norm(dim=-1, keepdim=True)
             acc = torch.where(jn > self.j_max, jerk * (self.j_max / jn.clamp_min(1e-9)), jerk)
         return acc.reshape(env.num_envs, -1)
