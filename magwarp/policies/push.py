@@ -160,10 +160,12 @@ class PushHeuristic:
         self._c2 = float(lever) ** 2
         self._period = 2 * math.pi if self._round else _symmetry(rects.astype(np.float64))
         corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], np.float32)
-        self._verts = torch.as_tensor((rects[:, None, :2] + corners[None] * rects[:, None, 2:]).reshape(-1, 2), device=dev)
+        verts = (rects[:, None, :2] + corners[None] * rects[:, None, 2:]).reshape(-1, 2)
+        self._verts = torch.as_tensor(verts, device=dev)  # part corners in the body frame (J, 2)
         self._mover_half = float(0.5 * env.mover.size[0])
         self._mover_corners = torch.as_tensor(corners * self._mover_half, device=dev)
-        extent = float(np.max(np.hypot(np.abs(rects[:, 0] - com[0]) + rects[:, 2], np.abs(rects[:, 1] - com[1]) + rects[:, 3])))
+        extent = float(np.max(np.hypot(np.abs(rects[:, 0] - com[0]) + rects[:, 2],
+                                       np.abs(rects[:, 1] - com[1]) + rects[:, 3])))
         self._extent = extent
         self._reach = extent + self._mover_half * math.sqrt(2) + 0.02  # sweep start distance
         spread = 0.9 * extent if spread is None else spread
@@ -178,11 +180,11 @@ class PushHeuristic:
         n = env.num_envs
         self._way = torch.zeros(n, 1, device=dev)  # per world: direction around the object (0: none)
         self._choice = torch.full((n,), -1, dtype=torch.long, device=dev)  # kept candidate (-1: none)
-        self._holding = torch.zeros(n, dtype=torch.bool, device=dev)
         self._obstacles = None
         obstacles = getattr(env, "obstacles", ())
         if obstacles:
-            o = np.array([[ob.xy[0], ob.xy[1], ob.half_size[0], ob.half_size[1], ob.yaw] for ob in obstacles], np.float32)
+            o = np.array([[ob.xy[0], ob.xy[1], ob.half_size[0], ob.half_size[1], ob.yaw] for ob in obstacles],
+                         np.float32)
             self._obstacles = torch.as_tensor(o, device=dev)
             self._init_gap(o)
 
@@ -190,8 +192,8 @@ class PushHeuristic:
     def _init_gap(self, o: np.ndarray) -> None:
         """The passage between two axis-aligned walls sharing their x span (PushWithObstacles' layout): the object's
         waypoints in front of and behind it, and the mover's keep-out rectangles (walls grown by its half-size)."""
-        self._walls = torch.as_tensor(np.stack([o[:, 0] - o[:, 2], o[:, 1] - o[:, 3], o[:, 0] + o[:, 2], o[:, 1] + o[:, 3]], 1),
-                                      device=self.device)  # (K, 4) x0, y0, x1, y1
+        walls = np.stack([o[:, 0] - o[:, 2], o[:, 1] - o[:, 3], o[:, 0] + o[:, 2], o[:, 1] + o[:, 3]], 1)
+        self._walls = torch.as_tensor(walls, device=self.device)  # (K, 4) x0, y0, x1, y1 (yaw ignored)
         lower, upper = np.argsort(o[:, 1])[:2]
         y_lo = o[lower, 1] + o[lower, 3]
         y_hi = o[upper, 1] - o[upper, 3]
@@ -270,7 +272,8 @@ class PushHeuristic:
         stick = ft.abs() <= self.mu * fn
         # sliding: the force on the friction cone's edge, scaled so the contact's normal speed matches the mover's
         edge = n + self.mu * torch.sign(ft) * _perp(n)
-        normal_speed = (edge * n).sum(-1, keepdim=True) + (pp * n).sum(-1, keepdim=True) * (pp * edge).sum(-1, keepdim=True) / c2
+        normal_speed = ((edge * n).sum(-1, keepdim=True)
+                        + (pp * n).sum(-1, keepdim=True) * (pp * edge).sum(-1, keepdim=True) / c2)
         f_slide = edge * ((d * n).sum(-1, keepdim=True) / normal_speed.clamp_min(1e-6))
         f = torch.where(stick, f_stick, f_slide)
         return f, _cross(r, f) / c2
@@ -343,7 +346,6 @@ class PushHeuristic:
         fresh = env.num_steps == 0  # first step of an episode: forget the kept choices
         self._choice = torch.where(fresh, torch.full_like(self._choice, -1), self._choice)
         self._way = torch.where(fresh[:, None], torch.zeros_like(self._way), self._way)
-        self._holding &= ~fresh
         q = b.mover_qpos
         pos, vel = q[:, 0, :2], b.mover_qvel[:, 0, :2]
         oq = b.object_qpos[:, 0]
@@ -405,7 +407,6 @@ class PushHeuristic:
         idx = choice[:, None, None].expand(n, 1, 2)
         dc = d.gather(1, idx)[:, 0]
         mc = m_c.gather(1, idx)[:, 0]
-        rc = rate.gather(1, choice[:, None])
         nc = _perp(dc)
 
         # Push: inside a narrow cone behind the contact, drive along the line (speed planned over the gap and the
@@ -453,8 +454,10 @@ class PushHeuristic:
         v_orbit = b.object_qvel[:, 0, :2] + v_rad + e_t * sign * self._profile(err.abs() * r_o).clamp(max=self.cruise)
 
         v = torch.where(cone, v_push, torch.where(blocked, v_orbit, v_direct))
-        self._info = {"mode": torch.where(cone, 0, torch.where(blocked, 1, 2))[:, 0], "omega": omega.gather(1, choice[:, None])[:, 0],
-                      "force": f.gather(1, idx)[:, 0], "point": point.gather(1, idx)[:, 0] - com, "normal": normal.gather(1, idx)[:, 0]}
+        # the chosen candidate and mode per world (0 push, 1 around the object, 2 straight approach), for debugging
+        self._info = {"mode": torch.where(cone, 0, torch.where(blocked, 1, 2))[:, 0],
+                      "omega": omega.gather(1, choice[:, None])[:, 0], "force": f.gather(1, idx)[:, 0],
+                      "point": point.gather(1, idx)[:, 0] - com, "normal": normal.gather(1, idx)[:, 0]}
         v = torch.where(any_valid[:, None], v, torch.zeros_like(v))
         # Settle: hold still once well inside the success threshold (the final state is scored).
         if self.pose_goal:
