@@ -85,8 +85,10 @@ class PushEnv(MagwarpVecEnv):
     MagBotSim's ``collision_params``: ``collision_shape``, ``collision_size``, ``collision_offset`` (sampling
     margin), ``collision_offset_wall`` (wall margin).
 
-    Physics: ``solver`` is MuJoCo's constraint solver for the contacts (``"Newton"``, MagBotSim's, or ``"CG"``; the
-    same elliptic-cone contact problem, a different optimiser). ``nconmax``/``njmax`` (contacts and constraint rows
+    Physics: ``solver`` is MuJoCo's constraint solver for the contacts: ``"Newton"`` (MagBotSim's), ``"CG"``, or
+    ``"auto"`` (default): CG on CPU, Newton on CUDA, the faster one on each (benchmarks/RESULTS.md; on a GPU the batch
+    waits for its slowest world, and CG's many cheap iterations lose there). Both solve the same elliptic-cone contact
+    problem to MuJoCo's tolerance; only the optimiser differs. ``nconmax``/``njmax`` (contacts and constraint rows
     per world) default to the most the scene can produce: 8 contacts per colliding geom pair, 3 rows per contact.
 
     Rendering: ``render_mode="rgb_array"`` draws the worlds of :meth:`set_render_worlds` from above (tiles, movers,
@@ -135,7 +137,7 @@ class PushEnv(MagwarpVecEnv):
         initial_mover_zpos: float = 0.003,
         obstacles: tuple[ObstacleSpec, ...] = (),
         benchmark: str | None = None,
-        solver: str = "Newton",
+        solver: str = "auto",
         nconmax: int | None = None,
         njmax: int | None = None,
         device: str | None = None,
@@ -187,9 +189,11 @@ class PushEnv(MagwarpVecEnv):
         self.obstacles = tuple(obstacles)
 
         # Model: built once; starts and goals change per world without a rebuild.
+        device = device or _default_device()
+        if solver == "auto":
+            solver = "Newton" if str(device).startswith("cuda") else "CG"
         self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
                                  objects=[self.object], obstacles=self.obstacles, solver=solver)
-        device = device or _default_device()
         # Contacts per world: up to 8 per colliding geom pair (MuJoCo's box-box and plane-box tests return at most 8):
         # every object part with the support, each mover and each obstacle, and each mover with each obstacle. An
         # elliptic-cone contact (condim 3) is 3 constraint rows. mujoco-warp's solver kernels run over njmax rows
