@@ -17,8 +17,9 @@ if [ "${1:-bench}" = "bench" ]; then
   timeout 260 python3 benchmarks/scaling.py --device cuda:0 --steps 200 --ref-steps 30 --json "$OUT/scaling_gpu.json" \
     --plot "$OUT/scaling_gpu.png" | tail -24
   log "env throughput"
-  timeout 150 python3 benchmarks/env_throughput.py --device cuda:0 --no-magbotsim --envs magwarp/PushBox-v0,magwarp/PushT-v0 \
-    --push-num-envs 1024,4096,16384,65536 --steps 30 --json "$OUT/env_throughput_push_gpu.json" | tail -11
+  timeout 250 python3 benchmarks/env_throughput.py --device cuda:0 --no-magbotsim \
+    --num-envs 16384,262144,1048576,2097152 --push-num-envs 1024,4096,16384,65536 --steps 30 \
+    --json "$OUT/env_throughput_gpu.json" --plot "$OUT/env_throughput_gpu.png" | tail -22
 else
   log "scripted baselines"
   bash benchmarks/eval_all.sh "$OUT/eval_gpu" cuda:0 100 2>&1 | grep -E "^\*|Success Rate|Collisions \(per"
