@@ -11,11 +11,13 @@ read back once per batch of repeats.
   one starts. Makespan: time at which the slowest mover of a world reached ``makespan_goals`` goals.
 
 Process time is the wall-clock time of the batched run (policy and simulation) per goal (trajectory planning) or
-per episode (pushing).
+per episode (pushing). On the CPU the evaluation runs with one torch intra-op thread, for stable timings on shared
+machines (the previous setting is restored afterwards).
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
 import os
@@ -185,7 +187,11 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
              progress: bool | None = None, env_kwargs: dict | None = None) -> EvalResult:
     """Evaluate ``policy`` on ``env_id``; see the module docstring. ``steps``: env steps per world (trajectory
     planning, default 250 = 10 s; pushing: the episode length). ``max_worlds``: worlds simulated at once (default
-    65536 on a GPU, 2048 on the CPU)."""
+    65536 on a GPU, 2048 on the CPU).
+
+    On the CPU, torch runs with one intra-op thread for the whole evaluation (``torch.set_num_threads(1)``): the
+    tensors are small, and several threads only make the process times unstable on a shared machine. The previous
+    thread count is restored on return (also on an error)."""
     import gymnasium as gym
     from tqdm import tqdm
 
@@ -200,63 +206,78 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
     if policy != "scripted" and not os.path.isfile(policy) and ":" not in policy:
         raise EvalError(f"policy {policy!r} is not 'scripted', an existing file, or module:callable")
     device = _check_device(device)
-    max_worlds = max_worlds or (65536 if device.startswith("cuda") else 2048)
-    per_batch = max(1, min(repeats, max_worlds // episodes))
-    num_batches = math.ceil(repeats / per_batch)
-    worlds = per_batch * episodes
+    with _cpu_threads(device):
+        max_worlds = max_worlds or (65536 if device.startswith("cuda") else 2048)
+        per_batch = max(1, min(repeats, max_worlds // episodes))
+        num_batches = math.ceil(repeats / per_batch)
+        worlds = per_batch * episodes
 
-    family_kwargs = dict(env_kwargs or {})
-    env = gym.make_vec(env_id, num_envs=worlds, device=device, check_inputs=False, seed=seed, **family_kwargs)
-    env = env.unwrapped if hasattr(env, "unwrapped") else env
-    family = _family(env)
-    if family == "push":
-        env.autoreset = False  # one episode per world; a finished world is frozen by the metrics
-        num_steps = int(steps or env.max_episode_steps)
-        metrics = Metrics(env)
-    else:
-        num_steps = int(steps or 250)
-        metrics = Metrics(env, makespan_goals=makespan_goals)
-    act = load_policy(policy, env)
+        family_kwargs = dict(env_kwargs or {})
+        env = gym.make_vec(env_id, num_envs=worlds, device=device, check_inputs=False, seed=seed, **family_kwargs)
+        env = env.unwrapped if hasattr(env, "unwrapped") else env
+        family = _family(env)
+        if family == "push":
+            env.autoreset = False  # one episode per world; a finished world is frozen by the metrics
+            num_steps = int(steps or env.max_episode_steps)
+            metrics = Metrics(env)
+        else:
+            num_steps = int(steps or 250)
+            metrics = Metrics(env, makespan_goals=makespan_goals)
+        act = load_policy(policy, env)
 
-    values: dict[str, list[float]] = {}
-    process: list[float] = []
-    total = num_batches * num_steps
-    bar = tqdm(total=total, desc=f"eval {env_id}", unit="step", leave=False,
-               disable=(total < 100) if progress is None else not progress)
-    start_all = time.perf_counter()
-    with torch.no_grad():
-        # Warm-up: the first step compiles kernels and records the step graph; keep it out of the process time.
-        obs, _ = env.reset(seed=seed)
-        env.step(act(obs))
-        for batch in range(num_batches):
-            obs, _ = env.reset(seed=seed + batch)
-            metrics.reset()
-            _sync(device)
-            start = time.perf_counter()
-            for _ in range(num_steps):
-                obs, _, terminated, truncated, _ = env.step(act(obs))
-                if family == "push":
-                    metrics.freeze(terminated | truncated)
-                bar.update(1)
-            if family == "push":  # episodes cut short by --steps still count, as unfinished (not successful)
-                still = metrics.t["active"].bool()
-                metrics.t["episodes"] += still
-                metrics.freeze(still)
-            summary = {k: v.cpu().numpy() for k, v in metrics.summary(per_batch).items()}  # one sync per batch
-            wall = time.perf_counter() - start
-            keep = min(per_batch, repeats - batch * per_batch)
-            for k, v in summary.items():
-                values.setdefault(k, []).extend(float(x) for x in v[:keep])
-            units = summary["goals_reached"].sum() if family == "trajectory" else summary["episodes"].sum()
-            process.append(1000.0 * wall / max(float(units), 1.0))
-    bar.close()
-    wall_all = time.perf_counter() - start_all
-    rows = _rows(type(metrics).ROWS, values, env.num_movers)
-    unit = "goal" if family == "trajectory" else "episode"
-    count = values["goals_reached" if family == "trajectory" else "episodes"]
-    rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
-                    float(np.mean(process)), float(np.std(process)), process))
-    return EvalResult(env_id, policy, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
+        values: dict[str, list[float]] = {}
+        process: list[float] = []
+        total = num_batches * num_steps
+        bar = tqdm(total=total, desc=f"eval {env_id}", unit="step", leave=False,
+                   disable=(total < 100) if progress is None else not progress)
+        start_all = time.perf_counter()
+        with torch.no_grad():
+            # Warm-up: the first step compiles kernels and records the step graph; keep it out of the process time.
+            obs, _ = env.reset(seed=seed)
+            env.step(act(obs))
+            for batch in range(num_batches):
+                obs, _ = env.reset(seed=seed + batch)
+                metrics.reset()
+                _sync(device)
+                start = time.perf_counter()
+                for _ in range(num_steps):
+                    obs, _, terminated, truncated, _ = env.step(act(obs))
+                    if family == "push":
+                        metrics.freeze(terminated | truncated)
+                    bar.update(1)
+                if family == "push":  # episodes cut short by --steps still count, as unfinished (not successful)
+                    still = metrics.t["active"].bool()
+                    metrics.t["episodes"] += still
+                    metrics.freeze(still)
+                summary = {k: v.cpu().numpy() for k, v in metrics.summary(per_batch).items()}  # one sync per batch
+                wall = time.perf_counter() - start
+                keep = min(per_batch, repeats - batch * per_batch)
+                for k, v in summary.items():
+                    values.setdefault(k, []).extend(float(x) for x in v[:keep])
+                units = summary["goals_reached"].sum() if family == "trajectory" else summary["episodes"].sum()
+                process.append(1000.0 * wall / max(float(units), 1.0))
+        bar.close()
+        wall_all = time.perf_counter() - start_all
+        rows = _rows(type(metrics).ROWS, values, env.num_movers)
+        unit = "goal" if family == "trajectory" else "episode"
+        count = values["goals_reached" if family == "trajectory" else "episodes"]
+        rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
+                        float(np.mean(process)), float(np.std(process)), process))
+        return EvalResult(env_id, policy, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
+
+
+@contextlib.contextmanager
+def _cpu_threads(device: str):
+    """One torch intra-op thread while evaluating on the CPU (stable timings); the old count is restored after."""
+    if device != "cpu":
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def _sync(device: str) -> None:

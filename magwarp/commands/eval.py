@@ -9,6 +9,7 @@ POLICY: ``scripted`` (the built-in baseline), a TorchScript or ``torch.save``d m
 observation dict flattened in sorted key order: achieved_goal, desired_goal, observation), or ``module:callable``
 (a class is instantiated with the env; a function is called as ``fn(obs) -> actions``). All episodes of a repeat
 run in parallel worlds; for trajectory planning every "episode" is one world's long-horizon run of --steps steps.
+With --device cpu, torch uses one intra-op thread (small tensors: more threads only make timings unstable).
 """
 
 from __future__ import annotations

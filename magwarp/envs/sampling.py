@@ -2,7 +2,8 @@
 
 Both are uniform over the valid set: positions in the layout's bounding box shrunk by the collision size plus
 margins, with the footprint on the tiles (the simulator's own wall rule, run by a Warp kernel), and for start poses
-no two movers within collision distance including the safety offset.
+no two movers within collision distance: the simulator's collision shapes (grown by its per-cycle safety margin,
+``MoverSpec.margin``) grown further by the sampling offset, so that no world starts in a mover-mover collision.
 
 * Goals: each step draws ``candidates`` points per mover and takes the first valid one; if none is valid (rare) it
   takes a point from a pool of valid points sampled once at construction.
@@ -25,8 +26,16 @@ class PoseSampler:
     """Samples valid goal points and start configurations for the movers of a :class:`Simulator`.
 
     ``offset`` is MagBotSim's sampling safety offset (``collision_params["offset"]``), added on top of the collision
-    size and the wall margin.
+    size and the wall margin. Start configurations also keep the simulator's mover-mover safety margin
+    (``sim.model.collision.margin``) between movers: each collision shape is grown by ``margin + offset``.
     """
+
+    #: relative slack on the pair distance test, so that float rounding in the simulator's own (squared) test
+    #: can never flag a sampled start configuration
+    PAIR_SLACK = 1e-5
+    #: rounds of rejection sampling after which a pool with no valid sample at all is given up on (the acceptance
+    #: rate is then far below what filling the pool within ``max_rounds`` would need)
+    PATIENCE = 20
 
     def __init__(self, sim: Simulator, offset: float, generator: torch.Generator, *, candidates: int = 4,
                  pool_size: int = 16384, max_rounds: int = 2000):
@@ -39,6 +48,7 @@ class PoseSampler:
         self.device = sim.torch_device
         col = sim.model.collision
         self.circle = col.shape == SHAPE_CIRCLE
+        self.margin = float(col.margin)  # the simulator's per-cycle mover-mover safety margin
         self.radius = float(sim._radii_np.max())
         self.half = torch.tensor(sim._half_np.max(axis=0), dtype=torch.float32)
         # The sampling box: MagBotSim draws from [size + margins, extent - size - margins] on each axis.
@@ -46,7 +56,9 @@ class PoseSampler:
         reach = torch.full((2,), self.radius + grow) if self.circle else self.half + grow
         ext = torch.tensor(sim.layout.extent, dtype=torch.float32)
         if bool((ext - 2 * reach <= 0).any()):
-            raise ValueError(f"the layout ({sim.layout.extent[0]:.3f} x {sim.layout.extent[1]:.3f} m) is too small for a mover of reach {reach.tolist()}")
+            raise ValueError(f"the layout ({sim.layout.extent[0]:.3f} x {sim.layout.extent[1]:.3f} m) is too small for a mover "
+                             f"of reach {reach.tolist()} (collision size + wall margin + sampling offset): reduce "
+                             f"collision_size, collision_offset_wall or collision_offset")
         # On a full rectangle of tiles every point of the sampling box is valid: no kernel needed per step.
         self.full_rectangle = bool(sim.layout.tiles.all())
         if self.full_rectangle:
@@ -81,35 +93,41 @@ class PoseSampler:
         return out.reshape(xy.shape[:-1]).bool()
 
     def pairs_clear(self, xy: torch.Tensor) -> torch.Tensor:
-        """Bool ``(...)`` for configurations ``(..., M, 2)``: no two movers collide with the safety offset (yaw 0)."""
+        """Bool ``(...)`` for configurations ``(..., M, 2)``: no two movers collide (yaw 0) once every collision
+        shape is grown by the simulator's safety margin plus the sampling offset."""
         d = xy.unsqueeze(-2) - xy.unsqueeze(-3)  # (..., M, M, 2)
         m = xy.shape[-2]
         eye = torch.eye(m, dtype=torch.bool, device=self.device)
+        grow = self.margin + self.offset
         if self.circle:
-            r = torch.as_tensor(self.sim._radii_np, dtype=torch.float32, device=self.device) + self.offset
-            hit = d.norm(dim=-1) <= r.unsqueeze(-1) + r.unsqueeze(-2)
+            r = torch.as_tensor(self.sim._radii_np, dtype=torch.float32, device=self.device) + grow
+            hit = d.norm(dim=-1) <= (r.unsqueeze(-1) + r.unsqueeze(-2)) * (1 + self.PAIR_SLACK)
         else:
-            h = torch.as_tensor(self.sim._half_np, dtype=torch.float32, device=self.device) + self.offset
+            h = torch.as_tensor(self.sim._half_np, dtype=torch.float32, device=self.device) + grow
             reach = h.unsqueeze(-2) + h.unsqueeze(-3)
-            hit = (d.abs() <= reach).all(dim=-1)
+            hit = (d.abs() <= reach * (1 + self.PAIR_SLACK)).all(dim=-1)
         return ~(hit & ~eye).any(dim=-1).any(dim=-1)
 
     # ------------------------------------------------------------------ pools (construction time)
     def _valid_point_pool(self, size: int, max_rounds: int) -> torch.Tensor:
         found, total = [], 0
-        for _ in range(max_rounds):
+        for rnd in range(max_rounds):
             pts = self.uniform(size)
             pts = pts[self.on_tiles(pts)]
             found.append(pts)
             total += len(pts)
             if total >= size:
                 return torch.cat(found)[:size]
-        raise ValueError("could not find valid goal positions on this layout: the tiles leave no room for a mover")
+            if total == 0 and rnd + 1 >= self.PATIENCE:
+                break  # not one hit: the valid set is (practically) empty, no need to try all rounds
+        raise ValueError("could not find valid goal positions on this layout: the tiles leave no room for a mover of "
+                         f"collision size {self.radius if self.circle else self.half.tolist()} m with wall margin and "
+                         f"offset {self.offset + self.sim.model.collision.wall_margin:g} m: reduce collision_size")
 
     def _start_config_pool(self, size: int, max_rounds: int) -> torch.Tensor:
         m = self.sim.num_movers
         found, total = [], 0
-        for _ in range(max_rounds):
+        for rnd in range(max_rounds):
             cfg = self.goal_pool[torch.randint(len(self.goal_pool), (4 * size, m), generator=self.generator,
                                                device=self.device)]
             cfg = cfg[self.pairs_clear(cfg)]
@@ -117,7 +135,13 @@ class PoseSampler:
             total += len(cfg)
             if total >= size:
                 return torch.cat(found)[:size]
-        raise ValueError(f"could not place {m} movers without collisions on this layout: choose fewer movers or more tiles")
+            if total == 0 and rnd + 1 >= self.PATIENCE:
+                break  # not one hit: the movers (practically) cannot fit, no need to try all rounds
+        size = f"radius {self.radius:g}" if self.circle else f"half size {tuple(round(v, 6) for v in self.half.tolist())}"
+        raise ValueError(
+            f"could not place {m} movers without collisions on this layout (collision {size} m, safety margin "
+            f"{self.margin:g} m, sampling offset {self.offset:g} m): reduce collision_size, safety_margin or "
+            f"collision_offset, or choose fewer movers or more tiles")
 
     # ------------------------------------------------------------------ per-step sampling (no host sync)
     def sample_goals(self, num_envs: int, num_movers: int) -> torch.Tensor:

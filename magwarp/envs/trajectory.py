@@ -37,7 +37,9 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
     Collision options follow MagBotSim's ``collision_params``: ``collision_shape`` ("circle" or "box"),
     ``collision_size`` (radius, or box half sizes (2,)), ``collision_offset`` (safety offset used when sampling
     starts and goals), ``collision_offset_wall`` (margin added for wall checks). ``safety_margin`` grows every
-    collision shape in the per-cycle mover-mover check (MagBotSim: none).
+    collision shape in the per-cycle mover-mover check (MagBotSim: none); sampled starts keep it as well (each shape
+    grown by ``safety_margin + collision_offset``), so no world starts in a collision. A configuration in which the
+    movers cannot be placed raises a ``ValueError`` naming these values.
     """
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
@@ -99,9 +101,15 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
                 spec_kwargs["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
         mover = MoverSpec(**spec_kwargs)
         device = device or default_device()
+        # The simulator is built with placeholder starts (every mover at the first tile centre) that are never
+        # validated nor simulated: the first reset below replaces them with sampled, collision-free starts, which
+        # are then checked with the simulator's own rule. (Tile-centre defaults overlap once the collision size
+        # exceeds half a tile, and need as many tiles as movers.)
+        placeholder = np.repeat(layout_obj.tile_centers()[:1], int(num_movers), axis=0)
         self.sim = Simulator(
             layout_obj, int(num_movers), int(num_envs), mover=mover, control="jerk" if learn_jerk else "acceleration",
-            v_max=v_max, a_max=a_max, j_max=j_max, device=device, check_inputs=False, validate_starts_=True,
+            v_max=v_max, a_max=a_max, j_max=j_max, device=device, check_inputs=False, start_xy=placeholder,
+            validate_starts_=False,
         )
         super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs)
@@ -138,6 +146,8 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
             gym.spaces.Box(-limit, limit, (m * 2,), np.float32),
         )
         self.reset()
+        # The sampled starts must satisfy the per-cycle rule (walls and mover-mover with the safety margin).
+        self.sim._raise_on_start_collisions()
 
     # ------------------------------------------------------------------ task hooks
     def _reset_envs(self, mask: torch.Tensor) -> None:
