@@ -14,7 +14,7 @@ if [ "${1:-bench}" = "bench" ]; then
     tests/test_kernels_dynamics.py tests/test_kernels_impedance.py tests/test_sim_pairs.py tests/test_sim_errors.py \
     > "$OUT/pytest_gpu.log" 2>&1; tail -3 "$OUT/pytest_gpu.log"
   log "scaling with MagBotSim on this machine's CPU"
-  timeout 260 python3 benchmarks/scaling.py --device cuda:0 --steps 200 --ref-steps 30 --json "$OUT/scaling_gpu.json" \
+  timeout 260 python3 benchmarks/scaling.py --device cuda:0 --steps 200 --ref-steps 30 --json "$OUT/scaling_gpu_vs_magbotsim.json" \
     --plot "$OUT/scaling_gpu.png" | tail -24
   log "env throughput"
   timeout 250 python3 benchmarks/env_throughput.py --device cuda:0 --no-magbotsim \
