@@ -124,8 +124,10 @@ class PushHeuristic:
                  cone: float = 0.3, settle: float = 0.8, stop_at: float = 0.005, directions: int = 16,
                  offsets: int = 9, spread: float | None = None, yaw_scale: float = 0.08, friction: float = 0.5,
                  hold_coverage: float = 0.12, switch: float = 0.75, approach_speed: float = 1.0,
-                 residual_cost: float = 20.0, lateral_tol: float = 0.012, pass_margin: float = 0.03,
-                 wall_gap: float = 0.01):
+                 residual_cost: float = 20.0, lateral_tol: float | None = None, pass_margin: float = 0.03,
+                 wall_gap: float = 0.01, overlap: float | None = None,
+                 path_checks: tuple = (0.03, 0.07, 0.12, 0.18, 0.25), arrive_brake: float = 5.0,
+                 orbit_brake: float = 5.0):
         self.env = env
         self.backend = env.backend
         self.cruise, self.push_speed = cruise, push_speed
@@ -134,14 +136,19 @@ class PushHeuristic:
         self.engage, self.cone, self.settle, self.stop_at = engage, cone, settle, stop_at
         self.yaw_scale, self.hold_coverage, self.switch = yaw_scale, hold_coverage, switch
         self.approach_speed, self.residual_cost = approach_speed, residual_cost
-        self.lateral_tol, self.pass_margin, self.wall_gap = lateral_tol, pass_margin, wall_gap
         self.mu = float(friction)
+        self.path_checks = tuple(path_checks)
+        self.pass_margin, self.wall_gap = pass_margin, wall_gap
+        self.arrive_brake, self.orbit_brake = arrive_brake, orbit_brake
         c = self.backend.control
         self.latency = c.num_cycles * self.backend.dt  # one held env step
         self.a_max, self.v_max = c.a_max, c.v_max
         dev = self.device = env.device
         obj = env.object
         self.pose_goal = bool(getattr(env, "learn_pose", False))
+        # position goals tolerate a looser push cone (pose goals need the exact contact)
+        self.lateral_tol = (0.012 if self.pose_goal else 0.02) if lateral_tol is None else lateral_tol
+        self.overlap = (0.01 if self.pose_goal else 0.03) if overlap is None else overlap
         if obj.shape == "cylinder":  # swept as its bounding square with the yaw held at zero
             rects = np.array([[0.0, 0.0, obj.radius, obj.radius]], np.float32)
             self._round, self._radius = True, float(obj.radius)
@@ -279,10 +286,12 @@ class PushHeuristic:
         return f, _cross(r, f) / c2
 
     # ------------------------------------------------------------------ motion helpers
-    def _profile(self, gap: torch.Tensor) -> torch.Tensor:
-        """Speed from which the mover still stops within ``gap`` (m), with one held step of latency."""
-        bl = self.approach_brake * self.latency
-        return -bl + torch.sqrt(bl * bl + 2 * self.approach_brake * gap)
+    def _profile(self, gap: torch.Tensor, brake: float | None = None) -> torch.Tensor:
+        """Speed from which the mover still stops within ``gap`` (m) at ``brake`` (default ``approach_brake``),
+        with one held step of latency."""
+        brake = self.approach_brake if brake is None else brake
+        bl = brake * self.latency
+        return -bl + torch.sqrt(bl * bl + 2 * brake * gap)
 
     def _wall_limit(self, pos: torch.Tensor, vel: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         """Cap the speed toward each side of the safe region to what can still brake before it (per axis), from
@@ -386,6 +395,9 @@ class PushHeuristic:
         valid &= ((m_pre >= self._lo) & (m_pre <= self._hi)).all(-1)
         if self._obstacles is not None:
             valid &= ~self._in_walls(m_pre, 0.004)
+            # the push itself must not run the mover into a wall (it would brake there and stall the object)
+            for s in self.path_checks:
+                valid &= ~(self._in_walls(m_c + d * s, 0.0) & (amount > s - 0.03))
         # Estimated time: the way round the object to the staging point, the push, and what it leaves undone.
         rel_now, rel_pre = pos - com, m_pre - com[:, None]
         r_now, r_pre = rel_now.norm(dim=-1, keepdim=True), rel_pre.norm(dim=-1)
@@ -417,7 +429,7 @@ class PushHeuristic:
         gap = (-along).clamp_min(0.0)
         need = amount.gather(1, choice[:, None]).clamp_min(0.0) + rest
         speed = torch.sqrt(2 * self.push_brake * (need + gap - self.stop_at).clamp_min(0.0)).clamp(max=self.push_speed)
-        cone = (along < 0.01) & (lateral.abs() < self.lateral_tol + self.cone * gap)
+        cone = (along < self.overlap) & (lateral.abs() < self.lateral_tol + self.cone * gap)
         v_push = dc * speed - nc * (lateral * 15.0).clamp(-self.cruise, self.cruise)
 
         # Approach: straight to a point on the line behind the contact that is clear of the object ...
@@ -428,7 +440,7 @@ class PushHeuristic:
                                & ~self._clear(back, com, yaw, 0.5 * self.clearance)[:, None], cand, back)
         dvec = back - pos
         dist_b = dvec.norm(dim=-1, keepdim=True)
-        v_direct = _unit(dvec) * self._profile(dist_b).clamp(max=self.cruise) + dc * self.engage * speed * (
+        v_direct = _unit(dvec) * self._profile(dist_b, self.arrive_brake).clamp(max=self.cruise) + dc * self.engage * speed * (
             1.0 - dist_b / 0.05).clamp(0.0, 1.0)
         # ... unless that segment passes the object: then go around it on a circle at a clearance.
         t = ((com - pos) * dvec).sum(-1, keepdim=True) / (dist_b * dist_b).clamp_min(1e-9)
@@ -446,16 +458,17 @@ class PushHeuristic:
         contact = (self._object_support(yaw, e_r) + self._mover_support(e_r))[:, None]
         r_des = contact + self.clearance
         dr = r_des - r_o
-        v_rad = e_r * torch.sign(dr) * self._profile(dr.abs()).clamp(max=self.cruise)
+        v_rad = e_r * torch.sign(dr) * self._profile(dr.abs(), self.orbit_brake).clamp(max=self.cruise)
         # Keep the way round once chosen: in front of the object the shorter arc flips with every step.
         sign = self._orbit_sign(com, theta, err, r_des)
         sign = torch.where(blocked & (self._way != 0) & ~changed[:, None], self._way, sign)
         self._way = torch.where(blocked, sign, torch.zeros_like(sign))
-        v_orbit = b.object_qvel[:, 0, :2] + v_rad + e_t * sign * self._profile(err.abs() * r_o).clamp(max=self.cruise)
+        v_orbit = b.object_qvel[:, 0, :2] + v_rad + e_t * sign * self._profile(err.abs() * r_o, self.orbit_brake).clamp(max=self.cruise)
 
         v = torch.where(cone, v_push, torch.where(blocked, v_orbit, v_direct))
         # the chosen candidate and mode per world (0 push, 1 around the object, 2 straight approach), for debugging
         self._info = {"mode": torch.where(cone, 0, torch.where(blocked, 1, 2))[:, 0],
+                      "along": along[:, 0], "lateral": lateral[:, 0],
                       "omega": omega.gather(1, choice[:, None])[:, 0], "force": f.gather(1, idx)[:, 0],
                       "point": point.gather(1, idx)[:, 0] - com, "normal": normal.gather(1, idx)[:, 0]}
         v = torch.where(any_valid[:, None], v, torch.zeros_like(v))
