@@ -152,11 +152,48 @@ def test_obstacle_contact_penalty_and_termination():
     assert not info["wall_collision"][0]
 
 
+def test_curriculum_walls_differ_per_world_in_observation_and_physics():
+    # curriculum_episodes=1: every masked reset after the first moves that world up a level (simple -> medium -> hard)
+    env = PushWithObstaclesEnv(2, device="cpu", seed=0, obstacle_mode="curriculum", curriculum_episodes=1)
+    env.reset()
+    only_1 = torch.tensor([False, True])
+    for _ in range(2):
+        env.reset(options={"reset_mask": only_1})
+    assert env.curriculum_level.tolist() == [0, 2]
+    half = env.obstacle_boxes[:, 0, 3]
+    assert torch.allclose(half, torch.tensor([0.10, 0.13]))
+    verts = env._get_obs()["observation"][:, -16:].reshape(2, 2, 4, 2)
+    assert torch.allclose(verts[:, 0, 0, 1], 2 * half) and torch.allclose(verts[:, 1, 2, 1], 0.72 - 2 * half)
+    # a mover whose footprint starts at y = 0.2125 clears the simple wall (top at 0.2) but not the hard one (0.26)
+    b = env.backend
+    b.init_mover_qpos[:, 0, :2] = torch.tensor([0.30, 0.29])
+    b.init_object_qpos[:, 0, :2] = torch.tensor([0.15, 0.55])
+    b.reset(torch.ones(2, dtype=torch.bool))
+    hit = torch.zeros(2, dtype=torch.bool)
+    for _ in range(6):
+        _, _, term, _, info = env.step(torch.tensor([[10.0, 0.0], [10.0, 0.0]]))
+        hit |= info["obstacle_mover_collision"]
+        if term.any():
+            break
+    assert hit.tolist() == [False, True]
+
+
+def test_random_walls_are_drawn_per_world_within_magbotsim_range():
+    env = PushWithObstaclesEnv(64, device="cpu", seed=1, obstacle_mode="random")
+    half = env.obstacle_boxes[:, 0, 3]
+    assert half.min() >= 0.1 and half.max() <= 0.13 and half.std() > 0.005
+    assert torch.allclose(env.obstacle_boxes[:, 1, 1], 0.72 - half)
+    sizes = env.backend.batched_fields["geom_size"][:, env._wall_geoms, 1]
+    assert torch.allclose(sizes, env.obstacle_boxes[:, :, 3])
+
+
 def test_bad_arguments_name_the_value():
     with pytest.raises(ValueError, match="min_coverage"):
         PushTEnv(1, device="cpu", min_coverage=1.5)
     with pytest.raises(ValueError, match="obstacle_mode"):
         PushWithObstaclesEnv(1, device="cpu", obstacle_mode="nightmare")
+    with pytest.raises(ValueError, match="curriculum_episodes"):
+        PushWithObstaclesEnv(1, device="cpu", obstacle_mode="curriculum", curriculum_episodes=0)
     with pytest.raises(Exception, match="hexagon"):
         PushEnv(1, "hexagon", device="cpu")
     env = PushBoxEnv(2, device="cpu", seed=0)

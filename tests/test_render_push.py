@@ -157,7 +157,7 @@ def test_obstacles_are_drawn():
         inner |= (np.abs(x - o.xy[0]) <= o.half_size[0] - pad) & (np.abs(y - o.xy[1]) <= o.half_size[1] - pad)
     assert inner.sum() > 20 and drawn[inner].all()
     s = env.render_state()
-    assert s["obstacles"].shape == (2, 5)
+    assert s["obstacles"].shape == (1, 2, 5)  # per world: [W, K, 5]
 
 
 def test_render_mode_none_and_bad_mode():

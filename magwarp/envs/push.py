@@ -33,6 +33,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
+from warp import to_torch as wp_to_torch
 
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.layout import Layout, MoverSpec
@@ -216,6 +217,11 @@ class PushEnv(MagwarpVecEnv):
             )
         super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs)
+        #: ``[W, K, 5]`` (cx, cy, hx, hy, yaw) of each world's static obstacles (the same in every world unless a
+        #: subclass changes them per episode)
+        self.obstacle_boxes = torch.as_tensor(
+            np.array([[o.xy[0], o.xy[1], o.half_size[0], o.half_size[1], o.yaw] for o in self.obstacles],
+                     dtype=np.float32).reshape(1, -1, 5), device=self.device).repeat(self.num_envs, 1, 1)
 
         self._init_sampling_ranges()
         n, dev = self.num_envs, self.device
@@ -489,7 +495,7 @@ class PushEnv(MagwarpVecEnv):
         """What a frame shows, as device tensors (shared by the top-down renderer and the 3D viewers): mover
         ``pos [W, M, 3]`` and ``yaw [W, M]``, collision ``flags [W, M]`` (the world's flags, per mover), object
         ``object_poses`` and goal ``object_goals`` ``[W, 1, 3]`` (x, y, yaw; position goals are drawn unrotated)
-        and static ``obstacles [K, 5]`` (cx, cy, hx, hy, yaw)."""
+        and static ``obstacles [W, K, 5]`` (cx, cy, hx, hy, yaw)."""
         b, n, m = self.backend, self.num_envs, self.num_movers
         q = b.mover_qpos
         flags = self.checks.flags_t
@@ -505,8 +511,7 @@ class PushEnv(MagwarpVecEnv):
             "object_goals": torch.cat([self.goal_xy, goal_yaw[:, None]], 1)[:, None],
         }
         if self.obstacles:
-            out["obstacles"] = self._const(np.array([[o.xy[0], o.xy[1], o.half_size[0], o.half_size[1], o.yaw]
-                                                     for o in self.obstacles], dtype=np.float32))
+            out["obstacles"] = self.obstacle_boxes
         return out
 
     def _render_frame(self):
@@ -557,8 +562,10 @@ class PushXEnv(PushTEnv):
     _shape = "plus_shape"
 
 
-# MagBotSim's static obstacle modes: (obstacle half length in y, y of obstacle 0, y of obstacle 1).
-_OBSTACLE_MODES = {"simple": (0.1, 0.1, 0.62), "medium": (0.115, 0.115, 0.605), "hard": (0.13, 0.13, 0.59)}
+# MagBotSim's static obstacle modes: obstacle half length in y (obstacle 0 sits at y = that, obstacle 1 at the top
+# edge of the 0.72 m tall layout minus it, so the gap between them narrows as they grow).
+_OBSTACLE_HALF_Y = {"simple": 0.1, "medium": 0.115, "hard": 0.13}
+_OBSTACLE_MODES = (*_OBSTACLE_HALF_Y, "random", "curriculum")
 
 
 class PushWithObstaclesEnv(PushEnv):
@@ -567,27 +574,87 @@ class PushWithObstaclesEnv(PushEnv):
     4 x 3 tiles, one mover, a 7 x 7 x 4 cm box of 30 g; two walls at x = 0.48 leave a gap the box must pass to reach
     a goal behind them. Observation adds the obstacles' corner x/y (8 numbers each). Reward: -50 on a wall
     collision or any mover/object contact with an obstacle (and the episode terminates), 0 at the goal
-    (distance <= ``threshold_pos``), else -1. ``obstacle_mode``: ``simple``, ``medium`` or ``hard`` (gap width).
+    (distance <= ``threshold_pos``), else -1.
+
+    ``obstacle_mode`` sets the gap, as in MagBotSim: ``simple``, ``medium`` or ``hard`` (fixed walls of half length
+    0.1, 0.115 or 0.13 m), ``random`` (a half length drawn uniformly from [0.1, 0.13] per world at every reset) or
+    ``curriculum`` (each world starts ``simple`` and moves to ``medium``, then ``hard``, every
+    ``curriculum_episodes`` episodes; MagBotSim: 800). In the last two modes the walls change per world without a
+    model rebuild: the obstacle geoms' pose and size are per-world model arrays in mujoco-warp
+    (:meth:`MjwBackend.batch_model_fields`).
     """
 
     def __init__(self, num_envs: int = 1, obstacle_mode: str = "simple", threshold_pos: float = 0.05,
-                 initial_mover_zpos: float = 0.002, **kwargs):
+                 initial_mover_zpos: float = 0.002, curriculum_episodes: int = 800, **kwargs):
         if obstacle_mode not in _OBSTACLE_MODES:
-            raise ValueError(f"obstacle_mode must be one of {sorted(_OBSTACLE_MODES)}, got {obstacle_mode!r}")
-        size_y, y0, y1 = _OBSTACLE_MODES[obstacle_mode]
+            raise ValueError(f"obstacle_mode must be one of {list(_OBSTACLE_MODES)}, got {obstacle_mode!r}")
+        if int(curriculum_episodes) != curriculum_episodes or curriculum_episodes < 1:
+            raise ValueError(f"curriculum_episodes must be a positive integer, got {curriculum_episodes!r}")
         self.obstacle_mode = obstacle_mode
-        self.obstacle_x, self.obstacle_size_x = 0.48, 0.03
-        obstacles = (ObstacleSpec((0.48, y0), (0.03, size_y, 0.03)), ObstacleSpec((0.48, y1), (0.03, size_y, 0.03)))
-        self._obstacle_vertices = np.concatenate([
-            [[x + sx, y + sy], [x + sx, y - sy], [x - sx, y - sy], [x - sx, y + sy]]
-            for (x, y), (sx, sy, _) in ((o.xy, o.half_size) for o in obstacles)
-        ]).astype(np.float32).reshape(-1)
+        self.curriculum_episodes = int(curriculum_episodes)
+        self.obstacle_x, self.obstacle_size_x, self.layout_top = 0.48, 0.03, 0.72
+        size_y = _OBSTACLE_HALF_Y.get(obstacle_mode, _OBSTACLE_HALF_Y["simple"])  # random/curriculum start simple
+        obstacles = (ObstacleSpec((0.48, size_y), (0.03, size_y, 0.03)),
+                     ObstacleSpec((0.48, self.layout_top - size_y), (0.03, size_y, 0.03)))
         kwargs.setdefault("max_episode_steps", 25)
         super().__init__(num_envs, "square_box", learn_pose=False, object_width=0.035, object_height=0.035,
                          object_depth=0.02, object_mass=0.03, object_sliding_friction=0.6,
                          object_torsional_friction=0.0001, max_position_err=threshold_pos,
                          initial_mover_zpos=initial_mover_zpos, obstacles=obstacles, collision_penalty=-50.0,
                          per_step_penalty=-1.0, object_at_goal_reward=0.0, **kwargs)
+
+    def _varying_walls(self) -> bool:
+        return self.obstacle_mode in ("random", "curriculum")
+
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        if self._varying_walls():
+            self._resize_walls(mask)
+        super()._reset_envs(mask)
+        if self._varying_walls():
+            # mujoco-warp computes world-attached (static) geom poses once, when the data is made: place the walls'
+            # world positions too (the world body sits at the origin, unrotated, so they equal geom_pos)
+            xpos = wp_to_torch(self.backend.data.geom_xpos)
+            g = self._wall_geoms
+            xpos[:, g] = torch.where(mask[:, None, None], self._geom_fields["geom_pos"][:, g], xpos[:, g])
+
+    def _resize_walls(self, mask: torch.Tensor) -> None:
+        """New wall half lengths for the worlds in ``mask``, written into the per-world obstacle geoms."""
+        if not hasattr(self, "_geom_fields"):
+            import mujoco
+
+            self._geom_fields = self.backend.batch_model_fields(["geom_pos", "geom_size", "geom_aabb", "geom_rbound"])
+            self._wall_geoms = torch.tensor([mujoco.mj_name2id(self.backend.mjm, mujoco.mjtObj.mjOBJ_GEOM, f"obstacle_geom_{k}")
+                                             for k in range(2)], device=self.device)
+            self.curriculum_level = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
+            # -1: the reset inside the constructor is not an episode (MagBotSim counts the user's resets)
+            self._episodes_at_level = torch.full((self.num_envs,), -1, dtype=torch.int64, device=self.device)
+        n = self.num_envs
+        if self.obstacle_mode == "random":
+            half_y = self._uniform(_OBSTACLE_HALF_Y["simple"], _OBSTACLE_HALF_Y["hard"], n)[:, 0]
+        else:
+            # MagBotSim counts resets and moves up a level once a level has had curriculum_episodes of them
+            count = self._episodes_at_level + mask.long()
+            up = mask & (count > self.curriculum_episodes) & (self.curriculum_level < 2)
+            self.curriculum_level += up.long()
+            self._episodes_at_level.copy_(torch.where(up, torch.ones_like(count), count))
+            levels = torch.tensor(list(_OBSTACLE_HALF_Y.values()), device=self.device)
+            half_y = levels[self.curriculum_level]
+        boxes = self.obstacle_boxes.clone()
+        boxes[:, 0, 1] = half_y
+        boxes[:, 1, 1] = self.layout_top - half_y
+        boxes[:, :, 3] = half_y[:, None]
+        self.obstacle_boxes.copy_(torch.where(mask[:, None, None], boxes, self.obstacle_boxes))
+        g, f = self._wall_geoms, self._geom_fields
+        # geom_pos/geom_size [W, ngeom, 3]; geom_aabb [W, ngeom, 2, 3] (centre, half size); geom_rbound [W, ngeom]
+        m3 = mask[:, None, None]
+        pos, size = f["geom_pos"][:, g], f["geom_size"][:, g]
+        new_pos = torch.cat([self.obstacle_boxes[:, :, :2], pos[..., 2:]], -1)
+        new_size = torch.cat([self.obstacle_boxes[:, :, 2:4], size[..., 2:]], -1)
+        f["geom_pos"][:, g] = torch.where(m3, new_pos, pos)
+        f["geom_size"][:, g] = torch.where(m3, new_size, size)
+        aabb = f["geom_aabb"][:, g]
+        f["geom_aabb"][:, g] = torch.where(m3[..., None], torch.stack([torch.zeros_like(new_size), new_size], 2), aabb)
+        f["geom_rbound"][:, g] = torch.where(mask[:, None], new_size.norm(dim=-1), f["geom_rbound"][:, g])
 
     def _init_sampling_ranges(self) -> None:
         super()._init_sampling_ranges()
@@ -603,7 +670,6 @@ class PushWithObstaclesEnv(PushEnv):
         self.goal_max_xy = np.array([right, top]) - small
         mover_half = 0.5 * np.asarray(self.mover.size[:2])
         self.min_mover_object_dist = max(float(np.linalg.norm(obj_half + mover_half)), c)
-        self._vertices_t = torch.as_tensor(self._obstacle_vertices, device=self.device)
 
     def _sample_episode(self, n: int) -> dict[str, torch.Tensor]:
         k = _CANDIDATES
@@ -626,10 +692,15 @@ class PushWithObstaclesEnv(PushEnv):
         space["observation"] = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float32)
         return space
 
+    def obstacle_vertices(self) -> torch.Tensor:
+        """``[W, 16]``: each wall's corners (x, y) in MagBotSim's order (+x+y, +x-y, -x-y, -x+y), wall 0 first."""
+        c, h = self.obstacle_boxes[..., :2], self.obstacle_boxes[..., 2:4]
+        signs = torch.tensor([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]], device=self.device)
+        return (c[:, :, None, :] + signs * h[:, :, None, :]).reshape(self.num_envs, -1)
+
     def _get_obs(self) -> dict[str, torch.Tensor]:
         obs = super()._get_obs()
-        verts = self._vertices_t.expand(self.num_envs, -1)
-        obs["observation"] = torch.cat([obs["observation"], verts], dim=1)
+        obs["observation"] = torch.cat([obs["observation"], self.obstacle_vertices()], dim=1)
         return obs
 
     def _collision_info(self) -> dict[str, torch.Tensor]:

@@ -10,7 +10,7 @@ before each replay, so no allocation or host<->device sync happens inside a step
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -171,6 +171,8 @@ class MjwBackend:
         self._cycle_hooks: list[Callable[[], None]] = []
         self._step_graph = None
         self._reset_graph = None
+        #: per-world model arrays made by :meth:`batch_model_fields` (name -> torch view ``[W, ...]``)
+        self.batched_fields: dict[str, torch.Tensor] = {}
         self._make_torch_views()
 
     # ------------------------------------------------------------------ torch views
@@ -205,6 +207,29 @@ class MjwBackend:
     @property
     def torch_device(self) -> torch.device:
         return self.qpos_t.device
+
+    # ------------------------------------------------------------------ per-world model fields
+    def batch_model_fields(self, names: Sequence[str]) -> dict[str, torch.Tensor]:
+        """Give each world its own copy of the mujoco-warp model arrays ``names`` (e.g. ``geom_pos``, ``geom_size``):
+        mujoco-warp reads model arrays at ``worldid % shape[0]``, so a leading size of ``num_worlds`` makes them
+        per world (geometry that changes per episode without a model rebuild). Returns ``{name: torch view
+        [W, ...]}`` (also kept in ``batched_fields``); write the rows of the worlds to change, e.g. at a reset.
+        Drops the recorded step graph (its kernels took the old arrays)."""
+        out = {}
+        with wp.ScopedDevice(self.device):
+            for name in names:
+                old = getattr(self.model, name, None)
+                if not isinstance(old, wp.array):
+                    raise PhysicsInputError(f"{name!r} is not an array field of the mujoco-warp model")
+                if old.shape[0] != self.num_worlds:
+                    host = old.numpy()
+                    new = wp.array(np.repeat(host[:1], self.num_worlds, axis=0), dtype=old.dtype)
+                    setattr(self.model, name, new)
+                out[name] = wp.to_torch(getattr(self.model, name))
+        self.batched_fields.update(out)
+        self._step_graph = None
+        self._reset_graph = None
+        return out
 
     # ------------------------------------------------------------------ hooks
     def add_cycle_hook(self, fn: Callable[[], None]) -> None:

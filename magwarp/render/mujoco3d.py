@@ -217,6 +217,10 @@ def render_world(env, world: int = 0, width: int = 640, height: int = 480) -> np
         raise ValueError(f"world must be in [0, {env.num_envs}), got {world}")
     r = _env_renderer(env, width, height)
     b = env.backend
+    # geometry that varies per world (e.g. PushWithObstacles' random walls) into the renderer's model copy
+    for name, rows in b.batched_fields.items():
+        field = getattr(r.model, name)
+        field[:] = rows[world].detach().cpu().numpy().reshape(field.shape)
     qpos = b.qpos_t[world].detach().cpu().numpy()
     mocap = {}
     if b.mjm.nmocap:
