@@ -121,13 +121,13 @@ class PushHeuristic:
 
     def __init__(self, env, cruise: float = 1.8, push_speed: float = 1.0, push_brake: float = 5.0,
                  approach_brake: float = 5.0, clearance: float = 0.008, engage: float = 0.5,
-                 cone: float = 0.3, settle: float = 0.8, stop_at: float = 0.005, directions: int = 16,
+                 cone: float = 0.3, settle: float = 0.95, stop_at: float = 0.005, directions: int = 16,
                  offsets: int = 9, spread: float | None = None, yaw_scale: float = 0.08, friction: float = 0.5,
                  hold_coverage: float = 0.12, switch: float = 0.75, approach_speed: float = 1.0,
                  residual_cost: float = 20.0, lateral_tol: float | None = None, pass_margin: float = 0.03,
                  wall_gap: float = 0.01, overlap: float | None = None,
                  path_checks: tuple = (0.03, 0.07, 0.12, 0.18, 0.25), arrive_brake: float = 5.0,
-                 orbit_brake: float = 5.0):
+                 orbit_brake: float = 5.0, slide_decel: float = 5.0):
         self.env = env
         self.backend = env.backend
         self.cruise, self.push_speed = cruise, push_speed
@@ -139,7 +139,7 @@ class PushHeuristic:
         self.mu = float(friction)
         self.path_checks = tuple(path_checks)
         self.pass_margin, self.wall_gap = pass_margin, wall_gap
-        self.arrive_brake, self.orbit_brake = arrive_brake, orbit_brake
+        self.arrive_brake, self.orbit_brake, self.slide_decel = arrive_brake, orbit_brake, slide_decel
         c = self.backend.control
         self.latency = c.num_cycles * self.backend.dt  # one held env step
         self.a_max, self.v_max = c.a_max, c.v_max
@@ -482,7 +482,9 @@ class PushHeuristic:
             margin = self.hold_coverage * (left / 8.0).clamp(0.1, 1.0)  # late in the episode, keep what is reached
             done = coverage(pose, gpose, env.object) >= (env.min_coverage + margin).clamp(max=0.99)
         else:
-            done = (env.goal_xy - origin).norm(dim=-1) < self.settle * env.max_position_err
+            ov = b.object_qvel[:, 0, :2]  # where the object will come to rest if let go now
+            rest_at = origin + ov * ov.norm(dim=-1, keepdim=True) / (2 * self.slide_decel)
+            done = (env.goal_xy - rest_at).norm(dim=-1) < self.settle * env.max_position_err
         v = torch.where(done[:, None], torch.zeros_like(v), v)
         if self._obstacles is not None:
             v = self._wall_guard(pos, vel, v)
