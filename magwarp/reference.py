@@ -144,6 +144,26 @@ def planar_cycle(vel_xy, acc_xy, cmd, *, dt, v_max, a_max, j_max, jerk_mode: boo
     return acc, vel, dt * vel
 
 
+def yaw_cycle(c_vel: float, acc_c: float, cmd: float, yaw: float, *, dt, v_max, a_max, j_max, p_max,
+              jerk_mode: bool) -> float:
+    """Yaw ("c") axis of one control cycle: the yaw acceleration applied (see :mod:`magwarp.physics.control`)."""
+    a = float(np.clip(cmd, -a_max, a_max))
+    if jerk_mode:
+        a = float(np.clip(acc_c + np.clip(cmd, -j_max, j_max) * dt, -a_max, a_max))
+    v_safe = v_max
+    if p_max is not None:
+        braking = c_vel * c_vel / (2.0 * a_max) + 0.05
+        dist = p_max - abs(yaw)
+        if ((a > 0 and yaw > 0) or (a < 0 and yaw < 0)) and dist < braking:
+            v_safe = min(v_max, np.sqrt(max(0.0, 2.0 * a_max * dist)) * 0.65)
+    return (float(np.clip(c_vel + a * dt, -v_safe, v_safe)) - c_vel) / dt
+
+
+def wrap_angle(a):
+    """Angles wrapped to [-pi, pi)."""
+    return a - 2.0 * np.pi * np.floor((a + np.pi) / (2.0 * np.pi))
+
+
 def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
     """Rotation vector of a unit quaternion (x, y, z, w), shortest arc."""
     v, w = q[:3], q[3]

@@ -174,3 +174,27 @@ def test_cg_solver_push_matches_mujoco_c():
     # 1e-4, as for Newton) and does not grow: 4e-5 after 250 cycles
     assert err.max() < 2e-4 and err[-1] < 1e-4, err
     assert got[-1, 7] - got[0, 7] > 5e-3  # the box was pushed
+
+
+@pytest.mark.parametrize("jerk", [False, True])
+def test_yaw_drive_matches_mujoco_c_and_respects_limits(jerk):
+    # A free mover (no object in reach) spun up against a 0.5 rad position limit, then back the other way.
+    control = ControlParams(num_cycles=CYCLES, jerk=jerk, rotation=True, p_max_c=0.5, v_max_c=10.0, a_max_c=50.0,
+                            j_max_c=2000.0)
+    xml = generate_mjcf(Layout.grid(3, 3), 1, mover_xy=[[0.36, 0.36]])
+    b = MjwBackend(xml, 1, control=control, device="cpu")
+    acts = np.zeros((50, 1, 1, 3))
+    acts[:12, 0, 0] = [2.0, 0.0, 2000.0 if jerk else 50.0]
+    acts[12:, 0, 0] = [-2.0, 1.0, -2000.0 if jerk else -50.0]
+    b.reset()
+    got = _run(b, acts)[:, 0]
+    want, vel = oracle.rollout(xml, acts[:, 0], control, init_qpos=b.init_qpos.numpy()[0])
+    assert np.abs(got - want).max() < 1e-4
+    yaw = 2 * np.arctan2(want[:, 6], want[:, 3])  # level mover: quaternion (cos, 0, 0, sin) of half the yaw
+    assert yaw.max() > 0.3 and yaw.min() < -0.3  # it turned both ways ...
+    assert np.abs(yaw).max() < 0.5 + 1e-3  # ... and stopped at the limit
+    assert np.abs(vel[:, 5]).max() <= 10.0 + 1e-6
+    with pytest.raises(PhysicsInputError, match="shape"):
+        b.step(torch.zeros(1, 1, 2))
+    with pytest.raises(PhysicsInputError, match="p_max_c"):
+        ControlParams(rotation=True, p_max_c=4.0)

@@ -124,13 +124,14 @@ def test_mover_checks_match_numpy_reference(shape, rng):
     assert wall.any() and (~wall).any() and pairs.any() and (~pairs).any()
 
 
-def test_control_kernel_matches_numpy_law_on_random_states(rng):
+@pytest.mark.parametrize("rotation", [False, True])
+def test_control_kernel_matches_numpy_law_on_random_states(rng, rotation):
     from magwarp.physics import oracle
-    from magwarp.physics.control import mover_control_kernel
 
     W, M = 16, 2
     for jerk in (False, True):
-        control = ControlParams(jerk=jerk)
+        # with rotation: a third (yaw) command, a position limit of 0.8 rad that some movers are near
+        control = ControlParams(jerk=jerk, rotation=rotation, p_max_c=0.8 if rotation else None)
         b = MjwBackend(generate_mjcf(Layout.grid(3, 3), M), W, control=control, device="cpu", use_graph=False)
         mjm, mjd = b.mjm, mujoco.MjData(b.mjm)
         qpos = np.tile(mjm.qpos0, (W, 1))
@@ -142,19 +143,26 @@ def test_control_kernel_matches_numpy_law_on_random_states(rng):
                 quat = rng.normal(0, 1, 4) * [1, 0.1, 0.1, 1]  # tilts up to ~0.2 rad and any heading
                 qpos[w, qa + 3: qa + 7] = quat / np.linalg.norm(quat)
         qvel[:, b.mover_dadr[0]:b.mover_dadr[0] + 2] *= 2.5  # some movers above v_max
-        cmd = rng.normal(0, 80 if jerk else 8, (W, M, 2))
+        cmd = rng.normal(0, 80 if jerk else 8, (W, M, 3))
+        cmd[..., 2] *= 30  # yaw commands span the +-122 rad/s^2 (+-611 rad/s^3) limits
         acc0 = rng.normal(0, 6, (W, M, 2))
+        acc_c0 = rng.normal(0, 40, (W, M))
         b.qpos_t.copy_(torch.as_tensor(qpos)), b.qvel_t.copy_(torch.as_tensor(qvel))
-        b.cmd_t.copy_(torch.as_tensor(cmd)), b.acc_t.copy_(torch.as_tensor(acc0))
+        b.cmd_t.copy_(torch.as_tensor(cmd[..., :2])), b.acc_t.copy_(torch.as_tensor(acc0))
+        b.cmd_c_t.copy_(torch.as_tensor(cmd[..., 2])), b.acc_c_t.copy_(torch.as_tensor(acc_c0))
         c = b.control
-        wp.launch(mover_control_kernel, dim=(W, M), inputs=[
-            b._qadr, b._dadr, b._mass, b._inertia, b._hover_z, float(c.k_lin[2]), wp.vec3(*c.k_rot), b.dt,
-            c.v_max, c.a_max, c.j_max, int(c.jerk), b.data.qpos, b.data.qvel, b.cmd, b.acc], outputs=[b.data.qfrc_applied],
-            device="cpu")
+        b.apply_control()
         got = b.data.qfrc_applied.numpy()
         for w in range(W):
             mjd.qpos[:], mjd.qvel[:] = qpos[w], qvel[w]
             acc = acc0[w].copy()
-            oracle.control_forces(mjm, mjd, b.mover_body, b.mover_qadr, b.mover_dadr, b.hover_z, cmd[w], acc, c)
+            yaw_state = np.zeros((M, 3))
+            yaw_state[:, 0] = acc_c0[w]
+            oracle.control_forces(mjm, mjd, b.mover_body, b.mover_qadr, b.mover_dadr, b.hover_z,
+                                  cmd[w] if rotation else cmd[w, :, :2], acc, c, yaw_state)
             np.testing.assert_allclose(got[w], mjd.qfrc_applied, rtol=2e-4, atol=2e-5, err_msg=f"{rng} jerk={jerk} w={w}")
             np.testing.assert_allclose(b.acc_t[w].numpy(), acc, rtol=1e-4, atol=1e-4, err_msg=str(rng))
+            if rotation:
+                np.testing.assert_allclose(b.acc_c_t[w].numpy(), yaw_state[:, 0], rtol=1e-4, atol=2e-3, err_msg=str(rng))
+    if rotation:  # the position limit engaged somewhere: some yaw accelerations were cut below the command
+        assert (np.abs(b.acc_c_t.numpy()) < np.minimum(np.abs(cmd[..., 2]), 122.17) - 1).any()

@@ -187,6 +187,25 @@ def test_random_walls_are_drawn_per_world_within_magbotsim_range():
     assert torch.allclose(sizes, env.obstacle_boxes[:, :, 3])
 
 
+@pytest.mark.parametrize("jerk", [False, True])
+def test_yaw_actions_turn_the_mover_within_limits(jerk):
+    env = PushBoxEnv(2, device="cpu", seed=0, learn_mover_c_rotation=True, learn_jerk=jerk, p_max_c=1.0)
+    assert env.single_action_space.shape == (3,) and env.single_observation_space["observation"].shape == (10 if jerk else 7,)
+    assert env.single_action_space.high[2] == pytest.approx(610.86524 if jerk else 122.17305)
+    check_env(SingleEnv(PushBoxEnv, device="cpu", seed=0, learn_mover_c_rotation=True), skip_render_check=True)
+    obs, _ = env.reset(seed=0)
+    a = torch.zeros(2, 3)
+    a[:, 2] = torch.tensor([1.0, -1.0]) * float(env.single_action_space.high[2])
+    for _ in range(8):
+        obs, *_ = env.step(a)
+    sin_yaw, cos_yaw = obs["observation"][:, 2], obs["observation"][:, 3]
+    yaw = torch.atan2(sin_yaw, cos_yaw)
+    assert yaw[0] > 0.5 and yaw[1] < -0.5 and yaw.abs().max() <= 1.0 + 1e-3  # turned both ways, stopped at p_max_c
+    assert torch.allclose(sin_yaw ** 2 + cos_yaw ** 2, torch.ones(2), atol=1e-5)
+    with pytest.raises(ValueError, match="shape"):
+        env.step(torch.zeros(2, 2))
+
+
 def test_bad_arguments_name_the_value():
     with pytest.raises(ValueError, match="min_coverage"):
         PushTEnv(1, device="cpu", min_coverage=1.5)

@@ -4,7 +4,8 @@ One or more movers push an object (box, square box, cylinder, T, L, X) to a goal
 or a goal pose (``learn_pose=True``). Per env step (``num_cycles`` control cycles of 1 ms, the same action held):
 
 * observation: mover x/y positions then x/y velocities (then x/y accelerations when learning jerk), each flattened
-  mover by mover; achieved_goal: object x/y (plus sin/cos of its yaw for poses); desired_goal: the goal likewise;
+  mover by mover (with ``learn_mover_c_rotation``: x, y, sin and cos of the yaw, then x/y/yaw rates, as MagBotSim;
+  each mover's action is then x, y and yaw, see :mod:`magwarp.physics.control` for the yaw limits); achieved_goal: object x/y (plus sin/cos of its yaw for poses); desired_goal: the goal likewise;
 * success: distance <= ``max_position_err`` (position goals) or coverage = area(object ∩ goal) / area(goal) >=
   ``min_coverage`` (pose goals; the paper's 0.7 by default, MagBotSim's library uses 0.95), and no collision;
 * reward: ``collision_penalty`` on a mover-mover or wall collision, else ``object_at_goal_reward`` at the goal
@@ -111,6 +112,11 @@ class PushEnv(MagwarpVecEnv):
         *,
         learn_pose: bool = False,
         learn_jerk: bool = False,
+        learn_mover_c_rotation: bool = False,
+        p_max_c: float | None = None,
+        v_max_c: float = 122.17305,
+        a_max_c: float = 122.17305,
+        j_max_c: float = 610.86524,
         object_width: float = 0.06,
         object_height: float = 0.06,
         object_depth: float = 0.02,
@@ -167,6 +173,7 @@ class PushEnv(MagwarpVecEnv):
         self.num_movers = int(num_movers)
         self.learn_pose = bool(learn_pose)
         self.learn_jerk = bool(learn_jerk)
+        self.learn_mover_c_rotation = bool(learn_mover_c_rotation)
         self.max_position_err = float(max_position_err)
         self.min_coverage = float(min_coverage)
         self.use_sparse_pose_reward = bool(use_sparse_pose_reward)
@@ -204,7 +211,9 @@ class PushEnv(MagwarpVecEnv):
         ncon = nconmax or 8 * (parts * (1 + self.num_movers + n_obs) + self.num_movers * n_obs)
         self.backend = MjwBackend(
             self.xml, int(num_envs), control=ControlParams(v_max=v_max, a_max=a_max, j_max=j_max, jerk=learn_jerk,
-                                                         num_cycles=int(num_cycles)),
+                                                         num_cycles=int(num_cycles), rotation=self.learn_mover_c_rotation,
+                                                         v_max_c=v_max_c, a_max_c=a_max_c, j_max_c=j_max_c,
+                                                         p_max_c=p_max_c),
             nconmax=ncon, njmax=njmax or 3 * ncon, device=device,
         )
         self.checks = MoverChecks(self.backend, self.layout, self.mover)
@@ -268,8 +277,8 @@ class PushEnv(MagwarpVecEnv):
         self._continuous = bool(self.layout.tiles.all())
 
     def _observation_space(self) -> gym.spaces.Dict:
-        m = self.num_movers
-        obs_dim = m * 2 * (3 if self.learn_jerk else 2)
+        m, c = self.num_movers, int(self.learn_mover_c_rotation)
+        obs_dim = m * ((2 + int(self.learn_jerk)) * (2 + c) + c)  # MagBotSim's count
         ext = np.asarray(self.layout.extent, dtype=np.float32)
         if self.learn_pose:
             lo, hi = np.array([0, 0, -1, -1], np.float32), np.array([ext[0], ext[1], 1, 1], np.float32)
@@ -284,7 +293,11 @@ class PushEnv(MagwarpVecEnv):
     def _action_space(self) -> gym.spaces.Box:
         c = self.backend.control
         limit = c.j_max if c.jerk else c.a_max
-        return gym.spaces.Box(-limit, limit, (self.num_movers * 2,), np.float32)
+        if not c.rotation:
+            return gym.spaces.Box(-limit, limit, (self.num_movers * 2,), np.float32)
+        limit_c = c.j_max_c if c.jerk else c.a_max_c
+        high = np.tile(np.array([limit, limit, limit_c], np.float32), self.num_movers)
+        return gym.spaces.Box(-high, high, dtype=np.float32)
 
     # ------------------------------------------------------------------ sampling (device, batched)
     def _const(self, value, dtype=torch.float32) -> torch.Tensor:
@@ -398,10 +411,18 @@ class PushEnv(MagwarpVecEnv):
         self.checks.clear()
         if self.contacts is not None:
             self.contacts.clear()
-        self.backend.step(action.reshape(self.num_envs, self.num_movers, 2), check_finite=False)
+        self.backend.step(action.reshape(self.num_envs, self.num_movers, -1), check_finite=False)
 
     def _mover_obs(self) -> torch.Tensor:
         b, n = self.backend, self.num_envs
+        if self.learn_mover_c_rotation:
+            # MagBotSim's layout: per mover (x, y, sin yaw, cos yaw), then (vx, vy, yaw rate)[, (ax, ay, yaw acc)]
+            yaw = _yaw_from_quat(b.mover_qpos[..., 3:])
+            pos = torch.cat([b.mover_qpos[..., :2], torch.sin(yaw)[..., None], torch.cos(yaw)[..., None]], -1)
+            parts = [pos.reshape(n, -1), b.mover_qvel[..., [0, 1, 5]].reshape(n, -1)]
+            if self.learn_jerk:
+                parts.append(b.mover_qacc[..., [0, 1, 5]].reshape(n, -1))
+            return torch.cat(parts, dim=1)
         parts = [b.mover_qpos[..., :2].reshape(n, -1), b.mover_qvel[..., :2].reshape(n, -1)]
         if self.learn_jerk:
             parts.append(b.mover_qacc[..., :2].reshape(n, -1))

@@ -18,7 +18,13 @@ import numpy as np
 import torch
 import warp as wp
 
-from magwarp.physics.control import copy_rows_masked_kernel, mover_control_kernel, zero_vec2_masked_kernel
+from magwarp.physics.control import (
+    YawDrive,
+    copy_rows_masked_kernel,
+    mover_control_kernel,
+    zero_float_masked_kernel,
+    zero_vec2_masked_kernel,
+)
 
 __all__ = ["ControlParams", "MjwBackend", "PhysicsInputError"]
 
@@ -32,7 +38,9 @@ class ControlParams:
     """Mover control limits and impedance gains (MagBotSim's RL-env defaults).
 
     ``jerk``: commands are jerks (else accelerations). Stiffness: translational (x, y, z) — only z is used, x/y are
-    commanded — and rotational (roll, pitch, yaw).
+    commanded — and rotational (roll, pitch, yaw). ``rotation``: a third command per mover drives the yaw ("c",
+    MagBotSim's ``learn_mover_c_rotation``) within ``v_max_c`` (rad/s), ``a_max_c`` (rad/s^2), ``j_max_c``
+    (rad/s^3, jerk mode) and, if set, ``|yaw| <= p_max_c`` (rad, at most pi); see :mod:`magwarp.physics.control`.
     """
 
     v_max: float = 2.0
@@ -42,9 +50,16 @@ class ControlParams:
     k_lin: tuple[float, float, float] = (1.0, 1.0, 100.0)
     k_rot: tuple[float, float, float] = (0.1, 0.1, 1.0)
     num_cycles: int = 40
+    rotation: bool = False
+    v_max_c: float = 122.17305
+    a_max_c: float = 122.17305
+    j_max_c: float = 610.86524
+    p_max_c: float | None = None
 
     def __post_init__(self):
-        for name in ("v_max", "a_max", "j_max"):
+        if self.p_max_c is not None and not (np.isfinite(self.p_max_c) and 0.0 < self.p_max_c <= np.pi):
+            raise PhysicsInputError(f"ControlParams.p_max_c must be None or in (0, pi], got {self.p_max_c!r}")
+        for name in ("v_max", "a_max", "j_max", "v_max_c", "a_max_c", "j_max_c"):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v <= 0:
                 raise PhysicsInputError(f"ControlParams.{name} must be positive and finite, got {v!r}")
@@ -162,6 +177,9 @@ class MjwBackend:
             self._hover_z = wp.array(hz, dtype=float)
             self.cmd = wp.zeros((W, max(M, 1)), dtype=wp.vec2)
             self.acc = wp.zeros((W, max(M, 1)), dtype=wp.vec2)
+            self.cmd_c = wp.zeros((W, max(M, 1)), dtype=float)  # yaw commands (control.rotation)
+            self.acc_c = wp.zeros((W, max(M, 1)), dtype=float)
+            self.yaw_track = wp.zeros((W, max(M, 1)), dtype=wp.vec2)
             self.reset_mask = wp.zeros(W, dtype=bool)
             self.init_qpos = wp.array(np.tile(mjd.qpos, (W, 1)), dtype=float)
             self.init_qvel = wp.array(np.tile(mjd.qvel, (W, 1)), dtype=float)
@@ -183,6 +201,8 @@ class MjwBackend:
         self.qacc_t = wp.to_torch(d.qacc)
         self.cmd_t = wp.to_torch(self.cmd)  # [W, M, 2]
         self.acc_t = wp.to_torch(self.acc)
+        self.cmd_c_t = wp.to_torch(self.cmd_c)  # [W, M]
+        self.acc_c_t = wp.to_torch(self.acc_c)
         self.reset_mask_t = wp.to_torch(self.reset_mask)
         self.init_qpos_t = wp.to_torch(self.init_qpos)
         self.init_qvel_t = wp.to_torch(self.init_qvel)
@@ -242,22 +262,31 @@ class MjwBackend:
         self._step_graph = None
 
     # ------------------------------------------------------------------ stepping
-    def _launch_cycles(self):
+    def apply_control(self) -> None:
+        """Launch one cycle of the mover control law (writes ``qfrc_applied``, updates the command states); the step
+        graph runs it before every ``mujoco_warp.step``. Public for tests and custom stepping loops."""
         c = self.control
-        W, M = self.num_worlds, self.num_movers
-        for _ in range(c.num_cycles):
-            if M:
-                wp.launch(
-                    mover_control_kernel,
-                    dim=(W, M),
-                    inputs=[
-                        self._qadr, self._dadr, self._mass, self._inertia, self._hover_z,
-                        float(c.k_lin[2]), wp.vec3(*c.k_rot), self.dt, float(c.v_max), float(c.a_max), float(c.j_max),
-                        int(c.jerk), self.data.qpos, self.data.qvel, self.cmd, self.acc,
-                    ],
-                    outputs=[self.data.qfrc_applied],
-                    device=self.device,
-                )
+        yaw = YawDrive()
+        yaw.enabled, yaw.jerk_mode = int(c.rotation), int(c.jerk)
+        yaw.v_max, yaw.a_max, yaw.j_max = float(c.v_max_c), float(c.a_max_c), float(c.j_max_c)
+        yaw.p_max = float(c.p_max_c) if c.p_max_c is not None else -1.0
+        wp.launch(
+            mover_control_kernel,
+            dim=(self.num_worlds, self.num_movers),
+            inputs=[
+                self._qadr, self._dadr, self._mass, self._inertia, self._hover_z,
+                float(c.k_lin[2]), wp.vec3(*c.k_rot), self.dt, float(c.v_max), float(c.a_max), float(c.j_max),
+                int(c.jerk), yaw, self.data.qpos, self.data.qvel, self.cmd, self.cmd_c, self.acc, self.acc_c,
+                self.yaw_track,
+            ],
+            outputs=[self.data.qfrc_applied],
+            device=self.device,
+        )
+
+    def _launch_cycles(self):
+        for _ in range(self.control.num_cycles):
+            if self.num_movers:
+                self.apply_control()
             self._mjw.step(self.model, self.data)
             for hook in self._cycle_hooks:
                 hook()
@@ -271,7 +300,10 @@ class MjwBackend:
         wp.launch(copy_rows_masked_kernel, dim=(W, self.mjm.nv), inputs=[self.reset_mask, self.init_qvel], outputs=[d.qvel],
                   device=self.device)
         if self.num_movers:
-            wp.launch(zero_vec2_masked_kernel, dim=(W, self.num_movers), inputs=[self.reset_mask], outputs=[self.acc],
+            for state in (self.acc, self.yaw_track):
+                wp.launch(zero_vec2_masked_kernel, dim=(W, self.num_movers), inputs=[self.reset_mask], outputs=[state],
+                          device=self.device)
+            wp.launch(zero_float_masked_kernel, dim=(W, self.num_movers), inputs=[self.reset_mask], outputs=[self.acc_c],
                       device=self.device)
         if self.mjm.nmocap:
             self._copy_mocap()
@@ -321,12 +353,14 @@ class MjwBackend:
             raise PhysicsInputError(f"actions must be a floating-point tensor, got dtype {actions.dtype}")
         if actions.device != self.torch_device:
             raise PhysicsInputError(f"actions are on device {actions.device}, but the backend runs on {self.torch_device}")
-        if tuple(actions.shape) not in ((W, M, 2), (W, 2 * M)):
-            raise PhysicsInputError(f"actions must have shape ({W}, {M}, 2) or ({W}, {2 * M}), got {tuple(actions.shape)}")
-        return actions.reshape(W, M, 2)
+        d = 3 if self.control.rotation else 2
+        if tuple(actions.shape) not in ((W, M, d), (W, d * M)):
+            raise PhysicsInputError(f"actions must have shape ({W}, {M}, {d}) or ({W}, {d * M}), got {tuple(actions.shape)}")
+        return actions.reshape(W, M, d)
 
     def set_actions(self, actions, check_finite: bool = True) -> None:
-        """Write x/y commands (acceleration or jerk, per ``control.jerk``) for all worlds: shape ``[W, M, 2]`` or ``[W, 2M]``.
+        """Write x/y commands (acceleration or jerk, per ``control.jerk``) for all worlds: shape ``[W, M, 2]`` or ``[W, 2M]``
+        (with ``control.rotation``: x, y and yaw per mover, ``[W, M, 3]`` or ``[W, 3M]``).
 
         ``check_finite`` rejects NaN/inf with an error naming the first bad world and mover (costs one device sync).
         """
@@ -339,7 +373,9 @@ class MjwBackend:
                     f"actions contain a non-finite value {float(a[w, k, j])} at world {w}, mover {k}, axis {j}"
                 )
         if self.num_movers:
-            self.cmd_t.copy_(a)
+            self.cmd_t.copy_(a[..., :2])
+            if self.control.rotation:
+                self.cmd_c_t.copy_(a[..., 2])
 
     def step(self, actions=None, check_finite: bool = True) -> None:
         """Set ``actions`` (if given) and run ``control.num_cycles`` cycles in all worlds (one graph replay)."""
