@@ -29,7 +29,10 @@ centre); jerk-mode observations use mujoco-warp's ``qacc`` as MagBotSim does.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
+
+import dataclasses
 
 import gymnasium as gym
 import numpy as np
@@ -37,9 +40,11 @@ import torch
 from warp import to_torch as wp_to_torch
 
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
 from magwarp.layout import Layout, MoverSpec
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
 from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
+from magwarp.physics.coverage import ShapeTable
 from magwarp.physics.mover_checks import MoverChecks
 from magwarp.physics.push_metrics import PushMetrics
 
@@ -72,6 +77,13 @@ def _default_device() -> str:
     return default_device()
 
 
+def _parts(obj: ObjectSpec) -> list[tuple[float, float, float, float]]:
+    """Drawing parts ``(cx, cy, hx, hy)`` of an object in its body frame (a disc: ``hy = 0``)."""
+    if obj.shape == "cylinder":
+        return [(0.0, 0.0, float(obj.radius), 0.0)]
+    return [tuple(float(v) for v in r) for r in obj.rects()]
+
+
 def _yaw_from_quat(q: torch.Tensor) -> torch.Tensor:
     """Yaw of MuJoCo quaternions ``[..., 4]`` (w, x, y, z)."""
     w, x, y, z = q.unbind(-1)
@@ -85,7 +97,10 @@ class PushEnv(MagwarpVecEnv):
     ``object_type`` is one of ``box``, ``square_box``, ``cylinder``, ``t_shape``, ``l_shape``, ``plus_shape`` (or
     ``T``, ``L``, ``X``); ``object_*`` set its half-sizes (m), mass (kg) and friction. Collision options follow
     MagBotSim's ``collision_params``: ``collision_shape``, ``collision_size``, ``collision_offset`` (sampling
-    margin), ``collision_offset_wall`` (wall margin).
+    margin), ``collision_offset_wall`` (wall margin). ``object_ranges`` (MagBotSim's): ``{"width": (low, high),
+    ...}`` over ``width``, ``height``, ``depth``, ``segment_width``, ``radius`` and ``mass``; a range with low < high
+    gives every episode an object drawn from ``object_variants`` samples of the ranges
+    (:mod:`magwarp.envs.object_variants`; ``info["object_variant"]`` says which), a fixed one just sets the value.
 
     Physics: ``solver`` is MuJoCo's constraint solver for the contacts: ``"Newton"`` (MagBotSim's), ``"CG"``, or
     ``"auto"`` (default): CG on CPU, Newton on CUDA, the faster one on each (benchmarks/RESULTS.md; on a GPU the batch
@@ -125,6 +140,8 @@ class PushEnv(MagwarpVecEnv):
         object_mass: float = 0.3,
         object_sliding_friction: float = 0.6,
         object_torsional_friction: float = 0.0001,
+        object_ranges: Mapping[str, tuple[float, float]] | None = None,
+        object_variants: int = 64,
         v_max: float = 2.0,
         a_max: float = 10.0,
         j_max: float = 100.0,
@@ -185,6 +202,11 @@ class PushEnv(MagwarpVecEnv):
         self.object = ObjectSpec(object_type, width=object_width, height=object_height, depth=object_depth,
                                  segment_width=object_segment_width, radius=object_radius, mass=object_mass,
                                  friction=(object_sliding_friction, object_torsional_friction, 0.0001))
+        ranges = check_ranges(object_ranges) if object_ranges is not None else {}
+        varying = {k: r for k, r in ranges.items() if r[0] < r[1]}
+        # Fixed ranges just set the value; varying ones build the model (and the sampling margins) with the largest
+        # object, and each world then gets one of the variants at every reset.
+        self.object = dataclasses.replace(self.object, **{k: r[1] for k, r in ranges.items()})
         spec: dict[str, Any] = dict(hover_gap=initial_mover_zpos, collision_shape=collision_shape,
                                     wall_margin=collision_offset_wall)
         if collision_size is not None:
@@ -216,6 +238,15 @@ class PushEnv(MagwarpVecEnv):
                                                          p_max_c=p_max_c),
             nconmax=ncon, njmax=njmax or 3 * ncon, device=device,
         )
+        self.variants = None
+        if varying:
+            def scene(spec):
+                return generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
+                                     objects=[spec], obstacles=self.obstacles, solver=solver)
+
+            self.variants = build_variants(self.object, varying, object_variants, scene,
+                                           np.random.default_rng(seed), self.backend.torch_device)
+            self._variant_fields = self.backend.batch_model_fields(MODEL_FIELDS)
         self.checks = MoverChecks(self.backend, self.layout, self.mover)
         self.contacts = None
         if self.obstacles:
@@ -238,8 +269,12 @@ class PushEnv(MagwarpVecEnv):
         self.goal_yaw = torch.zeros(n, device=dev)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
         self.steps_at_goal = torch.zeros(n, dtype=torch.int64, device=dev)
-        self.metrics = PushMetrics(self.backend, self.object, self.goal_xy, self.goal_yaw, threshold=self.max_position_err,
-                                   learn_pose=self.learn_pose, min_coverage=self.min_coverage)
+        #: which object variant each world has (0 without ``object_ranges``); ``shapes`` their outlines (coverage)
+        self.object_variant = torch.zeros(n, dtype=torch.int32, device=dev)
+        self.shapes = ShapeTable(self.variants.specs if self.variants else [self.object], self.backend.device)
+        self.metrics = PushMetrics(self.backend, self.shapes, self.goal_xy, self.goal_yaw, threshold=self.max_position_err,
+                                   learn_pose=self.learn_pose, min_coverage=self.min_coverage,
+                                   shape_index=self.object_variant)
         self._set_spaces(self._observation_space(), self._action_space())
         self.reset()
 
@@ -378,8 +413,21 @@ class PushEnv(MagwarpVecEnv):
         }
 
     # ------------------------------------------------------------------ task hooks
+    def _assign_variants(self, mask: torch.Tensor) -> None:
+        """Give the worlds in ``mask`` a random object variant: its rows of the object-dependent model arrays."""
+        v = self.variants
+        pick = self._randint(v.count, self.num_envs).to(torch.int32)
+        self.object_variant.copy_(torch.where(mask, pick, self.object_variant))
+        idx = self.object_variant.long()
+        for name, bank in v.fields.items():
+            field = self._variant_fields[name]
+            m = mask.view(-1, *([1] * (field.dim() - 1)))
+            field.copy_(torch.where(m, bank[idx], field))
+
     def _reset_envs(self, mask: torch.Tensor) -> None:
         b = self.backend
+        if self.variants is not None:
+            self._assign_variants(mask)
         s = self._sample_episode(self.num_envs)
         m3 = mask[:, None, None]
         mover_q = b.init_mover_qpos
@@ -393,7 +441,8 @@ class PushEnv(MagwarpVecEnv):
         new_obj = torch.zeros_like(obj_q)
         new_obj[:, 0, :2] = s["object_xy"]
         # 10 um into the support: a contact at exactly zero distance flips between float32 and float64 rounding
-        new_obj[:, 0, 2] = self.object.depth - 1e-5
+        depth = self.variants.depth[self.object_variant.long()] if self.variants is not None else self.object.depth
+        new_obj[:, 0, 2] = depth - 1e-5
         new_obj[:, 0, 3] = torch.cos(half)
         new_obj[:, 0, 6] = torch.sin(half)
         obj_q.copy_(torch.where(m3, new_obj, obj_q))
@@ -447,7 +496,9 @@ class PushEnv(MagwarpVecEnv):
 
     def _evaluate(self, obs):
         info = self._collision_info()
-        reached, metric = self.goal_reached(obs["achieved_goal"], obs["desired_goal"])
+        if self.variants is not None:
+            info["object_variant"] = self.object_variant.clone()
+        reached, metric = self.goal_reached(obs["achieved_goal"], obs["desired_goal"], info)
         collision = self._any_collision(info)
         self.num_steps += 1
         self.steps_at_goal.copy_(torch.where(reached, self.steps_at_goal + 1, torch.zeros_like(self.steps_at_goal)))
@@ -469,10 +520,23 @@ class PushEnv(MagwarpVecEnv):
         return reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ reward (batched, for HER)
-    def goal_reached(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(reached, metric): metric is the distance (position goals) or the coverage (pose goals)."""
+    def goal_reached(self, achieved_goal: torch.Tensor, desired_goal: torch.Tensor,
+                     info: dict[str, Any] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(reached, metric): metric is the distance (position goals) or the coverage (pose goals).
+
+        With ``object_ranges`` the coverage needs each pose pair's object variant: ``info["object_variant"]`` (of the
+        batch shape; every step's ``info`` has it), or the env's current variants for a batch of ``num_envs``."""
         if self.learn_pose:
-            cov = coverage(achieved_goal, desired_goal, self.object)
+            index = None
+            if self.variants is not None:
+                if info is not None and "object_variant" in info:
+                    index = torch.as_tensor(info["object_variant"], device=achieved_goal.device)
+                elif achieved_goal.shape[:-1] == (self.num_envs,):
+                    index = self.object_variant
+                else:
+                    raise ValueError("pose goals with object_ranges: pass info['object_variant'] (from the step's "
+                                     f"info) for a batch of shape {tuple(achieved_goal.shape[:-1])}")
+            cov = coverage(achieved_goal, desired_goal, self.shapes, index)
             return cov >= self.min_coverage, cov
         dist = (achieved_goal[..., :2] - desired_goal[..., :2]).norm(dim=-1)
         return dist <= self.max_position_err, dist
@@ -502,15 +566,16 @@ class PushEnv(MagwarpVecEnv):
         """Reward for a batch ``(..., goal_dim)``; ``info`` holds collision flags of the batch shape (or is None)."""
         achieved_goal = torch.as_tensor(achieved_goal)
         desired_goal = torch.as_tensor(desired_goal, device=achieved_goal.device)
-        reached, metric = self.goal_reached(achieved_goal, desired_goal)
+        reached, metric = self.goal_reached(achieved_goal, desired_goal, info)
         return self._reward(reached, metric, info)
 
     # ------------------------------------------------------------------ rendering
-    def object_parts(self) -> list[tuple[float, float, float, float]]:
-        """The object's footprint as drawing parts ``(cx, cy, hx, hy)`` in its body frame (a disc: ``hy = 0``)."""
-        if self.object.shape == "cylinder":
-            return [(0.0, 0.0, float(self.object.radius), 0.0)]
-        return [tuple(float(v) for v in r) for r in self.object.rects()]
+    def object_parts(self, world: int = 0) -> list[tuple[float, float, float, float]]:
+        """World ``world``'s object footprint as drawing parts ``(cx, cy, hx, hy)`` in its body frame (a disc:
+        ``hy = 0``); with ``object_ranges`` this reads the world's variant (one device-to-host copy)."""
+        if self.variants is None:
+            return _parts(self.object)
+        return _parts(self.variants.specs[int(self.object_variant[world])])
 
     def render_state(self) -> dict[str, torch.Tensor]:
         """What a frame shows, as device tensors (shared by the top-down renderer and the 3D viewers): mover
@@ -546,11 +611,13 @@ class PushEnv(MagwarpVecEnv):
 
             count = worlds if np.ndim(worlds) == 0 else len(worlds)
             ppt = 96 if count == 1 else 48 if count <= 4 else 32
+            specs = self.variants.specs if self.variants is not None else [self.object]
             self._renderer = TopDownRenderer(self.layout, self.mover, worlds=worlds, px_per_tile=ppt,
-                                             object_shapes=[self.object_parts()], device=self.backend.device)
+                                             object_shapes=[_parts(o) for o in specs], device=self.backend.device)
         s = self.render_state()
         return self._renderer.draw(s["pos"], s["yaw"], flags=s["flags"], object_poses=s["object_poses"],
-                                   object_goals=s["object_goals"], obstacles=s.get("obstacles"))
+                                   object_goals=s["object_goals"], obstacles=s.get("obstacles"),
+                                   object_shape=self.object_variant)
 
 
 class PushBoxEnv(PushEnv):

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 import warp as wp
 
-__all__ = ["coverage", "shape_parts"]
+__all__ = ["ShapeTable", "coverage", "shape_parts"]
 
 vec8 = wp.types.vector(length=8, dtype=float)
 
@@ -92,12 +92,28 @@ def _disc_overlap(r: float, pa: wp.vec3, pg: wp.vec3) -> float:
     return 2.0 * r * r * wp.acos(d / (2.0 * r)) - 0.5 * d * wp.sqrt(wp.max(4.0 * r * r - d * d, 0.0))
 
 
+@wp.func
+def shape_overlap(parts: wp.array2d[wp.vec4], radius: wp.array[float], s: int, pa: wp.vec3, pg: wp.vec3) -> float:
+    """Area of shape ``s`` at pose ``pa`` intersected with itself at pose ``pg`` (zero-size parts are padding)."""
+    area = float(0.0)
+    if radius[s] > 0.0:
+        area = _disc_overlap(radius[s], pa, pg)
+    else:
+        for a in range(parts.shape[1]):
+            if parts[s, a][2] > 0.0:
+                for g in range(parts.shape[1]):
+                    if parts[s, g][2] > 0.0:
+                        area += _rect_overlap(parts[s, a], pa, parts[s, g], pg)
+    return area
+
+
 @wp.kernel
 def coverage_kernel(
     # Model:
-    parts: wp.array[wp.vec4],
-    radius: float,
-    goal_area: float,
+    parts: wp.array2d[wp.vec4],
+    radius: wp.array[float],
+    goal_area: wp.array[float],
+    shape_index: wp.array[int],
     # State in:
     achieved: wp.array[wp.vec3],
     desired: wp.array[wp.vec3],
@@ -105,16 +121,8 @@ def coverage_kernel(
     cover: wp.array[float],
 ):
     i = wp.tid()
-    pa = achieved[i]
-    pg = desired[i]
-    area = float(0.0)
-    if radius > 0.0:
-        area = _disc_overlap(radius, pa, pg)
-    else:
-        for a in range(parts.shape[0]):
-            for g in range(parts.shape[0]):
-                area += _rect_overlap(parts[a], pa, parts[g], pg)
-    cover[i] = wp.clamp(area / goal_area, 0.0, 1.0)
+    s = shape_index[i % shape_index.shape[0]]
+    cover[i] = wp.clamp(shape_overlap(parts, radius, s, achieved[i], desired[i]) / goal_area[s], 0.0, 1.0)
 
 
 def shape_parts(obj) -> tuple[np.ndarray, float, float]:
@@ -122,6 +130,27 @@ def shape_parts(obj) -> tuple[np.ndarray, float, float]:
     if obj.shape == "cylinder":
         return np.zeros((0, 4), dtype=np.float32), float(obj.radius), obj.area
     return obj.rects().astype(np.float32), 0.0, obj.area
+
+
+class ShapeTable:
+    """Object shapes as device arrays, so coverage can use a different shape per world: ``parts`` ``[S, P]``
+    (rectangles ``(cx, cy, hx, hy)``, padded with zero-size parts), ``radius`` ``[S]`` (discs; 0 otherwise) and
+    ``area`` ``[S]``. Built from :class:`magwarp.mjcf.ObjectSpec` s (e.g. the size variants of one object)."""
+
+    def __init__(self, objects, device):
+        rows = [shape_parts(o) for o in objects]
+        if not rows:
+            raise ValueError("ShapeTable needs at least one object")
+        width = max(1, max(len(p) for p, _, _ in rows))
+        parts = np.zeros((len(rows), width, 4), np.float32)
+        for k, (p, _, _) in enumerate(rows):
+            parts[k, : len(p)] = p
+        dev = wp.get_device(device)
+        self.num_shapes = len(rows)
+        self.parts = wp.array(parts, dtype=wp.vec4, device=dev)
+        self.radius = wp.array(np.array([r for _, r, _ in rows], np.float32), dtype=float, device=dev)
+        self.area = wp.array(np.array([a for _, _, a in rows], np.float32), dtype=float, device=dev)
+        self.zero_index = wp.zeros(1, dtype=int, device=dev)
 
 
 def _pose3(name: str, pose: torch.Tensor) -> torch.Tensor:
@@ -135,27 +164,33 @@ def _pose3(name: str, pose: torch.Tensor) -> torch.Tensor:
     return pose.to(torch.float32).reshape(-1, 3).contiguous()
 
 
-def coverage(achieved: torch.Tensor, desired: torch.Tensor, obj, parts_wp: wp.array | None = None) -> torch.Tensor:
+def coverage(achieved: torch.Tensor, desired: torch.Tensor, obj, shape_index: torch.Tensor | None = None) -> torch.Tensor:
     """Coverage of the goal pose ``desired`` by the object at ``achieved`` for every pose pair (any batch shape).
 
-    ``obj`` is an :class:`magwarp.mjcf.ObjectSpec`; ``parts_wp`` optionally caches its parts on the device.
-    Returns a float32 tensor of the batch shape on the poses' device.
+    ``obj`` is an :class:`magwarp.mjcf.ObjectSpec`, or a :class:`ShapeTable` with ``shape_index`` (int tensor of the
+    batch shape, or of one element) naming each pair's shape. Returns a float32 tensor of the batch shape on the
+    poses' device.
     """
     if achieved.shape[:-1] != desired.shape[:-1]:
         raise ValueError(f"achieved {tuple(achieved.shape)} and desired {tuple(desired.shape)} batch shapes differ")
     batch = achieved.shape[:-1]
     a = _pose3("achieved", achieved)
     g = _pose3("desired", desired).to(a.device)
-    parts, radius, area = shape_parts(obj)
     wp.init()
     device = wp.device_from_torch(a.device)
-    if parts_wp is None:
-        parts_wp = wp.array(parts.reshape(-1, 4) if len(parts) else np.zeros((0, 4), np.float32), dtype=wp.vec4,
-                            device=device)
+    table = obj if isinstance(obj, ShapeTable) else ShapeTable([obj], device)
+    if shape_index is None:
+        index = table.zero_index
+    else:
+        idx = torch.as_tensor(shape_index, device=a.device).to(torch.int32).reshape(-1).contiguous()
+        if idx.numel() not in (1, a.shape[0]):
+            raise ValueError(f"shape_index must have 1 or {a.shape[0]} elements, got {idx.numel()}")
+        index = wp.from_torch(idx)
     out = torch.empty(a.shape[0], dtype=torch.float32, device=a.device)
     if a.shape[0]:
         stream = wp.stream_from_torch(torch.cuda.current_stream(a.device)) if a.device.type == "cuda" else None
         wp.launch(coverage_kernel, dim=a.shape[0],
-                  inputs=[parts_wp, radius, area, wp.from_torch(a, dtype=wp.vec3), wp.from_torch(g, dtype=wp.vec3)],
+                  inputs=[table.parts, table.radius, table.area, index, wp.from_torch(a, dtype=wp.vec3),
+                          wp.from_torch(g, dtype=wp.vec3)],
                   outputs=[wp.from_torch(out)], device=device, stream=stream)
     return out.reshape(batch)

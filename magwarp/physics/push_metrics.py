@@ -19,7 +19,7 @@ import warp as wp
 
 from magwarp.kernels.metrics import corrective_update
 from magwarp.physics.backend import MjwBackend
-from magwarp.physics.coverage import _disc_overlap, _rect_overlap, shape_parts
+from magwarp.physics.coverage import ShapeTable, shape_overlap
 
 __all__ = ["PushMetrics"]
 
@@ -31,15 +31,16 @@ class _Goal:
     threshold: float
     learn_pose: int
     min_coverage: float
-    radius: float
-    area: float
 
 
 @wp.kernel
 def push_metrics_kernel(
     # Model:
     goal: _Goal,
-    parts: wp.array[wp.vec4],
+    parts: wp.array2d[wp.vec4],
+    radius: wp.array[float],
+    shape_area: wp.array[float],
+    shape_index: wp.array[int],
     qadr: int,
     dt: float,
     # State in:
@@ -78,14 +79,8 @@ def push_metrics_kernel(
             yaw = wp.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
             pa = wp.vec3(p[0], p[1], yaw)
             pg = wp.vec3(goal_xy[w][0], goal_xy[w][1], goal_yaw[w])
-            area = float(0.0)
-            if goal.radius > 0.0:
-                area = _disc_overlap(goal.radius, pa, pg)
-            else:
-                for a in range(parts.shape[0]):
-                    for g in range(parts.shape[0]):
-                        area += _rect_overlap(parts[a], pa, parts[g], pg)
-            reached = area / goal.area >= goal.min_coverage
+            s = shape_index[w % shape_index.shape[0]]
+            reached = shape_overlap(parts, radius, s, pa, pg) / shape_area[s] >= goal.min_coverage
         if reached:
             if streak[w] == 0:
                 time_to_success[w] = float(elapsed[w]) * dt
@@ -103,7 +98,8 @@ class PushMetrics:
     """
 
     def __init__(self, backend: MjwBackend, obj, goal_xy: torch.Tensor, goal_yaw: torch.Tensor, *, threshold: float,
-                 learn_pose: bool, min_coverage: float, object_index: int = 0):
+                 learn_pose: bool, min_coverage: float, object_index: int = 0,
+                 shape_index: torch.Tensor | None = None):
         self.backend = backend
         dev = backend.device
         W = backend.num_worlds
@@ -112,12 +108,12 @@ class PushMetrics:
                 raise ValueError(f"{name} must be a contiguous float32 tensor of shape {shape} on {backend.torch_device}")
         self._goal_xy = wp.from_torch(goal_xy, dtype=wp.vec2)
         self._goal_yaw = wp.from_torch(goal_yaw)
-        parts, radius, area = shape_parts(obj)
         g = _Goal()
         g.threshold, g.learn_pose, g.min_coverage = float(threshold), int(learn_pose), float(min_coverage)
-        g.radius, g.area = float(radius), float(area)
         self._goal = g
-        self._parts = wp.array(parts.reshape(-1, 4), dtype=wp.vec4, device=dev)
+        # obj: an ObjectSpec, or a ShapeTable with shape_index (int32 [W], updated in place) naming each world's shape
+        self._shapes = obj if isinstance(obj, ShapeTable) else ShapeTable([obj], dev)
+        self._shape_index = self._shapes.zero_index if shape_index is None else wp.from_torch(shape_index)
         self._qadr = int(backend.object_qadr[object_index])
         self._state = {
             "success_last": wp.zeros(W, dtype=int, device=dev),
@@ -136,7 +132,8 @@ class PushMetrics:
         b = self.backend
         s = self._state
         wp.launch(push_metrics_kernel, dim=b.num_worlds,
-                  inputs=[self._goal, self._parts, self._qadr, b.dt, b.data.qpos, self._goal_xy, self._goal_yaw],
+                  inputs=[self._goal, self._shapes.parts, self._shapes.radius, self._shapes.area, self._shape_index,
+                          self._qadr, b.dt, b.data.qpos, self._goal_xy, self._goal_yaw],
                   outputs=[s["success_last"], s["last_dist"], s["dist_increased"], s["overshoots"], s["dist_corrections"],
                            s["elapsed"], s["streak"], s["time_to_success"]],
                   device=b.device)

@@ -342,6 +342,7 @@ def draw_topdown(
     radii: wp.array2d[wp.float32],
     half_sizes: wp.array3d[wp.float32],
     object_parts: wp.array2d[wp.vec4],
+    object_shape: wp.array2d[wp.int32],
     fixed_colors: wp.array[wp.vec3],
     mover_colors: wp.array[wp.vec3],
     goal_radius: float,
@@ -423,8 +424,10 @@ def draw_topdown(
 
         # --- object goal poses: translucent green silhouettes of the objects
         wg = shared(w, object_goals.shape[0])
+        ws = shared(w, object_shape.shape[0])
         for o in range(object_goals.shape[1]):
-            d = object_sdf(p, object_goals[wg, o, 0], object_goals[wg, o, 1], object_goals[wg, o, 2], object_parts, o)
+            d = object_sdf(p, object_goals[wg, o, 0], object_goals[wg, o, 1], object_goals[wg, o, 2], object_parts,
+                           object_shape[ws, o])
             if d <= 0.0:
                 color = blend(color, fixed_colors[C_OBJECT_GOAL], OBJECT_GOAL_ALPHA)
                 if d > -1.5 * px:
@@ -454,7 +457,8 @@ def draw_topdown(
         # --- objects: opaque union of parts with a dark rim
         wob = shared(w, object_poses.shape[0])
         for o in range(object_poses.shape[1]):
-            d = object_sdf(p, object_poses[wob, o, 0], object_poses[wob, o, 1], object_poses[wob, o, 2], object_parts, o)
+            d = object_sdf(p, object_poses[wob, o, 0], object_poses[wob, o, 1], object_poses[wob, o, 2], object_parts,
+                           object_shape[ws, o])
             if d <= 0.0:
                 color = fixed_colors[C_OBJECT]
                 if d > -1.5 * px:

@@ -197,7 +197,7 @@ def _goal_ghosts(env, world: int) -> list[tuple]:
     c, s = math.cos(gyaw), math.sin(gyaw)
     h = float(env.object.depth) * 1.01
     out = []
-    for cx, cy, hx, hy in env.object_parts():
+    for cx, cy, hx, hy in env.object_parts(world):
         pos = (gx + c * cx - s * cy, gy + s * cx + c * cy, h)
         if hy <= 0:
             out.append((pos, gyaw, (hx * 1.01, h, 0.0), GOAL_RGBA, "cylinder"))

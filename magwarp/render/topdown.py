@@ -259,6 +259,7 @@ class TopDownRenderer:
         object_poses=None,
         object_goals=None,
         obstacles=None,
+        object_shape=None,
     ) -> torch.Tensor:
         """Draw one frame; returns the renderer's ``uint8 [H, W, 3]`` tensor on its device.
 
@@ -272,6 +273,8 @@ class TopDownRenderer:
             object_poses: object poses ``[W, O, 3]`` (x, y, yaw) or ``[W, 3]`` for one object.
             object_goals: object goal poses, same shapes as ``object_poses``.
             obstacles: static rectangles ``[K, 4|5]`` or ``[W, K, 4|5]``: (cx, cy, hx, hy[, yaw]).
+            object_shape: which of the renderer's ``object_shapes`` each world's objects have, ints ``[W, O]`` (or
+                ``[W]`` for one object); default: object ``o`` has shape ``o``. Lets worlds differ (size variants).
         Any per-world array may omit W (or have W = 1) to be shared by all worlds.
         """
         dev, td = self.device, self.torch_device
@@ -305,8 +308,15 @@ class TopDownRenderer:
             goals_t = torch.zeros((1, 0, 2), dtype=torch.float32, device=td)
         else:
             goals_t = per_world(goals, trailing=(2,), name="goals", device=td, num_items=num_movers)
-        obj_t = self._object_poses(object_poses, "object_poses", num_worlds)
-        objg_t = self._object_poses(object_goals, "object_goals", num_worlds)
+        if object_shape is None:
+            shape_t = torch.arange(self.num_objects, dtype=torch.int32, device=td)[None]
+        else:
+            shape_t = as_tensor(object_shape, device=td, dtype=torch.int32, name="object_shape")
+            shape_t = shape_t[:, None] if shape_t.ndim == 1 else shape_t
+            if shape_t.ndim != 2 or (shape_t.numel() and not (0 <= int(shape_t.min()) and int(shape_t.max()) < self.num_objects)):
+                raise ValueError(f"object_shape must be ints [W, O] in [0, {self.num_objects}), got {tuple(shape_t.shape)}")
+        obj_t = self._object_poses(object_poses, "object_poses", num_worlds, shape_t.shape[1])
+        objg_t = self._object_poses(object_goals, "object_goals", num_worlds, shape_t.shape[1])
         if obstacles is None:
             obst_t = torch.zeros((1, 0, 5), dtype=torch.float32, device=td)
         else:
@@ -321,13 +331,14 @@ class TopDownRenderer:
             float(self.px_per_m), self._cell_worlds, int(self.run_length),
             K.SHAPE_BOX if self.mover.collision_shape == "box" else K.SHAPE_CIRCLE,
             wp.vec2(0.5 * self.mover.size[0], 0.5 * self.mover.size[1]), float(self.mover.margin), float(reject),
-            wp.from_torch(radii_t), wp.from_torch(half_t), self._parts, self._fixed_colors, self._mover_colors,
+            wp.from_torch(radii_t), wp.from_torch(half_t), self._parts, wp.from_torch(shape_t.contiguous()),
+            self._fixed_colors, self._mover_colors,
             float(self.goal_radius), int(self.style), float(self.layout.tile.size),
             max(1, math.ceil(reject / self.layout.tile.size)),
             wp.from_torch(pos_t), wp.from_torch(rot_t), wp.from_torch(flags_t), wp.from_torch(goals_t),
             wp.from_torch(obj_t), wp.from_torch(objg_t), wp.from_torch(obst_t), *bins,
         ]
-        self._keep = (pos_t, rot_t, flags_t, radii_t, half_t, goals_t, obj_t, objg_t, obst_t)
+        self._keep = (pos_t, rot_t, flags_t, radii_t, half_t, goals_t, obj_t, objg_t, obst_t, shape_t)
         if self.device.is_cuda:
             # Launch on torch's current stream so the frame is ordered with the caller's torch work.
             with wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(td))):
@@ -366,13 +377,13 @@ class TopDownRenderer:
         """:meth:`draw`, returned as a fresh numpy ``uint8 [H, W, 3]`` array."""
         return to_numpy_image(self.draw(*args, **kwargs))
 
-    def _object_poses(self, poses, name: str, num_worlds: int) -> torch.Tensor:
+    def _object_poses(self, poses, name: str, num_worlds: int, num_objects: int) -> torch.Tensor:
         td = self.torch_device
         if poses is None:
             return torch.zeros((1, 0, 3), dtype=torch.float32, device=td)
         if self.num_objects == 0:
             raise ValueError(f"{name} given, but the renderer was built without object_shapes")
         t = as_tensor(poses, device=td, dtype=torch.float32, name=name)
-        if t.ndim == 2 and self.num_objects == 1 and t.shape[-1] == 3 and t.shape[0] != 1:
+        if t.ndim == 2 and num_objects == 1 and t.shape[-1] == 3 and t.shape[0] != 1:
             t = t.unsqueeze(1)  # [W, 3] -> [W, 1, 3]
-        return per_world(t, trailing=(3,), name=name, device=td, num_items=self.num_objects)
+        return per_world(t, trailing=(3,), name=name, device=td, num_items=num_objects)
