@@ -227,7 +227,11 @@ def test_benchmark_variants(name, rng):
     from magwarp.envs.push import push_benchmark
 
     layout, movers = push_benchmark(name)
-    env = PushBoxEnv(16, benchmark=name, device="cpu", seed=int(rng.integers(1 << 30)))
+    if name == "B0":  # MagBotSim's B0 ranges cannot keep the object 0.15 m from its goal: said, not hidden
+        with pytest.warns(UserWarning, match="loops forever"):
+            env = PushBoxEnv(16, benchmark=name, device="cpu", seed=int(rng.integers(1 << 30)))
+    else:
+        env = PushBoxEnv(16, benchmark=name, device="cpu", seed=int(rng.integers(1 << 30)))
     assert env.num_movers == movers and env.layout.shape == layout.shape
     assert env.single_action_space.shape == (2 * movers,)
     obs, _ = env.reset()

@@ -33,6 +33,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import dataclasses
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -310,6 +311,13 @@ class PushEnv(MagwarpVecEnv):
         self.min_object_goal_dist = 0.15
         self.mover_pair_dist = 2 * float(np.linalg.norm(c)) if self.mover.collision_shape == "box" else 2 * c[0]
         self._continuous = bool(self.layout.tiles.all())
+        reach = float(np.linalg.norm(self.object_max_xy - self.object_min_xy))
+        if self._continuous and reach <= self.min_object_goal_dist:
+            # MagBotSim's own rejection loop never ends here (it logs "Consider choosing more tiles" forever); a
+            # batched draw cannot wait either, so episodes start with the object nearer its goal than 0.15 m.
+            warnings.warn(f"the object range of layout {self.layout.shape} spans at most {reach:.3f} m, so no start is "
+                          f"{self.min_object_goal_dist} m from its goal as MagBotSim requires (MagBotSim loops forever "
+                          "here); episodes start nearer", stacklevel=3)
 
     def _observation_space(self) -> gym.spaces.Dict:
         m, c = self.num_movers, int(self.learn_mover_c_rotation)
@@ -341,7 +349,7 @@ class PushEnv(MagwarpVecEnv):
         key = (arr.tobytes(), arr.shape, dtype)
         cache = self.__dict__.setdefault("_consts", {})
         if key not in cache:
-            cache[key] = torch.as_tensor(arr, device=self.device).to(dtype)
+            cache[key] = torch.as_tensor(arr.copy(), device=self.device).to(dtype)  # a writable copy
         return cache[key]
 
     def _uniform(self, lo, hi, *shape: int) -> torch.Tensor:
