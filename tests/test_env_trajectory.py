@@ -434,3 +434,13 @@ def test_gymnasium_env_checker(env_id):
     env = gym.make(env_id)
     check_env(env.unwrapped, skip_render_check=True)
     env.close()
+
+
+def test_observation_noise_is_seeded_and_of_the_given_size():
+    env = TrajectoryPlanningEnv(256, "B0", std_noise=1e-3, device="cpu", seed=0)
+    obs, _ = env.reset(seed=2)
+    err = obs["achieved_goal"] - env.sim.pos[..., :2].reshape(256, -1)
+    assert err.std().item() == pytest.approx(1e-3, rel=0.1)
+    assert torch.equal(obs["achieved_goal"], env.reset(seed=2)[0]["achieved_goal"])
+    with pytest.raises(ValueError, match="std_noise"):
+        TrajectoryPlanningEnv(1, "B0", std_noise=float("nan"), device="cpu")

@@ -317,3 +317,17 @@ def test_object_ranges_are_validated():
         PushBoxEnv(1, device="cpu", object_ranges={"width": (0.05, 0.08)}, object_variants=0)
     env = PushBoxEnv(1, device="cpu", object_ranges={"width": (0.05, 0.05)})  # fixed: just sets the value
     assert env.variants is None and env.object.width == pytest.approx(0.05)
+
+
+def test_observation_noise_is_seeded_and_of_the_given_size():
+    env = PushBoxEnv(512, device="cpu", seed=0, std_noise=1e-3, object_noise=2e-3)
+    obs, _ = env.reset(seed=5)
+    b = env.backend
+    mover_err = obs["observation"][:, :2] - b.mover_qpos[:, 0, :2]
+    object_err = obs["achieved_goal"] - b.object_qpos[:, 0, :2]
+    assert mover_err.std().item() == pytest.approx(1e-3, rel=0.1)
+    assert object_err.std().item() == pytest.approx(2e-3, rel=0.1)
+    again, _ = env.reset(seed=5)
+    assert torch.equal(obs["observation"], again["observation"])
+    with pytest.raises(ValueError, match="std_noise"):
+        PushBoxEnv(1, device="cpu", std_noise=-1.0)

@@ -154,3 +154,9 @@ class MagwarpVecEnv(VectorEnv):
 
     def _randint(self, high: int, *shape: int) -> torch.Tensor:
         return torch.randint(high, shape, generator=self._generator, device=self.device)
+
+    def _noisy(self, x: torch.Tensor, std: float) -> torch.Tensor:
+        """``x`` plus zero-mean Gaussian noise of standard deviation ``std`` (``x`` itself when ``std`` is 0)."""
+        if std == 0.0:
+            return x
+        return x + std * torch.randn(x.shape, generator=self._generator, device=x.device, dtype=x.dtype)

@@ -19,7 +19,8 @@ above the sum of their half-extents, object-goal distance above 0.15 m, uniform 
 device with a fixed number of candidates per reset instead of a Python rejection loop (start and goal are drawn
 together, so goals whose neighbourhood leaves no valid start are slightly less likely than in MagBotSim).
 
-Differences from MagBotSim, on purpose: observations are float32 and noise-free; the mover controller is the
+Differences from MagBotSim, on purpose: observations are float32 and noise-free unless ``std_noise`` (mover positions and
+velocities) or ``object_noise`` (achieved goal) > 0 (MagBotSim's defaults: 1e-5 each); the mover controller is the
 physically right impedance law of :mod:`magwarp.physics.control`; collisions are checked after every cycle inside
 the step graph but a world is not frozen at its collision cycle (the episode ends at the step either way);
 coverage rotates the object about its body origin (MagBotSim's shapely code rotates the L about its bounding-box
@@ -143,6 +144,8 @@ class PushEnv(MagwarpVecEnv):
         object_torsional_friction: float = 0.0001,
         object_ranges: Mapping[str, tuple[float, float]] | None = None,
         object_variants: int = 64,
+        std_noise: float = 0.0,
+        object_noise: float = 0.0,
         v_max: float = 2.0,
         a_max: float = 10.0,
         j_max: float = 100.0,
@@ -192,6 +195,10 @@ class PushEnv(MagwarpVecEnv):
         self.learn_pose = bool(learn_pose)
         self.learn_jerk = bool(learn_jerk)
         self.learn_mover_c_rotation = bool(learn_mover_c_rotation)
+        for name, value in (("std_noise", std_noise), ("object_noise", object_noise)):
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a non-negative number, got {value!r}")
+        self.std_noise, self.object_noise = float(std_noise), float(object_noise)
         self.max_position_err = float(max_position_err)
         self.min_coverage = float(min_coverage)
         self.use_sparse_pose_reward = bool(use_sparse_pose_reward)
@@ -474,23 +481,25 @@ class PushEnv(MagwarpVecEnv):
         b, n = self.backend, self.num_envs
         if self.learn_mover_c_rotation:
             # MagBotSim's layout: per mover (x, y, sin yaw, cos yaw), then (vx, vy, yaw rate)[, (ax, ay, yaw acc)]
-            yaw = _yaw_from_quat(b.mover_qpos[..., 3:])
-            pos = torch.cat([b.mover_qpos[..., :2], torch.sin(yaw)[..., None], torch.cos(yaw)[..., None]], -1)
-            parts = [pos.reshape(n, -1), b.mover_qvel[..., [0, 1, 5]].reshape(n, -1)]
+            yaw = self._noisy(_yaw_from_quat(b.mover_qpos[..., 3:]), self.std_noise)
+            xy = self._noisy(b.mover_qpos[..., :2], self.std_noise)
+            pos = torch.cat([xy, torch.sin(yaw)[..., None], torch.cos(yaw)[..., None]], -1)
+            parts = [pos.reshape(n, -1), self._noisy(b.mover_qvel[..., [0, 1, 5]], self.std_noise).reshape(n, -1)]
             if self.learn_jerk:
                 parts.append(b.mover_qacc[..., [0, 1, 5]].reshape(n, -1))
             return torch.cat(parts, dim=1)
-        parts = [b.mover_qpos[..., :2].reshape(n, -1), b.mover_qvel[..., :2].reshape(n, -1)]
+        parts = [self._noisy(b.mover_qpos[..., :2], self.std_noise).reshape(n, -1),
+                 self._noisy(b.mover_qvel[..., :2], self.std_noise).reshape(n, -1)]
         if self.learn_jerk:
             parts.append(b.mover_qacc[..., :2].reshape(n, -1))
         return torch.cat(parts, dim=1)
 
     def _goals(self) -> tuple[torch.Tensor, torch.Tensor]:
         q = self.backend.object_qpos[:, 0]
-        achieved = q[:, :2]
+        achieved = self._noisy(q[:, :2], self.object_noise)
         desired = self.goal_xy
         if self.learn_pose:
-            yaw = _yaw_from_quat(q[:, 3:])
+            yaw = self._noisy(_yaw_from_quat(q[:, 3:]), self.object_noise)
             achieved = torch.cat([achieved, torch.sin(yaw)[:, None], torch.cos(yaw)[:, None]], 1)
             desired = torch.cat([desired, torch.sin(self.goal_yaw)[:, None], torch.cos(self.goal_yaw)[:, None]], 1)
         return achieved.clone(), desired.clone()

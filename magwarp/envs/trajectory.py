@@ -11,7 +11,8 @@ Every mover has a goal. Per env step (``num_cycles`` control cycles at 1 ms, the
 * reached goals are resampled after the reward is computed, so the returned observation still shows the goal the
   reward was computed for (consistent for hindsight relabelling); the new goal appears from the next step on.
 
-Differences from MagBotSim, on purpose: observations are float32 and noise-free; an action outside the action space
+Differences from MagBotSim, on purpose: observations are float32 and noise-free unless ``std_noise`` > 0 (MagBotSim's
+default adds 1e-5 to positions and velocities); an action outside the action space
 is not box-clipped (its norm is clipped by the mover's acceleration/jerk limit, the physical rule).
 """
 
@@ -66,6 +67,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         reward_collision: float = -20.0,
         reward_per_step: float = -1.0,
         timeout_steps: int | None = 50,
+        std_noise: float = 0.0,
         device: str | None = None,
         seed: int | None = None,
         render_mode: str | None = None,
@@ -116,6 +118,9 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         self.layout = layout_obj
         self.num_movers = int(num_movers)
         self.learn_jerk = learn_jerk
+        if not (np.isfinite(std_noise) and std_noise >= 0):
+            raise ValueError(f"std_noise must be a non-negative number, got {std_noise!r}")
+        self.std_noise = float(std_noise)
         self.num_cycles = int(num_cycles)
         self.threshold_pos = float(threshold_pos)
         self.reward_success = float(reward_success)
@@ -169,12 +174,12 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
 
     def _get_obs(self) -> dict[str, torch.Tensor]:
         n = self.num_envs
-        obs = self.sim.vel[..., :2].reshape(n, -1)
+        obs = self._noisy(self.sim.vel[..., :2].reshape(n, -1), self.std_noise)
         if self.learn_jerk:
             obs = torch.cat([obs, self.sim.acc.reshape(n, -1)], dim=1)
         return {
             "observation": obs.clone(),
-            "achieved_goal": self.sim.pos[..., :2].reshape(n, -1).clone(),
+            "achieved_goal": self._noisy(self.sim.pos[..., :2].reshape(n, -1), self.std_noise).clone(),
             "desired_goal": self.goals.reshape(n, -1).clone(),
         }
 
