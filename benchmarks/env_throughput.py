@@ -57,11 +57,18 @@ def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_input
     low = torch.as_tensor(space.low, device=env.device)
     high = torch.as_tensor(space.high, device=env.device)
     actions = low + (high - low) * torch.rand((8, num_envs, *space.shape), generator=gen, device=env.device)
-    res = time_steps(env.step, actions, steps, device)
-    res["env_steps_per_s"] = num_envs / (res["step_ms"] / 1e3)
     backend = getattr(env, "backend", None)
+    snapshots = []
+
+    def env_step(a):
+        env.step(a)
+        if backend is not None and len(snapshots) < 8:  # states the env really visits, for the raw comparison
+            snapshots.append([t.clone() for t in _physics_state(backend)])
+
+    res = time_steps(env_step, actions, steps, device)
+    res["env_steps_per_s"] = num_envs / (res["step_ms"] / 1e3)
     if backend is not None:
-        res["raw_mjw_ms"] = raw_mujoco_warp_ms(backend, steps, device)
+        res["raw_mjw_ms"] = raw_mujoco_warp_ms(backend, steps, device, snapshots)
         res["x_raw_mjw"] = res["step_ms"] / res["raw_mjw_ms"]
     sim = getattr(env, "sim", None)
     if sim is not None:
@@ -77,19 +84,35 @@ def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_input
     return res
 
 
-def raw_mujoco_warp_ms(backend, steps: int, device) -> float:
-    """Bare ``mujoco_warp.step`` x num_cycles on the env's own model and data, one graph: what the push env adds
-    (mover control, checks, task code) is the env time over this."""
+def _physics_state(backend) -> list[torch.Tensor]:
+    """The mujoco-warp state one env step starts from: positions, velocities, applied forces, solver warm start."""
+    d = backend.data
+    return [wp.to_torch(a) for a in (d.qpos, d.qvel, d.qfrc_applied, d.qacc_warmstart)]
+
+
+def raw_mujoco_warp_ms(backend, steps: int, device, snapshots: list[list[torch.Tensor]]) -> float:
+    """Bare ``mujoco_warp.step`` x num_cycles on the env's own model and data, one graph, each step started from a
+    state the env visited (``snapshots``: positions, velocities, the applied control forces held over the step,
+    solver warm start). Stepping on from one state instead would measure other physics: with no resets the movers
+    leave the objects behind and the contact solver idles. What the push env adds (mover control, checks, task
+    code, resets) is the env time over this."""
     import contextlib
 
     import mujoco_warp as mjw
 
+    state = _physics_state(backend)
     stream = wp.Stream(backend.device) if backend.device.is_cuda else None
     with wp.ScopedDevice(backend.device), (wp.ScopedStream(stream) if stream else contextlib.nullcontext()):
         with wp.ScopedCapture(device=backend.device, force_module_load=False) as cap:
             for _ in range(backend.control.num_cycles):
                 mjw.step(backend.model, backend.data)
-    return time_steps(lambda _: wp.capture_launch(cap.graph), [None], steps, device)["step_ms"]
+
+    def raw_step(snap):
+        for dst, src in zip(state, snap):
+            dst.copy_(src)
+        wp.capture_launch(cap.graph, stream=wp.stream_from_torch(torch.cuda.current_stream()) if stream else None)
+
+    return time_steps(raw_step, snapshots, steps, device)["step_ms"]
 
 
 def adapter_rows(env_id: str, num_envs: int, device: str, steps: int) -> list[dict]:
