@@ -188,3 +188,24 @@ def test_cli_render_and_view_push_env(capsys, tmp_path):
     assert rc == 0, err
     text = open(usd).read()
     assert "objects" in text and "object_goals" in text and "obstacles" in text
+
+
+def test_each_world_draws_its_own_object_variant():
+    env = PushTEnv(num_envs=2, device="cpu", render_mode="rgb_array", seed=0,
+                   object_ranges={"width": (0.05, 0.09), "height": (0.05, 0.09)}, object_variants=8)
+    env.reset(seed=0)
+    env.object_variant.copy_(torch.tensor([0, 1], dtype=torch.int32))
+    _park_movers(env)
+    for w in range(2):
+        _set_object(env, w, 0.36, 0.40, 0.3)
+    env.goal_xy[:] = torch.tensor([0.1, 0.65])  # goals out of the way
+    img = env.render()
+    r = env._renderer
+    for w in range(2):
+        x, y, (rows, cols) = _pixel_world_xy(r, w)
+        drawn = _is_object_colour(img[rows, cols])
+        parts = env.object_parts(w)
+        pad = 1.5 / r.px_per_m
+        assert drawn[_inside_parts(x, y, (0.36, 0.40, 0.3), parts, -pad)].all()
+        assert not drawn[~_inside_parts(x, y, (0.36, 0.40, 0.3), parts, pad)].any()
+    assert env.object_parts(0) != env.object_parts(1)
