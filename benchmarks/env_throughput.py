@@ -198,8 +198,9 @@ def main(argv=None) -> int:
                    help="comma-separated magwarp env ids")
     p.add_argument("--push-num-envs", default=None, help="sizes for push envs (default: 1..64 on CPU, up to 16384 on GPU)")
     p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 1..4096 on CPU, up to 1M on GPU)")
-    p.add_argument("--push-solvers", default="Newton",
-                   help="comma-separated MuJoCo solvers to time the push envs with (Newton, CG)")
+    p.add_argument("--push-solvers", default="auto",
+                   help="comma-separated MuJoCo solvers to time the push envs with: auto, Newton or CG, optionally "
+                        "with an iteration cap as SOLVER:N (e.g. Newton:4)")
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--adapters-at", type=int, default=4096, help="num_envs at which adapters are compared")
     p.add_argument("--no-magbotsim", action="store_true")
@@ -221,11 +222,16 @@ def main(argv=None) -> int:
         for env_id in args.envs.split(","):
             is_push = "/Push" in env_id
             for solver in (args.push_solvers.split(",") if is_push else [None]):
-                extra = {"solver": solver} if solver else {}
+                extra = {}
+                if solver:
+                    name, _, cap = solver.partition(":")
+                    extra = {"solver": name, **({"solver_iterations": int(cap)} if cap else {})}
                 for n in (push_sizes if is_push else sizes):
                     res = raw_env_row(env_id, n, device, args.steps, **extra)
                     rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, "adapter": "raw",
                                  **extra, **res})
+                    if solver:
+                        rows[-1]["solver"] = solver
                     print(f"  {env_id} {solver or ''} {device} num_envs={n}: {res['env_steps_per_s']:.4g} env-steps/s",
                           flush=True)
             if is_push:

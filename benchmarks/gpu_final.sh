@@ -2,6 +2,7 @@
 # The last GPU session's work, in two calls on the device machine (each under the 10-minute limit):
 #   export PYTHONPATH=/tmp/site:$PWD MAGWARP_COMMIT=<sha>
 #   bash benchmarks/gpu_final.sh bench   # GPU tests, scaling (MagBotSim on the same machine's CPU), env throughput
+#   bash benchmarks/gpu_final.sh push    # push env throughput: default solver and capped iterations
 #   bash benchmarks/gpu_final.sh eval    # scripted baselines on every env and the trained policies in policies/
 set -u
 OUT=${OUT:-/tmp/out}
@@ -20,6 +21,11 @@ if [ "${1:-bench}" = "bench" ]; then
   timeout 250 python3 benchmarks/env_throughput.py --device cuda:0 --no-magbotsim \
     --num-envs 16384,262144,1048576,2097152 --push-num-envs 1024,4096,16384,65536 --steps 30 \
     --json "$OUT/env_throughput_gpu.json" --plot "$OUT/env_throughput_gpu.png" | tail -22
+elif [ "${1}" = "push" ]; then
+  log "push env throughput (raw mujoco-warp from the env's own states), default solver and a 4-iteration cap"
+  timeout 280 python3 benchmarks/env_throughput.py --device cuda:0 --no-magbotsim --envs magwarp/PushBox-v0,magwarp/PushT-v0 \
+    --push-num-envs 1024,4096,16384,65536 --push-solvers auto,Newton:4 --steps 20 --json "$OUT/env_throughput_push_gpu.json" \
+    | tail -18
 else
   log "scripted baselines"
   bash benchmarks/eval_all.sh "$OUT/eval_gpu" cuda:0 100 2>&1 | grep -E "^\*|Success Rate|Collisions \(per"

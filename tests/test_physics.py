@@ -198,3 +198,20 @@ def test_yaw_drive_matches_mujoco_c_and_respects_limits(jerk):
         b.step(torch.zeros(1, 1, 2))
     with pytest.raises(PhysicsInputError, match="p_max_c"):
         ControlParams(rotation=True, p_max_c=4.0)
+
+
+def test_capped_solver_iterations_match_mujoco_c_with_the_same_cap():
+    # A cap is part of the model (MJCF <option iterations ls_iterations>): MuJoCo C and mujoco-warp run the same
+    # truncated Newton solve, so they still agree.
+    xml = XML.replace('iterations="100" ls_iterations="50"', 'iterations="2" ls_iterations="4"')
+    assert 'iterations="2"' in xml
+    b = MjwBackend(xml, 1, control=ControlParams(num_cycles=CYCLES), device="cpu")
+    _settle_box(b)
+    acts = np.zeros((20, 1, 1, 2))
+    acts[:, 0, 0] = [1.0, 0.0]
+    b.reset()
+    got = _run(b, acts)[:, 0]
+    want, _ = oracle.rollout(xml, acts[:, 0], b.control, init_qpos=b.init_qpos.numpy()[0])
+    assert np.abs(got - want).max() < 1e-4
+    assert got[-1, 7] - got[0, 7] > 5e-3
+    assert int(b.data.solver_niter.numpy().max()) <= 2

@@ -107,7 +107,9 @@ class PushEnv(MagwarpVecEnv):
     Physics: ``solver`` is MuJoCo's constraint solver for the contacts: ``"Newton"`` (MagBotSim's), ``"CG"``, or
     ``"auto"`` (default): CG on CPU, Newton on CUDA, the faster one on each (benchmarks/RESULTS.md; on a GPU the batch
     waits for its slowest world, and CG's many cheap iterations lose there). Both solve the same elliptic-cone contact
-    problem to MuJoCo's tolerance; only the optimiser differs. ``nconmax``/``njmax`` (contacts and constraint rows
+    problem to MuJoCo's tolerance; only the optimiser differs. ``solver_iterations``/``ls_iterations`` cap it (MuJoCo's
+    100/50 by default; on a GPU the batch iterates until its slowest world converges, so a low cap is speed bought
+    with accuracy in the hardest contacts). ``nconmax``/``njmax`` (contacts and constraint rows
     per world) default to the most the scene can produce: 8 contacts per colliding geom pair, 3 rows per contact.
 
     Rendering: ``render_mode="rgb_array"`` draws the worlds of :meth:`set_render_worlds` from above (tiles, movers,
@@ -166,6 +168,8 @@ class PushEnv(MagwarpVecEnv):
         obstacles: tuple[ObstacleSpec, ...] = (),
         benchmark: str | None = None,
         solver: str = "auto",
+        solver_iterations: int = 100,
+        ls_iterations: int = 50,
         nconmax: int | None = None,
         njmax: int | None = None,
         device: str | None = None,
@@ -231,7 +235,8 @@ class PushEnv(MagwarpVecEnv):
         if solver == "auto":
             solver = "Newton" if str(device).startswith("cuda") else "CG"
         self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
-                                 objects=[self.object], obstacles=self.obstacles, solver=solver)
+                                 objects=[self.object], obstacles=self.obstacles, solver=solver,
+                                 iterations=solver_iterations, ls_iterations=ls_iterations)
         # Contacts per world: up to 8 per colliding geom pair (MuJoCo's box-box and plane-box tests return at most 8):
         # every object part with the support, each mover and each obstacle, and each mover with each obstacle. An
         # elliptic-cone contact (condim 3) is 3 constraint rows. mujoco-warp's solver kernels run over njmax rows
@@ -250,7 +255,8 @@ class PushEnv(MagwarpVecEnv):
         if varying:
             def scene(spec):
                 return generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
-                                     objects=[spec], obstacles=self.obstacles, solver=solver)
+                                     objects=[spec], obstacles=self.obstacles, solver=solver,
+                                     iterations=solver_iterations, ls_iterations=ls_iterations)
 
             self.variants = build_variants(self.object, varying, object_variants, scene,
                                            np.random.default_rng(seed), self.backend.torch_device)
