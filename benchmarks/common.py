@@ -64,7 +64,11 @@ def gpu_name(device: str) -> str:
 
 
 def git_commit(repo: str | os.PathLike | None = None) -> str | None:
-    """Short commit of the checkout that ran the benchmark, with '+dirty' when it has local changes."""
+    """Short commit of the checkout that ran the benchmark, with '+dirty' when it has local changes.
+
+    ``MAGWARP_COMMIT`` wins when set: a copy of the tree on a remote machine may carry a stale ``.git``."""
+    if os.environ.get("MAGWARP_COMMIT"):
+        return os.environ["MAGWARP_COMMIT"]
     repo = Path(repo) if repo else Path(__file__).resolve().parent.parent
     try:
         sha = subprocess.run(["git", "-C", str(repo), "rev-parse", "--short", "HEAD"],
