@@ -14,16 +14,19 @@ Per world, mover 0 does the pushing (other movers hold still). Every env step it
 * **choice**: the candidate with the smallest estimated time (way round the object to its staging point at cruise
   speed plus the pose error over its predicted rate at push speed) wins; the choice is kept unless another one is
   clearly faster (hysteresis against dithering);
-* **motion**: on the swept line behind the contact (a narrow cone) the mover pushes along it with a speed that
-  brakes below the object's friction deceleration as the predicted remaining push shrinks, steering back onto the
-  line; elsewhere it flies straight to a point on that line clear of the object, or goes around the object on a
-  circle at a small clearance while the straight way would clip it (the shorter way unless it leaves the area);
+* **motion**: on the swept line behind the contact (a narrow cone, which also counts the mover as pushing while it
+  is a little past the predicted contact: the contact is soft) the mover pushes along it with a speed that brakes
+  below the object's friction deceleration as the predicted remaining push shrinks, steering back onto the line;
+  elsewhere it flies straight to a point on that line clear of the object, or goes around the object on a circle
+  at a small clearance while the straight way would clip it (the shorter way unless it leaves the area);
 * **obstacles** (``PushWithObstacles``): until it is past the walls the object is aimed at a point in front of the
-  gap between them, then at one behind it (at a height where the mover pushing it fits through the gap too), then
-  at the goal; the mover's speed toward each wall is capped to what can still brake before touching it, and that
-  braking has priority in the acceleration;
-* **settle**: once the goal is well inside the success threshold (position distance, or the exact coverage for
-  pose goals), hold still: the episode is scored on its final state.
+  gap between them, then at one behind it (at a height where the mover pushing it fits through the gap, with the
+  mover's wall gap, too), then at the goal; a candidate is dropped if its push would run the mover, or the object's
+  predicted path, into a wall; the mover's speed toward each wall is capped to what can still brake before
+  touching it, and that braking has priority in the acceleration;
+* **settle**: once the goal is well inside the success threshold (position goals: the distance from the goal to
+  where the object comes to rest if let go now; pose goals: the exact coverage), hold still: the episode is scored
+  on its final state.
 
 Contact distances use the exact support of the (rotated) object parts and of the mover's square footprint. Speeds
 toward the sides of the safe rectangle (where the wall-collision shape stays on the tiles) are capped to what can
@@ -117,6 +120,18 @@ class PushHeuristic:
         friction: mover-object friction coefficient assumed by the prediction.
         hold_coverage: pose goals: hold still once the coverage exceeds the success threshold by this much.
         switch: a new candidate replaces the kept one only if its estimated time is below this fraction of it.
+        approach_speed: speed (m/s) assumed for the way round in the estimated time; residual_cost: its weight (s/m)
+            of the pose error a candidate's push leaves undone.
+        lateral_tol: lateral tolerance (m) of the push cone at the contact; overlap: how far (m) the mover may be past
+            the predicted contact (the contact's softness) and still count as pushing. Default: 0.02 / 0.03 for
+            position goals, 0.012 / 0.01 for pose goals (which need the exact contact).
+        arrive_brake, orbit_brake: decelerations (m/s^2) planned when arriving at the staging point / going round.
+        slide_decel: deceleration (m/s^2) assumed for the object sliding on its own (where it rests if let go).
+        Obstacles: pass_margin: how far (m) past the walls the object is aimed before the goal; wall_gap: gap (m)
+            the mover keeps to the walls; wall_band: extra band (m) of a wall's span in which that gap is kept;
+            pass_slack: extra margin (m) of the object's passing height inside the band the mover fits through;
+            path_checks: distances (m) along a candidate's push at which the mover (and, with ``object_check``,
+            the object's predicted path) must be clear of the walls.
     """
 
     def __init__(self, env, cruise: float = 1.8, push_speed: float = 1.0, push_brake: float = 5.0,
@@ -127,7 +142,8 @@ class PushHeuristic:
                  residual_cost: float = 20.0, lateral_tol: float | None = None, pass_margin: float = 0.03,
                  wall_gap: float = 0.01, overlap: float | None = None,
                  path_checks: tuple = (0.03, 0.07, 0.12, 0.18, 0.25), arrive_brake: float = 5.0,
-                 orbit_brake: float = 5.0, slide_decel: float = 5.0):
+                 orbit_brake: float = 5.0, slide_decel: float = 5.0, wall_band: float = 0.0,
+                 pass_slack: float = 0.01, object_check: bool = True):
         self.env = env
         self.backend = env.backend
         self.cruise, self.push_speed = cruise, push_speed
@@ -140,6 +156,8 @@ class PushHeuristic:
         self.path_checks = tuple(path_checks)
         self.pass_margin, self.wall_gap = pass_margin, wall_gap
         self.arrive_brake, self.orbit_brake, self.slide_decel = arrive_brake, orbit_brake, slide_decel
+        self.wall_band, self.pass_slack = wall_band, pass_slack
+        self.object_check = object_check
         c = self.backend.control
         self.latency = c.num_cycles * self.backend.dt  # one held env step
         self.a_max, self.v_max = c.a_max, c.v_max
@@ -398,6 +416,9 @@ class PushHeuristic:
             # the push itself must not run the mover into a wall (it would brake there and stall the object)
             for s in self.path_checks:
                 valid &= ~(self._in_walls(m_c + d * s, 0.0) & (amount > s - 0.03))
+                if self.object_check:  # nor the object into one (its predicted path, as a disc of its extent)
+                    o_s = com[:, None] + f * min(s, 0.12)
+                    valid &= ~(self._in_walls(o_s, self._extent - self._mover_half) & (amount > s - 0.03))
         # Estimated time: the way round the object to the staging point, the push, and what it leaves undone.
         rel_now, rel_pre = pos - com, m_pre - com[:, None]
         r_now, r_pre = rel_now.norm(dim=-1, keepdim=True), rel_pre.norm(dim=-1)
@@ -502,7 +523,7 @@ class PushHeuristic:
         the mover pushing it fits through too (the goal's height, clamped to that range); returns the target and
         the way left from it to the goal."""
         x_pass = self._gap_x[1] + self._extent + self.pass_margin
-        margin = self._mover_half + 0.02
+        margin = self._mover_half + self.wall_gap + self.wall_band + self.pass_slack
         y_pass = goal[:, 1].clamp(self._gap_y[0] + margin, self._gap_y[1] - margin)
         entry = torch.stack([torch.full_like(y_pass, self._gap_x[0]), y_pass], -1)
         exit_ = torch.stack([torch.full_like(y_pass, x_pass + 0.05), y_pass], -1)
@@ -525,10 +546,11 @@ class PushHeuristic:
 
     def _obstacle_bounds(self, ahead: torch.Tensor):
         """Per-axis velocity bounds ``(lo, hi) [N, 2]`` that can still brake before each wall (grown by the mover's
-        half-size), for a mover at ``ahead [N, 2]`` within the wall's other span (plus a band)."""
+        half-size and ``wall_gap``), for a mover at ``ahead [N, 2]`` within the wall's other span (plus
+        ``wall_band``)."""
         g = self._mover_half + self.wall_gap
         w = self._walls
-        band = 0.03
+        band = self.wall_band
         ax, ay = ahead[:, 0:1], ahead[:, 1:2]
         in_x = (ax > w[:, 0] - g - band) & (ax < w[:, 2] + g + band)  # (N, K): within the wall's x span
         in_y = (ay > w[:, 1] - g - band) & (ay < w[:, 3] + g + band)
