@@ -215,15 +215,20 @@ class PushHeuristic:
 
     # ------------------------------------------------------------------ geometry
     def _init_gap(self, o: np.ndarray) -> None:
-        """The passage between two axis-aligned walls sharing their x span (PushWithObstacles' layout): the object's
-        waypoints in front of and behind it, and the mover's keep-out rectangles (walls grown by its half-size)."""
-        walls = np.stack([o[:, 0] - o[:, 2], o[:, 1] - o[:, 3], o[:, 0] + o[:, 2], o[:, 1] + o[:, 3]], 1)
-        self._walls = torch.as_tensor(walls, device=self.device)  # (K, 4) x0, y0, x1, y1 (yaw ignored)
-        lower, upper = np.argsort(o[:, 1])[:2]
-        y_lo = o[lower, 1] + o[lower, 3]
-        y_hi = o[upper, 1] - o[upper, 3]
+        """The walls' x span (PushWithObstacles' two walls share it; it is the same in every obstacle mode)."""
         self._gap_x = (float(min(o[:, 0] - o[:, 2])), float(max(o[:, 0] + o[:, 2])))
-        self._gap_y = (float(y_lo), float(y_hi))
+        self._set_walls(torch.as_tensor(o, device=self.device)[None].expand(self.env.num_envs, -1, -1))
+
+    def _set_walls(self, boxes: torch.Tensor) -> None:
+        """Each world's walls from ``boxes [N, K, 5]`` (cx, cy, hx, hy, yaw; the env's ``obstacle_boxes``, which vary
+        per world in its random and curriculum modes): the keep-out rectangles and the gap between the lowest
+        two walls' facing edges, through which the object is aimed."""
+        c, h = boxes[..., :2], boxes[..., 2:4]
+        self._walls = torch.cat([c - h, c + h], -1)  # (N, K, 4) x0, y0, x1, y1 (yaw ignored)
+        order = torch.argsort(boxes[..., 1], dim=-1)
+        lower = torch.gather(boxes, 1, order[:, :1, None].expand(-1, 1, 5))[:, 0]
+        upper = torch.gather(boxes, 1, order[:, 1:2, None].expand(-1, 1, 5))[:, 0]
+        self._gap_y = (lower[:, 1] + lower[:, 3], upper[:, 1] - upper[:, 3])
 
     def _object_support(self, yaw: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         """Extent of the object (yaw ``[N]``) along unit directions ``w`` ``[N, 2]`` from its centre of area."""
@@ -370,6 +375,8 @@ class PushHeuristic:
     def __call__(self, obs=None) -> torch.Tensor:
         b, env = self.backend, self.env
         n = env.num_envs
+        if self._obstacles is not None:  # the env's walls may differ per world and episode (random, curriculum)
+            self._set_walls(env.obstacle_boxes)
         fresh = env.num_steps == 0  # first step of an episode: forget the kept choices
         self._choice = torch.where(fresh, torch.full_like(self._choice, -1), self._choice)
         self._way = torch.where(fresh[:, None], torch.zeros_like(self._way), self._way)
@@ -539,9 +546,9 @@ class PushHeuristic:
         if self._obstacles is None:
             return torch.zeros(x.shape[:-1], dtype=torch.bool, device=x.device)
         g = self._mover_half + margin
-        w = self._walls
+        w = self._walls.view(self._walls.shape[0], *([1] * (x.dim() - 2)), *self._walls.shape[1:])  # per world
         xx, yy = x[..., 0:1], x[..., 1:2]
-        inside = (xx > w[:, 0] - g) & (xx < w[:, 2] + g) & (yy > w[:, 1] - g) & (yy < w[:, 3] + g)
+        inside = (xx > w[..., 0] - g) & (xx < w[..., 2] + g) & (yy > w[..., 1] - g) & (yy < w[..., 3] + g)
         return inside.any(-1)
 
     def _obstacle_bounds(self, ahead: torch.Tensor):
@@ -552,18 +559,18 @@ class PushHeuristic:
         w = self._walls
         band = self.wall_band
         ax, ay = ahead[:, 0:1], ahead[:, 1:2]
-        in_x = (ax > w[:, 0] - g - band) & (ax < w[:, 2] + g + band)  # (N, K): within the wall's x span
-        in_y = (ay > w[:, 1] - g - band) & (ay < w[:, 3] + g + band)
+        in_x = (ax > w[..., 0] - g - band) & (ax < w[..., 2] + g + band)  # (N, K): within the wall's x span
+        in_y = (ay > w[..., 1] - g - band) & (ay < w[..., 3] + g + band)
         big = torch.full_like(in_x, 1e3, dtype=ahead.dtype)
 
         def cap(mask, room):  # from where the mover is now (one held step of latency in the profile)
             return torch.where(mask, self._profile(room.clamp_min(0.0)), big).amin(-1)
 
-        left, below = ax < 0.5 * (w[:, 0] + w[:, 2]), ay < 0.5 * (w[:, 1] + w[:, 3])
-        hi_x = cap(in_y & left, w[:, 0] - g - ax)
-        lo_x = -cap(in_y & ~left, ax - (w[:, 2] + g))
-        hi_y = cap(in_x & below, w[:, 1] - g - ay)
-        lo_y = -cap(in_x & ~below, ay - (w[:, 3] + g))
+        left, below = ax < 0.5 * (w[..., 0] + w[..., 2]), ay < 0.5 * (w[..., 1] + w[..., 3])
+        hi_x = cap(in_y & left, w[..., 0] - g - ax)
+        lo_x = -cap(in_y & ~left, ax - (w[..., 2] + g))
+        hi_y = cap(in_x & below, w[..., 1] - g - ay)
+        lo_y = -cap(in_x & ~below, ay - (w[..., 3] + g))
         return torch.stack([lo_x, lo_y], -1), torch.stack([hi_x, hi_y], -1)
 
     def _wall_guard(self, pos: torch.Tensor, vel: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
