@@ -70,7 +70,7 @@ def scaling_tables(rows: list[dict]) -> str:
 def env_tables(rows: list[dict]) -> str:
     out = _provenance(rows) + "\n"
     cols = [("engine", "engine"), ("env", "env"), ("device", "device"), ("num_envs", "num_envs"),
-            ("adapter", "adapter"), ("check_inputs", "check_inputs"), ("step_ms", "ms/step"),
+            *([("solver", "solver")] if any(r.get("solver") for r in rows) else []), ("adapter", "adapter"), ("check_inputs", "check_inputs"), ("step_ms", "ms/step"),
             ("sim_ms", "physics ms"), ("raw_mjw_ms", "raw mujoco-warp ms"), ("x_raw_mjw", "x raw"),
             ("env_steps_per_s", "env-steps/s")]
     return out + table(rows, cols)
