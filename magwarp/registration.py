@@ -23,7 +23,7 @@ ENV_CLASSES = {
     "PushTEnv": "magwarp.envs.push",
     "PushLEnv": "magwarp.envs.push",
     "PushXEnv": "magwarp.envs.push",
-    "PushWithObstaclesEnv": "magwarp.envs.push",
+    "PushWithObstaclesEnv": "magwarp.envs.push_obstacles",
 }
 # Benchmark variants (names only; their layouts live in magwarp.layout.BENCHMARK_LAYOUTS and magwarp.envs.push).
 TRAJECTORY_BENCHMARKS = tuple(f"B{i}" for i in range(10))

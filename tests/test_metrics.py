@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from magwarp.envs.push import PushBoxEnv, PushWithObstaclesEnv
+from magwarp.envs.push import PushBoxEnv
+from magwarp.envs.push_obstacles import PushWithObstaclesEnv
 from magwarp.envs.trajectory import TrajectoryPlanningEnv
 from magwarp.metrics import Metrics, PushTaskMetrics, TrajectoryMetrics
 

@@ -5,7 +5,8 @@ import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
 
-from magwarp.envs.push import PushBoxEnv, PushEnv, PushLEnv, PushTEnv, PushWithObstaclesEnv, PushXEnv
+from magwarp.envs.push import PushBoxEnv, PushEnv, PushLEnv, PushTEnv, PushXEnv
+from magwarp.envs.push_obstacles import PushWithObstaclesEnv
 from magwarp.envs.single import SingleEnv
 
 ALL = [PushBoxEnv, PushTEnv, PushLEnv, PushXEnv, PushWithObstaclesEnv]

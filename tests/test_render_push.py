@@ -10,7 +10,8 @@ import pytest
 import torch
 
 import magwarp  # noqa: F401 - registers the ids
-from magwarp.envs.push import PushTEnv, PushWithObstaclesEnv
+from magwarp.envs.push import PushTEnv
+from magwarp.envs.push_obstacles import PushWithObstaclesEnv
 from magwarp.render import colors
 
 

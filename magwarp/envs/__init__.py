@@ -10,7 +10,8 @@ Benchmark variants: ``magwarp/TrajectoryPlanningB0-v0`` .. ``B9-v0``. Object pus
 from __future__ import annotations
 
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.push import PushBoxEnv, PushEnv, PushLEnv, PushTEnv, PushWithObstaclesEnv, PushXEnv
+from magwarp.envs.push import PushBoxEnv, PushEnv, PushLEnv, PushTEnv, PushXEnv
+from magwarp.envs.push_obstacles import PushWithObstaclesEnv
 from magwarp.envs.single import SingleEnv
 from magwarp.envs.trajectory import TrajectoryPlanningEnv
 

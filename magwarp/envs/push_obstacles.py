@@ -1,0 +1,169 @@
+"""PushWithObstacles (MagBotSim's ``StateBasedStaticObstaclePushingEnv``): pushing a box through the gap between two
+static walls, with MagBotSim's obstacle modes (fixed, random per episode, or a curriculum), the walls varying per
+world without a model rebuild."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import torch
+from warp import to_torch as wp_to_torch
+
+from magwarp.envs.push import _CANDIDATES, PushEnv
+from magwarp.mjcf import ObstacleSpec
+
+
+# MagBotSim's static obstacle modes: obstacle half length in y (obstacle 0 sits at y = that, obstacle 1 at the top
+# edge of the 0.72 m tall layout minus it, so the gap between them narrows as they grow).
+_OBSTACLE_HALF_Y = {"simple": 0.1, "medium": 0.115, "hard": 0.13}
+_OBSTACLE_MODES = (*_OBSTACLE_HALF_Y, "random", "curriculum")
+
+
+class PushWithObstaclesEnv(PushEnv):
+    """Pushing past two static obstacles (MagBotSim ``StateBasedStaticObstaclePushingEnv``), 25 steps.
+
+    4 x 3 tiles, one mover, a 7 x 7 x 4 cm box of 30 g; two walls at x = 0.48 leave a gap the box must pass to reach
+    a goal behind them. Observation adds the obstacles' corner x/y (8 numbers each). Reward: -50 on a wall
+    collision or any mover/object contact with an obstacle (and the episode terminates), 0 at the goal
+    (distance <= ``threshold_pos``), else -1.
+
+    ``obstacle_mode`` sets the gap, as in MagBotSim: ``simple``, ``medium`` or ``hard`` (fixed walls of half length
+    0.1, 0.115 or 0.13 m), ``random`` (a half length drawn uniformly from [0.1, 0.13] per world at every reset) or
+    ``curriculum`` (each world starts ``simple`` and moves to ``medium``, then ``hard``, every
+    ``curriculum_episodes`` episodes; MagBotSim: 800). In the last two modes the walls change per world without a
+    model rebuild: the obstacle geoms' pose and size are per-world model arrays in mujoco-warp
+    (:meth:`MjwBackend.batch_model_fields`).
+    """
+
+    def __init__(self, num_envs: int = 1, obstacle_mode: str = "simple", threshold_pos: float = 0.05,
+                 initial_mover_zpos: float = 0.002, curriculum_episodes: int = 800, **kwargs):
+        if obstacle_mode not in _OBSTACLE_MODES:
+            raise ValueError(f"obstacle_mode must be one of {list(_OBSTACLE_MODES)}, got {obstacle_mode!r}")
+        if int(curriculum_episodes) != curriculum_episodes or curriculum_episodes < 1:
+            raise ValueError(f"curriculum_episodes must be a positive integer, got {curriculum_episodes!r}")
+        self.obstacle_mode = obstacle_mode
+        self.curriculum_episodes = int(curriculum_episodes)
+        self.obstacle_x, self.obstacle_size_x, self.layout_top = 0.48, 0.03, 0.72
+        size_y = _OBSTACLE_HALF_Y.get(obstacle_mode, _OBSTACLE_HALF_Y["simple"])  # random/curriculum start simple
+        obstacles = (ObstacleSpec((0.48, size_y), (0.03, size_y, 0.03)),
+                     ObstacleSpec((0.48, self.layout_top - size_y), (0.03, size_y, 0.03)))
+        kwargs.setdefault("max_episode_steps", 25)
+        super().__init__(num_envs, "square_box", learn_pose=False, object_width=0.035, object_height=0.035,
+                         object_depth=0.02, object_mass=0.03, object_sliding_friction=0.6,
+                         object_torsional_friction=0.0001, max_position_err=threshold_pos,
+                         initial_mover_zpos=initial_mover_zpos, obstacles=obstacles, collision_penalty=-50.0,
+                         per_step_penalty=-1.0, object_at_goal_reward=0.0, **kwargs)
+
+    def _varying_walls(self) -> bool:
+        return self.obstacle_mode in ("random", "curriculum")
+
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        if self._varying_walls():
+            self._resize_walls(mask)
+        super()._reset_envs(mask)
+        if self._varying_walls():
+            # mujoco-warp computes world-attached (static) geom poses once, when the data is made: place the walls'
+            # world positions too (the world body sits at the origin, unrotated, so they equal geom_pos)
+            xpos = wp_to_torch(self.backend.data.geom_xpos)
+            g = self._wall_geoms
+            xpos[:, g] = torch.where(mask[:, None, None], self._geom_fields["geom_pos"][:, g], xpos[:, g])
+
+    def _resize_walls(self, mask: torch.Tensor) -> None:
+        """New wall half lengths for the worlds in ``mask``, written into the per-world obstacle geoms."""
+        if not hasattr(self, "_geom_fields"):
+            import mujoco
+
+            self._geom_fields = self.backend.batch_model_fields(["geom_pos", "geom_size", "geom_aabb", "geom_rbound"])
+            self._wall_geoms = torch.tensor([mujoco.mj_name2id(self.backend.mjm, mujoco.mjtObj.mjOBJ_GEOM, f"obstacle_geom_{k}")
+                                             for k in range(2)], device=self.device)
+            self.curriculum_level = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
+            # -1: the reset inside the constructor is not an episode (MagBotSim counts the user's resets)
+            self._episodes_at_level = torch.full((self.num_envs,), -1, dtype=torch.int64, device=self.device)
+        n = self.num_envs
+        if self.obstacle_mode == "random":
+            half_y = self._uniform(_OBSTACLE_HALF_Y["simple"], _OBSTACLE_HALF_Y["hard"], n)[:, 0]
+        else:
+            # MagBotSim counts resets and moves up a level once a level has had curriculum_episodes of them
+            count = self._episodes_at_level + mask.long()
+            up = mask & (count > self.curriculum_episodes) & (self.curriculum_level < 2)
+            self.curriculum_level += up.long()
+            self._episodes_at_level.copy_(torch.where(up, torch.ones_like(count), count))
+            levels = torch.tensor(list(_OBSTACLE_HALF_Y.values()), device=self.device)
+            half_y = levels[self.curriculum_level]
+        boxes = self.obstacle_boxes.clone()
+        boxes[:, 0, 1] = half_y
+        boxes[:, 1, 1] = self.layout_top - half_y
+        boxes[:, :, 3] = half_y[:, None]
+        self.obstacle_boxes.copy_(torch.where(mask[:, None, None], boxes, self.obstacle_boxes))
+        g, f = self._wall_geoms, self._geom_fields
+        # geom_pos/geom_size [W, ngeom, 3]; geom_aabb [W, ngeom, 2, 3] (centre, half size); geom_rbound [W, ngeom]
+        m3 = mask[:, None, None]
+        pos, size = f["geom_pos"][:, g], f["geom_size"][:, g]
+        new_pos = torch.cat([self.obstacle_boxes[:, :, :2], pos[..., 2:]], -1)
+        new_size = torch.cat([self.obstacle_boxes[:, :, 2:4], size[..., 2:]], -1)
+        f["geom_pos"][:, g] = torch.where(m3, new_pos, pos)
+        f["geom_size"][:, g] = torch.where(m3, new_size, size)
+        aabb = f["geom_aabb"][:, g]
+        f["geom_aabb"][:, g] = torch.where(m3[..., None], torch.stack([torch.zeros_like(new_size), new_size], 2), aabb)
+        f["geom_rbound"][:, g] = torch.where(mask[:, None], new_size.norm(dim=-1), f["geom_rbound"][:, g])
+
+    def _init_sampling_ranges(self) -> None:
+        super()._init_sampling_ranges()
+        c = self._c_size_xy()[0] + self.collision_offset + self.mover.wall_margin
+        top = float(self.layout.tile_centers()[:, 1].max() + self.layout.tile.half)
+        right = float(self.layout.tile_centers()[:, 0].max() + self.layout.tile.half)
+        small, obj_half = 0.1, self.object.width
+        self.object_min_xy = np.full(2, c + small + 0.05)
+        self.object_max_xy = np.array([self.obstacle_x - self.obstacle_size_x - obj_half - 0.05, top - (c + small + 0.05)])
+        self.min_xy = np.full(2, c + 0.05)
+        self.max_xy = np.array([self.obstacle_x - self.obstacle_size_x, top]) - c - 0.05
+        self.goal_min_xy = np.array([self.obstacle_x + max(self.obstacle_size_x, obj_half), 0.0]) + small
+        self.goal_max_xy = np.array([right, top]) - small
+        mover_half = 0.5 * np.asarray(self.mover.size[:2])
+        self.min_mover_object_dist = max(float(np.linalg.norm(obj_half + mover_half)), c)
+
+    def _sample_episode(self, n: int) -> dict[str, torch.Tensor]:
+        k = _CANDIDATES
+        movers = self._uniform(self.min_xy, self.max_xy, n, 1, self.num_movers).expand(n, k, self.num_movers, 2)
+        obj = self._uniform(self.object_min_xy, self.object_max_xy, n, k)
+        ok = (movers - obj[:, :, None, :]).norm(dim=-1).gt(self.min_mover_object_dist).all(-1)
+        first = torch.argmax(ok.to(torch.int8), dim=1)
+        rows = torch.arange(n, device=self.device)
+        return {
+            "mover_xy": movers[rows, first],
+            "object_xy": obj[rows, first],
+            "goal_xy": self._uniform(self.goal_min_xy, self.goal_max_xy, n),
+            "object_yaw": torch.zeros(n, device=self.device),  # MagBotSim's obstacle task starts the box unrotated
+            "goal_yaw": torch.zeros(n, device=self.device),
+        }
+
+    def _observation_space(self) -> gym.spaces.Dict:
+        space = super()._observation_space()
+        dim = space["observation"].shape[0] + 16
+        space["observation"] = gym.spaces.Box(-np.inf, np.inf, (dim,), np.float32)
+        return space
+
+    def obstacle_vertices(self) -> torch.Tensor:
+        """``[W, 16]``: each wall's corners (x, y) in MagBotSim's order (+x+y, +x-y, -x-y, -x+y), wall 0 first."""
+        c, h = self.obstacle_boxes[..., :2], self.obstacle_boxes[..., 2:4]
+        signs = torch.tensor([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]], device=self.device)
+        return (c[:, :, None, :] + signs * h[:, :, None, :]).reshape(self.num_envs, -1)
+
+    def _get_obs(self) -> dict[str, torch.Tensor]:
+        obs = super()._get_obs()
+        obs["observation"] = torch.cat([obs["observation"], self.obstacle_vertices()], dim=1)
+        return obs
+
+    def _collision_info(self) -> dict[str, torch.Tensor]:
+        info = super()._collision_info()
+        info["obstacle_mover_collision"] = self.contacts.pair("mover", "obstacle").clone()
+        info["obstacle_object_collision"] = self.contacts.pair("object", "obstacle").clone()
+        return info
+
+    def _any_collision(self, info, batch=None, device=None) -> torch.Tensor:
+        out = super()._any_collision(info, batch, device)
+        for key in ("obstacle_mover_collision", "obstacle_object_collision"):
+            if info is not None and key in info:
+                v = torch.as_tensor(info[key], device=device).bool()
+                out = out | (v.reshape(batch) if batch is not None else v)
+        return out
