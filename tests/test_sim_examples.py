@@ -41,3 +41,10 @@ def test_custom_force_model_example():
     for _t, a, b, c, d in rows:  # simulated speed next to the closed form
         assert float(a) == pytest.approx(float(b), rel=5e-3) and float(c) == pytest.approx(float(d), rel=5e-3)
     assert "world 1 (no current) max speed: 0.00e+00" in out
+
+
+def test_push_randomized_example():
+    out = run_example("push_randomized.py", "--num-envs", "16", "--episodes", "1", "--device", "cpu")
+    rows = re.findall(r"half width ([\d.]+)-([\d.]+) cm: success\s+([\d.]+)% of (\d+)", out)
+    assert len(rows) == 3 and sum(int(r[3]) for r in rows) == 16, out  # every world's box falls in one bucket
+    assert re.search(r"PushWithObstacles, random walls: success [\d.]+% overall", out), out

@@ -105,7 +105,8 @@ class PushHeuristic:
     """``policy(obs) -> action`` for a :class:`~magwarp.envs.push.PushEnv` (batched, torch in and out).
 
     Args:
-        env: the batched push env (layout, object, mover sizes, limits and obstacles are read from it).
+        env: the batched push env (layout, object, mover sizes, limits and obstacles are read from it; with
+            ``object_ranges`` it plans with ``env.object``, the largest variant, for every world).
         cruise: top speed (m/s) while approaching; push_speed: top speed while pushing.
         push_brake: deceleration (m/s^2) planned while pushing (below the box's friction deceleration, ~6 m/s^2).
         approach_brake: deceleration (m/s^2) planned when arriving at points and before the sides of the area.
