@@ -158,17 +158,23 @@ def test_bad_inputs_raise_clear_errors(backend):
         ControlParams(v_max=float("nan"))
 
 
-def test_cg_solver_push_matches_mujoco_c():
-    # The push envs solve contacts with CG on CPU (solver="auto"): the same push, both engines on CG.
-    xml = XML.replace('cone="elliptic" solver="Newton"', 'cone="elliptic" solver="CG"')
-    assert 'solver="CG"' in xml
+def _push_both_engines(xml: str, steps: int) -> tuple[np.ndarray, np.ndarray, MjwBackend]:
+    """World 0's push (+x) on ``xml`` in mujoco-warp and in MuJoCo C: qpos after each step, ``[steps, nq]`` each."""
     b = MjwBackend(xml, 1, control=ControlParams(num_cycles=CYCLES), device="cpu")
     _settle_box(b)
-    acts = np.zeros((25, 1, 1, 2))
+    acts = np.zeros((steps, 1, 1, 2))
     acts[:, 0, 0] = [1.0, 0.0]
     b.reset()
     got = _run(b, acts)[:, 0]
     want, _ = oracle.rollout(xml, acts[:, 0], b.control, init_qpos=b.init_qpos.numpy()[0])
+    return got, want, b
+
+
+def test_cg_solver_push_matches_mujoco_c():
+    # The push envs solve contacts with CG on CPU (solver="auto"): the same push, both engines on CG.
+    xml = XML.replace('cone="elliptic" solver="Newton"', 'cone="elliptic" solver="CG"')
+    assert 'solver="CG"' in xml
+    got, want, _ = _push_both_engines(xml, 25)
     err = np.abs(got - want).max(axis=1)
     # CG stops at MuJoCo's tolerance at different iterates in float32 and float64: the gap peaks at 1.1e-4 (about
     # 1e-4, as for Newton) and does not grow: 4e-5 after 250 cycles
@@ -205,13 +211,7 @@ def test_capped_solver_iterations_match_mujoco_c_with_the_same_cap():
     # truncated Newton solve, so they still agree.
     xml = XML.replace('iterations="100" ls_iterations="50"', 'iterations="2" ls_iterations="4"')
     assert 'iterations="2"' in xml
-    b = MjwBackend(xml, 1, control=ControlParams(num_cycles=CYCLES), device="cpu")
-    _settle_box(b)
-    acts = np.zeros((20, 1, 1, 2))
-    acts[:, 0, 0] = [1.0, 0.0]
-    b.reset()
-    got = _run(b, acts)[:, 0]
-    want, _ = oracle.rollout(xml, acts[:, 0], b.control, init_qpos=b.init_qpos.numpy()[0])
+    got, want, b = _push_both_engines(xml, 20)
     assert np.abs(got - want).max() < 1e-4
     assert got[-1, 7] - got[0, 7] > 5e-3
     assert int(b.data.solver_niter.numpy().max()) <= 2
