@@ -5,10 +5,9 @@ Run: python examples/push_randomized.py [--num-envs 128] [--episodes 2] [--devic
 MagBotSim randomizes these by rebuilding its MuJoCo model at every reset, one env per process. Here every world of
 the batch gets its own draw without a rebuild: object variants are swapped into per-world mujoco-warp model arrays
 (``object_ranges``), PushWithObstacles' walls change per world (``obstacle_mode="random"``), and observations get
-seeded Gaussian noise (``std_noise``, ``object_noise``). The scripted push heuristic runs on both envs and the
-script prints its success rate by object size and by gap width. The heuristic plans with one outline, the env's
-``object`` (the largest variant), so it fails more the smaller the box is: the spread is what a randomized env
-shows that a fixed one hides, and what a policy trained on it (``magwarp train ... --env-kwargs``) has to cover.
+seeded Gaussian noise (``std_noise``, ``object_noise``). The scripted push heuristic (which plans with each
+world's own object outline) runs on both envs, and the script prints its success rate by object size and by gap
+width: the spread a randomized env shows and a fixed one hides.
 """
 
 import argparse

@@ -48,6 +48,26 @@ __all__ = ["PushHeuristic"]
 _INF = 1e9
 
 
+def _outline(obj) -> dict:
+    """Planar geometry of an object for pushing: parts ``rects [K, 4]`` (a cylinder as its bounding square), centre
+    of area ``com``, squared mean lever arm ``c2`` (the limit surface's ratio m_max / f_max, uniform pressure), part
+    corners ``verts [4K, 2]`` and the largest distance of the outline from the centre of area ``extent``."""
+    if obj.shape == "cylinder":  # swept as its bounding square with the yaw held at zero
+        rects = np.array([[0.0, 0.0, obj.radius, obj.radius]], np.float32)
+    else:
+        rects = np.asarray(obj.rects(), np.float32)
+    area = 4 * rects[:, 2] * rects[:, 3]
+    com = (rects[:, :2] * area[:, None]).sum(0) / area.sum()
+    g = (np.arange(16) + 0.5) / 16 * 2 - 1
+    gx, gy = np.meshgrid(g, g)
+    pts = rects[:, None, :2] + np.stack([gx.ravel(), gy.ravel()], 1)[None] * rects[:, None, 2:]
+    lever = (np.linalg.norm(pts - com, axis=-1).mean(1) * area).sum() / area.sum()
+    corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], np.float32)
+    verts = (rects[:, None, :2] + corners[None] * rects[:, None, 2:]).reshape(-1, 2)
+    extent = float(np.max(np.hypot(np.abs(rects[:, 0] - com[0]) + rects[:, 2], np.abs(rects[:, 1] - com[1]) + rects[:, 3])))
+    return {"rects": rects, "com": com, "c2": float(lever) ** 2, "verts": verts, "extent": extent}
+
+
 def _unit(v: torch.Tensor) -> torch.Tensor:
     return v / v.norm(dim=-1, keepdim=True).clamp_min(1e-9)
 
@@ -106,7 +126,7 @@ class PushHeuristic:
 
     Args:
         env: the batched push env (layout, object, mover sizes, limits and obstacles are read from it; with
-            ``object_ranges`` it plans with ``env.object``, the largest variant, for every world).
+            ``object_ranges`` each world's own object outline).
         cruise: top speed (m/s) while approaching; push_speed: top speed while pushing.
         push_brake: deceleration (m/s^2) planned while pushing (below the box's friction deceleration, ~6 m/s^2).
         approach_brake: deceleration (m/s^2) planned when arriving at points and before the sides of the area.
@@ -168,30 +188,29 @@ class PushHeuristic:
         # position goals tolerate a looser push cone (pose goals need the exact contact)
         self.lateral_tol = (0.012 if self.pose_goal else 0.02) if lateral_tol is None else lateral_tol
         self.overlap = (0.01 if self.pose_goal else 0.03) if overlap is None else overlap
-        if obj.shape == "cylinder":  # swept as its bounding square with the yaw held at zero
-            rects = np.array([[0.0, 0.0, obj.radius, obj.radius]], np.float32)
-            self._round, self._radius = True, float(obj.radius)
-        else:
-            rects = np.asarray(obj.rects(), np.float32)
-            self._round, self._radius = False, 0.0
+        g = _outline(obj)
+        self._round, self._radius = obj.shape == "cylinder", float(obj.radius) if obj.shape == "cylinder" else 0.0
+        rects, com = g["rects"], g["com"]
         self._parts = torch.as_tensor(rects, device=dev)  # (K, 4) cx, cy, hx, hy in the body frame
-        area = 4 * rects[:, 2] * rects[:, 3]
-        com = (rects[:, :2] * area[:, None]).sum(0) / area.sum()
-        # mean lever arm about the centre of area (uniform pressure): the limit surface's m_max / f_max
-        g = (np.arange(16) + 0.5) / 16 * 2 - 1
-        gx, gy = np.meshgrid(g, g)
-        pts = rects[:, None, :2] + np.stack([gx.ravel(), gy.ravel()], 1)[None] * rects[:, None, 2:]
-        lever = (np.linalg.norm(pts - com, axis=-1).mean(1) * area).sum() / area.sum()
         self._com = torch.as_tensor(com, device=dev)
-        self._c2 = float(lever) ** 2
+        self._c2 = g["c2"]
         self._period = 2 * math.pi if self._round else _symmetry(rects.astype(np.float64))
         corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], np.float32)
-        verts = (rects[:, None, :2] + corners[None] * rects[:, None, 2:]).reshape(-1, 2)
-        self._verts = torch.as_tensor(verts, device=dev)  # part corners in the body frame (J, 2)
+        self._verts = torch.as_tensor(g["verts"], device=dev)  # part corners in the body frame (J, 2)
+        # With object_ranges every world has its own outline: a bank per variant, gathered per world at each call
+        # (extent and sweep reach stay the largest variant's: conservative margins).
+        self._variants = None
+        if getattr(env, "variants", None) is not None:
+            outlines = [_outline(o) for o in env.variants.specs]
+            self._variants = {
+                "parts": torch.as_tensor(np.stack([o["rects"] for o in outlines]), device=dev),
+                "com": torch.as_tensor(np.stack([o["com"] for o in outlines]), device=dev),
+                "c2": torch.as_tensor(np.array([o["c2"] for o in outlines], np.float32), device=dev),
+                "verts": torch.as_tensor(np.stack([o["verts"] for o in outlines]), device=dev),
+            }
         self._mover_half = float(0.5 * env.mover.size[0])
         self._mover_corners = torch.as_tensor(corners * self._mover_half, device=dev)
-        extent = float(np.max(np.hypot(np.abs(rects[:, 0] - com[0]) + rects[:, 2],
-                                       np.abs(rects[:, 1] - com[1]) + rects[:, 3])))
+        extent = g["extent"]
         self._extent = extent
         self._reach = extent + self._mover_half * math.sqrt(2) + 0.02  # sweep start distance
         spread = 0.9 * extent if spread is None else spread
@@ -236,14 +255,14 @@ class PushHeuristic:
         if self._round:
             return torch.full(w.shape[:-1], self._radius, device=w.device)
         c, s = torch.cos(yaw)[:, None], torch.sin(yaw)[:, None]  # (N, 1)
-        p = self._parts
-        px, py = p[:, 0] - self._com[0], p[:, 1] - self._com[1]
+        p = self._parts  # (K, 4), or (N, K, 4) per world
+        px, py = p[..., 0] - self._com[..., 0:1], p[..., 1] - self._com[..., 1:2]
         cx = c * px - s * py  # part centres relative to the centre of area, world frame (N, K)
         cy = s * px + c * py
         wx, wy = w[:, 0:1], w[:, 1:2]
         along_x = (wx * c + wy * s).abs()  # |w . body x|
         along_y = (-wx * s + wy * c).abs()
-        return (cx * wx + cy * wy + p[:, 2] * along_x + p[:, 3] * along_y).amax(dim=1)
+        return (cx * wx + cy * wy + p[..., 2] * along_x + p[..., 3] * along_y).amax(dim=1)
 
     def _mover_support(self, w: torch.Tensor) -> torch.Tensor:
         return self._mover_half * (w[..., 0].abs() + w[..., 1].abs())
@@ -261,22 +280,23 @@ class PushHeuristic:
         origin ``origin [N, 2]``, ``yaw [N]``). Returns (travel ``[N, C]`` (``_INF``: miss), contact point and
         contact normal into the object ``[N, C, 2]``)."""
         c, s = torch.cos(yaw), torch.sin(yaw)
-        p = self._parts
+        p = self._parts if self._parts.dim() == 3 else self._parts[None]  # (N or 1, K, 4)
+        vb = self._verts if self._verts.dim() == 3 else self._verts[None]
         # A: object corners entering the mover square (the mover moves +d, so in its frame the corners move -d).
-        verts = origin[:, None] + _rot(c[:, None], s[:, None], self._verts[None])  # (N, J, 2)
+        verts = origin[:, None] + _rot(c[:, None], s[:, None], vb)  # (N, J, 2)
         rel = verts[:, None] - start[:, :, None]  # (N, C, J, 2)
         ta, axa = _slab(rel, -d[:, :, None].expand_as(rel), torch.full_like(rel, self._mover_half))
         axis_a = torch.nn.functional.one_hot(axa, 2).to(d.dtype)
         na = axis_a * torch.sign(d[:, :, None])  # the mover face's outward normal
         pa = verts[:, None].expand_as(rel)
         # B: mover corners entering the object's parts (in each part's frame).
-        centres = origin[:, None] + _rot(c[:, None], s[:, None], p[None, :, :2])  # (N, K, 2)
+        centres = origin[:, None] + _rot(c[:, None], s[:, None], p[:, :, :2])  # (N, K, 2)
         q = start[:, :, None] + self._mover_corners  # (N, C, 4, 2)
         z = q[:, :, :, None] - centres[:, None, None]  # (N, C, 4, K, 2)
         cc, ss = c[:, None, None, None], s[:, None, None, None]
         z = _rot(cc, -ss, z)
         dl = _rot(c[:, None], -s[:, None], d)[:, :, None, None].expand_as(z)  # d in the body frame
-        tb, axb = _slab(z, dl, p[:, 2:].expand_as(z))
+        tb, axb = _slab(z, dl, p[:, None, None, :, 2:].expand_as(z))
         nb_local = torch.nn.functional.one_hot(axb, 2).to(d.dtype) * torch.sign(dl)  # into the part
         nb = _rot(cc, ss, nb_local)
         pb = (q[:, :, :, None] + tb[..., None].clamp(max=1.0) * d[:, :, None, None]).expand_as(z)
@@ -294,7 +314,7 @@ class PushHeuristic:
         """Object twist (velocity of its centre of area, yaw rate) per unit mover speed along ``d``, pushing at
         ``r`` (from the centre of area) with contact normal ``n`` (into the object): quasi-static, ellipsoidal limit
         surface ``V = k F``, ``w = k (r x F) / c^2``, Coulomb friction at the contact."""
-        c2 = self._c2
+        c2 = self._c2 if isinstance(self._c2, float) else self._c2[:, None, None]  # per world: (N, 1, 1)
         pp = _perp(r)  # velocity of the contact point per unit yaw rate
         # sticking: the contact point moves with the mover: (I + pp pp^T / c2) F = d
         f_stick = d - pp * ((pp * d).sum(-1, keepdim=True) / (c2 + (pp * pp).sum(-1, keepdim=True)))
@@ -307,7 +327,7 @@ class PushHeuristic:
                         + (pp * n).sum(-1, keepdim=True) * (pp * edge).sum(-1, keepdim=True) / c2)
         f_slide = edge * ((d * n).sum(-1, keepdim=True) / normal_speed.clamp_min(1e-6))
         f = torch.where(stick, f_stick, f_slide)
-        return f, _cross(r, f) / c2
+        return f, _cross(r, f) / (c2 if isinstance(c2, float) else c2[..., 0])
 
     # ------------------------------------------------------------------ motion helpers
     def _profile(self, gap: torch.Tensor, brake: float | None = None) -> torch.Tensor:
@@ -378,6 +398,10 @@ class PushHeuristic:
         n = env.num_envs
         if self._obstacles is not None:  # the env's walls may differ per world and episode (random, curriculum)
             self._set_walls(env.obstacle_boxes)
+        if self._variants is not None:  # each world's object outline (object_ranges)
+            idx = env.object_variant.long()
+            v = self._variants
+            self._parts, self._com, self._c2, self._verts = v["parts"][idx], v["com"][idx], v["c2"][idx], v["verts"][idx]
         fresh = env.num_steps == 0  # first step of an episode: forget the kept choices
         self._choice = torch.where(fresh, torch.full_like(self._choice, -1), self._choice)
         self._way = torch.where(fresh[:, None], torch.zeros_like(self._way), self._way)
@@ -509,7 +533,11 @@ class PushHeuristic:
             gpose = torch.stack([env.goal_xy[:, 0], env.goal_xy[:, 1], env.goal_yaw], -1)
             left = (env.max_episode_steps - env.num_steps).clamp_min(0).to(pose.dtype)
             margin = self.hold_coverage * (left / 8.0).clamp(0.1, 1.0)  # late in the episode, keep what is reached
-            done = coverage(pose, gpose, env.object) >= (env.min_coverage + margin).clamp(max=0.99)
+            if self._variants is None:
+                cov = coverage(pose, gpose, env.object)
+            else:
+                cov = coverage(pose, gpose, env.shapes, env.object_variant)
+            done = cov >= (env.min_coverage + margin).clamp(max=0.99)
         else:
             ov = b.object_qvel[:, 0, :2]  # where the object will come to rest if let go now
             rest_at = origin + ov * ov.norm(dim=-1, keepdim=True) / (2 * self.slide_decel)
