@@ -131,6 +131,12 @@ class MjwBackend:
         self.control = control or ControlParams()
         if not isinstance(self.control, ControlParams):
             raise PhysicsInputError(f"control must be a ControlParams, got {type(self.control).__name__}")
+        c = self.control  # frozen: its yaw limits become the kernel's struct once
+        yaw = YawDrive()
+        yaw.enabled, yaw.jerk_mode = int(c.rotation), int(c.jerk)
+        yaw.v_max, yaw.a_max, yaw.j_max = float(c.v_max_c), float(c.a_max_c), float(c.j_max_c)
+        yaw.p_max = float(c.p_max_c) if c.p_max_c is not None else -1.0
+        self._yaw_drive = yaw
         self.device = wp.get_device(device)
         self.use_graph = bool(use_graph)
         # On CUDA, launch on torch's current stream so Warp kernels and torch ops on the views are ordered without
@@ -266,17 +272,13 @@ class MjwBackend:
         """Launch one cycle of the mover control law (writes ``qfrc_applied``, updates the command states); the step
         graph runs it before every ``mujoco_warp.step``. Public for tests and custom stepping loops."""
         c = self.control
-        yaw = YawDrive()
-        yaw.enabled, yaw.jerk_mode = int(c.rotation), int(c.jerk)
-        yaw.v_max, yaw.a_max, yaw.j_max = float(c.v_max_c), float(c.a_max_c), float(c.j_max_c)
-        yaw.p_max = float(c.p_max_c) if c.p_max_c is not None else -1.0
         wp.launch(
             mover_control_kernel,
             dim=(self.num_worlds, self.num_movers),
             inputs=[
                 self._qadr, self._dadr, self._mass, self._inertia, self._hover_z,
                 float(c.k_lin[2]), wp.vec3(*c.k_rot), self.dt, float(c.v_max), float(c.a_max), float(c.j_max),
-                int(c.jerk), yaw, self.data.qpos, self.data.qvel, self.cmd, self.cmd_c, self.acc, self.acc_c,
+                int(c.jerk), self._yaw_drive, self.data.qpos, self.data.qvel, self.cmd, self.cmd_c, self.acc, self.acc_c,
                 self.yaw_track,
             ],
             outputs=[self.data.qfrc_applied],
