@@ -5,7 +5,8 @@ or a goal pose (``learn_pose=True``). Per env step (``num_cycles`` control cycle
 
 * observation: mover x/y positions then x/y velocities (then x/y accelerations when learning jerk), each flattened
   mover by mover (with ``learn_mover_c_rotation``: x, y, sin and cos of the yaw, then x/y/yaw rates, as MagBotSim;
-  each mover's action is then x, y and yaw, see :mod:`magwarp.physics.control` for the yaw limits); achieved_goal: object x/y (plus sin/cos of its yaw for poses); desired_goal: the goal likewise;
+  each mover's action is then x, y and yaw, see :mod:`magwarp.physics.control` for the yaw limits); achieved_goal:
+  object x/y (plus sin/cos of its yaw for poses); desired_goal: the goal likewise;
 * success: distance <= ``max_position_err`` (position goals) or coverage = area(object ∩ goal) / area(goal) >=
   ``min_coverage`` (pose goals; the paper's 0.7 by default, MagBotSim's library uses 0.95), and no collision;
 * reward: ``collision_penalty`` on a mover-mover or wall collision, else ``object_at_goal_reward`` at the goal
@@ -19,8 +20,8 @@ above the sum of their half-extents, object-goal distance above 0.15 m, uniform 
 device with a fixed number of candidates per reset instead of a Python rejection loop (start and goal are drawn
 together, so goals whose neighbourhood leaves no valid start are slightly less likely than in MagBotSim).
 
-Differences from MagBotSim, on purpose: observations are float32 and noise-free unless ``std_noise`` (mover positions and
-velocities) or ``object_noise`` (achieved goal) > 0 (MagBotSim's defaults: 1e-5 each); the mover controller is the
+Differences from MagBotSim, on purpose: observations are float32 and noise-free unless ``std_noise`` (mover positions
+and velocities) or ``object_noise`` (achieved goal) > 0 (MagBotSim's defaults: 1e-5 each); the mover controller is the
 physically right impedance law of :mod:`magwarp.physics.control`; collisions are checked after every cycle inside
 the step graph but a world is not frozen at its collision cycle (the episode ends at the step either way);
 coverage rotates the object about its body origin (MagBotSim's shapely code rotates the L about its bounding-box
@@ -29,18 +30,17 @@ centre); jerk-mode observations use mujoco-warp's ``qacc`` as MagBotSim does.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import warnings
 from collections.abc import Mapping
 from typing import Any
-
-import dataclasses
-import warnings
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
 from magwarp.layout import Layout, MoverSpec
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
@@ -441,8 +441,7 @@ class PushEnv(MagwarpVecEnv):
         idx = self.object_variant.long()
         for name, bank in v.fields.items():
             field = self._variant_fields[name]
-            m = mask.view(-1, *([1] * (field.dim() - 1)))
-            field.copy_(torch.where(m, bank[idx], field))
+            field.copy_(_where(mask, bank[idx], field))
 
     def _reset_envs(self, mask: torch.Tensor) -> None:
         b = self.backend

@@ -5,10 +5,12 @@ world without a model rebuild."""
 from __future__ import annotations
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import torch
 from warp import to_torch as wp_to_torch
 
+from magwarp.envs.base import _where
 from magwarp.envs.push import _CANDIDATES, PushEnv
 from magwarp.mjcf import ObstacleSpec
 
@@ -66,13 +68,11 @@ class PushWithObstaclesEnv(PushEnv):
             # world positions too (the world body sits at the origin, unrotated, so they equal geom_pos)
             xpos = wp_to_torch(self.backend.data.geom_xpos)
             g = self._wall_geoms
-            xpos[:, g] = torch.where(mask[:, None, None], self._geom_fields["geom_pos"][:, g], xpos[:, g])
+            xpos[:, g] = _where(mask, self._geom_fields["geom_pos"][:, g], xpos[:, g])
 
     def _resize_walls(self, mask: torch.Tensor) -> None:
         """New wall half lengths for the worlds in ``mask``, written into the per-world obstacle geoms."""
         if not hasattr(self, "_geom_fields"):
-            import mujoco
-
             self._geom_fields = self.backend.batch_model_fields(["geom_pos", "geom_size", "geom_aabb", "geom_rbound"])
             self._wall_geoms = torch.tensor([mujoco.mj_name2id(self.backend.mjm, mujoco.mjtObj.mjOBJ_GEOM, f"obstacle_geom_{k}")
                                              for k in range(2)], device=self.device)
@@ -94,18 +94,16 @@ class PushWithObstaclesEnv(PushEnv):
         boxes[:, 0, 1] = half_y
         boxes[:, 1, 1] = self.layout_top - half_y
         boxes[:, :, 3] = half_y[:, None]
-        self.obstacle_boxes.copy_(torch.where(mask[:, None, None], boxes, self.obstacle_boxes))
+        self.obstacle_boxes.copy_(_where(mask, boxes, self.obstacle_boxes))
         g, f = self._wall_geoms, self._geom_fields
         # geom_pos/geom_size [W, ngeom, 3]; geom_aabb [W, ngeom, 2, 3] (centre, half size); geom_rbound [W, ngeom]
-        m3 = mask[:, None, None]
         pos, size = f["geom_pos"][:, g], f["geom_size"][:, g]
         new_pos = torch.cat([self.obstacle_boxes[:, :, :2], pos[..., 2:]], -1)
         new_size = torch.cat([self.obstacle_boxes[:, :, 2:4], size[..., 2:]], -1)
-        f["geom_pos"][:, g] = torch.where(m3, new_pos, pos)
-        f["geom_size"][:, g] = torch.where(m3, new_size, size)
-        aabb = f["geom_aabb"][:, g]
-        f["geom_aabb"][:, g] = torch.where(m3[..., None], torch.stack([torch.zeros_like(new_size), new_size], 2), aabb)
-        f["geom_rbound"][:, g] = torch.where(mask[:, None], new_size.norm(dim=-1), f["geom_rbound"][:, g])
+        f["geom_pos"][:, g] = _where(mask, new_pos, pos)
+        f["geom_size"][:, g] = _where(mask, new_size, size)
+        f["geom_aabb"][:, g] = _where(mask, torch.stack([torch.zeros_like(new_size), new_size], 2), f["geom_aabb"][:, g])
+        f["geom_rbound"][:, g] = _where(mask, new_size.norm(dim=-1), f["geom_rbound"][:, g])
 
     def _init_sampling_ranges(self) -> None:
         super()._init_sampling_ranges()
