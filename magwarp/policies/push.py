@@ -533,11 +533,8 @@ class PushHeuristic:
             gpose = torch.stack([env.goal_xy[:, 0], env.goal_xy[:, 1], env.goal_yaw], -1)
             left = (env.max_episode_steps - env.num_steps).clamp_min(0).to(pose.dtype)
             margin = self.hold_coverage * (left / 8.0).clamp(0.1, 1.0)  # late in the episode, keep what is reached
-            if self._variants is None:
-                cov = coverage(pose, gpose, env.object)
-            else:
-                cov = coverage(pose, gpose, env.shapes, env.object_variant)
-            done = cov >= (env.min_coverage + margin).clamp(max=0.99)
+            # the env's own shape table: each world's outline, and no device upload per call
+            done = coverage(pose, gpose, env.shapes, env.object_variant) >= (env.min_coverage + margin).clamp(max=0.99)
         else:
             ov = b.object_qvel[:, 0, :2]  # where the object will come to rest if let go now
             rest_at = origin + ov * ov.norm(dim=-1, keepdim=True) / (2 * self.slide_decel)
