@@ -107,10 +107,12 @@ def raw_mujoco_warp_ms(backend, steps: int, device, snapshots: list[list[torch.T
             for _ in range(backend.control.num_cycles):
                 mjw.step(backend.model, backend.data)
 
+    replay_stream = wp.stream_from_torch(torch.cuda.current_stream(backend.torch_device)) if stream else None
+
     def raw_step(snap):
         for dst, src in zip(state, snap):
             dst.copy_(src)
-        wp.capture_launch(cap.graph, stream=wp.stream_from_torch(torch.cuda.current_stream()) if stream else None)
+        wp.capture_launch(cap.graph, stream=replay_stream)
 
     return time_steps(raw_step, snapshots, steps, device)["step_ms"]
 
