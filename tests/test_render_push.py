@@ -210,3 +210,11 @@ def test_each_world_draws_its_own_object_variant():
         assert drawn[_inside_parts(x, y, (0.36, 0.40, 0.3), parts, -pad)].all()
         assert not drawn[~_inside_parts(x, y, (0.36, 0.40, 0.3), parts, pad)].any()
     assert env.object_parts(0) != env.object_parts(1)
+
+
+def test_bad_object_shape_index_names_the_value():
+    env = PushTEnv(num_envs=2, device="cpu", render_mode="rgb_array", seed=0)
+    env.render()
+    s = env.render_state()
+    with pytest.raises(ValueError, match="got values from 0 to 3"):
+        env._renderer.draw(s["pos"], s["yaw"], object_poses=s["object_poses"], object_shape=torch.tensor([0, 3]))

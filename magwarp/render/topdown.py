@@ -313,8 +313,12 @@ class TopDownRenderer:
         else:
             shape_t = as_tensor(object_shape, device=td, dtype=torch.int32, name="object_shape")
             shape_t = shape_t[:, None] if shape_t.ndim == 1 else shape_t
-            if shape_t.ndim != 2 or (shape_t.numel() and not (0 <= int(shape_t.min()) and int(shape_t.max()) < self.num_objects)):
-                raise ValueError(f"object_shape must be ints [W, O] in [0, {self.num_objects}), got {tuple(shape_t.shape)}")
+            if shape_t.ndim != 2:
+                raise ValueError(f"object_shape must have shape [W, O] or [W], got {tuple(shape_t.shape)}")
+            lo, hi = (int(shape_t.min()), int(shape_t.max())) if shape_t.numel() else (0, 0)
+            if lo < 0 or hi >= self.num_objects:
+                raise ValueError(f"object_shape must index the renderer's {self.num_objects} object shapes, "
+                                 f"got values from {lo} to {hi}")
         obj_t = self._object_poses(object_poses, "object_poses", num_worlds, shape_t.shape[1])
         objg_t = self._object_poses(object_goals, "object_goals", num_worlds, shape_t.shape[1])
         if obstacles is None:
