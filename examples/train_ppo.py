@@ -41,6 +41,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--env-id", default=None, help="magwarp env id (default: magwarp/TrajectoryPlanningB0-v0)")
     p.add_argument("--env-kwargs", default=None, help='JSON env options, e.g. \'{"layout": [[1,1],[1,1]], "num_movers": 1}\'')
+    p.add_argument("--eval-env-kwargs", default=None,
+                   help="JSON env options that `magwarp eval` applies to this policy (stored in policy.pt)")
     p.add_argument("--device", default=None, help="cpu or cuda[:N] (default: cuda when available)")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--out", default=None, help="run folder (default: runs/<env>_ppo)")
@@ -97,6 +99,7 @@ def resolve_args(args: argparse.Namespace) -> argparse.Namespace:
         args.device = "cuda" if torch.cuda.is_available() else "cpu"
     args.seed = 0 if args.seed is None else args.seed
     args.out = args.out or os.path.join("runs", args.env_id.split("/")[-1] + "_ppo")
+    parse_env_kwargs(args.eval_env_kwargs)  # a bad JSON fails now, not when the policy is saved
     if args.minutes is None and args.total_steps is None and args.stop_after is None:
         raise ValueError("give a budget: --minutes, --total-steps and/or --stop-after")
     return args
@@ -187,6 +190,7 @@ def _train(args: argparse.Namespace) -> dict:
         save_checkpoint(os.path.join(args.out, "checkpoint.pt"), state)
         save_policy(os.path.join(args.out, "policy.pt"), agent.actor_mean, obs_rms, action_scale, squash="clip",
                     env_id=args.env_id, metadata={"algo": "ppo", "env_kwargs": args.env_kwargs,
+                                                  "eval_env_kwargs": args.eval_env_kwargs,
                                                   "global_step": global_step, "wall_s": timer.total, **(summary or {})})
 
     obs, _ = env.reset(seed=args.seed)

@@ -31,14 +31,16 @@ from magwarp.training import (OBS_KEYS, CsvLogger, RunningMeanStd, SuccessTracke
                               load_checkpoint, make_env, mlp, obs_dim, parse_env_kwargs, plot_curve, save_checkpoint,
                               save_policy, seed_everything)
 
-# Hyper-parameters per task family (any option given on the command line wins), for one GPU.
+# Hyper-parameters per task family (any option given on the command line wins), for one GPU. The paper's runs
+# (MagBotSim's docs/parameters) used SB3's SAC with 50 envs, batch 128 and one gradient step per env step (a replay
+# ratio of 128 sampled transitions per collected one), lr 1e-3 decaying linearly to 0, gamma 0.95. Here 1024 envs
+# collect at once and ``updates_per_step`` minibatches of ``batch_size`` keep a similar replay ratio
+# (32 x 4096 / 1024 = 128); on CUDA each update is one replayed CUDA graph, so updates cost a fraction of a step.
 PRESETS = {
-    "default": dict(num_envs=1024, buffer_steps=1000, batch_size=8192, updates_per_step=2, learning_starts=20,
-                    gamma=0.98, tau=0.01, lr=3e-4, init_alpha=0.1, her_ratio=0.8, hidden="256,256,256", policy_delay=1),
-    "TrajectoryPlanning": dict(num_envs=1024, buffer_steps=1000, gamma=0.99, her_ratio=0.5),
-    "PushBox": dict(num_envs=1024, buffer_steps=1000, gamma=0.95),
-    "PushWithObstacles": dict(num_envs=1024, buffer_steps=1000, gamma=0.95),
-    "PushT": dict(num_envs=1024, buffer_steps=1000, gamma=0.97),
+    "default": dict(num_envs=1024, buffer_steps=1000, batch_size=4096, updates_per_step=32, learning_starts=20,
+                    gamma=0.95, tau=0.01, lr=5e-4, lr_schedule="linear", init_alpha=0.1, her_ratio=0.8,
+                    hidden="256,256,256", policy_delay=1),
+    "TrajectoryPlanning": dict(gamma=0.99, her_ratio=0.5),
 }
 
 
@@ -46,6 +48,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--env-id", default=None, help="magwarp env id (default: magwarp/PushBox-v0)")
     p.add_argument("--env-kwargs", default=None, help="JSON env options")
+    p.add_argument("--eval-env-kwargs", default=None,
+                   help="JSON env options that `magwarp eval` applies to this policy (stored in policy.pt)")
     p.add_argument("--device", default=None, help="cpu or cuda[:N] (default: cuda when available)")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--out", default=None, help="run folder (default: runs/<env>_sac_her)")
@@ -61,11 +65,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--learning-starts", type=int, default=None, help="random-action env steps before learning")
     p.add_argument("--gamma", type=float, default=None)
     p.add_argument("--tau", type=float, default=None)
-    p.add_argument("--lr", type=float, default=None)
+    p.add_argument("--lr", type=float, default=None, help="initial learning rate of all three optimisers")
+    p.add_argument("--lr-schedule", choices=("linear", "constant"), default=None,
+                   help="linear: decay to 0 over the budget (--total-steps, else --minutes), as the paper's runs")
     p.add_argument("--init-alpha", type=float, default=None, help="initial entropy temperature (auto-tuned after)")
     p.add_argument("--her-ratio", type=float, default=None, help="fraction of sampled goals relabelled (future)")
     p.add_argument("--hidden", default=None, help="hidden layer sizes, comma separated")
     p.add_argument("--policy-delay", type=int, default=None, help="actor update every N critic updates")
+    p.add_argument("--cuda-graph", choices=("auto", "on", "off"), default="auto",
+                   help="replay each update as a captured CUDA graph (auto: on CUDA devices)")
     p.add_argument("--log-every", type=float, default=10.0, help="seconds between log lines")
     p.add_argument("--checkpoint-every", type=float, default=60.0, help="seconds between checkpoints")
     p.add_argument("--eval-steps", type=int, default=200,
@@ -95,8 +103,15 @@ def resolve_args(args: argparse.Namespace) -> argparse.Namespace:
             setattr(args, k, v)
     if args.device is None:
         args.device = "cuda" if torch.cuda.is_available() else "cpu"
+    for name in ("updates_per_step", "policy_delay", "batch_size", "num_envs"):
+        if int(getattr(args, name)) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, got {getattr(args, name)!r}")
+    if args.updates_per_step % args.policy_delay:
+        raise ValueError(f"--updates-per-step ({args.updates_per_step}) must be a multiple of --policy-delay "
+                         f"({args.policy_delay}): an update unit is policy_delay critic updates and one actor update")
     args.seed = 0 if args.seed is None else args.seed
     args.out = args.out or os.path.join("runs", args.env_id.split("/")[-1] + "_sac_her")
+    parse_env_kwargs(args.eval_env_kwargs)  # a bad JSON fails now, not when the policy is saved
     if args.minutes is None and args.total_steps is None and args.stop_after is None:
         raise ValueError("give a budget: --minutes, --total-steps and/or --stop-after")
     return args
@@ -217,6 +232,176 @@ class Critic(nn.Module):
         return self.q1(xa).squeeze(-1), self.q2(xa).squeeze(-1)
 
 
+class SacLearner:
+    """The networks, their optimisers and the SAC update (clipped double Q, auto-tuned entropy temperature).
+
+    :meth:`learn` takes one relabelled sample of ``U x batch_size`` transitions, stages it as ``U`` minibatches, and
+    runs ``U`` critic updates (an actor and temperature update after every ``policy_delay`` of them). Each update
+    picks its minibatch through a device counter, so the same code runs eagerly or, on CUDA, as one captured graph
+    replayed ``U / policy_delay`` times: no Python or kernel-launch cost per update beyond the replay call.
+    """
+
+    def __init__(self, n_obs: int, n_act: int, args: argparse.Namespace, device: torch.device):
+        hidden = [int(h) for h in str(args.hidden).split(",")]
+        self.args, self.device = args, device
+        self.actor = Actor(n_obs, n_act, hidden).to(device)
+        self.critic = Critic(n_obs, n_act, hidden).to(device)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.log_alpha = torch.full((), float(args.init_alpha), device=device).log().requires_grad_(True)
+        self.target_entropy = -float(n_act)
+        self.obs_rms = RunningMeanStd(n_obs, device, clip=5.0)
+        self.graphed = args.cuda_graph == "on" or (args.cuda_graph == "auto" and device.type == "cuda")
+        if self.graphed and device.type != "cuda":
+            raise ValueError(f"--cuda-graph on needs a CUDA device, got {device}")
+        params = (self.actor.parameters(), self.critic.parameters(), [self.log_alpha])
+        self.actor_opt, self.critic_opt, self.alpha_opt = self.optimizers = [torch.optim.Adam(p, lr=args.lr)
+                                                                             for p in params]
+        self._configure_optimizers()
+        self.stage: dict[str, torch.Tensor] = {}
+        self.cursor = torch.zeros(1, dtype=torch.int64, device=device)
+        self._graph = None  # (torch.cuda.CUDAGraph, its static loss outputs) once captured
+
+    # ---- state
+    def state_dict(self) -> dict:
+        return {"actor": self.actor.state_dict(), "critic": self.critic.state_dict(),
+                "critic_target": self.critic_target.state_dict(), "log_alpha": self.log_alpha.detach(),
+                "actor_opt": self.actor_opt.state_dict(), "critic_opt": self.critic_opt.state_dict(),
+                "alpha_opt": self.alpha_opt.state_dict(), "obs_rms": self.obs_rms.state_dict()}
+
+    def load_state_dict(self, ckpt: dict) -> None:
+        for name in ("actor", "critic", "critic_target", "obs_rms"):
+            getattr(self, name).load_state_dict(ckpt[name])
+        with torch.no_grad():
+            self.log_alpha.copy_(ckpt["log_alpha"])
+        for name in ("actor_opt", "critic_opt", "alpha_opt"):
+            getattr(self, name).load_state_dict(ckpt[name])
+        self._configure_optimizers()  # the saved run may have been eager, or graphed
+
+    def _configure_optimizers(self) -> None:
+        """Capturable Adam (device step counters, a tensor lr the graph reads) when graphed; floats otherwise."""
+        for opt in self.optimizers:
+            for group in opt.param_groups:
+                lr = float(group["lr"])
+                group["capturable"] = self.graphed
+                group["lr"] = torch.tensor(lr, device=self.device) if self.graphed else lr
+            for state in opt.state.values():
+                if "step" in state:
+                    state["step"] = state["step"].to(self.device if self.graphed else "cpu", torch.float32)
+
+    def set_lr(self, value: float) -> None:
+        for opt in self.optimizers:
+            for group in opt.param_groups:
+                if isinstance(group["lr"], torch.Tensor):
+                    group["lr"].fill_(value)  # in place: the captured graph reads this tensor
+                else:
+                    group["lr"] = value
+
+    def norm(self, o: dict) -> torch.Tensor:
+        return self.obs_rms.normalize(torch.cat([o[k] for k in OBS_KEYS], -1))
+
+    # ---- the update
+    def _next_minibatch(self) -> dict[str, torch.Tensor]:
+        mb = {k: v.index_select(0, self.cursor)[0] for k, v in self.stage.items()}
+        self.cursor.add_(1)
+        return mb
+
+    def _critic_step(self, mb: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        x = self.norm({k: mb[k] for k in OBS_KEYS})
+        x2 = self.norm({k: mb["next_" + k] for k in OBS_KEYS})
+        alpha = self.log_alpha.exp().detach()
+        with torch.no_grad():
+            a2, logp2 = self.actor(x2)
+            q1t, q2t = self.critic_target(x2, a2)
+            not_done = (~mb["terminated"]).float()
+            target = mb["reward"] + self.args.gamma * not_done * (torch.min(q1t, q2t) - alpha * logp2)
+        q1, q2 = self.critic(x, mb["action"])
+        q_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
+        self.critic_opt.zero_grad(set_to_none=False)  # in place: a captured graph keeps its gradient buffers
+        q_loss.backward()
+        self.critic_opt.step()
+        with torch.no_grad():  # Polyak averaging of the target critic, one fused call
+            torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), self.args.tau)
+        return q_loss.detach(), x
+
+    def _actor_step(self, x: torch.Tensor) -> torch.Tensor:
+        self.critic.requires_grad_(False)  # the policy loss differentiates through Q into the actor only
+        a, logp = self.actor(x)
+        pi_loss = (self.log_alpha.exp().detach() * logp - torch.min(*self.critic(x, a))).mean()
+        self.actor_opt.zero_grad(set_to_none=False)
+        pi_loss.backward()
+        self.actor_opt.step()
+        self.critic.requires_grad_(True)
+        alpha_loss = -(self.log_alpha * (logp.detach() + self.target_entropy)).mean()
+        self.alpha_opt.zero_grad(set_to_none=False)
+        alpha_loss.backward()
+        self.alpha_opt.step()
+        return pi_loss.detach()
+
+    def _update_unit(self) -> dict[str, torch.Tensor]:
+        """``policy_delay`` critic updates on consecutive minibatches, then one actor and temperature update."""
+        for _ in range(self.args.policy_delay):
+            q_loss, x = self._critic_step(self._next_minibatch())
+        return {"loss_q": q_loss, "loss_pi": self._actor_step(x)}
+
+    def _capture(self) -> None:
+        """Record one update unit as a CUDA graph (PyTorch's whole-network capture recipe): eager warm-up units on a
+        side stream create the optimiser states and cuBLAS workspaces, the gradients are released so that the
+        capture allocates them from the graph's pool, then the unit is captured. The warm-up's changes (weights,
+        optimiser moments, random numbers) are undone, so a graphed run follows the eager one update for update."""
+        tensors = [*self.actor.parameters(), *self.critic.parameters(), *self.critic_target.parameters(), self.log_alpha]
+        saved = [t.detach().clone() for t in tensors]
+        opt_saved = {id(v): v.clone() for opt in self.optimizers for st in opt.state.values() for v in st.values()
+                     if isinstance(v, torch.Tensor)}
+        rng = torch.cuda.get_rng_state(self.device)
+        side = torch.cuda.Stream(self.device)
+        side.wait_stream(torch.cuda.current_stream(self.device))
+        with torch.cuda.stream(side):
+            for _ in range(3):
+                self.cursor.zero_()
+                self._update_unit()
+        torch.cuda.current_stream(self.device).wait_stream(side)
+        with torch.no_grad():
+            for t, v in zip(tensors, saved):
+                t.copy_(v)
+            for opt in self.optimizers:  # moments and step counts as before (zero where the warm-up created them)
+                for st in opt.state.values():
+                    for v in st.values():
+                        if isinstance(v, torch.Tensor) and id(v) in opt_saved:
+                            v.copy_(opt_saved[id(v)])
+                        elif isinstance(v, torch.Tensor):
+                            v.zero_()
+        torch.cuda.set_rng_state(rng, self.device)
+        for opt in self.optimizers:
+            opt.zero_grad(set_to_none=True)
+        self.cursor.zero_()
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            out = self._update_unit()
+        self._graph = (graph, out)
+
+    def learn(self, sample: dict[str, torch.Tensor], num_minibatches: int) -> dict[str, torch.Tensor]:
+        """``num_minibatches`` updates on ``sample`` split into equal minibatches; the last losses (device tensors)."""
+        if num_minibatches % self.args.policy_delay:
+            raise ValueError(f"{num_minibatches} minibatches is not a multiple of policy_delay {self.args.policy_delay}")
+        for k, v in sample.items():
+            v = v.reshape(num_minibatches, -1, *v.shape[1:])
+            if k in self.stage and self.stage[k].shape == v.shape:
+                self.stage[k].copy_(v)  # same storage: what a captured graph reads
+            else:
+                self.stage[k] = v.clone()
+                self._graph = None
+        if self.graphed and self._graph is None:
+            self._capture()
+        self.cursor.zero_()
+        out: dict[str, torch.Tensor] = {}
+        for _ in range(num_minibatches // self.args.policy_delay):
+            if self._graph is not None:
+                self._graph[0].replay()
+            else:
+                out = self._update_unit()
+        return self._graph[1] if self._graph is not None else out
+
+
 def train(args: argparse.Namespace) -> dict:
     """Train until the budget is spent; returns a summary (final success rate, env steps, wall seconds)."""
     args = resolve_args(args)
@@ -237,29 +422,14 @@ def _train(args: argparse.Namespace) -> dict:
     space = base.single_observation_space
     n_obs, n_act = obs_dim(space), int(base.single_action_space.shape[0])
     action_scale = torch.as_tensor(base.single_action_space.high, device=device, dtype=torch.float32)
-    hidden = [int(h) for h in str(args.hidden).split(",")]
 
-    actor = Actor(n_obs, n_act, hidden).to(device)
-    critic = Critic(n_obs, n_act, hidden).to(device)
-    critic_target = copy.deepcopy(critic).requires_grad_(False)
-    log_alpha = torch.full((), float(args.init_alpha), device=device).log().requires_grad_(True)
-    target_entropy = -float(n_act)
-    actor_opt = torch.optim.Adam(actor.parameters(), lr=args.lr)
-    critic_opt = torch.optim.Adam(critic.parameters(), lr=args.lr)
-    alpha_opt = torch.optim.Adam([log_alpha], lr=args.lr)
-    obs_rms = RunningMeanStd(n_obs, device, clip=5.0)
+    learner = SacLearner(n_obs, n_act, args, device)
+    actor, norm = learner.actor, learner.norm
     global_step, updates, wall_before = 0, 0, 0.0
     os.makedirs(args.out, exist_ok=True)
     if args.resume:
         ckpt = load_checkpoint(args.resume, device)
-        actor.load_state_dict(ckpt["actor"])
-        critic.load_state_dict(ckpt["critic"])
-        critic_target.load_state_dict(ckpt["critic_target"])
-        with torch.no_grad():
-            log_alpha.copy_(ckpt["log_alpha"])
-        for opt, key in ((actor_opt, "actor_opt"), (critic_opt, "critic_opt"), (alpha_opt, "alpha_opt")):
-            opt.load_state_dict(ckpt[key])
-        obs_rms.load_state_dict(ckpt["obs_rms"])
+        learner.load_state_dict(ckpt)
         global_step, updates, wall_before = ckpt["global_step"], ckpt["updates"], ckpt["wall_s"]
         print(f"resumed from {args.resume} at step {global_step:,} ({updates:,} updates)")
 
@@ -276,9 +446,6 @@ def _train(args: argparse.Namespace) -> dict:
     dims["action"] = n_act
     buffer = HerReplayBuffer(args.buffer_steps, N, dims, flag_keys, device)
 
-    def norm(o: dict) -> torch.Tensor:
-        return obs_rms.normalize(torch.cat([o[k] for k in OBS_KEYS], -1))
-
     tracker = SuccessTracker(N, device)
     logger = CsvLogger(args.out, args.tensorboard, resume=bool(args.resume))
     timer = Timer(args.minutes, wall_before, args.stop_after)
@@ -293,49 +460,12 @@ def _train(args: argparse.Namespace) -> dict:
 
     def save_all(summary: dict | None = None) -> None:
         state = {"algo": "sac-her", "args": {k: v for k, v in vars(args).items() if k != "resume"},
-                 "actor": actor.state_dict(), "critic": critic.state_dict(), "critic_target": critic_target.state_dict(),
-                 "log_alpha": log_alpha.detach(), "actor_opt": actor_opt.state_dict(), "critic_opt": critic_opt.state_dict(),
-                 "alpha_opt": alpha_opt.state_dict(), "obs_rms": obs_rms.state_dict(), "global_step": global_step,
-                 "updates": updates, "wall_s": timer.total}
+                 **learner.state_dict(), "global_step": global_step, "updates": updates, "wall_s": timer.total}
         save_checkpoint(os.path.join(args.out, "checkpoint.pt"), state)
-        save_policy(os.path.join(args.out, "policy.pt"), actor.mean_net(), obs_rms, action_scale, squash="tanh",
+        save_policy(os.path.join(args.out, "policy.pt"), actor.mean_net(), learner.obs_rms, action_scale, squash="tanh",
                     env_id=args.env_id, metadata={"algo": "sac-her", "env_kwargs": args.env_kwargs,
+                                                  "eval_env_kwargs": args.eval_env_kwargs,
                                                   "global_step": global_step, "wall_s": timer.total, **(summary or {})})
-
-    online_params, target_params = list(critic.parameters()), list(critic_target.parameters())
-
-    def update(batch: dict) -> dict[str, torch.Tensor]:
-        nonlocal updates
-        x = norm({k: batch[k] for k in OBS_KEYS})
-        x2 = norm({k: batch["next_" + k] for k in OBS_KEYS})
-        alpha = log_alpha.exp().detach()
-        with torch.no_grad():
-            a2, logp2 = actor(x2)
-            q1t, q2t = critic_target(x2, a2)
-            not_done = (~batch["terminated"]).float()
-            target = batch["reward"] + args.gamma * not_done * (torch.min(q1t, q2t) - alpha * logp2)
-        q1, q2 = critic(x, batch["action"])
-        q_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
-        critic_opt.zero_grad(set_to_none=True)
-        q_loss.backward()
-        critic_opt.step()
-        out = {"loss_q": q_loss.detach()}
-        updates += 1
-        if updates % args.policy_delay == 0:
-            a, logp = actor(x)
-            q = torch.min(*critic(x, a))
-            pi_loss = (alpha * logp - q).mean()
-            actor_opt.zero_grad(set_to_none=True)
-            pi_loss.backward()
-            actor_opt.step()
-            alpha_loss = -(log_alpha * (logp.detach() + target_entropy)).mean()
-            alpha_opt.zero_grad(set_to_none=True)
-            alpha_loss.backward()
-            alpha_opt.step()
-            out["loss_pi"] = pi_loss.detach()
-        with torch.no_grad():  # Polyak averaging of the target critic, one fused call
-            torch._foreach_lerp_(target_params, online_params, args.tau)
-        return out
 
     last_log = last_ckpt = time.perf_counter()
     steps_at_log, stats, losses = global_step, {"success_rate": float("nan")}, {}
@@ -351,14 +481,19 @@ def _train(args: argparse.Namespace) -> dict:
             next_obs, reward, terminated, truncated, info = env.step(action * action_scale)
             done = terminated | truncated
             buffer.add(obs, action, reward, info["final_obs"], terminated, done, info)
-            obs_rms.update(flatten_obs(obs))
+            learner.obs_rms.update(flatten_obs(obs))
             tracker.update(reward, terminated, truncated, info)
             obs = next_obs
         env_steps += 1
         global_step += N
         if env_steps >= warmup:
-            for _ in range(args.updates_per_step):
-                losses = update(buffer.sample(args.batch_size, args.her_ratio, base.compute_reward))
+            if args.lr_schedule == "linear":  # the paper's schedule: lr falls linearly to 0 over the budget
+                done_frac = global_step / total if total else (timer.total / (timer.already + timer.limit)
+                                                              if timer.limit else 0.0)
+                learner.set_lr(args.lr * max(1.0 - done_frac, 0.0))
+            U = args.updates_per_step  # one relabelling call for all of this step's minibatches
+            losses = learner.learn(buffer.sample(U * args.batch_size, args.her_ratio, base.compute_reward), U)
+            updates += U
 
         now = time.perf_counter()
         final = timer.expired or (total is not None and global_step >= total)
@@ -366,7 +501,7 @@ def _train(args: argparse.Namespace) -> dict:
             stats = tracker.pop()
             sps = (global_step - steps_at_log) / max(now - last_log, 1e-9)
             row = {"global_step": global_step, "updates": updates, "wall_s": round(timer.total, 2), "sps": round(sps),
-                   **stats, "alpha": float(log_alpha.detach().exp()), **{k: float(v) for k, v in losses.items()}}
+                   **stats, "alpha": float(learner.log_alpha.detach().exp()), **{k: float(v) for k, v in losses.items()}}
             logger.log(row)
             last_log, steps_at_log = now, global_step
             if bar is None:

@@ -186,7 +186,7 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
              steps: int | None = None, makespan_goals: int = 5, max_worlds: int | None = None, seed: int = 0,
              progress: bool | None = None, env_kwargs: dict | None = None) -> EvalResult:
     """Evaluate ``policy`` on ``env_id``; see the module docstring. ``steps``: env steps per world (trajectory
-    planning, default 250 = 10 s; pushing: the episode length). ``max_worlds``: worlds simulated at once (default
+    planning, default 10 s: 250 steps of 40 cycles; pushing: the episode length). ``max_worlds``: worlds simulated at once (default
     65536 on a GPU, 2048 on the CPU).
 
     On the CPU, torch runs with one intra-op thread for the whole evaluation (``torch.set_num_threads(1)``): the
@@ -213,7 +213,10 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
         worlds = per_batch * episodes
 
         family_kwargs = dict(env_kwargs or {})
-        env = gym.make_vec(env_id, num_envs=worlds, device=device, check_inputs=False, seed=seed, **family_kwargs)
+        try:
+            env = gym.make_vec(env_id, num_envs=worlds, device=device, check_inputs=False, seed=seed, **family_kwargs)
+        except TypeError as e:  # an option the env does not take
+            raise EvalError(f"env options {family_kwargs} do not fit {env_id}: {e}") from None
         env = env.unwrapped if hasattr(env, "unwrapped") else env
         family = _family(env)
         if family == "push":
@@ -221,7 +224,7 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
             num_steps = int(steps or env.max_episode_steps)
             metrics = Metrics(env)
         else:
-            num_steps = int(steps or 250)
+            num_steps = int(steps or round(10_000 / env.num_cycles))  # 10 s of 1 ms cycles (250 steps of 40)
             metrics = Metrics(env, makespan_goals=makespan_goals)
         act = load_policy(policy, env)
 

@@ -56,6 +56,31 @@ def test_eval_push_env_with_scripted_policy(capsys):
     assert "2 repeats x 3 episodes" in out
 
 
+def test_env_options_from_the_command_line_or_the_policy_file(capsys, tmp_path):
+    """--env-kwargs reaches the env; without it a trained policy file's eval_env_kwargs do (and are printed)."""
+    from magwarp.training.policy import save_policy
+
+    path = tmp_path / "b0.json"
+    common = ["--episodes", "2", "--repeats", "1", "--device", "cpu", "--json", str(path)]
+    rc, out, err = run_cli(capsys, "eval", "TrajectoryPlanningB0", "--env-kwargs", '{"num_cycles": 100}', *common)
+    assert rc == 0, err
+    assert json.loads(path.read_text())["steps_per_world"] == 100  # the default 10 s at 100 cycles per step
+
+    # a policy file that says it is evaluated at 200 cycles per step (B0: 3 movers, observation 6 + goals 6 + 6)
+    from magwarp.training.common import RunningMeanStd
+
+    policy = tmp_path / "policy.pt"
+    save_policy(str(policy), torch.nn.Linear(18, 6), RunningMeanStd(18, "cpu"), torch.full((6,), 10.0), squash="tanh",
+                env_id="magwarp/TrajectoryPlanningB0-v0", metadata={"eval_env_kwargs": '{"num_cycles": 200}'})
+    rc, out, err = run_cli(capsys, "eval", "TrajectoryPlanningB0", "--policy", str(policy), *common)
+    assert rc == 0, err
+    assert 'env options from' in out and '{"num_cycles": 200}' in out
+    assert json.loads(path.read_text())["steps_per_world"] == 50
+    rc, out, err = run_cli(capsys, "eval", "TrajectoryPlanningB0", "--policy", str(policy), "--env-kwargs", "{}", *common)
+    assert rc == 0 and "env options from" not in out
+    assert json.loads(path.read_text())["steps_per_world"] == 250
+
+
 def test_eval_module_file_and_callable_policies(tmp_path):
     lin = torch.nn.Linear(8, 2)  # PushBox: achieved 2 + desired 2 + observation 4 -> 2 accelerations
     torch.nn.init.zeros_(lin.weight)
@@ -92,6 +117,9 @@ def test_repeats_split_over_batches_keep_one_value_per_repeat():
     (["eval", "PushBox", "--device", "tpu"], "device 'tpu' is not available"),
     (["eval", "PushBox", "--json", "/no/such/dir/out.json"], "does not exist"),
     (["eval", "PushBox", "--max-worlds", "0"], "--max-worlds must be >= 1"),
+    (["eval", "PushBox", "--env-kwargs", "{bad"], "--env-kwargs must be a JSON object"),
+    (["eval", "PushBox", "--env-kwargs", '{"no_such_option": 1}', "--episodes", "1", "--repeats", "1", "--device",
+      "cpu"], "env options {'no_such_option': 1} do not fit magwarp/PushBox-v0"),
 ])
 def test_bad_arguments_are_one_clear_line(capsys, argv, message):
     rc, _, err = run_cli(capsys, *argv)

@@ -168,6 +168,83 @@ def test_sac_her_runs_resumes_and_saves(tmp_path):
     assert ckpt["algo"] == "sac-her" and ckpt["updates"] > 0
 
 
+def _learner(sac, device: str, *extra: str):
+    args = sac.resolve_args(sac.parse_args(["--env-id", TINY_ENV, "--device", device, "--total-steps", "1",
+                                            "--hidden", "32,32", *extra]))
+    return sac.SacLearner(6, 2, args, torch.device(device))
+
+
+def _sample(n: int, device: str, seed: int) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    out = {}
+    for k in ("achieved_goal", "desired_goal", "observation"):
+        out[k], out["next_" + k] = torch.randn(n, 2, generator=g), torch.randn(n, 2, generator=g)
+    out["action"] = torch.rand(n, 2, generator=g) * 2 - 1
+    out["reward"] = -torch.rand(n, generator=g)
+    out["terminated"] = torch.rand(n, generator=g) < 0.1
+    return {k: v.to(device) for k, v in out.items()}
+
+
+def test_sac_learner_runs_one_update_per_minibatch_and_follows_its_lr():
+    sac = _example("train_sac_her")
+    torch.manual_seed(0)
+    learner = _learner(sac, "cpu", "--policy-delay", "2", "--lr", "1e-3")
+    actor0 = [p.detach().clone() for p in learner.actor.parameters()]
+    losses = learner.learn(_sample(8 * 16, "cpu", 0), 8)
+    assert set(losses) == {"loss_q", "loss_pi"} and all(torch.isfinite(v) for v in losses.values())
+    steps = {name: float(next(iter(opt.state.values()))["step"]) for name, opt in
+             (("critic", learner.critic_opt), ("actor", learner.actor_opt), ("alpha", learner.alpha_opt))}
+    assert steps == {"critic": 8.0, "actor": 4.0, "alpha": 4.0}  # policy_delay 2: an actor update per 2 critic ones
+    assert any(not torch.equal(a, b) for a, b in zip(actor0, learner.actor.parameters()))
+    learner.set_lr(0.0)  # a finished linear schedule: the actor stays put, the target critic still tracks
+    actor1 = [p.detach().clone() for p in learner.actor.parameters()]
+    target1 = [p.detach().clone() for p in learner.critic_target.parameters()]
+    learner.learn(_sample(8 * 16, "cpu", 1), 8)
+    assert all(torch.equal(a, b) for a, b in zip(actor1, learner.actor.parameters()))
+    assert any(not torch.equal(a, b) for a, b in zip(target1, learner.critic_target.parameters()))
+    with pytest.raises(ValueError, match="multiple of policy_delay"):
+        learner.learn(_sample(7 * 16, "cpu", 2), 7)
+    with pytest.raises(ValueError, match="multiple of --policy-delay"):
+        _learner(sac, "cpu", "--policy-delay", "3", "--updates-per-step", "32")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
+def test_sac_graphed_updates_match_eager_ones():
+    """The captured update graph, replayed, moves every weight as the eager updates do (its warm-up is undone)."""
+    sac = _example("train_sac_her")
+    weights = {}
+    for mode in ("off", "on"):
+        torch.manual_seed(0)
+        learner = _learner(sac, "cuda", "--cuda-graph", mode, "--policy-delay", "2")
+        assert learner.graphed == (mode == "on")
+        torch.manual_seed(1)
+        for seed in range(3):  # the first call captures, the later ones replay on freshly staged minibatches
+            losses = learner.learn(_sample(8 * 64, "cuda", seed), 8)
+        torch.cuda.synchronize()
+        weights[mode] = [p.detach().cpu() for m in (learner.actor, learner.critic, learner.critic_target)
+                         for p in m.parameters()] + [learner.log_alpha.detach().cpu()]
+        assert all(torch.isfinite(v) for v in losses.values())
+    for a, b in zip(weights["off"], weights["on"]):
+        torch.testing.assert_close(b, a, atol=1e-4, rtol=1e-3)
+
+
+def test_paper_runs_build_their_envs():
+    """Every paper run's training and evaluation options are accepted by its env (names and values)."""
+    import gymnasium as gym
+
+    from magwarp.training.paper import PAPER_RUNS
+
+    for name, run in PAPER_RUNS.items():
+        for kwargs in (run.train_kwargs, run.eval_kwargs):
+            env = gym.make_vec(run.env_id, num_envs=1, device="cpu", **kwargs).unwrapped
+            assert env.num_cycles == kwargs["num_cycles"], name
+            if "min_coverage" in kwargs:
+                assert env.min_coverage == kwargs["min_coverage"]
+            if "obstacle_mode" in kwargs:
+                assert env.obstacle_mode == kwargs["obstacle_mode"]
+            env.close()
+
+
 @pytest.mark.parametrize("algo", ["ppo", "sac-her"])
 def test_train_command(tmp_path, algo, capsys):
     from magwarp.cli import main

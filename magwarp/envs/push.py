@@ -202,6 +202,7 @@ class PushEnv(MagwarpVecEnv):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative number, got {value!r}")
         self.std_noise, self.object_noise = float(std_noise), float(object_noise)
+        self.num_cycles = int(num_cycles)  # control cycles (1 ms) per env step
         self.max_position_err = float(max_position_err)
         self.min_coverage = float(min_coverage)
         self.use_sparse_pose_reward = bool(use_sparse_pose_reward)

@@ -1,9 +1,10 @@
-"""The paper's four training runs (Tables 3-4) side by side: one process each, spread over the visible GPUs.
+"""The paper's training runs (Tables 3-5) side by side: one process each, spread over the visible GPUs.
 
     python -m magwarp.training.suite --minutes 8 --work runs --out $OUT            # first session
     python -m magwarp.training.suite --minutes 6 --work runs --out $OUT --resume   # continue the same runs
 
-Each run is ``examples/train_ppo.py`` or ``examples/train_sac_her.py`` writing ``WORK/<name>/`` (policy.pt,
+Each run (:data:`magwarp.training.paper.PAPER_RUNS`: env id, algorithm, and the env options the paper trained and
+evaluated with) is ``examples/train_ppo.py`` or ``examples/train_sac_her.py`` writing ``WORK/<name>/`` (policy.pt,
 checkpoint.pt, progress.csv, curve.png) and ``WORK/<name>.log``. With ``--out``, every run folder and its log are
 packed into ``OUT/<name>.tgz`` (one file per run: the device tool returns at most 8 files). Several runs share a GPU
 when there are fewer GPUs than runs (their small kernels interleave). A summary table is printed at the end.
@@ -19,15 +20,9 @@ import tarfile
 import time
 from pathlib import Path
 
+from magwarp.training.paper import PAPER_RUNS as RUNS
+
 REPO = Path(__file__).resolve().parent.parent.parent
-# name -> (algorithm script, env id)
-RUNS = {
-    "b0_ppo": ("train_ppo.py", "magwarp/TrajectoryPlanningB0-v0"),
-    "pushbox_sac": ("train_sac_her.py", "magwarp/PushBox-v0"),
-    "pusht_sac": ("train_sac_her.py", "magwarp/PushT-v0"),
-    "obstacles_sac": ("train_sac_her.py", "magwarp/PushWithObstacles-v0"),
-    "b0_sac": ("train_sac_her.py", "magwarp/TrajectoryPlanningB0-v0"),
-}
 DEFAULT = ("b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac")
 
 
@@ -65,15 +60,16 @@ def main(argv=None) -> int:
         gpus = [None]
     procs = []
     for i, name in enumerate(names):
-        script, env_id = RUNS[name]
+        run = RUNS[name]
         folder = work / name
-        cmd = [sys.executable, str(REPO / "examples" / script), "--minutes", str(args.minutes), "--no-progress"]
+        cmd = [sys.executable, str(REPO / "examples" / run.script), "--minutes", str(args.minutes), "--no-progress"]
         if args.stop_after is not None:
             cmd += ["--stop-after", str(args.stop_after)]
         if args.resume and (folder / "checkpoint.pt").is_file():
             cmd += ["--resume", str(folder)]
         else:
-            cmd += ["--env-id", env_id, "--out", str(folder)]
+            cmd += ["--env-id", run.env_id, "--env-kwargs", run.train_json(), "--eval-env-kwargs", run.eval_json(),
+                    "--out", str(folder)]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         gpu = gpus[i % len(gpus)]
         if gpu is None:
@@ -98,7 +94,7 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|")
     for name in names:
         row = _summary(work / name)
-        print(f"| {name} | {RUNS[name][1]} | {row.get('global_step', '-')} | {row.get('wall_s', '-')} | "
+        print(f"| {name} | {RUNS[name].env_id} | {row.get('global_step', '-')} | {row.get('wall_s', '-')} | "
               f"{_pct(row.get('success_rate'))} | {_pct(row.get('eval_success_rate'))} | "
               f"{row.get('eval_collisions_per_episode', '-')} |")
         if args.out:

@@ -1,0 +1,64 @@
+"""The paper's training runs, with the env options they were trained and evaluated with.
+
+MagBotSim's published run parameters (``docs/parameters/*.yaml`` in its repository, cited by the paper for Tables
+3-5) change the envs' defaults: the pushing agents act every 160 control cycles (Push-T: 80), so an episode lasts
+4 s instead of 1-2 s; rewards are -50 for a collision, -1 per step and 0 at the goal; the mover's collision shape
+is its 113 mm square; Push-T trains with a 0.95 coverage goal and is evaluated at 0.7; PushWithObstacles trains
+with a wall curriculum and is evaluated on the hard walls; trajectory planning acts every 120 cycles with
+0.09 m half-size collision boxes. A policy is evaluated in the env it is compared in, so each run records both
+option sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is given.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+__all__ = ["PaperRun", "PAPER_RUNS"]
+
+MOVER_BOX = {"collision_shape": "box", "collision_size": [0.113 / 2 + 1e-6, 0.113 / 2 + 1e-6]}
+PUSH_REWARDS = {"collision_penalty": -50.0, "per_step_penalty": -1.0, "object_at_goal_reward": 0.0}
+
+
+@dataclass(frozen=True)
+class PaperRun:
+    """One training run: env id, algorithm (``examples/train_<algo>.py``), env options for training and for the
+    evaluation, and the paper's table row it is compared with."""
+
+    env_id: str
+    algo: str
+    train_kwargs: dict = field(default_factory=dict)
+    eval_kwargs: dict = field(default_factory=dict)
+    paper: str = ""
+
+    @property
+    def script(self) -> str:
+        return {"ppo": "train_ppo.py", "sac-her": "train_sac_her.py"}[self.algo]
+
+    def train_json(self) -> str:
+        return json.dumps(self.train_kwargs, separators=(",", ":"))
+
+    def eval_json(self) -> str:
+        return json.dumps(self.eval_kwargs, separators=(",", ":"))
+
+
+_PUSHBOX = {"num_cycles": 160, **MOVER_BOX, **PUSH_REWARDS}
+_PUSHT = {"num_cycles": 80, **MOVER_BOX, **PUSH_REWARDS}
+# MagBotSim raises the walls every 800 episodes of each of its 50 envs (40,000 episodes, 1 M env steps per level);
+# 40 episodes of each of 1024 worlds keep that schedule in env steps.
+_OBSTACLES = {"num_cycles": 160, **MOVER_BOX}
+_B0 = {"num_cycles": 120, "collision_shape": "box", "collision_size": [0.09, 0.09]}
+
+PAPER_RUNS: dict[str, PaperRun] = {
+    "b0_ppo": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", _B0, _B0,
+                       "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    "pushbox_sac": PaperRun("magwarp/PushBox-v0", "sac-her", _PUSHBOX, _PUSHBOX, "99.56% (Table 3)"),
+    "pusht_sac": PaperRun("magwarp/PushT-v0", "sac-her", {**_PUSHT, "min_coverage": 0.95},
+                          {**_PUSHT, "min_coverage": 0.7}, "73.13% (Table 3)"),
+    "obstacles_sac": PaperRun("magwarp/PushWithObstacles-v0", "sac-her",
+                              {**_OBSTACLES, "obstacle_mode": "curriculum", "curriculum_episodes": 40},
+                              {**_OBSTACLES, "obstacle_mode": "hard"}, "91.26% (Table 3)"),
+    # the same B0 run with a collision penalty 2.5x the paper's: a cautious policy, for the collision target
+    "b0_ppo_cautious": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", {**_B0, "reward_collision": -50.0}, _B0,
+                                "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+}
