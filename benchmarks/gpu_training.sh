@@ -2,7 +2,7 @@
 # The paper's training runs on the device machine, across calls of at most 10 minutes each:
 #   export PYTHONPATH=/tmp/site:$PWD MAGWARP_COMMIT=<sha>
 #   bash benchmarks/gpu_training.sh check                  # CUDA training tests + where a step's time goes
-#   bash benchmarks/gpu_training.sh start RUNS MINUTES     # the suite, detached (it outlives this call)
+#   bash benchmarks/gpu_training.sh start RUNS MINUTES [STOP_AFTER_S]  # the suite, detached (outlives this call)
 #   bash benchmarks/gpu_training.sh wait SECONDS           # until the suite ends (or SECONDS pass): progress lines
 #   bash benchmarks/gpu_training.sh eval RUNS              # magwarp eval (100 repeats) of each run, packed into $OUT
 # RUNS: comma separated names of magwarp.training.paper.PAPER_RUNS. The suite writes /tmp/runs/<run>/ and its log.
@@ -22,9 +22,11 @@ check)
   ;;
 start)
   mkdir -p $WORK
-  setsid nohup python3 -m magwarp.training.suite --runs "$2" --minutes "$3" --work $WORK \
+  cap=()
+  [ -n "${4:-}" ] && cap=(--stop-after "$4")
+  setsid nohup python3 -m magwarp.training.suite --runs "$2" --minutes "$3" "${cap[@]}" --work $WORK \
     > $WORK/suite.log 2>&1 < /dev/null &
-  sleep 20
+  sleep 75
   log "started $2 for $3 minutes"; cat $WORK/suite.log; tail -3 $WORK/*.log
   ;;
 wait)

@@ -3,7 +3,7 @@
 MagBotSim's published run parameters (``docs/parameters/*.yaml`` in its repository, cited by the paper for Tables
 3-5) change the envs' defaults: the pushing agents act every 160 control cycles (Push-T: 80), so an episode lasts
 4 s instead of 1-2 s; rewards are -50 for a collision, -1 per step and 0 at the goal; the mover's collision shape
-is its 113 mm square; Push-T trains with a 0.95 coverage goal and is evaluated at 0.7; PushWithObstacles trains
+is its 113 mm square; Push-T trains with a 0.95 coverage goal (here 0.8, below) and is evaluated at 0.7; PushWithObstacles trains
 with a wall curriculum and is evaluated on the hard walls; trajectory planning acts every 120 cycles with
 0.09 m half-size collision boxes. A policy is evaluated in the env it is compared in, so each run records both
 option sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is given.
@@ -53,7 +53,9 @@ PAPER_RUNS: dict[str, PaperRun] = {
     "b0_ppo": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", _B0, _B0,
                        "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
     "pushbox_sac": PaperRun("magwarp/PushBox-v0", "sac-her", _PUSHBOX, _PUSHBOX, "99.56% (Table 3)"),
-    "pusht_sac": PaperRun("magwarp/PushT-v0", "sac-her", {**_PUSHT, "min_coverage": 0.95},
+    # trained at 0.8 coverage, not the paper's 0.95: near misses count as reached, a denser signal for a 15-minute
+    # run; evaluated at the paper's 0.7
+    "pusht_sac": PaperRun("magwarp/PushT-v0", "sac-her", {**_PUSHT, "min_coverage": 0.8},
                           {**_PUSHT, "min_coverage": 0.7}, "73.13% (Table 3)"),
     "obstacles_sac": PaperRun("magwarp/PushWithObstacles-v0", "sac-her",
                               {**_OBSTACLES, "obstacle_mode": "curriculum", "curriculum_episodes": 10},
