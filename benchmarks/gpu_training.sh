@@ -27,7 +27,7 @@ start)
   setsid nohup python3 -m magwarp.training.suite --runs "$2" --minutes "$3" "${cap[@]}" --work $WORK \
     > $WORK/suite.log 2>&1 < /dev/null &
   sleep 75
-  log "started $2 for $3 minutes"; cat $WORK/suite.log; tail -3 $WORK/*.log
+  log "started $2 for $3 minutes"; cat $WORK/suite.log; tail -n 3 $WORK/*.log
   ;;
 wait)
   end=$((SECONDS + $2))
