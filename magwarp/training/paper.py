@@ -3,9 +3,9 @@
 MagBotSim's published run parameters (``docs/parameters/*.yaml`` in its repository, cited by the paper for Tables
 3-5) change the envs' defaults: the pushing agents act every 160 control cycles (Push-T: 80), so an episode lasts
 4 s instead of 1-2 s; rewards are -50 for a collision, -1 per step and 0 at the goal; the mover's collision shape
-is its 113 mm square; Push-T trains with a 0.95 coverage goal (here 0.8, below) and is evaluated at 0.7; PushWithObstacles trains
-with a wall curriculum and is evaluated on the hard walls; trajectory planning acts every 120 cycles with
-0.09 m half-size collision boxes. A policy is evaluated in the env it is compared in, so each run records both
+is its 113 mm square; Push-T trains with a 0.95 coverage goal (here 0.8, below) and is evaluated at 0.7;
+PushWithObstacles trains with a wall curriculum and is evaluated on the hard walls; trajectory planning acts every
+120 cycles with 0.09 m half-size collision boxes. ``benchmarks/RESULTS.md`` (Training) lists what each run reached. A policy is evaluated in the env it is compared in, so each run records both
 option sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is given.
 """
 
@@ -61,8 +61,8 @@ PAPER_RUNS: dict[str, PaperRun] = {
     "obstacles_sac": PaperRun("magwarp/PushWithObstacles-v0", "sac-her",
                               {**_OBSTACLES, "obstacle_mode": "curriculum", "curriculum_episodes": 10},
                               {**_OBSTACLES, "obstacle_mode": "hard"}, "91.26% (Table 3)"),
-    # MagBotSim's own 40-cycle control (25 Hz): pushing the box towards the gap with 160-cycle holds crashes in every
-    # exploratory episode (even at a quarter of the acceleration) and the 160-cycle run learned to stand still
+    # MagBotSim's own 40-cycle control (25 Hz): with 160-cycle holds every exploratory episode crashes (even at a
+    # quarter of the acceleration) and the 160-cycle run learned to stand still; at 40 cycles it still did (RESULTS)
     "obstacles_sac_fine": PaperRun("magwarp/PushWithObstacles-v0", "sac-her",
                                    {**_OBSTACLES_FINE, "obstacle_mode": "curriculum", "curriculum_episodes": 25},
                                    {**_OBSTACLES_FINE, "obstacle_mode": "hard"}, "91.26% (Table 3)"),
