@@ -5,8 +5,9 @@ MagBotSim's published run parameters (``docs/parameters/*.yaml`` in its reposito
 4 s instead of 1-2 s; rewards are -50 for a collision, -1 per step and 0 at the goal; the mover's collision shape
 is its 113 mm square; Push-T trains with a 0.95 coverage goal (here 0.8, below) and is evaluated at 0.7;
 PushWithObstacles trains with a wall curriculum and is evaluated on the hard walls; trajectory planning acts every
-120 cycles with 0.09 m half-size collision boxes. ``benchmarks/RESULTS.md`` (Training) lists what each run reached. A policy is evaluated in the env it is compared in, so each run records both
-option sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is given.
+120 cycles with 0.09 m half-size collision boxes. A policy is evaluated in the env it is compared in, so each run
+records both option sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is
+given. ``benchmarks/RESULTS.md`` (Training) lists what each run reached.
 """
 
 from __future__ import annotations
