@@ -207,6 +207,29 @@ def test_yaw_actions_turn_the_mover_within_limits(jerk):
         env.step(torch.zeros(2, 2))
 
 
+def test_success_gated_curriculum_holds_worlds_that_do_not_succeed():
+    # world 0 ends every episode with its box on the goal, world 1 never does: with a gate at 0.6 over a running
+    # rate of about 2 episodes, world 0 moves up once its rate passes 0.6 (restarted at each level), world 1 stays
+    env = PushWithObstaclesEnv(2, device="cpu", seed=0, obstacle_mode="curriculum", curriculum_episodes=2,
+                               curriculum_success_rate=0.6)
+    env.reset()
+    b, both, levels = env.backend, torch.ones(2, dtype=torch.bool), []
+    for _ in range(6):
+        b.init_object_qpos[0, 0, :2] = env.goal_xy[0]  # world 0: the box starts on its goal
+        b.reset(both)
+        _, _, term, _, info = env.step(torch.zeros(2, 2))
+        assert info["is_success"].tolist() == [True, False] and not term.any()
+        env.reset(options={"reset_mask": both})
+        levels.append(env.curriculum_level.tolist())
+    # rate of world 0 after each episode at a level: 0.5, 0.75 (>= 0.6: up, restart) ...
+    assert levels == [[0, 0], [1, 0], [1, 0], [2, 0], [2, 0], [2, 0]]
+    assert env.curriculum_success[1] == 0.0 and torch.allclose(env.obstacle_boxes[:, 0, 3], torch.tensor([0.13, 0.10]))
+    fixed = PushWithObstaclesEnv(2, device="cpu", seed=0, obstacle_mode="curriculum", curriculum_episodes=2)
+    for _ in range(3):
+        fixed.reset()
+    assert fixed.curriculum_level.tolist() == [1, 1]  # MagBotSim's schedule: no gate
+
+
 def test_bad_arguments_name_the_value():
     with pytest.raises(ValueError, match="min_coverage"):
         PushTEnv(1, device="cpu", min_coverage=1.5)
@@ -214,6 +237,10 @@ def test_bad_arguments_name_the_value():
         PushWithObstaclesEnv(1, device="cpu", obstacle_mode="nightmare")
     with pytest.raises(ValueError, match="curriculum_episodes"):
         PushWithObstaclesEnv(1, device="cpu", obstacle_mode="curriculum", curriculum_episodes=0)
+    with pytest.raises(ValueError, match=r"curriculum_success_rate must lie in \[0, 1\], got 1.5"):
+        PushWithObstaclesEnv(1, device="cpu", obstacle_mode="curriculum", curriculum_success_rate=1.5)
+    with pytest.raises(ValueError, match="curriculum_success_rate needs obstacle_mode='curriculum', got 'hard'"):
+        PushWithObstaclesEnv(1, device="cpu", obstacle_mode="hard", curriculum_success_rate=0.5)
     with pytest.raises(Exception, match="hexagon"):
         PushEnv(1, "hexagon", device="cpu")
     env = PushBoxEnv(2, device="cpu", seed=0)

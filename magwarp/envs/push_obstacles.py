@@ -35,16 +35,29 @@ class PushWithObstaclesEnv(PushEnv):
     ``curriculum_episodes`` episodes; MagBotSim: 800). In the last two modes the walls change per world without a
     model rebuild: the obstacle geoms' pose and size are per-world model arrays in mujoco-warp
     (:meth:`MjwBackend.batch_model_fields`).
+
+    ``curriculum_success_rate`` (curriculum mode only; default ``None``: MagBotSim's fixed schedule) also holds a
+    world at its level until its running success rate there (an exponential average over about
+    ``curriculum_episodes`` episodes, restarted at each level) reaches this value. A fixed schedule counts
+    episodes, and an untrained policy crashes within a few steps, so it can reach the hard walls before it has
+    learned anything on the simple ones.
     """
 
     def __init__(self, num_envs: int = 1, obstacle_mode: str = "simple", threshold_pos: float = 0.05,
-                 initial_mover_zpos: float = 0.002, curriculum_episodes: int = 800, **kwargs):
+                 initial_mover_zpos: float = 0.002, curriculum_episodes: int = 800,
+                 curriculum_success_rate: float | None = None, **kwargs):
         if obstacle_mode not in _OBSTACLE_MODES:
             raise ValueError(f"obstacle_mode must be one of {list(_OBSTACLE_MODES)}, got {obstacle_mode!r}")
         if int(curriculum_episodes) != curriculum_episodes or curriculum_episodes < 1:
             raise ValueError(f"curriculum_episodes must be a positive integer, got {curriculum_episodes!r}")
+        if curriculum_success_rate is not None:
+            if obstacle_mode != "curriculum":
+                raise ValueError(f"curriculum_success_rate needs obstacle_mode='curriculum', got {obstacle_mode!r}")
+            if not 0.0 <= float(curriculum_success_rate) <= 1.0:
+                raise ValueError(f"curriculum_success_rate must lie in [0, 1], got {curriculum_success_rate!r}")
         self.obstacle_mode = obstacle_mode
         self.curriculum_episodes = int(curriculum_episodes)
+        self.curriculum_success_rate = None if curriculum_success_rate is None else float(curriculum_success_rate)
         self.obstacle_x, self.obstacle_size_x, self.layout_top = 0.48, 0.03, 0.72
         size_y = _OBSTACLE_HALF_Y.get(obstacle_mode, _OBSTACLE_HALF_Y["simple"])  # random/curriculum start simple
         obstacles = (ObstacleSpec((0.48, size_y), (0.03, size_y, 0.03)),
@@ -79,6 +92,8 @@ class PushWithObstaclesEnv(PushEnv):
             self.curriculum_level = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
             # -1: the reset inside the constructor is not an episode (MagBotSim counts the user's resets)
             self._episodes_at_level = torch.full((self.num_envs,), -1, dtype=torch.int64, device=self.device)
+            self.curriculum_success = torch.zeros(self.num_envs, device=self.device)  # running rate at the level
+            self._last_success = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         n = self.num_envs
         if self.obstacle_mode == "random":
             half_y = self._uniform(_OBSTACLE_HALF_Y["simple"], _OBSTACLE_HALF_Y["hard"], n)[:, 0]
@@ -86,6 +101,13 @@ class PushWithObstaclesEnv(PushEnv):
             # MagBotSim counts resets and moves up a level once a level has had curriculum_episodes of them
             count = self._episodes_at_level + mask.long()
             up = mask & (count > self.curriculum_episodes) & (self.curriculum_level < 2)
+            if self.curriculum_success_rate is not None:
+                # the episode ending now (counted once a reset at this level started it) updates its world's rate
+                ended = mask & (self._episodes_at_level >= 1)
+                rate = torch.lerp(self.curriculum_success, self._last_success.float(), 1.0 / self.curriculum_episodes)
+                self.curriculum_success.copy_(torch.where(ended, rate, self.curriculum_success))
+                up &= self.curriculum_success >= self.curriculum_success_rate
+                self.curriculum_success.masked_fill_(up, 0.0)
             self.curriculum_level += up.long()
             self._episodes_at_level.copy_(torch.where(up, torch.ones_like(count), count))
             levels = torch.tensor(list(_OBSTACLE_HALF_Y.values()), device=self.device)
@@ -104,6 +126,11 @@ class PushWithObstaclesEnv(PushEnv):
         f["geom_size"][:, g] = _where(mask, new_size, size)
         f["geom_aabb"][:, g] = _where(mask, torch.stack([torch.zeros_like(new_size), new_size], 2), f["geom_aabb"][:, g])
         f["geom_rbound"][:, g] = _where(mask, new_size.norm(dim=-1), f["geom_rbound"][:, g])
+
+    def _end_step(self, obs, info) -> None:
+        super()._end_step(obs, info)
+        if self._varying_walls():  # the success of each world's last step: its episode's, if it ends now
+            self._last_success = info["is_success"]
 
     def _init_sampling_ranges(self) -> None:
         super()._init_sampling_ranges()
