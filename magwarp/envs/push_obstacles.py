@@ -129,7 +129,7 @@ class PushWithObstaclesEnv(PushEnv):
 
     def _end_step(self, obs, info) -> None:
         super()._end_step(obs, info)
-        if self._varying_walls():  # the success of each world's last step: its episode's, if it ends now
+        if self.curriculum_success_rate is not None:  # each world's last step: its episode's success, if it ends now
             self._last_success = info["is_success"]
 
     def _init_sampling_ranges(self) -> None:
