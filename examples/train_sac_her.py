@@ -503,6 +503,8 @@ def _train(args: argparse.Namespace) -> dict:
             sps = (global_step - steps_at_log) / max(now - last_log, 1e-9)
             row = {"global_step": global_step, "updates": updates, "wall_s": round(timer.total, 2), "sps": round(sps),
                    **stats, "alpha": float(learner.log_alpha.detach().exp()), **{k: float(v) for k, v in losses.items()}}
+            if getattr(base, "curriculum_level", None) is not None:  # PushWithObstacles' wall curriculum: mean level
+                row["curriculum_level"] = float(base.curriculum_level.float().mean())
             logger.log(row)
             last_log, steps_at_log = now, global_step
             if bar is None:

@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["TileSpec", "MoverSpec", "Layout", "LayoutError", "BENCHMARK_LAYOUTS", "benchmark_layout"]
+__all__ = ["TileSpec", "MoverSpec", "Layout", "LayoutError", "BENCHMARK_LAYOUTS", "benchmark_layout",
+           "mover_params_kwargs"]
 
 
 class LayoutError(ValueError):
@@ -98,6 +99,41 @@ class MoverSpec:
             return self.collision_radius + extra
         hx, hy = self.collision_half_size
         return float(np.hypot(hx + extra, hy + extra))
+
+
+_MOVER_PARAMS_KEYS = ("size", "mass", "shape")
+
+
+def mover_params_kwargs(mover_params: dict | None) -> dict:
+    """:class:`MoverSpec` keyword arguments from MagBotSim's ``mover_params`` dict: ``size`` is the box's half sizes
+    (x, y, z) in m, as MagBotSim writes them (MoverSpec takes full sizes), ``mass`` in kg, ``shape`` only ``"box"``.
+    Every mover of an env shares one spec, so per-mover arrays must hold equal rows."""
+    if mover_params is None:
+        return {}
+    if not isinstance(mover_params, dict):
+        raise LayoutError(f"mover_params must be a dict with keys {list(_MOVER_PARAMS_KEYS)}, got {mover_params!r}")
+    unknown = sorted(set(mover_params) - set(_MOVER_PARAMS_KEYS))
+    if unknown:
+        raise LayoutError(f"mover_params has unsupported keys {unknown}; supported: {list(_MOVER_PARAMS_KEYS)}")
+    shape = mover_params.get("shape", "box")
+    if shape != "box":
+        raise LayoutError(f"mover_params['shape'] must be 'box' (the only mover body simulated), got {shape!r}")
+    out: dict = {}
+    for key, width in (("size", 3), ("mass", 1)):
+        if key not in mover_params:
+            continue
+        try:
+            value = np.asarray(mover_params[key], dtype=float)
+        except (TypeError, ValueError):
+            raise LayoutError(f"mover_params[{key!r}] must be numeric, got {mover_params[key]!r}") from None
+        # size: (3,) or per mover (M, 3); mass: a number or per mover (M,)
+        shape_ok = value.shape == (3,) or (value.ndim == 2 and value.shape[1] == 3) if width == 3 else value.ndim <= 1
+        rows = value.reshape(-1, width) if shape_ok and value.size else None
+        if rows is None or not np.all(rows == rows[:1]):
+            raise LayoutError(f"mover_params[{key!r}] must be {'3 half sizes' if width == 3 else 'one mass'} shared "
+                              f"by every mover, got {mover_params[key]!r}")
+        out[key] = tuple(float(2.0 * v) for v in rows[0]) if key == "size" else float(rows[0, 0])
+    return out  # MoverSpec validates the values themselves (positive, finite)
 
 
 @dataclass(frozen=True)

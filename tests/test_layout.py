@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
-from magwarp.layout import BENCHMARK_LAYOUTS, Layout, LayoutError, MoverSpec, TileSpec, benchmark_layout, validate_starts
+from magwarp.layout import (BENCHMARK_LAYOUTS, Layout, LayoutError, MoverSpec, TileSpec, benchmark_layout,
+                            mover_params_kwargs, validate_starts)
 from magwarp.sim import Simulator
 
 
@@ -64,6 +67,32 @@ def test_mover_spec_defaults():
     assert m.bounding_radius(0.01) == pytest.approx(0.12)
     box = MoverSpec(collision_shape="box", collision_half_size=(0.03, 0.04))
     assert box.bounding_radius() == pytest.approx(0.05)
+
+
+def test_mover_params_follow_magbotsim_half_sizes():
+    # MagBotSim's published runs: size [0.113/2, 0.113/2, 0.012/2] (half sizes), mass 0.639
+    kw = mover_params_kwargs({"size": [0.113 / 2, 0.113 / 2, 0.006], "mass": 0.639, "shape": "box"})
+    assert kw == {"size": pytest.approx((0.113, 0.113, 0.012)), "mass": 0.639}
+    spec = MoverSpec(**kw)
+    assert spec.collision_half_size == pytest.approx((0.0565, 0.0565))  # the default box shape follows the body
+    # per-mover arrays are accepted when every mover is the same
+    same = mover_params_kwargs({"size": np.tile([0.05, 0.05, 0.006], (3, 1)), "mass": [0.6, 0.6, 0.6]})
+    assert same == {"size": pytest.approx((0.1, 0.1, 0.012)), "mass": 0.6}
+    assert mover_params_kwargs(None) == {}
+
+
+@pytest.mark.parametrize("bad, names", [
+    ({"size": [0.05, 0.05]}, "[0.05, 0.05]"),
+    ({"size": [[0.05, 0.05, 0.006], [0.06, 0.05, 0.006]]}, "0.06"),
+    ({"mass": [0.6, 0.7]}, "[0.6, 0.7]"),
+    ({"size": "big"}, "'big'"),
+    ({"shape": "cylinder"}, "'cylinder'"),
+    ({"colour": "red"}, "colour"),
+    ([0.05, 0.05, 0.006], "[0.05, 0.05, 0.006]"),
+])
+def test_mover_params_errors_name_the_bad_value(bad, names):
+    with pytest.raises(LayoutError, match=re.escape(names)):
+        mover_params_kwargs(bad)
 
 
 def test_validate_starts_rules():

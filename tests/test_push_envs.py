@@ -55,6 +55,30 @@ def test_reset_sampling_follows_magbotsim_definition(rng):
         assert torch.all(obs["observation"][:, 2:] == 0)
 
 
+def test_mover_params_set_the_body_and_magbotsim_sampling_distances(rng):
+    # MagBotSim's published Push-Box run: 3 x 3 tiles, a 113 mm mover of 0.639 kg with its own square as the
+    # collision box. MagBotSim: min_mover_object_dist = |object half side (0.06 m) + mover half size| (both axes).
+    import mujoco
+
+    box = [0.113 / 2 + 1e-6] * 2
+    env = PushBoxEnv(64, layout=np.ones((3, 3)), collision_shape="box", collision_size=box,
+                     mover_params={"size": [0.113 / 2, 0.113 / 2, 0.006], "mass": 0.639}, device="cpu",
+                     seed=int(rng.integers(1 << 30)))
+    m = env.backend.mjm
+    geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "mover_geom_0")
+    np.testing.assert_allclose(m.geom_size[geom], [0.0565, 0.0565, 0.006])
+    assert m.body_mass[m.geom_bodyid[geom]] == pytest.approx(0.639)
+    assert env.min_mover_object_dist == pytest.approx(np.hypot(0.06 + 0.0565, 0.06 + 0.0565))
+    # margin: box half size + 0.03; the range ends half a tile half size past the outer tile centres (0.60 m)
+    np.testing.assert_allclose(env.min_xy, [0.0865 + 1e-6] * 2, atol=1e-9)
+    np.testing.assert_allclose(env.max_xy, [0.66 - 0.0865 - 1e-6] * 2, atol=1e-9)
+    obs, _ = env.reset()
+    mover, obj = obs["observation"][:, :2], obs["achieved_goal"]
+    assert torch.all((mover - obj).norm(dim=1) > env.min_mover_object_dist - 1e-4), rng
+    with pytest.raises(ValueError, match="'sphere'"):
+        PushBoxEnv(1, mover_params={"shape": "sphere"}, device="cpu")
+
+
 def test_layout_with_holes_samples_on_tiles(rng):
     tiles = np.array([[1, 1, 1, 1], [1, 1, 0, 1], [1, 1, 1, 1], [1, 1, 1, 1], [0, 1, 1, 1]])
     env = PushTEnv(64, layout=tiles, device="cpu", seed=int(rng.integers(1 << 30)))

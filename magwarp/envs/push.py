@@ -42,7 +42,7 @@ import torch
 
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
-from magwarp.layout import Layout, MoverSpec
+from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
 from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
 from magwarp.physics.coverage import ShapeTable
@@ -98,7 +98,9 @@ class PushEnv(MagwarpVecEnv):
     ``object_type`` is one of ``box``, ``square_box``, ``cylinder``, ``t_shape``, ``l_shape``, ``plus_shape`` (or
     ``T``, ``L``, ``X``); ``object_*`` set its half-sizes (m), mass (kg) and friction. Collision options follow
     MagBotSim's ``collision_params``: ``collision_shape``, ``collision_size``, ``collision_offset`` (sampling
-    margin), ``collision_offset_wall`` (wall margin). ``object_ranges`` (MagBotSim's): ``{"width": (low, high),
+    margin), ``collision_offset_wall`` (wall margin). ``mover_params`` (MagBotSim's) sets the mover body:
+    ``{"size": half sizes (x, y, z), "mass": kg}`` (default: the 155 mm, 1.24 kg APM4330-like box; MagBotSim's
+    published runs use 113 mm and 0.639 kg). ``object_ranges`` (MagBotSim's): ``{"width": (low, high),
     ...}`` over ``width``, ``height``, ``depth``, ``segment_width``, ``radius`` and ``mass``; a range with low < high
     gives every episode an object drawn from ``object_variants`` samples of the ranges
     (:mod:`magwarp.envs.object_variants`; ``info["object_variant"]`` says which), a fixed one just sets the value.
@@ -163,6 +165,7 @@ class PushEnv(MagwarpVecEnv):
         collision_size: float | tuple[float, float] | None = None,
         collision_offset: float = 0.0,
         collision_offset_wall: float = 0.0,
+        mover_params: dict | None = None,
         initial_mover_zpos: float = 0.003,
         obstacles: tuple[ObstacleSpec, ...] = (),
         benchmark: str | None = None,
@@ -220,7 +223,7 @@ class PushEnv(MagwarpVecEnv):
         # object, and each world then gets one of the variants at every reset.
         self.object = dataclasses.replace(self.object, **{k: r[1] for k, r in ranges.items()})
         spec: dict[str, Any] = dict(hover_gap=initial_mover_zpos, collision_shape=collision_shape,
-                                    wall_margin=collision_offset_wall)
+                                    wall_margin=collision_offset_wall, **mover_params_kwargs(mover_params))
         if collision_size is not None:
             if collision_shape == "circle":
                 spec["collision_radius"] = float(collision_size)

@@ -26,7 +26,7 @@ import torch
 
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.sampling import PoseSampler
-from magwarp.layout import Layout, MoverSpec, benchmark_layout
+from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator, default_device
 
 __all__ = ["TrajectoryPlanningEnv"]
@@ -40,7 +40,8 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
     starts and goals), ``collision_offset_wall`` (margin added for wall checks). ``safety_margin`` grows every
     collision shape in the per-cycle mover-mover check (MagBotSim: none); sampled starts keep it as well (each shape
     grown by ``safety_margin + collision_offset``), so no world starts in a collision. A configuration in which the
-    movers cannot be placed raises a ``ValueError`` naming these values.
+    movers cannot be placed raises a ``ValueError`` naming these values. ``mover_params`` (MagBotSim's) sets the
+    mover body: ``{"size": half sizes (x, y, z), "mass": kg}``.
     """
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
@@ -56,6 +57,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         collision_size: float | tuple[float, float] | None = None,
         collision_offset: float = 0.0,
         collision_offset_wall: float = 0.0,
+        mover_params: dict | None = None,
         safety_margin: float = 0.0,
         learn_jerk: bool = False,
         v_max: float = 2.0,
@@ -95,7 +97,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         if timeout_steps is not None and timeout_steps < 1:
             raise ValueError(f"timeout_steps must be None or >= 1, got {timeout_steps!r}")
         spec_kwargs: dict[str, Any] = dict(collision_shape=collision_shape, margin=safety_margin,
-                                           wall_margin=collision_offset_wall)
+                                           wall_margin=collision_offset_wall, **mover_params_kwargs(mover_params))
         if collision_size is not None:
             if collision_shape == "circle":
                 spec_kwargs["collision_radius"] = float(collision_size)
