@@ -33,7 +33,7 @@ wait)
   end=$((SECONDS + $2))
   while [ $SECONDS -lt $end ] && ! grep -q "^| run |" $WORK/suite.log 2>/dev/null; do sleep 10; done
   log "progress"
-  for f in $WORK/*/progress.csv; do echo "$f: $(tail -1 "$f" | cut -d, -f1-9)"; done
+  for f in $WORK/*/progress.csv; do echo "$f: $(head -1 "$f")"; echo "    $(tail -1 "$f")"; done
   grep -A8 "^| run |" $WORK/suite.log || true
   ;;
 eval)
