@@ -104,6 +104,20 @@ class MoverSpec:
 _MOVER_PARAMS_KEYS = ("size", "mass", "shape")
 
 
+def _shared_row(mover_params: dict, key: str, row_shape: tuple, what: str) -> np.ndarray:
+    """``mover_params[key]`` as one row of ``row_shape``: given once, or once per mover (a leading axis) with every
+    mover's row the same."""
+    try:
+        value = np.asarray(mover_params[key], dtype=float)
+    except (TypeError, ValueError):
+        raise LayoutError(f"mover_params[{key!r}] must be numeric, got {mover_params[key]!r}") from None
+    per_mover = value.ndim == len(row_shape) + 1 and value.shape[1:] == row_shape and len(value) > 0
+    rows = value.reshape((-1, *row_shape)) if value.shape == row_shape or per_mover else None
+    if rows is None or not np.all(rows == rows[:1]):
+        raise LayoutError(f"mover_params[{key!r}] must be {what} shared by every mover, got {mover_params[key]!r}")
+    return rows[0]
+
+
 def mover_params_kwargs(mover_params: dict | None) -> dict:
     """:class:`MoverSpec` keyword arguments from MagBotSim's ``mover_params`` dict: ``size`` is the box's half sizes
     (x, y, z) in m, as MagBotSim writes them (MoverSpec takes full sizes), ``mass`` in kg, ``shape`` only ``"box"``.
@@ -119,20 +133,10 @@ def mover_params_kwargs(mover_params: dict | None) -> dict:
     if shape != "box":
         raise LayoutError(f"mover_params['shape'] must be 'box' (the only mover body simulated), got {shape!r}")
     out: dict = {}
-    for key, width in (("size", 3), ("mass", 1)):
-        if key not in mover_params:
-            continue
-        try:
-            value = np.asarray(mover_params[key], dtype=float)
-        except (TypeError, ValueError):
-            raise LayoutError(f"mover_params[{key!r}] must be numeric, got {mover_params[key]!r}") from None
-        # size: (3,) or per mover (M, 3); mass: a number or per mover (M,)
-        shape_ok = value.shape == (3,) or (value.ndim == 2 and value.shape[1] == 3) if width == 3 else value.ndim <= 1
-        rows = value.reshape(-1, width) if shape_ok and value.size else None
-        if rows is None or not np.all(rows == rows[:1]):
-            raise LayoutError(f"mover_params[{key!r}] must be {'3 half sizes' if width == 3 else 'one mass'} shared "
-                              f"by every mover, got {mover_params[key]!r}")
-        out[key] = tuple(float(2.0 * v) for v in rows[0]) if key == "size" else float(rows[0, 0])
+    if "size" in mover_params:
+        out["size"] = tuple(float(2.0 * v) for v in _shared_row(mover_params, "size", (3,), "3 half sizes"))
+    if "mass" in mover_params:
+        out["mass"] = float(_shared_row(mover_params, "mass", (), "one mass"))
     return out  # MoverSpec validates the values themselves (positive, finite)
 
 

@@ -4,11 +4,12 @@ MagBotSim's published run parameters (``docs/parameters/*.yaml`` in its reposito
 3-5) change the envs' defaults: the pushing agents act every 160 control cycles (Push-T: 80), so an episode lasts
 4 s instead of 1-2 s; rewards are -50 for a collision, -1 per step and 0 at the goal; the mover is a 113 mm,
 0.639 kg box (``mover_params``; the envs' default is 155 mm, 1.24 kg) and its collision shape is that square;
-Push-Box and Push-T run on 3 x 3 tiles (PushWithObstacles' walls need its own 4 x 3); Push-T trains with a 0.95 coverage goal (here 0.8, below) and is evaluated at 0.7;
-PushWithObstacles trains with a wall curriculum and is evaluated on the hard walls; trajectory planning acts every
-120 cycles with 0.09 m half-size collision boxes. A policy is evaluated in the env it is compared in, so each run
-records both option sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is
-given. ``benchmarks/RESULTS.md`` (Training) lists what each run reached.
+Push-Box and Push-T run on 3 x 3 tiles (PushWithObstacles' walls need its own 4 x 3); Push-T trains with a 0.95
+coverage goal (here 0.8, below) and is evaluated at 0.7; PushWithObstacles trains with a wall curriculum (here
+also random gaps, below) and is evaluated on the hard walls; trajectory planning acts every 120 cycles with 0.09 m
+half-size collision boxes. A policy is evaluated in the env it is compared in, so each run records both option
+sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is given.
+``benchmarks/RESULTS.md`` (Training) lists what each run reached.
 """
 
 from __future__ import annotations
