@@ -377,6 +377,17 @@ def test_compute_reward_batched_and_consistent_with_step(rng):
 
 
 # ---------------------------------------------------------------------------------------------------- bad inputs
+def test_mover_params_set_the_simulated_body():
+    # MagBotSim's published trajectory-planning run: a 113 mm mover of 0.63 kg (half sizes in mover_params)
+    env = TrajectoryPlanningEnv(num_envs=2, seed=0, device="cpu",
+                                mover_params={"size": [0.113 / 2, 0.113 / 2, 0.006], "mass": 0.63})
+    assert env.sim.mover.size == pytest.approx((0.113, 0.113, 0.012)) and env.sim.mover.mass == 0.63
+    assert env.sim.mover.collision_shape == "circle"  # the collision shape stays the env's own option
+    bad = r"mover_params\['mass'\] must be one mass shared by every mover, got \[0.6, 0.7\]"
+    with pytest.raises(LayoutError, match=bad):
+        TrajectoryPlanningEnv(num_envs=1, device="cpu", mover_params={"mass": [0.6, 0.7]})
+
+
 def test_bad_inputs_raise_clear_errors_without_state_change(rng):
     n = 3
     env = TrajectoryPlanningEnv(num_envs=n, seed=11, device="cpu")
