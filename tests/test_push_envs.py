@@ -212,6 +212,35 @@ def test_random_walls_are_drawn_per_world_within_magbotsim_range():
     assert torch.allclose(sizes, env.obstacle_boxes[:, :, 3])
 
 
+def test_mixed_walls_draw_each_mode_at_its_weight_per_world_and_reset():
+    env = PushWithObstaclesEnv(512, device="cpu", seed=3, obstacle_mode={"random": 1, "hard": 1, "simple": 2})
+    halves = []
+    for _ in range(4):
+        env.reset()
+        half = env.obstacle_boxes[:, 0, 3].clone()
+        assert half.min() >= 0.1 - 1e-7 and half.max() <= 0.13 + 1e-7
+        assert torch.allclose(env.backend.batched_fields["geom_size"][:, env._wall_geoms, 1], env.obstacle_boxes[:, :, 3])
+        halves.append(half)
+    half = torch.cat(halves)
+    hard, simple = (half == 0.13).float().mean(), (half == 0.1).float().mean()
+    between = ((half > 0.1) & (half < 0.13)).float().mean()  # the random draws (a uniform one hits an end never)
+    # weights 1:1:2 over 2048 draws: 0.25, 0.25, 0.5, each within 4 standard deviations (about 0.04)
+    assert abs(hard - 0.25) < 0.04 and abs(between - 0.25) < 0.04 and abs(simple - 0.5) < 0.045
+    assert not torch.equal(halves[0], halves[1])  # redrawn at every reset
+    only_hard = PushWithObstaclesEnv(4, device="cpu", seed=0, obstacle_mode={"hard": 1.0, "medium": 0})
+    only_hard.reset()
+    assert torch.allclose(only_hard.obstacle_boxes[:, 0, 3], torch.full((4,), 0.13))
+    assert only_hard.obstacle_mode == {"hard": 1.0, "medium": 0}
+
+
+@pytest.mark.parametrize("mix, message", [
+    ({"curriculum": 1}, "draws from"), ({}, "draws from"), ({"hard": -1}, r"obstacle_mode\['hard'\] must be a finite"),
+    ({"hard": float("nan")}, "finite"), ({"hard": "x"}, "must be a number, got 'x'"), ({"hard": 0}, "positive weight")])
+def test_bad_wall_mix_names_the_value(mix, message):
+    with pytest.raises(ValueError, match=message):
+        PushWithObstaclesEnv(1, device="cpu", obstacle_mode=mix)
+
+
 @pytest.mark.parametrize("jerk", [False, True])
 def test_yaw_actions_turn_the_mover_within_limits(jerk):
     env = PushBoxEnv(2, device="cpu", seed=0, learn_mover_c_rotation=True, learn_jerk=jerk, p_max_c=1.0)

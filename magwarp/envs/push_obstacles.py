@@ -19,6 +19,26 @@ from magwarp.mjcf import ObstacleSpec
 # edge of the 0.72 m tall layout minus it, so the gap between them narrows as they grow).
 _OBSTACLE_HALF_Y = {"simple": 0.1, "medium": 0.115, "hard": 0.13}
 _OBSTACLE_MODES = (*_OBSTACLE_HALF_Y, "random", "curriculum")
+_MIX_MODES = (*_OBSTACLE_HALF_Y, "random")  # what a mix of modes may draw from at each reset
+
+
+def _mix_probabilities(mix) -> dict[str, float]:
+    """``{mode: probability}`` of an ``obstacle_mode`` mapping, normalised; a bad key or weight raises, naming it."""
+    unknown = [k for k in mix if k not in _MIX_MODES]
+    if unknown or not mix:
+        raise ValueError(f"an obstacle_mode mapping draws from {list(_MIX_MODES)}, got {dict(mix)!r}")
+    weights = {}
+    for mode, w in mix.items():
+        try:
+            weights[mode] = float(w)
+        except (TypeError, ValueError):
+            raise ValueError(f"obstacle_mode[{mode!r}] must be a number, got {w!r}") from None
+        if not np.isfinite(weights[mode]) or weights[mode] < 0:
+            raise ValueError(f"obstacle_mode[{mode!r}] must be a finite weight >= 0, got {w!r}")
+    total = sum(weights.values())
+    if total <= 0:
+        raise ValueError(f"an obstacle_mode mapping needs a positive weight, got {dict(mix)!r}")
+    return {mode: w / total for mode, w in weights.items()}
 
 
 class PushWithObstaclesEnv(PushEnv):
@@ -32,7 +52,10 @@ class PushWithObstaclesEnv(PushEnv):
     ``obstacle_mode`` sets the gap, as in MagBotSim: ``simple``, ``medium`` or ``hard`` (fixed walls of half length
     0.1, 0.115 or 0.13 m), ``random`` (a half length drawn uniformly from [0.1, 0.13] per world at every reset) or
     ``curriculum`` (each world starts ``simple`` and moves to ``medium``, then ``hard``, every
-    ``curriculum_episodes`` episodes; MagBotSim: 800). In the last two modes the walls change per world without a
+    ``curriculum_episodes`` episodes; MagBotSim: 800). A mapping of the fixed modes and ``random`` to weights, such
+    as ``{"random": 0.5, "hard": 0.5}``, draws a mode per world at every reset (not in MagBotSim: a training mix
+    that keeps easier gaps in every batch while half the episodes face the walls a policy is evaluated on). In the
+    last three cases the walls change per world without a
     model rebuild: the obstacle geoms' pose and size are per-world model arrays in mujoco-warp
     (:meth:`MjwBackend.batch_model_fields`).
 
@@ -43,10 +66,11 @@ class PushWithObstaclesEnv(PushEnv):
     learned anything on the simple ones.
     """
 
-    def __init__(self, num_envs: int = 1, obstacle_mode: str = "simple", threshold_pos: float = 0.05,
+    def __init__(self, num_envs: int = 1, obstacle_mode: str | dict[str, float] = "simple", threshold_pos: float = 0.05,
                  initial_mover_zpos: float = 0.002, curriculum_episodes: int = 800,
                  curriculum_success_rate: float | None = None, **kwargs):
-        if obstacle_mode not in _OBSTACLE_MODES:
+        self._mix = _mix_probabilities(obstacle_mode) if isinstance(obstacle_mode, dict) else None
+        if self._mix is None and obstacle_mode not in _OBSTACLE_MODES:
             raise ValueError(f"obstacle_mode must be one of {list(_OBSTACLE_MODES)}, got {obstacle_mode!r}")
         if int(curriculum_episodes) != curriculum_episodes or curriculum_episodes < 1:
             raise ValueError(f"curriculum_episodes must be a positive integer, got {curriculum_episodes!r}")
@@ -55,11 +79,12 @@ class PushWithObstaclesEnv(PushEnv):
                 raise ValueError(f"curriculum_success_rate needs obstacle_mode='curriculum', got {obstacle_mode!r}")
             if not 0.0 <= float(curriculum_success_rate) <= 1.0:
                 raise ValueError(f"curriculum_success_rate must lie in [0, 1], got {curriculum_success_rate!r}")
-        self.obstacle_mode = obstacle_mode
+        self.obstacle_mode = dict(obstacle_mode) if self._mix is not None else obstacle_mode
         self.curriculum_episodes = int(curriculum_episodes)
         self.curriculum_success_rate = None if curriculum_success_rate is None else float(curriculum_success_rate)
         self.obstacle_x, self.obstacle_size_x, self.layout_top = 0.48, 0.03, 0.72
-        size_y = _OBSTACLE_HALF_Y.get(obstacle_mode, _OBSTACLE_HALF_Y["simple"])  # random/curriculum start simple
+        # random, curriculum and mixed walls start simple (the first reset draws them)
+        size_y = _OBSTACLE_HALF_Y["simple"] if self._mix is not None else _OBSTACLE_HALF_Y.get(obstacle_mode, 0.1)
         obstacles = (ObstacleSpec((0.48, size_y), (0.03, size_y, 0.03)),
                      ObstacleSpec((0.48, self.layout_top - size_y), (0.03, size_y, 0.03)))
         kwargs.setdefault("max_episode_steps", 25)
@@ -70,7 +95,7 @@ class PushWithObstaclesEnv(PushEnv):
                          per_step_penalty=-1.0, object_at_goal_reward=0.0, **kwargs)
 
     def _varying_walls(self) -> bool:
-        return self.obstacle_mode in ("random", "curriculum")
+        return self._mix is not None or self.obstacle_mode in ("random", "curriculum")
 
     def _reset_envs(self, mask: torch.Tensor) -> None:
         if self._varying_walls():
@@ -95,7 +120,9 @@ class PushWithObstaclesEnv(PushEnv):
             self.curriculum_success = torch.zeros(self.num_envs, device=self.device)  # running rate at the level
             self._last_success = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         n = self.num_envs
-        if self.obstacle_mode == "random":
+        if self._mix is not None:
+            half_y = self._mixed_half_y(n)
+        elif self.obstacle_mode == "random":
             half_y = self._uniform(_OBSTACLE_HALF_Y["simple"], _OBSTACLE_HALF_Y["hard"], n)[:, 0]
         else:
             # MagBotSim counts resets and moves up a level once a level has had curriculum_episodes of them
@@ -126,6 +153,18 @@ class PushWithObstaclesEnv(PushEnv):
         f["geom_size"][:, g] = _where(mask, new_size, size)
         f["geom_aabb"][:, g] = _where(mask, torch.stack([torch.zeros_like(new_size), new_size], 2), f["geom_aabb"][:, g])
         f["geom_rbound"][:, g] = _where(mask, new_size.norm(dim=-1), f["geom_rbound"][:, g])
+
+    def _mixed_half_y(self, n: int) -> torch.Tensor:
+        """Wall half lengths of ``n`` worlds, each drawn from a mode of the mix: a fixed level, or uniform (random)."""
+        modes = list(self._mix)
+        cdf = self._const(np.cumsum([self._mix[m] for m in modes], dtype=np.float32))
+        pick = torch.searchsorted(cdf, self._rand(n).contiguous(), right=True).clamp_(max=len(modes) - 1)
+        fixed = self._const(np.array([_OBSTACLE_HALF_Y.get(m, 0.0) for m in modes], np.float32))[pick]
+        uniform = self._uniform(_OBSTACLE_HALF_Y["simple"], _OBSTACLE_HALF_Y["hard"], n)[:, 0]
+        is_random = torch.zeros(len(modes), dtype=torch.bool, device=self.device)
+        if "random" in modes:
+            is_random[modes.index("random")] = True
+        return torch.where(is_random[pick], uniform, fixed)
 
     def _end_step(self, obs, info) -> None:
         super()._end_step(obs, info)
