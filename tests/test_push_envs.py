@@ -219,7 +219,8 @@ def test_mixed_walls_draw_each_mode_at_its_weight_per_world_and_reset():
         env.reset()
         half = env.obstacle_boxes[:, 0, 3].clone()
         assert half.min() >= 0.1 - 1e-7 and half.max() <= 0.13 + 1e-7
-        assert torch.allclose(env.backend.batched_fields["geom_size"][:, env._wall_geoms, 1], env.obstacle_boxes[:, :, 3])
+        sizes = env.backend.batched_fields["geom_size"][:, env._wall_geoms, 1]
+        assert torch.allclose(sizes, env.obstacle_boxes[:, :, 3])
         halves.append(half)
     half = torch.cat(halves)
     hard, simple = (half == 0.13).float().mean(), (half == 0.1).float().mean()

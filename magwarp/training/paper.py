@@ -7,7 +7,7 @@ MagBotSim's published run parameters (``docs/parameters/*.yaml`` in its reposito
 Push-Box and Push-T run on 3 x 3 tiles (PushWithObstacles' walls need its own 4 x 3); Push-T trains with a 0.95
 coverage goal (here 0.8, below) and is evaluated at 0.7; PushWithObstacles trains with a wall curriculum (here
 also random gaps, below) and is evaluated on the hard walls; trajectory planning acts every 120 cycles with 0.09 m
-half-size collision boxes. A policy is evaluated in the env it is compared in, so each run records both option
+half-size collision boxes and a 113 mm, 0.63 kg mover. A policy is evaluated in the env it is compared in, so each run records both option
 sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is given.
 ``benchmarks/RESULTS.md`` (Training) lists what each run reached.
 """
