@@ -55,9 +55,8 @@ class PushWithObstaclesEnv(PushEnv):
     ``curriculum_episodes`` episodes; MagBotSim: 800). A mapping of the fixed modes and ``random`` to weights, such
     as ``{"random": 0.5, "hard": 0.5}``, draws a mode per world at every reset (not in MagBotSim: a training mix
     that keeps easier gaps in every batch while half the episodes face the walls a policy is evaluated on). In the
-    last three cases the walls change per world without a
-    model rebuild: the obstacle geoms' pose and size are per-world model arrays in mujoco-warp
-    (:meth:`MjwBackend.batch_model_fields`).
+    last three cases the walls change per world without a model rebuild: the obstacle geoms' pose and size are
+    per-world model arrays in mujoco-warp (:meth:`MjwBackend.batch_model_fields`).
 
     ``curriculum_success_rate`` (curriculum mode only; default ``None``: MagBotSim's fixed schedule) also holds a
     world at its level until its running success rate there (an exponential average over about
@@ -84,7 +83,7 @@ class PushWithObstaclesEnv(PushEnv):
         self.curriculum_success_rate = None if curriculum_success_rate is None else float(curriculum_success_rate)
         self.obstacle_x, self.obstacle_size_x, self.layout_top = 0.48, 0.03, 0.72
         # random, curriculum and mixed walls start simple (the first reset draws them)
-        size_y = _OBSTACLE_HALF_Y["simple"] if self._mix is not None else _OBSTACLE_HALF_Y.get(obstacle_mode, 0.1)
+        size_y = _OBSTACLE_HALF_Y.get(obstacle_mode if self._mix is None else "simple", _OBSTACLE_HALF_Y["simple"])
         obstacles = (ObstacleSpec((0.48, size_y), (0.03, size_y, 0.03)),
                      ObstacleSpec((0.48, self.layout_top - size_y), (0.03, size_y, 0.03)))
         kwargs.setdefault("max_episode_steps", 25)
@@ -155,16 +154,14 @@ class PushWithObstaclesEnv(PushEnv):
         f["geom_rbound"][:, g] = _where(mask, new_size.norm(dim=-1), f["geom_rbound"][:, g])
 
     def _mixed_half_y(self, n: int) -> torch.Tensor:
-        """Wall half lengths of ``n`` worlds, each drawn from a mode of the mix: a fixed level, or uniform (random)."""
+        """Wall half lengths of ``n`` worlds: each picks a mode of the mix by weight, then a length uniform in that
+        mode's interval (a fixed level's is the level alone; ``random``'s is [simple, hard])."""
         modes = list(self._mix)
         cdf = self._const(np.cumsum([self._mix[m] for m in modes], dtype=np.float32))
-        pick = torch.searchsorted(cdf, self._rand(n).contiguous(), right=True).clamp_(max=len(modes) - 1)
-        fixed = self._const(np.array([_OBSTACLE_HALF_Y.get(m, 0.0) for m in modes], np.float32))[pick]
-        uniform = self._uniform(_OBSTACLE_HALF_Y["simple"], _OBSTACLE_HALF_Y["hard"], n)[:, 0]
-        is_random = torch.zeros(len(modes), dtype=torch.bool, device=self.device)
-        if "random" in modes:
-            is_random[modes.index("random")] = True
-        return torch.where(is_random[pick], uniform, fixed)
+        pick = torch.searchsorted(cdf, self._rand(n), right=True).clamp_(max=len(modes) - 1)
+        lo = self._const(np.array([_OBSTACLE_HALF_Y.get(m, _OBSTACLE_HALF_Y["simple"]) for m in modes], np.float32))
+        hi = self._const(np.array([_OBSTACLE_HALF_Y.get(m, _OBSTACLE_HALF_Y["hard"]) for m in modes], np.float32))
+        return lo[pick] + (hi - lo)[pick] * self._rand(n)
 
     def _end_step(self, obs, info) -> None:
         super()._end_step(obs, info)

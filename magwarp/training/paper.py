@@ -7,8 +7,9 @@ MagBotSim's published run parameters (``docs/parameters/*.yaml`` in its reposito
 Push-Box and Push-T run on 3 x 3 tiles (PushWithObstacles' walls need its own 4 x 3); Push-T trains with a 0.95
 coverage goal (here 0.8, below) and is evaluated at 0.7; PushWithObstacles trains with a wall curriculum (here
 also random gaps, below) and is evaluated on the hard walls; trajectory planning acts every 120 cycles with 0.09 m
-half-size collision boxes and a 113 mm, 0.63 kg mover. A policy is evaluated in the env it is compared in, so each run records both option
-sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs`` is given.
+half-size collision boxes and a 113 mm, 0.63 kg mover. A policy is evaluated in the env it is compared in, so each
+run records both option sets: ``magwarp eval`` applies a policy file's ``eval_env_kwargs`` unless ``--env-kwargs``
+is given.
 ``benchmarks/RESULTS.md`` (Training) lists what each run reached.
 """
 
@@ -19,8 +20,9 @@ from dataclasses import dataclass, field
 
 __all__ = ["PaperRun", "PAPER_RUNS"]
 
+MOVER_113MM = [0.113 / 2, 0.113 / 2, 0.012 / 2]  # the published runs' mover: half sizes, as mover_params takes them
 MOVER_BOX = {"collision_shape": "box", "collision_size": [0.113 / 2 + 1e-6, 0.113 / 2 + 1e-6],
-             "mover_params": {"size": [0.113 / 2, 0.113 / 2, 0.012 / 2], "mass": 0.639}}
+             "mover_params": {"size": MOVER_113MM, "mass": 0.639}}
 TILES_3X3 = {"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]]}
 PUSH_REWARDS = {"collision_penalty": -50.0, "per_step_penalty": -1.0, "object_at_goal_reward": 0.0}
 
@@ -56,12 +58,12 @@ _OBSTACLES_FINE = {"num_cycles": 40, **MOVER_BOX}
 _B0 = {"num_cycles": 120, "collision_shape": "box", "collision_size": [0.09, 0.09]}
 # the whole published trajectory-planning file (trajectory_planning_sac_nMovers_3.yaml): _B0 and its 113 mm, 0.63 kg
 # mover (rounds 1-5 moved the envs' default 155 mm, 1.24 kg body)
-_B0_PUBLISHED = {**_B0, "mover_params": {"size": [0.113 / 2, 0.113 / 2, 0.012 / 2], "mass": 0.63}}
+_B0_PUBLISHED = {**_B0, "mover_params": {"size": MOVER_113MM, "mass": 0.63}}
 
 PAPER_RUNS: dict[str, PaperRun] = {
     "b0_ppo": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", _B0_PUBLISHED, _B0_PUBLISHED,
                        "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
-    # the paper's own algorithm on its published options (the PPO runs above stay at 2.75 collisions per 1000 goals
+    # the paper's own algorithm on its published options (every PPO run so far collided 2.75 times per 1000 goals
     # or more)
     "b0_sac": PaperRun("magwarp/TrajectoryPlanningB0-v0", "sac-her", _B0_PUBLISHED, _B0_PUBLISHED,
                        "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
