@@ -429,12 +429,59 @@ def test_bad_inputs_raise_clear_errors_without_state_change(rng):
     (dict(layout=np.ones((2, 2)), num_movers=None), ValueError, "num_movers"),
     (dict(threshold_pos=-0.1), ValueError, "threshold_pos"),
     (dict(timeout_steps=0), ValueError, "timeout_steps"),
+    (dict(max_episode_steps=0), ValueError, "max_episode_steps.*0"),
+    (dict(max_episode_steps=2.5), ValueError, "max_episode_steps.*2.5"),
+    (dict(max_episode_steps=True), ValueError, "max_episode_steps.*True"),
     (dict(num_cycles=0), ValueError, "num_cycles"),
     (dict(render_mode="human"), ValueError, "human"),
 ])
 def test_bad_construction_arguments(kwargs, exc, pattern):
     with pytest.raises(exc, match=pattern):
         TrajectoryPlanningEnv(**{"device": "cpu", **kwargs})
+
+
+@pytest.mark.parametrize("cut", [1, 5])
+def test_episode_length_cut_truncates_resets_and_leaves_pending_goals_open(rng, cut):
+    from magwarp.metrics import Metrics
+
+    n, seed = 6, int(rng.integers(1 << 30))
+    # a goal sampled within a tiny threshold of a resting mover has probability ~0: no goal is reached
+    env = TrajectoryPlanningEnv(num_envs=n, seed=seed, device="cpu", timeout_steps=None, max_episode_steps=cut,
+                                threshold_pos=1e-6)
+    metrics = Metrics(env)
+    env.reset(seed=seed)
+    still = torch.zeros(n, 2 * env.num_movers)  # movers at rest never collide nor reach a goal (starts are clear)
+    for step in range(1, 2 * cut + 1):
+        start = env.sim.pos[..., :2].clone()
+        obs, reward, terminated, truncated, info = env.step(still)
+        cut_now = step % cut == 0
+        assert not terminated.any() and not info["goals_reached"].any(), f"step {step} ({rng})"
+        assert truncated.tolist() == [cut_now] * n, f"step {step} of a {cut}-step episode ({rng})"
+        np.testing.assert_array_equal(_np(info["final_obs"]["achieved_goal"]) if cut_now else _np(obs["achieved_goal"]),
+                                      _np(start).reshape(n, -1), err_msg=f"the movers stood still ({rng})")
+        assert env.num_steps.tolist() == [0 if cut_now else step % cut] * n
+        if cut_now:  # autoreset: new starts
+            assert not torch.equal(env.sim.pos[..., :2], start), f"no new starts after the cut ({rng})"
+    # the pending goals were neither reached nor failed, and no benchmark episode ended
+    summary = metrics.summary()
+    assert metrics.t["goals_failed"].sum() == 0 and metrics.t["episodes"].sum() == 0
+    assert summary["goals"].item() == 0
+
+
+def test_timeout_still_fails_pending_goals_with_an_episode_length_cut(rng):
+    from magwarp.metrics import Metrics
+
+    n, seed = 4, int(rng.integers(1 << 30))
+    env = TrajectoryPlanningEnv(num_envs=n, seed=seed, device="cpu", timeout_steps=2, max_episode_steps=50,
+                                threshold_pos=1e-6)
+    metrics = Metrics(env)
+    env.reset(seed=seed)
+    truncations = []
+    for _ in range(4):  # steps_since_goal 0, 1, 2, 3: the fourth step times out (3 > 2)
+        truncations.append(env.step(torch.zeros(n, 2 * env.num_movers))[3].tolist())
+    assert truncations == [[False] * n] * 3 + [[True] * n], rng
+    assert metrics.t["goals_failed"].tolist() == [env.num_movers] * n
+    assert metrics.t["episodes"].tolist() == [1] * n
 
 
 # ---------------------------------------------------------------------------------------------------- gymnasium

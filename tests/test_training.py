@@ -36,6 +36,21 @@ def _success_rate(policy, seed: int = 123, num_envs: int = 64, steps: int = 150)
     return tracker.pop()["success_rate"]
 
 
+def test_success_counts_goals_lost_by_collisions_and_timeouts_not_by_the_episode_length_cut():
+    from magwarp.training import SuccessTracker
+
+    tracker = SuccessTracker(3, "cpu")
+    no = torch.zeros(3, dtype=torch.bool)
+    reached = torch.tensor([[True, False], [False, False], [True, True]])
+    # step 1: three goals reached; step 2: world 0 collides, world 1 times out, world 2 is cut by max_episode_steps
+    tracker.update(torch.zeros(3), no, no, {"goals_reached": reached, "time_limit": no})
+    ends = {"goals_reached": torch.zeros(3, 2, dtype=torch.bool), "time_limit": torch.tensor([False, False, True]),
+            "mover_collision": torch.tensor([True, False, False])}
+    tracker.update(torch.zeros(3), torch.tensor([True, False, False]), torch.tensor([False, True, True]), ends)
+    out = tracker.pop()
+    assert out["success_rate"] == 3 / (3 + 2 * 2) and out["episodes"] == 3 and out["collisions_per_episode"] == 1 / 3
+
+
 def _ppo_args(out, *extra):
     return _example("train_ppo").parse_args([
         "--env-id", TINY_ENV, "--env-kwargs", TINY_KWARGS, "--device", "cpu", "--seed", "1", "--num-envs", "64",

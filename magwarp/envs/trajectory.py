@@ -7,7 +7,8 @@ Every mover has a goal. Per env step (``num_cycles`` control cycles at 1 ms, the
 * reward: ``reward_collision`` on a mover-mover or wall collision, else ``reward_success`` times the number of
   movers within ``threshold_pos`` of their goals, else ``reward_per_step``;
 * terminated on collision (the world stops moving at the cycle of the collision, as MagBotSim's does);
-* truncated when no goal was reached for more than ``timeout_steps`` steps;
+* truncated when no goal was reached for more than ``timeout_steps`` steps, or (optional, off by default as in
+  MagBotSim) after ``max_episode_steps`` steps;
 * reached goals are resampled after the reward is computed, so the returned observation still shows the goal the
   reward was computed for (consistent for hindsight relabelling); the new goal appears from the next step on.
 
@@ -42,6 +43,12 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
     grown by ``safety_margin + collision_offset``), so no world starts in a collision. A configuration in which the
     movers cannot be placed raises a ``ValueError`` naming these values. ``mover_params`` (MagBotSim's) sets the
     mover body: ``{"size": half sizes (x, y, z), "mass": kg}``.
+
+    ``max_episode_steps`` (default None: MagBotSim's episodes end only on a collision or a timeout) truncates every
+    episode after that many steps. Training uses it to see episode starts often: a policy that runs thousands of steps
+    per episode rarely meets the start states (all movers at rest, three fresh goals), which the benchmark's 10 s runs
+    begin with. The benchmark metrics count a goal pending at this cut as neither reached nor failed (as at the end
+    of an evaluation run); a collision or a timeout fails it.
     """
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
@@ -69,6 +76,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         reward_collision: float = -20.0,
         reward_per_step: float = -1.0,
         timeout_steps: int | None = 50,
+        max_episode_steps: int | None = None,
         std_noise: float = 0.0,
         device: str | None = None,
         seed: int | None = None,
@@ -96,6 +104,9 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
             raise ValueError(f"threshold_pos must be positive, got {threshold_pos!r}")
         if timeout_steps is not None and timeout_steps < 1:
             raise ValueError(f"timeout_steps must be None or >= 1, got {timeout_steps!r}")
+        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(
+                max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
+            raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_episode_steps!r}")
         spec_kwargs: dict[str, Any] = dict(collision_shape=collision_shape, margin=safety_margin,
                                            wall_margin=collision_offset_wall, **mover_params_kwargs(mover_params))
         if collision_size is not None:
@@ -129,6 +140,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         self.reward_collision = float(reward_collision)
         self.reward_per_step = float(reward_per_step)
         self.timeout_steps = timeout_steps
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         # The pools are drawn with their own fixed-seed generator, so that reset(seed=...) alone fixes a run.
         pool_gen = torch.Generator(device=self.device)
         pool_gen.manual_seed(0 if seed is None else int(seed))
@@ -199,12 +211,18 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         reward = self.compute_reward(obs["achieved_goal"], obs["desired_goal"], info)
         terminated = mover_collision | wall_collision
         if self.timeout_steps is None:
-            truncated = torch.zeros_like(terminated)
+            timed_out = torch.zeros_like(terminated)
         else:
-            truncated = info["steps_since_goal"] > self.timeout_steps
+            timed_out = info["steps_since_goal"] > self.timeout_steps
         info["collected_goals"] = self.collected_goals
         if self.benchmark_metrics is not None:
-            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
+            # only a timeout fails the pending goals; the episode-length cut leaves them open
+            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, timed_out)
+        truncated = timed_out
+        if self.max_episode_steps is not None:  # num_steps counts the steps before this one
+            truncated = timed_out | (self.num_steps + 1 >= self.max_episode_steps)
+        # episodes cut by max_episode_steps alone: their pending goals are not lost (training's success counter)
+        info["time_limit"] = truncated & ~timed_out & ~terminated
         return reward, terminated, truncated, info
 
     def _end_step(self, obs, info) -> None:

@@ -113,7 +113,8 @@ class SuccessTracker:
 
     Success rate: for envs that report ``info["is_success"]`` (pushing), the fraction of finished episodes that end
     in success; for trajectory planning (``info["goals_reached"]``), goals reached / (goals reached + goals lost),
-    where every mover's pending goal is lost when an episode ends (collision or timeout): the benchmark's rule.
+    where every mover's pending goal is lost when an episode ends by a collision or a timeout (the benchmark's rule),
+    not when ``info["time_limit"]`` marks an episode-length cut.
     """
 
     def __init__(self, num_envs: int, device):
@@ -146,7 +147,8 @@ class SuccessTracker:
         elif "goals_reached" in info:
             reached = info["goals_reached"]
             s["success"] += reached.sum()
-            s["trials"] += reached.sum() + done.sum() * reached.shape[-1]
+            lost = done & ~info["time_limit"] if "time_limit" in info else done
+            s["trials"] += reached.sum() + lost.sum() * reached.shape[-1]
         self.ep_return.masked_fill_(done, 0.0)
         self.ep_len.masked_fill_(done, 0.0)
 
