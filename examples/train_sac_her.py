@@ -91,7 +91,9 @@ def resolve_args(args: argparse.Namespace) -> argparse.Namespace:
     if args.resume:
         saved = load_checkpoint(args.resume, "cpu")["args"]
         for k, v in saved.items():
-            if k == "stop_after":  # a limit of the earlier process, not of this one
+            # stop_after: a limit of the earlier process, not of this one; out: a run continues where its checkpoint
+            # is now (a copied or moved folder), not in the folder it was first written to
+            if k in ("stop_after", "out"):
                 continue
             if getattr(args, k, None) is None:
                 setattr(args, k, v)

@@ -107,11 +107,16 @@ def test_policy_file_contract_and_resume(tmp_path):
     assert meta["env_id"] == TINY_ENV and meta["algo"] == "ppo"
     assert meta["obs_keys"] == ["achieved_goal", "desired_goal", "observation"]
 
-    # Resume: the step counter continues and the CSV keeps its earlier rows.
-    rows_before = (tmp_path / "progress.csv").read_text().count("\n")
-    summary = ppo.train(ppo.parse_args(["--resume", str(tmp_path), "--total-steps", "4096", "--no-progress"]))
+    # Resume a copy of the run folder: the step counter continues, and the copy's CSV keeps its earlier rows and
+    # grows (the folder the run was first written to is left alone).
+    import shutil
+
+    copy = shutil.copytree(tmp_path, tmp_path.parent / f"{tmp_path.name}_copy")
+    csv_before = (tmp_path / "progress.csv").read_text()
+    summary = ppo.train(ppo.parse_args(["--resume", str(copy), "--total-steps", "4096", "--no-progress"]))
     assert summary["global_step"] == 4096
-    assert (tmp_path / "progress.csv").read_text().count("\n") > rows_before
+    assert (copy / "progress.csv").read_text().count("\n") > csv_before.count("\n")
+    assert (tmp_path / "progress.csv").read_text() == csv_before
 
 
 def test_budget_is_required(tmp_path):
@@ -173,8 +178,11 @@ def test_sac_her_runs_resumes_and_saves(tmp_path):
     assert summary["global_step"] == 320
     for name in ("policy.pt", "checkpoint.pt", "progress.csv", "curve.png"):
         assert (tmp_path / name).is_file(), name
-    summary = sac.train(sac.parse_args(["--resume", str(tmp_path), "--total-steps", "480", "--no-progress"]))
-    assert summary["global_step"] == 480
+    first = tmp_path.parent / f"{tmp_path.name}_first"  # the run is moved: it continues where its checkpoint is now
+    tmp_path.rename(first)
+    summary = sac.train(sac.parse_args(["--resume", str(first), "--total-steps", "480", "--no-progress"]))
+    assert summary["global_step"] == 480 and not tmp_path.exists()
+    tmp_path = first
     policy = torch.jit.load(str(tmp_path / "policy.pt"), map_location="cpu")
     obs = {"observation": torch.zeros(4, 2), "achieved_goal": torch.rand(4, 2), "desired_goal": torch.rand(4, 2)}
     a = policy(obs)
