@@ -76,6 +76,17 @@ def env_tables(rows: list[dict]) -> str:
     return out + table(rows, cols)
 
 
+def age_tables(rows: list[dict]) -> str:
+    """collisions_by_age.py: one table per policy, its rows the age bins."""
+    out = _provenance(rows) + f"\n*{rows[0]['num_envs']} worlds x {rows[0]['total_steps']} steps per policy.*\n"
+    cols = [("age_bin", "steps since start"), ("steps", "env steps"), ("goals", "goals"), ("collisions", "collisions"),
+            ("collisions_per_step", "collisions per step"), ("timeouts", "timeouts"),
+            ("goals_per_step", "goals per step")]
+    for policy in dict.fromkeys(r["policy"] for r in rows):
+        out += f"\n`{policy}`:\n\n" + table([r for r in rows if r["policy"] == policy], cols)
+    return out
+
+
 def eval_table(result: dict) -> str:
     """A ``magwarp eval --json`` result as the paper's table: metric, n, mean ± std over repeats."""
     head = (f"*{result['env_id']}, policy `{result['policy']}`, {result['repeats']} repeats x {result['episodes']} "
@@ -121,6 +132,8 @@ def main(paths: list[str]) -> int:
         print(f"### `{path}`\n")
         if isinstance(rows, dict) and "rows" in rows:
             print(eval_table(rows))
+        elif "age_bin" in rows[0]:
+            print(age_tables(rows))
         elif "ms_per_step" in rows[0] and "movers" in rows[0]:
             print(scaling_tables(rows))
         else:

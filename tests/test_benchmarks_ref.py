@@ -164,3 +164,42 @@ def test_rl_env_kwargs_fill_required_args(ref):
     assert ref.rl_env_kwargs("LongHorizonGlobalTrajectoryPlanningEnvB0-v0") == {"render_mode": None,
                                                                                   "show_2D_plot": False}
     assert ref.rl_env_kwargs("StateBasedPushBoxEnv-v0") == {"render_mode": None}
+
+
+# ------------------------------------------------------------------ collisions_by_age.py
+
+
+def test_collisions_by_age_matches_a_per_world_count():
+    """The binned counts against a plain per-world replay of the same seeded run (the kept B0 policy, 32 worlds)."""
+    import torch
+
+    import collisions_by_age as cba
+    from magwarp.training import make_env
+    from magwarp.training.policy import policy_metadata
+
+    policy_path = str(Path(__file__).resolve().parent.parent / "policies" / "b0_ppo.pt")
+    worlds, steps, seed = 32, 40, 3
+    rows = cba.count_by_age(policy_path, "cpu", worlds, steps, seed)
+    assert [r["age_bin"] for r in rows] == ["0-2", "3-9", "10-29", "30-99", "100+", "all"]
+
+    env, _ = make_env("magwarp/TrajectoryPlanningB0-v0", worlds, "cpu", seed,
+                      json.loads(policy_metadata(policy_path)["eval_env_kwargs"]))
+    policy = torch.jit.load(policy_path).eval()
+    expect = {k: [0] * 5 for k in ("steps", "collisions", "timeouts", "goals")}
+    ages = [0] * worlds
+    obs, _ = env.reset(seed=seed)
+    with torch.no_grad():
+        for _ in range(steps):
+            obs, _, term, trunc, info = env.step(policy(obs))
+            for w in range(worlds):
+                b = sum(ages[w] >= edge for edge in cba.BINS) - 1
+                expect["steps"][b] += 1
+                expect["collisions"][b] += int(term[w])
+                expect["timeouts"][b] += int(trunc[w] and not term[w])
+                expect["goals"][b] += int(info["goals_reached"][w].sum())
+                ages[w] = 0 if (term[w] or trunc[w]) else ages[w] + 1
+    for key, per_bin in expect.items():
+        assert [r[key] for r in rows[:-1]] == per_bin, key
+        assert rows[-1][key] == sum(per_bin), key
+    assert sum(expect["steps"]) == worlds * steps and expect["steps"][0] >= worlds and expect["steps"][3] > 0
+    assert sum(expect["goals"]) > 0
