@@ -64,20 +64,21 @@ _B0_FINE = {**_B0_PUBLISHED, "num_cycles": 40}
 PAPER_RUNS: dict[str, PaperRun] = {
     "b0_ppo": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", _B0_PUBLISHED, _B0_PUBLISHED,
                        "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
-    # the paper's own algorithm on its published options (every PPO run so far collided 2.75 times per 1000 goals
-    # or more)
+    # the paper's own algorithm on its published options: 1.34 collisions per 1000 goals but 97.97% success, its
+    # deterministic actions stopping movers short of their goals until the world times out (RESULTS)
     "b0_sac": PaperRun("magwarp/TrajectoryPlanningB0-v0", "sac-her", _B0_PUBLISHED, _B0_PUBLISHED,
                        "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
-    # the published mover and boxes with the envs' default 40-cycle (25 Hz) actions, as the kept policy acts: finer
-    # control than the paper's 120 cycles, with which a PPO run collided 5.1 times per 1000 goals (b0_ppo_cautious)
+    # the published mover and boxes with the envs' default 40-cycle (25 Hz) actions, finer control than the paper's
+    # 120 cycles: PPO collided 3.82 times per 1000 goals, SAC+HER had not converged (RESULTS)
     "b0_ppo_fine": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", _B0_FINE, _B0_FINE,
                             "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
     "b0_sac_fine": PaperRun("magwarp/TrajectoryPlanningB0-v0", "sac-her", _B0_FINE, _B0_FINE,
                             "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
-    # PPO's collisions come from episode starts: the evaluation begins a fresh 10 s run per world, and b0_ppo (whose
-    # training episodes lasted ~1450 steps, so starts were ~0.07% of its data) collided in 4.9% of its first three
-    # steps after a start and in 0.006% of later steps (RESULTS). These cut every training episode after the
-    # evaluation's 10 s (83 steps of 120 cycles; 250 of 40), or after 4.8 s (40 steps), so starts are seen often.
+    # PPO's collisions come from episode starts: the evaluation begins a fresh 10 s run per world, and b0_ppo (one
+    # start per ~1450 training steps) collided in 4.9% of its first three steps after a start and in 0.006% of the
+    # steps after 100 (RESULTS). These cut every training episode after the evaluation's 10 s (83 steps of 120 cycles;
+    # 250 of 40), or after 4.8 s (40 steps), so starts are seen often. b0_ppo_starts40 is policies/b0_ppo.pt: 99.80%
+    # success, 0.69 collisions per 1000 goals (83 steps: 1.83; 40-cycle actions: 3.04)
     "b0_ppo_starts": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", {**_B0_PUBLISHED, "max_episode_steps": 83},
                               _B0_PUBLISHED,
                               "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),

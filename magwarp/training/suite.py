@@ -23,7 +23,7 @@ from pathlib import Path
 from magwarp.training.paper import PAPER_RUNS as RUNS
 
 REPO = Path(__file__).resolve().parent.parent.parent
-DEFAULT = ("b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac_random")
+DEFAULT = ("b0_ppo_starts40", "pushbox_sac", "pusht_sac", "obstacles_sac_random")
 
 
 def parse_args(argv=None):
