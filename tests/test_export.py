@@ -1,4 +1,5 @@
-"""ONNX export: onnxruntime gives the torch policy's actions within 1e-5 (skipped without onnx/onnxruntime)."""
+"""ONNX export: onnxruntime gives the torch policy's actions within 1e-5 of the action range (skipped without
+onnx/onnxruntime)."""
 
 from __future__ import annotations
 
@@ -30,7 +31,8 @@ def test_onnx_matches_torch(tmp_path, squash, rng):
     path = _policy_file(tmp_path, squash, rng)
     out = str(tmp_path / "policy.onnx")
     info = export_onnx(path, out)
-    assert info["obs_dim"] == 18 and info["action_dim"] == 6 and info["max_abs_diff"] <= 1e-5
+    assert info["obs_dim"] == 18 and info["action_dim"] == 6 and info["max_diff"] <= 1e-5
+    assert info["max_abs_diff"] == pytest.approx(10.0 * info["max_diff"], rel=1e-6)  # every action scale is 10
 
     policy = torch.jit.load(path, map_location="cpu")
     obs = torch.as_tensor(rng.normal(size=(33, 18)) * 4, dtype=torch.float32)  # a batch size other than the export's
@@ -41,7 +43,7 @@ def test_onnx_matches_torch(tmp_path, squash, rng):
     assert inp.name == "obs" and outp.name == "action"
     got = sess.run(["action"], {"obs": obs.numpy()})[0]
     assert got.shape == (33, 6)
-    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-5, err_msg=str(rng))
+    np.testing.assert_allclose(got / 10.0, ref / 10.0, rtol=0, atol=1e-5, err_msg=str(rng))
     meta = {p.key: p.value for p in onnx.load(out).metadata_props}
     assert meta["magwarp.obs_dim"] == "18" and meta["magwarp.env_id"] == "magwarp/TrajectoryPlanningB0-v0"
 
@@ -56,3 +58,15 @@ def test_export_command(tmp_path, rng, capsys):
     assert main(["export", str(tmp_path / "missing.pt"), "--onnx", str(out)]) == 2
     assert "no policy" in capsys.readouterr().err
     del path
+
+
+@pytest.mark.parametrize("name", ["b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac"])
+def test_shipped_policies_export(tmp_path, name):
+    """The policies in policies/ (256-wide networks, actions up to 10 m/s^2) pass the export's own check."""
+    from pathlib import Path
+
+    from magwarp.training.export import export_onnx
+
+    path = Path(__file__).resolve().parent.parent / "policies" / f"{name}.pt"
+    info = export_onnx(str(path), str(tmp_path / f"{name}.onnx"))
+    assert info["max_diff"] <= 1e-5 and info["max_abs_diff"] >= info["max_diff"]
