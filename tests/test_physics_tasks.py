@@ -147,21 +147,36 @@ def test_control_kernel_matches_numpy_law_on_random_states(rng, rotation):
         cmd[..., 2] *= 30  # yaw commands span the +-122 rad/s^2 (+-611 rad/s^3) limits
         acc0 = rng.normal(0, 6, (W, M, 2))
         acc_c0 = rng.normal(0, 40, (W, M))
+        # the kernel reads float32: the float64 oracle gets the same rounded inputs
+        qpos, qvel, cmd, acc0, acc_c0 = (np.float64(np.float32(x)) for x in (qpos, qvel, cmd, acc0, acc_c0))
         b.qpos_t.copy_(torch.as_tensor(qpos)), b.qvel_t.copy_(torch.as_tensor(qvel))
         b.cmd_t.copy_(torch.as_tensor(cmd[..., :2])), b.acc_t.copy_(torch.as_tensor(acc0))
         b.cmd_c_t.copy_(torch.as_tensor(cmd[..., 2])), b.acc_c_t.copy_(torch.as_tensor(acc_c0))
         c = b.control
         b.apply_control()
         got = b.data.qfrc_applied.numpy()
+        # Above v_max the law brakes within one cycle, a = (v_limited - v) / dt: in float32 the difference keeps about
+        # one ulp of |v|, so the planar force may differ by mass * ulp(|v|) / dt (~4e-4 N at 3 m/s), 4 ulps allowed.
+        mass = mjm.body_mass[b.mover_body]
+        dt = mjm.opt.timestep
         for w in range(W):
+            acc_slack = np.array([4 * np.finfo(np.float32).eps * (np.abs(qvel[w, d:d + 2]).max() + c.a_max * dt) / dt
+                                  for d in b.mover_dadr])  # (M,) m/s^2
+            slack = np.zeros(mjm.nv)
+            for k, d in enumerate(b.mover_dadr):
+                slack[d:d + 2] = acc_slack[k] * mass[k]
             mjd.qpos[:], mjd.qvel[:] = qpos[w], qvel[w]
             acc = acc0[w].copy()
             yaw_state = np.zeros((M, 3))
             yaw_state[:, 0] = acc_c0[w]
             oracle.control_forces(mjm, mjd, b.mover_body, b.mover_qadr, b.mover_dadr, b.hover_z,
                                   cmd[w] if rotation else cmd[w, :, :2], acc, c, yaw_state)
-            np.testing.assert_allclose(got[w], mjd.qfrc_applied, rtol=2e-4, atol=2e-5, err_msg=f"{rng} jerk={jerk} w={w}")
-            np.testing.assert_allclose(b.acc_t[w].numpy(), acc, rtol=1e-4, atol=1e-4, err_msg=str(rng))
+            err = np.abs(got[w] - mjd.qfrc_applied)
+            bound = 2e-5 + 2e-4 * np.abs(mjd.qfrc_applied) + slack
+            assert (err <= bound).all(), f"{rng} jerk={jerk} w={w}: {err} > {bound}"
+            acc_err = np.abs(b.acc_t[w].numpy() - acc)
+            acc_bound = 1e-4 + 1e-4 * np.abs(acc) + acc_slack[:, None]
+            assert (acc_err <= acc_bound).all(), f"{rng} jerk={jerk} w={w}: {acc_err} > {acc_bound}"
             if rotation:
                 np.testing.assert_allclose(b.acc_c_t[w].numpy(), yaw_state[:, 0], rtol=1e-4, atol=2e-3, err_msg=str(rng))
     if rotation:  # the position limit engaged somewhere: some yaw accelerations were cut below the command
