@@ -299,3 +299,26 @@ def test_suite_runs_and_packs(tmp_path, capsys):
         names = set(tar.getnames())
     assert {"b0_ppo/policy.pt", "b0_ppo/checkpoint.pt", "b0_ppo/progress.csv", "b0_ppo.log"} <= names
     assert "| b0_ppo | magwarp/TrajectoryPlanningB0-v0 |" in capsys.readouterr().out
+
+
+def test_suite_passes_a_runs_own_script_options(tmp_path, monkeypatch):
+    """A run's script_args (its seed) reach its training command, before the suite-wide --args (which win)."""
+    from magwarp.training import suite
+    from magwarp.training.paper import PAPER_RUNS
+
+    commands = []
+
+    class Done:
+        def __init__(self, cmd, **kwargs):
+            commands.append(cmd)
+
+        def wait(self):
+            return 0
+
+    monkeypatch.setattr(suite.subprocess, "Popen", Done)
+    runs = ["b0_ppo_starts40", "b0_ppo_starts40_seed1", "b0_ppo_starts40_seed2"]
+    assert suite.main(["--minutes", "1", "--runs", ",".join(runs), "--work", str(tmp_path), "--device", "cpu",
+                       "--args", "--num-envs 8"]) == 0
+    seeds = [cmd[cmd.index("--seed") + 1] if "--seed" in cmd else None for cmd in commands]
+    assert seeds == [None, "1", "2"] and all(cmd[-2:] == ["--num-envs", "8"] for cmd in commands)
+    assert PAPER_RUNS["b0_ppo_starts40_seed1"].train_kwargs == PAPER_RUNS["b0_ppo_starts40"].train_kwargs

@@ -30,13 +30,14 @@ PUSH_REWARDS = {"collision_penalty": -50.0, "per_step_penalty": -1.0, "object_at
 @dataclass(frozen=True)
 class PaperRun:
     """One training run: env id, algorithm (``examples/train_<algo>.py``), env options for training and for the
-    evaluation, and the paper's table row it is compared with."""
+    evaluation, the paper's table row it is compared with, and options of the training script (e.g. a seed)."""
 
     env_id: str
     algo: str
     train_kwargs: dict = field(default_factory=dict)
     eval_kwargs: dict = field(default_factory=dict)
     paper: str = ""
+    script_args: tuple[str, ...] = ()
 
     @property
     def script(self) -> str:
@@ -85,6 +86,12 @@ PAPER_RUNS: dict[str, PaperRun] = {
     "b0_ppo_starts40": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", {**_B0_PUBLISHED, "max_episode_steps": 40},
                                 _B0_PUBLISHED,
                                 "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    # b0_ppo_starts40 again with other seeds (the run above has seed 0): how far one run is from the next
+    **{f"b0_ppo_starts40_seed{seed}": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo",
+                                               {**_B0_PUBLISHED, "max_episode_steps": 40}, _B0_PUBLISHED,
+                                               "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation)",
+                                               ("--seed", str(seed)))
+       for seed in (1, 2)},
     "b0_ppo_fine_starts": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", {**_B0_FINE, "max_episode_steps": 250},
                                    _B0_FINE,
                                    "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),

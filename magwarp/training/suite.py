@@ -69,7 +69,7 @@ def main(argv=None) -> int:
             cmd += ["--resume", str(folder)]
         else:
             cmd += ["--env-id", run.env_id, "--env-kwargs", run.train_json(), "--eval-env-kwargs", run.eval_json(),
-                    "--out", str(folder)]
+                    "--out", str(folder), *run.script_args]
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         gpu = gpus[i % len(gpus)]
         if gpu is None:
