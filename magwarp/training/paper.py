@@ -61,40 +61,35 @@ _B0 = {"num_cycles": 120, "collision_shape": "box", "collision_size": [0.09, 0.0
 # mover (rounds 1-5 moved the envs' default 155 mm, 1.24 kg body)
 _B0_PUBLISHED = {**_B0, "mover_params": {"size": MOVER_113MM, "mass": 0.63}}
 _B0_FINE = {**_B0_PUBLISHED, "num_cycles": 40}
+_B0_STARTS40 = {**_B0_PUBLISHED, "max_episode_steps": 40}  # training episodes cut after 40 steps (4.8 s)
+_B0_PAPER = "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"
+
+
+def _b0(algo: str, train_kwargs: dict, eval_kwargs: dict, script_args: tuple[str, ...] = ()) -> PaperRun:
+    """A trajectory-planning B0 run, compared with the paper's simulation row."""
+    return PaperRun("magwarp/TrajectoryPlanningB0-v0", algo, train_kwargs, eval_kwargs, _B0_PAPER, script_args)
+
 
 PAPER_RUNS: dict[str, PaperRun] = {
-    "b0_ppo": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", _B0_PUBLISHED, _B0_PUBLISHED,
-                       "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    "b0_ppo": _b0("ppo", _B0_PUBLISHED, _B0_PUBLISHED),
     # the paper's own algorithm on its published options: 1.34 collisions per 1000 goals but 97.97% success, its
     # deterministic actions stopping movers short of their goals until the world times out (RESULTS)
-    "b0_sac": PaperRun("magwarp/TrajectoryPlanningB0-v0", "sac-her", _B0_PUBLISHED, _B0_PUBLISHED,
-                       "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    "b0_sac": _b0("sac-her", _B0_PUBLISHED, _B0_PUBLISHED),
     # the published mover and boxes with the envs' default 40-cycle (25 Hz) actions, finer control than the paper's
     # 120 cycles: PPO collided 3.82 times per 1000 goals, SAC+HER had not converged (RESULTS)
-    "b0_ppo_fine": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", _B0_FINE, _B0_FINE,
-                            "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
-    "b0_sac_fine": PaperRun("magwarp/TrajectoryPlanningB0-v0", "sac-her", _B0_FINE, _B0_FINE,
-                            "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    "b0_ppo_fine": _b0("ppo", _B0_FINE, _B0_FINE),
+    "b0_sac_fine": _b0("sac-her", _B0_FINE, _B0_FINE),
     # PPO's collisions come from episode starts: the evaluation begins a fresh 10 s run per world, and b0_ppo (one
     # start per ~1450 training steps) collided in 4.9% of its first three steps after a start and in 0.006% of the
     # steps after 100 (RESULTS). These cut every training episode after the evaluation's 10 s (83 steps of 120 cycles;
     # 250 of 40), or after 4.8 s (40 steps), so starts are seen often. b0_ppo_starts40 is policies/b0_ppo.pt: 99.80%
     # success, 0.69 collisions per 1000 goals (83 steps: 1.83; 40-cycle actions: 3.04)
-    "b0_ppo_starts": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", {**_B0_PUBLISHED, "max_episode_steps": 83},
-                              _B0_PUBLISHED,
-                              "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
-    "b0_ppo_starts40": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", {**_B0_PUBLISHED, "max_episode_steps": 40},
-                                _B0_PUBLISHED,
-                                "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    "b0_ppo_starts": _b0("ppo", {**_B0_PUBLISHED, "max_episode_steps": 83}, _B0_PUBLISHED),
+    "b0_ppo_starts40": _b0("ppo", _B0_STARTS40, _B0_PUBLISHED),
     # b0_ppo_starts40 again with other seeds (the run above has seed 0): how far one run is from the next
-    **{f"b0_ppo_starts40_seed{seed}": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo",
-                                               {**_B0_PUBLISHED, "max_episode_steps": 40}, _B0_PUBLISHED,
-                                               "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation)",
-                                               ("--seed", str(seed)))
+    **{f"b0_ppo_starts40_seed{seed}": _b0("ppo", _B0_STARTS40, _B0_PUBLISHED, ("--seed", str(seed)))
        for seed in (1, 2)},
-    "b0_ppo_fine_starts": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", {**_B0_FINE, "max_episode_steps": 250},
-                                   _B0_FINE,
-                                   "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    "b0_ppo_fine_starts": _b0("ppo", {**_B0_FINE, "max_episode_steps": 250}, _B0_FINE),
     "pushbox_sac": PaperRun("magwarp/PushBox-v0", "sac-her", _PUSHBOX, _PUSHBOX, "99.56% (Table 3)"),
     # trained at 0.8 coverage, not the paper's 0.95: near misses count as reached, a denser signal for a 15-minute
     # run; evaluated at the paper's 0.7
@@ -133,10 +128,7 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                    {**_OBSTACLES_FINE, "obstacle_mode": "hard"}, "91.26% (Table 3)"),
     # B0 at 40 cycles, trained with 1 cm larger safety boxes than it is evaluated with (0.10 vs 0.09 m): the policy
     # keeps a margin, for the collision target (the 120-cycle run collided 5.1 times per 1000 goals)
-    "b0_ppo_margin": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo",
-                              {**_B0, "num_cycles": 40, "collision_size": [0.1, 0.1]}, {**_B0, "num_cycles": 40},
-                              "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    "b0_ppo_margin": _b0("ppo", {**_B0, "num_cycles": 40, "collision_size": [0.1, 0.1]}, {**_B0, "num_cycles": 40}),
     # the same B0 run with a collision penalty 2.5x the paper's: a cautious policy, for the collision target
-    "b0_ppo_cautious": PaperRun("magwarp/TrajectoryPlanningB0-v0", "ppo", {**_B0, "reward_collision": -50.0}, _B0,
-                                "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"),
+    "b0_ppo_cautious": _b0("ppo", {**_B0, "reward_collision": -50.0}, _B0),
 }
