@@ -57,27 +57,19 @@ def count_by_age(policy_path: str, device: str, num_envs: int, steps: int, seed:
                                ("timeouts", truncated & ~terminated), ("goals", info["goals_reached"].sum(1))):
                 sums[key].index_add_(0, b, value.to(torch.float64))
             age = torch.where(terminated | truncated, torch.zeros_like(age), age + 1)
-    s = {k: v.tolist() for k, v in sums.items()}
-    rows = []
-    for i in range(n):
-        label = f"{BINS[i]}-{BINS[i + 1] - 1}" if i + 1 < n else f"{BINS[i]}+"
-        rows.append({"policy": policy_path, "env_kwargs": env_kwargs, "age_bin": label,
-                     "steps": int(s["steps"][i]), "goals": int(s["goals"][i]),
-                     "collisions": int(s["collisions"][i]), "timeouts": int(s["timeouts"][i]),
-                     "collisions_per_step": s["collisions"][i] / max(s["steps"][i], 1),
-                     "goals_per_step": s["goals"][i] / max(s["steps"][i], 1)})
-    total_goals = sum(s["goals"])
-    rows.append({"policy": policy_path, "env_kwargs": env_kwargs, "age_bin": "all", "steps": int(sum(s["steps"])),
-                 "goals": int(total_goals), "collisions": int(sum(s["collisions"])),
-                 "timeouts": int(sum(s["timeouts"])),
-                 "collisions_per_step": sum(s["collisions"]) / max(sum(s["steps"]), 1),
-                 "goals_per_step": total_goals / max(sum(s["steps"]), 1)})
-    return rows
+    labels = [f"{BINS[i]}-{BINS[i + 1] - 1}" for i in range(n - 1)] + [f"{BINS[-1]}+", "all"]
+    counts = {k: [*v.tolist(), float(v.sum())] for k, v in sums.items()}  # per bin, then the whole run
+    return [{"policy": policy_path, "env_kwargs": env_kwargs, "age_bin": label,
+             **{k: int(v[i]) for k, v in counts.items()},
+             "collisions_per_step": counts["collisions"][i] / max(counts["steps"][i], 1),
+             "goals_per_step": counts["goals"][i] / max(counts["steps"][i], 1)}
+            for i, label in enumerate(labels)]
 
 
-COLUMNS = [("policy", "policy"), ("age_bin", "steps since start"), ("steps", "env steps"), ("goals", "goals"),
-           ("collisions", "collisions"), ("collisions_per_step", "collisions per step"), ("timeouts", "timeouts"),
-           ("goals_per_step", "goals per step")]
+# the table of one policy (report.py prints one per policy); the printed table leads with the policy
+AGE_COLUMNS = [("age_bin", "steps since start"), ("steps", "env steps"), ("goals", "goals"),
+               ("collisions", "collisions"), ("collisions_per_step", "collisions per step"), ("timeouts", "timeouts"),
+               ("goals_per_step", "goals per step")]
 
 
 def main(argv=None) -> int:
@@ -92,7 +84,7 @@ def main(argv=None) -> int:
     for path in args.policy:
         rows += [{**r, "num_envs": args.num_envs, "total_steps": args.steps, **common.provenance(info)}
                  for r in count_by_age(path, args.device, args.num_envs, args.steps, args.seed)]
-    common.print_table(rows, COLUMNS)
+    common.print_table(rows, [("policy", "policy"), *AGE_COLUMNS])
     if args.json:
         common.write_json(args.json, rows)
     return 0

@@ -78,12 +78,11 @@ def env_tables(rows: list[dict]) -> str:
 
 def age_tables(rows: list[dict]) -> str:
     """collisions_by_age.py: one table per policy, its rows the age bins."""
+    from collisions_by_age import AGE_COLUMNS  # beside this file; imports nothing heavy at module level
+
     out = _provenance(rows) + f"\n*{rows[0]['num_envs']} worlds x {rows[0]['total_steps']} steps per policy.*\n"
-    cols = [("age_bin", "steps since start"), ("steps", "env steps"), ("goals", "goals"), ("collisions", "collisions"),
-            ("collisions_per_step", "collisions per step"), ("timeouts", "timeouts"),
-            ("goals_per_step", "goals per step")]
     for policy in dict.fromkeys(r["policy"] for r in rows):
-        out += f"\n`{policy}`:\n\n" + table([r for r in rows if r["policy"] == policy], cols)
+        out += f"\n`{policy}`:\n\n" + table([r for r in rows if r["policy"] == policy], AGE_COLUMNS)
     return out
 
 
