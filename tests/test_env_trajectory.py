@@ -457,6 +457,7 @@ def test_episode_length_cut_truncates_resets_and_leaves_pending_goals_open(rng, 
         cut_now = step % cut == 0
         assert not terminated.any() and not info["goals_reached"].any(), f"step {step} ({rng})"
         assert truncated.tolist() == [cut_now] * n, f"step {step} of a {cut}-step episode ({rng})"
+        assert info["time_limit"].tolist() == [cut_now] * n, f"step {step}: the cut alone ended it ({rng})"
         np.testing.assert_array_equal(_np(info["final_obs"]["achieved_goal"]) if cut_now else _np(obs["achieved_goal"]),
                                       _np(start).reshape(n, -1), err_msg=f"the movers stood still ({rng})")
         assert env.num_steps.tolist() == [0 if cut_now else step % cut] * n
@@ -478,8 +479,10 @@ def test_timeout_still_fails_pending_goals_with_an_episode_length_cut(rng):
     env.reset(seed=seed)
     truncations = []
     for _ in range(4):  # steps_since_goal 0, 1, 2, 3: the fourth step times out (3 > 2)
-        truncations.append(env.step(torch.zeros(n, 2 * env.num_movers))[3].tolist())
+        *_, truncated, info = env.step(torch.zeros(n, 2 * env.num_movers))
+        truncations.append(truncated.tolist())
     assert truncations == [[False] * n] * 3 + [[True] * n], rng
+    assert not info["time_limit"].any(), f"a timeout is not the episode-length cut ({rng})"
     assert metrics.t["goals_failed"].tolist() == [env.num_movers] * n
     assert metrics.t["episodes"].tolist() == [1] * n
 

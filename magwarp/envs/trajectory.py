@@ -220,9 +220,10 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
             info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, timed_out)
         truncated = timed_out
         if self.max_episode_steps is not None:  # num_steps counts the steps before this one
-            truncated = timed_out | (self.num_steps + 1 >= self.max_episode_steps)
-        # episodes cut by max_episode_steps alone: their pending goals are not lost (training's success counter)
-        info["time_limit"] = truncated & ~timed_out & ~terminated
+            cut = self.num_steps + 1 >= self.max_episode_steps
+            truncated = timed_out | cut
+            # episodes cut by max_episode_steps alone: their pending goals are not lost (training's success counter)
+            info["time_limit"] = cut & ~timed_out & ~terminated
         return reward, terminated, truncated, info
 
     def _end_step(self, obs, info) -> None:
