@@ -5,14 +5,17 @@ so that a missing optional library only fails when its adapter is asked for:
 * :class:`MagwarpParallelEnv` (``pettingzoo``): a PettingZoo ``ParallelEnv`` over one world, numpy in and out;
 * :class:`SB3VecEnv` (``sb3``): a Stable-Baselines3 ``VecEnv`` (extra ``stable-baselines3``), HER-ready;
 * :class:`TorchRLEnv` (``torchrl``): a TorchRL ``EnvBase`` with ``batch_size=[num_envs]`` (extras ``torchrl``,
-  ``tensordict``), single- or multi-agent.
+  ``tensordict``), single- or multi-agent;
+* :class:`RslRlVecEnv` (``rsl_rl``): an rsl_rl ``VecEnv`` for its ``OnPolicyRunner`` (extra ``rsl_rl``);
+* :class:`SkrlVecEnv` (``skrl``): an skrl torch env wrapper for its agents and trainers (extra ``skrl``).
 """
 
 from __future__ import annotations
 
 import importlib
 
-__all__ = ["AgentObservations", "MultiAgentVecEnv", "MagwarpParallelEnv", "SB3VecEnv", "TorchRLEnv"]
+__all__ = ["AgentObservations", "MultiAgentVecEnv", "MagwarpParallelEnv", "SB3VecEnv", "TorchRLEnv", "RslRlVecEnv",
+           "SkrlVecEnv"]
 
 _WHERE = {
     "AgentObservations": "multiagent",
@@ -20,6 +23,8 @@ _WHERE = {
     "MagwarpParallelEnv": "pettingzoo",
     "SB3VecEnv": "sb3",
     "TorchRLEnv": "torchrl",
+    "RslRlVecEnv": "rsl_rl",
+    "SkrlVecEnv": "skrl",
 }
 
 

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.vec_env import VecEnv
 
+from magwarp.envs.adapters.common import resolve_env, time_outs
 from magwarp.envs.base import MagwarpVecEnv
 
 __all__ = ["SB3VecEnv"]
@@ -41,18 +42,7 @@ class SB3VecEnv(VecEnv):
     The wrapped env must autoreset (the default)."""
 
     def __init__(self, env: MagwarpVecEnv | str | type, num_envs: int | None = None, **env_kwargs):
-        if isinstance(env, str):
-            import gymnasium as gym
-
-            env = gym.make_vec(env, num_envs=num_envs or 1, vectorization_mode="vector_entry_point", **env_kwargs)
-        elif isinstance(env, type):
-            env = env(num_envs=num_envs or 1, **env_kwargs)
-        elif num_envs is not None or env_kwargs:
-            raise TypeError("num_envs and env_kwargs are only accepted with an env id or class, not an instance")
-        if not isinstance(env, MagwarpVecEnv):
-            raise TypeError(f"SB3VecEnv wraps a MagwarpVecEnv, got {type(env).__name__}")
-        if not env.autoreset:
-            raise ValueError("SB3VecEnv needs an env with autoreset=True (SB3 vector envs reset finished envs in step)")
+        env = resolve_env(env, num_envs, env_kwargs, "SB3VecEnv")
         self.env = env
         self._actions: torch.Tensor | None = None
         super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
@@ -79,7 +69,7 @@ class SB3VecEnv(VecEnv):
         obs_np = _obs_np(obs)
         rew_np = _np(reward).astype(np.float32, copy=False)
         done_np = _np(done)
-        timeout = (truncated & ~terminated).tolist()
+        timeout = time_outs(terminated, truncated).tolist()
         columns = [info[k].tolist() for k in ("mover_collision", "wall_collision") if k in info]
         if len(columns) == 2:
             infos = [{"mover_collision": mc, "wall_collision": wc, "TimeLimit.truncated": to}
