@@ -54,7 +54,9 @@ class SkrlVecEnv(Wrapper):
         super().__init__(env)
         space = env.single_observation_space
         self.obs_mode = obs_mode
-        self._observation_space = gym.spaces.flatten_space(space) if obs_mode == "flat" else space
+        if obs_mode == "flat" and isinstance(space, gym.spaces.Dict):  # in skrl's (sorted) key order
+            space = gym.spaces.flatten_space(gym.spaces.Dict({k: space[k] for k in sorted(space.spaces)}))
+        self._observation_space = space
         self._observations: torch.Tensor | None = None
         self._info: dict[str, Any] = {}
 
