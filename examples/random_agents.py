@@ -1,5 +1,5 @@
 """Random agents on trajectory planning, through each interface: the batched torch env, the batched multi-agent
-view, the PettingZoo ParallelEnv (one agent per mover) and, when installed, the SB3 and TorchRL adapters.
+view, the PettingZoo ParallelEnv (one agent per mover) and, when installed, the SB3, TorchRL, rsl_rl and skrl adapters.
 
 Each section runs uniformly random actions and prints episodes finished, goals reached, collisions and env-steps/s.
 
@@ -110,6 +110,47 @@ def torchrl(args) -> dict | None:
                    int((nxt["reward"] > 0).sum()), int(nxt["terminated"].sum()))
 
 
+def rsl_rl(args) -> dict | None:
+    if importlib.util.find_spec("rsl_rl") is None:
+        print("rsl-rl-lib not installed: skipping the rsl_rl VecEnv")
+        return None
+    from magwarp.envs.adapters import RslRlVecEnv
+
+    env = RslRlVecEnv(TrajectoryPlanningEnv(args.envs, args.layout, device=args.device, seed=0))
+    gen = torch.Generator(device=env.device).manual_seed(0)
+    episodes = goals = collisions = 0
+    t0 = time.perf_counter()
+    for _ in range(args.steps):
+        action = torch.rand(env.num_envs, env.num_actions, generator=gen, device=env.device) * 2 - 1  # ±1: the bound
+        _, _, dones, extras = env.step(action)
+        log = extras["log"]  # per-env counts of the env's boolean info flags
+        episodes += int(dones.sum())
+        goals += int(log["Magwarp/goals_reached"].sum())
+        collisions += int(((log["Magwarp/mover_collision"] + log["Magwarp/wall_collision"]) > 0).sum())
+    return _report("rsl_rl VecEnv", args.envs * args.steps, time.perf_counter() - t0, episodes, goals, collisions)
+
+
+def skrl(args) -> dict | None:
+    if importlib.util.find_spec("skrl") is None:
+        print("skrl not installed: skipping the skrl wrapper")
+        return None
+    from magwarp.envs.adapters import SkrlVecEnv
+
+    env = SkrlVecEnv(TrajectoryPlanningEnv(args.envs, args.layout, device=args.device, seed=0))
+    env.reset()
+    gen = torch.Generator(device=env.device).manual_seed(0)
+    high = float(env.action_space.high[0])
+    episodes = goals = collisions = 0
+    t0 = time.perf_counter()
+    for _ in range(args.steps):
+        action = (torch.rand(env.num_envs, *env.action_space.shape, generator=gen, device=env.device) * 2 - 1) * high
+        _, _, terminated, truncated, info = env.step(action)  # flags [envs, 1]
+        episodes += int((terminated | truncated).sum())
+        goals += int(info["goals_reached"].sum())
+        collisions += int(terminated.sum())
+    return _report("skrl wrapper", args.envs * args.steps, time.perf_counter() - t0, episodes, goals, collisions)
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--layout", default="B0")
@@ -117,7 +158,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--device", default=None)
     args = parser.parse_args(argv)
-    return {f.__name__: f(args) for f in (batched, multi_agent, pettingzoo, sb3, torchrl)}
+    return {f.__name__: f(args) for f in (batched, multi_agent, pettingzoo, sb3, torchrl, rsl_rl, skrl)}
 
 
 if __name__ == "__main__":

@@ -160,11 +160,32 @@ def test_on_policy_runner_trains_push_box(tmp_path):
     assert not torch.equal(before, _params(runner)) and len(calls) == 3 + 2 * 3
 
 
+def _example(name: str):
+    path = Path(__file__).resolve().parent.parent / "examples" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_custom_env_with_box_observations():
+    tut = _example("custom_env_tutorial")
+    env = RslRlVecEnv(tut.ParkingEnv(num_envs=4, device="cpu", seed=0, max_steps=3))
+    obs = env.get_observations()
+    assert list(obs.keys()) == ["policy"] and obs["policy"].shape == (4, 12)
+    for step in range(3):
+        obs, reward, dones, extras = env.step(torch.zeros(4, 6))
+        assert extras["time_outs"].tolist() == [step == 2] * 4
+        assert extras["log"]["Magwarp/collision"].tolist() == [0.0] * 4 and "Magwarp/parked" not in extras["log"]
+    with pytest.raises(AttributeError, match="no per-episode step counter"):
+        env.episode_length_buf  # noqa: B018
+    runner = OnPolicyRunner(env, _train_cfg(steps=3), log_dir=None, device="cpu")
+    runner.learn(1)
+    assert runner.current_learning_iteration == 0 and torch.isfinite(_params(runner)).all()
+
+
 def test_train_rsl_rl_example(tmp_path):
-    path = Path(__file__).resolve().parent.parent / "examples" / "train_rsl_rl.py"
-    spec = importlib.util.spec_from_file_location("train_rsl_rl", path)
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = _example("train_rsl_rl")
     stats = example.main(["--device", "cpu", "--num-envs", "16", "--iterations", "2", "--steps-per-env", "4",
                           "--hidden", "16,16", "--eval-steps", "20", "--log-dir", str(tmp_path)])
     assert stats["episodes"] > 0 and 0.0 <= stats["success_rate"] <= 1.0

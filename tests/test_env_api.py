@@ -150,4 +150,4 @@ def test_random_agents_example_runs():
     spec.loader.exec_module(module)
     out = module.main(["--envs", "4", "--steps", "15", "--device", "cpu"])
     assert out["batched"]["episodes"] >= out["batched"]["collisions"]
-    assert set(out) == {"batched", "multi_agent", "pettingzoo", "sb3", "torchrl"}
+    assert set(out) == {"batched", "multi_agent", "pettingzoo", "sb3", "torchrl", "rsl_rl", "skrl"}
