@@ -8,19 +8,23 @@ models are rsl_rl's own, configured as an Isaac Lab ``train_cfg`` dict. At the e
     python examples/train_rsl_rl.py --device cuda --num-envs 4096 --iterations 300
     python examples/train_rsl_rl.py --device cpu --num-envs 64 --iterations 5 --steps-per-env 8   # a quick CPU check
 
-Writes TensorBoard logs and ``model_<it>.pt`` checkpoints (rsl_rl's format) under ``--log-dir``, and
-``policy.pt`` (rsl_rl's TorchScript export; its output times ``env.action_scale`` is the env's action).
+Writes TensorBoard logs and ``model_<it>.pt`` checkpoints (rsl_rl's format) under ``--log-dir``, and ``policy.pt``:
+rsl_rl's TorchScript export of the deterministic actor (observation normaliser included) with its output scaled to
+the env's units, so that ``magwarp eval magwarp/TrajectoryPlanningB0-v0 --policy <log-dir>/policy.pt`` evaluates it
+(its input is the flat observation of the adapter's ``"policy"`` group, the layout ``magwarp eval`` feeds).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 
 import torch
-from tensordict import TensorDict
+from torch import nn
 
 from magwarp.envs.adapters import RslRlVecEnv
-from magwarp.training import evaluate, flatten_obs, seed_everything
+from magwarp.evaluate import load_policy
+from magwarp.training import evaluate, seed_everything
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -56,6 +60,18 @@ def train_cfg(args: argparse.Namespace) -> dict:
     }
 
 
+class EnvUnitsPolicy(nn.Module):
+    """rsl_rl's exported actor (flat observation in, policy action out) with its actions scaled to the env's units."""
+
+    def __init__(self, actor: nn.Module, action_scale: torch.Tensor):
+        super().__init__()
+        self.actor = actor
+        self.register_buffer("action_scale", action_scale)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.actor(obs) * self.action_scale
+
+
 def main(argv=None) -> dict[str, float]:
     from rsl_rl.runners import OnPolicyRunner
 
@@ -65,17 +81,15 @@ def main(argv=None) -> dict[str, float]:
                       max_episode_steps=args.max_episode_steps, check_inputs=False)  # rsl_rl checks for NaNs
     runner = OnPolicyRunner(env, train_cfg(args), log_dir=args.log_dir, device=str(env.device))
     runner.learn(args.iterations, init_at_random_ep_len=True)
-    runner.export_policy_to_jit(args.log_dir)
+    path = os.path.join(args.log_dir, "policy.pt")
+    actor = runner.alg.get_policy().as_jit().cpu()
+    torch.jit.script(EnvUnitsPolicy(actor, env.action_scale.cpu())).save(path)
 
-    policy = runner.get_inference_policy(device=str(env.device))
-
-    def act(obs):
-        return policy(TensorDict({"policy": flatten_obs(obs)}, batch_size=[env.num_envs])) * env.action_scale
-
-    stats = evaluate(env.env, act, args.eval_steps)
+    policy = load_policy(path, env.env)  # what `magwarp eval --policy` loads
+    stats = evaluate(env.env, policy, args.eval_steps)
     print(f"deterministic eval over {args.eval_steps} steps x {env.num_envs} envs: success rate "
           f"{stats['success_rate']:.4f}, collisions per episode {stats['collisions_per_episode']:.3f}, "
-          f"{stats['episodes']:.0f} episodes")
+          f"{stats['episodes']:.0f} episodes\nmagwarp eval {args.env_id} --policy {path}")
     return stats
 
 
