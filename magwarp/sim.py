@@ -23,7 +23,8 @@ from magwarp.kernels import collision as kcol
 from magwarp.kernels import step as kstep
 from magwarp.kernels.impedance import default_force
 from magwarp.layout import Layout, LayoutError, MoverSpec
-from magwarp.types import COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Body, Collision, Grid, Impedance, Limits, Model, State
+from magwarp.types import (COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Body, Collision, Grid, Impedance, Limits, Model,
+                           Planar64, State)
 
 __all__ = ["Simulator", "default_device"]
 
@@ -183,6 +184,7 @@ class Simulator:
         m, dev = self.num_movers, self.device
         lim = Limits()
         lim.dt, lim.v_max, lim.a_max, lim.j_max = float(dt), float(v_max), float(a_max), float(j_max)
+        lim.dt64, lim.v_max64, lim.a_max64, lim.j_max64 = float(dt), float(v_max), float(a_max), float(j_max)
         lim.jerk_mode = 1 if self.control == "jerk" else 0
         lim.gravity = float(gravity)
         imp = Impedance()
@@ -243,7 +245,7 @@ class Simulator:
             flags_any=z(wp.int32), partner=z(wp.int32), world_pairs=z(wp.int32, self.num_worlds),
             world_walls=z(wp.int32, self.num_worlds), halted=z(wp.int32, self.num_worlds),
             cycles=z(wp.int32, self.num_worlds), force_aux=z(float, (*shape, int(aux_dim))),
-            pair_list=z(wp.vec2i, (self.num_worlds, self.max_pairs)),
+            pair_list=z(wp.vec2i, (self.num_worlds, self.max_pairs)), planar=z(Planar64),
         )
         # Placeholders the integration kernel takes when there is no grid (worlds of up to 32 movers).
         self._no_cells = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -266,7 +268,8 @@ class Simulator:
     quat = property(lambda self: self._t(self.state.quat), doc="[W, M, 4] orientations (x, y, z, w)")
     vel = property(lambda self: self._t(self.state.vel), doc="[W, M, 3] linear velocities (m/s)")
     omega = property(lambda self: self._t(self.state.omega), doc="[W, M, 3] angular velocities, world frame (rad/s)")
-    acc = property(lambda self: self._t(self.state.acc), doc="[W, M, 2] x/y accelerations applied last cycle")
+    acc = property(lambda self: self._t(self.state.acc),
+                   doc="[W, M, 2] x/y drive accelerations of the last cycle (state: jerk commands integrate it)")
     cmd = property(lambda self: self._t(self.state.cmd), doc="[W, M, 2] current command buffer")
     flags = property(lambda self: self._t(self.state.flags), doc="[W, M] collision bits of the last cycle")
     flags_any = property(lambda self: self._t(self.state.flags_any), doc="[W, M] collision bits over the last step")
@@ -458,8 +461,8 @@ class Simulator:
             wp.launch(
                 self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
                 inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd,
-                        s.target_pos, s.target_quat, s.force_aux, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall,
-                        s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles,
+                        s.target_pos, s.target_quat, s.force_aux, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar,
+                        s.wall, s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles,
                         s.pair_list],
             )
             return
@@ -481,8 +484,8 @@ class Simulator:
         wp.launch(
             self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
             inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, s.target_pos,
-                    s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall, s.cycles,
-                    m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
+                    s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall,
+                    s.cycles, m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
         )
         self._launch_narrow_phase()
 
