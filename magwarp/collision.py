@@ -60,11 +60,13 @@ class CollisionQuery:
 
     ``layout``: a :class:`~magwarp.layout.Layout` or 0/1 array (holes allowed). ``shape``: ``"circle"`` or ``"box"``.
     ``offset`` / ``offset_wall``: MagBotSim's ``collision_params["offset"]`` / ``["offset_wall"]`` (m, >= 0).
-    ``device``: ``"cpu"``, ``"cuda:N"`` or None (the simulator's default). See the module docstring.
+    ``device``: ``"cpu"``, ``"cuda:N"`` or None (the simulator's default). ``check_inputs``: refuse non-finite poses
+    and non-positive sizes with an error naming the value (a device sync per call; turn off in tight device loops).
+    See the module docstring.
     """
 
     def __init__(self, layout: Layout | np.ndarray, shape: str = "circle", *, offset: float = 0.0,
-                 offset_wall: float = 0.0, device: str | None = None):
+                 offset_wall: float = 0.0, device: str | None = None, check_inputs: bool = True):
         from magwarp.sim import default_device
 
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
@@ -74,6 +76,7 @@ class CollisionQuery:
             if not (isinstance(value, (int, float, np.floating, np.integer)) and np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
         self.shape = shape
+        self.check_inputs = bool(check_inputs)
         self.offset = float(offset)
         self.offset_wall = float(offset_wall)
         self.device = wp.get_device(device or default_device())
@@ -105,7 +108,7 @@ class CollisionQuery:
             if arr.dtype.kind not in "fiu":
                 raise TypeError(f"{name} must be numeric, got {arr.dtype}")
             t = torch.as_tensor(arr.astype(np.float32), device=self.torch_device)
-        if not bool(torch.isfinite(t).all()):
+        if self.check_inputs and not bool(torch.isfinite(t).all()):
             bad = torch.nonzero(~torch.isfinite(t))[0].tolist()
             raise ValueError(f"{name} contains a non-finite value at index {bad}: {t[tuple(bad)].item()}")
         return t
@@ -117,14 +120,14 @@ class CollisionQuery:
                 r = torch.broadcast_to(s, (*batch, m))
             except RuntimeError:
                 raise ValueError(f"circle sizes (radii) must broadcast to {(*batch, m)}, got shape {tuple(s.shape)}") from None
-            if bool((r <= 0).any()):
+            if self.check_inputs and bool((r <= 0).any()):
                 raise ValueError(f"circle radii must be positive, got {r[r <= 0][0].item()}")
             return r.reshape(-1, m).contiguous(), torch.zeros(r.numel(), 2, device=self.torch_device).reshape(-1, m, 2)
         try:
             h = torch.broadcast_to(s, (*batch, m, 2))
         except RuntimeError:
             raise ValueError(f"box sizes (half sizes) must broadcast to {(*batch, m, 2)}, got shape {tuple(s.shape)}") from None
-        if bool((h <= 0).any()):
+        if self.check_inputs and bool((h <= 0).any()):
             raise ValueError(f"box half sizes must be positive, got {h[h <= 0][0].item()}")
         return torch.zeros(h.shape[:-1], device=self.torch_device).reshape(-1, m), h.reshape(-1, m, 2).contiguous()
 
@@ -142,27 +145,30 @@ class CollisionQuery:
         flat = p.reshape(-1, m, 3).contiguous()
         n = flat.shape[0]
         dev = self.torch_device
-        pair = torch.zeros(n, m, m, dtype=torch.bool, device=dev)
+        pair = torch.empty(n, m, m, dtype=torch.bool, device=dev)  # the kernels write every entry
         clear = torch.empty(n, m, m, dtype=torch.float32, device=dev)
+        mover = torch.empty(n, m, dtype=torch.bool, device=dev)
+        mover_clear = torch.empty(n, m, dtype=torch.float32, device=dev)
         valid = torch.empty(n, m, dtype=torch.bool, device=dev)
         col = self._collision(bool(add_safety_offset))
         if n * m > 0:
             wp_poses = wp.from_torch(flat, dtype=wp.vec3)
             wp_r = wp.from_torch(radius)
             wp_h = wp.from_torch(half, dtype=wp.vec2)
+            wp_pair, wp_clear = wp.from_torch(pair, dtype=wp.bool), wp.from_torch(clear)
             stream = wp.stream_from_torch(torch.cuda.current_stream(dev)) if self.device.is_cuda else None
             with wp.ScopedStream(stream) if stream is not None else contextlib.nullcontext():
                 wp.launch(kcol.query_pairs, dim=(n, m), device=self.device, inputs=[col, wp_poses, wp_r, wp_h],
-                          outputs=[wp.from_torch(pair, dtype=wp.bool), wp.from_torch(clear)])
+                          outputs=[wp_pair, wp_clear])
+                wp.launch(kcol.query_movers, dim=(n, m), device=self.device, inputs=[wp_pair, wp_clear],
+                          outputs=[wp.from_torch(mover, dtype=wp.bool), wp.from_torch(mover_clear)])
                 wp.launch(kcol.query_walls, dim=(n, m), device=self.device,
                           inputs=[self._tiles, col, wp_poses, wp_r, wp_h], outputs=[wp.from_torch(valid, dtype=wp.bool)])
-        pair = pair.reshape(*batch, m, m)
-        clear = clear.reshape(*batch, m, m)
         return CollisionReport(
-            pair_collision=pair,
-            mover_collision=pair.any(dim=-1),
+            pair_collision=pair.reshape(*batch, m, m),
+            mover_collision=mover.reshape(*batch, m),
             wall_valid=valid.reshape(*batch, m),
-            pair_clearance=clear,
-            clearance=clear.amin(dim=-1) if m > 0 else clear.sum(dim=-1),
+            pair_clearance=clear.reshape(*batch, m, m),
+            clearance=mover_clear.reshape(*batch, m),
         )
 

@@ -523,3 +523,23 @@ def query_walls(
     b, i = wp.tid()
     p = poses[b, i]
     valid[b, i] = not hits_wall_cs(tiles, col, wp.vec2(p[0], p[1]), heading_of_yaw(p[2]), radius[b, i], half_size[b, i])
+
+
+@wp.kernel
+def query_movers(
+    # In:
+    hit: wp.array3d(dtype=wp.bool),
+    clearance: wp.array3d(dtype=float),
+    # Out:
+    mover_hit: wp.array2d(dtype=wp.bool),
+    mover_clearance: wp.array2d(dtype=float),
+):
+    """Per mover: does it collide with any other, and its smallest pair clearance (+inf alone)."""
+    b, i = wp.tid()
+    h = bool(False)
+    c = float(wp.inf)
+    for j in range(hit.shape[2]):
+        h = h or hit[b, i, j]
+        c = wp.min(c, clearance[b, i, j])
+    mover_hit[b, i] = h
+    mover_clearance[b, i] = c
