@@ -124,7 +124,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         self.sim = Simulator(
             layout_obj, int(num_movers), int(num_envs), mover=mover, control="jerk" if learn_jerk else "acceleration",
             v_max=v_max, a_max=a_max, j_max=j_max, device=device, check_inputs=False, start_xy=placeholder,
-            validate_starts_=False,
+            validate_starts=False,
         )
         super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs)
