@@ -1,8 +1,9 @@
 """Batched collision queries in MagBotSim's terms, on the device, with the simulator's own shape tests.
 
 MagBotSim answers one configuration per call (``check_mover_collision``, ``qpos_is_valid``); :class:`CollisionQuery`
-answers a whole batch of them in one launch, on CPU or GPU, with the Warp functions that the :class:`~magwarp.Simulator`
-runs every cycle (:func:`~magwarp.kernels.collision.movers_collide_cs`, :func:`~magwarp.kernels.collision.hits_wall_cs`)::
+answers a whole batch of them in one launch, on CPU or GPU, with the Warp functions that the
+:class:`~magwarp.sim.Simulator` runs every cycle (:func:`~magwarp.kernels.collision.movers_collide_cs`,
+:func:`~magwarp.kernels.collision.hits_wall_cs`)::
 
     q = CollisionQuery(layout, shape="box", offset=0.01, offset_wall=0.005)
     out = q(poses, sizes, add_safety_offset=True)   # poses [..., M, 3] (x, y, yaw); sizes [..., M, 2] half sizes
@@ -55,6 +56,24 @@ class CollisionReport:
         return self.mover_collision.any(dim=-1)
 
 
+def float32_tensor(name: str, value, device: torch.device, *, check_finite: bool = True) -> torch.Tensor:
+    """``value`` (a tensor, array or nested list of real numbers) as a float32 tensor on ``device``; a non-number or
+    (with ``check_finite``) a NaN/inf raises an error naming ``name`` and the first bad entry."""
+    if isinstance(value, torch.Tensor):
+        if value.dtype.is_complex or value.dtype == torch.bool:
+            raise TypeError(f"{name} must be real numbers, got dtype {value.dtype}")
+        t = value.detach().to(device=device, dtype=torch.float32)
+    else:
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "fiu":
+            raise TypeError(f"{name} must be numbers, got {value!r}")
+        t = torch.as_tensor(arr.astype(np.float32), device=device)
+    if check_finite and not bool(torch.isfinite(t).all()):
+        bad = torch.nonzero(~torch.isfinite(t))[0].tolist()
+        raise ValueError(f"{name} contains a non-finite value at index {bad}: {t[tuple(bad)].item()}")
+    return t
+
+
 class CollisionQuery:
     """Mover-mover and mover-wall checks for batches of mover poses on one tile layout.
 
@@ -97,21 +116,9 @@ class CollisionQuery:
 
     # ------------------------------------------------------------------ inputs
     def _tensor(self, name: str, value) -> torch.Tensor:
-        if isinstance(value, torch.Tensor):
-            if value.device != self.torch_device:
-                raise ValueError(f"{name} is on device {value.device}, but the query runs on {self.torch_device}")
-            if not value.is_floating_point():
-                raise TypeError(f"{name} must be a floating point tensor, got dtype {value.dtype}")
-            t = value.to(torch.float32)
-        else:
-            arr = np.asarray(value)
-            if arr.dtype.kind not in "fiu":
-                raise TypeError(f"{name} must be numeric, got {arr.dtype}")
-            t = torch.as_tensor(arr.astype(np.float32), device=self.torch_device)
-        if self.check_inputs and not bool(torch.isfinite(t).all()):
-            bad = torch.nonzero(~torch.isfinite(t))[0].tolist()
-            raise ValueError(f"{name} contains a non-finite value at index {bad}: {t[tuple(bad)].item()}")
-        return t
+        if isinstance(value, torch.Tensor) and value.device != self.torch_device:
+            raise ValueError(f"{name} is on device {value.device}, but the query runs on {self.torch_device}")
+        return float32_tensor(name, value, self.torch_device, check_finite=self.check_inputs)
 
     def _sizes(self, size, batch: tuple[int, ...], m: int) -> tuple[torch.Tensor, torch.Tensor]:
         s = self._tensor("size", size)
@@ -119,14 +126,16 @@ class CollisionQuery:
             try:
                 r = torch.broadcast_to(s, (*batch, m))
             except RuntimeError:
-                raise ValueError(f"circle sizes (radii) must broadcast to {(*batch, m)}, got shape {tuple(s.shape)}") from None
+                raise ValueError(f"circle sizes (radii) must broadcast to {(*batch, m)}, "
+                                 f"got shape {tuple(s.shape)}") from None
             if self.check_inputs and bool((r <= 0).any()):
                 raise ValueError(f"circle radii must be positive, got {r[r <= 0][0].item()}")
             return r.reshape(-1, m).contiguous(), torch.zeros(r.numel(), 2, device=self.torch_device).reshape(-1, m, 2)
         try:
             h = torch.broadcast_to(s, (*batch, m, 2))
         except RuntimeError:
-            raise ValueError(f"box sizes (half sizes) must broadcast to {(*batch, m, 2)}, got shape {tuple(s.shape)}") from None
+            raise ValueError(f"box sizes (half sizes) must broadcast to {(*batch, m, 2)}, "
+                             f"got shape {tuple(s.shape)}") from None
         if self.check_inputs and bool((h <= 0).any()):
             raise ValueError(f"box half sizes must be positive, got {h[h <= 0][0].item()}")
         return torch.zeros(h.shape[:-1], device=self.torch_device).reshape(-1, m), h.reshape(-1, m, 2).contiguous()
@@ -163,7 +172,8 @@ class CollisionQuery:
                 wp.launch(kcol.query_movers, dim=(n, m), device=self.device, inputs=[wp_pair, wp_clear],
                           outputs=[wp.from_torch(mover, dtype=wp.bool), wp.from_torch(mover_clear)])
                 wp.launch(kcol.query_walls, dim=(n, m), device=self.device,
-                          inputs=[self._tiles, col, wp_poses, wp_r, wp_h], outputs=[wp.from_torch(valid, dtype=wp.bool)])
+                          inputs=[self._tiles, col, wp_poses, wp_r, wp_h],
+                          outputs=[wp.from_torch(valid, dtype=wp.bool)])
         return CollisionReport(
             pair_collision=pair.reshape(*batch, m, m),
             mover_collision=mover.reshape(*batch, m),

@@ -80,15 +80,16 @@ class Simulator:
     ``(W, M, 2)`` / ``(W, M)`` per world (default: tile centres, yaw 0), hovering and level; or start_pose: full
     6-DoF start poses ``(M, 6)`` / ``(W, M, 6)``, x, y, z, roll, pitch, yaw (see :meth:`set_start_poses`).
     validate_starts: refuse start poses that are off the tiles or in a mover-mover collision (a ``LayoutError``
-    naming the movers and poses); pass False to build a simulator for colliding poses on purpose. collision_radii ``(M,)`` /
-    collision_half_sizes ``(M, 2)``: per-mover collision sizes. control: ``"acceleration"`` or ``"jerk"``.
-    stiffness_lin / stiffness_rot: impedance stiffness; hold_mask: 6 flags (x, y, z, roll, pitch, yaw) the
-    impedance controller holds. stop_on_collision: a world stops moving for the rest of a step after a collision
-    (MagBotSim's behaviour). force_model: a ``@wp.func`` with :func:`~magwarp.kernels.impedance.default_force`'s
-    signature; force_aux_dim: width of its free per-mover input row ``force_aux``. device: ``"cpu"``, ``"cuda:N"``
-    or None for the best one. fused_max_movers: worlds up to this size run fused. max_pairs: room per world in
-    ``pair_list`` (the list of colliding pairs; ``world_pairs`` always counts all of them). check_inputs: validate commands
-    (costs a device sync per command; turn off in tight loops that produce commands on the device).
+    naming the movers and poses); pass False to build a simulator for colliding poses on purpose.
+    collision_radii ``(M,)`` / collision_half_sizes ``(M, 2)``: per-mover collision sizes. control:
+    ``"acceleration"`` or ``"jerk"``. stiffness_lin / stiffness_rot: impedance stiffness; hold_mask: 6 flags (x, y,
+    z, roll, pitch, yaw) the impedance controller holds. stop_on_collision: a world stops moving for the rest of a
+    step after a collision (MagBotSim's behaviour). force_model: a ``@wp.func`` with
+    :func:`~magwarp.kernels.impedance.default_force`'s signature; force_aux_dim: width of its free per-mover input
+    row ``force_aux``. device: ``"cpu"``, ``"cuda:N"`` or None for the best one. fused_max_movers: worlds up to this
+    size run fused. max_pairs: room per world in ``pair_list`` (the list of colliding pairs; ``world_pairs`` always
+    counts all of them). check_inputs: validate commands (costs a device sync per command; turn off in tight loops
+    that produce commands on the device).
     """
 
     def __init__(
@@ -174,8 +175,9 @@ class Simulator:
 
     # ------------------------------------------------------------------ construction helpers
     def _start_arrays(self, num_movers, start_xy, start_yaw, start_pose=None) -> np.ndarray:
-        """Start poses ``(W, M, 6)`` (x, y, z, roll, pitch, yaw) from ``start_pose`` or from ``start_xy`` / ``start_yaw``
-        (z = hover height, level), each shared by all worlds or per world; refuses NaN/inf naming the value."""
+        """Start poses ``(W, M, 6)`` (x, y, z, roll, pitch, yaw) from ``start_pose`` or from ``start_xy`` /
+        ``start_yaw`` (z = hover height, level), each shared by all worlds or per world; refuses NaN/inf naming the
+        value."""
         if start_pose is not None:
             if start_xy is not None or start_yaw is not None:
                 raise ValueError("give either start_pose or start_xy/start_yaw, not both")

@@ -125,7 +125,7 @@ class State:
     quat: wp.array2d  # quat (x, y, z, w)
     vel: wp.array2d  # vec3, linear velocity (m/s)
     omega: wp.array2d  # vec3, angular velocity in the world frame (rad/s)
-    acc: wp.array2d  # vec2, x/y drive acceleration of the last cycle (m/s^2), carried as state: jerk commands integrate it
+    acc: wp.array2d  # vec2, x/y drive acceleration of the last cycle (m/s^2), the state jerk commands integrate
     cmd: wp.array2d  # vec2, command (acceleration or jerk, by Limits.jerk_mode)
     target_pos: wp.array2d  # vec3, impedance target position (only held axes matter)
     target_quat: wp.array2d  # quat, impedance target orientation (yaw target)

@@ -464,7 +464,8 @@ def movers_clearance_cs(
             axis = wp.vec2(hb[0], hb[1])
         elif k == 3:
             axis = wp.vec2(-hb[1], hb[0])
-        sep = wp.max(sep, wp.abs(wp.dot(d, axis)) - box_extent(axis, ha[0], ha[1], ga) - box_extent(axis, hb[0], hb[1], gb))
+        reach = box_extent(axis, ha[0], ha[1], ga) + box_extent(axis, hb[0], hb[1], gb)
+        sep = wp.max(sep, wp.abs(wp.dot(d, axis)) - reach)
     if sep <= 0.0:
         return sep
     # Apart: the distance between two convex polygons is attained at a corner of one of them.
