@@ -21,7 +21,9 @@ Sizes and margins follow MagBotSim's ``collision_params``:
 Mover-mover: circles collide when ``|p_i - p_j| <= r_i + r_j``, boxes (yaw-rotated rectangles) when they overlap or
 touch. Wall: a footprint that overlaps a missing tile or leaves the layout is invalid; one that only touches the
 edge of the tiled area is valid. The clearance is the signed distance between two movers' (grown) shapes: the gap
-when apart, 0 at contact, minus the penetration depth when they overlap (MagBotSim does not give it).
+when apart, 0 at contact, minus the penetration depth when they overlap (MagBotSim does not give it). The wall
+clearance is the footprint's (grown by the wall offsets) signed distance to the area without tiles (holes and outside
+the layout): >= 0 exactly where the pose is valid; gaps larger than one tile size read as one tile size.
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ class CollisionReport:
     wall_valid: torch.Tensor  # [..., M] bool: True where the footprint stays on the tiles (qpos_is_valid)
     pair_clearance: torch.Tensor  # [..., M, M] float32 signed distance between the grown shapes, +inf on the diagonal
     clearance: torch.Tensor  # [..., M] float32: each mover's smallest pair clearance (+inf for a single mover)
+    wall_clearance: torch.Tensor  # [..., M] float32 signed distance to the area without tiles, up to one tile size
 
     @property
     def any_collision(self) -> torch.Tensor:
@@ -159,6 +162,7 @@ class CollisionQuery:
         mover = torch.empty(n, m, dtype=torch.bool, device=dev)
         mover_clear = torch.empty(n, m, dtype=torch.float32, device=dev)
         valid = torch.empty(n, m, dtype=torch.bool, device=dev)
+        wall_clear = torch.empty(n, m, dtype=torch.float32, device=dev)
         col = self._collision(bool(add_safety_offset))
         if n * m > 0:
             wp_poses = wp.from_torch(flat, dtype=wp.vec3)
@@ -173,12 +177,13 @@ class CollisionQuery:
                           outputs=[wp.from_torch(mover, dtype=wp.bool), wp.from_torch(mover_clear)])
                 wp.launch(kcol.query_walls, dim=(n, m), device=self.device,
                           inputs=[self._tiles, col, wp_poses, wp_r, wp_h],
-                          outputs=[wp.from_torch(valid, dtype=wp.bool)])
+                          outputs=[wp.from_torch(valid, dtype=wp.bool), wp.from_torch(wall_clear)])
         return CollisionReport(
             pair_collision=pair.reshape(*batch, m, m),
             mover_collision=mover.reshape(*batch, m),
             wall_valid=valid.reshape(*batch, m),
             pair_clearance=clear.reshape(*batch, m, m),
             clearance=mover_clear.reshape(*batch, m),
+            wall_clearance=wall_clear.reshape(*batch, m),
         )
 

@@ -183,3 +183,37 @@ def test_bad_construction_names_the_value():
         CollisionQuery(Layout.grid(2, 2), offset=-0.1, device="cpu")
     with pytest.raises(TypeError, match="add_safety_offset must be a bool"):
         CollisionQuery(Layout.grid(2, 2), device="cpu")([[0.1, 0.1, 0.0]], 0.1, add_safety_offset="yes")
+
+
+def missing_squares(tiles: np.ndarray, ring: int = 2) -> list[np.ndarray]:
+    """Lower-left corners of the missing tiles and of a ring of squares around the layout (the outside)."""
+    nx, ny = tiles.shape
+    return [np.array([i, j]) * 0.24 for i in range(-ring, nx + ring) for j in range(-ring, ny + ring)
+            if not (0 <= i < nx and 0 <= j < ny and tiles[i, j] == 1)]
+
+
+@pytest.mark.parametrize("layout_name", sorted(LAYOUTS))
+@pytest.mark.parametrize("shape", ["circle", "box"])
+def test_wall_clearance_matches_float64_geometry(layout_name, shape, rng):
+    tiles = LAYOUTS[layout_name]
+    n = 150
+    poses, size = random_cases(rng, tiles, shape, n)
+    out = CollisionQuery(tiles, shape, offset_wall=OFFSET_WALL, device="cpu")(poses, size)
+    got, valid = out.wall_clearance.numpy(), out.wall_valid.numpy()
+    squares = missing_squares(tiles)
+    tile = 0.24
+    for k in range(n):
+        for i in range(M):
+            p, grown = poses[k, i], size[k, i] + OFFSET_WALL
+            if shape == "circle":
+                d = [np.linalg.norm(p[:2] - np.clip(p[:2], lo, lo + tile)) - grown for lo in squares]
+            else:
+                d = [box_clearance(p, np.array([*(lo + tile / 2), 0.0]), grown, np.full(2, tile / 2)) for lo in squares]
+            want = min(min(d), tile)
+            if want > EPS:
+                assert abs(got[k, i] - want) < 2e-6, f"{rng}: case {k} mover {i}: {got[k, i]} vs {want}"
+            elif want < -EPS:
+                assert got[k, i] < 0, f"{rng}: case {k} mover {i}: {got[k, i]} vs {want}"
+            if abs(got[k, i]) > EPS:
+                assert valid[k, i] == (got[k, i] > 0), f"{rng}: case {k} mover {i}"
+    assert 0.1 < valid.mean() < 0.9, str(rng)

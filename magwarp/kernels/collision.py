@@ -452,8 +452,13 @@ def movers_clearance_cs(
     if col.shape == SHAPE_CIRCLE:
         return wp.length(d) - (r_a + r_b + 2.0 * col.margin)
     m = wp.vec2(col.margin, col.margin)
-    ga = half_a + m
-    gb = half_b + m
+    return boxes_clearance(d, ha, half_a + m, hb, half_b + m)
+
+
+@wp.func
+def boxes_clearance(d: wp.vec2, ha: wp.vec2, ga: wp.vec2, hb: wp.vec2, gb: wp.vec2) -> float:
+    """Signed distance of two rectangles (centre offset ``d = c_a - c_b``, headings as (cos, sin), half sizes ``ga``,
+    ``gb``): the gap apart, minus the penetration depth (the shortest push apart) when they overlap."""
     # Largest separation over the four candidate axes: the penetration depth (negated) when they overlap.
     sep = float(-1.0e30)
     for k in range(4):
@@ -471,6 +476,51 @@ def movers_clearance_cs(
     # Apart: the distance between two convex polygons is attained at a corner of one of them.
     zero = wp.vec2(0.0, 0.0)
     return wp.min(corners_to_box(d, ha, ga, zero, hb, gb), corners_to_box(zero, hb, gb, d, ha, ga))
+
+
+@wp.func
+def wall_clearance_cs(tiles: wp.array2d(dtype=wp.int32), col: Collision, p: wp.vec2, h: wp.vec2, radius: float,
+                      half: wp.vec2) -> float:
+    """Signed clearance of a footprint (grown by the wall margin) to the area without tiles (holes and outside the
+    layout): the gap (> 0), 0 at contact, < 0 where it overlaps. Exact up to one tile size; larger gaps read as one
+    tile size (missing tiles are only searched within a tile of the footprint)."""
+    r = radius + col.wall_margin
+    hh = half + wp.vec2(col.wall_margin, col.wall_margin)
+    size = col.tile_size
+    ex = r
+    ey = r
+    reach = r
+    if col.shape != SHAPE_CIRCLE:
+        ex = hh[0] * wp.abs(h[0]) + hh[1] * wp.abs(h[1])
+        ey = hh[0] * wp.abs(h[1]) + hh[1] * wp.abs(h[0])
+        reach = wp.length(hh)
+    nx = tiles.shape[0]
+    ny = tiles.shape[1]
+    # Outside the layout: four half planes (exact for a circle and for a rectangle's extreme corner).
+    best = wp.min(wp.min(p[0] - ex, p[1] - ey), wp.min(float(nx) * size - p[0] - ex, float(ny) * size - p[1] - ey))
+    best = wp.min(best, size)
+    if col.full_rect == 1:
+        return best
+    i0 = wp.max(int(wp.floor((p[0] - reach - size) / size)), 0)
+    i1 = wp.min(int(wp.floor((p[0] + reach + size) / size)), nx - 1)
+    j0 = wp.max(int(wp.floor((p[1] - reach - size) / size)), 0)
+    j1 = wp.min(int(wp.floor((p[1] + reach + size) / size)), ny - 1)
+    hs = 0.5 * size
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            if tiles[i, j] != 1:
+                c = wp.vec2((float(i) + 0.5) * size, (float(j) + 0.5) * size)
+                if col.shape == SHAPE_CIRCLE:
+                    q = p - c
+                    out = wp.vec2(wp.max(wp.abs(q[0]) - hs, 0.0), wp.max(wp.abs(q[1]) - hs, 0.0))
+                    inside = wp.min(hs - wp.abs(q[0]), hs - wp.abs(q[1]))
+                    sd = wp.length(out)
+                    if inside > 0.0:
+                        sd = -inside
+                    best = wp.min(best, sd - r)
+                else:
+                    best = wp.min(best, boxes_clearance(p - c, h, hh, wp.vec2(1.0, 0.0), wp.vec2(hs, hs)))
+    return best
 
 
 @wp.func
@@ -519,11 +569,16 @@ def query_walls(
     half_size: wp.array2d(dtype=wp.vec2),
     # Out:
     valid: wp.array2d(dtype=wp.bool),
+    clearance: wp.array2d(dtype=float),
 ):
-    """True where the footprint (grown by the wall margin) stays on the tiles: MagBotSim's ``qpos_is_valid``."""
+    """True where the footprint (grown by the wall margin) stays on the tiles (MagBotSim's ``qpos_is_valid``), and its
+    signed clearance to the area without tiles."""
     b, i = wp.tid()
     p = poses[b, i]
-    valid[b, i] = not hits_wall_cs(tiles, col, wp.vec2(p[0], p[1]), heading_of_yaw(p[2]), radius[b, i], half_size[b, i])
+    xy = wp.vec2(p[0], p[1])
+    h = heading_of_yaw(p[2])
+    valid[b, i] = not hits_wall_cs(tiles, col, xy, h, radius[b, i], half_size[b, i])
+    clearance[b, i] = wall_clearance_cs(tiles, col, xy, h, radius[b, i], half_size[b, i])
 
 
 @wp.kernel
