@@ -2,7 +2,7 @@
 
 A query answers, for one mover pose of a configuration of ``--movers`` movers, MagBotSim's two questions: does it
 collide with another mover (``check_mover_collision``) and is it on the tiles (``qpos_is_valid``), with per-mover
-sizes and ``add_safety_offset=True``; magwarp also returns the signed clearance of every pair. Poses are random
+sizes and ``add_safety_offset=True``; magwarp also returns the signed clearances (pairs, walls). Poses are random
 configurations on a layout (B0's full 4x3 tiles, and a 4x4 layout with holes), circles and boxes.
 
 magwarp is timed on each device at 1e3 .. 1e7 poses (``--max-poses-cpu`` caps the CPU sizes, default 1e5) as one
