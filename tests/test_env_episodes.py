@@ -143,3 +143,17 @@ def test_push_bad_episode_names_the_value_and_changes_nothing(push_env, options,
         env.reset(options=options)
     assert torch.equal(env.backend.mover_qpos, before[0]) and torch.equal(env.backend.object_qpos, before[1])
     assert torch.equal(env.goal_xy, before[2])
+
+
+def test_push_with_obstacles_keeps_chosen_poses_clear_of_the_walls():
+    from magwarp.envs.push_obstacles import PushWithObstaclesEnv
+
+    env = PushWithObstaclesEnv(1, device="cpu", seed=0)  # simple walls at x = 0.48, y in [0, 0.2] and [0.52, 0.72]
+    env.reset(options={"mover_xy": [[0.2, 0.36]], "object_xy": [0.33, 0.36], "goal_xy": [0.7, 0.36]})
+    np.testing.assert_allclose(env.goal_xy.cpu().numpy(), [[0.7, 0.36]], atol=1e-7)
+    with pytest.raises(ValueError, match=re.escape("options['goal_xy'] puts the object of env 0 at (0.48, 0.1), into "
+                                                   "obstacle 0")):
+        env.reset(options={"goal_xy": [0.48, 0.1]})
+    with pytest.raises(ValueError, match=re.escape("options['mover_xy'] puts mover 0 of env 0 at (0.5, 0.58), into "
+                                                   "obstacle 1")):
+        env.reset(options={"mover_xy": [[0.5, 0.58]], "object_xy": [0.3, 0.36]})

@@ -492,6 +492,10 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         if self.benchmark_metrics is not None:
             self.benchmark_metrics.episode_reset(mask)
 
+    def _object_reach(self) -> float:
+        """Radius of a circle around the object (its largest variant) about its centre."""
+        return max(math.hypot(abs(cx) + hx, abs(cy) + (hx if hy == 0 else hy)) for cx, cy, hx, hy in _parts(self.object))
+
     def _check_episode(self, chosen: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
         n, m, dev = self.num_envs, self.num_movers, self.device
         circle = self.mover.collision_shape == "circle"
@@ -513,7 +517,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
             poses = torch.cat([chosen["mover_xy"], torch.zeros(n, m, 1, device=dev)], -1)
             self._check_movers(movers_q, "mover_xy", poses, size + self.mover.margin, size, mask)
         parts = _parts(self.object)
-        reach = max(math.hypot(abs(cx) + hx, abs(cy) + (hx if hy == 0 else hy)) for cx, cy, hx, hy in parts)
+        reach = self._object_reach()
         for key in ("object_xy", "goal_xy"):
             if key in chosen:
                 on = circle_q(torch.cat([chosen[key], torch.zeros(n, 1, device=dev)], -1)[:, None], reach).wall_valid
