@@ -22,9 +22,9 @@ from magwarp.types import Body, Limits, Planar64, Pose, Wrench
 @wp.func
 def clip_norm2(v: Any, limit: Any):
     """Scale ``v`` down to norm ``limit`` if it is longer (float32 or float64)."""
-    n = wp.length(v)
-    if n > limit:
-        return v * (limit / n)
+    n2 = wp.dot(v, v)
+    if n2 > limit * limit:  # squared: no square root unless clipping
+        return v * (limit / wp.sqrt(n2))
     return v
 
 
@@ -32,9 +32,9 @@ def clip_norm2(v: Any, limit: Any):
 def capped_derivative(current: Any, deriv: Any, limit: Any, dt: Any):
     """The derivative to apply so that ``current + dt * deriv`` stays within norm ``limit`` (float32 or float64)."""
     nxt = current + deriv * dt
-    n = wp.length(nxt)
-    if n >= limit:
-        return (nxt * (limit / n) - current) / dt
+    n2 = wp.dot(nxt, nxt)
+    if n2 >= limit * limit:  # squared: no square root unless capping
+        return (nxt * (limit / wp.sqrt(n2)) - current) / dt
     return deriv
 
 

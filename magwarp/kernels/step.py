@@ -32,16 +32,16 @@ wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 def make_advance_kernel(force_fn=default_force):
     @wp.func
     def advance_pose(
-        p: Pose, acc_prev: wp.vec2, xy_prev: Planar64, cmd: wp.vec2, b: Body, target_pos: wp.vec3,
-        target_quat: wp.quat, aux: wp.array(dtype=float), lim: Limits, imp: Impedance,
+        p: Pose, xy: Planar64, cmd: wp.vec2, b: Body, target_pos: wp.vec3, target_quat: wp.quat,
+        aux: wp.array(dtype=float), lim: Limits, imp: Impedance,
     ):
         """One cycle of one mover: limited x/y drive, force model, semi-implicit Euler. Returns the new pose, the
         x/y drive acceleration and the new float64 x/y state.
 
         The acceleration is carried as state (jerk commands integrate from it, as MuJoCo's integrator actuator,
         ``act``, does in MagBotSim), not re-derived from the velocity change; the x/y law runs in float64
-        (:func:`~magwarp.kernels.dynamics.planar_acceleration64`), the other axes in float32."""
-        xy = sync_planar64(xy_prev, p.pos, p.vel, acc_prev)
+        (:func:`~magwarp.kernels.dynamics.planar_acceleration64`), the other axes in float32. ``xy`` is the float64
+        x/y state, synced with the float32 fields where it was read from memory (:func:`sync_planar64`)."""
         a64 = planar_acceleration64(wp.vec2d(xy[2], xy[3]), wp.vec2d(xy[4], xy[5]), cmd, lim)
         a = wp.vec2(wp.float32(a64[0]), wp.float32(a64[1]))
         drive = wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0)
@@ -79,8 +79,9 @@ def make_advance_kernel(force_fn=default_force):
         p.quat = quat[w, m]
         p.vel = vel[w, m]
         p.omega = omega[w, m]
-        n, a, xy = advance_pose(p, acc[w, m], planar[w, m], cmd[w, m], body[m], target_pos[w, m], target_quat[w, m],
-                                force_aux[w, m], lim, imp)
+        xy0 = sync_planar64(planar[w, m], p.pos, p.vel, acc[w, m])
+        n, a, xy = advance_pose(p, xy0, cmd[w, m], body[m], target_pos[w, m], target_quat[w, m], force_aux[w, m], lim,
+                                imp)
         pos[w, m] = n.pos
         quat[w, m] = n.quat
         vel[w, m] = n.vel
@@ -295,7 +296,7 @@ def make_register_kernel(force_fn, num_movers: int):
             q = quat[w, m]
             Q[m] = wp.vec4(q[0], q[1], q[2], q[3])
             A[m] = acc[w, m]
-            XY[m] = planar[w, m]
+            XY[m] = sync_planar64(planar[w, m], pos[w, m], vel[w, m], acc[w, m])
             Wl[m] = wall[w, m]
             F[m] = flags[w, m]
             Fa[m] = 0  # per-step accumulators start here: fused steps need no begin_step launch
@@ -313,8 +314,8 @@ def make_register_kernel(force_fn, num_movers: int):
                 p.vel = V[m]
                 p.omega = Om[m]
                 p.quat = wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3])
-                n, a, xy = advance_pose(p, A[m], XY[m], C[m], body[m], TP[m],
-                                        wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]), force_aux[w, m], lim, imp)
+                n, a, xy = advance_pose(p, XY[m], C[m], body[m], TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
+                                        force_aux[w, m], lim, imp)
                 P[m] = n.pos
                 V[m] = n.vel
                 Om[m] = n.omega
