@@ -196,7 +196,7 @@ def missing_squares(tiles: np.ndarray, ring: int = 2) -> list[np.ndarray]:
 @pytest.mark.parametrize("shape", ["circle", "box"])
 def test_wall_clearance_matches_float64_geometry(layout_name, shape, rng):
     tiles = LAYOUTS[layout_name]
-    n = 150
+    n = 150 if shape == "circle" else 60  # the float64 box distance is a Python loop
     poses, size = random_cases(rng, tiles, shape, n)
     out = CollisionQuery(tiles, shape, offset_wall=OFFSET_WALL, device="cpu")(poses, size)
     got, valid = out.wall_clearance.numpy(), out.wall_valid.numpy()
@@ -205,11 +205,13 @@ def test_wall_clearance_matches_float64_geometry(layout_name, shape, rng):
     for k in range(n):
         for i in range(M):
             p, grown = poses[k, i], size[k, i] + OFFSET_WALL
+            # squares farther than a tile from the footprint cannot change the (capped) answer
+            near = [lo for lo in squares if np.linalg.norm(p[:2] - lo - tile / 2) < 2.2 * tile + np.linalg.norm(grown)]
             if shape == "circle":
-                d = [np.linalg.norm(p[:2] - np.clip(p[:2], lo, lo + tile)) - grown for lo in squares]
+                d = [np.linalg.norm(p[:2] - np.clip(p[:2], lo, lo + tile)) - grown for lo in near]
             else:
-                d = [box_clearance(p, np.array([*(lo + tile / 2), 0.0]), grown, np.full(2, tile / 2)) for lo in squares]
-            want = min(min(d), tile)
+                d = [box_clearance(p, np.array([*(lo + tile / 2), 0.0]), grown, np.full(2, tile / 2)) for lo in near]
+            want = min(d + [tile])
             if want > EPS:
                 assert abs(got[k, i] - want) < 2e-6, f"{rng}: case {k} mover {i}: {got[k, i]} vs {want}"
             elif want < -EPS:

@@ -1,8 +1,8 @@
 """x/y motion against MagBotSim 1.3, per 1 ms cycle, in acceleration and jerk mode.
 
 The same start poses and the same random action sequences (held 40 cycles each, the jerk ones reaching the speed
-cap) run in MagBotSim's ``LongHorizonGlobalTrajectoryPlanningEnv`` (B0, one cycle per ``env.step``, its MuJoCo
-state read every cycle), in magwarp (``Simulator.step(1)`` per cycle) and in a float64 numpy replay of the law
+cap) run in MagBotSim's ``LongHorizonGlobalTrajectoryPlanningEnv`` (B0, the cycle loop of its ``env.step``, its
+MuJoCo state read every cycle), in magwarp (``Simulator.step(1)`` per cycle) and in a float64 numpy replay of the law
 (:func:`magwarp.reference.planar_cycle`). The float64 replay equals MagBotSim to ~1e-12 m, so the law is the same;
 magwarp stays within float32 rounding of it: 1e-6 m over the first 2 s and 1e-5 m over 4 s.
 
@@ -52,20 +52,25 @@ def float64_replay(start: np.ndarray, actions: np.ndarray, jerk: bool) -> np.nda
 def magbotsim_replay(jerk: bool, seed: int, num_actions: int, rng):
     """Start poses, actions, per-cycle positions and accelerations (qacc) of MagBotSim's B0 env."""
     pytest.importorskip("magbotsim")
+    import mujoco
     from magbotsim.rl_envs.trajectory_planning.long_horizon_global_trajectory_planning_env import (
         LongHorizonGlobalTrajectoryPlanningEnv,
     )
 
     layout, num_movers = benchmark_layout("B0")
     env = LongHorizonGlobalTrajectoryPlanningEnv(layout_tiles=layout.tiles, num_movers=num_movers, show_2D_plot=False,
-                                                 render_mode=None, std_noise=0.0, learn_jerk=jerk, num_cycles=1,
+                                                 render_mode=None, std_noise=0.0, learn_jerk=jerk,
                                                  timeout_steps=None)
     env.reset(seed=seed)
     start = env.get_mover_qpos(env.mover_names)[:, :2].copy()
     actions = random_actions(rng, num_actions, num_movers, jerk)
     pos, acc = [], []
     for k in range(num_actions * HOLD):
-        env.step(actions[k // HOLD].reshape(-1))
+        # env.step's cycle loop (its per-cycle collision checks, which change no state, left out for speed)
+        if k % HOLD == 0:
+            action = env._step_callback(actions[k // HOLD].reshape(-1))
+        env._before_mujoco_step_callback(action)
+        mujoco.mj_step(env.model, env.data, nstep=1)
         pos.append(env.get_mover_qpos(env.mover_names)[:, :2].copy())
         acc.append(env.get_mover_qacc(env.mover_names)[:, :2].copy())
     env.close()
