@@ -23,7 +23,8 @@ from magwarp.kernels import collision as kcol
 from magwarp.kernels import step as kstep
 from magwarp.kernels.impedance import default_force
 from magwarp.layout import Layout, LayoutError, MoverSpec
-from magwarp.types import COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Body, Collision, Grid, Impedance, Limits, Model, State
+from magwarp.types import (COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Body, Collision, Grid, Impedance, Limits, Model,
+                           Planar64, State)
 
 __all__ = ["Simulator", "default_device"]
 
@@ -46,21 +47,49 @@ def _vec(values, n: int, name: str) -> tuple[float, ...]:
     return tuple(float(v) for v in arr)
 
 
+def _host_array(value) -> np.ndarray:
+    """A float64 numpy copy of host or device data (tensors are moved to the host)."""
+    if isinstance(value, torch.Tensor):
+        value = value.detach().cpu().numpy()
+    return np.asarray(value, dtype=np.float64)
+
+
+def _check_finite(name: str, arr: np.ndarray) -> None:
+    """Refuse NaN/inf (and values float32 cannot hold), naming the first bad entry."""
+    bad = ~np.isfinite(arr) | (np.abs(np.nan_to_num(arr)) > np.finfo(np.float32).max)
+    if bad.any():
+        idx = [int(i) for i in np.argwhere(bad)[0]]
+        raise LayoutError(f"{name} contains a non-finite value at index {idx}: {float(arr[tuple(idx)])!r}")
+
+
+def _quat_from_rpy(roll, pitch, yaw) -> np.ndarray:
+    """Quaternions (x, y, z, w) of intrinsic z-y-x Euler angles (yaw about z, then pitch about y, then roll about x)."""
+    cr, sr = np.cos(0.5 * roll), np.sin(0.5 * roll)
+    cp, sp = np.cos(0.5 * pitch), np.sin(0.5 * pitch)
+    cy, sy = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
+    return np.stack([sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+                     cr * cp * cy + sr * sp * sy], axis=-1)
+
+
 class Simulator:
     """Batched mover simulator. See the module docstring; arguments:
 
     layout: :class:`~magwarp.layout.Layout` or a 0/1 array. num_movers: movers per world (default: one per start
     position given, else required). num_worlds: batch size. mover: :class:`~magwarp.layout.MoverSpec` (mass, size,
     collision shape and margins). start_xy / start_yaw: ``(M, 2)`` / ``(M,)`` shared by all worlds or
-    ``(W, M, 2)`` / ``(W, M)`` per world (default: tile centres, yaw 0). collision_radii ``(M,)`` /
-    collision_half_sizes ``(M, 2)``: per-mover collision sizes. control: ``"acceleration"`` or ``"jerk"``.
-    stiffness_lin / stiffness_rot: impedance stiffness; hold_mask: 6 flags (x, y, z, roll, pitch, yaw) the
-    impedance controller holds. stop_on_collision: a world stops moving for the rest of a step after a collision
-    (MagBotSim's behaviour). force_model: a ``@wp.func`` with :func:`~magwarp.kernels.impedance.default_force`'s
-    signature; force_aux_dim: width of its free per-mover input row ``force_aux``. device: ``"cpu"``, ``"cuda:N"``
-    or None for the best one. fused_max_movers: worlds up to this size run fused. max_pairs: room per world in
-    ``pair_list`` (the list of colliding pairs; ``world_pairs`` always counts all of them). check_inputs: validate commands
-    (costs a device sync per command; turn off in tight loops that produce commands on the device).
+    ``(W, M, 2)`` / ``(W, M)`` per world (default: tile centres, yaw 0), hovering and level; or start_pose: full
+    6-DoF start poses ``(M, 6)`` / ``(W, M, 6)``, x, y, z, roll, pitch, yaw (see :meth:`set_start_poses`).
+    validate_starts: refuse start poses that are off the tiles or in a mover-mover collision (a ``LayoutError``
+    naming the movers and poses); pass False to build a simulator for colliding poses on purpose.
+    collision_radii ``(M,)`` / collision_half_sizes ``(M, 2)``: per-mover collision sizes. control:
+    ``"acceleration"`` or ``"jerk"``. stiffness_lin / stiffness_rot: impedance stiffness; hold_mask: 6 flags (x, y,
+    z, roll, pitch, yaw) the impedance controller holds. stop_on_collision: a world stops moving for the rest of a
+    step after a collision (MagBotSim's behaviour). force_model: a ``@wp.func`` with
+    :func:`~magwarp.kernels.impedance.default_force`'s signature; force_aux_dim: width of its free per-mover input
+    row ``force_aux``. device: ``"cpu"``, ``"cuda:N"`` or None for the best one. fused_max_movers: worlds up to this
+    size run fused. max_pairs: room per world in ``pair_list`` (the list of colliding pairs; ``world_pairs`` always
+    counts all of them). check_inputs: validate commands (costs a device sync per command; turn off in tight loops
+    that produce commands on the device).
     """
 
     def __init__(
@@ -72,6 +101,7 @@ class Simulator:
         mover: MoverSpec | None = None,
         start_xy=None,
         start_yaw=None,
+        start_pose=None,
         collision_radii=None,
         collision_half_sizes=None,
         dt: float = 0.001,
@@ -91,7 +121,7 @@ class Simulator:
         max_pairs: int = 256,
         use_graph: bool = True,
         check_inputs: bool = True,
-        validate_starts_: bool = True,
+        validate_starts: bool = True,
     ):
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
         self.mover = mover or MoverSpec()
@@ -113,8 +143,8 @@ class Simulator:
         # without any host synchronisation.
         self._stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device)) if self.device.is_cuda else None
 
-        start_xy_arr, start_yaw_arr = self._start_arrays(num_movers, start_xy, start_yaw)
-        self.num_movers = start_xy_arr.shape[1]
+        start = self._start_arrays(num_movers, start_xy, start_yaw, start_pose)
+        self.num_movers = start.shape[1]
         m = self.num_movers
         if int(max_pairs) < 1:
             raise ValueError(f"max_pairs must be >= 1, got {max_pairs!r}")
@@ -138,32 +168,54 @@ class Simulator:
         self._init_pos = wp.zeros((self.num_worlds, m), dtype=wp.vec3, device=self.device)
         self._init_quat = wp.zeros((self.num_worlds, m), dtype=wp.quat, device=self.device)
         self._reset_mask = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)
-        self.set_start_poses(start_xy_arr, start_yaw_arr)
+        self._write_start_poses(start)
         self.reset()
-        if validate_starts_:
+        if validate_starts:
             self._raise_on_start_collisions()
 
     # ------------------------------------------------------------------ construction helpers
-    def _start_arrays(self, num_movers, start_xy, start_yaw):
+    def _start_arrays(self, num_movers, start_xy, start_yaw, start_pose=None) -> np.ndarray:
+        """Start poses ``(W, M, 6)`` (x, y, z, roll, pitch, yaw) from ``start_pose`` or from ``start_xy`` /
+        ``start_yaw`` (z = hover height, level), each shared by all worlds or per world; refuses NaN/inf naming the
+        value."""
+        if start_pose is not None:
+            if start_xy is not None or start_yaw is not None:
+                raise ValueError("give either start_pose or start_xy/start_yaw, not both")
+            pose = _host_array(start_pose)
+            if pose.ndim == 2:
+                pose = np.broadcast_to(pose, (self.num_worlds, *pose.shape))
+            if pose.ndim != 3 or pose.shape[0] != self.num_worlds or pose.shape[2] != 6:
+                raise LayoutError(f"start_pose must have shape (num_movers, 6) or (num_worlds={self.num_worlds}, "
+                                  f"num_movers, 6) (x, y, z, roll, pitch, yaw), got {np.shape(start_pose)}")
+            _check_finite("start_pose", pose)
+            if num_movers is not None and pose.shape[1] != int(num_movers):
+                raise LayoutError(f"start_pose has {pose.shape[1]} movers but num_movers={num_movers}")
+            return np.ascontiguousarray(pose)
         if start_xy is None:
             if num_movers is None:
-                raise ValueError("give num_movers or start_xy")
+                raise ValueError("give num_movers or start_xy (or start_pose)")
             if int(num_movers) < 1:
                 raise ValueError(f"num_movers must be >= 1, got {num_movers!r}")
             start_xy = self.layout.default_starts(int(num_movers))
-        xy = np.asarray(start_xy, dtype=np.float64)
+        xy = _host_array(start_xy)
         if xy.ndim == 2:
             xy = np.broadcast_to(xy, (self.num_worlds, *xy.shape))
         if xy.ndim != 3 or xy.shape[0] != self.num_worlds or xy.shape[2] != 2:
             raise LayoutError(f"start_xy must have shape (num_movers, 2) or (num_worlds={self.num_worlds}, num_movers, 2), got {np.shape(start_xy)}")
+        _check_finite("start_xy", xy)
         if num_movers is not None and xy.shape[1] != int(num_movers):
             raise LayoutError(f"start_xy has {xy.shape[1]} movers but num_movers={num_movers}")
-        yaw = np.zeros(xy.shape[:2]) if start_yaw is None else np.asarray(start_yaw, dtype=np.float64)
+        yaw = np.zeros(xy.shape[:2]) if start_yaw is None else _host_array(start_yaw)
         if yaw.ndim == 1 and yaw.shape[0] == xy.shape[1]:  # (M,) shared by all worlds; other shapes fail below
             yaw = np.broadcast_to(yaw, xy.shape[:2])
-        if yaw.shape != xy.shape[:2] or not np.all(np.isfinite(yaw)):
+        if yaw.shape != xy.shape[:2]:
             raise LayoutError(f"start_yaw must be finite with shape ({xy.shape[1]},) or {xy.shape[:2]}, got {np.shape(start_yaw)}")
-        return np.ascontiguousarray(xy), np.ascontiguousarray(yaw)
+        _check_finite("start_yaw", yaw)
+        pose = np.zeros((*xy.shape[:2], 6))
+        pose[..., :2] = xy
+        pose[..., 2] = self.mover.hover_z
+        pose[..., 5] = yaw
+        return pose
 
     def _collision_sizes(self, radii, half):
         m = self.num_movers
@@ -183,6 +235,7 @@ class Simulator:
         m, dev = self.num_movers, self.device
         lim = Limits()
         lim.dt, lim.v_max, lim.a_max, lim.j_max = float(dt), float(v_max), float(a_max), float(j_max)
+        lim.dt64, lim.v_max64, lim.a_max64, lim.j_max64 = float(dt), float(v_max), float(a_max), float(j_max)
         lim.jerk_mode = 1 if self.control == "jerk" else 0
         lim.gravity = float(gravity)
         imp = Impedance()
@@ -243,7 +296,7 @@ class Simulator:
             flags_any=z(wp.int32), partner=z(wp.int32), world_pairs=z(wp.int32, self.num_worlds),
             world_walls=z(wp.int32, self.num_worlds), halted=z(wp.int32, self.num_worlds),
             cycles=z(wp.int32, self.num_worlds), force_aux=z(float, (*shape, int(aux_dim))),
-            pair_list=z(wp.vec2i, (self.num_worlds, self.max_pairs)),
+            pair_list=z(wp.vec2i, (self.num_worlds, self.max_pairs)), planar=z(Planar64),
         )
         # Placeholders the integration kernel takes when there is no grid (worlds of up to 32 movers).
         self._no_cells = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -266,7 +319,8 @@ class Simulator:
     quat = property(lambda self: self._t(self.state.quat), doc="[W, M, 4] orientations (x, y, z, w)")
     vel = property(lambda self: self._t(self.state.vel), doc="[W, M, 3] linear velocities (m/s)")
     omega = property(lambda self: self._t(self.state.omega), doc="[W, M, 3] angular velocities, world frame (rad/s)")
-    acc = property(lambda self: self._t(self.state.acc), doc="[W, M, 2] x/y accelerations applied last cycle")
+    acc = property(lambda self: self._t(self.state.acc),
+                   doc="[W, M, 2] x/y drive accelerations of the last cycle (state: jerk commands integrate it)")
     cmd = property(lambda self: self._t(self.state.cmd), doc="[W, M, 2] current command buffer")
     flags = property(lambda self: self._t(self.state.flags), doc="[W, M] collision bits of the last cycle")
     flags_any = property(lambda self: self._t(self.state.flags_any), doc="[W, M] collision bits over the last step")
@@ -330,20 +384,20 @@ class Simulator:
             q[..., 2].copy_(torch.sin(0.5 * yaw))
             q[..., 3].copy_(torch.cos(0.5 * yaw))
 
-    def set_start_poses(self, start_xy, start_yaw=None) -> None:
-        """Replace the start poses used by :meth:`reset`: ``(M, 2)`` or ``(W, M, 2)`` positions, yaw likewise.
+    def set_start_poses(self, start_xy=None, start_yaw=None, *, start_pose=None) -> None:
+        """Replace the start poses used by :meth:`reset`: ``start_xy`` ``(M, 2)`` or ``(W, M, 2)`` with ``start_yaw``
+        likewise (hovering, level), or full 6-DoF ``start_pose`` ``(M, 6)`` / ``(W, M, 6)``: x, y, z, roll, pitch,
+        yaw (rad; intrinsic z-y-x: yaw, then pitch, then roll). NaN/inf is refused with an error naming the value.
 
-        The poses are checked when the worlds are reset and then by :meth:`check_collisions`, not here."""
-        xy = np.asarray(start_xy.cpu() if isinstance(start_xy, torch.Tensor) else start_xy, dtype=np.float64)
-        if start_yaw is not None and isinstance(start_yaw, torch.Tensor):
-            start_yaw = start_yaw.cpu().numpy()
-        xy, yaw = self._start_arrays(self.num_movers, xy, start_yaw)
-        pos = np.concatenate([xy, np.full((*xy.shape[:2], 1), self.model.hover_z)], axis=-1)
-        quat = np.zeros((*xy.shape[:2], 4))
-        quat[..., 2] = np.sin(0.5 * yaw)
-        quat[..., 3] = np.cos(0.5 * yaw)
-        self._init_pos.assign(pos.astype(np.float32))
-        self._init_quat.assign(quat.astype(np.float32))
+        A reset also sets each mover's impedance targets to its start pose. The poses are checked for collisions
+        when the worlds are reset and then by :meth:`check_collisions`, not here."""
+        if start_xy is None and start_pose is None:
+            raise ValueError("give start_xy (with start_yaw) or start_pose")
+        self._write_start_poses(self._start_arrays(self.num_movers, start_xy, start_yaw, start_pose))
+
+    def _write_start_poses(self, pose: np.ndarray) -> None:
+        self._init_pos.assign(pose[..., :3].astype(np.float32))
+        self._init_quat.assign(_quat_from_rpy(pose[..., 3], pose[..., 4], pose[..., 5]).astype(np.float32))
 
     @property
     def start_pos(self) -> torch.Tensor:
@@ -458,8 +512,8 @@ class Simulator:
             wp.launch(
                 self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
                 inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd,
-                        s.target_pos, s.target_quat, s.force_aux, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall,
-                        s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles,
+                        s.target_pos, s.target_quat, s.force_aux, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar,
+                        s.wall, s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles,
                         s.pair_list],
             )
             return
@@ -481,8 +535,8 @@ class Simulator:
         wp.launch(
             self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
             inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, s.target_pos,
-                    s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.wall, s.cycles,
-                    m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
+                    s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall,
+                    s.cycles, m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
         )
         self._launch_narrow_phase()
 

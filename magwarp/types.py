@@ -13,6 +13,10 @@ import warp as wp
 SHAPE_CIRCLE = 0
 SHAPE_BOX = 1
 
+#: x/y position, velocity and drive acceleration of one mover in float64 (x, y, vx, vy, ax, ay): the planar law's
+#: own state, so that x/y motion follows MagBotSim's (float64 MuJoCo) to float32 rounding over seconds
+Planar64 = wp.types.vector(length=6, dtype=wp.float64)
+
 # Bits of the per-mover collision flags.
 COLLIDE_MOVER = 1
 COLLIDE_WALL = 2
@@ -28,6 +32,12 @@ class Limits:
     j_max: float
     jerk_mode: int  # 0: commands are accelerations, 1: commands are jerks
     gravity: float  # magnitude of gravity along -z (9.81)
+    # The same four limits in float64, for the x/y law (float32 holds 0.001 s as 1.0000000475e-3 s, which would
+    # stretch every x/y step by 5e-8 of itself)
+    dt64: wp.float64
+    v_max64: wp.float64
+    a_max64: wp.float64
+    j_max64: wp.float64
 
 
 @wp.struct
@@ -115,7 +125,7 @@ class State:
     quat: wp.array2d  # quat (x, y, z, w)
     vel: wp.array2d  # vec3, linear velocity (m/s)
     omega: wp.array2d  # vec3, angular velocity in the world frame (rad/s)
-    acc: wp.array2d  # vec2, x/y acceleration applied in the last cycle (m/s^2)
+    acc: wp.array2d  # vec2, x/y drive acceleration of the last cycle (m/s^2), the state jerk commands integrate
     cmd: wp.array2d  # vec2, command (acceleration or jerk, by Limits.jerk_mode)
     target_pos: wp.array2d  # vec3, impedance target position (only held axes matter)
     target_quat: wp.array2d  # quat, impedance target orientation (yaw target)
@@ -130,3 +140,6 @@ class State:
     halted: wp.array  # int32 (num_worlds,), 1 once the world collided in the current step (stop_on_collision)
     cycles: wp.array  # int32 (num_worlds,), cycles integrated in the current step
     force_aux: wp.array3d  # float32 (num_worlds, num_movers, K), free inputs for custom force models
+    planar: wp.array2d  # Planar64: x/y position, velocity, acceleration in float64; pos/vel/acc are its rounding.
+    # A write into pos, vel or acc (a reset, a user's edit) is picked up: where the float32 field no longer equals
+    # the rounding of this state, the kernels restart it from the float32 value.

@@ -289,7 +289,7 @@ def test_simulator_collisions_match_reference(path, shape, rng):
     yaw = np.stack([y for _, y in worlds])
 
     sim = Simulator(layout, num_worlds=w, mover=mover, start_xy=xy, start_yaw=yaw, collision_radii=radii,
-                    collision_half_sizes=half, device="cpu", fused_max_movers=fused_max, validate_starts_=False,
+                    collision_half_sizes=half, device="cpu", fused_max_movers=fused_max, validate_starts=False,
                     stop_on_collision=False)
     assert sim._fused == (m <= fused_max)
     sim.step(1)
@@ -338,7 +338,7 @@ def test_grid_path_finds_pairs_outside_the_layout(rng):
     xy[:20] = np.stack([0.05 + 0.019 * np.arange(20), np.full(20, 0.12)], 1)  # 19 mm apart
     xy[20:] = np.stack([np.full(20, -0.5), -0.5 - 0.015 * np.arange(20)], 1)  # far outside, 15 mm apart
     mover = MoverSpec(collision_radius=0.01)
-    sim = Simulator(layout, start_xy=xy, mover=mover, device="cpu", fused_max_movers=0, validate_starts_=False,
+    sim = Simulator(layout, start_xy=xy, mover=mover, device="cpu", fused_max_movers=0, validate_starts=False,
                     stop_on_collision=False)
     sim.step(1)
     pairs = ref.mover_collision_pairs(mover, f32(xy), np.zeros(m))
@@ -390,7 +390,7 @@ def test_check_collisions_matches_reference(m, shape, rng):
     radii = f32(rng.uniform(0.02, 0.07, m) * scale)
     half = f32(rng.uniform(0.015, 0.055, (m, 2)) * scale)
     sim = Simulator(layout, num_worlds=w, mover=mover, start_xy=np.full((m, 2), 0.0), collision_radii=radii,
-                    collision_half_sizes=half, device="cpu", validate_starts_=False)
+                    collision_half_sizes=half, device="cpu", validate_starts=False)
     worlds = [random_world(rng, shape, m, margin, wall_margin, radii, half, layout) for _ in range(w)]
     xy = np.stack([x for x, _ in worlds])
     yaw = np.stack([y for _, y in worlds])

@@ -150,7 +150,7 @@ def test_simulator_planar_limits_and_trajectory(mode, rng):
     prev_a = np.concatenate([np.zeros_like(acc[:1]), acc[:-1]])
     prev_p = np.concatenate([start[None, ..., :2], pos[:-1, ..., :2]])
     a1, v1, dp1 = ref.planar_cycle(prev_v, prev_a, cmds, dt=DT, v_max=V_MAX, a_max=A_MAX, j_max=J_MAX, jerk_mode=jerk)
-    np.testing.assert_allclose(acc, a1, atol=2e-3, err_msg=f"{rng}: applied acceleration")
+    np.testing.assert_allclose(acc, a1, atol=1e-3, err_msg=f"{rng}: applied acceleration")
     np.testing.assert_allclose(v_xy, v1, atol=3e-6, err_msg=f"{rng}: velocity")
     np.testing.assert_allclose(pos[..., :2], prev_p + dp1, atol=1e-6, err_msg=f"{rng}: position")
     if jerk:
@@ -169,10 +169,9 @@ def test_simulator_planar_limits_and_trajectory(mode, rng):
         a, v, dp = ref.planar_cycle(v, a, cmds[c], dt=DT, v_max=V_MAX, a_max=A_MAX, j_max=J_MAX, jerk_mode=jerk)
         p = p + dp
         ref_pos.append(p)
-    # Float32 state: jerk mode re-derives the acceleration from velocity differences every cycle, so its error
-    # grows faster (measured ~1e-5 m over 400 cycles; acceleration mode ~1e-6 m).
-    tol = 2e-4 if jerk else 2e-5
-    np.testing.assert_allclose(pos[..., :2], np.array(ref_pos), atol=tol, err_msg=f"{rng}: trajectory")
+    # The x/y law runs in float64 with the acceleration carried as state (jerk mode included): what is left is the
+    # float32 rounding of the outputs and of the start poses.
+    np.testing.assert_allclose(pos[..., :2], np.array(ref_pos), atol=1e-6, err_msg=f"{rng}: trajectory")
 
     # Held axes stay at hover: z, roll, pitch, yaw do not move under planar commands.
     np.testing.assert_allclose(pos[..., 2], sim.model.hover_z, atol=1e-6, err_msg=str(rng))

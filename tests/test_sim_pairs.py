@@ -23,7 +23,7 @@ def test_pair_list_matches_reference(path, shape, rng):
     yaw = rng.uniform(-np.pi, np.pi, (3, m))
     mover = MoverSpec(collision_shape=shape, collision_radius=0.08, collision_half_size=(0.05, 0.07))
     sim = Simulator(layout, num_worlds=3, mover=mover, start_xy=xy, start_yaw=yaw, device="cpu",
-                    fused_max_movers=fused_max, validate_starts_=False, stop_on_collision=False)
+                    fused_max_movers=fused_max, validate_starts=False, stop_on_collision=False)
     sim.step(1)
     pos = sim.pos.numpy()[..., :2].astype(np.float64)
     q = sim.quat.numpy()
@@ -41,7 +41,7 @@ def test_pair_list_matches_reference(path, shape, rng):
 
 def test_pair_list_keeps_the_first_pairs_and_counts_all(rng):
     xy = rng.uniform(0.3, 0.4, (1, 8, 2))  # all eight movers on top of each other: 28 pairs
-    sim = Simulator(Layout.grid(3, 3), num_worlds=1, start_xy=xy, device="cpu", max_pairs=5, validate_starts_=False,
+    sim = Simulator(Layout.grid(3, 3), num_worlds=1, start_xy=xy, device="cpu", max_pairs=5, validate_starts=False,
                     stop_on_collision=False)
     sim.step(1)
     assert int(sim.world_pairs[0]) == 28

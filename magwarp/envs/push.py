@@ -40,7 +40,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv, _where
+from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
@@ -91,7 +93,7 @@ def _yaw_from_quat(q: torch.Tensor) -> torch.Tensor:
     return torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-class PushEnv(MagwarpVecEnv):
+class PushEnv(ChosenEpisodes, MagwarpVecEnv):
     """Batched object pushing. ``layout`` is a :class:`Layout` or 0/1 array (default: 4 x 3 tiles); ``benchmark``
     (``"B0"``..``"B9"``) picks MagBotSim's pushing benchmark layout and mover count instead.
 
@@ -116,7 +118,18 @@ class PushEnv(MagwarpVecEnv):
     Rendering: ``render_mode="rgb_array"`` draws the worlds of :meth:`set_render_worlds` from above (tiles, movers,
     the object, its goal and obstacles); ``"rgb_array_3d"`` renders them in 3D through MuJoCo's offscreen renderer
     (:mod:`magwarp.render.mujoco3d`; needs EGL or OSMesa).
+
+    Chosen episodes (e.g. a MagBotSim episode or a real-system log replayed): ``reset(seed=..., options={...})`` with
+    any of ``"mover_xy"`` (mover start positions ``[M, 2]``; movers start hovering, level, at rest), ``"object_xy"``
+    ``[2]`` and ``"object_yaw"`` ``[]`` (the object's start pose), ``"goal_xy"`` ``[2]`` and ``"goal_yaw"`` ``[]``
+    (its goal), each for every reset env or per env with a leading ``num_envs`` axis, and ``"reset_mask"``
+    (``[num_envs]`` bool). ``"mover_xy"`` and ``"object_xy"`` go together. Movers must be on the tiles (wall rule,
+    wall margin included) and clear of each other; the object and the goal must lie on the tiles (the object's
+    bounding circle) and the object must not overlap a mover's body (at any yaw when its yaw is sampled). A value
+    that is not raises a ``ValueError`` naming it, and nothing is reset; keys not given are sampled as usual.
     """
+
+    EPISODE_OPTIONS = {"mover_xy": ("M", 2), "object_xy": (2,), "object_yaw": (), "goal_xy": (2,), "goal_yaw": ()}
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
@@ -451,7 +464,7 @@ class PushEnv(MagwarpVecEnv):
         b = self.backend
         if self.variants is not None:
             self._assign_variants(mask)
-        s = self._sample_episode(self.num_envs)
+        s = {key: self._chosen_or(key, value) for key, value in self._sample_episode(self.num_envs).items()}
         m3 = mask[:, None, None]
         mover_q = b.init_mover_qpos
         new_mover = mover_q.clone()
@@ -478,6 +491,59 @@ class PushEnv(MagwarpVecEnv):
         self.metrics.reset(mask)
         if self.benchmark_metrics is not None:
             self.benchmark_metrics.episode_reset(mask)
+
+    def _object_reach(self) -> float:
+        """Radius of a circle around the object (its largest variant) about its centre."""
+        return max(math.hypot(abs(cx) + hx, abs(cy) + (hx if hy == 0 else hy)) for cx, cy, hx, hy in _parts(self.object))
+
+    def _check_episode(self, chosen: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
+        n, m, dev = self.num_envs, self.num_movers, self.device
+        circle = self.mover.collision_shape == "circle"
+        if getattr(self, "_episode_queries", None) is None:
+            self._episode_queries = (
+                CollisionQuery(self.layout, self.mover.collision_shape, offset_wall=self.mover.wall_margin,
+                               device=str(dev)),
+                CollisionQuery(self.layout, "circle", device=str(dev)),
+                CollisionQuery(self.layout, "box", device=str(dev)),
+            )
+        movers_q, circle_q, box_q = self._episode_queries
+        if ("mover_xy" in chosen) != ("object_xy" in chosen):
+            raise ValueError("options['mover_xy'] and options['object_xy'] go together (the sampler keeps movers and "
+                             "object apart only among sampled values)")
+        if "object_yaw" in chosen and "object_xy" not in chosen:
+            raise ValueError("options['object_yaw'] needs options['object_xy']")
+        size = torch.tensor(self.mover.collision_radius if circle else self.mover.collision_half_size, device=dev)
+        if "mover_xy" in chosen:
+            poses = torch.cat([chosen["mover_xy"], torch.zeros(n, m, 1, device=dev)], -1)
+            self._check_movers(movers_q, "mover_xy", poses, size + self.mover.margin, size, mask)
+        parts = _parts(self.object)
+        reach = self._object_reach()
+        for key in ("object_xy", "goal_xy"):
+            if key in chosen:
+                on = circle_q(torch.cat([chosen[key], torch.zeros(n, 1, device=dev)], -1)[:, None], reach).wall_valid
+                self._raise_first(~on[:, 0] & mask, lambda i, key=key: (
+                    f"options[{key!r}] puts the object of env {i[0]} at {fmt_xy(chosen[key][i[0]])}, off the tiles "
+                    f"(its bounding circle, radius {reach:.4g} m, must lie on them)"))
+        if "mover_xy" in chosen:
+            # the object's parts as boxes (a disc as its square); with a sampled yaw, the square around its bounding
+            # circle (clear of the movers at any yaw)
+            mover_xy, obj_xy = chosen["mover_xy"], chosen["object_xy"]
+            obj_yaw = chosen.get("object_yaw", torch.zeros(n, device=dev))
+            if "object_yaw" not in chosen:
+                parts = [(0.0, 0.0, reach, reach)]
+            c, si = torch.cos(obj_yaw), torch.sin(obj_yaw)
+            half_body = torch.tensor(self.mover.size[:2], device=dev) / 2
+            body = torch.cat([mover_xy, torch.zeros(n, m, 1, device=dev)], -1)
+            for cx, cy, hx, hy in parts:
+                centre = obj_xy + torch.stack([c * cx - si * cy, si * cx + c * cy], -1)
+                part = torch.cat([centre, obj_yaw[:, None]], -1)[:, None].expand(n, m, 3)
+                part_half = torch.tensor([hx, hy if hy > 0 else hx], device=dev)
+                sizes = torch.stack([half_body.expand(n, m, 2), part_half.expand(n, m, 2)], -2)
+                hit = box_q(torch.stack([body, part], -2), sizes).pair_collision[..., 0, 1] & mask[:, None]
+                self._raise_first(hit, lambda i: (
+                    f"options put the object of env {i[0]} at {fmt_xy(obj_xy[i[0]])} (yaw "
+                    f"{'sampled' if 'object_yaw' not in chosen else format(obj_yaw[i[0]].item(), '.4g')}) under "
+                    f"mover {i[1]} at {fmt_xy(mover_xy[i[0], i[1]])}"))
 
     def _apply_action(self, action: torch.Tensor) -> None:
         self.checks.clear()

@@ -11,6 +11,7 @@ import torch
 from warp import to_torch as wp_to_torch
 
 from magwarp.envs.base import _where
+from magwarp.envs.episode import fmt_xy
 from magwarp.envs.push import _CANDIDATES, PushEnv
 from magwarp.mjcf import ObstacleSpec
 
@@ -63,6 +64,9 @@ class PushWithObstaclesEnv(PushEnv):
     ``curriculum_episodes`` episodes, restarted at each level) reaches this value. A fixed schedule counts
     episodes, and an untrained policy crashes within a few steps, so it can reach the hard walls before it has
     learned anything on the simple ones.
+
+    Chosen episodes (``reset(options=...)``, see :class:`~magwarp.envs.push.PushEnv`) must also keep the movers, the
+    object and the goal clear of the walls (of the longest walls where a reset draws them).
     """
 
     def __init__(self, num_envs: int = 1, obstacle_mode: str | dict[str, float] = "simple", threshold_pos: float = 0.05,
@@ -106,6 +110,25 @@ class PushWithObstaclesEnv(PushEnv):
             xpos = wp_to_torch(self.backend.data.geom_xpos)
             g = self._wall_geoms
             xpos[:, g] = _where(mask, self._geom_fields["geom_pos"][:, g], xpos[:, g])
+
+    def _check_episode(self, chosen: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
+        """Also keeps chosen movers (their bodies' bounding circles), objects and goals (the object's bounding circle)
+        clear of the walls: this episode's walls where they are fixed, the longest (``hard``) ones where a reset
+        draws them."""
+        super()._check_episode(chosen, mask)
+        boxes = self.obstacle_boxes.clone()
+        if self._varying_walls():
+            h = _OBSTACLE_HALF_Y["hard"]
+            boxes[:, 0, 1], boxes[:, 1, 1], boxes[:, :, 3] = h, self.layout_top - h, h
+        body = float(np.hypot(*self.mover.size[:2])) / 2
+        for key, reach in (("mover_xy", body), ("object_xy", self._object_reach()), ("goal_xy", self._object_reach())):
+            if key not in chosen:
+                continue
+            pts = chosen[key].reshape(self.num_envs, -1, 1, 2)  # [n, K, 1, 2] against the walls [n, 1, 2, 2]
+            gap = ((pts - boxes[:, None, :, :2]).abs() - boxes[:, None, :, 2:4]).clamp(min=0).norm(dim=-1)
+            self._raise_first((gap < reach) & mask[:, None, None], lambda i, key=key: (
+                f"options[{key!r}] puts {'mover ' + str(i[1]) if key == 'mover_xy' else 'the object'} of env {i[0]} "
+                f"at {fmt_xy(chosen[key].reshape(self.num_envs, -1, 2)[i[0], i[1]])}, into obstacle {i[2]}"))
 
     def _resize_walls(self, mask: torch.Tensor) -> None:
         """New wall half lengths for the worlds in ``mask``, written into the per-world obstacle geoms."""

@@ -25,7 +25,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.sampling import PoseSampler
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator, default_device
@@ -33,14 +35,32 @@ from magwarp.sim import Simulator, default_device
 __all__ = ["TrajectoryPlanningEnv"]
 
 
-class TrajectoryPlanningEnv(MagwarpVecEnv):
+def per_mover_sizes(shape: str, size, num_movers: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """MagBotSim's ``collision_params["size"]`` as per-mover arrays: circle radii ``(M,)`` from one radius or ``(M,)``;
+    box half sizes ``(M, 2)`` from one number, ``(2,)`` or ``(M, 2)``. None for the default size."""
+    if size is None:
+        return None, None
+    arr = np.asarray(size, dtype=np.float64)
+    shapes = [(), (num_movers,)] if shape == "circle" else [(), (2,), (num_movers, 2)]
+    if arr.shape not in shapes or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        what = "radius or per-mover radii" if shape == "circle" else "box half sizes"
+        raise ValueError(f"collision_size for a {shape} must be a positive {what} of shape "
+                         f"{' or '.join(str(s) for s in shapes)}, got {size!r}")
+    if shape == "circle":
+        return np.broadcast_to(arr, (num_movers,)).copy(), None
+    return None, np.broadcast_to(arr, (num_movers, 2)).copy()
+
+
+class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
     """Batched trajectory planning. ``layout`` is a benchmark name ("B0".."B9"), a :class:`Layout` or a 0/1 array.
 
     Collision options follow MagBotSim's ``collision_params``: ``collision_shape`` ("circle" or "box"),
-    ``collision_size`` (radius, or box half sizes (2,)), ``collision_offset`` (safety offset used when sampling
-    starts and goals), ``collision_offset_wall`` (margin added for wall checks). ``safety_margin`` grows every
-    collision shape in the per-cycle mover-mover check (MagBotSim: none); sampled starts keep it as well (each shape
-    grown by ``safety_margin + collision_offset``), so no world starts in a collision. A configuration in which the
+    ``collision_size`` (radius, or box half sizes (2,); per mover, as MagBotSim allows: radii (num_movers,) or half
+    sizes (num_movers, 2), then starts and goals are sampled with the largest), ``collision_offset`` (safety offset
+    used when sampling starts and goals), ``collision_offset_wall`` (margin added for wall checks).
+    ``safety_margin`` grows every collision shape in the per-cycle mover-mover check (MagBotSim: none); sampled
+    starts keep it as well (each shape grown by ``safety_margin + collision_offset``), so no world starts in a
+    collision. A configuration in which the
     movers cannot be placed raises a ``ValueError`` naming these values. ``mover_params`` (MagBotSim's) sets the
     mover body: ``{"size": half sizes (x, y, z), "mass": kg}``.
 
@@ -49,7 +69,20 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
     per episode rarely meets the start states (all movers at rest, three fresh goals), which the benchmark's 10 s runs
     begin with. The benchmark metrics count a goal pending at this cut as neither reached nor failed (as at the end
     of an evaluation run); a collision or a timeout fails it.
+
+    Chosen episodes (e.g. a MagBotSim episode replayed): ``reset(seed=..., options={...})`` with any of
+
+    * ``"start_xy"``: mover start positions ``[M, 2]`` (every reset env) or ``[num_envs, M, 2]``;
+    * ``"start_yaw"``: their headings ``[M]`` or ``[num_envs, M]`` (rad; with ``"start_xy"``; default 0);
+    * ``"goals"``: the goals ``[M, 2]`` or ``[num_envs, M, 2]``;
+    * ``"reset_mask"``: which envs to reset (``[num_envs]`` bool; default all).
+
+    Starts must be on the tiles and collision free under the per-cycle rule (collision sizes, ``safety_margin``,
+    ``collision_offset_wall``), goals on the tiles (a mover's footprint there, wall margin included); a value that is
+    not raises a ``ValueError`` naming it, and nothing is reset. Keys not given are sampled as usual.
     """
+
+    EPISODE_OPTIONS = {"start_xy": ("M", 2), "start_yaw": ("M",), "goals": ("M", 2)}
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
@@ -61,7 +94,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         num_movers: int | None = None,
         *,
         collision_shape: str = "circle",
-        collision_size: float | tuple[float, float] | None = None,
+        collision_size: float | tuple[float, float] | np.ndarray | None = None,
         collision_offset: float = 0.0,
         collision_offset_wall: float = 0.0,
         mover_params: dict | None = None,
@@ -109,11 +142,11 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_episode_steps!r}")
         spec_kwargs: dict[str, Any] = dict(collision_shape=collision_shape, margin=safety_margin,
                                            wall_margin=collision_offset_wall, **mover_params_kwargs(mover_params))
-        if collision_size is not None:
-            if collision_shape == "circle":
-                spec_kwargs["collision_radius"] = float(collision_size)
-            else:
-                spec_kwargs["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
+        radii, halves = per_mover_sizes(collision_shape, collision_size, int(num_movers))
+        if radii is not None:
+            spec_kwargs["collision_radius"] = float(radii.max())
+        if halves is not None:
+            spec_kwargs["collision_half_size"] = tuple(halves.max(axis=0))
         mover = MoverSpec(**spec_kwargs)
         device = device or default_device()
         # The simulator is built with placeholder starts (every mover at the first tile centre) that are never
@@ -124,7 +157,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         self.sim = Simulator(
             layout_obj, int(num_movers), int(num_envs), mover=mover, control="jerk" if learn_jerk else "acceleration",
             v_max=v_max, a_max=a_max, j_max=j_max, device=device, check_inputs=False, start_xy=placeholder,
-            validate_starts_=False,
+            validate_starts=False, collision_radii=radii, collision_half_sizes=halves,
         )
         super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs)
@@ -171,17 +204,44 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
     # ------------------------------------------------------------------ task hooks
     def _reset_envs(self, mask: torch.Tensor) -> None:
         n = self.num_envs
-        starts = self.sampler.sample_starts(n)
+        starts = self._chosen_or("start_xy", self.sampler.sample_starts(n))
         start_pos = self.sim.start_pos
         start_pos[..., :2] = torch.where(mask[:, None, None], starts, start_pos[..., :2])
+        half_yaw = 0.5 * self._chosen_or("start_yaw", torch.zeros(n, self.num_movers, device=self.device))
+        quat = torch.stack([torch.zeros_like(half_yaw), torch.zeros_like(half_yaw), half_yaw.sin(), half_yaw.cos()], -1)
+        self.sim.start_quat.copy_(torch.where(mask[:, None, None], quat, self.sim.start_quat))
         self.sim.reset(mask)
-        self.goals.copy_(torch.where(mask[:, None, None], self.sampler.sample_goals(n, self.num_movers), self.goals))
+        goals = self._chosen_or("goals", self.sampler.sample_goals(n, self.num_movers))
+        self.goals.copy_(torch.where(mask[:, None, None], goals, self.goals))
         zero = torch.zeros_like(self.num_steps)
         self.num_steps.copy_(torch.where(mask, zero, self.num_steps))
         self.last_goal_step.copy_(torch.where(mask, zero, self.last_goal_step))
         self.collected_goals.masked_fill_(mask[:, None], 0)
         if self.benchmark_metrics is not None:
             self.benchmark_metrics.episode_reset(mask)
+
+    def _check_episode(self, chosen: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
+        if "start_yaw" in chosen and "start_xy" not in chosen:
+            raise ValueError("options['start_yaw'] needs options['start_xy'] (sampled starts begin at yaw 0)")
+        col = self.sim.model.collision
+        if getattr(self, "_episode_query", None) is None:
+            self._episode_query = CollisionQuery(self.layout, self.sim.mover.collision_shape,
+                                                 offset_wall=col.wall_margin, device=str(self.sim.device))
+        circle = self.sim.mover.collision_shape == "circle"
+        size = torch.as_tensor(self.sim._radii_np if circle else self.sim._half_np, dtype=torch.float32,
+                               device=self.device)
+        n, m = self.num_envs, self.num_movers
+        if "start_xy" in chosen:
+            yaw = chosen.get("start_yaw", torch.zeros(n, m, device=self.device))
+            poses = torch.cat([chosen["start_xy"], yaw[..., None]], -1)
+            self._check_movers(self._episode_query, "start_xy", poses, size + col.margin, size, mask)
+        if "goals" in chosen:
+            goals = chosen["goals"]
+            poses = torch.cat([goals, torch.zeros(n, m, 1, device=self.device)], -1)
+            walls = self._episode_query(poses, size).wall_valid
+            self._raise_first(~walls & mask[:, None], lambda i: (
+                f"options['goals'] puts the goal of mover {i[1]} of env {i[0]} at {fmt_xy(goals[i[0], i[1]])}, where "
+                "the mover would be off the tiles"))
 
     def _apply_action(self, action: torch.Tensor) -> None:
         self.sim.step(self.num_cycles, action.view(self.num_envs, self.num_movers, 2))

@@ -416,3 +416,186 @@ def detect_walls(
     if hits_wall_cs(tiles, col, wp.vec2(p[0], p[1]), shape_heading(col, quat[w, m]), radius[m], half_size[m]):
         hit = 1
     wall[w, m] = hit
+
+
+# ---------------------------------------------------------------------------------------------- batched queries
+# The public queries of :mod:`magwarp.collision`: poses (x, y, yaw) with per-pose sizes, the same shape tests as the
+# simulator's step (``movers_collide_cs``, ``hits_wall_cs``), plus the signed clearance between two movers.
+
+
+@wp.func
+def point_box_distance(q: wp.vec2, c: wp.vec2, h: wp.vec2, half: wp.vec2) -> float:
+    """Distance from point ``q`` to the rectangle centred at ``c`` (heading ``h`` as (cos, sin)); 0 inside."""
+    d = q - c
+    lx = wp.abs(d[0] * h[0] + d[1] * h[1]) - half[0]
+    ly = wp.abs(-d[0] * h[1] + d[1] * h[0]) - half[1]
+    return wp.length(wp.vec2(wp.max(lx, 0.0), wp.max(ly, 0.0)))
+
+
+@wp.func
+def corners_to_box(ca: wp.vec2, ha: wp.vec2, half_a: wp.vec2, cb: wp.vec2, hb: wp.vec2, half_b: wp.vec2) -> float:
+    """Smallest distance from a corner of rectangle a to rectangle b."""
+    ex = wp.vec2(ha[0], ha[1]) * half_a[0]
+    ey = wp.vec2(-ha[1], ha[0]) * half_a[1]
+    best = point_box_distance(ca + ex + ey, cb, hb, half_b)
+    best = wp.min(best, point_box_distance(ca + ex - ey, cb, hb, half_b))
+    best = wp.min(best, point_box_distance(ca - ex + ey, cb, hb, half_b))
+    return wp.min(best, point_box_distance(ca - ex - ey, cb, hb, half_b))
+
+
+@wp.func
+def movers_clearance_cs(
+    col: Collision, d: wp.vec2, ha: wp.vec2, r_a: float, half_a: wp.vec2, hb: wp.vec2, r_b: float, half_b: wp.vec2
+) -> float:
+    """Signed clearance of two movers (centre offset ``d = p_a - p_b``) once both shapes are grown by the safety
+    margin: the gap between them (> 0), 0 at contact, minus the penetration depth when they overlap (< 0)."""
+    if col.shape == SHAPE_CIRCLE:
+        return wp.length(d) - (r_a + r_b + 2.0 * col.margin)
+    m = wp.vec2(col.margin, col.margin)
+    return boxes_clearance(d, ha, half_a + m, hb, half_b + m)
+
+
+@wp.func
+def boxes_clearance(d: wp.vec2, ha: wp.vec2, ga: wp.vec2, hb: wp.vec2, gb: wp.vec2) -> float:
+    """Signed distance of two rectangles (centre offset ``d = c_a - c_b``, headings as (cos, sin), half sizes ``ga``,
+    ``gb``): the gap apart, minus the penetration depth (the shortest push apart) when they overlap."""
+    # Largest separation over the four candidate axes: the penetration depth (negated) when they overlap.
+    sep = float(-1.0e30)
+    for k in range(4):
+        axis = wp.vec2(ha[0], ha[1])
+        if k == 1:
+            axis = wp.vec2(-ha[1], ha[0])
+        elif k == 2:
+            axis = wp.vec2(hb[0], hb[1])
+        elif k == 3:
+            axis = wp.vec2(-hb[1], hb[0])
+        reach = box_extent(axis, ha[0], ha[1], ga) + box_extent(axis, hb[0], hb[1], gb)
+        sep = wp.max(sep, wp.abs(wp.dot(d, axis)) - reach)
+    if sep <= 0.0:
+        return sep
+    # Apart: the distance between two convex polygons is attained at a corner of one of them.
+    zero = wp.vec2(0.0, 0.0)
+    return wp.min(corners_to_box(d, ha, ga, zero, hb, gb), corners_to_box(zero, hb, gb, d, ha, ga))
+
+
+@wp.func
+def wall_clearance_cs(tiles: wp.array2d(dtype=wp.int32), col: Collision, p: wp.vec2, h: wp.vec2, radius: float,
+                      half: wp.vec2) -> float:
+    """Signed clearance of a footprint (grown by the wall margin) to the area without tiles (holes and outside the
+    layout): the gap (> 0), 0 at contact, < 0 where it overlaps. Exact up to one tile size; larger gaps read as one
+    tile size (missing tiles are only searched within a tile of the footprint)."""
+    r = radius + col.wall_margin
+    hh = half + wp.vec2(col.wall_margin, col.wall_margin)
+    size = col.tile_size
+    ex = r
+    ey = r
+    reach = r
+    if col.shape != SHAPE_CIRCLE:
+        ex = hh[0] * wp.abs(h[0]) + hh[1] * wp.abs(h[1])
+        ey = hh[0] * wp.abs(h[1]) + hh[1] * wp.abs(h[0])
+        reach = wp.length(hh)
+    nx = tiles.shape[0]
+    ny = tiles.shape[1]
+    # Outside the layout: four half planes (exact for a circle and for a rectangle's extreme corner).
+    best = wp.min(wp.min(p[0] - ex, p[1] - ey), wp.min(float(nx) * size - p[0] - ex, float(ny) * size - p[1] - ey))
+    best = wp.min(best, size)
+    if col.full_rect == 1:
+        return best
+    i0 = wp.max(int(wp.floor((p[0] - reach - size) / size)), 0)
+    i1 = wp.min(int(wp.floor((p[0] + reach + size) / size)), nx - 1)
+    j0 = wp.max(int(wp.floor((p[1] - reach - size) / size)), 0)
+    j1 = wp.min(int(wp.floor((p[1] + reach + size) / size)), ny - 1)
+    hs = 0.5 * size
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            if tiles[i, j] != 1:
+                c = wp.vec2((float(i) + 0.5) * size, (float(j) + 0.5) * size)
+                if col.shape == SHAPE_CIRCLE:
+                    q = p - c
+                    out = wp.vec2(wp.max(wp.abs(q[0]) - hs, 0.0), wp.max(wp.abs(q[1]) - hs, 0.0))
+                    inside = wp.min(hs - wp.abs(q[0]), hs - wp.abs(q[1]))
+                    sd = wp.length(out)
+                    if inside > 0.0:
+                        sd = -inside
+                    best = wp.min(best, sd - r)
+                else:
+                    best = wp.min(best, boxes_clearance(p - c, h, hh, wp.vec2(1.0, 0.0), wp.vec2(hs, hs)))
+    return best
+
+
+@wp.func
+def heading_of_yaw(yaw: float) -> wp.vec2:
+    return wp.vec2(wp.cos(yaw), wp.sin(yaw))
+
+
+@wp.kernel
+def query_pairs(
+    # Model:
+    col: Collision,
+    # In:
+    poses: wp.array2d(dtype=wp.vec3),
+    radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2),
+    # Out:
+    hit: wp.array3d(dtype=wp.bool),
+    clearance: wp.array3d(dtype=float),
+):
+    """Mover ``i`` of query ``b`` against every ``j > i`` (both entries of the symmetric outputs written once)."""
+    b, i = wp.tid()
+    pi = poses[b, i]
+    hi = heading_of_yaw(pi[2])
+    hit[b, i, i] = False
+    clearance[b, i, i] = wp.inf
+    for j in range(i + 1, poses.shape[1]):
+        pj = poses[b, j]
+        hj = heading_of_yaw(pj[2])
+        d = wp.vec2(pi[0] - pj[0], pi[1] - pj[1])
+        h = movers_collide_cs(col, d, hi, radius[b, i], half_size[b, i], hj, radius[b, j], half_size[b, j])
+        c = movers_clearance_cs(col, d, hi, radius[b, i], half_size[b, i], hj, radius[b, j], half_size[b, j])
+        hit[b, i, j] = h
+        hit[b, j, i] = h
+        clearance[b, i, j] = c
+        clearance[b, j, i] = c
+
+
+@wp.kernel
+def query_walls(
+    # Model:
+    tiles: wp.array2d(dtype=wp.int32),
+    col: Collision,
+    # In:
+    poses: wp.array2d(dtype=wp.vec3),
+    radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2),
+    # Out:
+    valid: wp.array2d(dtype=wp.bool),
+    clearance: wp.array2d(dtype=float),
+):
+    """True where the footprint (grown by the wall margin) stays on the tiles (MagBotSim's ``qpos_is_valid``), and its
+    signed clearance to the area without tiles."""
+    b, i = wp.tid()
+    p = poses[b, i]
+    xy = wp.vec2(p[0], p[1])
+    h = heading_of_yaw(p[2])
+    valid[b, i] = not hits_wall_cs(tiles, col, xy, h, radius[b, i], half_size[b, i])
+    clearance[b, i] = wall_clearance_cs(tiles, col, xy, h, radius[b, i], half_size[b, i])
+
+
+@wp.kernel
+def query_movers(
+    # In:
+    hit: wp.array3d(dtype=wp.bool),
+    clearance: wp.array3d(dtype=float),
+    # Out:
+    mover_hit: wp.array2d(dtype=wp.bool),
+    mover_clearance: wp.array2d(dtype=float),
+):
+    """Per mover: does it collide with any other, and its smallest pair clearance (+inf alone)."""
+    b, i = wp.tid()
+    h = bool(False)
+    c = float(wp.inf)
+    for j in range(hit.shape[2]):
+        h = h or hit[b, i, j]
+        c = wp.min(c, clearance[b, i, j])
+    mover_hit[b, i] = h
+    mover_clearance[b, i] = c

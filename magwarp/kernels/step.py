@@ -19,10 +19,10 @@ import functools
 import warp as wp
 
 from magwarp.kernels.collision import hits_wall_cs, movers_collide_cs, push_to_cell, shape_heading
-from magwarp.kernels.dynamics import integrate_body, planar_acceleration
+from magwarp.kernels.dynamics import integrate_body, integrate_planar64, planar_acceleration64, sync_planar64
 from magwarp.kernels.impedance import default_force
 from magwarp.kernels.options import MODULE_OPTIONS
-from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, Impedance, Limits, Pose
+from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, Impedance, Limits, Planar64, Pose
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
@@ -32,16 +32,24 @@ wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 def make_advance_kernel(force_fn=default_force):
     @wp.func
     def advance_pose(
-        p: Pose, acc_prev: wp.vec2, cmd: wp.vec2, b: Body, target_pos: wp.vec3, target_quat: wp.quat,
+        p: Pose, xy: Planar64, cmd: wp.vec2, b: Body, target_pos: wp.vec3, target_quat: wp.quat,
         aux: wp.array(dtype=float), lim: Limits, imp: Impedance,
     ):
-        """One cycle of one mover: limited x/y drive, force model, semi-implicit Euler. Returns the new pose and the
-        applied x/y acceleration (what MuJoCo reports as qacc: the state jerk commands integrate from)."""
-        a = planar_acceleration(p.vel, acc_prev, cmd, lim)
+        """One cycle of one mover: limited x/y drive, force model, semi-implicit Euler. Returns the new pose, the
+        x/y drive acceleration and the new float64 x/y state.
+
+        The acceleration is carried as state (jerk commands integrate from it, as MuJoCo's integrator actuator,
+        ``act``, does in MagBotSim), not re-derived from the velocity change; the x/y law runs in float64
+        (:func:`~magwarp.kernels.dynamics.planar_acceleration64`), the other axes in float32. ``xy`` is the float64
+        x/y state, synced with the float32 fields where it was read from memory (:func:`sync_planar64`)."""
+        a64 = planar_acceleration64(wp.vec2d(xy[2], xy[3]), wp.vec2d(xy[4], xy[5]), cmd, lim)
+        a = wp.vec2(wp.float32(a64[0]), wp.float32(a64[1]))
         drive = wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0)
         wrench = force_fn(p, b, drive, target_pos, target_quat, imp, lim, aux)
         n = integrate_body(p, wrench, b, lim)
-        return n, wp.vec2(n.vel[0] - p.vel[0], n.vel[1] - p.vel[1]) / lim.dt
+        extra = wp.vec2(wrench.force[0] - drive[0], wrench.force[1] - drive[1]) * b.inv_mass
+        n, xy_new = integrate_planar64(n, xy, a64, extra, lim)
+        return n, a, xy_new
 
     @wp.func
     def advance_mover(
@@ -63,6 +71,7 @@ def make_advance_kernel(force_fn=default_force):
         vel: wp.array2d(dtype=wp.vec3),
         omega: wp.array2d(dtype=wp.vec3),
         acc: wp.array2d(dtype=wp.vec2),
+        planar: wp.array2d(dtype=Planar64),
         wall: wp.array2d(dtype=wp.int32),
     ):
         p = Pose()
@@ -70,13 +79,15 @@ def make_advance_kernel(force_fn=default_force):
         p.quat = quat[w, m]
         p.vel = vel[w, m]
         p.omega = omega[w, m]
-        n, a = advance_pose(p, acc[w, m], cmd[w, m], body[m], target_pos[w, m], target_quat[w, m], force_aux[w, m],
-                            lim, imp)
+        xy0 = sync_planar64(planar[w, m], p.pos, p.vel, acc[w, m])
+        n, a, xy = advance_pose(p, xy0, cmd[w, m], body[m], target_pos[w, m], target_quat[w, m], force_aux[w, m], lim,
+                                imp)
         pos[w, m] = n.pos
         quat[w, m] = n.quat
         vel[w, m] = n.vel
         omega[w, m] = n.omega
         acc[w, m] = a
+        planar[w, m] = xy
         hit = int(0)
         if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[m], half_size[m]):
             hit = 1
@@ -104,6 +115,7 @@ def make_advance_kernel(force_fn=default_force):
         vel: wp.array2d(dtype=wp.vec3),
         omega: wp.array2d(dtype=wp.vec3),
         acc: wp.array2d(dtype=wp.vec2),
+        planar: wp.array2d(dtype=Planar64),
         wall: wp.array2d(dtype=wp.int32),
         cycles: wp.array(dtype=wp.int32),
         # Broad phase, folded in to save launches (bin_cells = 0: brute-force worlds, which clear the counters here):
@@ -120,7 +132,7 @@ def make_advance_kernel(force_fn=default_force):
             world_walls[w] = 0
         if col.stop_on_collision == 0 or halted[w] == 0:
             advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, target_pos, target_quat,
-                          force_aux, pos, quat, vel, omega, acc, wall)
+                          force_aux, pos, quat, vel, omega, acc, planar, wall)
             if m == 0:
                 cycles[w] = cycles[w] + 1
         if bin_cells == 1:  # halted worlds are binned too: the collision check still runs on them
@@ -148,6 +160,7 @@ def make_advance_kernel(force_fn=default_force):
         vel: wp.array2d(dtype=wp.vec3),
         omega: wp.array2d(dtype=wp.vec3),
         acc: wp.array2d(dtype=wp.vec2),
+        planar: wp.array2d(dtype=Planar64),
         wall: wp.array2d(dtype=wp.int32),
         flags: wp.array2d(dtype=wp.int32),
         flags_any: wp.array2d(dtype=wp.int32),
@@ -170,7 +183,7 @@ def make_advance_kernel(force_fn=default_force):
                 break
             for m in range(num_movers):
                 advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, target_pos, target_quat,
-                              force_aux, pos, quat, vel, omega, acc, wall)
+                              force_aux, pos, quat, vel, omega, acc, planar, wall)
             cycles[w] = cycles[w] + 1
             # Brute-force pairs: each pair once, partner = lowest colliding index, same as the per-mover kernels.
             for m in range(num_movers):
@@ -222,6 +235,7 @@ def make_register_kernel(force_fn, num_movers: int):
     Rows3 = wp.types.matrix(shape=(M, 3), dtype=wp.float32)
     Rows4 = wp.types.matrix(shape=(M, 4), dtype=wp.float32)
     Rows2 = wp.types.matrix(shape=(M, 2), dtype=wp.float32)
+    Rows6d = wp.types.matrix(shape=(M, 6), dtype=wp.float64)
     Ints = wp.types.vector(length=M, dtype=wp.int32)
 
     @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
@@ -246,6 +260,7 @@ def make_register_kernel(force_fn, num_movers: int):
         vel: wp.array2d(dtype=wp.vec3),
         omega: wp.array2d(dtype=wp.vec3),
         acc: wp.array2d(dtype=wp.vec2),
+        planar: wp.array2d(dtype=Planar64),
         wall: wp.array2d(dtype=wp.int32),
         flags: wp.array2d(dtype=wp.int32),
         flags_any: wp.array2d(dtype=wp.int32),
@@ -262,6 +277,7 @@ def make_register_kernel(force_fn, num_movers: int):
         Om = Rows3()
         Q = Rows4()
         A = Rows2()
+        XY = Rows6d()
         Wl = Ints()
         F = Ints()
         Fa = Ints()
@@ -280,6 +296,7 @@ def make_register_kernel(force_fn, num_movers: int):
             q = quat[w, m]
             Q[m] = wp.vec4(q[0], q[1], q[2], q[3])
             A[m] = acc[w, m]
+            XY[m] = sync_planar64(planar[w, m], pos[w, m], vel[w, m], acc[w, m])
             Wl[m] = wall[w, m]
             F[m] = flags[w, m]
             Fa[m] = 0  # per-step accumulators start here: fused steps need no begin_step launch
@@ -297,13 +314,14 @@ def make_register_kernel(force_fn, num_movers: int):
                 p.vel = V[m]
                 p.omega = Om[m]
                 p.quat = wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3])
-                n, a = advance_pose(p, A[m], C[m], body[m], TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
-                                    force_aux[w, m], lim, imp)
+                n, a, xy = advance_pose(p, XY[m], C[m], body[m], TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
+                                        force_aux[w, m], lim, imp)
                 P[m] = n.pos
                 V[m] = n.vel
                 Om[m] = n.omega
                 Q[m] = wp.vec4(n.quat[0], n.quat[1], n.quat[2], n.quat[3])
                 A[m] = a
+                XY[m] = xy
                 hit = int(0)
                 if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[m], half_size[m]):
                     hit = 1
@@ -345,6 +363,7 @@ def make_register_kernel(force_fn, num_movers: int):
             omega[w, m] = Om[m]
             quat[w, m] = wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3])
             acc[w, m] = A[m]
+            planar[w, m] = XY[m]
             wall[w, m] = Wl[m]
             flags[w, m] = F[m]
             flags_any[w, m] = Fa[m]
