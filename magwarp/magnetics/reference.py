@@ -148,40 +148,53 @@ def flux_linkage(magnets, coil_loops, weight: float, pose, order: int = 24, cell
     return float(total)
 
 
-def commutate(gamma, resistance, limit, wrench, max_iter: int = 8, reg: float = 1e-9):
+def _cholesky(a, shift):
+    """Lower factor of a + shift I and its smallest squared pivot (as the kernel's ``cholesky6``)."""
+    lo = np.zeros((6, 6))
+    piv = np.inf
+    for c in range(6):
+        s = a[c, c] + shift - lo[c, :c] @ lo[c, :c]
+        piv = min(piv, s)
+        d = np.sqrt(max(s, 1e-300))
+        lo[c, c] = d
+        with np.errstate(over="ignore", invalid="ignore"):
+            lo[c + 1:, c] = (a[c + 1:, c] - lo[c + 1:, :c] @ lo[c, :c]) / d
+    return lo, piv
+
+
+def commutate(gamma, resistance, limit, wrench, max_iter: int = 8, reg: float = 1e-6):
     """Least-copper-loss currents for one mover (float64): ``gamma (6, K)``, ``resistance (K,)``, ``limit (K,)``,
     ``wrench (6,)``. Mirrors :func:`magwarp.magnetics.commutation.commutation_kernel`: solve with every coil free,
-    fix the coils over their limit at the limit (sign kept), re-solve for the rest, at most ``max_iter`` solves,
-    then clip what is still over. Returns currents, delivered wrench, saturated mask, regularised flag."""
+    fix the coils over their limit at the limit (sign kept), re-solve for the rest, at most ``max_iter`` solves.
+    The unit-diagonal 6 x 6 system is regularised (+ reg I) when a Cholesky pivot falls below ``reg``.
+    Returns currents, delivered wrench, saturated mask, regularised flag, converged flag."""
     gamma = np.asarray(gamma, dtype=np.float64)
+    resistance, limit = np.asarray(resistance, dtype=np.float64), np.asarray(limit, dtype=np.float64)
     k = gamma.shape[1]
-    free = np.ones(k, dtype=bool)
+    sat = np.zeros(k, dtype=bool)
     cur = np.zeros(k)
-    regularised = False
+    regularised, converged = False, k == 0
     for _ in range(max_iter):
+        if converged:
+            break
+        free = ~sat
         if not free.any():
+            converged = True
             break
-        g = gamma[:, free]
-        rinv = 1.0 / resistance[free]
-        a = (g * rinv) @ g.T
-        rhs = wrench - gamma[:, ~free] @ cur[~free]
-        d = np.sqrt(np.maximum(np.diag(a), 1e-300))
-        a_s = a / np.outer(d, d)
-        try:
-            lam = np.linalg.eigvalsh(a_s)
-            ill = lam.min() < reg * 6.0
-        except np.linalg.LinAlgError:
-            ill = True
-        if ill:
-            regularised = True
-            a_s = a_s + reg * 6.0 * np.eye(6)
-        y = np.linalg.solve(a_s, rhs / d) / d
-        cur[free] = rinv * (g.T @ y)
-        over = free & (np.abs(cur) > limit)
-        if not over.any():
-            break
-        cur[over] = np.sign(cur[over]) * limit[over]
-        free &= ~over
-    sat = np.abs(cur) >= limit
-    cur = np.clip(cur, -limit, limit)
-    return cur, gamma @ cur, sat, regularised
+        a = (gamma[:, free] / resistance[free]) @ gamma[:, free].T
+        rhs = wrench - gamma[:, sat] @ cur[sat]
+        diag = np.diag(a)
+        scale = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 1.0)
+        a_s = a * np.outer(scale, scale)
+        lo, piv = _cholesky(a_s, 0.0)
+        if piv < reg:
+            (lo, _), regularised = _cholesky(a_s, reg), True
+        y = np.linalg.solve(lo.T, np.linalg.solve(lo, rhs * scale)) * scale
+        new = (gamma[:, free].T @ y) / resistance[free]
+        over = np.abs(new) > limit[free]
+        new[over] = np.sign(new[over]) * limit[free][over]
+        cur[free] = new
+        idx = np.nonzero(free)[0][over]
+        sat[idx] = True
+        converged = not over.any()
+    return cur, gamma @ cur, sat, regularised, converged
