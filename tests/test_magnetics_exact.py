@@ -15,7 +15,7 @@ from magwarp.magnetics.geometry import Cuboid, MagneticParams, MagnetArray, Quad
 
 magpy = pytest.importorskip("magpylib")
 
-SMALL = halbach_array(cells=3)  # 5 magnets: 3 x 3 cells, 45 mm square
+SMALL = halbach_array(magnets_per_quadrant=1, cell=0.03)  # 4 magnets, 60 mm square
 
 
 def random_magnets(rng, n: int) -> MagnetArray:

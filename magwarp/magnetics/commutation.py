@@ -4,9 +4,12 @@ Per mover: minimise ``sum_k R_k i_k^2`` subject to ``Gamma i = w`` (Gamma: 6 x a
 :mod:`~magwarp.magnetics.exact` or :mod:`~magwarp.magnetics.fast`). Without limits the answer is
 ``i = R^-1 Gamma^T (Gamma R^-1 Gamma^T)^-1 w``, one 6 x 6 solve. With per-coil limits ``|i_k| <= i_max_k``: solve,
 fix every coil over its limit at the limit (sign kept), re-solve for the free coils with the fixed coils' wrench
-taken off ``w``, at most ``max_iter`` solves. The fixed-set rule is the classic one for planar motors; it is not a
-full box-constrained QP (it never frees a fixed coil), so where it stops short the wrench it could not deliver is
-reported, never hidden.
+taken off ``w``, at most ``max_iter`` solves. Each solve is a step of a primal active-set method: from the current
+currents (within the limits; zero at first) toward the new optimum, as far as the first coil to reach its limit
+(which is then fixed there); a step that reaches the optimum ends it. The currents never leave the limits, and the
+delivered wrench moves toward ``w`` at every step (after the first it is ``alpha w``: the wanted direction, scaled
+down). It never frees a fixed coil (not a full box-constrained QP), so where it stops short, the wrench it could not
+deliver is reported, never hidden.
 
 The 6 x 6 matrix is scaled to a unit diagonal (forces and torques differ by about the lever arm) and factorised by
 Cholesky; where a pivot of the scaled matrix falls below ``regularization`` (few coils under the mover: some wrench
@@ -29,7 +32,7 @@ mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
 
 #: The 6 x 6 system was ill-conditioned and regularised (the wrench may be delivered only approximately).
 FLAG_REGULARISED = 1
-#: Coils still went over their limits at the last allowed solve: they were fixed at the limit after it.
+#: The last allowed solve still hit a limit: the wanted wrench was not reached (see the residual).
 FLAG_NOT_CONVERGED = 2
 #: No active coil at all (the mover is off the tiles): zero currents, the whole wrench undelivered.
 FLAG_NO_COILS = 4
@@ -39,10 +42,10 @@ FLAG_OVERFLOW = 8
 
 @dataclass(frozen=True)
 class CommutationOptions:
-    """``max_iter``: most 6 x 6 solves per mover (each fixes the coils over their limit); ``regularization``: the
+    """``max_iter``: most 6 x 6 solves per mover (each fixes the coils that reach their limit); ``regularization``: the
     pivot threshold and Tikhonov shift of the unit-diagonal 6 x 6 system."""
 
-    max_iter: int = 8
+    max_iter: int = 64
     regularization: float = 1e-6
 
     def __post_init__(self):
@@ -125,9 +128,10 @@ def commutation_kernel(
         flag = flag | 4
     if count[m] > slots:
         flag = flag | 8
-    converged = bool(n_coils == 0)
+    converged = bool(False)
+    done = bool(n_coils == 0)
     for it in range(max_iter):
-        if not converged:
+        if not done:
             a = mat66d()
             rhs = wrench[m]
             n_free = int(0)
@@ -141,7 +145,7 @@ def commutation_kernel(
                         a = a + wp.outer(g, g) / resistance[k]
                         n_free += 1
             if n_free == 0:
-                converged = True
+                done = True
             else:
                 scale = vec6d()
                 for r in range(6):
@@ -158,19 +162,29 @@ def commutation_kernel(
                     flag = flag | 1
                 y = cholesky6_solve(lo, wp.cw_mul(rhs, scale))
                 y = wp.cw_mul(y, scale)
-                over = int(0)
+                # Step from the current (feasible) currents toward the free coils' optimum, as far as the limits allow.
+                alpha = ONE
                 for j in range(slots):
                     k = coil_ids[m, j]
                     if k >= 0 and saturated[m, j] == 0:
-                        i = wp.dot(gamma[m, j], y) / resistance[k]
-                        if wp.abs(i) > limit[k]:
-                            i = wp.sign(i) * limit[k]
-                            saturated[m, j] = 1
-                            over += 1
+                        t = wp.dot(gamma[m, j], y) / resistance[k]
+                        if wp.abs(t) > limit[k]:
+                            alpha = wp.min(alpha, (wp.sign(t) * limit[k] - currents[m, j]) / (t - currents[m, j]))
+                hit = alpha * (ONE + wp.float64(1.0e-12))
+                for j in range(slots):
+                    k = coil_ids[m, j]
+                    if k >= 0 and saturated[m, j] == 0:
+                        t = wp.dot(gamma[m, j], y) / resistance[k]
+                        i = currents[m, j] + alpha * (t - currents[m, j])
+                        if wp.abs(t) > limit[k]:
+                            if (wp.sign(t) * limit[k] - currents[m, j]) / (t - currents[m, j]) <= hit:
+                                i = wp.sign(t) * limit[k]
+                                saturated[m, j] = 1
                         currents[m, j] = i
-                if over == 0:
+                if alpha >= ONE:
                     converged = True
-    if not converged:
+                    done = True
+    if not converged and n_coils > 0:
         flag = flag | 2
     out = vec6d()
     p = ZERO

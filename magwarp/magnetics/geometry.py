@@ -9,18 +9,22 @@ Defaults and where they come from (XPlanar data are proprietary: these are a doc
 that the exact model gives XPlanar-like figures; ``tests/test_magnetics_defaults.py`` checks those figures):
 
 * Magnets: sintered NdFeB, polarization 1.25 T (grade N40: Br 1.25-1.28 T in the usual data sheets), density
-  7,500 kg/m^3. A 2D Halbach-type array (Jansen et al., "Magnetically levitated planar actuator with moving magnets",
-  IEEE Trans. Ind. Appl. 2008: z-polarised magnets in a checkerboard, horizontally polarised magnets between them,
-  the field concentrated on the coil side) of 9 x 9 cells of 15 mm (135 mm square, inside the 155 mm mover), 8 mm
-  thick: 65 magnets, 0.88 kg of the mover's 1.24 kg. Pole pitch (N to S) 30 mm, period 60 mm.
-* Coils: two layers per tile (Jansen's and the XPlanar-like "long sides along x in one layer, along y in the other"),
+  7,500 kg/m^3. A 2D Halbach-type array of four 1D Halbach quadrants (the layout of moving-magnet planar motors
+  with straight x and y coils, e.g. Planar Motor Inc.'s; a checkerboard array would need coils at 45 degrees): 5 bar
+  magnets of 15 x 75 mm per quadrant (150 mm square, inside the 155 mm mover), 6 mm thick: 20 magnets, 1.01 kg of
+  the mover's 1.24 kg. Pole pitch (N to S) 30 mm, period 60 mm.
+* Coils: two layers per tile (the XPlanar-like "long sides along x in one layer, along y in the other"),
   each coil 120 x 40 mm outer with 10 mm wide, 3 mm thick conductor bundles (the two long sides 30 mm apart: one pole
-  pitch, so they sit under opposite poles), 50 turns at a copper fill factor of 0.6: 0.6 ohm at 20 C (see
+  pitch, so they sit under opposite poles), 50 turns at a copper fill factor of 0.6: 0.67 ohm at 20 C (see
   :attr:`CoilSpec.resistance`). 6 x 2 coils per layer per tile of 240 mm, 24 coils per tile. Layers below a 1 mm
   cover: the layer with long sides along y on top (z -1..-4 mm), the other under it (-4.5..-7.5 mm).
-* Current limit 6 A per coil (plausible for such coils: 22 W each at the limit); with it a 1.24 kg mover reaches
-  about 10 m/s^2 while hovering (XPlanar's data-sheet acceleration: 10 m/s^2, as in :mod:`magwarp.layout`), and the
-  mover holds a 1.5 kg payload at a 3-5 mm gap.
+* Current limit 7 A per coil (33 W in a coil at its limit). With the least-loss commutation at yaw 0 and 3-5 mm
+  gaps, a 1.24 kg mover hovering at the current limit reaches 9-13 m/s^2 in its worst direction and pose and
+  20-28 m/s^2 in the median one (XPlanar's data sheet: 10 m/s^2, as in :mod:`magwarp.layout`); it holds a
+  1 kg payload (:data:`DEFAULT_PAYLOAD`); hovering costs about 15-70 W of copper loss without payload, 80-450 W
+  with it (a design where the lower coil layer is the weaker one: y forces come from it).
+* Active coils: those within 0.285 m (measured, :func:`~magwarp.magnetics.exact.measure_active_radius`) of the
+  mover's centre, about 145 per mover.
 """
 
 from __future__ import annotations
@@ -37,9 +41,9 @@ from magwarp.layout import Layout
 __all__ = ["Cuboid", "MagnetArray", "halbach_array", "CoilSpec", "CoilLayer", "TileCoils", "CoilSet",
            "Quadrature", "MagneticParams", "MagneticsError", "DEFAULT_PAYLOAD"]
 
-#: Payload (kg) the default design must hold at the hover gap (XPlanar APM4330-class movers carry payloads of about
-#: this size; a design point, not a measured figure).
-DEFAULT_PAYLOAD = 1.5
+#: Payload (kg) the default design holds at the hover gap (a design point of the order of XPlanar movers'
+#: payloads, not a product figure).
+DEFAULT_PAYLOAD = 1.0
 
 
 class MagneticsError(ValueError):
@@ -119,41 +123,42 @@ class MagnetArray:
         return np.stack([(c - h).min(axis=0), (c + h).max(axis=0)])
 
 
-def halbach_array(cells: int = 9, cell: float = 0.015, height: float = 0.008, polarization: float = 1.25,
-                  z_bottom: float = -0.006, density: float = 7500.0) -> MagnetArray:
-    """A 2D Halbach-type array of ``cells x cells`` square cells of side ``cell``, centred on the mover's z axis,
-    magnets ``height`` thick with their bottom at ``z_bottom`` (the mover's bottom face; default half the 12 mm box).
+def halbach_array(magnets_per_quadrant: int = 5, cell: float = 0.015, height: float = 0.006,
+                  polarization: float = 1.25, z_bottom: float = -0.006, density: float = 7500.0) -> MagnetArray:
+    """A 2D Halbach-type array of four 1D Halbach quadrants (the moving-magnet planar motor layout of Planar Motor
+    Inc.'s patents and of Lu & Zhang's and Kim & Trumper's planar motors), centred on the mover's z axis.
 
-    Cell ``(i, j)``: both even: z-polarised, +z where ``(i + j) / 2`` is even (a checkerboard of N and S poles, one
-    pole pitch = 2 cells apart); ``i`` odd, ``j`` even: x-polarised, pointing toward its -z neighbour; ``i`` even,
-    ``j`` odd: y-polarised likewise; both odd: empty. Horizontal magnets pointing from the +z toward the -z magnet
-    concentrate the field below the array (on the coils' side; checked in the tests). ``cells`` must be odd so that
-    the array ends with z-magnets on every side and is symmetric under 90 degree turns.
+    Each quadrant is ``magnets_per_quadrant`` bar magnets of ``cell`` x (``magnets_per_quadrant * cell``) x
+    ``height`` (m), their bottoms at ``z_bottom`` (the mover's bottom face: half the 12 mm box). Along the
+    quadrant's axis the polarization turns a quarter turn per magnet: +z, toward the -z magnet, -z, toward the -z
+    magnet, +z, ... (horizontal magnets pointing toward their -z neighbour concentrate the field below, on the
+    coils; checked in the tests). Pole pitch (N to S) is 2 cells. The quadrant at (+x, +y) varies along x (an
+    "x array": it meets the coils whose long sides run along y, for x and z forces); the others are its copies
+    turned by 90, 180 and 270 degrees about z (a pinwheel: y arrays at (-x, +y) and (+x, -y)), so the array is
+    symmetric under quarter turns. ``magnets_per_quadrant`` must be odd (z magnets at both ends).
     """
-    if int(cells) != cells or cells < 1 or cells % 2 == 0:
-        raise MagneticsError(f"halbach_array: cells must be an odd positive integer, got {cells!r}")
+    n = magnets_per_quadrant
+    if int(n) != n or n < 1 or n % 2 == 0:
+        raise MagneticsError(f"halbach_array: magnets_per_quadrant must be an odd positive integer, got {n!r}")
     for name, value in (("cell", cell), ("height", height), ("polarization", polarization)):
         if not math.isfinite(value) or value <= 0:
             raise MagneticsError(f"halbach_array: {name} must be positive and finite, got {value!r}")
-    cells = int(cells)
-
-    def pole(i: int, j: int) -> float:
-        return 1.0 if ((i + j) // 2) % 2 == 0 else -1.0
-
-    magnets = []
+    n = int(n)
+    side = n * cell
     zc = z_bottom + 0.5 * height
-    for i in range(cells):
-        for j in range(cells):
-            if i % 2 == 1 and j % 2 == 1:
-                continue
-            if i % 2 == 0 and j % 2 == 0:
-                pol = (0.0, 0.0, polarization * pole(i, j))
-            elif i % 2 == 1:  # between (i-1, j) and (i+1, j): point toward the -z one
-                pol = (polarization * pole(i - 1, j), 0.0, 0.0)
-            else:
-                pol = (0.0, polarization * pole(i, j - 1), 0.0)
-            center = ((i - 0.5 * (cells - 1)) * cell, (j - 0.5 * (cells - 1)) * cell, zc)
-            magnets.append(Cuboid(center, (cell, cell, height), pol))
+    quadrant = []  # the x array at (+x, +y)
+    for i in range(n):
+        phase = i % 4  # +z, +x, -z, -x: a quarter turn per magnet, strong side below
+        pol = ((0.0, 0.0, polarization), (polarization, 0.0, 0.0), (0.0, 0.0, -polarization),
+               (-polarization, 0.0, 0.0))[phase]
+        quadrant.append(((i + 0.5) * cell, 0.5 * side, (cell, side), pol))
+    magnets = []
+    for turn in range(4):
+        c, s = (1.0, 0.0, -1.0, 0.0)[turn], (0.0, 1.0, 0.0, -1.0)[turn]
+        for x, y, (sx, sy), (jx, jy, jz) in quadrant:
+            size = (sx, sy) if turn % 2 == 0 else (sy, sx)
+            magnets.append(Cuboid((c * x - s * y, s * x + c * y, zc), (*size, height),
+                                  (c * jx - s * jy, s * jx + c * jy, jz)))
     return MagnetArray(tuple(magnets), density=density)
 
 
@@ -175,7 +180,7 @@ class CoilSpec:
     turns: int = 50
     fill_factor: float = 0.6
     resistivity: float = 1.72e-8
-    current_limit: float = 6.0
+    current_limit: float = 7.0
     filaments_width: int = 2
     filaments_height: int = 1
 
@@ -306,7 +311,7 @@ class MagneticParams:
     quadrature: Quadrature = field(default_factory=Quadrature)
     active_share: float = 1e-4
     active_radius: float | None = None
-    max_active: int = 64
+    max_active: int = 192
     payload: float = DEFAULT_PAYLOAD
 
     def __post_init__(self):

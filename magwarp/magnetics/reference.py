@@ -162,10 +162,11 @@ def _cholesky(a, shift):
     return lo, piv
 
 
-def commutate(gamma, resistance, limit, wrench, max_iter: int = 8, reg: float = 1e-6):
+def commutate(gamma, resistance, limit, wrench, max_iter: int = 64, reg: float = 1e-6):
     """Least-copper-loss currents for one mover (float64): ``gamma (6, K)``, ``resistance (K,)``, ``limit (K,)``,
-    ``wrench (6,)``. Mirrors :func:`magwarp.magnetics.commutation.commutation_kernel`: solve with every coil free,
-    fix the coils over their limit at the limit (sign kept), re-solve for the rest, at most ``max_iter`` solves.
+    ``wrench (6,)``. Mirrors :func:`magwarp.magnetics.commutation.commutation_kernel`: solve for the free coils,
+    step from the current currents toward that optimum as far as the limits allow, fix the coils that reach their
+    limit, repeat; at most ``max_iter`` solves.
     The unit-diagonal 6 x 6 system is regularised (+ reg I) when a Cholesky pivot falls below ``reg``.
     Returns currents, delivered wrench, saturated mask, regularised flag, converged flag."""
     gamma = np.asarray(gamma, dtype=np.float64)
@@ -175,11 +176,8 @@ def commutate(gamma, resistance, limit, wrench, max_iter: int = 8, reg: float = 
     cur = np.zeros(k)
     regularised, converged = False, k == 0
     for _ in range(max_iter):
-        if converged:
-            break
         free = ~sat
-        if not free.any():
-            converged = True
+        if converged or not free.any():
             break
         a = (gamma[:, free] / resistance[free]) @ gamma[:, free].T
         rhs = wrench - gamma[:, sat] @ cur[sat]
@@ -190,11 +188,16 @@ def commutate(gamma, resistance, limit, wrench, max_iter: int = 8, reg: float = 
         if piv < reg:
             (lo, _), regularised = _cholesky(a_s, reg), True
         y = np.linalg.solve(lo.T, np.linalg.solve(lo, rhs * scale)) * scale
-        new = (gamma[:, free].T @ y) / resistance[free]
-        over = np.abs(new) > limit[free]
-        new[over] = np.sign(new[over]) * limit[free][over]
+        target = (gamma[:, free].T @ y) / resistance[free]
+        now, lim = cur[free], limit[free]
+        over = np.abs(target) > lim
+        with np.errstate(divide="ignore", invalid="ignore"):
+            reach = np.where(over, (np.sign(target) * lim - now) / (target - now), np.inf)
+        alpha = min(1.0, reach.min()) if reach.size else 1.0
+        new = now + alpha * (target - now)
+        hit = over & (reach <= alpha * (1.0 + 1e-12))
+        new[hit] = np.sign(target[hit]) * lim[hit]
         cur[free] = new
-        idx = np.nonzero(free)[0][over]
-        sat[idx] = True
-        converged = not over.any()
+        sat[np.nonzero(free)[0][hit]] = True
+        converged = alpha >= 1.0
     return cur, gamma @ cur, sat, regularised, converged
