@@ -9,7 +9,7 @@ import warp as wp
 
 from magwarp.layout import Layout
 from magwarp.magnetics import reference as ref
-from magwarp.magnetics.cuboid import array_field
+from magwarp.magnetics.sources import array_field
 from magwarp.magnetics.exact import ExactModel, pose_to_pos_quat
 from magwarp.magnetics.geometry import Cuboid, MagneticParams, MagnetArray, Quadrature, halbach_array
 

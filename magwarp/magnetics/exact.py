@@ -22,7 +22,8 @@ import warp as wp
 
 from magwarp.layout import Layout
 from magwarp.magnetics.cache import cached_arrays
-from magwarp.magnetics.cuboid import ZERO, MagnetSource, magnet_source, source_field
+from magwarp.magnetics.cuboid import ZERO
+from magwarp.magnetics.sources import MagnetSource, magnet_source, source_field
 from magwarp.magnetics.geometry import CoilSet, MagneticParams, MagneticsError
 
 vec6d = wp.types.vector(length=6, dtype=wp.float64)
