@@ -11,7 +11,7 @@ from magwarp.layout import Layout
 from magwarp.magnetics import reference as ref
 from magwarp.magnetics.sources import array_field
 from magwarp.magnetics.exact import ExactModel, pose_to_pos_quat
-from magwarp.magnetics.geometry import Cuboid, MagneticParams, MagnetArray, Quadrature, halbach_array
+from magwarp.magnetics.geometry import Cuboid, MagneticParams, MagneticsError, MagnetArray, Quadrature, halbach_array
 
 magpy = pytest.importorskip("magpylib")
 
@@ -167,3 +167,15 @@ def test_force_is_current_times_flux_gradient(rng):
                 - ref.flux_linkage(params.magnets, loops, weight, pose - dp, order=10, cells=12)) / (2 * h)
         scale = np.linalg.norm(col[:3]) if comp < 3 else np.linalg.norm(col[3:])
         assert abs(dpsi - col[comp]) < 1e-4 * scale, f"{rng}: component {comp}: dPsi/dq {dpsi} vs {col[comp]}"
+
+
+def test_bad_poses_raise():
+    model, _ = small_model()
+    with pytest.raises(MagneticsError, match="poses must be finite"):
+        model.evaluate(np.array([[0.1, 0.1, np.nan, 0, 0, 0]]))
+    with pytest.raises(MagneticsError, match="shape"):
+        model.evaluate(np.zeros((2, 5)))
+    with pytest.raises(MagneticsError, match="unit quaternions"):
+        model.as_arrays(pos=np.zeros((1, 3)), quat=np.array([[0.0, 0.0, 0.0, 2.0]]))
+    with pytest.raises(MagneticsError, match="odd"):
+        halbach_array(magnets_per_quadrant=4)

@@ -201,9 +201,16 @@ class WrenchModel:
         if pose is not None:
             pos, quat = pose_to_pos_quat(pose)
         if not isinstance(pos, wp.array):
-            pos = wp.array(np.asarray(pos, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device=self.device)
+            pos = np.asarray(pos, dtype=np.float64).reshape(-1, 3)
+            if not np.all(np.isfinite(pos)):
+                raise MagneticsError(f"positions must be finite, got {pos[~np.isfinite(pos).all(1)][:3]!r}")
+            pos = wp.array(pos, dtype=wp.vec3d, device=self.device)
         if not isinstance(quat, wp.array):
-            quat = wp.array(np.asarray(quat, dtype=np.float64).reshape(-1, 4), dtype=wp.quatd, device=self.device)
+            quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
+            bad = ~np.isfinite(quat).all(1) | (np.abs(np.linalg.norm(quat, axis=1) - 1.0) > 1e-6)
+            if bad.any():
+                raise MagneticsError(f"quaternions (x, y, z, w) must be finite unit quaternions, got {quat[bad][:3]!r}")
+            quat = wp.array(quat, dtype=wp.quatd, device=self.device)
         if pos.shape != quat.shape:
             raise MagneticsError(f"positions {pos.shape} and quaternions {quat.shape} must have one row per mover")
         return pos, quat
