@@ -10,7 +10,7 @@ import warp as wp
 from magwarp.layout import Layout
 from magwarp.magnetics import reference as ref
 from magwarp.magnetics.sources import array_field
-from magwarp.magnetics.exact import ExactModel, pose_to_pos_quat
+from magwarp.magnetics.exact import ExactModel, pose_to_pos_quat, vec6d
 from magwarp.magnetics.geometry import Cuboid, MagneticParams, MagneticsError, MagnetArray, Quadrature, halbach_array
 
 magpy = pytest.importorskip("magpylib")
@@ -179,3 +179,11 @@ def test_bad_poses_raise():
         model.as_arrays(pos=np.zeros((1, 3)), quat=np.array([[0.0, 0.0, 0.0, 2.0]]))
     with pytest.raises(MagneticsError, match="odd"):
         halbach_array(magnets_per_quadrant=4)
+
+
+def test_wrench_is_gamma_times_currents(rng):
+    model, _ = small_model()
+    gamma = rng.normal(size=(7, 5, 6))
+    cur = rng.normal(size=(7, 5))
+    got = model.wrench(wp.array(gamma, dtype=vec6d, device="cpu"), wp.array(cur, dtype=wp.float64, device="cpu"))
+    assert np.allclose(got.numpy(), np.einsum("msk,ms->mk", gamma, cur), rtol=1e-12, atol=1e-14), rng

@@ -261,8 +261,8 @@ class ExactModel(WrenchModel):
 
 def _scan_columns(params: MagneticParams, step: float, reach: float, z: float):
     """Distances (coil rectangle to mover centre), column norms |F|, |tau| ``(n, 2)`` and offsets from the coil's
-    centre over rays from a coil of each direction (in a single tile), yaws 0, 22.5 and 45 degrees, at height
-    ``z``."""
+    centre over rays from a coil of each direction (in a single tile) at 0, 22.5, ..., 90 degrees, yaws 0, 22.5
+    and 45 degrees, at height ``z``."""
     layout = Layout.grid(1, 1)
     coarse = MagneticParams(params.magnets, params.coils, params.quadrature, active_radius=1.0, max_active=1)
     model = ExactModel(layout, coarse, device="cpu")
@@ -272,7 +272,7 @@ def _scan_columns(params: MagneticParams, step: float, reach: float, z: float):
     rows, dists, ids, offs = [], [], [], []
     for k in picks:
         c = cs.centers[k]
-        for ang in (0.0, np.pi / 4, np.pi / 2):
+        for ang in np.linspace(0.0, np.pi / 2, 5):
             u = np.array([np.cos(ang), np.sin(ang)])
             for t in offsets:
                 xy = c[:2] + t * u
@@ -296,9 +296,10 @@ def measure_active_radius(params: MagneticParams, step: float = 0.005, reach: fl
     """The xy distance from a mover's centre to a coil's rectangle beyond which the coil's force and torque stay
     below ``params.active_share`` of the peak coil force and torque (each over the scan), plus one ``step``.
 
-    The scan puts the mover at ``z`` (default: its centre 3 mm above the tile, the lowest hover gap of the
-    defaults, where coils act the most) on rays from a coil's centre along 0, 45 and 90 degrees, every ``step`` up
-    to ``reach``, at yaws 0, 22.5 and 45 degrees, for a coil of each direction. Cached on disk (:mod:`cache`).
+    The scan puts the mover at ``z`` (default: its bottom 3 mm above the tile, the lowest hover gap of the
+    defaults, where coils act the most) on rays from a coil's centre along 0, 22.5, ..., 90 degrees (the coil and
+    the array are symmetric), every ``step`` up to ``reach``, at yaws 0, 22.5 and 45 degrees, for a coil of each
+    direction. Cached on disk (:mod:`cache`).
     """
     z = float(z) if z is not None else 0.003 - float(params.magnets.bounds[0, 2])
 

@@ -23,7 +23,7 @@ that the exact model gives XPlanar-like figures; ``tests/test_magnetics_defaults
   20-28 m/s^2 in the median one (XPlanar's data sheet: 10 m/s^2, as in :mod:`magwarp.layout`); it holds a
   1 kg payload (:data:`DEFAULT_PAYLOAD`); hovering costs about 15-70 W of copper loss without payload, 80-450 W
   with it (a design where the lower coil layer is the weaker one: y forces come from it).
-* Active coils: those within 0.285 m (measured, :func:`~magwarp.magnetics.exact.measure_active_radius`) of the
+* Active coils: those within 0.28 m (measured, :func:`~magwarp.magnetics.exact.measure_active_radius`) of the
   mover's centre, about 145 per mover.
 """
 
