@@ -78,3 +78,22 @@ def test_out_of_range_is_counted_and_cache_reused(models):
     before = again.out_of_range
     again.evaluate(np.array([[0.24, 0.24, 0.03, 0.0, 0.0, 0.0]]))  # 24 mm gap: above the table's range
     assert again.out_of_range > before
+
+
+def test_gamma_example_runs(tmp_path):
+    """examples/magnetics_gamma.py plots Gamma against position and prints its peak force per ampere."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "PYTHONPATH": str(root), "MAGWARP_CACHE_DIR": str(tmp_path)}
+    out = tmp_path / "gamma.png"
+    proc = subprocess.run([sys.executable, str(root / "examples" / "magnetics_gamma.py"), "--model", "exact",
+                           "--coarse", "--points", "4", "--out", str(out)], capture_output=True, text=True, env=env,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "exact model:" in proc.stdout and out.stat().st_size > 10_000, proc.stdout
+    peak = float(proc.stdout.split("peak |F| per ampere ")[1].split(" N/A")[0])
+    assert 1.0 < peak < 3.0, peak
