@@ -92,7 +92,9 @@ class FastModel(WrenchModel):
                       outputs=[field])
             return {"field": field.numpy(), "origin": origin, "step": step}
 
-        text = json.dumps([self.params.key(), asdict(self.spec), origin.tolist(), step.tolist(), shape])
+        # The table depends on the magnets and the grid only (not on the coils' currents, turns or limits).
+        text = json.dumps([asdict(self.params.magnets), asdict(self.spec), origin.tolist(), step.tolist(), shape],
+                          default=str)
         key = hashlib.sha256(text.encode()).hexdigest()[:16]
         data = cached_arrays("field_table", key, build, use_cache)
         if data["field"].shape[:3] != shape:
