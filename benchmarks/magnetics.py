@@ -6,6 +6,8 @@ Per device and mover count (movers at random poses over an 8 x 8-tile layout, 3-
   ``--exact-sizes``), then w = Gamma i;
 * ``commutation``: least-loss currents for a hover-and-accelerate wrench per mover, given Gamma;
 * ``cycle``: both (one control cycle of the fast model).
+* ``sim``: one 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with the magnetic drive
+  (:class:`magwarp.magnetics.drive.MagneticDrive`), and the drive's share of the ideal speed.
 Also: the fast model's largest column error as a share of the peak force and torque, over random poses in the
 hover range and any yaw (``--accuracy-poses``), and magpylib's ``getFT`` on the CPU for the same currents and poses
 as the exact model (``--magpylib-movers``): its time per mover, the ratio, and how far the two wrenches differ.
@@ -193,6 +195,37 @@ def magpylib_rows(args, device: str, params) -> list[dict]:
     return rows
 
 
+def sim_rows(args, device: str, params, spec) -> list[dict]:
+    """One 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with the magnetic drive."""
+    import torch
+
+    from magwarp.layout import benchmark_layout
+    from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, magnetic_force
+    from magwarp.sim import Simulator
+
+    layout, movers = benchmark_layout("B0")
+    rows = []
+    for worlds in (args.sim_worlds if device.startswith("cuda") else args.cpu_sim_worlds):
+        out = {"device": device, "worlds": worlds, "movers_per_world": movers, "cycles": 40}
+        for name in ("ideal", "magnetic"):
+            kw = dict(force_model=magnetic_force, force_aux_dim=AUX_DIM) if name == "magnetic" else {}
+            sim = Simulator(layout, movers, worlds, device=device, stop_on_collision=False, check_inputs=False, **kw)
+            if name == "magnetic":
+                MagneticDrive(sim, params, spec)
+            gen = torch.Generator(device=sim.torch_device).manual_seed(0)
+            cmd = torch.rand((worlds, movers, 2), generator=gen, device=sim.torch_device) * 2.0 - 1.0
+            sim.set_command(cmd)
+            ms, _, _ = time_call(lambda: sim.step(40), args.repeats, warmup=1,
+                                 sync=lambda: wp.synchronize_device(device))  # noqa: B023
+            out[f"{name}_step_ms"] = ms
+        out["magnetic_share_of_ideal_speed"] = out["ideal_step_ms"] / out["magnetic_step_ms"]
+        rows.append(out)
+        print(f"  {device:7s} B0 x {worlds:>6} worlds, 40 cycles: ideal {out['ideal_step_ms']:.3f} ms, magnetic "
+              f"{out['magnetic_step_ms']:.3f} ms ({out['magnetic_share_of_ideal_speed']:.1%} of the ideal speed)",
+              flush=True)
+    return rows
+
+
 def sizes(text: str) -> list[int]:
     return [int(float(s)) for s in text.split(",") if s]
 
@@ -204,6 +237,8 @@ def main(argv=None) -> None:
     parser.add_argument("--cpu-sizes", type=sizes, default=sizes("100,1000"), help="CPU mover counts (fast model)")
     parser.add_argument("--exact-sizes", type=sizes, default=sizes("100,1000"), help="GPU mover counts, exact model")
     parser.add_argument("--cpu-exact-sizes", type=sizes, default=sizes("4"), help="CPU mover counts, exact model")
+    parser.add_argument("--sim-worlds", type=sizes, default=sizes("64,4096"), help="GPU B0 worlds, sim step")
+    parser.add_argument("--cpu-sim-worlds", type=sizes, default=sizes("4"), help="CPU B0 worlds, sim step")
     parser.add_argument("--tiles", type=int, default=8, help="the layout is tiles x tiles")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--accuracy-poses", type=int, default=8, help="0 skips the fast-vs-exact accuracy check")
@@ -221,9 +256,10 @@ def main(argv=None) -> None:
     info = machine_info(devices[-1])
     print(header_line(info), flush=True)
     params, spec = MagneticParams(), FieldTableSpec()
-    speed, accuracy, magpylib = [], [], []
+    speed, accuracy, magpylib, sim = [], [], [], []
     for device in devices:
         speed += speed_rows(args, device, params, spec)
+        sim += sim_rows(args, device, params, spec)
     if args.accuracy_poses > 0:
         accuracy.append(accuracy_row(args, devices[-1], params, spec))
     if args.magpylib_movers > 0:
@@ -233,11 +269,14 @@ def main(argv=None) -> None:
                         ("commutation_per_s", "commutations/s"), ("cycle_per_s", "cycles/s"),
                         ("cycle_ms", "cycle ms"), ("active_coils_mean", "coils/mover"),
                         ("saturated_movers", "saturated")])
+    if sim:
+        print_table(sim, ["device", "worlds", ("ideal_step_ms", "ideal ms/step"),
+                          ("magnetic_step_ms", "magnetic ms/step"), ("magnetic_share_of_ideal_speed", "share")])
     gpu = any(d.startswith("cuda") for d in devices)
     path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
                                      f"magnetics_{'gpu' if gpu else 'cpu'}.json")
     write_json(path, {"info": info, "provenance": provenance(info), "speed": speed, "accuracy": accuracy,
-                      "magpylib": magpylib, "options": vars(args)})
+                      "magpylib": magpylib, "sim": sim, "options": vars(args)})
     print(f"wrote {path}")
 
 
