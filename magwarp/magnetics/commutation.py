@@ -2,11 +2,11 @@
 
 Per mover: minimise ``sum_k R_k i_k^2`` subject to ``Gamma i = w`` (Gamma: 6 x active coils, from
 :mod:`~magwarp.magnetics.exact` or :mod:`~magwarp.magnetics.fast`). Without limits the answer is
-``i = R^-1 Gamma^T (Gamma R^-1 Gamma^T)^-1 w``, one 6 x 6 solve. With per-coil limits ``|i_k| <= i_max_k``: solve,
-fix every coil over its limit at the limit (sign kept), re-solve for the free coils with the fixed coils' wrench
-taken off ``w``, at most ``max_iter`` solves. Each solve is a step of a primal active-set method: from the current
-currents (within the limits; zero at first) toward the new optimum, as far as the first coil to reach its limit
-(which is then fixed there); a step that reaches the optimum ends it. The currents never leave the limits, and the
+``i = R^-1 Gamma^T (Gamma R^-1 Gamma^T)^-1 w``, one 6 x 6 solve. With per-coil limits ``|i_k| <= i_max_k``: coils
+that reach their limit are fixed there (sign kept) and the free coils re-solved with the fixed coils' wrench taken
+off ``w``, at most ``max_iter`` solves (default 64; each fixes at least one coil). Each solve is a step of a primal
+active-set method: from the current currents (within the limits; zero at first) toward the new optimum, as far as
+the first coil to reach its limit (which is then fixed there); a step that reaches the optimum ends it. The currents never leave the limits, and the
 delivered wrench moves toward ``w`` at every step (after the first it is ``alpha w``: the wanted direction, scaled
 down). It never frees a fixed coil (not a full box-constrained QP), so where it stops short, the wrench it could not
 deliver is reported, never hidden.

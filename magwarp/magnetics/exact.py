@@ -188,7 +188,7 @@ class WrenchModel:
         self._tile_map = wp.array(cs.tile_map, dtype=wp.int32, device=d)
         self._rects = wp.array(cs.rects, dtype=wp.vec4d, device=d)
         self.active_radius = (float(self.params.active_radius) if self.params.active_radius is not None
-                              else measure_active_radius(self.params))
+                              else measure_active_radius(self.params, device=self.device))
         self.max_active = int(self.params.max_active)
 
     # Subclasses set these.
@@ -259,13 +259,13 @@ class ExactModel(WrenchModel):
         self.source = magnet_source(self.params.magnets, self.device)
 
 
-def _scan_columns(params: MagneticParams, step: float, reach: float, z: float):
+def _scan_columns(params: MagneticParams, step: float, reach: float, z: float, device=None):
     """Distances (coil rectangle to mover centre), column norms |F|, |tau| ``(n, 2)`` and offsets from the coil's
     centre over rays from a coil of each direction (in a single tile) at 0, 22.5, ..., 90 degrees, yaws 0, 22.5
     and 45 degrees, at height ``z``."""
     layout = Layout.grid(1, 1)
-    coarse = MagneticParams(params.magnets, params.coils, params.quadrature, active_radius=1.0, max_active=1)
-    model = ExactModel(layout, coarse, device="cpu")
+    fixed = MagneticParams(params.magnets, params.coils, params.quadrature, active_radius=1.0, max_active=1)
+    model = ExactModel(layout, fixed, device=device)
     cs = model.coilset
     picks = [int(np.nonzero(cs.directions == d)[0][0]) for d in np.unique(cs.directions)]
     offsets = np.arange(0.0, reach + 0.5 * step, step)
@@ -292,7 +292,7 @@ def _scan_columns(params: MagneticParams, step: float, reach: float, z: float):
 
 
 def measure_active_radius(params: MagneticParams, step: float = 0.005, reach: float = 0.4, z: float | None = None,
-                          use_cache: bool = True) -> float:
+                          use_cache: bool = True, device=None) -> float:
     """The xy distance from a mover's centre to a coil's rectangle beyond which the coil's force and torque stay
     below ``params.active_share`` of the peak coil force and torque (each over the scan), plus one ``step``.
 
@@ -304,7 +304,7 @@ def measure_active_radius(params: MagneticParams, step: float = 0.005, reach: fl
     z = float(z) if z is not None else 0.003 - float(params.magnets.bounds[0, 2])
 
     def build():
-        dist, norms, offset = _scan_columns(params, step, reach, z)
+        dist, norms, offset = _scan_columns(params, step, reach, z, device)
         share = norms / norms.max(axis=0)
         above = np.any(share >= params.active_share, axis=1)
         if above[offset >= reach - 0.5 * step].any():
