@@ -138,6 +138,7 @@ class Simulator:
         self.check_inputs = check_inputs
         self._use_graph = use_graph
         self._hooks: list[Callable[[Simulator], None]] = []
+        self._pre_hooks: list[Callable[[Simulator], None]] = []
         self._graphs: dict[int, wp.Graph] = {}
         # On CUDA, Warp launches on torch's current stream so that kernels and torch ops on the state are ordered
         # without any host synchronisation.
@@ -459,9 +460,10 @@ class Simulator:
         other = tuple(round(float(v), 4) for v in self.pos[w, j, :2].cpu())
         raise LayoutError(f"movers {k} and {j} (world {w}) overlap at their start positions {xy} and {other}")
 
-    def add_cycle_hook(self, hook: Callable[["Simulator"], None]) -> None:
-        """Run ``hook(sim)`` after every cycle, inside the step graph. It must only launch device work."""
-        self._hooks.append(hook)
+    def add_cycle_hook(self, hook: Callable[["Simulator"], None], before: bool = False) -> None:
+        """Run ``hook(sim)`` after every cycle (``before=True``: before it, e.g. to prepare ``force_aux`` from the
+        cycle's starting state), inside the step graph. It must only launch device work."""
+        (self._pre_hooks if before else self._hooks).append(hook)
         self._fused = False
         self._graphs.clear()
 
@@ -519,6 +521,8 @@ class Simulator:
             return
         wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
         for _ in range(n):
+            for hook in self._pre_hooks:
+                hook(self)
             self._launch_cycle()
             for hook in self._hooks:
                 hook(self)

@@ -1,0 +1,284 @@
+"""The magnetic model's speed and accuracy: wrench-matrix and commutation evaluations per second, the fast model's
+error against the exact model, and the exact model against magpylib (CPU) for the same wrenches, in one run.
+
+Per device and mover count (movers at random poses over an 8 x 8-tile layout, 3-5 mm gaps, any yaw):
+* ``gamma``: active coils + the wrench matrix Gamma(q) of every mover (fast model; exact model at the smaller
+  ``--exact-sizes``), then w = Gamma i;
+* ``commutation``: least-loss currents for a hover-and-accelerate wrench per mover, given Gamma;
+* ``cycle``: both (one control cycle of the fast model).
+* ``sim``: one 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with the magnetic drive
+  (:class:`magwarp.magnetics.drive.MagneticDrive`), and the drive's share of the ideal speed.
+Also: the fast model's largest column error as a share of the peak force and torque, over random poses in the
+hover range and any yaw (``--accuracy-poses``), and magpylib's ``getFT`` on the CPU for the same currents and poses
+as the exact model (``--magpylib-movers``): its time per mover, the ratio, and how far the two wrenches differ.
+
+    python benchmarks/magnetics.py                                   # CPU (+ cuda:0 when present)
+    python benchmarks/magnetics.py --device cpu --cpu-sizes 10,100   # a quick CPU smoke run
+    python benchmarks/magnetics.py --device cuda:0 --json benchmarks/results/magnetics_gpu.json   # the GPU run
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import numpy as np  # noqa: E402
+import warp as wp  # noqa: E402
+
+from common import header_line, machine_info, print_table, provenance, time_call, write_json  # noqa: E402
+
+GAP = (0.003, 0.005)
+
+
+def random_poses(rng, n: int, tiles: int, bottom: float) -> np.ndarray:
+    ext = 0.24 * tiles
+    return np.c_[rng.uniform(0.1, ext - 0.1, (n, 2)), rng.uniform(*GAP, n) - bottom,
+                 rng.uniform(-0.01, 0.01, (n, 2)), rng.uniform(-np.pi, np.pi, n)]
+
+
+def wanted_wrench(rng, n: int, mass: float = 1.24) -> np.ndarray:
+    """Hover plus a random planar acceleration up to 5 m/s^2 and small torques."""
+    acc = rng.uniform(-5.0, 5.0, (n, 2))
+    return np.c_[mass * acc, np.full(n, mass * 9.81), rng.uniform(-0.02, 0.02, (n, 3))]
+
+
+def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int) -> dict:
+    """Seconds per call of the Gamma evaluation, the commutation and both, for all movers at once."""
+    from magwarp.magnetics.exact import vec6d
+
+    dev = model.device
+    pos, quat = model.as_arrays(poses)
+    ids, count = model.active_coils(pos)
+    gamma = model.wrench_matrix(pos, quat, ids)
+    currents = wp.zeros(ids.shape, dtype=wp.float64, device=dev)
+    w_out = model.wrench(gamma, currents)
+    w_in = wp.array(wrench, dtype=vec6d, device=dev)
+    res = com.solve(gamma, ids, count, w_in)
+
+    def gamma_eval():
+        model.active_coils(pos, ids, count)
+        model.wrench_matrix(pos, quat, ids, gamma)
+        model.wrench(gamma, res.currents, w_out)
+
+    def commutate():
+        com.solve(gamma, ids, count, w_in, res)
+
+    def cycle():
+        gamma_eval()
+        commutate()
+
+    sync = lambda: wp.synchronize_device(dev)  # noqa: E731
+    out = {}
+    for name, fn in (("gamma", gamma_eval), ("commutation", commutate), ("cycle", cycle)):
+        mean, std, median = time_call(fn, repeats, warmup=1, sync=sync)
+        out[f"{name}_ms"] = median
+    flags = res.flags.numpy()
+    out.update(active_coils_mean=float(count.numpy().mean()), saturated_movers=int((res.saturated.numpy() != 0)
+               .any(axis=1).sum()), flagged_movers=int((flags != 0).sum()),
+               loss_w_mean=float(res.loss.numpy().mean()))
+    return out
+
+
+def speed_rows(args, device: str, params, spec) -> list[dict]:
+    from magwarp.layout import Layout
+    from magwarp.magnetics.commutation import Commutation
+    from magwarp.magnetics.exact import ExactModel
+    from magwarp.magnetics.fast import FastModel
+
+    layout = Layout.grid(args.tiles, args.tiles)
+    gpu = device.startswith("cuda")
+    t0 = time.perf_counter()
+    fast = FastModel(layout, params, spec, device=device)
+    build_s = time.perf_counter() - t0
+    exact = ExactModel(layout, params, device=device)
+    com = Commutation(fast.coilset, device=device)
+    rng = np.random.default_rng(0)
+    bottom = float(params.magnets.bounds[0, 2])
+    rows = []
+    plan = [("fast", fast, n) for n in (args.sizes if gpu else args.cpu_sizes)]
+    plan += [("exact", exact, n) for n in (args.exact_sizes if gpu else args.cpu_exact_sizes)]
+    for name, model, n in plan:
+        poses = random_poses(rng, n, args.tiles, bottom)
+        res = time_model(model, com, poses, wanted_wrench(rng, n), args.repeats)
+        row = {"device": device, "model": name, "movers": n, **res,
+               "gamma_per_s": n / (res["gamma_ms"] * 1e-3), "commutation_per_s": n / (res["commutation_ms"] * 1e-3),
+               "cycle_per_s": n / (res["cycle_ms"] * 1e-3)}
+        if name == "fast":
+            row.update(table_mb=fast.table_bytes / 1e6, table_build_s=build_s)
+        rows.append(row)
+        print(f"  {device:7s} {name:5s} movers={n:>8}  gamma {res['gamma_ms']:.3f} ms  commutation "
+              f"{res['commutation_ms']:.3f} ms  cycle {res['cycle_ms']:.3f} ms", flush=True)
+    return rows
+
+
+def accuracy_row(args, device: str, params, spec) -> dict:
+    """Largest |Gamma_fast - Gamma_exact| as a share of the peak column force and torque, over random poses."""
+    from magwarp.layout import Layout
+    from magwarp.magnetics.exact import ExactModel
+    from magwarp.magnetics.fast import FastModel
+
+    layout = Layout.grid(4, 4)
+    exact, fast = ExactModel(layout, params, device=device), FastModel(layout, params, spec, device=device)
+    rng = np.random.default_rng(1)
+    n = args.accuracy_poses
+    lo, hi = spec.gap
+    poses = np.c_[rng.uniform(0.25, 0.71, (n, 2)), rng.uniform(lo, hi, n) - float(params.magnets.bounds[0, 2]),
+                  rng.uniform(-0.02, 0.02, (n, 2)), rng.uniform(-np.pi, np.pi, n)]
+    _, _, ge = exact.evaluate(poses)
+    _, _, gf = fast.evaluate(poses)
+    pf, pt = np.linalg.norm(ge[..., :3], axis=-1).max(), np.linalg.norm(ge[..., 3:], axis=-1).max()
+    row = {"device": device, "poses": n, "gap_range_m": list(spec.gap), "max_tilt_rad": 0.02,
+           "force_error_share": float(np.abs(gf - ge)[..., :3].max() / pf),
+           "torque_error_share": float(np.abs(gf - ge)[..., 3:].max() / pt),
+           "peak_force_n_per_a": float(pf), "peak_torque_nm_per_a": float(pt), "out_of_range": fast.out_of_range,
+           "table_mb": fast.table_bytes / 1e6, "table_step_m": spec.step, "table_z_step_m": spec.z_step,
+           "table_margin_m": spec.margin}
+    print(f"  fast vs exact over {n} poses: force error {row['force_error_share']:.3%}, torque error "
+          f"{row['torque_error_share']:.3%} of the peak column", flush=True)
+    return row
+
+
+def magpylib_rows(args, device: str, params) -> list[dict]:
+    """The exact model (``device``) and magpylib's getFT (CPU) for the same poses and currents."""
+    import magpylib as magpy
+    from scipy.spatial.transform import Rotation
+
+    from magwarp.layout import Layout
+    from magwarp.magnetics import reference as ref
+    from magwarp.magnetics.exact import ExactModel
+
+    layout = Layout.grid(args.tiles, args.tiles)
+    exact = ExactModel(layout, params, device=device)
+    rng = np.random.default_rng(2)
+    n_gpu = max(args.magpylib_movers, (args.exact_sizes if device.startswith("cuda") else args.cpu_exact_sizes)[-1])
+    poses = random_poses(rng, n_gpu, args.tiles, float(params.magnets.bounds[0, 2]))
+    pos, quat = exact.as_arrays(poses)
+    ids, count = exact.active_coils(pos)
+    currents = rng.uniform(-3.0, 3.0, ids.shape) * (ids.numpy() >= 0)
+    cur = wp.array(currents, dtype=wp.float64, device=exact.device)
+
+    def run_exact():
+        exact.active_coils(pos, ids, count)
+        g = exact.wrench_matrix(pos, quat, ids)
+        return exact.wrench(g, cur)
+
+    w_exact = run_exact().numpy()
+    ms, _, _ = time_call(run_exact, 2, warmup=0, sync=lambda: wp.synchronize_device(exact.device))
+    exact_s_per_mover = ms * 1e-3 / n_gpu
+    cs = exact.coilset
+    ids_np = ids.numpy()
+    rows = []
+    for m in range(args.magpylib_movers):
+        rot = Rotation.from_matrix(ref.rotation(poses[m])[0])
+        coll = magpy.Collection(*[magpy.magnet.Cuboid(polarization=j, dimension=s, position=c) for c, s, j in
+                                  zip(params.magnets.centers, params.magnets.sizes, params.magnets.polarizations)])
+        coll.rotate(rot, anchor=0).move(poses[m, :3])
+        lines = [magpy.current.Polyline(current=cs.seg_weight[s] * currents[m, j], vertices=[cs.seg_a[s], cs.seg_b[s]])
+                 for j, k in enumerate(ids_np[m]) if k >= 0 for s in range(cs.seg_start[k], cs.seg_start[k + 1])]
+        t0 = time.perf_counter()
+        ft = np.asarray(magpy.getFT(coll, lines, pivot=poses[m, :3], meshing=args.meshing)).sum(axis=1)
+        mp_s = time.perf_counter() - t0
+        w_mp = -ft.ravel()
+        row = {"device": device, "mover": m, "active_coils": int(count.numpy()[m]), "polylines": len(lines),
+               "meshing": args.meshing, "magpylib_cpu_s": mp_s, "exact_s_per_mover": exact_s_per_mover,
+               "exact_movers_in_batch": n_gpu, "speedup": mp_s / exact_s_per_mover,
+               "force_rel_diff": float(np.linalg.norm(w_mp[:3] - w_exact[m, :3]) / np.linalg.norm(w_exact[m, :3])),
+               "torque_rel_diff": float(np.linalg.norm(w_mp[3:] - w_exact[m, 3:]) / np.linalg.norm(w_exact[m, 3:]))}
+        rows.append(row)
+        print(f"  magpylib (CPU) {mp_s:.2f} s/mover vs exact ({device}) {exact_s_per_mover * 1e3:.3f} ms/mover: "
+              f"{row['speedup']:.0f}x; wrench differs by {row['force_rel_diff']:.2e} (force), "
+              f"{row['torque_rel_diff']:.2e} (torque)", flush=True)
+    return rows
+
+
+def sim_rows(args, device: str, params, spec) -> list[dict]:
+    """One 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with the magnetic drive."""
+    import torch
+
+    from magwarp.layout import benchmark_layout
+    from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, magnetic_force
+    from magwarp.sim import Simulator
+
+    layout, movers = benchmark_layout("B0")
+    rows = []
+    for worlds in (args.sim_worlds if device.startswith("cuda") else args.cpu_sim_worlds):
+        out = {"device": device, "worlds": worlds, "movers_per_world": movers, "cycles": 40}
+        for name in ("ideal", "magnetic"):
+            kw = dict(force_model=magnetic_force, force_aux_dim=AUX_DIM) if name == "magnetic" else {}
+            sim = Simulator(layout, movers, worlds, device=device, stop_on_collision=False, check_inputs=False, **kw)
+            if name == "magnetic":
+                MagneticDrive(sim, params, spec)
+            gen = torch.Generator(device=sim.torch_device).manual_seed(0)
+            cmd = torch.rand((worlds, movers, 2), generator=gen, device=sim.torch_device) * 2.0 - 1.0
+            sim.set_command(cmd)
+            ms, _, _ = time_call(lambda: sim.step(40), args.repeats, warmup=1,
+                                 sync=lambda: wp.synchronize_device(device))  # noqa: B023
+            out[f"{name}_step_ms"] = ms
+        out["magnetic_share_of_ideal_speed"] = out["ideal_step_ms"] / out["magnetic_step_ms"]
+        rows.append(out)
+        print(f"  {device:7s} B0 x {worlds:>6} worlds, 40 cycles: ideal {out['ideal_step_ms']:.3f} ms, magnetic "
+              f"{out['magnetic_step_ms']:.3f} ms ({out['magnetic_share_of_ideal_speed']:.1%} of the ideal speed)",
+              flush=True)
+    return rows
+
+
+def sizes(text: str) -> list[int]:
+    return [int(float(s)) for s in text.split(",") if s]
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default=None, help="cpu or cuda:0 (default: cpu, and cuda:0 when present)")
+    parser.add_argument("--sizes", type=sizes, default=sizes("1000,100000,1000000"), help="GPU mover counts")
+    parser.add_argument("--cpu-sizes", type=sizes, default=sizes("100,1000"), help="CPU mover counts (fast model)")
+    parser.add_argument("--exact-sizes", type=sizes, default=sizes("100,1000"), help="GPU mover counts, exact model")
+    parser.add_argument("--cpu-exact-sizes", type=sizes, default=sizes("4"), help="CPU mover counts, exact model")
+    parser.add_argument("--sim-worlds", type=sizes, default=sizes("64,4096"), help="GPU B0 worlds, sim step")
+    parser.add_argument("--cpu-sim-worlds", type=sizes, default=sizes("4"), help="CPU B0 worlds, sim step")
+    parser.add_argument("--tiles", type=int, default=8, help="the layout is tiles x tiles")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--accuracy-poses", type=int, default=8, help="0 skips the fast-vs-exact accuracy check")
+    parser.add_argument("--magpylib-movers", type=int, default=1, help="0 skips the magpylib comparison")
+    parser.add_argument("--meshing", type=int, default=100, help="magpylib getFT points per polyline")
+    parser.add_argument("--json", default=None, help="default: benchmarks/results/magnetics_<cpu|gpu>.json")
+    args = parser.parse_args(argv)
+
+    from magwarp.magnetics.fast import FieldTableSpec
+    from magwarp.magnetics.geometry import MagneticParams
+
+    wp.config.quiet = True
+    wp.init()
+    devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
+    info = machine_info(devices[-1])
+    print(header_line(info), flush=True)
+    params, spec = MagneticParams(), FieldTableSpec()
+    speed, accuracy, magpylib, sim = [], [], [], []
+    for device in devices:
+        speed += speed_rows(args, device, params, spec)
+        sim += sim_rows(args, device, params, spec)
+    if args.accuracy_poses > 0:
+        accuracy.append(accuracy_row(args, devices[-1], params, spec))
+    if args.magpylib_movers > 0:
+        magpylib += magpylib_rows(args, devices[-1], params)
+    print()
+    print_table(speed, ["device", "model", "movers", ("gamma_per_s", "Gamma evals/s"),
+                        ("commutation_per_s", "commutations/s"), ("cycle_per_s", "cycles/s"),
+                        ("cycle_ms", "cycle ms"), ("active_coils_mean", "coils/mover"),
+                        ("saturated_movers", "saturated")])
+    if sim:
+        print_table(sim, ["device", "worlds", ("ideal_step_ms", "ideal ms/step"),
+                          ("magnetic_step_ms", "magnetic ms/step"), ("magnetic_share_of_ideal_speed", "share")])
+    gpu = any(d.startswith("cuda") for d in devices)
+    path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
+                                     f"magnetics_{'gpu' if gpu else 'cpu'}.json")
+    write_json(path, {"info": info, "provenance": provenance(info), "speed": speed, "accuracy": accuracy,
+                      "magpylib": magpylib, "sim": sim, "options": vars(args)})
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

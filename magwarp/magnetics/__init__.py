@@ -1,0 +1,17 @@
+"""The magnetic-field model of a planar motor: magnet arrays, tile coils, the exact wrench model (closed-form
+cuboid fields, Gauss-Legendre quadrature along coil filaments), the fast field-table model, and commutation
+(least-copper-loss coil currents for a wanted wrench). Each module's docstring states its model and its sources.
+
+Modules: :mod:`.geometry` (parameters and layouts of magnets and coils), :mod:`.cuboid` (the cuboid field),
+:mod:`.exact` (w = Gamma(q) i, the wrench matrix), :mod:`.commutation`, :mod:`.fast` (the cached field table),
+:mod:`.reference` (float64 numpy references, the test oracles), :mod:`.cache` (the on-disk cache), :mod:`.drive`
+(the magnetic drive in the simulator: ``Simulator(force_model=magnetic_force, force_aux_dim=AUX_DIM)`` plus
+``MagneticDrive(sim)``).
+"""
+
+from magwarp.magnetics.exact import ExactModel, measure_active_radius, pose_to_pos_quat
+from magwarp.magnetics.geometry import (CoilLayer, CoilSet, CoilSpec, Cuboid, MagneticParams, MagneticsError,
+                                        MagnetArray, Quadrature, TileCoils, halbach_array)
+
+__all__ = ["CoilLayer", "CoilSet", "CoilSpec", "Cuboid", "ExactModel", "MagneticParams", "MagneticsError",
+           "MagnetArray", "Quadrature", "TileCoils", "halbach_array", "measure_active_radius", "pose_to_pos_quat"]

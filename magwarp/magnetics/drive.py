@@ -1,0 +1,186 @@
+"""The magnetic drive in the simulator: the wrench on every mover comes from its coil currents.
+
+    sim = Simulator(layout, num_movers, num_worlds, force_model=magnetic_force, force_aux_dim=AUX_DIM)
+    drive = MagneticDrive(sim)                      # the fast model of the default design (cached on disk)
+    sim.step(40)                                    # currents, copper loss and energy follow every cycle
+
+Before every cycle (a pre-cycle hook, inside the step graph, no host sync): the wrench the ideal model would apply
+at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
+of the command, the impedance hold) is the wanted wrench; the fast model gives each mover's Gamma(q); the
+commutation gives the least-loss currents within the limits; the realised wrench Gamma i goes into
+``force_aux[w, m, 0:6]`` (float32), which :func:`magnetic_force` returns to the integrator. When no coil saturates,
+the realised wrench is the wanted one (to float32 rounding) and the motion matches the ideal model; when coils
+saturate, the wrench falls short (the mover accelerates less, or sinks) as on the real system.
+
+``force_aux[w, m, 6]`` is the copper loss (W) and ``[7]`` the commutation flags
+(:mod:`~magwarp.magnetics.commutation`); :attr:`MagneticDrive.energy` accumulates the loss over time (J);
+:attr:`MagneticDrive.currents` and :attr:`MagneticDrive.coil_ids` are the active coils' currents (A) and ids.
+The hook forces the simulator's per-cycle launch path (as any cycle hook does).
+"""
+
+import warp as wp
+
+from magwarp.kernels.dynamics import planar_acceleration
+from magwarp.kernels.impedance import default_force
+from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult
+from magwarp.magnetics.exact import vec6d
+from magwarp.magnetics.fast import FastModel, FieldTableSpec
+from magwarp.magnetics.geometry import MagneticParams, MagneticsError
+from magwarp.types import Body, Impedance, Limits, Pose, Wrench
+
+#: Width of ``force_aux`` the drive needs: the realised wrench (6), the copper loss, the commutation flags.
+AUX_DIM = 8
+
+
+@wp.func
+def magnetic_force(
+    p: Pose,
+    body: Body,
+    drive: wp.vec3,
+    target_pos: wp.vec3,
+    target_quat: wp.quat,
+    imp: Impedance,
+    lim: Limits,
+    aux: wp.array(dtype=float),
+) -> Wrench:
+    """The wrench the coils deliver this cycle (written into ``aux`` by :class:`MagneticDrive` before it)."""
+    w = Wrench()
+    w.force = wp.vec3(aux[0], aux[1], aux[2])
+    w.torque = wp.vec3(aux[3], aux[4], aux[5])
+    return w
+
+
+@wp.kernel
+def wanted_wrench_kernel(
+    # Model:
+    lim: Limits,
+    imp: Impedance,
+    body: wp.array(dtype=Body),
+    # State in:
+    cmd: wp.array2d(dtype=wp.vec2),
+    target_pos: wp.array2d(dtype=wp.vec3),
+    target_quat: wp.array2d(dtype=wp.quat),
+    force_aux: wp.array3d(dtype=float),
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    vel: wp.array2d(dtype=wp.vec3),
+    omega: wp.array2d(dtype=wp.vec3),
+    acc: wp.array2d(dtype=wp.vec2),
+    # State out:
+    pos_d: wp.array(dtype=wp.vec3d),
+    quat_d: wp.array(dtype=wp.quatd),
+    wanted: wp.array(dtype=vec6d),
+):
+    """The ideal model's wrench at the cycle's start (what the step kernel would apply), and the pose in float64."""
+    w, m = wp.tid()
+    i = w * pos.shape[1] + m
+    p = Pose()
+    p.pos = pos[w, m]
+    p.quat = quat[w, m]
+    p.vel = vel[w, m]
+    p.omega = omega[w, m]
+    b = body[m]
+    a = planar_acceleration(p.vel, acc[w, m], cmd[w, m], lim)
+    wr = default_force(p, b, wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0), target_pos[w, m], target_quat[w, m], imp,
+                       lim, force_aux[w, m])
+    pos_d[i] = wp.vec3d(wp.float64(p.pos[0]), wp.float64(p.pos[1]), wp.float64(p.pos[2]))
+    q = wp.quatd(wp.float64(p.quat[0]), wp.float64(p.quat[1]), wp.float64(p.quat[2]), wp.float64(p.quat[3]))
+    quat_d[i] = wp.normalize(q)
+    wanted[i] = vec6d(wp.float64(wr.force[0]), wp.float64(wr.force[1]), wp.float64(wr.force[2]),
+                      wp.float64(wr.torque[0]), wp.float64(wr.torque[1]), wp.float64(wr.torque[2]))
+
+
+@wp.kernel
+def store_wrench_kernel(
+    # Model:
+    dt: float,
+    # State in:
+    delivered: wp.array(dtype=vec6d),
+    loss: wp.array(dtype=wp.float64),
+    flags: wp.array(dtype=wp.int32),
+    # State out:
+    force_aux: wp.array3d(dtype=float),
+    energy: wp.array2d(dtype=wp.float64),
+):
+    """The realised wrench, loss and flags into ``force_aux``; the loss integrated into the energy."""
+    w, m = wp.tid()
+    i = w * force_aux.shape[1] + m
+    d = delivered[i]
+    for k in range(6):
+        force_aux[w, m, k] = float(d[k])
+    force_aux[w, m, 6] = float(loss[i])
+    force_aux[w, m, 7] = float(flags[i])
+    energy[w, m] = energy[w, m] + loss[i] * wp.float64(dt)
+
+
+class MagneticDrive:
+    """Attach the magnetic drive to ``sim`` (built with ``force_model=magnetic_force`` and ``force_aux_dim >=
+    AUX_DIM``): a :class:`~magwarp.magnetics.fast.FastModel` of ``params`` on the simulator's layout and device,
+    and the commutation, run before every cycle."""
+
+    def __init__(self, sim, params: MagneticParams | None = None, spec: FieldTableSpec | None = None,
+                 options: CommutationOptions | None = None, use_cache: bool = True):
+        aux = sim.state.force_aux
+        if aux.shape[2] < AUX_DIM:
+            raise MagneticsError(f"the simulator's force_aux has {aux.shape[2]} columns; the magnetic drive needs "
+                                 f"force_aux_dim >= {AUX_DIM} (and force_model=magnetic_force)")
+        self.sim = sim
+        dev = sim.device
+        self.model = FastModel(sim.layout, params, spec, device=dev, use_cache=use_cache)
+        self.commutation = Commutation(self.model.coilset, options, device=dev)
+        w_, m_ = sim.num_worlds, sim.num_movers
+        n, slots = w_ * m_, self.model.max_active
+        self._pos = wp.zeros(n, dtype=wp.vec3d, device=dev)
+        self._quat = wp.zeros(n, dtype=wp.quatd, device=dev)
+        self._wanted = wp.zeros(n, dtype=vec6d, device=dev)
+        self._ids = wp.full((n, slots), -1, dtype=wp.int32, device=dev)
+        self._count = wp.zeros(n, dtype=wp.int32, device=dev)
+        self._gamma = wp.zeros((n, slots), dtype=vec6d, device=dev)
+        self._res = CommutationResult(wp.zeros((n, slots), dtype=wp.float64, device=dev),
+                                      wp.zeros((n, slots), dtype=wp.int32, device=dev),
+                                      wp.zeros(n, dtype=vec6d, device=dev), wp.zeros(n, dtype=vec6d, device=dev),
+                                      wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.int32, device=dev))
+        self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
+        self._dt = float(sim.model.limits.dt)
+        sim.add_cycle_hook(self._before_cycle, before=True)
+
+    def _before_cycle(self, sim) -> None:
+        m, s, dev = sim.model, sim.state, sim.device
+        dims = (sim.num_worlds, sim.num_movers)
+        wp.launch(wanted_wrench_kernel, dim=dims, device=dev,
+                  inputs=[m.limits, m.impedance, m.body, s.cmd, s.target_pos, s.target_quat, s.force_aux, s.pos,
+                          s.quat, s.vel, s.omega, s.acc], outputs=[self._pos, self._quat, self._wanted])
+        self.model.active_coils(self._pos, self._ids, self._count)
+        self.model.wrench_matrix(self._pos, self._quat, self._ids, self._gamma)
+        self.commutation.solve(self._gamma, self._ids, self._count, self._wanted, self._res)
+        wp.launch(store_wrench_kernel, dim=dims, device=dev,
+                  inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
+                  outputs=[s.force_aux, self._energy])
+
+    def _view(self, arr, shape):
+        return self.sim._t(arr.reshape(shape))
+
+    @property
+    def currents(self):
+        """[W, M, slots] currents (A) of the active coils (torch view)."""
+        return self._view(self._res.currents, (self.sim.num_worlds, self.sim.num_movers, self.model.max_active))
+
+    @property
+    def coil_ids(self):
+        """[W, M, slots] ids of the active coils, -1 for empty slots (torch view)."""
+        return self._view(self._ids, (self.sim.num_worlds, self.sim.num_movers, self.model.max_active))
+
+    @property
+    def loss(self):
+        """[W, M] copper loss (W) of the last cycle (torch view)."""
+        return self.sim.force_aux[..., 6]
+
+    @property
+    def flags(self):
+        """[W, M] commutation flags of the last cycle (float32 torch view of the integer bits)."""
+        return self.sim.force_aux[..., 7]
+
+    @property
+    def energy(self):
+        """[W, M] copper energy (J) since the drive was attached (torch view; zero it to restart)."""
+        return self.sim._t(self._energy)

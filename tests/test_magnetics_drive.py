@@ -1,0 +1,77 @@
+"""The magnetic drive in the simulator: coil currents from the commutation move the movers. Without saturation the
+motion matches the ideal model; with low current limits the wrench falls short and it is reported."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from magwarp.layout import Layout
+from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED
+from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, magnetic_force
+from magwarp.magnetics.fast import FieldTableSpec
+from magwarp.magnetics.geometry import CoilSpec, MagneticParams, MagneticsError, Quadrature, TileCoils
+from magwarp.sim import Simulator
+
+# A coarse quadrature and table and a smaller active radius: seconds on a CPU.
+SPEC = FieldTableSpec(step=0.002, z_step=0.001, margin=0.08)
+
+
+def params(limit: float) -> MagneticParams:
+    return MagneticParams(coils=TileCoils(CoilSpec(current_limit=limit)), quadrature=Quadrature(2, 0.01),
+                          active_radius=0.2)
+
+
+def make(force_model=None, aux=1):
+    return Simulator(Layout.grid(3, 3), num_movers=1, num_worlds=2, start_xy=[[[0.30, 0.33]], [[0.42, 0.36]]],
+                     force_model=force_model, force_aux_dim=aux, device="cpu", stop_on_collision=False)
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    mp = pytest.MonkeyPatch()
+    mp.setenv("MAGWARP_CACHE_DIR", str(tmp_path_factory.mktemp("magnetics_cache")))
+    yield
+    mp.undo()
+
+
+def run(sim, cmd, cycles):
+    sim.set_command(torch.as_tensor(cmd, dtype=torch.float32))
+    for _ in range(cycles):
+        sim.step(1)
+    return sim.pos.numpy().copy(), sim.vel.numpy().copy()
+
+
+def test_motion_matches_ideal_model_without_saturation(cache, rng):
+    cmd = rng.uniform(-3.0, 3.0, (2, 1, 2))
+    ideal = make()
+    mag_sim = make(magnetic_force, AUX_DIM)
+    drive = MagneticDrive(mag_sim, params(limit=1e3))
+    p0, v0 = run(ideal, cmd, 20)
+    p1, v1 = run(mag_sim, cmd, 20)
+    np.testing.assert_allclose(p1, p0, atol=1e-6, err_msg=str(rng))
+    np.testing.assert_allclose(v1, v0, atol=2e-5, err_msg=str(rng))
+    assert np.abs(v1[..., :2]).max() > 0.02  # it moved
+    loss = drive.loss.numpy()
+    assert np.all(loss > 1.0) and np.all(loss < 1e3), loss  # hovering costs watts
+    cur, ids = drive.currents.numpy(), drive.coil_ids.numpy()
+    assert np.all(cur[ids < 0] == 0.0) and (ids >= 0).sum() > 20
+    # Energy is the loss integrated over the 20 cycles of 1 ms (the loss changes little while it accelerates).
+    assert drive.energy.numpy() == pytest.approx(20e-3 * loss, rel=0.2)
+
+
+def test_low_current_limit_limits_the_wrench(cache):
+    ideal, weak = make(), make(magnetic_force, AUX_DIM)
+    drive = MagneticDrive(weak, params(limit=0.5))
+    cmd = np.zeros((2, 1, 2))
+    p0, _ = run(ideal, cmd, 20)
+    p1, _ = run(weak, cmd, 20)
+    assert np.all(p1[..., 2] < p0[..., 2] - 1e-4), (p0[..., 2], p1[..., 2])  # it cannot hold its height: it sinks
+    assert np.all(np.abs(drive.currents.numpy()) <= 0.5 + 1e-12)
+    assert np.all(drive.flags.numpy().astype(int) & FLAG_NOT_CONVERGED)
+
+
+def test_drive_needs_the_aux_columns(cache):
+    with pytest.raises(MagneticsError, match="force_aux_dim"):
+        MagneticDrive(make(), params(limit=7.0))
