@@ -104,3 +104,15 @@ def test_bad_inputs():
         placer.place(torch.zeros(2, 3, 2), torch.ones(3, dtype=torch.bool))
     with pytest.raises(ValueError, match="offset"):
         Placer(Layout(np.ones((4, 4), dtype=np.int32)), 3, offset=-1.0, device="cpu")
+
+
+def test_hold_keeps_the_spots_of_movers_still_to_place(rng):
+    """With ``hold``, a mover that finds no room stays where it is, and nothing is placed onto it."""
+    layout = Layout(np.ones((6, 6), dtype=np.int32))
+    placer = Placer(layout, 16, 4, device="cpu", seed=int(rng.integers(1 << 20)))
+    xy = placer.sample()
+    placer.tries = 1  # one candidate each: some movers find no room
+    mask = torch.from_numpy(rng.random((4, 16)) < 0.5)
+    left = placer.place_async(xy, mask, rounds=1, hold=True).clone()
+    assert left.any(), f"{rng}: every mover found room in one try: the test checks nothing"
+    check_placement(layout, MoverSpec(), 0.0, xy.numpy(), rng)  # the unplaced ones kept their (valid) spots

@@ -14,7 +14,9 @@ One *round* is three launches over all movers of all worlds (threads of movers a
 
 Cells are as small as the exclusion test allows (two candidates in one cell always conflict), so the claim loses
 no compatible pair; the placed set lives in per-cell linked lists (``atomic_exch``, as the simulator's broad phase),
-which also holds *fixed* movers that are not being placed (e.g. the other movers when one respawns). Expected work
+which also holds *fixed* movers that are not being placed (e.g. the other movers when one respawns). With
+``hold``, the movers being placed keep their current spots blocked (second lists) until the call ends: a mover
+that is respawned stays where it is until it is placed, so no other may be placed onto it. Expected work
 is O(movers) per round; no sort, no scan, no host synchronisation.
 """
 
@@ -64,10 +66,11 @@ def cell_index(g: PlaceGrid, w: int, c: wp.vec2i) -> int:
 
 
 @wp.kernel
-def clear_grid(head: wp.array(dtype=wp.int32), claim: wp.array(dtype=wp.int32)):
+def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32), claim: wp.array(dtype=wp.int32)):
     """Empty every cell list and claim."""
     i = wp.tid()
     head[i] = -1
+    head_old[i] = -1
     claim[i] = NO_CLAIM
 
 
@@ -75,23 +78,30 @@ def clear_grid(head: wp.array(dtype=wp.int32), claim: wp.array(dtype=wp.int32)):
 def bin_fixed(
     # Model:
     g: PlaceGrid,
+    hold: int,
     # State in:
     pos: wp.array2d(dtype=wp.vec2),
     todo: wp.array2d(dtype=wp.int32),
     # State out:
     head: wp.array(dtype=wp.int32),
     next_in_cell: wp.array2d(dtype=wp.int32),
+    head_old: wp.array(dtype=wp.int32),
+    next_old: wp.array2d(dtype=wp.int32),
 ):
-    """Put every mover that stays where it is (``todo == 0``) into its cell's list."""
+    """Put every mover that stays where it is (``todo == 0``) into its cell's list; with ``hold``, the movers to
+    place go into the second lists at their current spots (which they keep until they are placed)."""
     w, m = wp.tid()
-    if todo[w, m] != 0:
-        return
-    next_in_cell[w, m] = wp.atomic_exch(head, cell_index(g, w, place_cell(g, pos[w, m])), m)
+    c = cell_index(g, w, place_cell(g, pos[w, m]))
+    if todo[w, m] == 0:
+        next_in_cell[w, m] = wp.atomic_exch(head, c, m)
+    elif hold != 0:
+        next_old[w, m] = wp.atomic_exch(head_old, c, m)
 
 
 @wp.func
-def clear_of_placed(g: PlaceGrid, w: int, p: wp.vec2, pos: wp.array2d(dtype=wp.vec2), head: wp.array(dtype=wp.int32),
-                    next_in_cell: wp.array2d(dtype=wp.int32)) -> bool:
+def clear_of_placed(g: PlaceGrid, w: int, p: wp.vec2, skip: int, pos: wp.array2d(dtype=wp.vec2),
+                    head: wp.array(dtype=wp.int32), next_in_cell: wp.array2d(dtype=wp.int32)) -> bool:
+    """No mover of the lists (other than ``skip``) conflicts with a mover at ``p``."""
     c = place_cell(g, p)
     for dy in range(-g.reach, g.reach + 1):
         cy = c[1] + dy
@@ -103,7 +113,7 @@ def clear_of_placed(g: PlaceGrid, w: int, p: wp.vec2, pos: wp.array2d(dtype=wp.v
                 continue
             j = head[(w * g.ncy + cy) * g.ncx + cx]
             while j >= 0:
-                if conflict(g, p - pos[w, j]):
+                if j != skip and conflict(g, p - pos[w, j]):
                     return False
                 j = next_in_cell[w, j]
     return True
@@ -120,11 +130,14 @@ def propose(
     tile_list: wp.array(dtype=wp.vec2i),
     seed: int,
     tries: int,
+    hold: int,
     # State in:
     pos: wp.array2d(dtype=wp.vec2),
     todo: wp.array2d(dtype=wp.int32),
     head: wp.array(dtype=wp.int32),
     next_in_cell: wp.array2d(dtype=wp.int32),
+    head_old: wp.array(dtype=wp.int32),
+    next_old: wp.array2d(dtype=wp.int32),
     # State out:
     cand: wp.array2d(dtype=wp.vec2),
     cand_ok: wp.array2d(dtype=wp.int32),
@@ -133,7 +146,8 @@ def propose(
     """Up to ``tries`` candidates for each mover still to place; the first valid one claims its cell.
 
     ``radius`` / ``half``: the footprint (circle radius or box half sizes) grown by the sampling offset; the wall
-    margin is added by the wall rule itself."""
+    margin is added by the wall rule itself. With ``hold``, candidates also keep clear of the spots the other movers
+    to place still hold (their positions before this call; a mover placed in an earlier round keeps both)."""
     w, m = wp.tid()
     cand_ok[w, m] = 0
     if todo[w, m] == 0:
@@ -146,7 +160,9 @@ def propose(
         p = wp.vec2((float(t[0]) + wp.randf(rng)) * size, (float(t[1]) + wp.randf(rng)) * size)
         if hits_wall_cs(tiles, col, p, wp.vec2(1.0, 0.0), radius, half):
             continue
-        if not clear_of_placed(g, w, p, pos, head, next_in_cell):
+        if not clear_of_placed(g, w, p, -1, pos, head, next_in_cell):
+            continue
+        if hold != 0 and not clear_of_placed(g, w, p, m, pos, head_old, next_old):
             continue
         cand[w, m] = p
         cand_ok[w, m] = 1

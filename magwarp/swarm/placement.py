@@ -120,7 +120,9 @@ class Placer:
         shape = (self.num_worlds, self.num_movers)
         self._head = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
         self._claim = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
+        self._head_old = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
         self._next = wp.zeros(shape, dtype=wp.int32, device=self.device)
+        self._next_old = wp.zeros(shape, dtype=wp.int32, device=self.device)
         self._cand = wp.zeros(shape, dtype=wp.vec2, device=self.device)
         self._cand_ok = wp.zeros(shape, dtype=wp.int32, device=self.device)
         self._todo = wp.zeros(shape, dtype=wp.int32, device=self.device)
@@ -194,12 +196,14 @@ class Placer:
             raise ValueError(f"mask must have shape {shape} on {self.torch_device}, got {tuple(mask.shape)} on {mask.device}")
         return xy, mask
 
-    def _begin(self, xy: torch.Tensor, mask: torch.Tensor) -> wp.array:
+    def _begin(self, xy: torch.Tensor, mask: torch.Tensor, hold: bool) -> wp.array:
         pos = wp.from_torch(xy, dtype=wp.vec2)
         wp.to_torch(self._todo).copy_(mask.to(torch.int32))
         dev, dim = self.device, (self.num_worlds, self.num_movers)
-        wp.launch(kpl.clear_grid, dim=self._head.shape[0], inputs=[self._head, self._claim], device=dev)
-        wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, pos, self._todo, self._head, self._next], device=dev)
+        wp.launch(kpl.clear_grid, dim=self._head.shape[0], inputs=[self._head, self._head_old, self._claim], device=dev)
+        wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo],
+                  outputs=[self._head, self._next, self._head_old, self._next_old], device=dev)
+        self._hold = int(hold)
         return pos
 
     def _rounds(self, pos: wp.array, rounds: int) -> None:
@@ -207,18 +211,22 @@ class Placer:
         for _ in range(rounds):
             wp.launch(kpl.propose, dim=dim, device=dev,
                       inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
-                              self._next_seed(), self.tries, pos, self._todo, self._head, self._next],
+                              self._next_seed(), self.tries, self._hold, pos, self._todo, self._head, self._next,
+                              self._head_old, self._next_old],
                       outputs=[self._cand, self._cand_ok, self._claim])
             wp.launch(kpl.resolve, dim=dim, device=dev,
                       inputs=[g, self._cand, self._cand_ok, self._claim, self._todo, pos, self._head, self._next])
             wp.launch(kpl.unclaim, dim=dim, device=dev, inputs=[g, self._cand, self._cand_ok, self._claim])
 
-    def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2) -> torch.Tensor:
+    def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
+                    hold: bool = False) -> torch.Tensor:
         """Place the movers where ``mask`` (``[W, M]`` bool, default all) is true into ``xy`` (``[W, M, 2]``
         float32, written in place) around the others, in ``rounds`` rounds and without a host synchronisation.
-        Returns the ``[W, M]`` bool tensor of the movers still unplaced (their rows of ``xy`` are unchanged)."""
+        With ``hold``, the current rows of the masked movers are real spots too (e.g. movers to respawn, which stay
+        where they are until placed): nothing is placed onto them. Returns the ``[W, M]`` bool tensor of the movers
+        still unplaced (their rows of ``xy`` are unchanged)."""
         xy, mask = self._check(xy, mask)
-        pos = self._begin(xy, mask)
+        pos = self._begin(xy, mask, hold)
         self._rounds(pos, int(rounds))
         return wp.to_torch(self._todo).bool()
 
@@ -235,7 +243,7 @@ class Placer:
                 f"{self._density(self.max_movers)} (densest packing of collision {self._size_text()}, safety margin "
                 f"{self.mover.margin:g} m, sampling offset {self.offset:g} m over {self.valid_area:.3f} m^2 of valid "
                 f"centres): choose fewer movers, more tiles or smaller margins")
-        pos = self._begin(xy, mask)
+        pos = self._begin(xy, mask, False)
         done = 0
         while done < max_rounds:
             n = min(int(rounds_per_check), max_rounds - done)
@@ -261,3 +269,8 @@ class Placer:
         if mask is not None:
             raise ValueError("sample() places every mover; use place() to place some around others")
         return self.place(xy, **kwargs)
+
+    def reseed(self, seed: int) -> None:
+        """Restart the device random streams from ``seed`` (what ``reset(seed=...)`` of an env calls)."""
+        self._seed = int(seed) & 0x3FFFFFFF
+        self._calls = 0
