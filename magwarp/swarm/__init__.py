@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import importlib
 
-__all__ = ["Placer", "PlacementError", "LocalObservations", "SwarmEnv", "SwarmConfig", "FlatSwarmEnv"]
+__all__ = ["Placer", "PlacementError", "LocalObservations", "SwarmEnv", "SwarmConfig", "FlatSwarmEnv",
+           "SwarmTorchRLEnv", "SwarmParallelEnv"]
 
 _WHERE = {
     "Placer": "placement",
@@ -21,6 +22,8 @@ _WHERE = {
     "SwarmEnv": "env",
     "SwarmConfig": "env",
     "FlatSwarmEnv": "views",
+    "SwarmTorchRLEnv": "views",
+    "SwarmParallelEnv": "views",
 }
 
 
