@@ -251,11 +251,13 @@ class SwarmEnv(MagwarpVecEnv):
     def _get_obs(self) -> torch.Tensor:
         sim = self.sim
         self.local.compute(sim.state.pos, sim.state.vel)
-        pos = sim.pos[..., :2]
-        own = [sim.vel[..., :2], self.goals - pos]
+        obs = torch.empty(self.num_envs, self.num_movers, self.own_dim + self.local.dim, device=self.device)
+        obs[..., 0:2].copy_(sim.vel[..., :2])
+        torch.sub(self.goals, sim.pos[..., :2], out=obs[..., 2:4])
         if self.learn_jerk:
-            own.append(sim.acc)
-        return torch.cat([*own, self.local.features()], dim=-1)
+            obs[..., 4:6].copy_(sim.acc)
+        self.local.features(obs[..., self.own_dim:])
+        return obs
 
     def _evaluate(self, obs) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         cfg = self.config

@@ -22,6 +22,7 @@ import warp as wp
 from magwarp.kernels import neighbors as knb
 from magwarp.kernels.collision import bin_movers
 from magwarp.layout import Layout
+from magwarp.swarm.placement import torch_stream
 from magwarp.types import Grid
 
 __all__ = ["LocalObservations", "ray_directions"]
@@ -88,19 +89,27 @@ class LocalObservations:
     def compute(self, pos: wp.array, vel: wp.array) -> None:
         """Fill the observations from ``[W, M]`` vec3 positions and velocities (e.g. a simulator's state)."""
         dev, dim = self.device, (self.num_worlds, self.num_movers)
-        if self._knn is not None:
-            wp.launch(knb.clear_heads, dim=self._head.shape[0], inputs=[self._head], device=dev)
-            wp.launch(bin_movers, dim=dim, inputs=[self.grid, pos, self._head, self._next], device=dev)
-            wp.launch(self._knn, dim=dim, device=dev,
-                      inputs=[self.grid, self.radius, self.reach, pos, vel, self._head, self._next],
-                      outputs=[self._rel_pos, self._rel_vel, self._index])
-        if self.num_rays > 0:
-            wp.launch(knb.wall_distances, dim=(*dim, self.num_rays), device=dev,
-                      inputs=[self._tiles, float(self.layout.tile.size), self._dirs, self.max_range, pos],
-                      outputs=[self._walls])
+        with torch_stream(dev):
+            if self._knn is not None:
+                wp.launch(knb.clear_heads, dim=self._head.shape[0], inputs=[self._head], device=dev)
+                wp.launch(bin_movers, dim=dim, inputs=[self.grid, pos, self._head, self._next], device=dev)
+                wp.launch(self._knn, dim=dim, device=dev,
+                          inputs=[self.grid, self.radius, self.reach, pos, vel, self._head, self._next],
+                          outputs=[self._rel_pos, self._rel_vel, self._index])
+            if self.num_rays > 0:
+                wp.launch(knb.wall_distances, dim=(*dim, self.num_rays), device=dev,
+                          inputs=[self._tiles, float(self.layout.tile.size), self._dirs, self.max_range, pos],
+                          outputs=[self._walls])
 
-    def features(self) -> torch.Tensor:
-        """``[W, M, 5 k + num_rays]``: per neighbour slot (relative x, y, relative vx, vy, mask), then the rays."""
-        w, m = self.num_worlds, self.num_movers
-        slots = torch.cat([self.rel_pos, self.rel_vel, self.mask[..., None].to(self.rel_pos.dtype)], dim=-1)
-        return torch.cat([slots.reshape(w, m, 5 * self.k), self.walls], dim=-1)
+    def features(self, out: torch.Tensor | None = None) -> torch.Tensor:
+        """``[W, M, 5 k + num_rays]``: per neighbour slot (relative x, y, relative vx, vy, mask), then the rays.
+        Written into ``out`` (a ``[W, M, dim]`` tensor or view) when given: slice copies, no concatenation."""
+        w, m, k = self.num_worlds, self.num_movers, self.k
+        if out is None:
+            out = torch.empty(w, m, self.dim, device=self.rel_pos.device)
+        slots = out[..., : 5 * k].unflatten(-1, (k, 5))
+        slots[..., 0:2].copy_(self.rel_pos)
+        slots[..., 2:4].copy_(self.rel_vel)
+        slots[..., 4].copy_(self.mask)
+        out[..., 5 * k:].copy_(self.walls)
+        return out

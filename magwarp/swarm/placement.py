@@ -17,6 +17,7 @@ placement stalls before that bound (random sequential placement jams near 55% of
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
@@ -45,6 +46,15 @@ HEX_DENSITY = math.pi / (2.0 * math.sqrt(3.0))
 
 class PlacementError(LayoutError):
     """A placement request that cannot be met (too many movers for the valid area)."""
+
+
+def torch_stream(device):
+    """A context that makes Warp launch on torch's current stream of ``device`` (CUDA), so that kernels and torch
+    ops on the same tensors are ordered without a host synchronisation; a no-op on the CPU."""
+    device = wp.get_device(device)
+    if not device.is_cuda:
+        return contextlib.nullcontext()
+    return wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(torch.device("cuda", device.ordinal))))
 
 
 def _collision(layout: Layout, mover: MoverSpec) -> Collision:
@@ -226,8 +236,9 @@ class Placer:
         where they are until placed): nothing is placed onto them. Returns the ``[W, M]`` bool tensor of the movers
         still unplaced (their rows of ``xy`` are unchanged)."""
         xy, mask = self._check(xy, mask)
-        pos = self._begin(xy, mask, hold)
-        self._rounds(pos, int(rounds))
+        with torch_stream(self.device):
+            pos = self._begin(xy, mask, hold)
+            self._rounds(pos, int(rounds))
         return wp.to_torch(self._todo).bool()
 
     def place(self, xy: torch.Tensor, mask: torch.Tensor | None = None, *, rounds_per_check: int = 16,
@@ -243,18 +254,19 @@ class Placer:
                 f"{self._density(self.max_movers)} (densest packing of collision {self._size_text()}, safety margin "
                 f"{self.mover.margin:g} m, sampling offset {self.offset:g} m over {self.valid_area:.3f} m^2 of valid "
                 f"centres): choose fewer movers, more tiles or smaller margins")
-        pos = self._begin(xy, mask, False)
-        done = 0
-        while done < max_rounds:
-            n = min(int(rounds_per_check), max_rounds - done)
-            self._rounds(pos, n)
-            done += n
-            self._left.zero_()
-            wp.launch(kpl.count_todo, dim=(self.num_worlds, self.num_movers), inputs=[self._todo, self._left],
-                      device=self.device)
-            left = self._left.numpy()
-            if not left.any():
-                return xy
+        with torch_stream(self.device):
+            pos = self._begin(xy, mask, False)
+            done = 0
+            while done < max_rounds:
+                n = min(int(rounds_per_check), max_rounds - done)
+                self._rounds(pos, n)
+                done += n
+                self._left.zero_()
+                wp.launch(kpl.count_todo, dim=(self.num_worlds, self.num_movers), inputs=[self._todo, self._left],
+                          device=self.device)
+                left = self._left.numpy()
+                if not left.any():
+                    return xy
         w = int(np.argmax(left))
         placed = self.num_movers - int(left[w])
         raise PlacementError(
