@@ -163,3 +163,9 @@ def test_bad_options_and_infeasible_density():
     env = SwarmEnv(1, num_movers=3, layout=np.ones((3, 3)), device="cpu")
     with pytest.raises(ValueError, match=r"action must have shape \(1, 3, 2\)"):
         env.step(torch.zeros(1, 6))
+
+
+def test_render_draws_the_worlds():
+    env = SwarmEnv(2, num_movers=4, layout=np.ones((3, 3)), k=1, num_rays=0, device="cpu", render_mode="rgb_array")
+    img = env.render()
+    assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8 and img.std() > 0

@@ -65,6 +65,16 @@ def cell_index(g: PlaceGrid, w: int, c: wp.vec2i) -> int:
     return (w * g.ncy + c[1]) * g.ncx + c[0]
 
 
+@wp.func
+def neighbor_cell(g: PlaceGrid, w: int, c: wp.vec2i, dx: int, dy: int) -> int:
+    """Index of the cell ``(dx, dy)`` away from cell ``c`` of world ``w``, or -1 outside the grid."""
+    cx = c[0] + dx
+    cy = c[1] + dy
+    if cx < 0 or cx >= g.ncx or cy < 0 or cy >= g.ncy:
+        return -1
+    return (w * g.ncy + cy) * g.ncx + cx
+
+
 @wp.kernel
 def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32), claim: wp.array(dtype=wp.int32)):
     """Empty every cell list and claim."""
@@ -104,14 +114,11 @@ def clear_of_placed(g: PlaceGrid, w: int, p: wp.vec2, skip: int, pos: wp.array2d
     """No mover of the lists (other than ``skip``) conflicts with a mover at ``p``."""
     c = place_cell(g, p)
     for dy in range(-g.reach, g.reach + 1):
-        cy = c[1] + dy
-        if cy < 0 or cy >= g.ncy:
-            continue
         for dx in range(-g.reach, g.reach + 1):
-            cx = c[0] + dx
-            if cx < 0 or cx >= g.ncx:
+            cell = neighbor_cell(g, w, c, dx, dy)
+            if cell < 0:
                 continue
-            j = head[(w * g.ncy + cy) * g.ncx + cx]
+            j = head[cell]
             while j >= 0:
                 if j != skip and conflict(g, p - pos[w, j]):
                     return False
@@ -194,14 +201,11 @@ def resolve(
     if claim[own] != m:
         return
     for dy in range(-g.reach, g.reach + 1):
-        cy = c[1] + dy
-        if cy < 0 or cy >= g.ncy:
-            continue
         for dx in range(-g.reach, g.reach + 1):
-            cx = c[0] + dx
-            if cx < 0 or cx >= g.ncx:
+            cell = neighbor_cell(g, w, c, dx, dy)
+            if cell < 0:
                 continue
-            j = claim[(w * g.ncy + cy) * g.ncx + cx]
+            j = claim[cell]
             if j < m and conflict(g, p - cand[w, j]):
                 return
     pos[w, m] = p

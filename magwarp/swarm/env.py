@@ -44,6 +44,7 @@ import torch
 import warp as wp
 
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.trajectory import TrajectoryPlanningEnv
 from magwarp.kernels.swarm import stop_collided
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.sim import Simulator, default_device
@@ -312,12 +313,5 @@ class SwarmEnv(MagwarpVecEnv):
         self.stopped.masked_fill_(placed, 0)
         self.respawn_pending.copy_(left & want)
 
-    def _render_frame(self) -> torch.Tensor:
-        if getattr(self, "_renderer", None) is None:
-            from magwarp.render import TopDownRenderer
-
-            worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 4)
-            self._renderer = TopDownRenderer(self.layout, self.sim.mover, worlds=worlds, device=self.sim.device)
-        sim = self.sim
-        return self._renderer.draw(sim.pos, sim.quat, flags=sim.flags_any, radii=sim.radii, half_sizes=sim.half_sizes,
-                                   goals=self.goals)
+    # top-down frames of the first worlds, movers, collisions and goals: the trajectory env's drawing serves as is
+    _render_frame = TrajectoryPlanningEnv._render_frame
