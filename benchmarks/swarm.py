@@ -1,6 +1,9 @@
 """Large swarms (issue #18): agent-steps/s and memory of the swarm env, beside the bare simulator step of the same
 movers, at 100 to 100k movers in one world and at many worlds of 100 movers.
 
+The scripted ORCA planner (:class:`magwarp.swarm.planner.SwarmPlanner`) also runs 10 s in one world of 256, 1024
+(64 x 64 tiles at 25%: the issue's target setting) and 4096 movers: goals, collisions per 1000 goals, deadlocks.
+
 One env step = 40 control cycles (acceleration commands held), per-mover collision stops, local observations (8
 nearest movers within 1 m, 8 wall rays), per-mover rewards, goal streams and respawns. One agent-step = one mover
 through one env step. Layouts are full square grids with about 0.25 movers per tile (the issue's planner regime);
@@ -33,6 +36,9 @@ import warp as wp  # noqa: E402
 from common import header_line, machine_info, print_table, provenance, write_json  # noqa: E402
 
 ONE_WORLD = (100, 1_000, 10_000, 100_000)
+PLANNER = (256, 1024, 4096)  # movers of one world for the scripted planner's quality (1024: 64 x 64 tiles at 25%)
+SMALL_PLANNER = (64,)
+PLANNER_STEPS = 250  # 10 s of simulated time
 MANY_WORLDS = (64, 1024, 8192)  # worlds of 100 movers
 SMALL_ONE_WORLD = (100, 1_000)
 SMALL_MANY_WORLDS = (4, 16)
@@ -138,6 +144,23 @@ def bench_env(movers: int, worlds: int, device: str, steps: int) -> dict:
     return row
 
 
+def bench_planner(movers: int, device: str, steps: int) -> dict:
+    """The scripted ORCA planner in one world: goals, collisions per 1000 goals, deadlocks, and its step time."""
+    from magwarp.swarm import SwarmEnv
+    from magwarp.swarm.metrics import run_policy
+    from magwarp.swarm.planner import SwarmPlanner
+
+    env = SwarmEnv(1, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
+    planner = SwarmPlanner(env)
+    _sync(device)
+    t = time.perf_counter()
+    res = run_policy(env, lambda obs: planner(), steps)
+    _sync(device)
+    res["planner_step_ms"] = (time.perf_counter() - t) / steps * 1e3
+    return {"device": device, "movers": movers, "tiles": int(_layout(movers).num_tiles),
+            **{f"planner_{k}" if not k.startswith("planner") else k: v for k, v in res.items()}}
+
+
 def run(args) -> list[dict]:
     devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
     rows = []
@@ -159,6 +182,11 @@ def run(args) -> list[dict]:
             row["env_mb_per_1k_agents"] = row["env_mb"] / (movers * worlds / 1000)
             rows.append(row)
             print(f"  {device} {worlds} x {movers}: env {row['env_ms']:.3f} ms, sim {row['sim_ms']:.3f} ms", flush=True)
+        if not args.no_planner:
+            for movers in SMALL_PLANNER if small else PLANNER:
+                rows.append(bench_planner(movers, device, args.planner_steps or (PLANNER_STEPS if not small else 100)))
+                print(f"  {device} planner {movers}: {rows[-1]['planner_goals']} goals, "
+                      f"{rows[-1]['planner_collisions']} collisions", flush=True)
     return rows
 
 
@@ -168,6 +196,8 @@ def main(argv=None) -> None:
     p.add_argument("--small", action="store_true", help="small sizes on every device (a smoke check)")
     p.add_argument("--full", action="store_true", help="full sizes on the CPU too (slow)")
     p.add_argument("--steps", type=int, help="timed steps per batch (default: by size)")
+    p.add_argument("--no-planner", action="store_true", help="skip the scripted planner's quality rows")
+    p.add_argument("--planner-steps", type=int, help=f"steps of the planner runs (default {PLANNER_STEPS})")
     p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json)")
     args = p.parse_args(argv)
     wp.config.quiet = True
@@ -181,7 +211,13 @@ def main(argv=None) -> None:
     cols = ["device", "worlds", "movers", "agents", ("env_ms", "env ms"), ("sim_ms", "sim ms"),
             ("env_over_sim", "env/sim"), ("agent_steps_per_s", "agent-steps/s"), ("env_mb", "env MB"),
             ("sim_mb", "sim MB"), ("goals_per_step", "goals/step"), ("collided_per_step", "collided/step")]
-    print_table(rows, cols)
+    print_table([r for r in rows if "env_ms" in r], cols)
+    plan = [r for r in rows if "planner_goals" in r]
+    if plan:
+        print_table(plan, ["device", "movers", "tiles", ("planner_steps", "steps"), ("planner_goals", "goals"),
+                           ("planner_throughput_per_mover", "goals/s/mover"), ("planner_collisions", "collisions"),
+                           ("planner_collisions_per_1000_goals", "coll/1000 goals"),
+                           ("planner_deadlocked", "deadlocked"), ("planner_step_ms", "step ms")])
     default = "gpu" if any(r["device"].startswith("cuda") for r in rows) else "cpu"
     path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", f"swarm_{default}.json")
     print("wrote", write_json(path, rows))

@@ -5,7 +5,10 @@
 * :class:`LocalObservations` (:mod:`magwarp.swarm.observations`): each mover's k nearest neighbours within a radius
   and its distances to the walls in a few directions, O(k) per mover;
 * :class:`SwarmEnv` (:mod:`magwarp.swarm.env`): per-mover goals, rewards and collisions on any layout, and its
-  multi-agent views (:mod:`magwarp.swarm.views`).
+  multi-agent views (:mod:`magwarp.swarm.views`);
+* :class:`SwarmPlanner` (:mod:`magwarp.swarm.planner`): a scripted ORCA planner on the local view, O(k) per mover;
+* :class:`SwarmMetrics` / :func:`run_policy` (:mod:`magwarp.swarm.metrics`): throughput, collisions per 1000 goals,
+  deadlocked movers, makespan.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from __future__ import annotations
 import importlib
 
 __all__ = ["Placer", "PlacementError", "LocalObservations", "SwarmEnv", "SwarmConfig", "FlatSwarmEnv",
-           "SwarmTorchRLEnv", "SwarmParallelEnv"]
+           "SwarmTorchRLEnv", "SwarmParallelEnv", "SwarmPlanner", "SwarmMetrics", "run_policy"]
 
 _WHERE = {
     "Placer": "placement",
@@ -24,6 +27,9 @@ _WHERE = {
     "FlatSwarmEnv": "views",
     "SwarmTorchRLEnv": "views",
     "SwarmParallelEnv": "views",
+    "SwarmPlanner": "planner",
+    "SwarmMetrics": "metrics",
+    "run_policy": "metrics",
 }
 
 
