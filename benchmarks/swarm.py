@@ -138,7 +138,8 @@ def bench_env(movers: int, worlds: int, device: str, steps: int) -> dict:
     mem = _used_mb(device) - before
     info = totals["last"]
     row = {"env_ms": ms, "env_std_ms": std, "env_mb": mem, "build_s": build_s,
-           "goals_per_step": float(info["goal_reached"].sum()), "collided_per_step": float(info["agent_terminated"].sum()),
+           "goals_per_step": float(info["goal_reached"].sum()),
+           "collided_per_step": float(info["agent_terminated"].sum()),
            "obs_dim": int(env.single_observation_space.shape[-1])}
     del env
     return row

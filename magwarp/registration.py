@@ -63,6 +63,7 @@ def env_ids() -> dict[str, tuple[str, dict]]:
             ids[f"magwarp/{task}{name}-v0"] = (f"{task}Env", {"benchmark": name})
     ids["magwarp/PushWithObstacles-v0"] = ("PushWithObstaclesEnv", {})
     ids["magwarp/Swarm-v0"] = ("SwarmEnv", {})
+    ids["magwarp/SwarmMaterialFlow-v0"] = ("SwarmEnv", {"stations": "auto"})
     return ids
 
 

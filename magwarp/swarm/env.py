@@ -22,6 +22,9 @@ Per env step (``num_cycles`` control cycles at 1 ms, each mover's x/y command he
     (``info["respawn_pending"]``; no reward meanwhile);
   - ``"end"``: MagBotSim's rule: the world stops at the cycle of its first collision and its episode terminates;
 
+* material flow (``stations``): goals are pick-up and drop-off stations in turn; each delivery completes a job
+  (``info["job_done"]``, ``info["jobs"]``; the observation gains a carrying flag). Many movers may head for one
+  station: queues form as on a real line;
 * truncation: after ``max_episode_steps`` steps (default None: worlds run on; goals stream, collided movers respawn).
 
 Starts and goals are drawn by :class:`~magwarp.swarm.Placer` on the device (O(movers)). ``reset()`` checks that
@@ -63,7 +66,9 @@ class SwarmConfig:
     ``"circle"``/``"box"``, ``collision_size`` (radius or half sizes), ``safety_margin`` (grows every shape in the
     per-cycle check), ``collision_offset`` (extra room kept when placing starts and goals),
     ``collision_offset_wall`` (wall margin). ``k``, ``obs_radius``, ``num_rays``, ``ray_range``: the local view.
-    ``respawn_rounds`` / ``goal_rounds`` / ``reset_rounds``: placement rounds run inside a step (no host sync)."""
+    ``respawn_rounds`` / ``goal_rounds`` / ``reset_rounds``: placement rounds run inside a step (no host sync).
+    ``stations``: the material-flow variant: ``"auto"`` (``num_stations`` pick-ups and drop-offs placed on the
+    layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams)."""
 
     num_movers: int = 64
     layout: Any = None
@@ -92,10 +97,13 @@ class SwarmConfig:
     respawn_rounds: int = 2
     goal_rounds: int = 2
     reset_rounds: int = 32
+    stations: Any = None
+    num_stations: int = 4
 
     def __post_init__(self):
-        if isinstance(self.num_movers, bool) or not isinstance(self.num_movers, (int, np.integer)) or self.num_movers < 1:
-            raise ValueError(f"num_movers must be an integer >= 1, got {self.num_movers!r}")
+        m = self.num_movers
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
+            raise ValueError(f"num_movers must be an integer >= 1, got {m!r}")
         if self.collision_shape not in ("circle", "box"):
             raise ValueError(f"collision_shape must be 'circle' or 'box', got {self.collision_shape!r}")
         if self.on_collision not in COLLISION_MODES:
@@ -104,7 +112,11 @@ class SwarmConfig:
             raise ValueError(f"occupancy must be a positive number (movers per tile), got {self.occupancy!r}")
         if not (np.isfinite(self.threshold_pos) and self.threshold_pos > 0):
             raise ValueError(f"threshold_pos must be positive, got {self.threshold_pos!r}")
-        for name in ("num_cycles", "respawn_rounds", "goal_rounds", "reset_rounds"):
+        if self.stations is not None and self.stations != "auto" and not (
+                isinstance(self.stations, dict) and set(self.stations) == {"pickup", "dropoff"}):
+            raise ValueError(f"stations must be None, 'auto' or a dict with 'pickup' and 'dropoff' positions, got "
+                             f"{self.stations!r}")
+        for name in ("num_cycles", "respawn_rounds", "goal_rounds", "reset_rounds", "num_stations"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -181,7 +193,20 @@ class SwarmEnv(MagwarpVecEnv):
         self.respawn_pending = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self.goal_pending = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self._xy = torch.zeros(n, m, 2, device=dev)  # contiguous scratch positions for the placer
-        self.own_dim = 6 if self.learn_jerk else 4
+        self.stations = None
+        if cfg.stations is not None:
+            from magwarp.swarm.stations import Stations
+
+            if cfg.stations == "auto":
+                self.stations = Stations.auto(self.layout, mover, cfg.num_stations, offset=cfg.collision_offset,
+                                              device=wdev, seed=0 if seed is None else int(seed))
+            else:
+                self.stations = Stations(cfg.stations["pickup"], cfg.stations["dropoff"], self.layout, mover,
+                                         offset=cfg.collision_offset, device=wdev)
+        self.carrying = torch.zeros(n, m, dtype=torch.bool, device=dev)
+        self.jobs = torch.zeros(n, m, dtype=torch.int64, device=dev)
+        # own state: velocity, goal relative to the mover, (acceleration), (carrying a job)
+        self.own_dim = (6 if self.learn_jerk else 4) + (1 if self.stations is not None else 0)
         limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
         self._set_spaces(gym.spaces.Box(-np.inf, np.inf, (m, self.own_dim + self.local.dim), np.float32),
                          gym.spaces.Box(-limit, limit, (m, 2), np.float32))
@@ -237,7 +262,14 @@ class SwarmEnv(MagwarpVecEnv):
         left = self._place(self._xy, movers, self.config.reset_rounds)
         start[..., :2] = self._xy
         self.sim.reset(mask)
-        goal_left = self._place(self.goals, movers, self.config.reset_rounds)
+        if self.stations is not None:
+            self.carrying.masked_fill_(movers, False)
+            self.jobs.masked_fill_(movers, 0)
+            self.goals.copy_(torch.where(movers[..., None], self.stations.sample(self.carrying, self._generator),
+                                         self.goals))
+            goal_left = torch.zeros_like(movers)
+        else:
+            goal_left = self._place(self.goals, movers, self.config.reset_rounds)
         self.stopped.copy_(torch.where(movers, left.to(torch.int32), self.stopped))
         self.respawn_pending.copy_(torch.where(movers, left, self.respawn_pending))
         self.goal_pending.copy_(torch.where(movers, goal_left, self.goal_pending))
@@ -257,6 +289,8 @@ class SwarmEnv(MagwarpVecEnv):
         torch.sub(self.goals, sim.pos[..., :2], out=obs[..., 2:4])
         if self.learn_jerk:
             obs[..., 4:6].copy_(sim.acc)
+        if self.stations is not None:
+            obs[..., self.own_dim - 1].copy_(self.carrying)
         self.local.features(obs[..., self.own_dim:])
         return obs
 
@@ -284,6 +318,8 @@ class SwarmEnv(MagwarpVecEnv):
         info = {"agent_reward": agent_reward, "mover_collision": mover_col, "wall_collision": wall_col,
                 "agent_terminated": collided if cfg.on_collision == "respawn" else collided | terminated[:, None],
                 "goal_reached": reached}
+        if self.stations is not None:
+            info["job_done"] = reached & self.carrying
         return reward, terminated, truncated, info
 
     def _end_step(self, obs, info) -> None:
@@ -291,9 +327,17 @@ class SwarmEnv(MagwarpVecEnv):
         self.num_steps += 1
         reached = info["goal_reached"]
         self.collected_goals += reached
-        # goal streams: new goals clear of the other goals
-        want_goal = reached | self.goal_pending
-        self.goal_pending.copy_(self._place(self.goals, want_goal, cfg.goal_rounds, hold=True))
+        if self.stations is not None:
+            # material flow: a pick-up loads a job (next: a drop-off), a drop-off delivers it (next: a pick-up)
+            self.jobs += info["job_done"]
+            self.carrying.copy_(self.carrying ^ reached)
+            self.goals.copy_(torch.where(reached[..., None], self.stations.sample(self.carrying, self._generator),
+                                         self.goals))
+            info["jobs"] = self.jobs.clone()
+        else:
+            # goal streams: new goals clear of the other goals
+            want_goal = reached | self.goal_pending
+            self.goal_pending.copy_(self._place(self.goals, want_goal, cfg.goal_rounds, hold=True))
         if cfg.on_collision == "respawn":
             self._respawn(info["agent_terminated"] | self.respawn_pending)
         info["collected_goals"] = self.collected_goals.clone()

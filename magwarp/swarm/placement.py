@@ -161,8 +161,9 @@ class Placer:
         pts = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2).astype(np.float32)
         ok = wp.zeros(len(pts), dtype=wp.int32, device=self.device)
         wp.launch(footprints_on_tiles, dim=len(pts), device=self.device,
-                  inputs=[self._tiles, self.col, self.foot_radius - self.offset, wp.vec2(*(self.foot_half - self.offset)),
-                          self.offset, wp.array(pts, dtype=wp.vec2, device=self.device)], outputs=[ok])
+                  inputs=[self._tiles, self.col, self.foot_radius - self.offset,
+                          wp.vec2(*(self.foot_half - self.offset)), self.offset,
+                          wp.array(pts, dtype=wp.vec2, device=self.device)], outputs=[ok])
         valid = np.pad(ok.numpy().reshape(len(xs), len(ys)).astype(bool), pad)
         if self.circle:
             grown = ndimage.distance_transform_edt(~valid) * step <= half[0]
@@ -170,6 +171,20 @@ class Placer:
             size = tuple(2 * int(np.floor(h / step)) + 1 for h in half)
             grown = ndimage.maximum_filter(valid, size=size, mode="constant")
         return float(valid.sum()) * step * step, float(grown.sum()) * step * step
+
+    def on_tiles(self, xy) -> torch.Tensor:
+        """Bool ``(...)``: the footprint at the points ``(..., 2)`` (yaw 0, grown by the sampling offset) lies on
+        the tiles by the simulator's wall rule."""
+        pts = torch.as_tensor(xy, dtype=torch.float32, device=self.torch_device)
+        flat = pts.reshape(-1, 2).contiguous()
+        ok = torch.zeros(flat.shape[0], dtype=torch.int32, device=self.torch_device)
+        if flat.shape[0]:
+            with torch_stream(self.device):
+                wp.launch(footprints_on_tiles, dim=flat.shape[0], device=self.device,
+                          inputs=[self._tiles, self.col, self.foot_radius - self.offset,
+                                  wp.vec2(*(self.foot_half - self.offset)), self.offset,
+                                  wp.from_torch(flat, dtype=wp.vec2)], outputs=[wp.from_torch(ok)])
+        return ok.reshape(pts.shape[:-1]).bool()
 
     @property
     def exclusion_area(self) -> float:
@@ -203,7 +218,8 @@ class Placer:
         if mask is None:
             mask = torch.ones(shape, dtype=torch.bool, device=self.torch_device)
         if tuple(mask.shape) != shape or mask.device != self.torch_device:
-            raise ValueError(f"mask must have shape {shape} on {self.torch_device}, got {tuple(mask.shape)} on {mask.device}")
+            raise ValueError(f"mask must have shape {shape} on {self.torch_device}, got {tuple(mask.shape)} on "
+                             f"{mask.device}")
         return xy, mask
 
     def _begin(self, xy: torch.Tensor, mask: torch.Tensor, hold: bool) -> wp.array:
