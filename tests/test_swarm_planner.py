@@ -70,3 +70,36 @@ def test_swarm_planner_beats_straight_seeking():
         results[name] = (collisions, goals)
     (c_seek, g_seek), (c_plan, g_plan) = results["seek"], results["planner"]
     assert c_plan * 5 < c_seek and g_plan > 2 * g_seek, results
+
+
+def test_solve_lines_finds_the_closest_feasible_velocity(rng):
+    """ORCA's incremental LP against a brute-force search over a fine grid of velocities in the speed disc."""
+    from magwarp.swarm.planner import solve_lines
+
+    g = np.linspace(-1.0, 1.0, 401)
+    grid = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    grid = grid[np.linalg.norm(grid, axis=-1) <= 1.0]
+    checked = 0
+    for _ in range(40):
+        k = int(rng.integers(1, 6))
+        ang = rng.uniform(0, 2 * np.pi, k)
+        direction = np.stack([np.cos(ang), np.sin(ang)], -1)
+        point = rng.uniform(-0.8, 0.8, (k, 2))
+        live = rng.random(k) < 0.8
+        v_pref = rng.uniform(-1.2, 1.2, 2)
+        lines = [(torch.tensor(point[i]), torch.tensor(direction[i]), torch.tensor(bool(live[i]))) for i in range(k)]
+        v, ok = solve_lines(lines, torch.tensor(v_pref), 1.0)
+        det = direction[:, 0, None] * (point[:, 1, None] - grid[None, :, 1]) - \
+            direction[:, 1, None] * (point[:, 0, None] - grid[None, :, 0])
+        feasible = grid[((det <= 0) | ~live[:, None]).all(axis=0)]
+        if len(feasible) == 0:
+            continue  # (the LP may still find a sliver the grid misses; nothing to compare)
+        checked += 1
+        assert bool(ok), f"{rng}: a feasible set was reported empty"
+        v = v.numpy()
+        best = np.linalg.norm(feasible - v_pref, axis=-1).min()
+        assert np.linalg.norm(v - v_pref) <= best + 1e-9, f"{rng}: not the closest feasible velocity"
+        assert np.linalg.norm(v) <= 1.0 + 1e-9
+        vdet = direction[:, 0] * (point[:, 1] - v[1]) - direction[:, 1] * (point[:, 0] - v[0])
+        assert (vdet[live] <= 1e-9).all(), f"{rng}: the velocity violates a line"
+    assert checked >= 10

@@ -8,12 +8,14 @@ radius, the wall rays), so a step costs O(k) per mover, on the device, for any s
    (``sqrt(2 a_brake d)``);
 2. *reciprocal avoidance*: every neighbour gives one half-plane of allowed velocities, the ORCA line of van den
    Berg et al. (2011) for a time horizon ``horizon`` and the safe distance (both collision shapes' reach, the safety
-   margin and a ``buffer`` for the 25 Hz control). The mover of lower index takes ``1 - yield_share`` of the
+   margin and a ``buffer`` for the 25 Hz control; movers already closer than that separate within ``separate``
+   seconds, gently, since the buffer is not a collision). The mover of lower index takes ``1 - yield_share`` of the
    avoidance and the other ``yield_share`` (fixed priorities break symmetric deadlocks);
 3. *walls*: every wall ray gives a half-plane too: no faster towards the wall than stopping before it allows;
-4. the preferred velocity is projected onto the half-planes in turn (``passes`` sweeps over the ``k`` slots and the
-   rays: an approximation of ORCA's linear program that costs O(k) tensor operations, whatever the swarm size),
-   clipped to ``cruise``, and the command is the acceleration that reaches it within one env step.
+4. the new velocity is the one closest to the preferred one, within ``cruise``, that satisfies every half-plane
+   (ORCA's incremental 2-D linear program, :func:`solve_lines`: O((k + rays)^2) tensor operations, whatever the
+   swarm size); where the half-planes leave no room (a crowd) the mover brakes to ``brake_factor`` of its velocity.
+   The command is the acceleration that reaches the new velocity within one env step.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import torch
 from magwarp.swarm.env import SwarmEnv
 from magwarp.swarm.observations import ray_directions
 
-__all__ = ["SwarmPlanner", "orca_lines"]
+__all__ = ["SwarmPlanner", "orca_lines", "solve_lines"]
 
 
 def _det(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -68,11 +70,40 @@ def orca_lines(rel_pos: torch.Tensor, rel_vel: torch.Tensor, radius: float, hori
     return direction, u
 
 
-def _project(v: torch.Tensor, point: torch.Tensor, direction: torch.Tensor, live: torch.Tensor) -> torch.Tensor:
-    """Move ``v`` onto the line where it violates its half-plane (and the line is live)."""
-    bad = live & (_det(direction, point - v) > 0)
-    on_line = point + ((v - point) * direction).sum(-1, keepdim=True) * direction
-    return torch.where(bad[..., None], on_line, v)
+def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The velocity closest to ``v_pref`` within speed ``max_speed`` that satisfies every half-plane of ``lines``
+    (``(point, direction, live)`` triples, each ``[..., 2]``, ``[..., 2]``, ``[...]``): ORCA's incremental 2-D linear
+    program (constraints added one by one; when the new one is violated, the best point on its line that keeps the
+    earlier ones). Where the lines have no common point, the last feasible velocity is kept and ``ok`` is false.
+    O(len(lines)^2) tensor operations, each over every mover at once."""
+    n = v_pref.norm(dim=-1, keepdim=True)
+    v = torch.where(n > max_speed, v_pref * (max_speed / n.clamp_min(1e-9)), v_pref)
+    ok = torch.ones(v.shape[:-1], dtype=torch.bool, device=v.device)
+    for i, (p_i, d_i, live_i) in enumerate(lines):
+        violated = live_i & (_det(d_i, p_i - v) > 0)
+        # the part of line i inside the speed circle ...
+        dot = (p_i * d_i).sum(-1)
+        disc = dot * dot + max_speed * max_speed - (p_i * p_i).sum(-1)
+        feasible = disc >= 0
+        root = disc.clamp_min(0.0).sqrt()
+        t_lo, t_hi = -dot - root, -dot + root
+        # ... and inside the earlier half-planes
+        for p_j, d_j, live_j in lines[:i]:
+            den = _det(d_i, d_j)
+            num = _det(d_j, p_i - p_j)
+            parallel = den.abs() <= 1e-6
+            feasible = feasible & ~(live_j & parallel & (num < 0))
+            t = num / torch.where(parallel, torch.ones_like(den), den)
+            cut = live_j & ~parallel
+            t_hi = torch.where(cut & (den >= 0), torch.minimum(t_hi, t), t_hi)
+            t_lo = torch.where(cut & (den < 0), torch.maximum(t_lo, t), t_lo)
+        feasible = feasible & (t_lo <= t_hi)
+        t = ((v_pref - p_i) * d_i).sum(-1)
+        best = p_i + torch.minimum(torch.maximum(t, t_lo), t_hi)[..., None] * d_i
+        take = violated & feasible
+        v = torch.where(take[..., None], best, v)
+        ok = ok & ~(violated & ~feasible)
+    return v, ok
 
 
 class SwarmPlanner:
@@ -80,7 +111,8 @@ class SwarmPlanner:
     (acceleration control). See the module docstring for the rule and its parameters."""
 
     def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 1.0,
-                 buffer: float = 0.06, yield_share: float = 0.5, passes: int = 2):
+                 buffer: float = 0.06, yield_share: float = 0.5, brake_factor: float = 0.5,
+                 separate: float = 0.3):
         if env.learn_jerk:
             raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
@@ -88,18 +120,19 @@ class SwarmPlanner:
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         if not 0.0 <= yield_share <= 1.0:
             raise ValueError(f"yield_share must be in [0, 1], got {yield_share!r}")
-        if int(passes) < 1:
-            raise ValueError(f"passes must be >= 1, got {passes!r}")
+        if not 0.0 <= brake_factor <= 1.0:
+            raise ValueError(f"brake_factor must be in [0, 1], got {brake_factor!r}")
         self.env = env
         self.cruise, self.a_brake, self.horizon = float(cruise), float(a_brake), float(horizon)
-        self.yield_share, self.passes = float(yield_share), int(passes)
+        self.yield_share, self.brake_factor = float(yield_share), float(brake_factor)
         sim = env.sim
         col = sim.model.collision
         reach = float(sim._radii_np.max()) if col.shape == 0 else float(math.hypot(*sim._half_np.max(axis=0)))
         self.safe = 2.0 * (reach + float(col.margin)) + float(buffer)
-        self.wall_reach = reach + float(col.wall_margin) + 0.5 * float(buffer)
+        self.wall_reach = reach + float(col.wall_margin)  # goals may lie this close to a wall: no buffer
         self.a_max = float(env.config.a_max)
         self.step_time = env.num_cycles * float(sim.model.limits.dt)
+        self.separate = max(float(separate), self.step_time)
         dev = env.device
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
@@ -116,7 +149,7 @@ class SwarmPlanner:
         # 2. ORCA lines of the neighbours (relative velocity v_i - v_j = -rel_vel)
         lines = []
         if local.k > 0:
-            direction, u = orca_lines(local.rel_pos, -local.rel_vel, self.safe, self.horizon, self.step_time)
+            direction, u = orca_lines(local.rel_pos, -local.rel_vel, self.safe, self.horizon, self.separate)
             share = torch.where(local.index < self.index, self.yield_share, 1.0 - self.yield_share)
             point = vel[..., None, :] + share[..., None] * u
             lines = [(point[..., s, :], direction[..., s, :], local.mask[..., s]) for s in range(local.k)]
@@ -128,11 +161,9 @@ class SwarmPlanner:
                 ray = self.rays[r]
                 normal_dir = torch.stack([-ray[1], ray[0]]).expand_as(v)  # det(dir, point - v) <= 0 <=> v.ray <= lim
                 lines.append((limit[..., r, None] * ray, normal_dir, torch.ones_like(room[..., r], dtype=torch.bool)))
-        for _ in range(self.passes):
-            for point, direction, live in lines:
-                v = _project(v, point, direction, live)
-        n = v.norm(dim=-1, keepdim=True)
-        v = torch.where(n > self.cruise, v * (self.cruise / n.clamp_min(1e-9)), v)
+        v, ok = solve_lines(lines, v, self.cruise)
+        # no velocity satisfies every line (a crowd): brake, which keeps the reciprocal promise best
+        v = torch.where(ok[..., None], v, vel * self.brake_factor)
         # 4. the acceleration that reaches v within one env step, within the limit
         acc = (v - vel) / self.step_time
         n = acc.norm(dim=-1, keepdim=True)
