@@ -1,0 +1,228 @@
+"""Large swarms (issue #18): agent-steps/s and memory of the swarm env, beside the bare simulator step of the same
+movers, at 100 to 100k movers in one world and at many worlds of 100 movers.
+
+The scripted ORCA planner (:class:`magwarp.swarm.planner.SwarmPlanner`) also runs 10 s in one world of 256, 1024
+(64 x 64 tiles at 25%: the issue's target setting) and 4096 movers: goals, collisions per 1000 goals, deadlocks.
+
+One env step = 40 control cycles (acceleration commands held), per-mover collision stops, local observations (8
+nearest movers within 1 m, 8 wall rays), per-mover rewards, goal streams and respawns. One agent-step = one mover
+through one env step. Layouts are full square grids with about 0.25 movers per tile (the issue's planner regime);
+actions steer every mover towards its goal (a saturated proportional rule, so movers travel, reach goals and
+collide as in a run), computed on the device.
+
+    python benchmarks/swarm.py                       # CPU (+ cuda:0 when present), full sizes
+    python benchmarks/swarm.py --small               # CPU-friendly sizes (smoke check)
+    python benchmarks/swarm.py --device cuda:0 --json benchmarks/results/swarm_gpu.json
+
+Memory: the device memory the env (or simulator) holds after construction and a few steps (CUDA: the change of
+free device memory, which counts Warp's and torch's allocations; CPU: the change of resident set size).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import math
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import warp as wp  # noqa: E402
+
+from common import header_line, machine_info, print_table, provenance, write_json  # noqa: E402
+
+ONE_WORLD = (100, 1_000, 10_000, 100_000)
+PLANNER = (256, 1024, 4096)  # movers of one world for the scripted planner's quality (1024: 64 x 64 tiles at 25%)
+SMALL_PLANNER = (64,)
+PLANNER_STEPS = 250  # 10 s of simulated time
+MANY_WORLDS = (64, 1024, 8192)  # worlds of 100 movers
+SMALL_ONE_WORLD = (100, 1_000)
+SMALL_MANY_WORLDS = (4, 16)
+OCCUPANCY = 0.25
+CYCLES = 40
+
+
+def _sync(device: str) -> None:
+    wp.synchronize_device(device)
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm", encoding="utf-8") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def _used_mb(device: str) -> float:
+    gc.collect()
+    if device.startswith("cuda"):
+        torch.cuda.synchronize(torch.device(device))
+        torch.cuda.empty_cache()  # cached blocks of earlier rows would hide this row's allocations
+        free, total = torch.cuda.mem_get_info(torch.device(device))
+        return (total - free) / 2**20
+    return _rss_mb()
+
+
+def _layout(movers: int):
+    from magwarp.layout import Layout
+
+    side = int(math.ceil(math.sqrt(movers / OCCUPANCY)))
+    return Layout.grid(side, side)
+
+
+def _time(step, device: str, steps: int) -> tuple[float, float]:
+    """Median and spread (ms) of one step over 5 batches of ``steps`` steps, after 3 warm-up steps."""
+    for _ in range(3):
+        step()
+    _sync(device)
+    samples = []
+    for _ in range(5):
+        t = time.perf_counter()
+        for _ in range(steps):
+            step()
+        _sync(device)
+        samples.append((time.perf_counter() - t) / steps * 1e3)
+    arr = np.asarray(samples)
+    return float(np.median(arr)), float(arr.std())
+
+
+def seek_goals(env, gain: float = 4.0) -> torch.Tensor:
+    """Accelerations towards the goals with velocity damping, saturated at the mover's limit: a fair load."""
+    sim = env.sim
+    err = env.goals - sim.pos[..., :2]
+    return gain * (gain * err - 2.0 * sim.vel[..., :2])
+
+
+def bench_sim(movers: int, worlds: int, device: str, steps: int) -> dict:
+    from magwarp.sim import Simulator
+    from magwarp.swarm.placement import Placer
+
+    gc.collect()
+    before = _used_mb(device)
+    lay = _layout(movers)
+    starts = Placer(lay, movers, worlds, device=device).sample()
+    sim = Simulator(lay, movers, worlds, start_xy=starts.cpu().numpy(), device=device, check_inputs=False,
+                    stop_on_collision=False)
+    gen = torch.Generator(device=sim.torch_device).manual_seed(0)
+    cmds = torch.rand((4, worlds, movers, 2), generator=gen, device=sim.torch_device) * 2.0 - 1.0
+    k = [0]
+
+    def step():
+        sim.cmd.copy_(cmds[k[0] % 4])
+        k[0] += 1
+        sim.step(CYCLES)
+
+    ms, std = _time(step, device, steps)
+    mem = _used_mb(device) - before
+    del sim
+    return {"sim_ms": ms, "sim_std_ms": std, "sim_mb": mem}
+
+
+def bench_env(movers: int, worlds: int, device: str, steps: int) -> dict:
+    from magwarp.swarm import SwarmEnv
+
+    gc.collect()
+    before = _used_mb(device)
+    t0 = time.perf_counter()
+    env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
+    build_s = time.perf_counter() - t0
+    totals = {"collisions": 0, "goals": 0}
+
+    def step():
+        _, _, _, _, info = env.step(seek_goals(env))
+        totals["last"] = info
+
+    ms, std = _time(step, device, steps)
+    mem = _used_mb(device) - before
+    info = totals["last"]
+    row = {"env_ms": ms, "env_std_ms": std, "env_mb": mem, "build_s": build_s,
+           "goals_per_step": float(info["goal_reached"].sum()),
+           "collided_per_step": float(info["agent_terminated"].sum()),
+           "obs_dim": int(env.single_observation_space.shape[-1])}
+    del env
+    return row
+
+
+def bench_planner(movers: int, device: str, steps: int) -> dict:
+    """The scripted ORCA planner in one world: goals, collisions per 1000 goals, deadlocks, and its step time."""
+    from magwarp.swarm import SwarmEnv
+    from magwarp.swarm.metrics import run_policy
+    from magwarp.swarm.planner import SwarmPlanner
+
+    env = SwarmEnv(1, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
+    planner = SwarmPlanner(env)
+    _sync(device)
+    t = time.perf_counter()
+    res = run_policy(env, lambda obs: planner(), steps)
+    _sync(device)
+    res["planner_step_ms"] = (time.perf_counter() - t) / steps * 1e3
+    return {"device": device, "movers": movers, "tiles": int(_layout(movers).num_tiles),
+            **{f"planner_{k}" if not k.startswith("planner") else k: v for k, v in res.items()}}
+
+
+def run(args) -> list[dict]:
+    devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
+    rows = []
+    for device in devices:
+        gpu = device.startswith("cuda")
+        small = args.small or not gpu and not args.full
+        one = SMALL_ONE_WORLD if small else ONE_WORLD
+        many = SMALL_MANY_WORLDS if small else MANY_WORLDS
+        configs = [(m, 1) for m in one] + [(100, w) for w in many]
+        for movers, worlds in configs:
+            steps = args.steps or (20 if gpu else max(1, int(2e4 // (movers * worlds))))
+            row = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps,
+                   "tiles": int(_layout(movers).num_tiles)}
+            row.update(bench_sim(movers, worlds, device, steps))
+            row.update(bench_env(movers, worlds, device, steps))
+            row["agent_steps_per_s"] = movers * worlds / (row["env_ms"] * 1e-3)
+            row["sim_agent_steps_per_s"] = movers * worlds / (row["sim_ms"] * 1e-3)
+            row["env_over_sim"] = row["env_ms"] / row["sim_ms"]
+            row["env_mb_per_1k_agents"] = row["env_mb"] / (movers * worlds / 1000)
+            rows.append(row)
+            print(f"  {device} {worlds} x {movers}: env {row['env_ms']:.3f} ms, sim {row['sim_ms']:.3f} ms", flush=True)
+        if not args.no_planner:
+            for movers in SMALL_PLANNER if small else PLANNER:
+                rows.append(bench_planner(movers, device, args.planner_steps or (PLANNER_STEPS if not small else 100)))
+                print(f"  {device} planner {movers}: {rows[-1]['planner_goals']} goals, "
+                      f"{rows[-1]['planner_collisions']} collisions", flush=True)
+    return rows
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--device", help="cpu or cuda:N (default: cpu, and cuda:0 when present)")
+    p.add_argument("--small", action="store_true", help="small sizes on every device (a smoke check)")
+    p.add_argument("--full", action="store_true", help="full sizes on the CPU too (slow)")
+    p.add_argument("--steps", type=int, help="timed steps per batch (default: by size)")
+    p.add_argument("--no-planner", action="store_true", help="skip the scripted planner's quality rows")
+    p.add_argument("--planner-steps", type=int, help=f"steps of the planner runs (default {PLANNER_STEPS})")
+    p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json)")
+    args = p.parse_args(argv)
+    wp.config.quiet = True
+    wp.init()
+    info = machine_info(args.device or ("cuda:0" if wp.is_cuda_available() else "cpu"))
+    print(header_line(info))
+    rows = run(args)
+    stamp = provenance(info)
+    for r in rows:
+        r.update(stamp)
+    cols = ["device", "worlds", "movers", "agents", ("env_ms", "env ms"), ("sim_ms", "sim ms"),
+            ("env_over_sim", "env/sim"), ("agent_steps_per_s", "agent-steps/s"), ("env_mb", "env MB"),
+            ("sim_mb", "sim MB"), ("goals_per_step", "goals/step"), ("collided_per_step", "collided/step")]
+    print_table([r for r in rows if "env_ms" in r], cols)
+    plan = [r for r in rows if "planner_goals" in r]
+    if plan:
+        print_table(plan, ["device", "movers", "tiles", ("planner_steps", "steps"), ("planner_goals", "goals"),
+                           ("planner_throughput_per_mover", "goals/s/mover"), ("planner_collisions", "collisions"),
+                           ("planner_collisions_per_1000_goals", "coll/1000 goals"),
+                           ("planner_deadlocked", "deadlocked"), ("planner_step_ms", "step ms")])
+    default = "gpu" if any(r["device"].startswith("cuda") for r in rows) else "cpu"
+    path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", f"swarm_{default}.json")
+    print("wrote", write_json(path, rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,176 @@
+"""Local observation kernels for large swarms: k nearest movers within a radius, and distances to the walls.
+
+* :func:`make_knn_kernel` — for each mover, the ``k`` nearest other movers of its world within ``radius`` (ordered
+  by distance, ties by index), found by scanning the neighbouring cells of a uniform grid whose lists the
+  simulator's own :func:`~magwarp.kernels.collision.bin_movers` builds. The candidates are kept sorted in
+  registers, so the work per mover is the movers in its neighbouring cells, not the world's.
+* :func:`wall_distances` — for each mover and each of a few ray directions, the distance from its centre to the
+  first point off the tiles (a hole or the layout's edge), capped at ``max_range``, by stepping tile by tile along
+  the ray (at most ``max_range / tile_size`` steps per ray).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import warp as wp
+
+from magwarp.kernels.collision import cell_coords
+from magwarp.kernels.options import MODULE_OPTIONS
+from magwarp.types import Grid
+
+wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
+
+BIG = 1.0e30
+
+
+@wp.kernel
+def clear_heads(head: wp.array(dtype=wp.int32)):
+    head[wp.tid()] = -1
+
+
+@functools.cache
+def make_knn_kernel(k: int):
+    """The k-nearest-neighbour kernel for a fixed ``k`` (the candidate list lives in registers)."""
+    K = int(k)
+    Dists = wp.types.vector(length=K, dtype=wp.float32)
+    Ids = wp.types.vector(length=K, dtype=wp.int32)
+
+    @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
+    def nearest_neighbors(
+        # Model:
+        grid: Grid,
+        radius: float,
+        reach: int,
+        # State in:
+        pos: wp.array2d(dtype=wp.vec3),
+        vel: wp.array2d(dtype=wp.vec3),
+        head: wp.array(dtype=wp.int32),
+        next_in_cell: wp.array2d(dtype=wp.int32),
+        # State out:
+        rel_pos: wp.array3d(dtype=wp.vec2),
+        rel_vel: wp.array3d(dtype=wp.vec2),
+        index: wp.array3d(dtype=wp.int32),
+    ):
+        """``rel_pos`` / ``rel_vel``: x/y of neighbour minus mover; ``index``: the neighbour, -1 in padded slots
+        (whose rows are zeros)."""
+        w, m = wp.tid()
+        p = pos[w, m]
+        r2 = radius * radius
+        D = Dists()
+        I = Ids()
+        for s in range(K):
+            D[s] = BIG
+            I[s] = -1
+        c = cell_coords(grid, p)
+        for dy in range(-reach, reach + 1):
+            cy = c[1] + dy
+            if cy < 0 or cy >= grid.ncy:
+                continue
+            for dx in range(-reach, reach + 1):
+                cx = c[0] + dx
+                if cx < 0 or cx >= grid.ncx:
+                    continue
+                j = head[(w * grid.ncy + cy) * grid.ncx + cx]
+                while j >= 0:
+                    if j != m:
+                        q = pos[w, j]
+                        ex = q[0] - p[0]
+                        ey = q[1] - p[1]
+                        d2 = ex * ex + ey * ey
+                        # keep (d2, j) if it beats the last kept one; ties by the lower index
+                        if d2 <= r2 and (d2 < D[K - 1] or (d2 == D[K - 1] and j < I[K - 1]) or I[K - 1] < 0):
+                            s = K - 1
+                            while s > 0 and (D[s - 1] > d2 or (D[s - 1] == d2 and I[s - 1] > j)):
+                                D[s] = D[s - 1]
+                                I[s] = I[s - 1]
+                                s -= 1
+                            D[s] = d2
+                            I[s] = j
+                    j = next_in_cell[w, j]
+        v = vel[w, m]
+        for s in range(K):
+            j = I[s]
+            index[w, m, s] = j
+            if j >= 0:
+                q = pos[w, j]
+                u = vel[w, j]
+                rel_pos[w, m, s] = wp.vec2(q[0] - p[0], q[1] - p[1])
+                rel_vel[w, m, s] = wp.vec2(u[0] - v[0], u[1] - v[1])
+            else:
+                rel_pos[w, m, s] = wp.vec2(0.0)
+                rel_vel[w, m, s] = wp.vec2(0.0)
+
+    return nearest_neighbors
+
+
+@wp.func
+def tile_present(tiles: wp.array2d(dtype=wp.int32), i: int, j: int) -> bool:
+    if i < 0 or j < 0 or i >= tiles.shape[0] or j >= tiles.shape[1]:
+        return False
+    return tiles[i, j] == 1
+
+
+@wp.func
+def ray_to_wall(tiles: wp.array2d(dtype=wp.int32), size: float, p: wp.vec2, d: wp.vec2, max_range: float) -> float:
+    """Distance along the unit direction ``d`` from ``p`` to the first point off the tiles, at most ``max_range``
+    (grid traversal: one tile per step)."""
+    i = int(wp.floor(p[0] / size))
+    j = int(wp.floor(p[1] / size))
+    if not tile_present(tiles, i, j):
+        return 0.0
+    step_i = int(0)
+    step_j = int(0)
+    t_x = float(BIG)
+    t_y = float(BIG)
+    dt_x = float(BIG)
+    dt_y = float(BIG)
+    if d[0] > 0.0:
+        step_i = 1
+        t_x = (float(i + 1) * size - p[0]) / d[0]
+        dt_x = size / d[0]
+    elif d[0] < 0.0:
+        step_i = -1
+        t_x = (float(i) * size - p[0]) / d[0]
+        dt_x = -size / d[0]
+    if d[1] > 0.0:
+        step_j = 1
+        t_y = (float(j + 1) * size - p[1]) / d[1]
+        dt_y = size / d[1]
+    elif d[1] < 0.0:
+        step_j = -1
+        t_y = (float(j) * size - p[1]) / d[1]
+        dt_y = -size / d[1]
+    t = float(0.0)
+    while t < max_range:
+        if t_x < t_y:
+            t = t_x
+            i += step_i
+            t_x += dt_x
+        else:
+            t = t_y
+            j += step_j
+            t_y += dt_y
+        if t >= max_range:
+            break
+        if not tile_present(tiles, i, j):
+            return t
+    return max_range
+
+
+@wp.kernel
+def wall_distances(
+    # Model:
+    tiles: wp.array2d(dtype=wp.int32),
+    tile_size: float,
+    dirs: wp.array(dtype=wp.vec2),
+    max_range: float,
+    # State in:
+    pos: wp.array2d(dtype=wp.vec3),
+    # State out:
+    dist: wp.array3d(dtype=float),
+):
+    """Distance from each mover's centre to the nearest point off the tiles along each unit direction ``dirs``."""
+    w, m, r = wp.tid()
+    p = pos[w, m]
+    dist[w, m, r] = ray_to_wall(tiles, tile_size, wp.vec2(p[0], p[1]), dirs[r], max_range)

@@ -1,0 +1,237 @@
+"""Parallel dart throwing: collision-free start poses and goals for many movers per world, on the device.
+
+One *round* is three launches over all movers of all worlds (threads of movers already placed exit at once):
+
+1. :func:`propose` — every mover still to place draws up to ``tries`` candidate points, each uniform over the
+   present tiles, and keeps the first whose footprint (yaw 0, grown by the sampling offset) is on the tiles by the
+   simulator's own wall rule (:func:`~magwarp.kernels.collision.hits_wall_cs`) and which is clear of every mover
+   already placed (looked up in the neighbouring cells of a uniform grid). It then claims its grid cell with an
+   ``atomic_min`` of its index.
+2. :func:`resolve` — a candidate that won its cell is accepted unless a lower-indexed cell winner nearby conflicts
+   with it (index priority, so no two accepted candidates of a round conflict). Accepted movers are written out and
+   pushed onto the cell lists the next rounds look up.
+3. :func:`unclaim` — the claimed cells are cleared for the next round (work per candidate, not per cell).
+
+Cells are as small as the exclusion test allows (two candidates in one cell always conflict), so the claim loses
+no compatible pair; the placed set lives in per-cell linked lists (``atomic_exch``, as the simulator's broad phase),
+which also holds *fixed* movers that are not being placed (e.g. the other movers when one respawns). With
+``hold``, the movers being placed keep their current spots blocked (second lists) until the call ends: a mover
+that is respawned stays where it is until it is placed, so no other may be placed onto it. Expected work
+is O(movers) per round; no sort, no scan, no host synchronisation.
+"""
+
+import warp as wp
+
+from magwarp.kernels.collision import hits_wall_cs
+from magwarp.kernels.options import MODULE_OPTIONS
+from magwarp.types import SHAPE_CIRCLE, Collision
+
+wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
+
+#: claim of a free cell
+NO_CLAIM = 2147483647
+
+
+@wp.struct
+class PlaceGrid:
+    """Uniform grid of the placement, one block of ``ncx * ncy`` cells per world, and the exclusion test."""
+
+    cell: wp.vec2  # cell width and height (m)
+    ncx: int
+    ncy: int
+    reach: int  # neighbouring cells scanned on each side
+    shape: int  # SHAPE_CIRCLE: conflict when |d|^2 <= excl[0]; SHAPE_BOX: when |dx| <= excl[0] and |dy| <= excl[1]
+    excl: wp.vec2
+
+
+@wp.func
+def conflict(g: PlaceGrid, d: wp.vec2) -> bool:
+    """Are two movers whose centres differ by ``d`` too close (touching counts)?"""
+    if g.shape == SHAPE_CIRCLE:
+        return wp.dot(d, d) <= g.excl[0]
+    return wp.abs(d[0]) <= g.excl[0] and wp.abs(d[1]) <= g.excl[1]
+
+
+@wp.func
+def place_cell(g: PlaceGrid, p: wp.vec2) -> wp.vec2i:
+    """Cell of ``p``, clamped into the grid (clamping never separates two nearby points)."""
+    cx = wp.clamp(int(wp.floor(p[0] / g.cell[0])), 0, g.ncx - 1)
+    cy = wp.clamp(int(wp.floor(p[1] / g.cell[1])), 0, g.ncy - 1)
+    return wp.vec2i(cx, cy)
+
+
+@wp.func
+def cell_index(g: PlaceGrid, w: int, c: wp.vec2i) -> int:
+    return (w * g.ncy + c[1]) * g.ncx + c[0]
+
+
+@wp.func
+def neighbor_cell(g: PlaceGrid, w: int, c: wp.vec2i, dx: int, dy: int) -> int:
+    """Index of the cell ``(dx, dy)`` away from cell ``c`` of world ``w``, or -1 outside the grid."""
+    cx = c[0] + dx
+    cy = c[1] + dy
+    if cx < 0 or cx >= g.ncx or cy < 0 or cy >= g.ncy:
+        return -1
+    return (w * g.ncy + cy) * g.ncx + cx
+
+
+@wp.kernel
+def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32), claim: wp.array(dtype=wp.int32)):
+    """Empty every cell list and claim."""
+    i = wp.tid()
+    head[i] = -1
+    head_old[i] = -1
+    claim[i] = NO_CLAIM
+
+
+@wp.kernel
+def bin_fixed(
+    # Model:
+    g: PlaceGrid,
+    hold: int,
+    # State in:
+    pos: wp.array2d(dtype=wp.vec2),
+    todo: wp.array2d(dtype=wp.int32),
+    # State out:
+    head: wp.array(dtype=wp.int32),
+    next_in_cell: wp.array2d(dtype=wp.int32),
+    head_old: wp.array(dtype=wp.int32),
+    next_old: wp.array2d(dtype=wp.int32),
+):
+    """Put every mover that stays where it is (``todo == 0``) into its cell's list; with ``hold``, the movers to
+    place go into the second lists at their current spots (which they keep until they are placed)."""
+    w, m = wp.tid()
+    c = cell_index(g, w, place_cell(g, pos[w, m]))
+    if todo[w, m] == 0:
+        next_in_cell[w, m] = wp.atomic_exch(head, c, m)
+    elif hold != 0:
+        next_old[w, m] = wp.atomic_exch(head_old, c, m)
+
+
+@wp.func
+def clear_of_placed(g: PlaceGrid, w: int, p: wp.vec2, skip: int, pos: wp.array2d(dtype=wp.vec2),
+                    head: wp.array(dtype=wp.int32), next_in_cell: wp.array2d(dtype=wp.int32)) -> bool:
+    """No mover of the lists (other than ``skip``) conflicts with a mover at ``p``."""
+    c = place_cell(g, p)
+    for dy in range(-g.reach, g.reach + 1):
+        for dx in range(-g.reach, g.reach + 1):
+            cell = neighbor_cell(g, w, c, dx, dy)
+            if cell < 0:
+                continue
+            j = head[cell]
+            while j >= 0:
+                if j != skip and conflict(g, p - pos[w, j]):
+                    return False
+                j = next_in_cell[w, j]
+    return True
+
+
+@wp.kernel
+def propose(
+    # Model:
+    g: PlaceGrid,
+    tiles: wp.array2d(dtype=wp.int32),
+    col: Collision,
+    radius: float,
+    half: wp.vec2,
+    tile_list: wp.array(dtype=wp.vec2i),
+    seed: int,
+    tries: int,
+    hold: int,
+    # State in:
+    pos: wp.array2d(dtype=wp.vec2),
+    todo: wp.array2d(dtype=wp.int32),
+    head: wp.array(dtype=wp.int32),
+    next_in_cell: wp.array2d(dtype=wp.int32),
+    head_old: wp.array(dtype=wp.int32),
+    next_old: wp.array2d(dtype=wp.int32),
+    # State out:
+    cand: wp.array2d(dtype=wp.vec2),
+    cand_ok: wp.array2d(dtype=wp.int32),
+    claim: wp.array(dtype=wp.int32),
+):
+    """Up to ``tries`` candidates for each mover still to place; the first valid one claims its cell.
+
+    ``radius`` / ``half``: the footprint (circle radius or box half sizes) grown by the sampling offset; the wall
+    margin is added by the wall rule itself. With ``hold``, candidates also keep clear of the spots the other movers
+    to place still hold (their positions before this call; a mover placed in an earlier round keeps both)."""
+    w, m = wp.tid()
+    cand_ok[w, m] = 0
+    if todo[w, m] == 0:
+        return
+    rng = wp.rand_init(seed, w * todo.shape[1] + m)
+    size = col.tile_size
+    ntiles = tile_list.shape[0]
+    for _t in range(tries):
+        t = tile_list[int(wp.randu(rng) % wp.uint32(ntiles))]
+        p = wp.vec2((float(t[0]) + wp.randf(rng)) * size, (float(t[1]) + wp.randf(rng)) * size)
+        if hits_wall_cs(tiles, col, p, wp.vec2(1.0, 0.0), radius, half):
+            continue
+        if not clear_of_placed(g, w, p, -1, pos, head, next_in_cell):
+            continue
+        if hold != 0 and not clear_of_placed(g, w, p, m, pos, head_old, next_old):
+            continue
+        cand[w, m] = p
+        cand_ok[w, m] = 1
+        wp.atomic_min(claim, cell_index(g, w, place_cell(g, p)), m)
+        return
+
+
+@wp.kernel
+def resolve(
+    # Model:
+    g: PlaceGrid,
+    # State in:
+    cand: wp.array2d(dtype=wp.vec2),
+    cand_ok: wp.array2d(dtype=wp.int32),
+    claim: wp.array(dtype=wp.int32),
+    # State out:
+    todo: wp.array2d(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec2),
+    head: wp.array(dtype=wp.int32),
+    next_in_cell: wp.array2d(dtype=wp.int32),
+):
+    """Accept the cell winners that no lower-indexed nearby winner conflicts with."""
+    w, m = wp.tid()
+    if cand_ok[w, m] == 0:
+        return
+    p = cand[w, m]
+    c = place_cell(g, p)
+    own = cell_index(g, w, c)
+    if claim[own] != m:
+        return
+    for dy in range(-g.reach, g.reach + 1):
+        for dx in range(-g.reach, g.reach + 1):
+            cell = neighbor_cell(g, w, c, dx, dy)
+            if cell < 0:
+                continue
+            j = claim[cell]
+            if j < m and conflict(g, p - cand[w, j]):
+                return
+    pos[w, m] = p
+    todo[w, m] = 0
+    next_in_cell[w, m] = wp.atomic_exch(head, own, m)
+
+
+@wp.kernel
+def unclaim(
+    # Model:
+    g: PlaceGrid,
+    # State in:
+    cand: wp.array2d(dtype=wp.vec2),
+    cand_ok: wp.array2d(dtype=wp.int32),
+    # State out:
+    claim: wp.array(dtype=wp.int32),
+):
+    """Free the cells claimed this round (one write per candidate)."""
+    w, m = wp.tid()
+    if cand_ok[w, m] != 0:
+        claim[cell_index(g, w, place_cell(g, cand[w, m]))] = NO_CLAIM
+
+
+@wp.kernel
+def count_todo(todo: wp.array2d(dtype=wp.int32), per_world: wp.array(dtype=wp.int32)):
+    """Movers still to place, per world (``per_world`` zeroed before)."""
+    w, m = wp.tid()
+    if todo[w, m] != 0:
+        wp.atomic_add(per_world, w, 1)

@@ -1,0 +1,361 @@
+"""The swarm env: many movers per world, each with its own goal stream, reward and collisions.
+
+Per env step (``num_cycles`` control cycles at 1 ms, each mover's x/y command held):
+
+* action ``[num_envs, num_movers, 2]``: x/y acceleration (or jerk, ``learn_jerk``) per mover, norm-clipped by the
+  mover's limit (the physical rule), as in trajectory planning;
+* observation ``[num_envs, num_movers, D]`` per mover: its x/y velocity (2), its goal relative to it (2), its x/y
+  acceleration (2, jerk mode only), then its local view (:class:`~magwarp.swarm.LocalObservations`): the ``k``
+  nearest movers within ``obs_radius`` (relative position, relative velocity, mask: 5 per slot) and the distances to
+  the walls along ``num_rays`` rays. Per-mover work is O(k), not O(movers);
+* per-mover reward (``info["agent_reward"]``): ``reward_collision`` if the mover collided (with a mover or a wall)
+  during the step, else ``reward_goal`` if it is within ``threshold_pos`` of its goal at the end of the step, else
+  ``reward_per_step``. The returned ``reward`` ``[num_envs]`` is their sum over the world's movers;
+* goal streams: a mover that reaches its goal gets a new one at once (after the reward), placed clear of the other
+  movers' goals (every goal set is a collision-free configuration, so all goals can be held at once);
+* collisions (``on_collision``):
+
+  - ``"respawn"`` (default): the movers involved stop at the cycle of the collision while the rest of the world goes
+    on (a cycle hook, inside the step graph); after the step they are penalised, flagged in
+    ``info["agent_terminated"]`` and re-placed at free spots (their agent episode restarts, their goal is kept). A
+    mover that finds no free spot in ``respawn_rounds`` rounds stays stopped where it is and tries again each step
+    (``info["respawn_pending"]``; no reward meanwhile);
+  - ``"end"``: MagBotSim's rule: the world stops at the cycle of its first collision and its episode terminates;
+
+* material flow (``stations``): goals are pick-up and drop-off stations in turn; each delivery completes a job
+  (``info["job_done"]``, ``info["jobs"]``; the observation gains a carrying flag). Many movers may head for one
+  station: queues form as on a real line;
+* truncation: after ``max_episode_steps`` steps (default None: worlds run on; goals stream, collided movers respawn).
+
+Starts and goals are drawn by :class:`~magwarp.swarm.Placer` on the device (O(movers)). ``reset()`` checks that
+every mover was placed (one host synchronisation) and raises :class:`~magwarp.swarm.PlacementError` with the
+density asked and the density possible otherwise; resets inside ``step`` (autoreset) run a fixed number of rounds
+without synchronising, and a mover left unplaced there waits as a pending respawn.
+
+Every option is a field of :class:`SwarmConfig`; the constructor takes a config and/or the same names as keywords.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+import warp as wp
+
+from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.trajectory import TrajectoryPlanningEnv
+from magwarp.kernels.swarm import stop_collided
+from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
+from magwarp.sim import Simulator, default_device
+from magwarp.swarm.observations import LocalObservations
+from magwarp.swarm.placement import Placer
+
+__all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
+
+COLLISION_MODES = ("respawn", "end")
+
+
+@dataclass(frozen=True)
+class SwarmConfig:
+    """Options of :class:`SwarmEnv`. ``layout``: a :class:`Layout`, a 0/1 array, or None for a square grid of full
+    tiles with about ``occupancy`` movers per tile. Collision options as in trajectory planning: ``collision_shape``
+    ``"circle"``/``"box"``, ``collision_size`` (radius or half sizes), ``safety_margin`` (grows every shape in the
+    per-cycle check), ``collision_offset`` (extra room kept when placing starts and goals),
+    ``collision_offset_wall`` (wall margin). ``k``, ``obs_radius``, ``num_rays``, ``ray_range``: the local view.
+    ``respawn_rounds`` / ``goal_rounds`` / ``reset_rounds``: placement rounds run inside a step (no host sync).
+    ``stations``: the material-flow variant: ``"auto"`` (``num_stations`` pick-ups and drop-offs placed on the
+    layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams)."""
+
+    num_movers: int = 64
+    layout: Any = None
+    occupancy: float = 0.25
+    collision_shape: str = "circle"
+    collision_size: float | tuple[float, float] | None = None
+    collision_offset: float = 0.0
+    collision_offset_wall: float = 0.0
+    safety_margin: float = 0.0
+    mover_params: dict | None = None
+    learn_jerk: bool = False
+    v_max: float = 2.0
+    a_max: float = 10.0
+    j_max: float = 100.0
+    num_cycles: int = 40
+    threshold_pos: float = 0.1
+    reward_goal: float = 20.0
+    reward_collision: float = -20.0
+    reward_per_step: float = -1.0
+    on_collision: str = "respawn"
+    max_episode_steps: int | None = None
+    k: int = 8
+    obs_radius: float = 1.0
+    num_rays: int = 8
+    ray_range: float = 1.0
+    respawn_rounds: int = 2
+    goal_rounds: int = 2
+    reset_rounds: int = 32
+    stations: Any = None
+    num_stations: int = 4
+
+    def __post_init__(self):
+        m = self.num_movers
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
+            raise ValueError(f"num_movers must be an integer >= 1, got {m!r}")
+        if self.collision_shape not in ("circle", "box"):
+            raise ValueError(f"collision_shape must be 'circle' or 'box', got {self.collision_shape!r}")
+        if self.on_collision not in COLLISION_MODES:
+            raise ValueError(f"on_collision must be one of {COLLISION_MODES}, got {self.on_collision!r}")
+        if not (np.isfinite(self.occupancy) and self.occupancy > 0):
+            raise ValueError(f"occupancy must be a positive number (movers per tile), got {self.occupancy!r}")
+        if not (np.isfinite(self.threshold_pos) and self.threshold_pos > 0):
+            raise ValueError(f"threshold_pos must be positive, got {self.threshold_pos!r}")
+        if self.stations is not None and self.stations != "auto" and not (
+                isinstance(self.stations, dict) and set(self.stations) == {"pickup", "dropoff"}):
+            raise ValueError(f"stations must be None, 'auto' or a dict with 'pickup' and 'dropoff' positions, got "
+                             f"{self.stations!r}")
+        for name in ("num_cycles", "respawn_rounds", "goal_rounds", "reset_rounds", "num_stations"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        m = self.max_episode_steps
+        if m is not None and (isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1):
+            raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {m!r}")
+        for name in ("reward_goal", "reward_collision", "reward_per_step"):
+            if not np.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+
+    def make_layout(self) -> Layout:
+        if self.layout is None:
+            side = int(np.ceil(np.sqrt(self.num_movers / self.occupancy)))
+            return Layout.grid(side, side)
+        return self.layout if isinstance(self.layout, Layout) else Layout(np.asarray(self.layout))
+
+    def make_mover(self) -> MoverSpec:
+        kwargs: dict[str, Any] = dict(collision_shape=self.collision_shape, margin=self.safety_margin,
+                                      wall_margin=self.collision_offset_wall, **mover_params_kwargs(self.mover_params))
+        if self.collision_size is not None:
+            if self.collision_shape == "circle":
+                kwargs["collision_radius"] = float(self.collision_size)
+            else:
+                kwargs["collision_half_size"] = tuple(np.broadcast_to(np.asarray(self.collision_size, float), (2,)))
+        return MoverSpec(**kwargs)
+
+
+class SwarmEnv(MagwarpVecEnv):
+    """Batched swarm env (see the module docstring). ``SwarmEnv(num_envs, config=None, **options)``."""
+
+    def __init__(self, num_envs: int = 1, config: SwarmConfig | None = None, *, device: str | None = None,
+                 seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
+                 check_inputs: bool = True, **options):
+        fields = {f.name for f in dataclasses.fields(SwarmConfig)}
+        unknown = sorted(set(options) - fields)
+        if unknown:
+            raise TypeError(f"unknown SwarmEnv options {unknown}; SwarmConfig has {sorted(fields)}")
+        cfg = dataclasses.replace(config or SwarmConfig(), **options)
+        self.config = cfg
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
+        self.layout = cfg.make_layout()
+        mover = cfg.make_mover()
+        n, m = int(num_envs), int(cfg.num_movers)
+        device = device or default_device()
+        respawn = cfg.on_collision == "respawn"
+        # placeholder starts, replaced by the first reset below (never simulated nor validated)
+        self.sim = Simulator(
+            self.layout, m, n, mover=mover, start_xy=np.zeros((m, 2)), validate_starts_=False,
+            control="jerk" if cfg.learn_jerk else "acceleration", v_max=cfg.v_max, a_max=cfg.a_max,
+            j_max=cfg.j_max, stop_on_collision=not respawn, device=device, check_inputs=False,
+        )
+        super().__init__(n, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
+                         check_inputs=check_inputs)
+        self.num_movers = m
+        self.learn_jerk = bool(cfg.learn_jerk)
+        self.num_cycles = int(cfg.num_cycles)
+        self.max_episode_steps = cfg.max_episode_steps
+        wdev = self.sim.device
+        # the largest per-mover size: placement keeps every pair apart by the largest shape
+        self.placer = Placer(self.layout, m, n, mover=mover, offset=cfg.collision_offset,
+                             radius=float(self.sim._radii_np.max()), half_size=self.sim._half_np.max(axis=0),
+                             device=wdev, seed=0 if seed is None else int(seed))
+        self.local = LocalObservations(self.layout, n, m, k=cfg.k, radius=cfg.obs_radius, num_rays=cfg.num_rays,
+                                       max_range=cfg.ray_range, device=wdev)
+        self._stopped = wp.zeros((n, m), dtype=wp.int32, device=wdev)
+        self.stopped = wp.to_torch(self._stopped)
+        if respawn:
+            self.sim.add_cycle_hook(self._stop_hook)
+        dev = self.device
+        self.goals = torch.zeros(n, m, 2, device=dev)
+        self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
+        self.collected_goals = torch.zeros(n, m, dtype=torch.int64, device=dev)
+        self.respawn_pending = torch.zeros(n, m, dtype=torch.bool, device=dev)
+        self.goal_pending = torch.zeros(n, m, dtype=torch.bool, device=dev)
+        self._xy = torch.zeros(n, m, 2, device=dev)  # contiguous scratch positions for the placer
+        self.stations = None
+        if cfg.stations is not None:
+            from magwarp.swarm.stations import Stations
+
+            if cfg.stations == "auto":
+                self.stations = Stations.auto(self.layout, mover, cfg.num_stations, offset=cfg.collision_offset,
+                                              device=wdev, seed=0 if seed is None else int(seed))
+            else:
+                self.stations = Stations(cfg.stations["pickup"], cfg.stations["dropoff"], self.layout, mover,
+                                         offset=cfg.collision_offset, device=wdev)
+        self.carrying = torch.zeros(n, m, dtype=torch.bool, device=dev)
+        self.jobs = torch.zeros(n, m, dtype=torch.int64, device=dev)
+        # own state: velocity, goal relative to the mover, (acceleration), (carrying a job)
+        self.own_dim = (6 if self.learn_jerk else 4) + (1 if self.stations is not None else 0)
+        limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
+        self._set_spaces(gym.spaces.Box(-np.inf, np.inf, (m, self.own_dim + self.local.dim), np.float32),
+                         gym.spaces.Box(-limit, limit, (m, 2), np.float32))
+        # worlds end only by a collision in "end" mode or by the step limit: otherwise no reset work per step
+        self._can_end = not respawn or self.max_episode_steps is not None
+        self.reset(seed=seed)
+
+    # ------------------------------------------------------------------ hooks of the simulator
+    def _stop_hook(self, sim: Simulator) -> None:
+        s = sim.state
+        wp.launch(stop_collided, dim=(self.num_envs, self.num_movers), device=sim.device,
+                  inputs=[s.flags], outputs=[self._stopped, s.vel, s.acc, s.cmd])
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None:
+            self.placer.reseed(int(seed))
+        self._checked_reset = True  # reset(): placement is checked on the host (errors with densities)
+        try:
+            return super().reset(seed=seed, options=options)
+        finally:
+            self._checked_reset = False
+
+    def step(self, action):
+        """Simulate, reward, then stream goals and respawn collided movers; the observation shows the result."""
+        action = self._check_action(action)
+        self._apply_action(action)
+        reward, terminated, truncated, info = self._evaluate(None)
+        self._end_step(None, info)
+        obs = self._get_obs()
+        if self.autoreset and self._can_end:
+            done = terminated | truncated
+            info["final_obs"] = obs
+            info["_final_obs"] = done
+            self._reset_envs(done)
+            obs = torch.where(done[:, None, None], self._get_obs(), obs)
+        return obs, reward, terminated, truncated, info
+
+    # ------------------------------------------------------------------ task hooks
+    def _place(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int, hold: bool = False) -> torch.Tensor:
+        """Place the masked rows of ``xy`` (contiguous ``[N, M, 2]``); returns the movers left unplaced. ``hold``:
+        the masked rows are real spots until they move (respawns, goal streams)."""
+        if getattr(self, "_checked_reset", False):
+            self.placer.place(xy, mask)
+            return torch.zeros_like(mask)
+        return self.placer.place_async(xy, mask, rounds=rounds, hold=hold).clone()
+
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        n, m = self.num_envs, self.num_movers
+        movers = mask[:, None].expand(n, m)
+        start = self.sim.start_pos
+        self._xy.copy_(start[..., :2])
+        left = self._place(self._xy, movers, self.config.reset_rounds)
+        start[..., :2] = self._xy
+        self.sim.reset(mask)
+        if self.stations is not None:
+            self.carrying.masked_fill_(movers, False)
+            self.jobs.masked_fill_(movers, 0)
+            self.goals.copy_(torch.where(movers[..., None], self.stations.sample(self.carrying, self._generator),
+                                         self.goals))
+            goal_left = torch.zeros_like(movers)
+        else:
+            goal_left = self._place(self.goals, movers, self.config.reset_rounds)
+        self.stopped.copy_(torch.where(movers, left.to(torch.int32), self.stopped))
+        self.respawn_pending.copy_(torch.where(movers, left, self.respawn_pending))
+        self.goal_pending.copy_(torch.where(movers, goal_left, self.goal_pending))
+        self.num_steps.masked_fill_(mask, 0)
+        self.collected_goals.masked_fill_(mask[:, None], 0)
+
+    def _apply_action(self, action: torch.Tensor) -> None:
+        # stopped movers (pending respawns) ignore their command; the stop hook keeps them still
+        cmd = torch.where(self.stopped[..., None].bool(), 0.0, action)
+        self.sim.step(self.num_cycles, cmd)
+
+    def _get_obs(self) -> torch.Tensor:
+        sim = self.sim
+        self.local.compute(sim.state.pos, sim.state.vel)
+        obs = torch.empty(self.num_envs, self.num_movers, self.own_dim + self.local.dim, device=self.device)
+        obs[..., 0:2].copy_(sim.vel[..., :2])
+        torch.sub(self.goals, sim.pos[..., :2], out=obs[..., 2:4])
+        if self.learn_jerk:
+            obs[..., 4:6].copy_(sim.acc)
+        if self.stations is not None:
+            obs[..., self.own_dim - 1].copy_(self.carrying)
+        self.local.features(obs[..., self.own_dim:])
+        return obs
+
+    def _evaluate(self, obs) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        cfg = self.config
+        flags = self.sim.flags_any
+        mover_col = (flags & 1) != 0
+        wall_col = (flags & 2) != 0
+        active = ~self.respawn_pending  # pending movers sit out: no reward, no new penalty
+        collided = (mover_col | wall_col) & active
+        dist = (self.sim.pos[..., :2] - self.goals).norm(dim=-1)
+        reached = (dist <= cfg.threshold_pos) & active & ~collided & ~self.goal_pending
+        agent_reward = torch.where(collided, cfg.reward_collision,
+                                   torch.where(reached, cfg.reward_goal, cfg.reward_per_step))
+        agent_reward = torch.where(active, agent_reward, 0.0)
+        reward = agent_reward.sum(dim=1)
+        if cfg.on_collision == "end":
+            terminated = collided.any(dim=1)
+        else:
+            terminated = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        if self.max_episode_steps is None:
+            truncated = torch.zeros_like(terminated)
+        else:
+            truncated = (self.num_steps + 1 >= self.max_episode_steps) & ~terminated
+        info = {"agent_reward": agent_reward, "mover_collision": mover_col, "wall_collision": wall_col,
+                "agent_terminated": collided if cfg.on_collision == "respawn" else collided | terminated[:, None],
+                "goal_reached": reached}
+        if self.stations is not None:
+            info["job_done"] = reached & self.carrying
+        return reward, terminated, truncated, info
+
+    def _end_step(self, obs, info) -> None:
+        cfg = self.config
+        self.num_steps += 1
+        reached = info["goal_reached"]
+        self.collected_goals += reached
+        if self.stations is not None:
+            # material flow: a pick-up loads a job (next: a drop-off), a drop-off delivers it (next: a pick-up)
+            self.jobs += info["job_done"]
+            self.carrying.copy_(self.carrying ^ reached)
+            self.goals.copy_(torch.where(reached[..., None], self.stations.sample(self.carrying, self._generator),
+                                         self.goals))
+            info["jobs"] = self.jobs.clone()
+        else:
+            # goal streams: new goals clear of the other goals
+            want_goal = reached | self.goal_pending
+            self.goal_pending.copy_(self._place(self.goals, want_goal, cfg.goal_rounds, hold=True))
+        if cfg.on_collision == "respawn":
+            self._respawn(info["agent_terminated"] | self.respawn_pending)
+        info["collected_goals"] = self.collected_goals.clone()
+        info["respawn_pending"] = self.respawn_pending.clone()
+
+    def _respawn(self, want: torch.Tensor) -> None:
+        """Re-place the movers in ``want`` at free spots (clear of every other mover) and restart them at rest."""
+        sim = self.sim
+        self._xy.copy_(sim.pos[..., :2])
+        left = self._place(self._xy, want, self.config.respawn_rounds, hold=True)
+        placed = want & ~left
+        sel = placed[..., None]
+        pos = sim.pos
+        pos[..., :2] = torch.where(sel, self._xy, pos[..., :2])
+        for field in (sim.vel, sim.acc, sim.cmd):
+            field.masked_fill_(sel, 0.0)
+        self.stopped.masked_fill_(placed, 0)
+        self.respawn_pending.copy_(left & want)
+
+    # top-down frames of the first worlds, movers, collisions and goals: the trajectory env's drawing serves as is
+    _render_frame = TrajectoryPlanningEnv._render_frame

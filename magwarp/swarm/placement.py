@@ -1,0 +1,304 @@
+"""Collision-free placement of many movers per world: the host side of :mod:`magwarp.kernels.placement`.
+
+:class:`Placer` draws start positions (or goals) for every mover of every world in parallel, by rounds of dart
+throwing on a uniform grid (see the kernel module), on any layout with holes, for circle and box collision shapes
+with the simulator's margins plus a sampling offset. Work is O(movers) per round.
+
+* :meth:`Placer.place` (reset time): places the masked movers of ``[W, M, 2]`` positions around the others, in
+  batches of rounds with one host check after each batch, and raises :class:`PlacementError` with the density asked
+  and the density possible when a request cannot be met;
+* :meth:`Placer.place_async` (step time): a fixed number of rounds with no host synchronisation; movers that found
+  no room stay marked and can try again later.
+
+A request is refused at once when it exceeds the densest packing of the exclusion shapes over the valid area
+(hexagonal for circles, square tiling for axis-aligned boxes), and reported after the rounds when random
+placement stalls before that bound (random sequential placement jams near 55% of the packing's density).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import numpy as np
+import torch
+import warp as wp
+from scipy import ndimage
+
+from magwarp.kernels import placement as kpl
+from magwarp.kernels.collision import footprints_on_tiles
+from magwarp.layout import Layout, LayoutError, MoverSpec
+from magwarp.types import SHAPE_BOX, SHAPE_CIRCLE, Collision
+
+__all__ = ["Placer", "PlacementError"]
+
+#: relative slack on the exclusion distance, so that float rounding in the simulator's own test never flags a pair
+PAIR_SLACK = 1e-5
+#: finest spacing (m) of the point grid on which the valid area is measured once (for the density bound), and the
+#: most points it may have (large layouts get a coarser grid)
+AREA_STEP = 0.005
+MAX_AREA_POINTS = 4_000_000
+#: the density bound is raised by this factor, so that the measuring grid's resolution never refuses a request
+BOUND_SLACK = 1.03
+#: densest packing of equal discs (hexagonal): fraction of the plane covered
+HEX_DENSITY = math.pi / (2.0 * math.sqrt(3.0))
+
+
+class PlacementError(LayoutError):
+    """A placement request that cannot be met (too many movers for the valid area)."""
+
+
+def torch_stream(device):
+    """A context that makes Warp launch on torch's current stream of ``device`` (CUDA), so that kernels and torch
+    ops on the same tensors are ordered without a host synchronisation; a no-op on the CPU."""
+    device = wp.get_device(device)
+    if not device.is_cuda:
+        return contextlib.nullcontext()
+    return wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(torch.device("cuda", device.ordinal))))
+
+
+def _collision(layout: Layout, mover: MoverSpec) -> Collision:
+    col = Collision()
+    col.shape = SHAPE_CIRCLE if mover.collision_shape == "circle" else SHAPE_BOX
+    col.margin = float(mover.margin)
+    col.wall_margin = float(mover.wall_margin)
+    col.tile_size = float(layout.tile.size)
+    col.stop_on_collision = 0
+    col.full_rect = 1 if bool(layout.tiles.all()) else 0
+    col.extent = wp.vec2(*layout.extent)
+    return col
+
+
+class Placer:
+    """Places movers of ``num_worlds`` worlds of ``num_movers`` each on ``layout``.
+
+    ``mover``: the :class:`MoverSpec` (collision shape, size, ``margin`` for mover-mover checks, ``wall_margin``).
+    ``offset``: sampling safety offset added to every shape (MagBotSim's ``collision_params["offset"]``): two placed
+    movers keep ``2 * (size + margin + offset)`` apart and every footprint grown by ``offset + wall_margin`` lies on
+    the tiles. ``radius`` / ``half_size`` override the mover's collision size (use the largest of per-mover sizes).
+    ``tries``: candidates per mover and round. ``seed``: base seed of the device random streams.
+    """
+
+    def __init__(self, layout: Layout | np.ndarray, num_movers: int, num_worlds: int = 1, *,
+                 mover: MoverSpec | None = None, offset: float = 0.0, radius: float | None = None,
+                 half_size=None, tries: int = 8, device=None, seed: int = 0):
+        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+        self.mover = mover or MoverSpec()
+        if int(num_movers) < 1 or int(num_worlds) < 1:
+            raise ValueError(f"num_movers and num_worlds must be >= 1, got {num_movers!r} and {num_worlds!r}")
+        if not (np.isfinite(offset) and offset >= 0):
+            raise ValueError(f"sampling offset must be a finite number >= 0, got {offset!r}")
+        if int(tries) < 1:
+            raise ValueError(f"tries must be >= 1, got {tries!r}")
+        self.num_movers, self.num_worlds, self.tries = int(num_movers), int(num_worlds), int(tries)
+        self.offset = float(offset)
+        self.device = wp.get_device(device)
+        self.torch_device = torch.device(wp.device_to_torch(self.device))
+        self._seed = int(seed) & 0x3FFFFFFF
+        self._calls = 0
+        self.col = _collision(self.layout, self.mover)
+        self.circle = self.col.shape == SHAPE_CIRCLE
+        r = float(self.mover.collision_radius if radius is None else radius)
+        h = np.asarray(self.mover.collision_half_size if half_size is None else half_size, dtype=np.float64)
+        if not (r > 0 and h.shape == (2,) and np.all(h > 0)):
+            raise ValueError(f"collision size must be positive, got radius {radius!r}, half_size {half_size!r}")
+        # the footprint the wall rule sees (the wall margin is added by the rule itself)
+        self.foot_radius = r + self.offset
+        self.foot_half = h + self.offset
+        grow = self.mover.margin + self.offset
+        g = kpl.PlaceGrid()
+        g.shape = self.col.shape
+        if self.circle:
+            self.excl = 2.0 * (r + grow) * (1.0 + PAIR_SLACK)  # centre distance at or below which two conflict
+            g.excl = wp.vec2(self.excl * self.excl, 0.0)
+            cell = np.full(2, self.excl / math.sqrt(2.0))  # two points of one cell are always closer than excl
+        else:
+            self.excl = 2.0 * (h + grow) * (1.0 + PAIR_SLACK)
+            g.excl = wp.vec2(*self.excl)
+            cell = np.asarray(self.excl, dtype=np.float64)
+        ext = np.asarray(self.layout.extent)
+        cell = np.maximum(cell * (1.0 - 1e-6), 1e-4)  # strictly inside the exclusion, also after float rounding
+        g.cell = wp.vec2(*cell)
+        g.ncx, g.ncy = (int(v) for v in np.maximum(1, np.ceil(ext / cell)))
+        excl = np.broadcast_to(np.asarray(self.excl, dtype=np.float64), (2,))
+        g.reach = int(np.max(np.ceil(excl / cell)))
+        self.grid = g
+        self.num_cells = g.ncx * g.ncy
+        i, j = np.nonzero(self.layout.tiles)
+        self._tile_list = wp.array(np.stack([i, j], axis=1).astype(np.int32), dtype=wp.vec2i, device=self.device)
+        self._tiles = wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=self.device)
+        shape = (self.num_worlds, self.num_movers)
+        self._head = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
+        self._claim = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
+        self._head_old = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
+        self._next = wp.zeros(shape, dtype=wp.int32, device=self.device)
+        self._next_old = wp.zeros(shape, dtype=wp.int32, device=self.device)
+        self._cand = wp.zeros(shape, dtype=wp.vec2, device=self.device)
+        self._cand_ok = wp.zeros(shape, dtype=wp.int32, device=self.device)
+        self._todo = wp.zeros(shape, dtype=wp.int32, device=self.device)
+        self._left = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)
+        self.valid_area, self.grown_area = self._measure_area()
+        if self.valid_area <= 0.0:
+            raise PlacementError(
+                f"no valid position on this layout for a mover of collision size {self._size_text()} with wall margin "
+                f"{self.col.wall_margin:g} m and sampling offset {self.offset:g} m: reduce the size or the margins")
+
+    # ------------------------------------------------------------------ geometry of the request
+    def _size_text(self) -> str:
+        if self.circle:
+            return f"radius {self.foot_radius - self.offset:g} m"
+        return f"half size {tuple(round(float(v), 6) for v in self.foot_half - self.offset)} m"
+
+    def _measure_area(self) -> tuple[float, float]:
+        """Areas (m^2) of the valid centres (footprint on the tiles) and of that set grown by half the exclusion
+        (the room the movers' exclusion shapes can take), measured once on a point grid."""
+        ext = np.asarray(self.layout.extent)
+        step = max(AREA_STEP, math.sqrt(float(np.prod(ext)) / MAX_AREA_POINTS))
+        half = 0.5 * np.broadcast_to(np.asarray(self.excl, dtype=np.float64), (2,))
+        pad = int(np.ceil(half.max() / step)) + 1
+        xs = np.arange(0.5 * step, ext[0], step)
+        ys = np.arange(0.5 * step, ext[1], step)
+        pts = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2).astype(np.float32)
+        ok = wp.zeros(len(pts), dtype=wp.int32, device=self.device)
+        wp.launch(footprints_on_tiles, dim=len(pts), device=self.device,
+                  inputs=[self._tiles, self.col, self.foot_radius - self.offset,
+                          wp.vec2(*(self.foot_half - self.offset)), self.offset,
+                          wp.array(pts, dtype=wp.vec2, device=self.device)], outputs=[ok])
+        valid = np.pad(ok.numpy().reshape(len(xs), len(ys)).astype(bool), pad)
+        if self.circle:
+            grown = ndimage.distance_transform_edt(~valid) * step <= half[0]
+        else:
+            size = tuple(2 * int(np.floor(h / step)) + 1 for h in half)
+            grown = ndimage.maximum_filter(valid, size=size, mode="constant")
+        return float(valid.sum()) * step * step, float(grown.sum()) * step * step
+
+    def on_tiles(self, xy) -> torch.Tensor:
+        """Bool ``(...)``: the footprint at the points ``(..., 2)`` (yaw 0, grown by the sampling offset) lies on
+        the tiles by the simulator's wall rule."""
+        pts = torch.as_tensor(xy, dtype=torch.float32, device=self.torch_device)
+        flat = pts.reshape(-1, 2).contiguous()
+        ok = torch.zeros(flat.shape[0], dtype=torch.int32, device=self.torch_device)
+        if flat.shape[0]:
+            with torch_stream(self.device):
+                wp.launch(footprints_on_tiles, dim=flat.shape[0], device=self.device,
+                          inputs=[self._tiles, self.col, self.foot_radius - self.offset,
+                                  wp.vec2(*(self.foot_half - self.offset)), self.offset,
+                                  wp.from_torch(flat, dtype=wp.vec2)], outputs=[wp.from_torch(ok)])
+        return ok.reshape(pts.shape[:-1]).bool()
+
+    @property
+    def exclusion_area(self) -> float:
+        """Area one placed mover keeps to itself in the densest packing (m^2)."""
+        if self.circle:
+            return math.pi * (0.5 * self.excl) ** 2 / HEX_DENSITY
+        return float(np.prod(self.excl))
+
+    @property
+    def max_movers(self) -> int:
+        """Upper bound (up to the measuring grid's resolution) on the movers that fit in one world: the densest
+        packing of the exclusion shapes over the valid centres grown by half the exclusion."""
+        return int(BOUND_SLACK * self.grown_area / self.exclusion_area)
+
+    def _density(self, movers: float) -> str:
+        tiles = self.layout.num_tiles
+        return f"{movers / tiles:.3f} movers per tile ({movers:.0f} movers on {tiles} tiles)"
+
+    # ------------------------------------------------------------------ placement
+    def _next_seed(self) -> int:
+        self._calls += 1
+        return (self._seed * 1000003 + self._calls * 7919) & 0x3FFFFFFF
+
+    def _check(self, xy: torch.Tensor, mask: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        shape = (self.num_worlds, self.num_movers)
+        if not isinstance(xy, torch.Tensor) or tuple(xy.shape) != (*shape, 2) or xy.dtype != torch.float32:
+            raise ValueError(f"positions must be a float32 tensor of shape {(*shape, 2)}, got "
+                             f"{getattr(xy, 'dtype', type(xy))} {tuple(getattr(xy, 'shape', ()))}")
+        if xy.device != self.torch_device or not xy.is_contiguous():
+            raise ValueError(f"positions must be contiguous on {self.torch_device}, got {xy.device}")
+        if mask is None:
+            mask = torch.ones(shape, dtype=torch.bool, device=self.torch_device)
+        if tuple(mask.shape) != shape or mask.device != self.torch_device:
+            raise ValueError(f"mask must have shape {shape} on {self.torch_device}, got {tuple(mask.shape)} on "
+                             f"{mask.device}")
+        return xy, mask
+
+    def _begin(self, xy: torch.Tensor, mask: torch.Tensor, hold: bool) -> wp.array:
+        pos = wp.from_torch(xy, dtype=wp.vec2)
+        wp.to_torch(self._todo).copy_(mask.to(torch.int32))
+        dev, dim = self.device, (self.num_worlds, self.num_movers)
+        wp.launch(kpl.clear_grid, dim=self._head.shape[0], inputs=[self._head, self._head_old, self._claim], device=dev)
+        wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo],
+                  outputs=[self._head, self._next, self._head_old, self._next_old], device=dev)
+        self._hold = int(hold)
+        return pos
+
+    def _rounds(self, pos: wp.array, rounds: int) -> None:
+        dev, dim, g = self.device, (self.num_worlds, self.num_movers), self.grid
+        for _ in range(rounds):
+            wp.launch(kpl.propose, dim=dim, device=dev,
+                      inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
+                              self._next_seed(), self.tries, self._hold, pos, self._todo, self._head, self._next,
+                              self._head_old, self._next_old],
+                      outputs=[self._cand, self._cand_ok, self._claim])
+            wp.launch(kpl.resolve, dim=dim, device=dev,
+                      inputs=[g, self._cand, self._cand_ok, self._claim, self._todo, pos, self._head, self._next])
+            wp.launch(kpl.unclaim, dim=dim, device=dev, inputs=[g, self._cand, self._cand_ok, self._claim])
+
+    def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
+                    hold: bool = False) -> torch.Tensor:
+        """Place the movers where ``mask`` (``[W, M]`` bool, default all) is true into ``xy`` (``[W, M, 2]``
+        float32, written in place) around the others, in ``rounds`` rounds and without a host synchronisation.
+        With ``hold``, the current rows of the masked movers are real spots too (e.g. movers to respawn, which stay
+        where they are until placed): nothing is placed onto them. Returns the ``[W, M]`` bool tensor of the movers
+        still unplaced (their rows of ``xy`` are unchanged)."""
+        xy, mask = self._check(xy, mask)
+        with torch_stream(self.device):
+            pos = self._begin(xy, mask, hold)
+            self._rounds(pos, int(rounds))
+        return wp.to_torch(self._todo).bool()
+
+    def place(self, xy: torch.Tensor, mask: torch.Tensor | None = None, *, rounds_per_check: int = 16,
+              max_rounds: int = 256) -> torch.Tensor:
+        """Place the masked movers like :meth:`place_async`, until all are placed (checking after every
+        ``rounds_per_check`` rounds: one host synchronisation each) or ``max_rounds``; raises
+        :class:`PlacementError` if some cannot be placed. Returns ``xy``."""
+        xy, mask = self._check(xy, mask)
+        asked = int(self.num_movers)
+        if asked > self.max_movers:
+            raise PlacementError(
+                f"cannot place {asked} movers per world: asked {self._density(asked)}, possible at most "
+                f"{self._density(self.max_movers)} (densest packing of collision {self._size_text()}, safety margin "
+                f"{self.mover.margin:g} m, sampling offset {self.offset:g} m over {self.valid_area:.3f} m^2 of valid "
+                f"centres): choose fewer movers, more tiles or smaller margins")
+        with torch_stream(self.device):
+            pos = self._begin(xy, mask, False)
+            done = 0
+            while done < max_rounds:
+                n = min(int(rounds_per_check), max_rounds - done)
+                self._rounds(pos, n)
+                done += n
+                self._left.zero_()
+                wp.launch(kpl.count_todo, dim=(self.num_worlds, self.num_movers), inputs=[self._todo, self._left],
+                          device=self.device)
+                left = self._left.numpy()
+                if not left.any():
+                    return xy
+        w = int(np.argmax(left))
+        placed = self.num_movers - int(left[w])
+        raise PlacementError(
+            f"could not place {asked} movers per world in {max_rounds} rounds (world {w} has {int(left[w])} left): "
+            f"asked {self._density(asked)}, possible by random placement about {self._density(placed)} (a packing "
+            f"bound allows {self._density(self.max_movers)}; collision {self._size_text()}, safety margin "
+            f"{self.mover.margin:g} m, sampling offset {self.offset:g} m): choose fewer movers or more tiles")
+
+    def sample(self, mask: torch.Tensor | None = None, **kwargs) -> torch.Tensor:
+        """Fresh ``[W, M, 2]`` positions for all movers (rows outside ``mask`` are zeros and ignored)."""
+        xy = torch.zeros(self.num_worlds, self.num_movers, 2, device=self.torch_device)
+        if mask is not None:
+            raise ValueError("sample() places every mover; use place() to place some around others")
+        return self.place(xy, **kwargs)
+
+    def reseed(self, seed: int) -> None:
+        """Restart the device random streams from ``seed`` (what ``reset(seed=...)`` of an env calls)."""
+        self._seed = int(seed) & 0x3FFFFFFF
+        self._calls = 0

@@ -1,0 +1,170 @@
+"""A scripted, decentralised planner for the swarm env: ORCA (optimal reciprocal collision avoidance) on the
+local view.
+
+Each mover looks only at what its observation holds (its goal, the ``k`` nearest movers within the observation
+radius, the wall rays), so a step costs O(k) per mover, on the device, for any swarm size. Per mover:
+
+1. *preferred velocity*: towards the goal at ``cruise`` speed, slowing so that it can stop on the goal
+   (``sqrt(2 a_brake d)``);
+2. *reciprocal avoidance*: every neighbour gives one half-plane of allowed velocities, the ORCA line of van den
+   Berg et al. (2011) for a time horizon ``horizon`` and the safe distance (both collision shapes' reach, the safety
+   margin and a ``buffer`` for the 25 Hz control; movers already closer than that separate within ``separate``
+   seconds, gently, since the buffer is not a collision). The mover of lower index takes ``1 - yield_share`` of the
+   avoidance and the other ``yield_share`` (fixed priorities break symmetric deadlocks);
+3. *walls*: every wall ray gives a half-plane too: no faster towards the wall than stopping before it allows;
+4. the new velocity is the one closest to the preferred one, within ``cruise``, that satisfies every half-plane
+   (ORCA's incremental 2-D linear program, :func:`solve_lines`: O((k + rays)^2) tensor operations, whatever the
+   swarm size); where the half-planes leave no room (a crowd) the mover brakes to ``brake_factor`` of its velocity.
+   The command is the acceleration that reaches the new velocity within one env step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from magwarp.swarm.env import SwarmEnv
+from magwarp.swarm.observations import ray_directions
+
+__all__ = ["SwarmPlanner", "orca_lines", "solve_lines"]
+
+
+def _det(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def orca_lines(rel_pos: torch.Tensor, rel_vel: torch.Tensor, radius: float, horizon: float,
+               step: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """ORCA for relative positions ``p_j - p_i`` and relative velocities ``v_i - v_j`` (``[..., 2]``): the
+    direction of each line and the full velocity change ``u`` that leaves the velocity obstacle (the caller takes
+    its share of ``u``). Allowed velocities ``v`` satisfy ``det(direction, point - v) <= 0`` with
+    ``point = v_i + share * u``."""
+    dist_sq = (rel_pos * rel_pos).sum(-1)
+    r_sq = radius * radius
+    inv_h = 1.0 / horizon
+    # no collision yet: the velocity obstacle truncated at the horizon
+    w = rel_vel - inv_h * rel_pos
+    w_sq = (w * w).sum(-1).clamp_min(1e-12)
+    dot1 = (w * rel_pos).sum(-1)
+    cutoff = (dot1 < 0) & (dot1 * dot1 > r_sq * w_sq)
+    w_len = w_sq.sqrt()
+    unit_w = w / w_len[..., None]
+    dir_cut = torch.stack([unit_w[..., 1], -unit_w[..., 0]], -1)
+    u_cut = (radius * inv_h - w_len)[..., None] * unit_w
+    leg = (dist_sq - r_sq).clamp_min(0.0).sqrt()
+    x, y = rel_pos[..., 0], rel_pos[..., 1]
+    left = torch.stack([x * leg - y * radius, x * radius + y * leg], -1)
+    right = -torch.stack([x * leg + y * radius, -x * radius + y * leg], -1)
+    dir_leg = torch.where((_det(rel_pos, w) > 0)[..., None], left, right) / dist_sq.clamp_min(1e-12)[..., None]
+    u_leg = (rel_vel * dir_leg).sum(-1, keepdim=True) * dir_leg - rel_vel
+    direction = torch.where(cutoff[..., None], dir_cut, dir_leg)
+    u = torch.where(cutoff[..., None], u_cut, u_leg)
+    # already closer than the radius: leave within one step
+    wc = rel_vel - rel_pos / step
+    wc_len = wc.norm(dim=-1).clamp_min(1e-9)
+    unit_c = wc / wc_len[..., None]
+    inside = (dist_sq <= r_sq)[..., None]
+    direction = torch.where(inside, torch.stack([unit_c[..., 1], -unit_c[..., 0]], -1), direction)
+    u = torch.where(inside, (radius / step - wc_len)[..., None] * unit_c, u)
+    return direction, u
+
+
+def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The velocity closest to ``v_pref`` within speed ``max_speed`` that satisfies every half-plane of ``lines``
+    (``(point, direction, live)`` triples, each ``[..., 2]``, ``[..., 2]``, ``[...]``): ORCA's incremental 2-D linear
+    program (constraints added one by one; when the new one is violated, the best point on its line that keeps the
+    earlier ones). Where the lines have no common point, the last feasible velocity is kept and ``ok`` is false.
+    O(len(lines)^2) tensor operations, each over every mover at once."""
+    n = v_pref.norm(dim=-1, keepdim=True)
+    v = torch.where(n > max_speed, v_pref * (max_speed / n.clamp_min(1e-9)), v_pref)
+    ok = torch.ones(v.shape[:-1], dtype=torch.bool, device=v.device)
+    for i, (p_i, d_i, live_i) in enumerate(lines):
+        violated = live_i & (_det(d_i, p_i - v) > 0)
+        # the part of line i inside the speed circle ...
+        dot = (p_i * d_i).sum(-1)
+        disc = dot * dot + max_speed * max_speed - (p_i * p_i).sum(-1)
+        feasible = disc >= 0
+        root = disc.clamp_min(0.0).sqrt()
+        t_lo, t_hi = -dot - root, -dot + root
+        # ... and inside the earlier half-planes
+        for p_j, d_j, live_j in lines[:i]:
+            den = _det(d_i, d_j)
+            num = _det(d_j, p_i - p_j)
+            parallel = den.abs() <= 1e-6
+            feasible = feasible & ~(live_j & parallel & (num < 0))
+            t = num / torch.where(parallel, torch.ones_like(den), den)
+            cut = live_j & ~parallel
+            t_hi = torch.where(cut & (den >= 0), torch.minimum(t_hi, t), t_hi)
+            t_lo = torch.where(cut & (den < 0), torch.maximum(t_lo, t), t_lo)
+        feasible = feasible & (t_lo <= t_hi)
+        t = ((v_pref - p_i) * d_i).sum(-1)
+        best = p_i + torch.minimum(torch.maximum(t, t_lo), t_hi)[..., None] * d_i
+        take = violated & feasible
+        v = torch.where(take[..., None], best, v)
+        ok = ok & ~(violated & ~feasible)
+    return v, ok
+
+
+class SwarmPlanner:
+    """``action = SwarmPlanner(env)()``: x/y accelerations ``[num_envs, num_movers, 2]`` for a :class:`SwarmEnv`
+    (acceleration control). See the module docstring for the rule and its parameters."""
+
+    def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 1.0,
+                 buffer: float = 0.06, yield_share: float = 0.5, brake_factor: float = 0.5,
+                 separate: float = 0.3):
+        if env.learn_jerk:
+            raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
+        for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        if not 0.0 <= yield_share <= 1.0:
+            raise ValueError(f"yield_share must be in [0, 1], got {yield_share!r}")
+        if not 0.0 <= brake_factor <= 1.0:
+            raise ValueError(f"brake_factor must be in [0, 1], got {brake_factor!r}")
+        self.env = env
+        self.cruise, self.a_brake, self.horizon = float(cruise), float(a_brake), float(horizon)
+        self.yield_share, self.brake_factor = float(yield_share), float(brake_factor)
+        sim = env.sim
+        col = sim.model.collision
+        reach = float(sim._radii_np.max()) if col.shape == 0 else float(math.hypot(*sim._half_np.max(axis=0)))
+        self.safe = 2.0 * (reach + float(col.margin)) + float(buffer)
+        self.wall_reach = reach + float(col.wall_margin)  # goals may lie this close to a wall: no buffer
+        self.a_max = float(env.config.a_max)
+        self.step_time = env.num_cycles * float(sim.model.limits.dt)
+        self.separate = max(float(separate), self.step_time)
+        dev = env.device
+        self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
+        self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
+
+    def __call__(self, obs=None) -> torch.Tensor:
+        env, sim = self.env, self.env.sim
+        pos, vel = sim.pos[..., :2], sim.vel[..., :2]
+        local = env.local
+        # 1. preferred velocity: arrive at the goal
+        err = env.goals - pos
+        dist = err.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        speed = torch.minimum(torch.full_like(dist, self.cruise), torch.sqrt(2.0 * self.a_brake * dist))
+        v = err / dist * speed
+        # 2. ORCA lines of the neighbours (relative velocity v_i - v_j = -rel_vel)
+        lines = []
+        if local.k > 0:
+            direction, u = orca_lines(local.rel_pos, -local.rel_vel, self.safe, self.horizon, self.separate)
+            share = torch.where(local.index < self.index, self.yield_share, 1.0 - self.yield_share)
+            point = vel[..., None, :] + share[..., None] * u
+            lines = [(point[..., s, :], direction[..., s, :], local.mask[..., s]) for s in range(local.k)]
+        # 3. wall lines: v . ray <= room / stop time, i.e. the line through room * ray along the ray's normal
+        if local.num_rays > 0:
+            room = (local.walls - self.wall_reach).clamp_min(0.0)
+            limit = torch.sqrt(2.0 * self.a_brake * room)  # fastest approach that can still stop in time
+            for r in range(local.num_rays):
+                ray = self.rays[r]
+                normal_dir = torch.stack([-ray[1], ray[0]]).expand_as(v)  # det(dir, point - v) <= 0 <=> v.ray <= lim
+                lines.append((limit[..., r, None] * ray, normal_dir, torch.ones_like(room[..., r], dtype=torch.bool)))
+        v, ok = solve_lines(lines, v, self.cruise)
+        # no velocity satisfies every line (a crowd): brake, which keeps the reciprocal promise best
+        v = torch.where(ok[..., None], v, vel * self.brake_factor)
+        # 4. the acceleration that reaches v within one env step, within the limit
+        acc = (v - vel) / self.step_time
+        n = acc.norm(dim=-1, keepdim=True)
+        return torch.where(n > self.a_max, acc * (self.a_max / n.clamp_min(1e-9)), acc)

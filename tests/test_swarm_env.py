@@ -1,0 +1,171 @@
+"""The swarm env (``magwarp/Swarm-v0``): per-mover rewards, collision stops and respawns, goal streams, against a
+numpy re-implementation of the x/y dynamics and collision rules on random action sequences; registration and the
+gymnasium checker on a small instance."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+import magwarp  # noqa: F401  (registers the env ids)
+from magwarp import reference as ref
+from magwarp.layout import Layout
+from magwarp.swarm.env import SwarmConfig, SwarmEnv
+
+EPS = 1e-4  # collision sizes are perturbed by this much to find steps whose flags float32 cannot decide
+
+
+def holed_layout() -> Layout:
+    tiles = np.ones((6, 5), dtype=np.int32)
+    tiles[2, 1] = tiles[4, 3] = 0
+    return Layout(tiles)
+
+
+def numpy_step(env: SwarmEnv, state: dict, action: np.ndarray, grow: float) -> dict:
+    """One env step of every world in float64: per-cycle x/y dynamics, collision flags (sizes grown by ``grow``),
+    per-mover stops ("respawn") or world stops ("end")."""
+    sim, cfg = env.sim, env.config
+    lim = dict(dt=0.001, v_max=cfg.v_max, a_max=cfg.a_max, j_max=cfg.j_max, jerk_mode=cfg.learn_jerk)
+    pos, vel, acc = state["pos"].copy(), state["vel"].copy(), state["acc"].copy()
+    stopped = state["stopped"].copy()
+    n, m = pos.shape[:2]
+    r = sim._radii_np + grow
+    h = sim._half_np + grow
+    flags_any = np.zeros((n, m), dtype=int)
+    for w in range(n):
+        for _ in range(cfg.num_cycles):
+            cmd = np.where(stopped[w][:, None], 0.0, action[w])
+            a, v, dp = ref.planar_cycle(vel[w], acc[w], cmd, **lim)
+            acc[w], vel[w], pos[w] = a, v, pos[w] + dp
+            flags = np.zeros(m, dtype=int)
+            for i, j in ref.mover_collision_pairs(sim.mover, pos[w], np.zeros(m), r, h):
+                flags[[i, j]] |= 1
+            flags[ref.wall_collisions(env.layout, sim.mover, pos[w][None], np.zeros((1, m)), r, h)[0]] |= 2
+            flags_any[w] |= flags
+            if cfg.on_collision == "end":
+                if flags.any():
+                    break
+            else:
+                stopped[w] |= flags != 0
+                vel[w][stopped[w]] = 0.0
+                acc[w][stopped[w]] = 0.0
+    return {"pos": pos, "flags": flags_any}
+
+
+def env_state(env: SwarmEnv) -> dict:
+    f = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
+    return {"pos": f(env.sim.pos[..., :2]), "vel": f(env.sim.vel[..., :2]), "acc": f(env.sim.acc),
+            "stopped": env.stopped.cpu().numpy() != 0, "goals": f(env.goals),
+            "pending": env.respawn_pending.cpu().numpy().copy(), "goal_pending": env.goal_pending.cpu().numpy().copy()}
+
+
+def clear_pairs(xy: np.ndarray, others: np.ndarray, dist: float) -> bool:
+    return bool((np.linalg.norm(xy[:, None] - others[None], axis=-1) > dist).all())
+
+
+@pytest.mark.parametrize("mode", ["respawn", "end"])
+def test_rewards_and_collisions_match_numpy(rng, mode):
+    cfg = SwarmConfig(num_movers=7, layout=holed_layout(), on_collision=mode, num_cycles=20, k=3, num_rays=4,
+                      safety_margin=0.005, collision_offset_wall=0.01)
+    env = SwarmEnv(2, cfg, device="cpu", seed=int(rng.integers(1 << 30)))
+    n, m = env.num_envs, env.num_movers
+    compared = collisions = respawned = 0
+    heading = rng.normal(0, 8, (n, m, 2))  # held drift, so that movers travel far enough to meet
+    for _ in range(16):
+        before = env_state(env)
+        action = (heading + rng.normal(0, 4, (n, m, 2))).astype(np.float32)
+        _, reward, terminated, truncated, info = env.step(torch.from_numpy(action))
+        collisions += int(info["agent_terminated"].sum())
+        respawned += int((info["agent_terminated"] & ~env.respawn_pending).sum()) if mode == "respawn" else 0
+        lo = numpy_step(env, before, action.astype(np.float64), -EPS)
+        hi = numpy_step(env, before, action.astype(np.float64), +EPS)
+        if not np.array_equal(lo["flags"], hi["flags"]):
+            continue  # a collision within float32 rounding of touching: undecidable, skip this step
+        flags, pos = hi["flags"], 0.5 * (lo["pos"] + hi["pos"])
+        active = ~before["pending"]
+        collided = (flags != 0) & active
+        dist = np.linalg.norm(pos - before["goals"], axis=-1)
+        ambiguous = np.abs(dist - cfg.threshold_pos) < 1e-4
+        reached = (dist <= cfg.threshold_pos) & active & ~collided & ~before["goal_pending"]
+        want = np.where(collided, cfg.reward_collision, np.where(reached, cfg.reward_goal, cfg.reward_per_step))
+        want = np.where(active, want, 0.0)
+        got = info["agent_reward"].numpy()
+        assert np.array_equal(got[~ambiguous], want[~ambiguous]), f"{rng}: per-mover rewards differ"
+        assert np.array_equal(info["mover_collision"].numpy(), (flags & 1) != 0), f"{rng}: mover collision flags"
+        assert np.array_equal(info["wall_collision"].numpy(), (flags & 2) != 0), f"{rng}: wall collision flags"
+        if not ambiguous.any():
+            assert np.allclose(reward.numpy(), want.sum(axis=1)), f"{rng}: world rewards differ"
+        after = env_state(env)
+        if mode == "end":
+            assert np.array_equal(terminated.numpy(), collided.any(axis=1)), f"{rng}: terminations differ"
+            assert np.array_equal(info["agent_terminated"].numpy(), collided | terminated.numpy()[:, None])
+        else:
+            assert not terminated.any() and not truncated.any()
+            assert np.array_equal(info["agent_terminated"].numpy(), collided), f"{rng}: agent terminations differ"
+            # movers that did not collide end where numpy puts them; collided ones were re-placed clear of all others
+            keep = ~collided & ~before["pending"]
+            np.testing.assert_allclose(after["pos"][keep], pos[keep], atol=2e-4, err_msg=str(rng))
+            moved = collided & ~after["pending"]
+            for w in range(n):
+                new = np.flatnonzero(moved[w])
+                others = np.delete(after["pos"][w], new, axis=0)
+                assert clear_pairs(after["pos"][w][new], others, env.placer.excl * 0.99999), f"{rng}: respawn overlaps"
+            assert not after["vel"][moved].any() and not after["stopped"][moved].any()
+        # goal streams: reached movers have new goals, clear of the world's other goals; the rest keep theirs
+        unchanged = ~reached & ~before["goal_pending"] & ~ambiguous
+        if mode == "respawn":
+            np.testing.assert_array_equal(after["goals"][unchanged], before["goals"][unchanged])
+        compared += 1
+    assert compared >= 8, f"{rng}: too few decidable steps ({compared})"
+    assert collisions > 0, f"{rng}: the random actions never collided: the test checked nothing about collisions"
+    if mode == "respawn":
+        assert respawned > 0
+
+
+def test_goal_streams(rng):
+    env = SwarmEnv(1, SwarmConfig(num_movers=6, layout=np.ones((5, 5)), k=2, num_rays=0), device="cpu",
+                   seed=int(rng.integers(1 << 30)))
+    reach = torch.tensor([True, False, True, False, False, True])
+    old = env.goals.clone()
+    env.goals[0, reach] = env.sim.pos[0, reach, :2]  # three movers sit on their goals
+    _, reward, _, _, info = env.step(torch.zeros(1, 6, 2))
+    assert torch.equal(info["goal_reached"][0], reach)
+    assert torch.equal(info["agent_reward"][0], torch.where(reach, 20.0, -1.0)) and float(reward) == 3 * 20 - 3
+    goals = env.goals[0].numpy().astype(np.float64)
+    assert torch.equal(env.goals[0, ~reach], old[0, ~reach])
+    assert not np.allclose(goals[reach.numpy()], env.sim.pos[0, reach, :2].numpy())
+    d = np.linalg.norm(goals[:, None] - goals[None], axis=-1) + np.eye(6) * 9
+    assert d.min() > env.placer.excl * 0.99999, f"{rng}: new goals overlap other goals"
+    assert int(env.collected_goals.sum()) == 3
+
+
+def test_registered_and_gymnasium_checker():
+    from gymnasium.utils.env_checker import check_env
+
+    assert "magwarp/Swarm-v0" in gym.registry
+    env = gym.make("magwarp/Swarm-v0", num_movers=5, layout=np.ones((4, 4)), k=2, num_rays=4, device="cpu")
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, _ = env.reset(seed=1)
+    assert obs.shape == (5, 4 + 5 * 2 + 4) and obs.dtype == np.float32
+    vec = gym.make_vec("magwarp/Swarm-v0", num_envs=3, num_movers=5, layout=np.ones((4, 4)), device="cpu")
+    assert vec.action_space.shape == (3, 5, 2) and vec.observation_space.shape[:2] == (3, 5)
+
+
+def test_bad_options_and_infeasible_density():
+    with pytest.raises(TypeError, match="unknown SwarmEnv options"):
+        SwarmEnv(1, num_moverz=3, device="cpu")
+    with pytest.raises(ValueError, match="on_collision"):
+        SwarmConfig(on_collision="bounce")
+    with pytest.raises(ValueError, match="movers per tile"):
+        SwarmEnv(1, num_movers=40, layout=np.ones((4, 4)), device="cpu")
+    env = SwarmEnv(1, num_movers=3, layout=np.ones((3, 3)), device="cpu")
+    with pytest.raises(ValueError, match=r"action must have shape \(1, 3, 2\)"):
+        env.step(torch.zeros(1, 6))
+
+
+def test_render_draws_the_worlds():
+    env = SwarmEnv(2, num_movers=4, layout=np.ones((3, 3)), k=1, num_rays=0, device="cpu", render_mode="rgb_array")
+    img = env.render()
+    assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8 and img.std() > 0

@@ -1,0 +1,129 @@
+"""Local swarm observations (:mod:`magwarp.kernels.neighbors`, :class:`magwarp.swarm.LocalObservations`) against
+brute-force numpy references on random configurations: the k nearest movers within the radius (all pairs sorted by
+distance) and the distance along each ray to the first missing tile or the layout's edge (ray-box intersections
+with every hole and the layout's rectangle)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from magwarp.layout import Layout
+from magwarp.swarm.observations import LocalObservations, ray_directions
+
+
+def knn_reference(xy: np.ndarray, k: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(W, M, k)`` (-1 padded) and distances of the k nearest others within ``radius``."""
+    w, m = xy.shape[:2]
+    idx = np.full((w, m, k), -1)
+    dist = np.full((w, m, k), np.inf)
+    for a in range(w):
+        d = np.linalg.norm(xy[a, :, None] - xy[a, None], axis=-1)
+        np.fill_diagonal(d, np.inf)
+        for i in range(m):
+            order = np.lexsort((np.arange(m), d[i]))
+            keep = [j for j in order[:k] if d[i, j] <= radius]
+            idx[a, i, : len(keep)] = keep
+            dist[a, i, : len(keep)] = d[i, keep]
+    return idx, dist
+
+
+def ray_reference(layout: Layout, p: np.ndarray, d: np.ndarray, max_range: float) -> float:
+    """Entry distance of the ray into the first missing tile, or its exit from the layout's rectangle."""
+    size = layout.tile.size
+    ext = np.asarray(layout.extent)
+
+    def slab(lo, hi):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (lo - p) / d, (hi - p) / d
+        t_in, t_out = np.minimum(t1, t2), np.maximum(t1, t2)
+        inside = (p >= lo) & (p <= hi)
+        t_in = np.where(d == 0, np.where(inside, -np.inf, np.inf), t_in)  # parallel to the slab: all or nothing
+        t_out = np.where(d == 0, np.where(inside, np.inf, -np.inf), t_out)
+        return t_in.max(), t_out.min()
+
+    best = slab(np.zeros(2), ext)[1]  # leaving the rectangle
+    for i, j in zip(*np.nonzero(layout.tiles == 0)):
+        t_in, t_out = slab(np.array([i, j]) * size, np.array([i + 1, j + 1]) * size)
+        if t_in <= t_out and t_out >= 0:
+            best = min(best, max(t_in, 0.0))
+    return float(min(best, max_range))
+
+
+def _sim_arrays(xy: np.ndarray, vel: np.ndarray):
+    w, m = xy.shape[:2]
+    pos3 = np.concatenate([xy, np.full((w, m, 1), 0.01)], axis=-1).astype(np.float32)
+    vel3 = np.concatenate([vel, np.zeros((w, m, 1))], axis=-1).astype(np.float32)
+    return wp.array(pos3, dtype=wp.vec3, device="cpu"), wp.array(vel3, dtype=wp.vec3, device="cpu")
+
+
+@pytest.mark.parametrize("k,radius", [(4, 0.5), (8, 1.3), (3, 0.05)])
+def test_knn_matches_brute_force(rng, k, radius):
+    layout = Layout(np.ones((8, 6), dtype=np.int32))
+    w, m = 3, int(rng.integers(40, 120))
+    ext = np.asarray(layout.extent)
+    xy = rng.random((w, m, 2)) * ext
+    xy[0, :5] = rng.random((5, 2)) * 0.2  # a tight cluster: more than k candidates close together
+    xy = xy.astype(np.float32).astype(np.float64)
+    vel = rng.normal(size=(w, m, 2)).astype(np.float32).astype(np.float64)
+    obs = LocalObservations(layout, w, m, k=k, radius=radius, num_rays=0, device="cpu")
+    obs.compute(*_sim_arrays(xy, vel))
+    ref_idx, ref_dist = knn_reference(xy, k, radius)
+    idx = obs.index.numpy()
+    rel = obs.rel_pos.numpy().astype(np.float64)
+    got_dist = np.where(idx >= 0, np.linalg.norm(rel, axis=-1), np.inf)
+    # distances agree slot by slot (float32 may swap near-ties, never change the sorted distances)
+    np.testing.assert_allclose(np.where(np.isinf(ref_dist), 0, ref_dist), np.where(np.isinf(got_dist), 0, got_dist),
+                               atol=1e-5, err_msg=str(rng))
+    finite = np.where(np.isinf(ref_dist), 1e9, ref_dist)
+    near_tie = np.abs(np.diff(np.concatenate([finite, np.full((w, m, 1), 2e9)], -1), axis=-1)) < 1e-5
+    border = np.abs(finite - radius) < 1e-5
+    clear = ~(near_tie.any(-1) | border.any(-1))
+    assert np.array_equal(idx[clear], ref_idx[clear]), f"{rng}: neighbour indices differ"
+    # relative positions and velocities of the returned neighbours, zeros in padded slots
+    a, i, s = np.nonzero(idx >= 0)
+    j = idx[a, i, s]
+    np.testing.assert_allclose(rel[a, i, s], xy[a, j] - xy[a, i], atol=1e-5, err_msg=str(rng))
+    np.testing.assert_allclose(obs.rel_vel.numpy()[a, i, s], vel[a, j] - vel[a, i], atol=1e-5, err_msg=str(rng))
+    assert not obs.rel_pos.numpy()[idx < 0].any() and not obs.rel_vel.numpy()[idx < 0].any()
+    assert obs.mask.numpy().sum() == (ref_idx >= 0).sum()
+
+
+def test_wall_distances_match_ray_box_reference(rng):
+    tiles = (rng.random((9, 7)) >= 0.25).astype(np.int32)
+    tiles[4, 3] = 1
+    layout = Layout(tiles)
+    w, m, rays, max_range = 2, 60, 8, float(rng.uniform(0.5, 2.0))
+    # movers on present tiles (and a few over holes: distance 0)
+    i, j = np.nonzero(tiles)
+    pick = rng.integers(len(i), size=(w, m))
+    xy = (np.stack([i[pick], j[pick]], -1) + rng.uniform(0.02, 0.98, (w, m, 2))) * layout.tile.size
+    hi, hj = np.nonzero(tiles == 0)
+    if len(hi):
+        xy[0, :3] = (np.stack([hi[:1], hj[:1]], -1) + 0.5) * layout.tile.size
+    xy = xy.astype(np.float32).astype(np.float64)
+    obs = LocalObservations(layout, w, m, k=0, num_rays=rays, max_range=max_range, device="cpu")
+    obs.compute(*_sim_arrays(xy, np.zeros((w, m, 2))))
+    got = obs.walls.numpy()
+    dirs = ray_directions(rays)
+    for a in range(w):
+        for b in range(m):
+            for r in range(rays):
+                want = ray_reference(layout, xy[a, b], dirs[r], max_range)
+                assert abs(got[a, b, r] - want) < 2e-4, f"{rng}: world {a} mover {b} ray {r}: {got[a, b, r]} vs {want}"
+    assert obs.features().shape == (w, m, rays)
+
+
+def test_features_layout_and_bad_options():
+    obs = LocalObservations(np.ones((3, 3)), 1, 4, k=2, num_rays=4, device="cpu")
+    xy = np.array([[[0.1, 0.1], [0.3, 0.1], [0.1, 0.5], [0.7, 0.7]]])
+    obs.compute(*_sim_arrays(xy, np.zeros((1, 4, 2))))
+    f = obs.features().numpy()
+    assert f.shape == (1, 4, 14) and obs.dim == 14
+    np.testing.assert_allclose(f[0, 0, :5], [0.2, 0.0, 0.0, 0.0, 1.0], atol=1e-6)  # mover 1 is the nearest of 0
+    np.testing.assert_allclose(f[0, 0, 10:], [0.62, 0.62, 0.1, 0.1], atol=1e-5)  # +x, +y, -x, -y to the edges
+    with pytest.raises(ValueError, match="radius"):
+        LocalObservations(np.ones((3, 3)), 1, 4, radius=0.0, device="cpu")
+    with pytest.raises(ValueError, match="k must"):
+        LocalObservations(np.ones((3, 3)), 1, 4, k=-1, device="cpu")

@@ -1,0 +1,118 @@
+"""Parallel placement (:mod:`magwarp.kernels.placement`, :class:`magwarp.swarm.Placer`) against brute-force numpy
+checks on random layouts with holes: every placed footprint (grown by the sampling offset and the wall margin) lies
+on the tiles, no two movers are within the exclusion distance (collision size + safety margin + offset, each), fixed
+movers stay where they are, and infeasible requests fail with the density asked and the density possible."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from magwarp import reference as ref
+from magwarp.layout import Layout, MoverSpec
+from magwarp.sim import Simulator
+from magwarp.swarm.placement import Placer, PlacementError
+
+
+def random_layout(rng, nx: int, ny: int, holes: float) -> Layout:
+    tiles = (rng.random((nx, ny)) >= holes).astype(np.int32)
+    tiles[0, 0] = 1
+    return Layout(tiles)
+
+
+def check_placement(layout: Layout, mover: MoverSpec, offset: float, xy: np.ndarray, rng) -> None:
+    """Brute force: footprints on the tiles (the reference wall rule) and pairwise exclusion, per world."""
+    xy = np.asarray(xy, dtype=np.float64)
+    w, m = xy.shape[:2]
+    r = np.full(m, mover.collision_radius + offset)
+    h = np.tile(np.asarray(mover.collision_half_size) + offset, (m, 1))
+    wall = ref.wall_collisions(layout, mover, xy, np.zeros((w, m)), r, h)
+    assert not wall.any(), f"{rng}: movers {np.argwhere(wall)[:5].tolist()} are off the tiles"
+    grow = mover.margin + offset
+    for k in range(w):
+        d = xy[k, :, None] - xy[k, None]
+        if mover.collision_shape == "circle":
+            hit = np.linalg.norm(d, axis=-1) <= 2 * (mover.collision_radius + grow)
+        else:
+            hit = (np.abs(d) <= 2 * (np.asarray(mover.collision_half_size) + grow)).all(axis=-1)
+        np.fill_diagonal(hit, False)
+        assert not hit.any(), f"{rng}: world {k} pairs {np.argwhere(hit)[:3].tolist()} are too close"
+
+
+@pytest.mark.parametrize("shape", ["circle", "box"])
+def test_random_layouts_with_holes(rng, shape):
+    for _ in range(3):
+        layout = random_layout(rng, int(rng.integers(6, 12)), int(rng.integers(6, 12)), holes=0.2)
+        mover = MoverSpec(collision_shape=shape, collision_radius=float(rng.uniform(0.06, 0.12)),
+                          collision_half_size=tuple(rng.uniform(0.05, 0.1, 2)), margin=float(rng.uniform(0, 0.01)),
+                          wall_margin=float(rng.uniform(0, 0.02)))
+        offset = float(rng.uniform(0, 0.01))
+        probe = Placer(layout, 1, 1, mover=mover, offset=offset, device="cpu")
+        m = max(1, int(0.3 * probe.max_movers))  # well below random jamming
+        placer = Placer(layout, m, 3, mover=mover, offset=offset, device="cpu", seed=int(rng.integers(1 << 20)))
+        xy = placer.sample().numpy()
+        check_placement(layout, mover, offset, xy, rng)
+        assert not np.allclose(xy[0], xy[1]), f"{rng}: worlds got the same placement"
+
+
+def test_half_the_tiles_in_one_call_and_the_simulator_accepts_it(rng):
+    """MagBotSim's default mover (circle 0.11 m) on half of a 30 x 30 grid, with margins: one call, then the
+    simulator's own start check (walls and pairs with the safety margin) passes."""
+    layout = Layout(np.ones((30, 30), dtype=np.int32))
+    mover = MoverSpec(margin=0.002, wall_margin=0.002)
+    placer = Placer(layout, 450, 2, mover=mover, offset=0.001, device="cpu", seed=int(rng.integers(1 << 20)))
+    xy = placer.sample().numpy()
+    check_placement(layout, mover, 0.001, xy, rng)
+    Simulator(layout, 450, 2, mover=mover, start_xy=xy, device="cpu")  # raises if any start collides
+
+
+def test_masked_movers_avoid_the_fixed_ones(rng):
+    layout = random_layout(rng, 10, 10, holes=0.15)
+    mover = MoverSpec(collision_shape="box")
+    placer = Placer(layout, 40, 2, mover=mover, device="cpu", seed=int(rng.integers(1 << 20)))
+    xy = placer.sample()
+    before = xy.clone()
+    mask = torch.from_numpy(rng.random((2, 40)) < 0.3)
+    left = placer.place_async(xy, mask, rounds=8)
+    moved = (xy != before).any(dim=-1)
+    assert not (moved & ~mask).any(), f"{rng}: a fixed mover moved"
+    assert torch.equal(moved | left, mask), f"{rng}: a masked mover was neither placed nor reported left"
+    assert not (moved & left).any(), f"{rng}: a mover both placed and reported left"
+    assert moved.sum() > 0, f"{rng}: nothing was re-placed"
+    check_placement(layout, mover, 0.0, xy.numpy(), rng)
+
+
+def test_infeasible_requests_name_the_densities():
+    layout = Layout(np.ones((6, 6), dtype=np.int32))
+    with pytest.raises(PlacementError, match=r"asked 1\.667 movers per tile .*possible at most"):
+        Placer(layout, 60, 1, device="cpu").sample()
+    # below the packing bound, above what random placement reaches: reported after the rounds
+    placer = Placer(layout, 36, 1, device="cpu")
+    assert placer.max_movers >= 36
+    with pytest.raises(PlacementError, match=r"asked 1\.000 movers per tile .*possible by random placement about"):
+        placer.sample(max_rounds=32)
+    with pytest.raises(PlacementError, match="no valid position"):
+        Placer(Layout(np.ones((1, 1), dtype=np.int32)), 1, mover=MoverSpec(collision_radius=0.2), device="cpu")
+
+
+def test_bad_inputs():
+    placer = Placer(Layout(np.ones((4, 4), dtype=np.int32)), 3, 2, device="cpu")
+    with pytest.raises(ValueError, match="float32 tensor of shape"):
+        placer.place(torch.zeros(2, 3, 2, dtype=torch.float64))
+    with pytest.raises(ValueError, match="mask must have shape"):
+        placer.place(torch.zeros(2, 3, 2), torch.ones(3, dtype=torch.bool))
+    with pytest.raises(ValueError, match="offset"):
+        Placer(Layout(np.ones((4, 4), dtype=np.int32)), 3, offset=-1.0, device="cpu")
+
+
+def test_hold_keeps_the_spots_of_movers_still_to_place(rng):
+    """With ``hold``, a mover that finds no room stays where it is, and nothing is placed onto it."""
+    layout = Layout(np.ones((6, 6), dtype=np.int32))
+    placer = Placer(layout, 16, 4, device="cpu", seed=int(rng.integers(1 << 20)))
+    xy = placer.sample()
+    placer.tries = 1  # one candidate each: some movers find no room
+    mask = torch.from_numpy(rng.random((4, 16)) < 0.5)
+    left = placer.place_async(xy, mask, rounds=1, hold=True).clone()
+    assert left.any(), f"{rng}: every mover found room in one try: the test checks nothing"
+    check_placement(layout, MoverSpec(), 0.0, xy.numpy(), rng)  # the unplaced ones kept their (valid) spots
