@@ -165,7 +165,7 @@ class SwarmEnv(MagwarpVecEnv):
         respawn = cfg.on_collision == "respawn"
         # placeholder starts, replaced by the first reset below (never simulated nor validated)
         self.sim = Simulator(
-            self.layout, m, n, mover=mover, start_xy=np.zeros((m, 2)), validate_starts_=False,
+            self.layout, m, n, mover=mover, start_xy=np.zeros((m, 2)), validate_starts=False,
             control="jerk" if cfg.learn_jerk else "acceleration", v_max=cfg.v_max, a_max=cfg.a_max,
             j_max=cfg.j_max, stop_on_collision=not respawn, device=device, check_inputs=False,
         )
