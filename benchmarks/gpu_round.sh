@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# The GPU work of one session (issues #16-#21), in a few calls on the device machine (see the device tool's
+# METHOD.md). Each stage checks or times several sizes and writes JSON and logs under $OUT. Usage there, after the
+# wheels are staged (python3 ../shared/tools/device_wheels.py magbotsim==1.3.0 magpylib==6.3.0 shapely==2.2.0):
+#   export PYTHONPATH=/tmp/site:$PWD; bash benchmarks/gpu_round.sh STAGE
+# Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
+# (scaling and B0 env throughput), magbots, distributed.
+set -u
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+export WARP_CACHE_PATH=/tmp/warp_cache PYTHONUNBUFFERED=1
+log() { echo "=== $* ($(date -u +%H:%M:%S))"; }
+log "devices"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
+python3 -c "import torch, warp as wp; wp.init(); print('torch', torch.__version__, 'warp', wp.__version__)"
+for stage in "$@"; do
+  log "$stage"
+  case "$stage" in
+    tests)
+      timeout 420 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings tests/test_sim.py \
+        tests/test_sim_starts.py tests/test_kernels_dynamics.py tests/test_kernels_collision.py \
+        tests/test_collision_queries.py tests/test_swarm_placement.py tests/test_swarm_observations.py \
+        tests/test_magnetics_exact.py tests/test_magnetics_commutation.py tests/test_magnetics_fast.py \
+        > "$OUT/pytest_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_gpu.log" | tail -25 ;;
+    queries)
+      timeout 400 python3 benchmarks/collision_queries.py --devices cpu cuda:0 --max-poses-cpu 1e5 \
+        --json "$OUT/collision_queries_gpu.json" 2>&1 | tail -40 ;;
+    magnetics)
+      timeout 500 python3 benchmarks/magnetics.py --json "$OUT/magnetics_gpu.json" 2>&1 | tail -45 ;;
+    swarm)
+      timeout 500 python3 benchmarks/swarm.py --device cuda:0 --json "$OUT/swarm_gpu.json" 2>&1 | tail -40 ;;
+    perf)
+      timeout 250 python3 benchmarks/scaling.py --device cuda:0 --no-magbotsim --steps 100 \
+        --json "$OUT/scaling_gpu.json" 2>&1 | tail -25
+      timeout 300 python3 benchmarks/env_throughput.py --device cuda:0 --no-magbotsim \
+        --envs magwarp/TrajectoryPlanningB0-v0 --num-envs 4096,65536,1048576 --steps 50 \
+        --json "$OUT/env_throughput_gpu.json" 2>&1 | tail -20 ;;
+    magbots)
+      timeout 500 python3 benchmarks/magbots.py --json "$OUT/magbots_gpu.json" 2>&1 | tail -30 ;;
+    distributed)
+      timeout 500 python3 benchmarks/distributed.py --json "$OUT/distributed_gpu.json" 2>&1 | tail -30 ;;
+    *) echo "unknown stage $stage"; exit 2 ;;
+  esac
+done
+log "done"
