@@ -112,7 +112,7 @@ class SwarmPlanner:
 
     def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 1.0,
                  buffer: float = 0.06, yield_share: float = 0.5, brake_factor: float = 0.5,
-                 separate: float = 0.3):
+                 separate: float = 0.3, relax: float = 0.0, reachable: bool = False):
         if env.learn_jerk:
             raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
@@ -133,6 +133,10 @@ class SwarmPlanner:
         self.a_max = float(env.config.a_max)
         self.step_time = env.num_cycles * float(sim.model.limits.dt)
         self.separate = max(float(separate), self.step_time)
+        if not (math.isfinite(relax) and relax >= 0):
+            raise ValueError(f"relax must be a number >= 0, got {relax!r}")
+        self.relax = float(relax)
+        self.reachable = bool(reachable)
         dev = env.device
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
@@ -161,8 +165,26 @@ class SwarmPlanner:
                 ray = self.rays[r]
                 normal_dir = torch.stack([-ray[1], ray[0]]).expand_as(v)  # det(dir, point - v) <= 0 <=> v.ray <= lim
                 lines.append((limit[..., r, None] * ray, normal_dir, torch.ones_like(room[..., r], dtype=torch.bool)))
-        v, ok = solve_lines(lines, v, self.cruise)
-        # no velocity satisfies every line (a crowd): brake, which keeps the reciprocal promise best
+        v_pref = v
+        if self.reachable:
+            # solve among the velocities the mover can reach within one step (centred on its velocity)
+            shifted = [(p - vel, d, live) for p, d, live in lines]
+            dv, ok = solve_lines(shifted, v_pref - vel, self.a_max * self.step_time)
+            v = vel + dv
+            lines = shifted if self.relax > 0 else lines
+        else:
+            v, ok = solve_lines(lines, v_pref, self.cruise)
+        if self.relax > 0:
+            # a crowd leaves no velocity that satisfies every line: allow each line to be missed by ``relax`` m/s
+            loose = [(p + self.relax * torch.stack([d[..., 1], -d[..., 0]], -1), d, live) for p, d, live in lines]
+            if self.reachable:
+                v2, ok2 = solve_lines(loose, v_pref - vel, self.a_max * self.step_time)
+                v2 = v2 + vel
+            else:
+                v2, ok2 = solve_lines(loose, v_pref, self.cruise)
+            v = torch.where((~ok & ok2)[..., None], v2, v)
+            ok = ok | ok2
+        # still nothing: brake, which keeps the reciprocal promise best
         v = torch.where(ok[..., None], v, vel * self.brake_factor)
         # 4. the acceleration that reaches v within one env step, within the limit
         acc = (v - vel) / self.step_time
