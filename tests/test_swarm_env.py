@@ -126,7 +126,7 @@ def test_rewards_and_collisions_match_numpy(rng, mode):
 
 
 def test_goal_streams(rng):
-    env = SwarmEnv(1, SwarmConfig(num_movers=6, layout=np.ones((5, 5)), k=2, num_rays=0), device="cpu",
+    env = SwarmEnv(1, SwarmConfig(num_movers=6, layout=np.ones((5, 5)), k=2, num_rays=0, goal_rounds=16), device="cpu",
                    seed=int(rng.integers(1 << 30)))
     reach = torch.tensor([True, False, True, False, False, True])
     old = env.goals.clone()
@@ -139,6 +139,7 @@ def test_goal_streams(rng):
     goals = env.goals[0].numpy().astype(np.float64)
     assert torch.equal(env.goals[0, ~reach & ~got], old[0, ~reach & ~got])
     assert not np.allclose(goals[reach.numpy()], env.sim.pos[0, reach, :2].numpy())
+    assert not env.goal_pending.any(), f"{rng}: a new goal found no room in 16 rounds"
     d = np.linalg.norm(goals[:, None] - goals[None], axis=-1) + np.eye(6) * 9
     assert d.min() > env.placer.excl * 0.99999, f"{rng}: new goals overlap other goals"
     assert int(env.collected_goals.sum()) == int(got.sum())
