@@ -34,7 +34,7 @@ def _det(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def orca_lines(rel_pos: torch.Tensor, rel_vel: torch.Tensor, radius: float, horizon: float,
+def orca_lines(rel_pos: torch.Tensor, rel_vel: torch.Tensor, radius: float | torch.Tensor, horizon: float,
                step: float) -> tuple[torch.Tensor, torch.Tensor]:
     """ORCA for relative positions ``p_j - p_i`` and relative velocities ``v_i - v_j`` (``[..., 2]``): the
     direction of each line and the full velocity change ``u`` that leaves the velocity obstacle (the caller takes
@@ -128,7 +128,8 @@ class SwarmPlanner:
         sim = env.sim
         col = sim.model.collision
         reach = float(sim._radii_np.max()) if col.shape == 0 else float(math.hypot(*sim._half_np.max(axis=0)))
-        self.safe = 2.0 * (reach + float(col.margin)) + float(buffer)
+        self.contact = 2.0 * (reach + float(col.margin))  # the simulator's collision distance
+        self.safe = self.contact + float(buffer)
         self.wall_reach = reach + float(col.wall_margin)  # goals may lie this close to a wall: no buffer
         self.a_max = float(env.config.a_max)
         self.step_time = env.num_cycles * float(sim.model.limits.dt)
@@ -153,14 +154,20 @@ class SwarmPlanner:
         # 2. ORCA lines of the neighbours (relative velocity v_i - v_j = -rel_vel)
         lines = []
         if local.k > 0:
-            direction, u = orca_lines(local.rel_pos, -local.rel_vel, self.safe, self.horizon, self.separate)
+            # pairs already inside the safe distance (but apart) use their gap as the radius: they may not close
+            # it further, and are not asked to open it at once (a mover packed between two could not)
+            gap = local.rel_pos.norm(dim=-1)
+            radius = torch.where(gap > self.contact, torch.minimum(torch.full_like(gap, self.safe), 0.98 * gap),
+                                 torch.full_like(gap, self.safe))
+            direction, u = orca_lines(local.rel_pos, -local.rel_vel, radius, self.horizon, self.separate)
             share = torch.where(local.index < self.index, self.yield_share, 1.0 - self.yield_share)
             point = vel[..., None, :] + share[..., None] * u
             lines = [(point[..., s, :], direction[..., s, :], local.mask[..., s]) for s in range(local.k)]
         # 3. wall lines: v . ray <= room / stop time, i.e. the line through room * ray along the ray's normal
         if local.num_rays > 0:
             room = (local.walls - self.wall_reach).clamp_min(0.0)
-            limit = torch.sqrt(2.0 * self.a_brake * room)  # fastest approach that can still stop in time
+            # fastest approach that can still stop in time, and that does not cross the room within one step
+            limit = torch.minimum(torch.sqrt(2.0 * self.a_brake * room), room / self.step_time)
             for r in range(local.num_rays):
                 ray = self.rays[r]
                 normal_dir = torch.stack([-ray[1], ray[0]]).expand_as(v)  # det(dir, point - v) <= 0 <=> v.ray <= lim
