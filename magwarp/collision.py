@@ -171,13 +171,11 @@ class CollisionQuery:
             wp_pair, wp_clear = wp.from_torch(pair, dtype=wp.bool), wp.from_torch(clear)
             stream = wp.stream_from_torch(torch.cuda.current_stream(dev)) if self.device.is_cuda else None
             with wp.ScopedStream(stream) if stream is not None else contextlib.nullcontext():
-                wp.launch(kcol.query_pairs, dim=(n, m), device=self.device, inputs=[col, wp_poses, wp_r, wp_h],
-                          outputs=[wp_pair, wp_clear])
+                wp.launch(kcol.query_poses, dim=(n, m), device=self.device,
+                          inputs=[self._tiles, col, wp_poses, wp_r, wp_h],
+                          outputs=[wp_pair, wp_clear, wp.from_torch(valid, dtype=wp.bool), wp.from_torch(wall_clear)])
                 wp.launch(kcol.query_movers, dim=(n, m), device=self.device, inputs=[wp_pair, wp_clear],
                           outputs=[wp.from_torch(mover, dtype=wp.bool), wp.from_torch(mover_clear)])
-                wp.launch(kcol.query_walls, dim=(n, m), device=self.device,
-                          inputs=[self._tiles, col, wp_poses, wp_r, wp_h],
-                          outputs=[wp.from_torch(valid, dtype=wp.bool), wp.from_torch(wall_clear)])
         return CollisionReport(
             pair_collision=pair.reshape(*batch, m, m),
             mover_collision=mover.reshape(*batch, m),

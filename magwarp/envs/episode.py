@@ -3,9 +3,10 @@ e.g. to replay a MagBotSim episode or a real-system log.
 
 A task lists its option keys with the per-env shape of each (:attr:`ChosenEpisodes.EPISODE_OPTIONS`). A value may
 be given for one env (that shape, then shared by every reset env) or for all of them (``[num_envs, *shape]``; rows
-of envs outside ``options["reset_mask"]`` are ignored). Every value is checked before anything changes: a wrong shape
-or a NaN/inf raises a ``ValueError`` naming it (an unknown key is named in a warning), and the task checks the poses themselves (on the
-tiles, collision free) in :meth:`ChosenEpisodes._check_episode`. Keys not given are sampled as usual.
+of envs outside ``options["reset_mask"]`` are ignored). Every value is checked before anything changes: a wrong
+shape or a NaN/inf raises a ``ValueError`` naming it (an unknown key is named in a warning), and the task checks the
+poses themselves (on the tiles, collision free) in :meth:`ChosenEpisodes._check_episode`. Keys not given are sampled
+as usual.
 """
 
 from __future__ import annotations

@@ -494,7 +494,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
 
     def _object_reach(self) -> float:
         """Radius of a circle around the object (its largest variant) about its centre."""
-        return max(math.hypot(abs(cx) + hx, abs(cy) + (hx if hy == 0 else hy)) for cx, cy, hx, hy in _parts(self.object))
+        parts = _parts(self.object)
+        return max(math.hypot(abs(cx) + hx, abs(cy) + (hx if hy == 0 else hy)) for cx, cy, hx, hy in parts)
 
     def _check_episode(self, chosen: dict[str, torch.Tensor], mask: torch.Tensor) -> None:
         n, m, dev = self.num_envs, self.num_movers, self.device

@@ -529,8 +529,9 @@ def heading_of_yaw(yaw: float) -> wp.vec2:
 
 
 @wp.kernel
-def query_pairs(
+def query_poses(
     # Model:
+    tiles: wp.array2d(dtype=wp.int32),
     col: Collision,
     # In:
     poses: wp.array2d(dtype=wp.vec3),
@@ -539,11 +540,17 @@ def query_pairs(
     # Out:
     hit: wp.array3d(dtype=wp.bool),
     clearance: wp.array3d(dtype=float),
+    valid: wp.array2d(dtype=wp.bool),
+    wall_clearance: wp.array2d(dtype=float),
 ):
-    """Mover ``i`` of query ``b`` against every ``j > i`` (both entries of the symmetric outputs written once)."""
+    """Mover ``i`` of configuration ``b``: against every ``j > i`` (both entries of the symmetric pair outputs written
+    once), and against the walls: on the tiles (MagBotSim's ``qpos_is_valid``) and its signed wall clearance."""
     b, i = wp.tid()
     pi = poses[b, i]
+    xy = wp.vec2(pi[0], pi[1])
     hi = heading_of_yaw(pi[2])
+    valid[b, i] = not hits_wall_cs(tiles, col, xy, hi, radius[b, i], half_size[b, i])
+    wall_clearance[b, i] = wall_clearance_cs(tiles, col, xy, hi, radius[b, i], half_size[b, i])
     hit[b, i, i] = False
     clearance[b, i, i] = wp.inf
     for j in range(i + 1, poses.shape[1]):
@@ -556,29 +563,6 @@ def query_pairs(
         hit[b, j, i] = h
         clearance[b, i, j] = c
         clearance[b, j, i] = c
-
-
-@wp.kernel
-def query_walls(
-    # Model:
-    tiles: wp.array2d(dtype=wp.int32),
-    col: Collision,
-    # In:
-    poses: wp.array2d(dtype=wp.vec3),
-    radius: wp.array2d(dtype=float),
-    half_size: wp.array2d(dtype=wp.vec2),
-    # Out:
-    valid: wp.array2d(dtype=wp.bool),
-    clearance: wp.array2d(dtype=float),
-):
-    """True where the footprint (grown by the wall margin) stays on the tiles (MagBotSim's ``qpos_is_valid``), and its
-    signed clearance to the area without tiles."""
-    b, i = wp.tid()
-    p = poses[b, i]
-    xy = wp.vec2(p[0], p[1])
-    h = heading_of_yaw(p[2])
-    valid[b, i] = not hits_wall_cs(tiles, col, xy, h, radius[b, i], half_size[b, i])
-    clearance[b, i] = wall_clearance_cs(tiles, col, xy, h, radius[b, i], half_size[b, i])
 
 
 @wp.kernel

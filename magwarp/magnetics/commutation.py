@@ -6,10 +6,10 @@ Per mover: minimise ``sum_k R_k i_k^2`` subject to ``Gamma i = w`` (Gamma: 6 x a
 that reach their limit are fixed there (sign kept) and the free coils re-solved with the fixed coils' wrench taken
 off ``w``, at most ``max_iter`` solves (default 64; each fixes at least one coil). Each solve is a step of a primal
 active-set method: from the current currents (within the limits; zero at first) toward the new optimum, as far as
-the first coil to reach its limit (which is then fixed there); a step that reaches the optimum ends it. The currents never leave the limits, and the
-delivered wrench moves toward ``w`` at every step (after the first it is ``alpha w``: the wanted direction, scaled
-down). It never frees a fixed coil (not a full box-constrained QP), so where it stops short, the wrench it could not
-deliver is reported, never hidden.
+the first coil to reach its limit (which is then fixed there); a step that reaches the optimum ends it. The
+currents never leave the limits, and the delivered wrench moves toward ``w`` at every step (after the first it is
+``alpha w``: the wanted direction, scaled down). It never frees a fixed coil (not a full box-constrained QP), so
+where it stops short, the wrench it could not deliver is reported, never hidden.
 
 The 6 x 6 matrix is scaled to a unit diagonal (forces and torques differ by about the lever arm) and factorised by
 Cholesky; where a pivot of the scaled matrix falls below ``regularization`` (few coils under the mover: some wrench

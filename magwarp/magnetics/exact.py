@@ -182,14 +182,18 @@ class WrenchModel:
         self._seg = (wp.array(cs.seg_a, dtype=wp.vec3d, device=d), wp.array(cs.seg_b, dtype=wp.vec3d, device=d),
                      wp.array(cs.seg_weight, dtype=wp.float64, device=d),
                      wp.array(cs.seg_start, dtype=wp.int32, device=d))
-        nodes, weights = self.params.quadrature.nodes_weights()
-        self._quad = (wp.array(nodes, dtype=wp.float64, device=d), wp.array(weights, dtype=wp.float64, device=d),
-                      wp.float64(self.params.quadrature.max_interval))
+        self._quad = self.quadrature_arrays(self.params.quadrature)
         self._tile_map = wp.array(cs.tile_map, dtype=wp.int32, device=d)
         self._rects = wp.array(cs.rects, dtype=wp.vec4d, device=d)
         self.active_radius = (float(self.params.active_radius) if self.params.active_radius is not None
                               else measure_active_radius(self.params, device=self.device))
         self.max_active = int(self.params.max_active)
+
+    def quadrature_arrays(self, quadrature):
+        """Nodes, weights (device arrays on [0, 1]) and the longest sub-interval of a quadrature."""
+        nodes, weights = quadrature.nodes_weights()
+        return (wp.array(nodes, dtype=wp.float64, device=self.device),
+                wp.array(weights, dtype=wp.float64, device=self.device), wp.float64(quadrature.max_interval))
 
     # Subclasses set these.
     source = None

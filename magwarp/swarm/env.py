@@ -67,6 +67,8 @@ class SwarmConfig:
     per-cycle check), ``collision_offset`` (extra room kept when placing starts and goals),
     ``collision_offset_wall`` (wall margin). ``k``, ``obs_radius``, ``num_rays``, ``ray_range``: the local view.
     ``respawn_rounds`` / ``goal_rounds`` / ``reset_rounds``: placement rounds run inside a step (no host sync).
+    ``respawn_clearance``: extra room (m) a respawned mover keeps from the others and the walls (it appears next to
+    moving movers: at the bare exclusion distance it would often be hit at once).
     ``stations``: the material-flow variant: ``"auto"`` (``num_stations`` pick-ups and drop-offs placed on the
     layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams)."""
 
@@ -95,6 +97,7 @@ class SwarmConfig:
     num_rays: int = 8
     ray_range: float = 1.0
     respawn_rounds: int = 2
+    respawn_clearance: float = 0.1
     goal_rounds: int = 2
     reset_rounds: int = 32
     stations: Any = None
@@ -108,6 +111,8 @@ class SwarmConfig:
             raise ValueError(f"collision_shape must be 'circle' or 'box', got {self.collision_shape!r}")
         if self.on_collision not in COLLISION_MODES:
             raise ValueError(f"on_collision must be one of {COLLISION_MODES}, got {self.on_collision!r}")
+        if not (np.isfinite(self.respawn_clearance) and self.respawn_clearance >= 0):
+            raise ValueError(f"respawn_clearance must be a number >= 0 (m), got {self.respawn_clearance!r}")
         if not (np.isfinite(self.occupancy) and self.occupancy > 0):
             raise ValueError(f"occupancy must be a positive number (movers per tile), got {self.occupancy!r}")
         if not (np.isfinite(self.threshold_pos) and self.threshold_pos > 0):
@@ -180,6 +185,10 @@ class SwarmEnv(MagwarpVecEnv):
         self.placer = Placer(self.layout, m, n, mover=mover, offset=cfg.collision_offset,
                              radius=float(self.sim._radii_np.max()), half_size=self.sim._half_np.max(axis=0),
                              device=wdev, seed=0 if seed is None else int(seed))
+        self.respawn_placer = Placer(self.layout, m, n, mover=mover,
+                                     offset=cfg.collision_offset + 0.5 * cfg.respawn_clearance,
+                                     radius=float(self.sim._radii_np.max()), half_size=self.sim._half_np.max(axis=0),
+                                     device=wdev, seed=1 if seed is None else int(seed) + 1) if respawn else None
         self.local = LocalObservations(self.layout, n, m, k=cfg.k, radius=cfg.obs_radius, num_rays=cfg.num_rays,
                                        max_range=cfg.ray_range, device=wdev)
         self._stopped = wp.zeros((n, m), dtype=wp.int32, device=wdev)
@@ -224,6 +233,8 @@ class SwarmEnv(MagwarpVecEnv):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         if seed is not None:
             self.placer.reseed(int(seed))
+            if self.respawn_placer is not None:
+                self.respawn_placer.reseed(int(seed) + 1)
         self._checked_reset = True  # reset(): placement is checked on the host (errors with densities)
         try:
             return super().reset(seed=seed, options=options)
@@ -246,13 +257,15 @@ class SwarmEnv(MagwarpVecEnv):
         return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ task hooks
-    def _place(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int, hold: bool = False) -> torch.Tensor:
+    def _place(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int, hold: bool = False,
+               placer: Placer | None = None) -> torch.Tensor:
         """Place the masked rows of ``xy`` (contiguous ``[N, M, 2]``); returns the movers left unplaced. ``hold``:
         the masked rows are real spots until they move (respawns, goal streams)."""
+        placer = placer or self.placer
         if getattr(self, "_checked_reset", False):
-            self.placer.place(xy, mask)
+            placer.place(xy, mask)
             return torch.zeros_like(mask)
-        return self.placer.place_async(xy, mask, rounds=rounds, hold=hold).clone()
+        return placer.place_async(xy, mask, rounds=rounds, hold=hold).clone()
 
     def _reset_envs(self, mask: torch.Tensor) -> None:
         n, m = self.num_envs, self.num_movers
@@ -347,7 +360,7 @@ class SwarmEnv(MagwarpVecEnv):
         """Re-place the movers in ``want`` at free spots (clear of every other mover) and restart them at rest."""
         sim = self.sim
         self._xy.copy_(sim.pos[..., :2])
-        left = self._place(self._xy, want, self.config.respawn_rounds, hold=True)
+        left = self._place(self._xy, want, self.config.respawn_rounds, hold=True, placer=self.respawn_placer)
         placed = want & ~left
         sel = placed[..., None]
         pos = sim.pos

@@ -34,7 +34,7 @@ def _det(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def orca_lines(rel_pos: torch.Tensor, rel_vel: torch.Tensor, radius: float, horizon: float,
+def orca_lines(rel_pos: torch.Tensor, rel_vel: torch.Tensor, radius: float | torch.Tensor, horizon: float,
                step: float) -> tuple[torch.Tensor, torch.Tensor]:
     """ORCA for relative positions ``p_j - p_i`` and relative velocities ``v_i - v_j`` (``[..., 2]``): the
     direction of each line and the full velocity change ``u`` that leaves the velocity obstacle (the caller takes
@@ -112,7 +112,7 @@ class SwarmPlanner:
 
     def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 1.0,
                  buffer: float = 0.06, yield_share: float = 0.5, brake_factor: float = 0.5,
-                 separate: float = 0.3):
+                 separate: float = 0.3, relax: float = 0.0, reachable: bool = False):
         if env.learn_jerk:
             raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
@@ -128,11 +128,16 @@ class SwarmPlanner:
         sim = env.sim
         col = sim.model.collision
         reach = float(sim._radii_np.max()) if col.shape == 0 else float(math.hypot(*sim._half_np.max(axis=0)))
-        self.safe = 2.0 * (reach + float(col.margin)) + float(buffer)
+        self.contact = 2.0 * (reach + float(col.margin))  # the simulator's collision distance
+        self.safe = self.contact + float(buffer)
         self.wall_reach = reach + float(col.wall_margin)  # goals may lie this close to a wall: no buffer
         self.a_max = float(env.config.a_max)
         self.step_time = env.num_cycles * float(sim.model.limits.dt)
         self.separate = max(float(separate), self.step_time)
+        if not (math.isfinite(relax) and relax >= 0):
+            raise ValueError(f"relax must be a number >= 0, got {relax!r}")
+        self.relax = float(relax)
+        self.reachable = bool(reachable)
         dev = env.device
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
@@ -149,20 +154,44 @@ class SwarmPlanner:
         # 2. ORCA lines of the neighbours (relative velocity v_i - v_j = -rel_vel)
         lines = []
         if local.k > 0:
-            direction, u = orca_lines(local.rel_pos, -local.rel_vel, self.safe, self.horizon, self.separate)
+            # pairs already inside the safe distance (but apart) use their gap as the radius: they may not close
+            # it further, and are not asked to open it at once (a mover packed between two could not)
+            gap = local.rel_pos.norm(dim=-1)
+            radius = torch.where(gap > self.contact, torch.minimum(torch.full_like(gap, self.safe), 0.98 * gap),
+                                 torch.full_like(gap, self.safe))
+            direction, u = orca_lines(local.rel_pos, -local.rel_vel, radius, self.horizon, self.separate)
             share = torch.where(local.index < self.index, self.yield_share, 1.0 - self.yield_share)
             point = vel[..., None, :] + share[..., None] * u
             lines = [(point[..., s, :], direction[..., s, :], local.mask[..., s]) for s in range(local.k)]
         # 3. wall lines: v . ray <= room / stop time, i.e. the line through room * ray along the ray's normal
         if local.num_rays > 0:
             room = (local.walls - self.wall_reach).clamp_min(0.0)
-            limit = torch.sqrt(2.0 * self.a_brake * room)  # fastest approach that can still stop in time
+            # fastest approach that can still stop in time, and that does not cross the room within one step
+            limit = torch.minimum(torch.sqrt(2.0 * self.a_brake * room), room / self.step_time)
             for r in range(local.num_rays):
                 ray = self.rays[r]
                 normal_dir = torch.stack([-ray[1], ray[0]]).expand_as(v)  # det(dir, point - v) <= 0 <=> v.ray <= lim
                 lines.append((limit[..., r, None] * ray, normal_dir, torch.ones_like(room[..., r], dtype=torch.bool)))
-        v, ok = solve_lines(lines, v, self.cruise)
-        # no velocity satisfies every line (a crowd): brake, which keeps the reciprocal promise best
+        v_pref = v
+        if self.reachable:
+            # solve among the velocities the mover can reach within one step (centred on its velocity)
+            shifted = [(p - vel, d, live) for p, d, live in lines]
+            dv, ok = solve_lines(shifted, v_pref - vel, self.a_max * self.step_time)
+            v = vel + dv
+            lines = shifted if self.relax > 0 else lines
+        else:
+            v, ok = solve_lines(lines, v_pref, self.cruise)
+        if self.relax > 0:
+            # a crowd leaves no velocity that satisfies every line: allow each line to be missed by ``relax`` m/s
+            loose = [(p + self.relax * torch.stack([d[..., 1], -d[..., 0]], -1), d, live) for p, d, live in lines]
+            if self.reachable:
+                v2, ok2 = solve_lines(loose, v_pref - vel, self.a_max * self.step_time)
+                v2 = v2 + vel
+            else:
+                v2, ok2 = solve_lines(loose, v_pref, self.cruise)
+            v = torch.where((~ok & ok2)[..., None], v2, v)
+            ok = ok | ok2
+        # still nothing: brake, which keeps the reciprocal promise best
         v = torch.where(ok[..., None], v, vel * self.brake_factor)
         # 4. the acceleration that reaches v within one env step, within the limit
         acc = (v - vel) / self.step_time
