@@ -203,6 +203,7 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
     if steps is not None and (int(steps) != steps or steps < 1):
         raise EvalError(f"--steps must be a positive integer, got {steps!r}")
     env_id = resolve_env_id(env_id)
+    label, policy = policy, _pretrained_file(policy)
     if policy != "scripted" and not os.path.isfile(policy) and ":" not in policy:
         raise EvalError(f"policy {policy!r} is not 'scripted', an existing file, or module:callable")
     device = _check_device(device)
@@ -266,7 +267,17 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
         count = values["goals_reached" if family == "trajectory" else "episodes"]
         rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
                         float(np.mean(process)), float(np.std(process)), process))
-        return EvalResult(env_id, policy, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
+        return EvalResult(env_id, label, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
+
+
+def _pretrained_file(policy: str) -> str:
+    """``pretrained:NAME`` -> the shipped policy file (:mod:`magwarp.training.pretrained`); other specs unchanged."""
+    from magwarp.training.pretrained import resolve_policy
+
+    try:
+        return resolve_policy(policy)
+    except ValueError as e:
+        raise EvalError(str(e)) from None
 
 
 @contextlib.contextmanager

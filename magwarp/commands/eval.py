@@ -4,8 +4,10 @@
     magwarp eval TrajectoryPlanningB0 --policy scripted --episodes 100 --repeats 10 --steps 250 --json b0.json
     magwarp eval PushBox --policy my_agent.pt --episodes 200 --repeats 10 --device cuda:0
     magwarp eval PushBox --policy mypkg.policies:MyPolicy --episodes 50 --repeats 4
+    magwarp eval PushBox --policy pretrained:pushbox_sac --episodes 200 --repeats 100
 
-POLICY: ``scripted`` (the built-in baseline), a TorchScript or ``torch.save``d module file (it receives the
+POLICY: ``scripted`` (the built-in baseline), ``pretrained:NAME`` (a policy shipped with magwarp: b0_ppo,
+pushbox_sac, pusht_sac, obstacles_sac), a TorchScript or ``torch.save``d module file (it receives the
 observation dict flattened in sorted key order: achieved_goal, desired_goal, observation), or ``module:callable``
 (a class is instantiated with the env; a function is called as ``fn(obs) -> actions``). All episodes of a repeat
 run in parallel worlds; for trajectory planning every "episode" is one world's long-horizon run of --steps steps.
@@ -30,7 +32,8 @@ HELP = "evaluate a policy on an env: success rate, collisions, makespan, ..."
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("eval", help=HELP, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("env_id", metavar="ENV_ID", help="e.g. magwarp/PushBox-v0, PushBox, TrajectoryPlanningB0")
-    p.add_argument("--policy", default="scripted", help="scripted | PATH (TorchScript / torch.save) | module:callable")
+    p.add_argument("--policy", default="scripted",
+                   help="scripted | pretrained:NAME | PATH (TorchScript / torch.save) | module:callable")
     p.add_argument("--episodes", type=int, default=100, help="episodes (goals) per repeat, run in parallel (default 100)")
     p.add_argument("--repeats", type=int, default=10, help="repeats; the table shows mean ± std over them (default 10)")
     p.add_argument("--device", default=None, help="cpu or cuda:N (default: the best available)")
@@ -53,12 +56,15 @@ def _env_kwargs(args) -> dict:
     try:
         if args.env_kwargs is not None:
             return parse_env_kwargs(args.env_kwargs)
-        if args.policy == "scripted" or not os.path.isfile(args.policy):
+        from magwarp.training.pretrained import resolve_policy
+
+        path = resolve_policy(args.policy)
+        if path == "scripted" or not os.path.isfile(path):
             return {}
         from magwarp.training.policy import policy_metadata
 
         try:
-            stored = policy_metadata(args.policy).get("eval_env_kwargs")
+            stored = policy_metadata(path).get("eval_env_kwargs")
         except Exception:  # noqa: BLE001 - not a TorchScript file (torch.save'd module): it carries no options
             return {}
         kwargs = parse_env_kwargs(stored)
