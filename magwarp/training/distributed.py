@@ -94,10 +94,13 @@ def setup(device: str | None, timeout_s: float = 300.0) -> str | None:
     return device
 
 
-def shutdown() -> None:
-    """Destroy the process group this module created (end of a torchrun job)."""
+def shutdown(wait: bool = True) -> None:
+    """Destroy the process group this module created (end of a torchrun job). ``wait``: first wait for every rank
+    (rank 0 still writes its files while the others are done); off on an error, where another rank may be gone."""
     global _OWNED
     if _OWNED and is_active():
+        if wait and world_size() > 1:
+            torch.distributed.barrier()
         torch.distributed.destroy_process_group()
     _OWNED = False
 

@@ -125,11 +125,14 @@ def run_training(args: argparse.Namespace, resolve: Callable, body: Callable[[ar
     threads = torch.get_num_threads()
     if args.torch_threads or str(args.device).startswith("cpu"):
         torch.set_num_threads(args.torch_threads or 1)
+    ok = False
     try:
-        return body(args)
+        summary = body(args)
+        ok = True
+        return summary
     finally:
         torch.set_num_threads(threads)
-        dist.shutdown()
+        dist.shutdown(wait=ok)
 
 
 def entry_point(parse_args: Callable, train: Callable) -> Callable[[list[str] | None], int]:
