@@ -36,13 +36,14 @@ def _run(cmd: list[str], timeout: float = 240) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=timeout, cwd=REPO)
 
 
-def test_averaged_gradient_equals_the_gradient_of_the_union_of_batches(tmp_path):
+def test_averaged_gradient_equals_the_gradient_of_the_union_of_batches_and_divergence_is_caught(tmp_path):
     proc = _run([*TORCHRUN, str(WORKER), "grad", str(tmp_path)])
     assert proc.returncode == 0, proc.stderr[-3000:]
     for rank in (0, 1):
         out = json.loads((tmp_path / f"grad_rank{rank}.json").read_text())
         assert out["world"] == 2 and out["max_grad"] > 1e-2  # a real gradient, not zeros
         assert out["max_diff"] <= 1e-6, out
+        assert "ranks [1] hold other parameters than rank 0" in out["diverged"]
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])

@@ -140,10 +140,12 @@ def run(args) -> int:
     finally:
         dist.shutdown(wait=False)
     if not main_rank:
+        dist.leave(0)
         return 0
     print(format_table(result))
     if args.json is not None:
         with open(args.json, "w") as f:
             json.dump(result.to_dict(), f, indent=2, allow_nan=False)
         print(f"wrote {args.json}")
+    dist.leave(0)  # a torchrun rank: done, exit without the runtime's teardown (see magwarp.training.distributed)
     return 0

@@ -144,6 +144,7 @@ def entry_point(parse_args: Callable, train: Callable) -> Callable[[list[str] | 
     @record
     def main(argv: list[str] | None = None) -> int:
         train(parse_args(argv))
+        dist.leave(0)  # a torchrun rank: done (its process group is destroyed), exit without teardown
         return 0
 
     return main

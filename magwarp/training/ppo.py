@@ -131,6 +131,7 @@ def _train(args: argparse.Namespace) -> dict:
         return agent.actor_mean(obs_rms.normalize(flatten_obs(o))).clamp(-1.0, 1.0) * action_scale
 
     def save_all(summary: dict | None = None) -> None:
+        dist.check_in_sync([*agent.parameters(), *obs_rms.buffers()])  # torchrun: every rank holds rank 0's
         if not main_rank:
             return
         state = {"algo": "ppo", "args": {k: v for k, v in vars(args).items() if k != "resume"},

@@ -420,6 +420,7 @@ def _train(args: argparse.Namespace) -> dict:
         return actor(norm(o), deterministic=True)[0] * action_scale
 
     def save_all(summary: dict | None = None) -> None:
+        dist.check_in_sync(learner.tensors())  # torchrun: every rank holds rank 0's
         if not main_rank:
             return
         state = {"algo": "sac-her", "args": {k: v for k, v in vars(args).items() if k != "resume"},
