@@ -155,3 +155,28 @@ def test_a_rank_that_stops_answering_fails_the_collective_after_its_timeout():
     proc = _run([*TORCHRUN, str(WORKER), "hang", "/nonexistent"], timeout=120)
     assert proc.returncode != 0 and time.time() - start < 60
     assert "Timed out" in proc.stderr and "rank      : 0" in proc.stderr, proc.stderr[-3000:]
+
+
+def test_train_command_launches_torchrun_with_the_module_and_its_options(tmp_path, monkeypatch, capsys):
+    """``magwarp train --nproc-per-node N`` is torchrun over the training module with the same options (standalone
+    on one machine; a rendezvous from --torchrun-args); a failed job names the resume command."""
+    from magwarp.cli import main
+    from magwarp.training import distributed
+
+    calls = []
+    monkeypatch.setattr(distributed.subprocess, "call", lambda cmd, env: calls.append((cmd, env)) or 0)
+    argv = ["train", TINY_ENV, "--algo", "sac-her", "--device", "cpu", "--num-envs", "8", "--minutes", "1",
+            "--out", str(tmp_path), "--nproc-per-node", "3", "--args", "--hidden 16,16"]
+    assert main(argv) == 0 and "done on 3 processes" in capsys.readouterr().out
+    cmd, env = calls[0]
+    assert cmd[:6] == [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "3"]
+    assert cmd[6:8] == ["-m", "magwarp.training.sac_her"] and cmd[cmd.index("--num-envs") + 1] == "8"
+    assert cmd[-2:] == ["--hidden", "16,16"] and env["PYTHONPATH"].split(os.pathsep)[0] == str(REPO)
+    assert main([*argv, "--torchrun-args", "--nnodes 2 --node-rank 1 --rdzv-endpoint h:29400"]) == 0
+    cmd = calls[1][0]
+    assert "--standalone" not in cmd
+    assert cmd[5:11] == ["--nnodes", "2", "--node-rank", "1", "--rdzv-endpoint", "h:29400"]
+    monkeypatch.setattr(distributed.subprocess, "call", lambda cmd, env: 1)
+    assert main(argv) == 1
+    assert f"magwarp train --resume {tmp_path} --nproc-per-node 3" in capsys.readouterr().err
+    assert main([*argv[:-4], "--nproc-per-node", "0"]) == 2

@@ -63,7 +63,8 @@ def test_export_command(tmp_path, rng, capsys):
 
 @pytest.mark.parametrize("name", ["b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac"])
 def test_shipped_policies_export(tmp_path, name):
-    """The shipped policies (magwarp/pretrained/: 256-wide networks, actions up to 10 m/s^2) pass the export's own check."""
+    """The shipped policies (magwarp/pretrained/: 256-wide networks, actions up to 10 m/s^2) pass the export's own
+    check."""
     from magwarp.training import pretrained_path
     from magwarp.training.export import export_onnx
 

@@ -17,7 +17,8 @@ TINY_KWARGS = '{"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]], "num_movers": 1}'
 
 def _example(name: str):
     """The training module behind ``examples/<name>.py`` (the example scripts only call it)."""
-    return importlib.import_module({"train_ppo": "magwarp.training.ppo", "train_sac_her": "magwarp.training.sac_her"}[name])
+    modules = {"train_ppo": "magwarp.training.ppo", "train_sac_her": "magwarp.training.sac_her"}
+    return importlib.import_module(modules[name])
 
 
 def _success_rate(policy, seed: int = 123, num_envs: int = 64, steps: int = 150) -> float:

@@ -59,8 +59,8 @@ def test_wheel_trains_evaluates_exports_and_ships_the_policies(venv):
     assert str(venv / "venv") in where.splitlines()[0] and "site-packages" in where, where
     assert where.splitlines()[1] == "['b0_ppo', 'obstacles_sac', 'pushbox_sac', 'pusht_sac'] 8 2", where
 
-    out = _run(venv, str(bin_ / "magwarp"), "train", "magwarp/TrajectoryPlanning-v0", "--algo", "ppo", "--device", "cpu",
-               "--num-envs", "32", "--minutes", "0.33", "--out", "runs/tiny", "--env-kwargs", TINY, "--target", "0.3",
+    out = _run(venv, str(bin_ / "magwarp"), "train", "magwarp/TrajectoryPlanning-v0", "--algo", "ppo",
+               "--device", "cpu", "--num-envs", "32", "--minutes", "0.33", "--out", "runs/tiny", "--env-kwargs", TINY, "--target", "0.3",
                "--args", "--num-steps 8 --hidden 32,32 --eval-steps 20 --eval-every 5 --target-eval-steps 60 "
                          "--no-progress --log-every 5")
     run = venv / "work" / "runs" / "tiny"

@@ -68,7 +68,8 @@ def _launch(args) -> int:
     for flag, value in (("--policy", args.policy), ("--episodes", args.episodes), ("--repeats", args.repeats),
                         ("--device", args.device), ("--json", args.json), ("--steps", args.steps),
                         ("--makespan-goals", args.makespan_goals), ("--max-worlds", args.max_worlds),
-                        ("--seed", args.seed), ("--env-kwargs", args.env_kwargs), ("--dist-timeout", args.dist_timeout)):
+                        ("--seed", args.seed), ("--env-kwargs", args.env_kwargs),
+                        ("--dist-timeout", args.dist_timeout)):
         if value is not None:
             argv += [flag, str(value)]
     rc = distributed.launch(args.nproc_per_node, "magwarp", argv)

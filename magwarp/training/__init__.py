@@ -11,6 +11,7 @@ from magwarp.training.common import (OBS_KEYS, CsvLogger, RunningMeanStd, Succes
 from magwarp.training.policy import FlatPolicy, Policy, load_policy, mlp, save_policy
 from magwarp.training.pretrained import load_pretrained, pretrained_names, pretrained_path
 
-__all__ = ["OBS_KEYS", "CsvLogger", "RunningMeanStd", "SuccessTracker", "Timer", "evaluate", "flatten_obs", "load_checkpoint",
-           "make_env", "obs_dim", "parse_env_kwargs", "plot_curve", "save_checkpoint", "seed_everything", "FlatPolicy",
-           "Policy", "load_policy", "mlp", "save_policy", "load_pretrained", "pretrained_names", "pretrained_path"]
+__all__ = ["OBS_KEYS", "CsvLogger", "RunningMeanStd", "SuccessTracker", "Timer", "evaluate", "flatten_obs",
+           "load_checkpoint", "make_env", "obs_dim", "parse_env_kwargs", "plot_curve", "save_checkpoint",
+           "seed_everything", "FlatPolicy", "Policy", "load_policy", "mlp", "save_policy", "load_pretrained",
+           "pretrained_names", "pretrained_path"]

@@ -25,8 +25,8 @@ from magwarp.training import distributed as dist
 from magwarp.training.common import (PROCESS_START, CsvLogger, SuccessTracker, Timer, evaluate, load_checkpoint,
                                      make_env, obs_dim, parse_env_kwargs, plot_curve, seed_everything)
 
-__all__ = ["PAPER_TARGETS", "default_target", "add_run_args", "resolve_run_args", "run_training", "entry_point", "open_env", "ProgressBar",
-           "TargetEval", "Session", "finished_line", "write_run_json"]
+__all__ = ["PAPER_TARGETS", "default_target", "add_run_args", "resolve_run_args", "run_training", "entry_point",
+           "open_env", "ProgressBar", "TargetEval", "Session", "finished_line", "write_run_json"]
 
 #: success rates the paper reports for its tasks (Tables 3 and 5): the default ``--target`` of a run on that task
 PAPER_TARGETS = {"TrajectoryPlanningB0": 0.99, "PushBox": 0.99, "PushT": 0.73, "PushWithObstacles": 0.91}
@@ -235,7 +235,8 @@ class TargetEval:
             self.reached = row
             if dist.is_main():
                 print(f"time to target: success {ev['success_rate']:.4f} >= {self.target} after "
-                      f"{row['process_s']:.1f} s (process), {row['wall_s']:.1f} s of training, {global_step:,} env steps")
+                      f"{row['process_s']:.1f} s (process), {row['wall_s']:.1f} s of training, "
+                      f"{global_step:,} env steps")
         return ev
 
     @property

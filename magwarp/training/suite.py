@@ -5,7 +5,8 @@
 
 Each run (:data:`magwarp.training.paper.PAPER_RUNS`: env id, algorithm, and the env options the paper trained and
 evaluated with) is ``python -m magwarp.training.ppo`` or ``python -m magwarp.training.sac_her`` writing
-``WORK/<name>/`` (policy.pt, checkpoint.pt, progress.csv, curve.png, run.json) and ``WORK/<name>.log``. With ``--out``, every run folder and its log are
+``WORK/<name>/`` (policy.pt, checkpoint.pt, progress.csv, curve.png, run.json) and ``WORK/<name>.log``. With
+``--out``, every run folder and its log are
 packed into ``OUT/<name>.tgz`` (one file per run: the device tool returns at most 8 files). Several runs share a GPU
 when there are fewer GPUs than runs (their small kernels interleave). A summary table is printed at the end.
 """
