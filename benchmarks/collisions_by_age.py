@@ -6,7 +6,7 @@ the episode started", the env steps, collisions (episodes terminated), timeouts 
 starts every world afresh for a 10 s run, so a policy that collides right after a start is penalised there far more
 than in a long training episode; this table shows whether it does.
 
-    python benchmarks/collisions_by_age.py --policy policies/b0_ppo.pt --device cpu --json out.json
+    python benchmarks/collisions_by_age.py --policy magwarp/pretrained/b0_ppo.pt --device cpu --json out.json
 """
 
 from __future__ import annotations

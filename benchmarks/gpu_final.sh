@@ -3,7 +3,7 @@
 #   export PYTHONPATH=/tmp/site:$PWD MAGWARP_COMMIT=<sha>
 #   bash benchmarks/gpu_final.sh bench   # GPU tests, scaling (MagBotSim on the same machine's CPU), env throughput
 #   bash benchmarks/gpu_final.sh push    # push env throughput: default solver and capped iterations
-#   bash benchmarks/gpu_final.sh eval    # scripted baselines on every env and the trained policies in policies/
+#   bash benchmarks/gpu_final.sh eval    # scripted baselines on every env and the shipped policies (magwarp/pretrained/)
 set -u
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
@@ -31,11 +31,11 @@ else
   bash benchmarks/eval_all.sh "$OUT/eval_gpu" cuda:0 100 2>&1 | grep -E "^\*|Success Rate|Collisions \(per"
   log "trained policies"
   for r in pushbox_sac:PushBox pusht_sac:PushT obstacles_sac:PushWithObstacles; do
-    timeout 60 python3 -m magwarp eval "magwarp/${r##*:}-v0" --policy "policies/${r%%:*}.pt" --episodes 200 --repeats 100 \
+    timeout 60 python3 -m magwarp eval "magwarp/${r##*:}-v0" --policy "pretrained:${r%%:*}" --episodes 200 --repeats 100 \
       --device cuda:0 --json "$OUT/eval_${r%%:*}_gpu.json" | grep -E "Success Rate"
   done
   # 10 s per world, the eval's default (83 steps of the policy's 120-cycle actions)
-  timeout 60 python3 -m magwarp eval magwarp/TrajectoryPlanningB0-v0 --policy policies/b0_ppo.pt --episodes 100 --repeats 100 \
+  timeout 60 python3 -m magwarp eval magwarp/TrajectoryPlanningB0-v0 --policy pretrained:b0_ppo --episodes 100 --repeats 100 \
     --device cuda:0 --json "$OUT/eval_b0_ppo_gpu.json" | grep -E "Success Rate|Collisions \(per"
 fi
 log "done"

@@ -7,7 +7,6 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import sys
 import time
@@ -16,8 +15,6 @@ from pathlib import Path
 import torch
 
 from common import header_line, machine_info
-
-REPO = Path(__file__).resolve().parent.parent
 
 
 def _sync(device: str) -> None:
@@ -92,9 +89,7 @@ def main(argv=None) -> int:
             ms = env_step_ms(run.env_id, run.train_kwargs, n, args.device, args.steps)
             result["env"].append({"run": name, "num_envs": n, "step_ms": ms, "env_steps_per_s": 1000 * n / ms})
             print(f"| {name} | {n} | {ms:.2f} | {1000 * n / ms:,.0f} |", flush=True)
-    spec = importlib.util.spec_from_file_location("train_sac_her", REPO / "examples" / "train_sac_her.py")
-    sac = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(sac)
+    from magwarp.training import sac_her as sac
     graphs = ("off", "on") if args.device.startswith("cuda") else ("off",)
     print("\n| batch | CUDA graph | ms per update |\n|---|---|---|")
     for batch in (int(x) for x in args.batches.split(",")):

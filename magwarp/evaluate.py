@@ -191,7 +191,12 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
 
     On the CPU, torch runs with one intra-op thread for the whole evaluation (``torch.set_num_threads(1)``): the
     tensors are small, and several threads only make the process times unstable on a shared machine. The previous
-    thread count is restored on return (also on an error)."""
+    thread count is restored on return (also on an error).
+
+    Under torchrun (``magwarp eval --nproc-per-node N``, :mod:`magwarp.training.distributed`) every rank calls this
+    with its own device: a batch holds at most ceil(repeats / N) repeats, rank r runs batches r, r + N, ..., and
+    every rank returns the whole result, its repeats in batch order. A batch's seeds do not depend on the rank, so
+    the table equals a one-process run whose ``max_worlds`` holds as many repeats per batch."""
     import gymnasium as gym
     from tqdm import tqdm
 
@@ -203,12 +208,16 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
     if steps is not None and (int(steps) != steps or steps < 1):
         raise EvalError(f"--steps must be a positive integer, got {steps!r}")
     env_id = resolve_env_id(env_id)
+    label, policy = policy, _pretrained_file(policy)
     if policy != "scripted" and not os.path.isfile(policy) and ":" not in policy:
         raise EvalError(f"policy {policy!r} is not 'scripted', an existing file, or module:callable")
+    from magwarp.training import distributed as dist
+
     device = _check_device(device)
+    rank, world = dist.rank(), dist.world_size()
     with _cpu_threads(device):
         max_worlds = max_worlds or (65536 if device.startswith("cuda") else 2048)
-        per_batch = max(1, min(repeats, max_worlds // episodes))
+        per_batch = max(1, min(repeats, max_worlds // episodes, math.ceil(repeats / world)))
         num_batches = math.ceil(repeats / per_batch)
         worlds = per_batch * episodes
 
@@ -228,17 +237,17 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
             metrics = Metrics(env, makespan_goals=makespan_goals)
         act = load_policy(policy, env)
 
-        values: dict[str, list[float]] = {}
-        process: list[float] = []
-        total = num_batches * num_steps
+        mine = range(rank, num_batches, world)  # this rank's batches
+        done: list[tuple[int, dict[str, list[float]], float]] = []  # (batch, metric values, process time)
+        total = len(mine) * num_steps
         bar = tqdm(total=total, desc=f"eval {env_id}", unit="step", leave=False,
-                   disable=(total < 100) if progress is None else not progress)
+                   disable=rank > 0 or ((total < 100) if progress is None else not progress))
         start_all = time.perf_counter()
         with torch.no_grad():
             # Warm-up: the first step compiles kernels and records the step graph; keep it out of the process time.
             obs, _ = env.reset(seed=seed)
             env.step(act(obs))
-            for batch in range(num_batches):
+            for batch in mine:
                 obs, _ = env.reset(seed=seed + batch)
                 metrics.reset()
                 _sync(device)
@@ -255,18 +264,35 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
                 summary = {k: v.cpu().numpy() for k, v in metrics.summary(per_batch).items()}  # one sync per batch
                 wall = time.perf_counter() - start
                 keep = min(per_batch, repeats - batch * per_batch)
-                for k, v in summary.items():
-                    values.setdefault(k, []).extend(float(x) for x in v[:keep])
                 units = summary["goals_reached"].sum() if family == "trajectory" else summary["episodes"].sum()
-                process.append(1000.0 * wall / max(float(units), 1.0))
+                done.append((batch, {k: [float(x) for x in v[:keep]] for k, v in summary.items()},
+                             1000.0 * wall / max(float(units), 1.0)))
         bar.close()
         wall_all = time.perf_counter() - start_all
+        values: dict[str, list[float]] = {}
+        process: list[float] = []
+        ranks = dist.gather_objects((done, wall_all))  # every rank's batches (one process: its own)
+        for _, batch_values, ms in sorted((b for part, _ in ranks for b in part), key=lambda b: b[0]):
+            for k, v in batch_values.items():
+                values.setdefault(k, []).extend(v)
+            process.append(ms)
+        wall_all = max(w for _, w in ranks)
         rows = _rows(type(metrics).ROWS, values, env.num_movers)
         unit = "goal" if family == "trajectory" else "episode"
         count = values["goals_reached" if family == "trajectory" else "episodes"]
         rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
                         float(np.mean(process)), float(np.std(process)), process))
-        return EvalResult(env_id, policy, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
+        return EvalResult(env_id, label, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
+
+
+def _pretrained_file(policy: str) -> str:
+    """``pretrained:NAME`` -> the shipped policy file (:mod:`magwarp.training.pretrained`); other specs unchanged."""
+    from magwarp.training.pretrained import resolve_policy
+
+    try:
+        return resolve_policy(policy)
+    except ValueError as e:
+        raise EvalError(str(e)) from None
 
 
 @contextlib.contextmanager

@@ -174,10 +174,10 @@ def test_collisions_by_age_matches_a_per_world_count():
     import torch
 
     import collisions_by_age as cba
-    from magwarp.training import make_env
+    from magwarp.training import make_env, pretrained_path
     from magwarp.training.policy import policy_metadata
 
-    policy_path = str(Path(__file__).resolve().parent.parent / "policies" / "b0_ppo.pt")
+    policy_path = pretrained_path("b0_ppo")
     worlds, steps, seed = 32, 40, 3
     rows = cba.count_by_age(policy_path, "cpu", worlds, steps, seed)
     assert [r["age_bin"] for r in rows] == ["0-2", "3-9", "10-29", "30-99", "100+", "all"]

@@ -63,11 +63,11 @@ def test_export_command(tmp_path, rng, capsys):
 
 @pytest.mark.parametrize("name", ["b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac"])
 def test_shipped_policies_export(tmp_path, name):
-    """The policies in policies/ (256-wide networks, actions up to 10 m/s^2) pass the export's own check."""
-    from pathlib import Path
-
+    """The shipped policies (magwarp/pretrained/: 256-wide networks, actions up to 10 m/s^2) pass the export's own
+    check."""
+    from magwarp.training import pretrained_path
     from magwarp.training.export import export_onnx
 
-    path = Path(__file__).resolve().parent.parent / "policies" / f"{name}.pt"
+    path = pretrained_path(name)
     info = export_onnx(str(path), str(tmp_path / f"{name}.onnx"))
     assert info["max_diff"] <= 1e-5 and info["max_abs_diff"] >= info["max_diff"]

@@ -3,7 +3,7 @@ file contract of :mod:`magwarp.training.policy` (TorchScript, dict or flat obser
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 from pathlib import Path
 
 import pytest
@@ -16,10 +16,9 @@ TINY_KWARGS = '{"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]], "num_movers": 1}'
 
 
 def _example(name: str):
-    spec = importlib.util.spec_from_file_location(f"_magwarp_example_{name}", REPO / "examples" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """The training module behind ``examples/<name>.py`` (the example scripts only call it)."""
+    modules = {"train_ppo": "magwarp.training.ppo", "train_sac_her": "magwarp.training.sac_her"}
+    return importlib.import_module(modules[name])
 
 
 def _success_rate(policy, seed: int = 123, num_envs: int = 64, steps: int = 150) -> float:
@@ -322,3 +321,48 @@ def test_suite_passes_a_runs_own_script_options(tmp_path, monkeypatch):
     seeds = [cmd[cmd.index("--seed") + 1] if "--seed" in cmd else None for cmd in commands]
     assert seeds == [None, "1", "2"] and all(cmd[-2:] == ["--num-envs", "8"] for cmd in commands)
     assert PAPER_RUNS["b0_ppo_starts40_seed1"].train_kwargs == PAPER_RUNS["b0_ppo_starts40"].train_kwargs
+
+
+def test_time_to_target_first_crossing_stops_and_is_written(tmp_path, capsys):
+    """A periodic deterministic evaluation finds the first crossing of --target; --stop-at-target ends the run there;
+    the time to target is printed and written to run.json (every evaluation too) and the policy's metadata."""
+    import json
+
+    ppo = _example("train_ppo")
+    args = _ppo_args(tmp_path, "--total-steps", "24576", "--target", "0.6", "--eval-every", "1e-9", "--eval-envs", "16",
+                     "--target-eval-steps", "150", "--stop-at-target", "--eval-steps", "0")
+    summary = ppo.train(args)
+    run = json.loads((tmp_path / "run.json").read_text())
+    evals = run["evals"]
+    assert run["summary"] == json.loads(json.dumps(summary)) and summary["target"] == 0.6
+    # one evaluation per iteration (16 x 64 steps); the last is the first to reach the target, and training stopped
+    assert len(evals) == summary["global_step"] // 1024 and summary["global_step"] < 24576
+    assert evals[-1]["success_rate"] >= 0.6 and all(e["success_rate"] < 0.6 for e in evals[:-1])
+    assert summary["time_to_target_step"] == evals[-1]["global_step"] == summary["global_step"]
+    assert summary["time_to_target_s"] == evals[-1]["process_s"] > summary["time_to_target_train_s"] > 0
+    assert all(e["episodes"] > 0 for e in evals)
+    out = capsys.readouterr().out
+    assert "time to target: success" in out and f"time to target (0.6): {summary['time_to_target_s']:.1f} s" in out
+    from magwarp.training.policy import policy_metadata
+
+    assert policy_metadata(str(tmp_path / "policy.pt"))["time_to_target_s"] == summary["time_to_target_s"]
+    # resuming a run that reached its target keeps the first crossing
+    resumed = ppo.train(ppo.parse_args(["--resume", str(tmp_path), "--total-steps", str(summary["global_step"] + 1024),
+                                        "--no-progress", "--stop-at-target"]))
+    assert resumed["time_to_target_s"] == summary["time_to_target_s"]
+
+
+def test_targets_default_to_the_papers_and_are_checked(tmp_path):
+    from magwarp.training.loop import default_target
+
+    assert [default_target(f"magwarp/{t}-v0") for t in ("TrajectoryPlanningB0", "PushBox", "PushT",
+                                                          "PushWithObstacles", "TrajectoryPlanning")] == \
+        [0.99, 0.99, 0.73, 0.91, None]
+    ppo = _example("train_ppo")
+    args = ppo.resolve_args(ppo.parse_args(["--env-id", "magwarp/PushBox-v0", "--minutes", "1"]))
+    assert args.target == 0.99 and args.eval_every == 10.0
+    args = ppo.resolve_args(ppo.parse_args(["--env-id", TINY_ENV, "--minutes", "1"]))
+    assert args.target is None and args.eval_every == 0.0
+    for bad in ("99", "0", "-0.5"):
+        with pytest.raises(ValueError, match="--target is a success rate"):
+            ppo.resolve_args(ppo.parse_args(["--env-id", TINY_ENV, "--minutes", "1", "--target", bad]))

@@ -4,12 +4,18 @@
     magwarp eval TrajectoryPlanningB0 --policy scripted --episodes 100 --repeats 10 --steps 250 --json b0.json
     magwarp eval PushBox --policy my_agent.pt --episodes 200 --repeats 10 --device cuda:0
     magwarp eval PushBox --policy mypkg.policies:MyPolicy --episodes 50 --repeats 4
+    magwarp eval PushBox --policy pretrained:pushbox_sac --episodes 200 --repeats 100
 
-POLICY: ``scripted`` (the built-in baseline), a TorchScript or ``torch.save``d module file (it receives the
+POLICY: ``scripted`` (the built-in baseline), ``pretrained:NAME`` (a policy shipped with magwarp: b0_ppo,
+pushbox_sac, pusht_sac, obstacles_sac), a TorchScript or ``torch.save``d module file (it receives the
 observation dict flattened in sorted key order: achieved_goal, desired_goal, observation), or ``module:callable``
 (a class is instantiated with the env; a function is called as ``fn(obs) -> actions``). All episodes of a repeat
 run in parallel worlds; for trajectory planning every "episode" is one world's long-horizon run of --steps steps.
 With --device cpu, torch uses one intra-op thread (small tensors: more threads only make timings unstable).
+
+SEVERAL GPUS: ``--nproc-per-node N`` runs N processes through torchrun (one per GPU, ``cuda:LOCAL_RANK``; CPU
+processes with ``--device cpu``): the repeats are shared out in batches of at most ceil(repeats / N), and rank 0
+prints the one table (the same as one process with ``--max-worlds`` = episodes x ceil(repeats / N)).
 
 ENV OPTIONS: ``--env-kwargs JSON`` sets env options (e.g. ``'{"num_cycles": 160}'``). Without it, a policy file
 written by ``magwarp train`` brings the options it is meant to be evaluated with (its ``eval_env_kwargs``, e.g. the
@@ -30,7 +36,8 @@ HELP = "evaluate a policy on an env: success rate, collisions, makespan, ..."
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("eval", help=HELP, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("env_id", metavar="ENV_ID", help="e.g. magwarp/PushBox-v0, PushBox, TrajectoryPlanningB0")
-    p.add_argument("--policy", default="scripted", help="scripted | PATH (TorchScript / torch.save) | module:callable")
+    p.add_argument("--policy", default="scripted",
+                   help="scripted | pretrained:NAME | PATH (TorchScript / torch.save) | module:callable")
     p.add_argument("--episodes", type=int, default=100, help="episodes (goals) per repeat, run in parallel (default 100)")
     p.add_argument("--repeats", type=int, default=10, help="repeats; the table shows mean ± std over them (default 10)")
     p.add_argument("--device", default=None, help="cpu or cuda:N (default: the best available)")
@@ -43,7 +50,32 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--env-kwargs", default=None, metavar="JSON",
                    help="env options (default: the policy file's eval_env_kwargs, if it has them)")
+    p.add_argument("--nproc-per-node", type=int, default=None, metavar="N",
+                   help="share the repeats out over N processes (one per GPU) through torchrun; one table")
+    p.add_argument("--dist-timeout", type=float, default=300.0,
+                   help="seconds a torchrun rank waits for the others before the job fails")
     return p
+
+
+def _launch(args) -> int:
+    """``--nproc-per-node N``: this command again, in N torchrun processes."""
+    from magwarp.commands import CommandError
+    from magwarp.training import distributed
+
+    if args.nproc_per_node < 1:
+        raise UsageError(f"--nproc-per-node must be >= 1, got {args.nproc_per_node}")
+    argv = ["eval", args.env_id]
+    for flag, value in (("--policy", args.policy), ("--episodes", args.episodes), ("--repeats", args.repeats),
+                        ("--device", args.device), ("--json", args.json), ("--steps", args.steps),
+                        ("--makespan-goals", args.makespan_goals), ("--max-worlds", args.max_worlds),
+                        ("--seed", args.seed), ("--env-kwargs", args.env_kwargs),
+                        ("--dist-timeout", args.dist_timeout)):
+        if value is not None:
+            argv += [flag, str(value)]
+    rc = distributed.launch(args.nproc_per_node, "magwarp", argv)
+    if rc != 0:
+        raise CommandError(f"torchrun exited with code {rc} (a rank failed: its error is above)")
+    return 0
 
 
 def _env_kwargs(args) -> dict:
@@ -53,12 +85,15 @@ def _env_kwargs(args) -> dict:
     try:
         if args.env_kwargs is not None:
             return parse_env_kwargs(args.env_kwargs)
-        if args.policy == "scripted" or not os.path.isfile(args.policy):
+        from magwarp.training.pretrained import resolve_policy
+
+        path = resolve_policy(args.policy)
+        if path == "scripted" or not os.path.isfile(path):
             return {}
         from magwarp.training.policy import policy_metadata
 
         try:
-            stored = policy_metadata(args.policy).get("eval_env_kwargs")
+            stored = policy_metadata(path).get("eval_env_kwargs")
         except Exception:  # noqa: BLE001 - not a TorchScript file (torch.save'd module): it carries no options
             return {}
         kwargs = parse_env_kwargs(stored)
@@ -69,6 +104,15 @@ def _env_kwargs(args) -> dict:
     return kwargs
 
 
+def _quiet(fn, *args):
+    """``fn(*args)`` without its prints (the other ranks of a torchrun job: rank 0 prints)."""
+    import contextlib
+    import io
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        return fn(*args)
+
+
 def run(args) -> int:
     if args.json is not None:
         parent = os.path.dirname(os.path.abspath(args.json))
@@ -76,22 +120,33 @@ def run(args) -> int:
             raise UsageError(f"--json: directory {parent!r} does not exist")
     if args.max_worlds is not None and args.max_worlds < 1:
         raise UsageError(f"--max-worlds must be >= 1, got {args.max_worlds}")
+    if args.nproc_per_node is not None:
+        return _launch(args)
     import warp as wp
 
     from magwarp.evaluate import EvalError, evaluate, format_table
+    from magwarp.training import distributed as dist
 
-    env_kwargs = _env_kwargs(args)
     wp.config.quiet = True  # Warp < 1.19
     wp.config.log_level = getattr(wp, "LOG_WARNING", 30)  # no init banner or module-load lines around the table
+    device = dist.setup(args.device, args.dist_timeout)  # under torchrun: this rank's device and process group
+    main_rank = dist.is_main()
     try:
-        result = evaluate(args.env_id, args.policy, args.episodes, args.repeats, device=args.device, steps=args.steps,
+        env_kwargs = _env_kwargs(args) if main_rank else _quiet(_env_kwargs, args)
+        result = evaluate(args.env_id, args.policy, args.episodes, args.repeats, device=device, steps=args.steps,
                           makespan_goals=args.makespan_goals, max_worlds=args.max_worlds, seed=args.seed,
                           env_kwargs=env_kwargs)
     except EvalError as e:
         raise UsageError(str(e)) from None
+    finally:
+        dist.shutdown(wait=False)
+    if not main_rank:
+        dist.leave(0)
+        return 0
     print(format_table(result))
     if args.json is not None:
         with open(args.json, "w") as f:
             json.dump(result.to_dict(), f, indent=2, allow_nan=False)
         print(f"wrote {args.json}")
+    dist.leave(0)  # a torchrun rank: done, exit without the runtime's teardown (see magwarp.training.distributed)
     return 0

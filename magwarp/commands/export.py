@@ -2,6 +2,7 @@
 
     magwarp export runs/b0_ppo/policy.pt --onnx b0.onnx
     magwarp export runs/pushbox --onnx pushbox.onnx        # a run folder means its policy.pt
+    magwarp export pretrained:b0_ppo --onnx b0.onnx        # a policy shipped with magwarp
 
 The ONNX graph takes ``obs`` float32 [batch, obs_dim] (the goal-dict observation flattened in sorted key order:
 achieved_goal, desired_goal, observation) and returns ``action`` float32 [batch, action_dim] in the env's units
@@ -21,7 +22,8 @@ HELP = "export a trained policy as ONNX"
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("export", help=HELP, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("policy", metavar="POLICY", help="policy.pt (TorchScript or torch.save'd module) or a run folder")
+    p.add_argument("policy", metavar="POLICY",
+                   help="policy.pt (TorchScript or torch.save'd module), a run folder, or pretrained:NAME")
     p.add_argument("--onnx", required=True, metavar="OUT", help="the .onnx file to write")
     p.add_argument("--opset", type=int, default=17, help="ONNX opset (default 17)")
     p.add_argument("--obs-dim", type=int, default=None, help="observation size, for modules that do not record it")
@@ -32,6 +34,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
+    from magwarp.training.pretrained import resolve_policy
+
+    args.policy = resolve_policy(args.policy)
     if not os.path.exists(args.policy):
         raise UsageError(f"no policy at {args.policy!r}")
     if os.path.isdir(args.policy) and not os.path.isfile(os.path.join(args.policy, "policy.pt")):

@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from magwarp.training import distributed as dist
+
 __all__ = ["OBS_KEYS", "make_env", "evaluate", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
            "plot_curve", "save_checkpoint", "load_checkpoint", "seed_everything", "parse_env_kwargs", "Timer"]
 
@@ -94,8 +96,15 @@ class RunningMeanStd(torch.nn.Module):
 
     @torch.no_grad()
     def update(self, x: torch.Tensor) -> None:
+        """Add a batch; under torchrun the batch is every rank's (the moments are summed over the ranks)."""
         x = x.reshape(-1, x.shape[-1]).to(torch.float64)
-        b_mean, b_var, b_count = x.mean(0), x.var(0, unbiased=False), x.shape[0]
+        if dist.is_active() and dist.world_size() > 1:
+            s = dist.all_reduce_sum_(torch.cat([x.new_full((1,), x.shape[0]), x.sum(0), x.square().sum(0)]))
+            b_count = s[0]  # stays on the device (no host sync)
+            b_mean = s[1:1 + x.shape[1]] / s[0]
+            b_var = (s[1 + x.shape[1]:] / s[0] - b_mean.square()).clamp(min=0.0)
+        else:
+            b_mean, b_var, b_count = x.mean(0), x.var(0, unbiased=False), x.shape[0]
         delta = b_mean - self.mean
         tot = self.count + b_count
         self.mean += delta * b_count / tot
@@ -154,7 +163,9 @@ class SuccessTracker:
 
     def pop(self) -> dict[str, float]:
         """Host values since the last pop (one sync): success_rate, episodes, mean return/length, collisions."""
-        v = {k: float(t) for k, t in self.s.items()}
+        keys = list(self.s)
+        totals = dist.all_reduce_sum_(torch.stack([self.s[k] for k in keys]))  # every rank's counters (torchrun)
+        v = {k: float(t) for k, t in zip(keys, totals.tolist())}
         self._zero()
         eps = max(v["episodes"], 1.0)
         return {

@@ -29,7 +29,7 @@ PUSH_REWARDS = {"collision_penalty": -50.0, "per_step_penalty": -1.0, "object_at
 
 @dataclass(frozen=True)
 class PaperRun:
-    """One training run: env id, algorithm (``examples/train_<algo>.py``), env options for training and for the
+    """One training run: env id, algorithm (:attr:`module`), env options for training and for the
     evaluation, the paper's table row it is compared with, and options of the training script (e.g. a seed)."""
 
     env_id: str
@@ -40,8 +40,9 @@ class PaperRun:
     script_args: tuple[str, ...] = ()
 
     @property
-    def script(self) -> str:
-        return {"ppo": "train_ppo.py", "sac-her": "train_sac_her.py"}[self.algo]
+    def module(self) -> str:
+        """The training module (``python -m`` it)."""
+        return {"ppo": "magwarp.training.ppo", "sac-her": "magwarp.training.sac_her"}[self.algo]
 
     def train_json(self) -> str:
         return json.dumps(self.train_kwargs, separators=(",", ":"))
@@ -82,7 +83,7 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # PPO's collisions come from episode starts: the evaluation begins a fresh 10 s run per world, and b0_ppo (one
     # start per ~1450 training steps) collided in 4.9% of its first three steps after a start and in 0.006% of the
     # steps after 100 (RESULTS). These cut every training episode after the evaluation's 10 s (83 steps of 120 cycles;
-    # 250 of 40), or after 4.8 s (40 steps), so starts are seen often. b0_ppo_starts40 is policies/b0_ppo.pt: 99.80%
+    # 250 of 40), or after 4.8 s (40 steps), so starts are seen often. b0_ppo_starts40 is pretrained:b0_ppo: 99.80%
     # success, 0.69 collisions per 1000 goals (83 steps: 1.83; 40-cycle actions: 3.04)
     "b0_ppo_starts": _b0("ppo", {**_B0_PUBLISHED, "max_episode_steps": 83}, _B0_PUBLISHED),
     "b0_ppo_starts40": _b0("ppo", _B0_STARTS40, _B0_PUBLISHED),

@@ -4,8 +4,9 @@
     python -m magwarp.training.suite --minutes 6 --work runs --out $OUT --resume   # continue the same runs
 
 Each run (:data:`magwarp.training.paper.PAPER_RUNS`: env id, algorithm, and the env options the paper trained and
-evaluated with) is ``examples/train_ppo.py`` or ``examples/train_sac_her.py`` writing ``WORK/<name>/`` (policy.pt,
-checkpoint.pt, progress.csv, curve.png) and ``WORK/<name>.log``. With ``--out``, every run folder and its log are
+evaluated with) is ``python -m magwarp.training.ppo`` or ``python -m magwarp.training.sac_her`` writing
+``WORK/<name>/`` (policy.pt, checkpoint.pt, progress.csv, curve.png, run.json) and ``WORK/<name>.log``. With
+``--out``, every run folder and its log are
 packed into ``OUT/<name>.tgz`` (one file per run: the device tool returns at most 8 files). Several runs share a GPU
 when there are fewer GPUs than runs (their small kernels interleave). A summary table is printed at the end.
 """
@@ -22,7 +23,8 @@ from pathlib import Path
 
 from magwarp.training.paper import PAPER_RUNS as RUNS
 
-REPO = Path(__file__).resolve().parent.parent.parent
+#: the folder that holds this magwarp package (a checkout, or site-packages): the runs import the same magwarp
+ROOT = Path(__file__).resolve().parent.parent.parent
 DEFAULT = ("b0_ppo_starts40", "pushbox_sac", "pusht_sac", "obstacles_sac_random")
 
 
@@ -48,7 +50,7 @@ def main(argv=None) -> int:
     unknown = [n for n in names if n not in RUNS]
     if unknown:
         raise SystemExit(f"unknown runs {unknown}; choose from {list(RUNS)}")
-    work = Path(args.work)
+    work = Path(args.work).resolve()
     work.mkdir(parents=True, exist_ok=True)
     if args.device is None:
         import torch
@@ -62,7 +64,7 @@ def main(argv=None) -> int:
     for i, name in enumerate(names):
         run = RUNS[name]
         folder = work / name
-        cmd = [sys.executable, str(REPO / "examples" / run.script), "--minutes", str(args.minutes), "--no-progress"]
+        cmd = [sys.executable, "-m", run.module, "--minutes", str(args.minutes), "--no-progress"]
         if args.stop_after is not None:
             cmd += ["--stop-after", str(args.stop_after)]
         if args.resume and (folder / "checkpoint.pt").is_file():
@@ -70,7 +72,8 @@ def main(argv=None) -> int:
         else:
             cmd += ["--env-id", run.env_id, "--env-kwargs", run.train_json(), "--eval-env-kwargs", run.eval_json(),
                     "--out", str(folder), *run.script_args]
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env = dict(os.environ, PYTHONUNBUFFERED="1",
+                   PYTHONPATH=os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))
         gpu = gpus[i % len(gpus)]
         if gpu is None:
             cmd += ["--device", args.device]
@@ -83,7 +86,7 @@ def main(argv=None) -> int:
         log.flush()
         print(f"[{time.strftime('%H:%M:%S')}] start {name} on {'GPU ' + str(gpu) if gpu is not None else args.device}",
               flush=True)
-        procs.append((name, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env, cwd=REPO), log))
+        procs.append((name, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env), log))
     failed = 0
     for name, proc, log in procs:
         rc = proc.wait()
