@@ -22,7 +22,7 @@ import argparse
 import json
 import os
 
-from magwarp.commands import UsageError
+from magwarp.commands import UsageError, add_trust_option
 
 HELP = "evaluate a policy on an env: success rate, collisions, makespan, ..."
 
@@ -43,6 +43,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--env-kwargs", default=None, metavar="JSON",
                    help="env options (default: the policy file's eval_env_kwargs, if it has them)")
+    add_trust_option(p)
     return p
 
 
@@ -86,7 +87,7 @@ def run(args) -> int:
     try:
         result = evaluate(args.env_id, args.policy, args.episodes, args.repeats, device=args.device, steps=args.steps,
                           makespan_goals=args.makespan_goals, max_worlds=args.max_worlds, seed=args.seed,
-                          env_kwargs=env_kwargs)
+                          env_kwargs=env_kwargs, trusted=args.trust)
     except EvalError as e:
         raise UsageError(str(e)) from None
     print(format_table(result))

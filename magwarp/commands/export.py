@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from magwarp.commands import CommandError, UsageError
+from magwarp.commands import CommandError, UsageError, add_trust_option, loading_errors
 
 HELP = "export a trained policy as ONNX"
 
@@ -28,6 +28,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--atol", type=float, default=1e-5,
                    help="largest accepted |onnxruntime - torch| as a fraction of the action range (default 1e-5)")
     p.add_argument("--no-check", action="store_true", help="skip the onnxruntime comparison")
+    add_trust_option(p)
     return p
 
 
@@ -40,11 +41,12 @@ def run(args) -> int:
         raise UsageError(f"--onnx {args.onnx!r} is a folder; give a file name")
     from magwarp.training.export import export_onnx
 
-    try:
-        info = export_onnx(args.policy, args.onnx, opset=args.opset, obs_dim=args.obs_dim, check=not args.no_check,
-                           atol=args.atol)
-    except RuntimeError as e:
-        raise CommandError(str(e)) from None
+    with loading_errors():
+        try:
+            info = export_onnx(args.policy, args.onnx, opset=args.opset, obs_dim=args.obs_dim, check=not args.no_check,
+                               atol=args.atol, trusted=args.trust)
+        except RuntimeError as e:
+            raise CommandError(str(e)) from None
     diff = info["max_diff"]
     check = ("not checked (onnxruntime missing)" if diff is None and not args.no_check else
              "not checked" if diff is None else

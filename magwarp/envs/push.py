@@ -40,6 +40,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp._checks import as_count, check_finite, device_name
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
@@ -179,18 +180,30 @@ class PushEnv(MagwarpVecEnv):
         render_mode: str | None = None,
         autoreset: bool = True,
         check_inputs: bool = True,
+        nan_dump: str | None = None,
     ):
         if benchmark is not None:
             layout, num_movers = push_benchmark(benchmark)
         layout = Layout(np.ones((4, 3), dtype=np.int32)) if layout is None else layout
-        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
-        if int(num_movers) != num_movers or num_movers < 1:
-            raise ValueError(f"num_movers must be a positive integer, got {num_movers!r}")
+        self.layout = layout if isinstance(layout, Layout) else Layout(layout)
+        num_envs = as_count(num_envs, "num_envs")
+        num_movers = as_count(num_movers, "num_movers")
         if collision_shape not in ("circle", "box"):
             raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
-        for name, value in (("num_cycles", num_cycles), ("max_episode_steps", max_episode_steps)):
-            if int(value) != value or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        num_cycles, max_episode_steps = as_count(num_cycles, "num_cycles"), as_count(max_episode_steps, "max_episode_steps")
+        solver_iterations, ls_iterations = as_count(solver_iterations, "solver_iterations"), as_count(ls_iterations,
+                                                                                                       "ls_iterations")
+        nconmax = None if nconmax is None else as_count(nconmax, "nconmax")
+        njmax = None if njmax is None else as_count(njmax, "njmax")
+        check_finite(p_max_c=p_max_c, v_max_c=v_max_c, a_max_c=a_max_c, j_max_c=j_max_c, object_width=object_width,
+                     object_height=object_height, object_depth=object_depth, object_segment_width=object_segment_width,
+                     object_radius=object_radius, object_mass=object_mass, v_max=v_max, a_max=a_max, j_max=j_max,
+                     object_sliding_friction=object_sliding_friction, max_position_err=max_position_err,
+                     object_torsional_friction=object_torsional_friction, min_coverage=min_coverage,
+                     collision_penalty=collision_penalty, per_step_penalty=per_step_penalty,
+                     object_at_goal_reward=object_at_goal_reward, collision_size=collision_size,
+                     collision_offset=collision_offset, collision_offset_wall=collision_offset_wall,
+                     initial_mover_zpos=initial_mover_zpos)
         if not 0.0 <= min_coverage <= 1.0:
             raise ValueError(f"min_coverage must lie in [0, 1], got {min_coverage!r}")
         if not max_position_err > 0:
@@ -232,9 +245,12 @@ class PushEnv(MagwarpVecEnv):
         self.mover = MoverSpec(**spec)
         self.collision_offset = float(collision_offset)
         self.obstacles = tuple(obstacles)
+        # Start ranges, and whether the mover and the object fit in them, before anything is built.
+        self._init_sampling_ranges()
+        self._check_sizes_fit()
 
         # Model: built once; starts and goals change per world without a rebuild.
-        device = device or _default_device()
+        device = device_name(device) or _default_device()
         if solver == "auto":
             solver = "Newton" if str(device).startswith("cuda") else "CG"
         self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
@@ -273,14 +289,13 @@ class PushEnv(MagwarpVecEnv):
                 [("mover", "obstacle"), ("object", "obstacle")],
             )
         super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
-                         check_inputs=check_inputs)
+                         check_inputs=check_inputs, nan_dump=nan_dump)
         #: ``[W, K, 5]`` (cx, cy, hx, hy, yaw) of each world's static obstacles (the same in every world unless a
         #: subclass changes them per episode)
         self.obstacle_boxes = torch.as_tensor(
             np.array([[o.xy[0], o.xy[1], o.half_size[0], o.half_size[1], o.yaw] for o in self.obstacles],
                      dtype=np.float32).reshape(1, -1, 5), device=self.device).repeat(self.num_envs, 1, 1)
 
-        self._init_sampling_ranges()
         n, dev = self.num_envs, self.device
         self.goal_xy = torch.zeros(n, 2, device=dev)
         self.goal_yaw = torch.zeros(n, device=dev)
@@ -334,6 +349,42 @@ class PushEnv(MagwarpVecEnv):
             warnings.warn(f"the object range of layout {self.layout.shape} spans at most {reach:.3f} m, so no start is "
                           f"{self.min_object_goal_dist} m from its goal as MagBotSim requires (MagBotSim loops forever "
                           "here); episodes start nearer", stacklevel=3)
+
+    def _check_sizes_fit(self) -> None:
+        """The mover's body and the (largest) object must stay on the layout anywhere in their start ranges: a body
+        that overhangs the tiles there is not levitated and goes unflagged (its collision shape is what is checked)."""
+        extent = np.asarray(self.layout.extent)
+        room = float(np.min(np.minimum(self.min_xy, extent - self.max_xy)))  # closest start to the layout's edge
+        half = 0.5 * np.asarray(self.mover.size[:2])
+        reach = float(np.hypot(*half)) if self.learn_mover_c_rotation else float(half.max())
+        if reach > room:
+            raise ValueError(f"mover of size {tuple(round(v, 4) for v in self.mover.size)} m (mover_params['size'] = half "
+                             f"sizes {tuple(float(v) for v in half.round(4))}) does not fit the layout: its start range comes within "
+                             f"{room:.3f} m of the tiles' edge (collision size + margins + 0.03 m), so its body would "
+                             f"overhang the tiles; the largest half size that fits is {room:.3f} m (or enlarge "
+                             f"collision_size)")
+        obj = self.object
+        parts = np.asarray(_parts(obj))
+        radius = float(np.max(np.hypot(np.abs(parts[:, 0]) + parts[:, 2], np.abs(parts[:, 1]) + parts[:, 3])))
+        obj_room = float(np.min(np.minimum(self.object_min_xy, extent - self.object_max_xy)))
+        if radius > obj_room:
+            size = f"radius {obj.radius:g} m" if obj.shape == "cylinder" else (
+                f"half sizes width {obj.width:g}, height {obj.height:g} m")
+            raise ValueError(f"the {obj.shape} object ({size}; with object_ranges, the largest) does not fit the layout "
+                             f"{self.layout.shape}: it reaches {radius:.3f} m from its centre at any yaw, but its start "
+                             f"range comes within {obj_room:.3f} m of the tiles' edge; the largest that fits reaches "
+                             f"{obj_room:.3f} m")
+
+    def _nonfinite_worlds(self, obs) -> torch.Tensor:
+        b = self.backend
+        state_bad = ~torch.isfinite(b.qpos_t).all(dim=1) | ~torch.isfinite(b.qvel_t).all(dim=1)
+        return state_bad | super()._nonfinite_worlds(obs)
+
+    def state_arrays(self, worlds) -> dict[str, Any]:
+        b = self.backend
+        return {**super().state_arrays(worlds), "qpos": b.qpos_t.cpu().numpy()[worlds],
+                "qvel": b.qvel_t.cpu().numpy()[worlds], "goal_xy": self.goal_xy.cpu().numpy()[worlds],
+                "goal_yaw": self.goal_yaw.cpu().numpy()[worlds]}
 
     def _observation_space(self) -> gym.spaces.Dict:
         m, c = self.num_movers, int(self.learn_mover_c_rotation)
