@@ -57,16 +57,30 @@ def safe_torch_load(path: str, map_location="cpu", *, trusted: bool = False, wha
         if "Weights only load failed" not in text:
             raise UnreadableFileError(f"{what} {path!r} is not a torch file magwarp can read ({_first_line(text)})") from None
         if trusted:
-            return _trusted_load(path, map_location, what)
+            try:
+                return _trusted_load(path, map_location, what)
+            except _READ_ERRORS as e2:
+                _reraise_unreadable(e2, path, what)
         found = re.search(r"GLOBAL ([\w.]+)", text)
-        detail = f" (e.g. {found.group(1)})" if found else ""
-        raise UnsafeFileError(f"refusing to load {what} {path!r}: it holds pickled Python objects{detail} that could "
-                              f"run code when loaded; {TRUST_HINT}") from None
-    except (RuntimeError, EOFError, ValueError, zipfile.BadZipFile, OSError, UnicodeDecodeError, KeyError) as e:
-        if isinstance(e, (FileNotFoundError, IsADirectoryError, PermissionError)):
-            raise
-        raise UnreadableFileError(f"{what} {path!r} is not a torch file magwarp can read "
-                                  f"({type(e).__name__}: {_first_line(str(e))})") from None
+        if found is None:  # not a pickle of objects at all (a text file, a truncated stream)
+            detail = re.search(r"WeightsUnpickler error: \s*([^\n]+)", text)
+            raise UnreadableFileError(f"{what} {path!r} is not a torch file magwarp can read"
+                                      f"{f' ({detail.group(1).strip()})' if detail else ''}") from None
+        raise UnsafeFileError(f"refusing to load {what} {path!r}: it holds pickled Python objects (e.g. "
+                              f"{found.group(1)}) that could run code when loaded; {TRUST_HINT}") from None
+    except _READ_ERRORS as e:
+        _reraise_unreadable(e, path, what)
+
+
+_READ_ERRORS = (RuntimeError, EOFError, ValueError, zipfile.BadZipFile, OSError, UnicodeDecodeError, KeyError,
+                pickle.UnpicklingError, AttributeError, ImportError)
+
+
+def _reraise_unreadable(e: BaseException, path: str, what: str):
+    if isinstance(e, (FileNotFoundError, IsADirectoryError, PermissionError, UnreadableFileError)):
+        raise e
+    raise UnreadableFileError(f"{what} {path!r} is not a torch file magwarp can read "
+                              f"({type(e).__name__}: {_first_line(str(e))})") from None
 
 
 def _first_line(text: str) -> str:

@@ -171,7 +171,7 @@ class CheckedPolicy:
         try:
             action = self.policy(obs)
         except Exception as e:  # noqa: BLE001 - the user's policy: its failure is reported as one line
-            raise EvalError(f"policy {self.name!r} raised {type(e).__name__}: {e}") from e
+            raise EvalError(f"policy {self.name!r} raised {type(e).__name__}: {_last_line(str(e))}") from e
         if not isinstance(action, torch.Tensor):
             try:
                 action = torch.as_tensor(np.asarray(action, dtype=np.float64), device=self.device)
@@ -189,6 +189,14 @@ class CheckedPolicy:
         if bool(self.nonfinite):
             raise EvalError(f"policy {self.name!r} returned non-finite actions (NaN, inf, or values beyond float32's "
                             f"range): the evaluation is void")
+
+
+def _last_line(message: str) -> str:
+    """The error itself from a message that carries a traceback (TorchScript's put it before the error line)."""
+    lines = [line.strip() for line in message.strip().splitlines() if line.strip()]
+    if len(lines) > 1 and any("Traceback" in line for line in lines):
+        return lines[-1]
+    return " ".join(lines)
 
 
 def _checked(policy: Callable, name: str, env) -> CheckedPolicy:
