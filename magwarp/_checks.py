@@ -14,15 +14,20 @@ import tempfile
 
 import numpy as np
 
-__all__ = ["as_count", "as_seed", "as_finite", "check_finite", "device_name", "init_warp", "stiffness_limit"]
+__all__ = ["as_count", "as_seed", "as_finite", "check_finite", "device_name", "warp_device", "init_warp",
+           "stiffness_limit"]
 
 #: the largest seed torch and numpy accept (unsigned 64-bit)
 SEED_MAX = 2**64 - 1
 
 
+#: counts are Warp launch sizes and array dimensions: int32
+COUNT_MAX = 2**31 - 1
+
+
 def as_count(value, name: str, minimum: int = 1) -> int:
-    """``value`` as an ``int`` >= ``minimum``; refuses bools, NaN, strings and non-integral numbers such as 2.5
-    (instead of truncating them)."""
+    """``value`` as an ``int`` in ``[minimum, 2**31 - 1]``; refuses bools, NaN, strings and non-integral numbers such
+    as 2.5 (instead of truncating them), and counts beyond Warp's int32 sizes."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.integer, np.floating)):
         raise TypeError(f"{name} must be an integer >= {minimum}, got {value!r} ({type(value).__name__})")
     if isinstance(value, (float, np.floating)) and not (math.isfinite(value) and float(value).is_integer()):
@@ -30,6 +35,8 @@ def as_count(value, name: str, minimum: int = 1) -> int:
     count = int(value)
     if count < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
+    if count > COUNT_MAX:
+        raise ValueError(f"{name} must be at most 2**31 - 1 (Warp's int32 sizes), got {value!r}")
     return count
 
 
@@ -55,16 +62,21 @@ def as_finite(value, name: str) -> float:
     return out
 
 
-def check_finite(**values) -> None:
-    """Refuse the first keyword whose value is a number (or a sequence of numbers) that is not finite in float32
-    (what the device stores). ``None`` and non-numeric values pass (their own checks judge them)."""
+def check_finite(*, allow_none: tuple[str, ...] = (), vectors: tuple[str, ...] = (), **values) -> None:
+    """Every keyword must be a number, finite in float32 (what the device stores); those named in ``vectors`` may be
+    sequences of numbers, those in ``allow_none`` None (their default). Raises naming the first bad one."""
     for name, value in values.items():
-        if value is None or isinstance(value, (str, bool, dict)):
+        if value is None and name in allow_none:
             continue
+        what = f"{name} must be a finite number{' (or numbers)' if name in vectors else ''}"
+        if value is None or isinstance(value, (str, bytes, bool, np.bool_, dict)):
+            raise TypeError(f"{what}, got {value!r}")
         try:
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):
-            continue
+            raise TypeError(f"{what}, got {value!r}") from None
+        if arr.dtype == object or (arr.ndim and name not in vectors):
+            raise TypeError(f"{what}, got {value!r}")
         with np.errstate(over="ignore", invalid="ignore"):
             stored = arr.astype(np.float32)
         if not np.all(np.isfinite(stored)):
@@ -85,6 +97,23 @@ def device_name(device) -> str | None:
     if isinstance(alias, str):
         return alias
     raise TypeError(f"device must be 'cpu', 'cuda:N', a torch.device or a warp device, got {device!r}")
+
+
+def warp_device(device):
+    """The Warp device for ``device`` (see :func:`device_name`; None: the first CUDA device, else the CPU), or a
+    ValueError naming the devices this machine has."""
+    import warp as wp
+
+    init_warp()
+    name = device_name(device)
+    if name is None:
+        name = "cuda:0" if wp.is_cuda_available() else "cpu"
+    if name == "cuda" and wp.is_cuda_available():
+        name = "cuda:0"
+    available = ["cpu", *(str(d) for d in wp.get_cuda_devices())]
+    if name not in available:
+        raise ValueError(f"device {device!r} is not available here (devices: {', '.join(available)})")
+    return wp.get_device(name)
 
 
 _WARP_READY = False

@@ -55,7 +55,8 @@ def safe_torch_load(path: str, map_location="cpu", *, trusted: bool = False, wha
     except pickle.UnpicklingError as e:
         text = str(e)
         if "Weights only load failed" not in text:
-            raise UnreadableFileError(f"{what} {path!r} is not a torch file magwarp can read ({_first_line(text)})") from None
+            raise UnreadableFileError(f"{what} {path!r} is not a torch file magwarp can read "
+                                      f"({_first_line(text)})") from None
         if trusted:
             try:
                 return _trusted_load(path, map_location, what)

@@ -111,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
+    previous = warnings.formatwarning
     if not debug:
         warnings.formatwarning = _one_line_warning
     try:
@@ -124,6 +125,8 @@ def main(argv: list[str] | None = None) -> int:
         code, line = error_line(e)
         sys.stderr.write(f"magwarp {args.command}: error: {line}\n")
         return code
+    finally:
+        warnings.formatwarning = previous
 
 
 def _one_line_warning(message, category, filename, lineno, line=None) -> str:

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from magwarp._checks import as_count, as_finite, check_finite, device_name, init_warp, stiffness_limit
+from magwarp._checks import as_count, as_finite, init_warp, stiffness_limit, warp_device
 from magwarp.kernels import collision as kcol
 from magwarp.kernels import guard as kguard
 from magwarp.kernels import step as kstep
@@ -118,8 +118,7 @@ class Simulator:
         max_pairs = as_count(max_pairs, "max_pairs")
         force_aux_dim = as_count(force_aux_dim, "force_aux_dim")
         self.num_worlds = num_worlds
-        init_warp()
-        self.device = wp.get_device(device_name(device) or default_device())
+        self.device = warp_device(device)
         self.control = control
         self.check_inputs = check_inputs
         self._use_graph = use_graph
@@ -259,8 +258,9 @@ class Simulator:
             limit = stiffness_limit(inertia, dt)
             if hold[i] and k >= limit:
                 unit = "kg" if i < 3 else "kg m^2"
-                raise ValueError(f"{name} {axis} = {k:g} is unstable at dt = {dt:g} s for a mover of {inertia:.4g} {unit}:"
-                                 f" the stable limit is {limit:.4g} (K < M (0.828 / dt)^2); lower it or shorten dt")
+                raise ValueError(f"{name} {axis} = {k:g} is unstable at dt = {dt:g} s for a mover of {inertia:.4g} "
+                                 f"{unit}: the stable limit is {limit:.4g} (K < M (0.828 / dt)^2); lower it or "
+                                 f"shorten dt")
 
     def _alloc_state(self, aux_dim: int) -> State:
         shape, dev = (self.num_worlds, self.num_movers), self.device

@@ -12,6 +12,7 @@ Needs the optional packages onnx and onnxruntime (pip install 'magwarp[onnx]').
 from __future__ import annotations
 
 import argparse
+import math
 import os
 
 from magwarp.commands import CommandError, UsageError, add_trust_option, loading_errors
@@ -37,6 +38,8 @@ def run(args) -> int:
         raise UsageError(f"no policy at {args.policy!r}")
     if os.path.isdir(args.policy) and not os.path.isfile(os.path.join(args.policy, "policy.pt")):
         raise UsageError(f"{args.policy!r} is a folder without a policy.pt")
+    if not (math.isfinite(args.atol) and args.atol > 0):
+        raise UsageError(f"--atol must be a positive number, got {args.atol}")
     if os.path.isdir(args.onnx):
         raise UsageError(f"--onnx {args.onnx!r} is a folder; give a file name")
     from magwarp.training.export import export_onnx

@@ -23,6 +23,7 @@ the flagged worlds' state and action to ``PATH`` (``.npz``, :meth:`dump_state`) 
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import gymnasium as gym
@@ -62,7 +63,9 @@ class MagwarpVecEnv(VectorEnv):
         self._generator = torch.Generator(device=self.device)
         self._generator.manual_seed(0 if seed is None else int(seed))
         self._all = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
-        self.nan_dump = nan_dump
+        if nan_dump is not None and not isinstance(nan_dump, (str, os.PathLike)):
+            raise TypeError(f"nan_dump must be None or a file path, got {nan_dump!r}")
+        self.nan_dump = None if nan_dump is None else os.fspath(nan_dump)
         self._step_count = 0  # env steps since construction (host count: no sync)
 
     def _set_spaces(self, single_observation_space: gym.Space, single_action_space: gym.Space) -> None:
@@ -99,7 +102,8 @@ class MagwarpVecEnv(VectorEnv):
         return self._get_obs(), {}
 
     def _reseed(self, seed: int) -> None:
-        """``reset(seed=...)``: everything random from here on follows ``seed`` (tasks with more generators extend it)."""
+        """``reset(seed=...)``: everything random from here on follows ``seed`` (tasks with more generators extend
+        it)."""
         self._generator.manual_seed(seed)
 
     def step(self, action) -> tuple[Obs, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:

@@ -40,7 +40,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, check_finite, device_name
+from magwarp._checks import as_count, check_finite, warp_device
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
@@ -71,12 +71,6 @@ def push_benchmark(name: str) -> tuple[Layout, int]:
 
 _CANDIDATES = 256  # start configurations drawn per env and reset; the first valid one is used. With 64, the
 # default Push-Box ranges (about 13% of candidates valid) left one env in ~8000 without a valid start per reset.
-
-
-def _default_device() -> str:
-    from magwarp.sim import default_device
-
-    return default_device()
 
 
 def _parts(obj: ObjectSpec) -> list[tuple[float, float, float, float]]:
@@ -190,9 +184,10 @@ class PushEnv(MagwarpVecEnv):
         num_movers = as_count(num_movers, "num_movers")
         if collision_shape not in ("circle", "box"):
             raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
-        num_cycles, max_episode_steps = as_count(num_cycles, "num_cycles"), as_count(max_episode_steps, "max_episode_steps")
-        solver_iterations, ls_iterations = as_count(solver_iterations, "solver_iterations"), as_count(ls_iterations,
-                                                                                                       "ls_iterations")
+        num_cycles = as_count(num_cycles, "num_cycles")
+        max_episode_steps = as_count(max_episode_steps, "max_episode_steps")
+        solver_iterations = as_count(solver_iterations, "solver_iterations")
+        ls_iterations = as_count(ls_iterations, "ls_iterations")
         nconmax = None if nconmax is None else as_count(nconmax, "nconmax")
         njmax = None if njmax is None else as_count(njmax, "njmax")
         check_finite(p_max_c=p_max_c, v_max_c=v_max_c, a_max_c=a_max_c, j_max_c=j_max_c, object_width=object_width,
@@ -203,13 +198,14 @@ class PushEnv(MagwarpVecEnv):
                      collision_penalty=collision_penalty, per_step_penalty=per_step_penalty,
                      object_at_goal_reward=object_at_goal_reward, collision_size=collision_size,
                      collision_offset=collision_offset, collision_offset_wall=collision_offset_wall,
-                     initial_mover_zpos=initial_mover_zpos)
+                     initial_mover_zpos=initial_mover_zpos, allow_none=("p_max_c", "collision_size"),
+                     vectors=("collision_size",))
         if not 0.0 <= min_coverage <= 1.0:
             raise ValueError(f"min_coverage must lie in [0, 1], got {min_coverage!r}")
         if not max_position_err > 0:
             raise ValueError(f"max_position_err must be positive, got {max_position_err!r}")
-        if early_termination_steps is not None and early_termination_steps < 1:
-            raise ValueError(f"early_termination_steps must be None or >= 1, got {early_termination_steps!r}")
+        if early_termination_steps is not None:
+            early_termination_steps = as_count(early_termination_steps, "early_termination_steps")
         self.num_movers = int(num_movers)
         self.learn_pose = bool(learn_pose)
         self.learn_jerk = bool(learn_jerk)
@@ -244,13 +240,15 @@ class PushEnv(MagwarpVecEnv):
                 spec["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
         self.mover = MoverSpec(**spec)
         self.collision_offset = float(collision_offset)
+        if not isinstance(obstacles, (tuple, list)) or not all(isinstance(o, ObstacleSpec) for o in obstacles):
+            raise TypeError(f"obstacles must be a tuple of ObstacleSpec, got {obstacles!r}")
         self.obstacles = tuple(obstacles)
         # Start ranges, and whether the mover and the object fit in them, before anything is built.
         self._init_sampling_ranges()
         self._check_sizes_fit()
 
         # Model: built once; starts and goals change per world without a rebuild.
-        device = device_name(device) or _default_device()
+        device = warp_device(device).alias
         if solver == "auto":
             solver = "Newton" if str(device).startswith("cuda") else "CG"
         self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
@@ -358,11 +356,11 @@ class PushEnv(MagwarpVecEnv):
         half = 0.5 * np.asarray(self.mover.size[:2])
         reach = float(np.hypot(*half)) if self.learn_mover_c_rotation else float(half.max())
         if reach > room:
-            raise ValueError(f"mover of size {tuple(round(v, 4) for v in self.mover.size)} m (mover_params['size'] = half "
-                             f"sizes {tuple(float(v) for v in half.round(4))}) does not fit the layout: its start range comes within "
-                             f"{room:.3f} m of the tiles' edge (collision size + margins + 0.03 m), so its body would "
-                             f"overhang the tiles; the largest half size that fits is {room:.3f} m (or enlarge "
-                             f"collision_size)")
+            size, halves = tuple(round(v, 4) for v in self.mover.size), tuple(float(v) for v in half.round(4))
+            raise ValueError(f"mover of size {size} m (mover_params['size'] = half sizes {halves}) does not fit the "
+                             f"layout: its start range comes within {room:.3f} m of the tiles' edge (collision size + "
+                             f"margins + 0.03 m), so its body would overhang the tiles; the largest half size that "
+                             f"fits is {room:.3f} m (or enlarge collision_size)")
         obj = self.object
         parts = np.asarray(_parts(obj))
         radius = float(np.max(np.hypot(np.abs(parts[:, 0]) + parts[:, 2], np.abs(parts[:, 1]) + parts[:, 3])))
@@ -370,10 +368,10 @@ class PushEnv(MagwarpVecEnv):
         if radius > obj_room:
             size = f"radius {obj.radius:g} m" if obj.shape == "cylinder" else (
                 f"half sizes width {obj.width:g}, height {obj.height:g} m")
-            raise ValueError(f"the {obj.shape} object ({size}; with object_ranges, the largest) does not fit the layout "
-                             f"{self.layout.shape}: it reaches {radius:.3f} m from its centre at any yaw, but its start "
-                             f"range comes within {obj_room:.3f} m of the tiles' edge; the largest that fits reaches "
-                             f"{obj_room:.3f} m")
+            raise ValueError(f"the {obj.shape} object ({size}; with object_ranges, the largest) does not fit the "
+                             f"layout {self.layout.shape}: it reaches {radius:.3f} m from its centre at any yaw, but "
+                             f"its start range comes within {obj_room:.3f} m of the tiles' edge; the largest that fits "
+                             f"reaches {obj_room:.3f} m")
 
     def _nonfinite_worlds(self, obs) -> torch.Tensor:
         b = self.backend

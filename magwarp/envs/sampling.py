@@ -8,8 +8,8 @@ no two movers within collision distance: the simulator's collision shapes (grown
 * Goals: each step draws ``candidates`` points per mover and takes the first valid one; if none is valid (rare) it
   takes a point from a pool of valid points sampled once at construction.
 * Start configurations: a pool of valid joint configurations is sampled by rejection at construction (and again by
-  :meth:`PoseSampler.draw_pools` when the env is reseeded), and each reset draws one uniformly. (Rejection per step would need the host to know when to stop; the pool keeps every reset
-  a fixed amount of device work.)
+  :meth:`PoseSampler.draw_pools` when the env is reseeded), and each reset draws one uniformly. (Rejection per
+  step would need the host to know when to stop; the pool keeps every reset a fixed amount of device work.)
 """
 
 from __future__ import annotations

@@ -25,11 +25,11 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, check_finite, device_name
+from magwarp._checks import as_count, check_finite, warp_device
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.sampling import PoseSampler
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
-from magwarp.sim import Simulator, default_device
+from magwarp.sim import Simulator
 
 __all__ = ["TrajectoryPlanningEnv"]
 
@@ -90,7 +90,8 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
         num_cycles = as_count(num_cycles, "num_cycles")
         check_finite(threshold_pos=threshold_pos, reward_success=reward_success, reward_collision=reward_collision,
                      reward_per_step=reward_per_step, collision_size=collision_size, collision_offset=collision_offset,
-                     collision_offset_wall=collision_offset_wall, safety_margin=safety_margin, std_noise=std_noise)
+                     collision_offset_wall=collision_offset_wall, safety_margin=safety_margin, std_noise=std_noise,
+                     v_max=v_max, a_max=a_max, j_max=j_max, allow_none=("collision_size",), vectors=("collision_size",))
         if timeout_steps is not None:
             timeout_steps = as_count(timeout_steps, "timeout_steps")
         if isinstance(layout, str):
@@ -119,7 +120,7 @@ class TrajectoryPlanningEnv(MagwarpVecEnv):
             else:
                 spec_kwargs["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
         mover = MoverSpec(**spec_kwargs)
-        device = device_name(device) or default_device()
+        device = warp_device(device).alias
         # The simulator is built with placeholder starts (every mover at the first tile centre) that are never
         # validated nor simulated: the first reset below replaces them with sampled, collision-free starts, which
         # are then checked with the simulator's own rule. (Tile-centre defaults overlap once the collision size

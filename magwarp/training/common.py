@@ -17,8 +17,8 @@ import numpy as np
 import torch
 
 __all__ = ["OBS_KEYS", "make_env", "evaluate", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
-           "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything", "parse_env_kwargs",
-           "Timer"]
+           "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything",
+           "parse_env_kwargs", "Timer"]
 
 #: order in which a goal-dict observation is flattened (the exported policy's input layout): sorted key order, as
 #: gymnasium's Dict space, SB3 and ``magwarp eval`` flatten it
