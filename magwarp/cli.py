@@ -1,7 +1,8 @@
 """The ``magwarp`` command: ``magwarp <subcommand> [options]``.
 
 Subcommand modules live in :mod:`magwarp.commands` and are imported only when chosen, so ``magwarp --help`` is
-fast. User mistakes are reported as one line on stderr with exit code 2 (``--debug`` shows the traceback).
+fast. Every error ends the command with one line on stderr and a non-zero exit code, never a traceback
+(``--debug`` shows it): user mistakes exit with 2, problems of the machine or of a policy's own code with 1.
 """
 
 from __future__ import annotations
@@ -11,11 +12,15 @@ import importlib
 import importlib.util
 import pkgutil
 import sys
+import warnings
 
 from magwarp.commands import SUBCOMMANDS, CommandError, UsageError
 
 EXIT_USAGE = 2
 EXIT_MISSING = 2
+EXIT_FAILURE = 1
+#: longest error line printed (a policy's exception can carry a whole tensor dump)
+MAX_LINE = 600
 
 EPILOG = """examples:
   magwarp render --synthetic --layout B1 --worlds 4 --steps 60 -o run.gif
@@ -106,25 +111,47 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
+    previous = warnings.formatwarning
+    if not debug:
+        warnings.formatwarning = _one_line_warning
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
         sys.stderr.write("magwarp: interrupted\n")
         return 130
-    except (UsageError, ValueError, FileNotFoundError, PermissionError, IsADirectoryError) as e:
+    except Exception as e:  # noqa: BLE001 - every error is reported as one line (--debug: the traceback)
         if debug:
             raise
-        from magwarp.layout import LayoutError
+        code, line = error_line(e)
+        sys.stderr.write(f"magwarp {args.command}: error: {line}\n")
+        return code
+    finally:
+        warnings.formatwarning = previous
 
-        plain = isinstance(e, (UsageError, LayoutError))
-        kind, hint = ("", "") if plain else (f"{type(e).__name__}: ", " (--debug for the traceback)")
-        sys.stderr.write(f"magwarp {args.command}: error: {kind}{e}{hint}\n")
-        return EXIT_USAGE
-    except (ImportError, CommandError) as e:  # a missing optional dependency or machine feature, in one line
-        if debug:
-            raise
-        sys.stderr.write(f"magwarp {args.command}: error: {e}\n")
-        return 1
+
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    return f"magwarp: {category.__name__}: {_flat(str(message))}\n"
+
+
+def _flat(text: str) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= MAX_LINE else text[:MAX_LINE - 3] + "..."
+
+
+def error_line(e: BaseException) -> tuple[int, str]:
+    """Exit code and one-line message for an error: a user mistake (exit 2, the message alone for ours and
+    ``TypeName: message`` for others), a missing optional package or machine feature (exit 1), or anything else,
+    e.g. a full disk or a policy's own exception (exit 1, ``TypeName: message``)."""
+    from magwarp.layout import LayoutError
+
+    hint = " (--debug for the traceback)"
+    if isinstance(e, (UsageError, LayoutError)):
+        return EXIT_USAGE, _flat(str(e))
+    if isinstance(e, (ValueError, FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError)):
+        return EXIT_USAGE, f"{type(e).__name__}: {_flat(str(e))}{hint}"
+    if isinstance(e, (ImportError, CommandError)):
+        return EXIT_FAILURE, _flat(str(e))
+    return EXIT_FAILURE, f"{type(e).__name__}: {_flat(str(e)) or 'no message'}{hint}"
 
 
 if __name__ == "__main__":

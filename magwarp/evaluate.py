@@ -123,19 +123,19 @@ def scripted_policy(env) -> Callable:
     raise EvalError(f"no scripted policy for {type(env).__name__}")
 
 
-def load_policy(spec: str, env) -> Callable:
+def load_policy(spec: str, env, *, trusted: bool = False) -> Callable:
     """``scripted``, a TorchScript / ``torch.save``d module file, or ``module:callable`` (a class is instantiated
-    with the env; a function is the policy ``fn(obs) -> actions``)."""
+    with the env; a function is the policy ``fn(obs) -> actions``). A file is loaded without running pickled code
+    (:mod:`magwarp._io`): a whole pickled module needs ``trusted=True``."""
     if spec == "scripted":
         return scripted_policy(env)
     if os.path.isfile(spec):
+        from magwarp._io import UnreadableFileError, load_module
+
         try:
-            module = torch.jit.load(spec, map_location=env.device)
-        except (RuntimeError, ValueError):
-            try:
-                module = torch.load(spec, map_location=env.device, weights_only=False)
-            except Exception as e:  # noqa: BLE001 - any unreadable file is the user's input problem
-                raise EvalError(f"policy file {spec!r} is neither TorchScript nor a torch.save'd module ({e})") from None
+            module = load_module(spec, env.device, trusted=trusted)
+        except UnreadableFileError as e:
+            raise EvalError(str(e)) from None
         if not callable(module):
             raise EvalError(f"policy file {spec!r} holds a {type(module).__name__}, not a callable module")
         return ModulePolicy(module, env)
@@ -155,6 +155,54 @@ def load_policy(spec: str, env) -> Callable:
     raise EvalError(f"policy {spec!r} is not 'scripted', an existing file, or module:callable")
 
 
+class CheckedPolicy:
+    """A policy whose errors and actions are checked: an exception inside it becomes an :class:`EvalError` naming the
+    policy; its actions must have the env's shape and be finite in float32 (checked on the device and read back
+    once per batch by :meth:`raise_if_nonfinite`, so a policy returning NaN fails the evaluation instead of
+    scoring 0 goals)."""
+
+    def __init__(self, policy: Callable, name: str, env):
+        self.policy, self.name = policy, name
+        self.shape = (env.num_envs, *env.single_action_space.shape)
+        self.device = env.device
+        self.nonfinite = torch.zeros((), dtype=torch.bool, device=env.device)
+
+    def __call__(self, obs) -> torch.Tensor:
+        try:
+            action = self.policy(obs)
+        except Exception as e:  # noqa: BLE001 - the user's policy: its failure is reported as one line
+            raise EvalError(f"policy {self.name!r} raised {type(e).__name__}: {_last_line(str(e))}") from e
+        if not isinstance(action, torch.Tensor):
+            try:
+                action = torch.as_tensor(np.asarray(action, dtype=np.float64), device=self.device)
+            except (TypeError, ValueError):
+                raise EvalError(f"policy {self.name!r} returned a {type(action).__name__}, not actions of shape "
+                                f"{self.shape}") from None
+        if tuple(action.shape) != self.shape or not action.is_floating_point():
+            raise EvalError(f"policy {self.name!r} returned {action.dtype} actions of shape {tuple(action.shape)}; "
+                            f"the env takes floating point actions of shape {self.shape}")
+        action = action.to(device=self.device, dtype=torch.float32)
+        self.nonfinite |= ~torch.isfinite(action).all()
+        return action
+
+    def raise_if_nonfinite(self) -> None:
+        if bool(self.nonfinite):
+            raise EvalError(f"policy {self.name!r} returned non-finite actions (NaN, inf, or values beyond float32's "
+                            f"range): the evaluation is void")
+
+
+def _last_line(message: str) -> str:
+    """The error itself from a message that carries a traceback (TorchScript's put it before the error line)."""
+    lines = [line.strip() for line in message.strip().splitlines() if line.strip()]
+    if len(lines) > 1 and any("Traceback" in line for line in lines):
+        return lines[-1]
+    return " ".join(lines)
+
+
+def _checked(policy: Callable, name: str, env) -> CheckedPolicy:
+    return CheckedPolicy(policy, name, env)
+
+
 # ---------------------------------------------------------------------------------------------------------- running
 def _family(env) -> str:
     from magwarp.envs.push import PushEnv
@@ -167,14 +215,16 @@ def _family(env) -> str:
     raise EvalError(f"magwarp eval supports trajectory planning and pushing envs, not {type(env).__name__}")
 
 
-def _check_device(device: str | None) -> str:
+def _check_device(device) -> str:
+    from magwarp._checks import device_name, init_warp
     from magwarp.sim import default_device
 
+    device = device_name(device)
     if device is None:
         return default_device()
     import warp as wp
 
-    wp.init()
+    init_warp()
     if device != "cpu" and not (device.startswith("cuda") and device in {str(d) for d in wp.get_cuda_devices()}
                                 or device == "cuda" and wp.is_cuda_available()):
         choices = "cpu or cuda:N" if wp.is_cuda_available() else "cpu"
@@ -184,7 +234,7 @@ def _check_device(device: str | None) -> str:
 
 def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats: int = 10, *, device: str | None = None,
              steps: int | None = None, makespan_goals: int = 5, max_worlds: int | None = None, seed: int = 0,
-             progress: bool | None = None, env_kwargs: dict | None = None) -> EvalResult:
+             progress: bool | None = None, env_kwargs: dict | None = None, trusted: bool = False) -> EvalResult:
     """Evaluate ``policy`` on ``env_id``; see the module docstring. ``steps``: env steps per world (trajectory
     planning, default 10 s: 250 steps of 40 cycles; pushing: the episode length). ``max_worlds``: worlds simulated at once (default
     65536 on a GPU, 2048 on the CPU).
@@ -202,11 +252,22 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
 
     from magwarp.metrics import Metrics
 
-    for name, value in (("episodes", episodes), ("repeats", repeats), ("makespan_goals", makespan_goals)):
-        if int(value) != value or value < 1:
-            raise EvalError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
-    if steps is not None and (int(steps) != steps or steps < 1):
-        raise EvalError(f"--steps must be a positive integer, got {steps!r}")
+    from magwarp._checks import as_count, as_seed
+
+    def count(name, value):  # NaN, 2.5 or "3" are refused, not truncated
+        try:
+            return as_count(value, name)
+        except (TypeError, ValueError):
+            raise EvalError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}") from None
+
+    episodes, repeats, makespan_goals = count("episodes", episodes), count("repeats", repeats), count(
+        "makespan_goals", makespan_goals)
+    steps = None if steps is None else count("steps", steps)
+    max_worlds = None if max_worlds is None else count("max_worlds", max_worlds)
+    try:
+        seed = as_seed(seed, "--seed")
+    except (TypeError, ValueError) as e:
+        raise EvalError(str(e)) from None
     env_id = resolve_env_id(env_id)
     label, policy = policy, _pretrained_file(policy)
     if policy != "scripted" and not os.path.isfile(policy) and ":" not in policy:
@@ -235,7 +296,7 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
         else:
             num_steps = int(steps or round(10_000 / env.num_cycles))  # 10 s of 1 ms cycles (250 steps of 40)
             metrics = Metrics(env, makespan_goals=makespan_goals)
-        act = load_policy(policy, env)
+        act = _checked(load_policy(policy, env, trusted=trusted), policy, env)
 
         mine = range(rank, num_batches, world)  # this rank's batches
         done: list[tuple[int, dict[str, list[float]], float]] = []  # (batch, metric values, process time)
@@ -247,6 +308,7 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
             # Warm-up: the first step compiles kernels and records the step graph; keep it out of the process time.
             obs, _ = env.reset(seed=seed)
             env.step(act(obs))
+            act.raise_if_nonfinite()
             for batch in mine:
                 obs, _ = env.reset(seed=seed + batch)
                 metrics.reset()
@@ -262,6 +324,7 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
                     metrics.t["episodes"] += still
                     metrics.freeze(still)
                 summary = {k: v.cpu().numpy() for k, v in metrics.summary(per_batch).items()}  # one sync per batch
+                act.raise_if_nonfinite()
                 wall = time.perf_counter() - start
                 keep = min(per_batch, repeats - batch * per_batch)
                 units = summary["goals_reached"].sum() if family == "trajectory" else summary["episodes"].sum()

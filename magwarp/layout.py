@@ -12,12 +12,28 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from magwarp._checks import as_count
+
 __all__ = ["TileSpec", "MoverSpec", "Layout", "LayoutError", "BENCHMARK_LAYOUTS", "benchmark_layout",
            "mover_params_kwargs"]
 
 
 class LayoutError(ValueError):
     """A layout, spec or start pose that cannot be simulated."""
+
+
+def _number(value, name: str) -> float:
+    """``value`` as a float, or a LayoutError naming it (strings such as "heavy", None, arrays)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise LayoutError(f"{name} must be a number, got {value!r} ({type(value).__name__})")
+    return float(value)
+
+
+def _numbers(values, name: str) -> tuple[float, ...]:
+    try:
+        return tuple(_number(v, name) for v in values)
+    except TypeError:  # not iterable
+        raise LayoutError(f"{name} must be a sequence of numbers, got {values!r}") from None
 
 
 @dataclass(frozen=True)
@@ -58,10 +74,12 @@ class MoverSpec:
     wall_margin: float = 0.0
 
     def __post_init__(self):
-        size = tuple(float(s) for s in self.size)
+        size = _numbers(self.size, "MoverSpec.size")
         if len(size) != 3 or not all(np.isfinite(s) and s > 0 for s in size):
             raise LayoutError(f"MoverSpec.size must be three positive finite numbers, got {self.size!r}")
         object.__setattr__(self, "size", size)
+        for name in ("mass", "hover_gap", "collision_radius", "margin", "wall_margin"):
+            object.__setattr__(self, name, _number(getattr(self, name), f"MoverSpec.{name}"))
         if not np.isfinite(self.mass) or self.mass <= 0:
             raise LayoutError(f"MoverSpec.mass must be positive and finite, got {self.mass!r}")
         if not np.isfinite(self.hover_gap) or self.hover_gap < 0:
@@ -72,7 +90,7 @@ class MoverSpec:
             raise LayoutError(f"MoverSpec.collision_radius must be positive, got {self.collision_radius!r}")
         if self.collision_half_size is None:
             object.__setattr__(self, "collision_half_size", (0.5 * size[0], 0.5 * size[1]))
-        half = tuple(float(s) for s in self.collision_half_size)
+        half = _numbers(self.collision_half_size, "MoverSpec.collision_half_size")
         if len(half) != 2 or not all(np.isfinite(s) and s > 0 for s in half):
             raise LayoutError(f"MoverSpec.collision_half_size must be two positive numbers, got {self.collision_half_size!r}")
         object.__setattr__(self, "collision_half_size", half)
@@ -148,7 +166,13 @@ class Layout:
     tile: TileSpec = field(default_factory=TileSpec)
 
     def __post_init__(self):
-        tiles = np.asarray(self.tiles)
+        try:
+            tiles = np.asarray(self.tiles)
+        except ValueError:  # numpy refuses ragged nested lists
+            raise LayoutError(f"layout must be a rectangular 2-D 0/1 array; its rows differ in length: "
+                              f"{self.tiles!r}") from None
+        if tiles.dtype == object:
+            raise LayoutError(f"layout must be a rectangular 2-D 0/1 array, got {self.tiles!r}")
         if tiles.ndim != 2:
             raise LayoutError(f"layout must be a 2-D 0/1 array (num_tiles_x, num_tiles_y), got shape {tiles.shape}")
         if tiles.size == 0:
@@ -167,9 +191,11 @@ class Layout:
     @classmethod
     def grid(cls, num_tiles_x: int, num_tiles_y: int, tile: TileSpec | None = None) -> "Layout":
         """A full rectangular grid of tiles."""
-        if int(num_tiles_x) < 1 or int(num_tiles_y) < 1:
-            raise LayoutError(f"grid needs at least 1x1 tiles, got {num_tiles_x}x{num_tiles_y}")
-        return cls(np.ones((int(num_tiles_x), int(num_tiles_y)), dtype=np.int32), tile or TileSpec())
+        try:
+            nx, ny = as_count(num_tiles_x, "num_tiles_x"), as_count(num_tiles_y, "num_tiles_y")
+        except (TypeError, ValueError) as e:
+            raise LayoutError(f"grid needs at least 1x1 tiles, got {num_tiles_x!r}x{num_tiles_y!r}: {e}") from None
+        return cls(np.ones((nx, ny), dtype=np.int32), tile or TileSpec())
 
     @property
     def shape(self) -> tuple[int, int]:

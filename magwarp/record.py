@@ -132,8 +132,10 @@ class VideoRecorder:
             import imageio.v3 as iio
 
             # Pillow stores gif frame durations in milliseconds; loop=0 repeats forever.
-            iio.imwrite(self.path, np.stack(self._gif_frames), extension=".gif",
-                        duration=1000.0 / self.fps, loop=0)
+            from magwarp.render.io import write_encoded
+
+            write_encoded(self.path, iio.imwrite("<bytes>", np.stack(self._gif_frames), extension=".gif",
+                                                 duration=1000.0 / self.fps, loop=0))
             self._gif_frames = []
         elif self._writer is not None:
             self._writer.close()

@@ -19,7 +19,9 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp._checks import as_count, as_finite, init_warp, stiffness_limit, warp_device
 from magwarp.kernels import collision as kcol
+from magwarp.kernels import guard as kguard
 from magwarp.kernels import step as kstep
 from magwarp.kernels.impedance import default_force
 from magwarp.layout import Layout, LayoutError, MoverSpec
@@ -34,7 +36,7 @@ REGISTER_MAX_MOVERS = 8
 
 def default_device() -> str:
     """The first CUDA device when Warp sees one, else the CPU."""
-    wp.init()
+    init_warp()
     return "cuda:0" if wp.is_cuda_available() else "cpu"
 
 
@@ -89,7 +91,12 @@ class Simulator:
     row ``force_aux``. device: ``"cpu"``, ``"cuda:N"`` or None for the best one. fused_max_movers: worlds up to this
     size run fused. max_pairs: room per world in ``pair_list`` (the list of colliding pairs; ``world_pairs`` always
     counts all of them). check_inputs: validate commands (costs a device sync per command; turn off in tight loops
-    that produce commands on the device).
+    that produce commands on the device). nan_guard: flag, inside the step graph, every world whose state turns
+    non-finite (:attr:`nonfinite_step`, :meth:`nonfinite_worlds`, :meth:`dump_state`); on by default (two small
+    launches per step, no host sync).
+
+    Physical limits are checked at construction: the held impedance axes must be stable at ``dt`` (the semi-implicit,
+    critically damped law diverges above ``K = M (0.828 / dt)^2``, :func:`magwarp._checks.stiffness_limit`).
     """
 
     def __init__(
@@ -122,18 +129,26 @@ class Simulator:
         use_graph: bool = True,
         check_inputs: bool = True,
         validate_starts: bool = True,
+        nan_guard: bool = True,
     ):
-        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+        self.layout = layout if isinstance(layout, Layout) else Layout(layout)
+        if mover is not None and not isinstance(mover, MoverSpec):
+            raise TypeError(f"mover must be a MoverSpec, got {type(mover).__name__}")
         self.mover = mover or MoverSpec()
-        if int(num_worlds) < 1:
-            raise ValueError(f"num_worlds must be >= 1, got {num_worlds!r}")
+        num_worlds = as_count(num_worlds, "num_worlds")
+        if num_movers is not None:
+            num_movers = as_count(num_movers, "num_movers")
         if control not in ("acceleration", "jerk"):
             raise ValueError(f"control must be 'acceleration' or 'jerk', got {control!r}")
         for name, value in (("dt", dt), ("v_max", v_max), ("a_max", a_max), ("j_max", j_max)):
-            if not np.isfinite(value) or value <= 0:
+            if as_finite(value, name) <= 0:
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        self.num_worlds = int(num_worlds)
-        self.device = wp.get_device(device or default_device())
+        gravity = as_finite(gravity, "gravity")
+        fused_max_movers = as_count(fused_max_movers, "fused_max_movers", minimum=0)
+        max_pairs = as_count(max_pairs, "max_pairs")
+        force_aux_dim = as_count(force_aux_dim, "force_aux_dim")
+        self.num_worlds = num_worlds
+        self.device = warp_device(device)
         self.control = control
         self.check_inputs = check_inputs
         self._use_graph = use_graph
@@ -147,8 +162,6 @@ class Simulator:
         start = self._start_arrays(num_movers, start_xy, start_yaw, start_pose)
         self.num_movers = start.shape[1]
         m = self.num_movers
-        if int(max_pairs) < 1:
-            raise ValueError(f"max_pairs must be >= 1, got {max_pairs!r}")
         self.max_pairs = min(int(max_pairs), max(1, m * (m - 1) // 2))
         radii, half = self._collision_sizes(collision_radii, collision_half_sizes)
         self._fused = m <= fused_max_movers
@@ -159,6 +172,10 @@ class Simulator:
         self.model = self._build_model(dt, v_max, a_max, j_max, gravity, stiffness_lin, stiffness_rot, hold,
                                        stop_on_collision, radii, half)
         self.state = self._alloc_state(force_aux_dim)
+        self.nan_guard = bool(nan_guard)
+        # NaN guard: a device step counter and, per world, the step at which its state first held a NaN/inf (-1: none).
+        self._steps = wp.zeros(1, dtype=wp.int32, device=self.device)
+        self._nonfinite = wp.full(self.num_worlds, -1, dtype=wp.int32, device=self.device)
         force_model = force_model or default_force
         self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(force_model)
         if m <= REGISTER_MAX_MOVERS:
@@ -240,8 +257,10 @@ class Simulator:
         lim.jerk_mode = 1 if self.control == "jerk" else 0
         lim.gravity = float(gravity)
         imp = Impedance()
-        imp.k_lin = wp.vec3(*_vec(k_lin, 3, "stiffness_lin"))
-        imp.k_rot = wp.vec3(*_vec(k_rot, 3, "stiffness_rot"))
+        k_lin, k_rot = _vec(k_lin, 3, "stiffness_lin"), _vec(k_rot, 3, "stiffness_rot")
+        self._check_stiffness(k_lin, k_rot, hold, float(dt))
+        imp.k_lin = wp.vec3(*k_lin)
+        imp.k_rot = wp.vec3(*k_rot)
         imp.mask_lin = wp.vec3(*hold[:3])
         imp.mask_rot = wp.vec3(*hold[3:])
         col = Collision()
@@ -283,9 +302,21 @@ class Simulator:
             hover_z=self.mover.hover_z,
         )
 
+    def _check_stiffness(self, k_lin, k_rot, hold, dt: float) -> None:
+        """Refuse a held impedance axis whose stiffness is unstable at the cycle time (names the stable limit)."""
+        axes = (("stiffness_lin", "x", self.mover.mass), ("stiffness_lin", "y", self.mover.mass),
+                ("stiffness_lin", "z", self.mover.mass), ("stiffness_rot", "roll", self.mover.inertia[0]),
+                ("stiffness_rot", "pitch", self.mover.inertia[1]), ("stiffness_rot", "yaw", self.mover.inertia[2]))
+        for i, (name, axis, inertia) in enumerate(axes):
+            k = (k_lin + k_rot)[i]
+            limit = stiffness_limit(inertia, dt)
+            if hold[i] and k >= limit:
+                unit = "kg" if i < 3 else "kg m^2"
+                raise ValueError(f"{name} {axis} = {k:g} is unstable at dt = {dt:g} s for a mover of {inertia:.4g} "
+                                 f"{unit}: the stable limit is {limit:.4g} (K < M (0.828 / dt)^2); lower it or "
+                                 f"shorten dt")
+
     def _alloc_state(self, aux_dim: int) -> State:
-        if int(aux_dim) < 1:
-            raise ValueError(f"force_aux_dim must be >= 1, got {aux_dim!r}")
         shape, dev = (self.num_worlds, self.num_movers), self.device
 
         def z(dtype, s=shape):
@@ -424,6 +455,8 @@ class Simulator:
             if mask.device != self.torch_device:
                 raise ValueError(f"reset mask is on {mask.device}, but the simulator runs on {self.torch_device}")
             self._t(self._reset_mask).copy_(mask.to(torch.int32))
+        nonfinite = self._t(self._nonfinite)
+        nonfinite.copy_(torch.where(self._t(self._reset_mask).bool(), torch.full_like(nonfinite, -1), nonfinite))
         s = self.state
         with self._on_stream():
             wp.launch(
@@ -460,6 +493,52 @@ class Simulator:
         other = tuple(round(float(v), 4) for v in self.pos[w, j, :2].cpu())
         raise LayoutError(f"movers {k} and {j} (world {w}) overlap at their start positions {xy} and {other}")
 
+    # ------------------------------------------------------------------ NaN guard
+    @property
+    def nonfinite_step(self) -> torch.Tensor:
+        """[W] int32: the step (counted from construction, 1-based) at which the world's state first held a NaN or
+        an infinity; -1 where it is finite. Reset worlds start over at -1. Filled by the NaN guard (``nan_guard``)."""
+        return self._t(self._nonfinite)
+
+    @property
+    def steps_taken(self) -> int:
+        """Steps simulated since construction, as counted on the device by the NaN guard (reads the device)."""
+        return int(self._t(self._steps)[0])
+
+    def nonfinite_worlds(self) -> list[tuple[int, int]]:
+        """``[(world, step), ...]`` for every world flagged by the NaN guard (one device-to-host copy)."""
+        record = self.nonfinite_step.cpu().numpy()
+        return [(int(w), int(record[w])) for w in np.flatnonzero(record >= 0)]
+
+    def state_arrays(self, worlds=None) -> dict[str, np.ndarray]:
+        """Host copies of the state (and the NaN guard's record) for ``worlds`` (default: all), for bug reports."""
+        idx = np.arange(self.num_worlds) if worlds is None else np.asarray(worlds, dtype=np.int64).reshape(-1)
+        out = {name: self._t(arr).cpu().numpy()[idx] for name, arr in vars(self.state).items()
+               if isinstance(arr, wp.array) and arr.shape[0] == self.num_worlds}
+        out["nonfinite_step"] = self.nonfinite_step.cpu().numpy()[idx]
+        out["world"] = idx
+        return out
+
+    def dump_state(self, path: str, worlds=None) -> str:
+        """Write the state of ``worlds`` (default: those flagged non-finite, else all) and the model's parameters to
+        ``path`` (``.npz``) for a bug report; returns the path."""
+        import json
+
+        if worlds is None:
+            bad = [w for w, _ in self.nonfinite_worlds()]
+            worlds = bad or None
+        arrays = self.state_arrays(worlds)
+        m = self.model
+        params = {
+            "num_worlds": self.num_worlds, "num_movers": self.num_movers, "control": self.control,
+            "device": str(self.device), "layout": self.layout.tiles.tolist(), "mover": repr(self.mover),
+            "limits": {k: getattr(m.limits, k) for k in ("dt", "v_max", "a_max", "j_max", "gravity", "jerk_mode")},
+            "stiffness_lin": list(m.impedance.k_lin), "stiffness_rot": list(m.impedance.k_rot),
+            "versions": {"warp": wp.__version__, "torch": torch.__version__, "numpy": np.__version__},
+        }
+        np.savez(path, params=np.array(json.dumps(params, default=float)), **arrays)
+        return path if path.endswith(".npz") else f"{path}.npz"
+
     def add_cycle_hook(self, hook: Callable[["Simulator"], None], before: bool = False) -> None:
         """Run ``hook(sim)`` after every cycle (``before=True``: before it, e.g. to prepare ``force_aux`` from the
         cycle's starting state), inside the step graph. It must only launch device work."""
@@ -469,11 +548,9 @@ class Simulator:
 
     def step(self, num_cycles: int = 1, cmd=None) -> None:
         """Advance every world ``num_cycles`` control cycles (optionally setting the command first)."""
-        if int(num_cycles) < 1:
-            raise ValueError(f"num_cycles must be >= 1, got {num_cycles!r}")
+        n = as_count(num_cycles, "num_cycles")
         if cmd is not None:
             self.set_command(cmd)
-        n = int(num_cycles)
         with self._on_stream():
             if not self._use_graph:
                 self._launch_step(n)
@@ -508,6 +585,14 @@ class Simulator:
         return int(min(256, max(32, 1 << (per_sm.bit_length() - 1))))
 
     def _launch_step(self, n: int) -> None:
+        self._launch_motion(n)
+        if self.nan_guard:
+            s = self.state
+            wp.launch(kguard.count_step, dim=1, inputs=[self._steps], device=self.device)
+            wp.launch(kguard.flag_nonfinite, dim=self.num_worlds, device=self.device,
+                      inputs=[self._steps, s.pos, s.quat, s.vel, s.omega, self._nonfinite])
+
+    def _launch_motion(self, n: int) -> None:
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
         if self._fused:  # the fused kernels clear their per-step accumulators themselves

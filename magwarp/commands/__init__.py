@@ -14,7 +14,9 @@ machine rather than the call (no display for a window, a missing optional packag
 
 from __future__ import annotations
 
-__all__ = ["UsageError", "CommandError", "SUBCOMMANDS"]
+import contextlib
+
+__all__ = ["UsageError", "CommandError", "SUBCOMMANDS", "add_trust_option", "loading_errors"]
 
 
 class UsageError(ValueError):
@@ -23,6 +25,24 @@ class UsageError(ValueError):
 
 class CommandError(RuntimeError):
     """Something this machine cannot do (no display, missing optional package); reported as one line, exit code 1."""
+
+
+def add_trust_option(parser) -> None:
+    """``--trust``: load policy/checkpoint files that hold pickled Python objects (see :mod:`magwarp._io`)."""
+    parser.add_argument("--trust", action="store_true",
+                        help="load a policy or checkpoint file that holds pickled Python objects (e.g. a whole "
+                             "torch.save'd module): unpickling can run any code, so only for files you trust")
+
+
+@contextlib.contextmanager
+def loading_errors():
+    """Report files that cannot or may not be loaded (corrupt, or pickled code without --trust) as usage errors."""
+    from magwarp._io import UnreadableFileError
+
+    try:
+        yield
+    except UnreadableFileError as e:
+        raise UsageError(str(e)) from None
 
 
 # Known subcommands and their one-line help, listed here so ``magwarp --help`` needs no imports. A module present in

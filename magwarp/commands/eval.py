@@ -28,7 +28,7 @@ import argparse
 import json
 import os
 
-from magwarp.commands import UsageError
+from magwarp.commands import UsageError, add_trust_option
 
 HELP = "evaluate a policy on an env: success rate, collisions, makespan, ..."
 
@@ -54,6 +54,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="share the repeats out over N processes (one per GPU) through torchrun; one table")
     p.add_argument("--dist-timeout", type=float, default=300.0,
                    help="seconds a torchrun rank waits for the others before the job fails")
+    add_trust_option(p)
     return p
 
 
@@ -135,7 +136,7 @@ def run(args) -> int:
         env_kwargs = _env_kwargs(args) if main_rank else _quiet(_env_kwargs, args)
         result = evaluate(args.env_id, args.policy, args.episodes, args.repeats, device=device, steps=args.steps,
                           makespan_goals=args.makespan_goals, max_worlds=args.max_worlds, seed=args.seed,
-                          env_kwargs=env_kwargs)
+                          env_kwargs=env_kwargs, trusted=args.trust)
     except EvalError as e:
         raise UsageError(str(e)) from None
     finally:

@@ -13,9 +13,10 @@ Needs the optional packages onnx and onnxruntime (pip install 'magwarp[onnx]').
 from __future__ import annotations
 
 import argparse
+import math
 import os
 
-from magwarp.commands import CommandError, UsageError
+from magwarp.commands import CommandError, UsageError, add_trust_option, loading_errors
 
 HELP = "export a trained policy as ONNX"
 
@@ -30,6 +31,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--atol", type=float, default=1e-5,
                    help="largest accepted |onnxruntime - torch| as a fraction of the action range (default 1e-5)")
     p.add_argument("--no-check", action="store_true", help="skip the onnxruntime comparison")
+    add_trust_option(p)
     return p
 
 
@@ -41,15 +43,18 @@ def run(args) -> int:
         raise UsageError(f"no policy at {args.policy!r}")
     if os.path.isdir(args.policy) and not os.path.isfile(os.path.join(args.policy, "policy.pt")):
         raise UsageError(f"{args.policy!r} is a folder without a policy.pt")
+    if not (math.isfinite(args.atol) and args.atol > 0):
+        raise UsageError(f"--atol must be a positive number, got {args.atol}")
     if os.path.isdir(args.onnx):
         raise UsageError(f"--onnx {args.onnx!r} is a folder; give a file name")
     from magwarp.training.export import export_onnx
 
-    try:
-        info = export_onnx(args.policy, args.onnx, opset=args.opset, obs_dim=args.obs_dim, check=not args.no_check,
-                           atol=args.atol)
-    except RuntimeError as e:
-        raise CommandError(str(e)) from None
+    with loading_errors():
+        try:
+            info = export_onnx(args.policy, args.onnx, opset=args.opset, obs_dim=args.obs_dim, check=not args.no_check,
+                               atol=args.atol, trusted=args.trust)
+        except RuntimeError as e:
+            raise CommandError(str(e)) from None
     diff = info["max_diff"]
     check = ("not checked (onnxruntime missing)" if diff is None and not args.no_check else
              "not checked" if diff is None else

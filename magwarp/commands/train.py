@@ -28,7 +28,7 @@ from __future__ import annotations
 import argparse
 import shlex
 
-from magwarp.commands import CommandError, UsageError
+from magwarp.commands import CommandError, UsageError, add_trust_option, loading_errors
 
 HELP = "train a policy on an env (PPO or SAC + HER) within a wall-clock budget"
 MODULES = {"ppo": "magwarp.training.ppo", "sac-her": "magwarp.training.sac_her"}
@@ -57,6 +57,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="train with N processes (one per GPU, or CPU processes with gloo) through torchrun")
     p.add_argument("--torchrun-args", default="", help="more torchrun options, quoted (e.g. '--nnodes 2 "
                    "--node-rank 0 --rdzv-endpoint host:29400' for several machines)")
+    add_trust_option(p)
     return p
 
 
@@ -84,6 +85,25 @@ def build_argv(args) -> list[str]:
     return argv
 
 
+def resume_algo(resume: str, *, trusted: bool = False) -> str | None:
+    """The algorithm a ``--resume`` checkpoint was trained with; checks that it is a readable magwarp checkpoint
+    (loaded without running pickled code unless ``trusted``; the training script then loads it the same way)."""
+    import os
+
+    from magwarp.training.common import checkpoint_path, load_checkpoint, trust_checkpoints
+
+    ckpt_path = checkpoint_path(resume)
+    if not os.path.isfile(ckpt_path):
+        raise UsageError(f"--resume: no checkpoint at {ckpt_path!r}")
+    trust_checkpoints(trusted)
+    with loading_errors():
+        state = load_checkpoint(ckpt_path, "cpu")
+    missing = [k for k in ("args",) if not isinstance(state.get(k), dict)]
+    if missing:
+        raise UsageError(f"--resume: {ckpt_path!r} is not a magwarp training checkpoint (no {missing[0]!r} entry)")
+    return state.get("algo")
+
+
 def run(args) -> int:
     if args.env_id is None and args.resume is None:
         raise UsageError("give an ENV_ID (or --resume RUN_FOLDER)")
@@ -101,14 +121,7 @@ def run(args) -> int:
                              " magwarp/PushT-v0, magwarp/PushWithObstacles-v0)")
     algo = args.algo
     if args.resume is not None:
-        import os
-
-        import torch
-
-        ckpt_path = os.path.join(args.resume, "checkpoint.pt") if os.path.isdir(args.resume) else args.resume
-        if not os.path.isfile(ckpt_path):
-            raise UsageError(f"--resume: no checkpoint at {ckpt_path!r}")
-        saved = torch.load(ckpt_path, map_location="cpu", weights_only=False).get("algo")
+        saved = resume_algo(args.resume, trusted=args.trust)
         if algo is not None and saved is not None and algo != saved:
             raise UsageError(f"--algo {algo} but the checkpoint {ckpt_path!r} was trained with {saved}")
         algo = algo or saved

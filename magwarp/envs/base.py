@@ -13,10 +13,17 @@ Autoreset happens inside :meth:`step` in the *same step* (``metadata["autoreset_
 the returned observation is the first one of the next episode, and the last observation of the finished episode is
 kept in ``info["final_obs"]`` (valid where ``info["_final_obs"]`` is true; the final ``info`` values are the ones
 returned). Nothing in a step synchronises with the host except the optional input check (``check_inputs``).
+
+NaN guard (on by default, no host sync): a world whose state turns non-finite is terminated (so autoreset replaces
+it) with reward 0, and flagged in ``info["nonfinite"]`` (``[num_envs]`` bool: the world) and
+``info["nonfinite_step"]`` (the env step, counted from construction, at which it was found; -1 elsewhere). With
+``nan_dump="PATH"`` the env also checks on the host after every step (one sync per step, for debugging) and writes
+the flagged worlds' state and action to ``PATH`` (``.npz``, :meth:`dump_state`) before they are reset, with a warning.
 """
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import gymnasium as gym
@@ -24,6 +31,8 @@ import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
+
+from magwarp._checks import as_count, as_seed
 
 __all__ = ["MagwarpVecEnv"]
 
@@ -41,9 +50,9 @@ class MagwarpVecEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"], "render_fps": 25}
 
     def __init__(self, num_envs: int, device: torch.device, *, seed: int | None = None, render_mode: str | None = None,
-                 autoreset: bool = True, check_inputs: bool = True):
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
+                 autoreset: bool = True, check_inputs: bool = True, nan_dump: str | None = None):
+        num_envs = as_count(num_envs, "num_envs")
+        seed = None if seed is None else as_seed(seed)
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.num_envs = int(num_envs)
@@ -54,6 +63,10 @@ class MagwarpVecEnv(VectorEnv):
         self._generator = torch.Generator(device=self.device)
         self._generator.manual_seed(0 if seed is None else int(seed))
         self._all = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
+        if nan_dump is not None and not isinstance(nan_dump, (str, os.PathLike)):
+            raise TypeError(f"nan_dump must be None or a file path, got {nan_dump!r}")
+        self.nan_dump = None if nan_dump is None else os.fspath(nan_dump)
+        self._step_count = 0  # env steps since construction (host count: no sync)
 
     def _set_spaces(self, single_observation_space: gym.Space, single_action_space: gym.Space) -> None:
         self.single_observation_space = single_observation_space
@@ -81,19 +94,26 @@ class MagwarpVecEnv(VectorEnv):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Obs, dict[str, Any]]:
         """Reset all envs, or those in ``options["reset_mask"]`` (a ``[num_envs]`` bool tensor)."""
         if seed is not None:
-            self._generator.manual_seed(int(seed))
+            self._reseed(as_seed(seed))
         mask = self._all
         if options and options.get("reset_mask") is not None:
             mask = self._check_mask(options["reset_mask"])
         self._reset_envs(mask)
         return self._get_obs(), {}
 
+    def _reseed(self, seed: int) -> None:
+        """``reset(seed=...)``: everything random from here on follows ``seed`` (tasks with more generators extend
+        it)."""
+        self._generator.manual_seed(seed)
+
     def step(self, action) -> tuple[Obs, torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         action = self._check_action(action)
         self._apply_action(action)
+        self._step_count += 1
         obs = self._get_obs()
         reward, terminated, truncated, info = self._evaluate(obs)
         self._end_step(obs, info)
+        reward, terminated = self._guard_nonfinite(obs, reward, terminated, info, action)
         if self.autoreset:
             done = terminated | truncated
             info["final_obs"] = obs
@@ -124,6 +144,46 @@ class MagwarpVecEnv(VectorEnv):
         """Batched reward for hindsight relabelling; tasks with goals override it."""
         raise NotImplementedError(f"{type(self).__name__} has no goal-conditioned reward")
 
+    # ------------------------------------------------------------------ NaN guard
+    def _nonfinite_worlds(self, obs: Obs) -> torch.Tensor:
+        """``[num_envs]`` bool: worlds whose state is not finite (default: any non-finite observation entry)."""
+        parts = obs.values() if isinstance(obs, dict) else (obs,)
+        bad = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        for x in parts:
+            bad = bad | ~torch.isfinite(x.reshape(self.num_envs, -1)).all(dim=1)
+        return bad
+
+    def _guard_nonfinite(self, obs, reward, terminated, info, action):
+        bad = self._nonfinite_worlds(obs)
+        info["nonfinite"] = bad
+        info["nonfinite_step"] = torch.where(bad, self._step_count, -1)
+        if self.nan_dump is not None and bool(bad.any()):  # debugging mode: one sync per step
+            import warnings
+
+            path = self.dump_state(self.nan_dump, torch.nonzero(bad).flatten().tolist(), action=action)
+            warnings.warn(f"{type(self).__name__}: world(s) {torch.nonzero(bad).flatten().tolist()} turned non-finite "
+                          f"at step {self._step_count}; their state is in {path}", RuntimeWarning, stacklevel=3)
+        reward = torch.where(bad, torch.zeros_like(reward), reward)
+        return reward, terminated | bad
+
+    def state_arrays(self, worlds) -> dict[str, Any]:
+        """Host copies of the worlds' state for a bug report (tasks add their simulator's arrays)."""
+        from magwarp.envs.single import to_numpy
+
+        obs = to_numpy(self._get_obs())
+        obs = obs if isinstance(obs, dict) else {"observation": obs}
+        return {f"obs_{k}": v[worlds] for k, v in obs.items()}
+
+    def dump_state(self, path: str, worlds=None, action=None) -> str:
+        """Write ``worlds``' state (default: all) and, if given, the action to ``path`` (``.npz``); returns the path."""
+        idx = list(range(self.num_envs)) if worlds is None else [int(w) for w in worlds]
+        arrays = self.state_arrays(idx)
+        if action is not None:
+            arrays["action"] = action.detach().cpu().numpy()[idx]
+        np.savez(path, env=np.array(type(self).__name__), step=np.array(self._step_count), world=np.array(idx),
+                 **arrays)
+        return path if str(path).endswith(".npz") else f"{path}.npz"
+
     # ------------------------------------------------------------------ input checks
     def _check_action(self, action) -> torch.Tensor:
         if isinstance(action, np.ndarray):
@@ -137,10 +197,13 @@ class MagwarpVecEnv(VectorEnv):
             raise TypeError(f"action must be a floating point tensor, got dtype {action.dtype}")
         if action.device != self.device:
             raise ValueError(f"action is on device {action.device}, but the env runs on {self.device}")
-        if self.check_inputs and not bool(torch.isfinite(action).all()):
-            bad = torch.nonzero(~torch.isfinite(action))[0].tolist()
-            raise ValueError(f"action contains a non-finite value at index {bad}: {action[tuple(bad)].item()}")
-        return action.to(torch.float32)
+        # Check what the simulation will see: a finite float64 such as 1e40 overflows to inf in float32.
+        stored = action.to(torch.float32)
+        if self.check_inputs and not bool(torch.isfinite(stored).all()):
+            bad = torch.nonzero(~torch.isfinite(stored))[0].tolist()
+            raise ValueError(f"action contains a non-finite value (in float32, what the simulation runs in) at index "
+                             f"{bad}: {action[tuple(bad)].item()!r}")
+        return stored
 
     def _check_mask(self, mask) -> torch.Tensor:
         mask = torch.as_tensor(mask, device=self.device)

@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 import torch
 
+from magwarp._checks import as_count
 from magwarp.mjcf import ObjectSpec
 
 #: the object parameters that may vary (MagBotSim's ``object_ranges`` keys), as ObjectSpec field names
@@ -62,8 +63,7 @@ class ObjectVariants:
 def build_variants(base: ObjectSpec, ranges: Mapping[str, tuple[float, float]], count: int,
                    scene_xml: Callable[[ObjectSpec], str], rng: np.random.Generator, device) -> ObjectVariants:
     """Sample ``count`` variants of ``base`` within ``ranges`` and compile ``scene_xml(spec)`` for each."""
-    if int(count) != count or count < 1:
-        raise ValueError(f"object_variants must be a positive integer, got {count!r}")
+    count = as_count(count, "object_variants")
     ranges = check_ranges(ranges)
     specs, rows = [], {name: [] for name in MODEL_FIELDS}
     for _ in range(int(count)):

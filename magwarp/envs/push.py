@@ -40,6 +40,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp._checks import as_count, check_finite, warp_device
 from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
@@ -72,12 +73,6 @@ def push_benchmark(name: str) -> tuple[Layout, int]:
 
 _CANDIDATES = 256  # start configurations drawn per env and reset; the first valid one is used. With 64, the
 # default Push-Box ranges (about 13% of candidates valid) left one env in ~8000 without a valid start per reset.
-
-
-def _default_device() -> str:
-    from magwarp.sim import default_device
-
-    return default_device()
 
 
 def _parts(obj: ObjectSpec) -> list[tuple[float, float, float, float]]:
@@ -192,24 +187,38 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         render_mode: str | None = None,
         autoreset: bool = True,
         check_inputs: bool = True,
+        nan_dump: str | None = None,
     ):
         if benchmark is not None:
             layout, num_movers = push_benchmark(benchmark)
         layout = Layout(np.ones((4, 3), dtype=np.int32)) if layout is None else layout
-        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
-        if int(num_movers) != num_movers or num_movers < 1:
-            raise ValueError(f"num_movers must be a positive integer, got {num_movers!r}")
+        self.layout = layout if isinstance(layout, Layout) else Layout(layout)
+        num_envs = as_count(num_envs, "num_envs")
+        num_movers = as_count(num_movers, "num_movers")
         if collision_shape not in ("circle", "box"):
             raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
-        for name, value in (("num_cycles", num_cycles), ("max_episode_steps", max_episode_steps)):
-            if int(value) != value or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        num_cycles = as_count(num_cycles, "num_cycles")
+        max_episode_steps = as_count(max_episode_steps, "max_episode_steps")
+        solver_iterations = as_count(solver_iterations, "solver_iterations")
+        ls_iterations = as_count(ls_iterations, "ls_iterations")
+        nconmax = None if nconmax is None else as_count(nconmax, "nconmax")
+        njmax = None if njmax is None else as_count(njmax, "njmax")
+        check_finite(p_max_c=p_max_c, v_max_c=v_max_c, a_max_c=a_max_c, j_max_c=j_max_c, object_width=object_width,
+                     object_height=object_height, object_depth=object_depth, object_segment_width=object_segment_width,
+                     object_radius=object_radius, object_mass=object_mass, v_max=v_max, a_max=a_max, j_max=j_max,
+                     object_sliding_friction=object_sliding_friction, max_position_err=max_position_err,
+                     object_torsional_friction=object_torsional_friction, min_coverage=min_coverage,
+                     collision_penalty=collision_penalty, per_step_penalty=per_step_penalty,
+                     object_at_goal_reward=object_at_goal_reward, collision_size=collision_size,
+                     collision_offset=collision_offset, collision_offset_wall=collision_offset_wall,
+                     initial_mover_zpos=initial_mover_zpos, allow_none=("p_max_c", "collision_size"),
+                     vectors=("collision_size",))
         if not 0.0 <= min_coverage <= 1.0:
             raise ValueError(f"min_coverage must lie in [0, 1], got {min_coverage!r}")
         if not max_position_err > 0:
             raise ValueError(f"max_position_err must be positive, got {max_position_err!r}")
-        if early_termination_steps is not None and early_termination_steps < 1:
-            raise ValueError(f"early_termination_steps must be None or >= 1, got {early_termination_steps!r}")
+        if early_termination_steps is not None:
+            early_termination_steps = as_count(early_termination_steps, "early_termination_steps")
         self.num_movers = int(num_movers)
         self.learn_pose = bool(learn_pose)
         self.learn_jerk = bool(learn_jerk)
@@ -244,10 +253,15 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                 spec["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
         self.mover = MoverSpec(**spec)
         self.collision_offset = float(collision_offset)
+        if not isinstance(obstacles, (tuple, list)) or not all(isinstance(o, ObstacleSpec) for o in obstacles):
+            raise TypeError(f"obstacles must be a tuple of ObstacleSpec, got {obstacles!r}")
         self.obstacles = tuple(obstacles)
+        # Start ranges, and whether the mover and the object fit in them, before anything is built.
+        self._init_sampling_ranges()
+        self._check_sizes_fit()
 
         # Model: built once; starts and goals change per world without a rebuild.
-        device = device or _default_device()
+        device = warp_device(device).alias
         if solver == "auto":
             solver = "Newton" if str(device).startswith("cuda") else "CG"
         self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
@@ -286,14 +300,13 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                 [("mover", "obstacle"), ("object", "obstacle")],
             )
         super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
-                         check_inputs=check_inputs)
+                         check_inputs=check_inputs, nan_dump=nan_dump)
         #: ``[W, K, 5]`` (cx, cy, hx, hy, yaw) of each world's static obstacles (the same in every world unless a
         #: subclass changes them per episode)
         self.obstacle_boxes = torch.as_tensor(
             np.array([[o.xy[0], o.xy[1], o.half_size[0], o.half_size[1], o.yaw] for o in self.obstacles],
                      dtype=np.float32).reshape(1, -1, 5), device=self.device).repeat(self.num_envs, 1, 1)
 
-        self._init_sampling_ranges()
         n, dev = self.num_envs, self.device
         self.goal_xy = torch.zeros(n, 2, device=dev)
         self.goal_yaw = torch.zeros(n, device=dev)
@@ -347,6 +360,42 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
             warnings.warn(f"the object range of layout {self.layout.shape} spans at most {reach:.3f} m, so no start is "
                           f"{self.min_object_goal_dist} m from its goal as MagBotSim requires (MagBotSim loops forever "
                           "here); episodes start nearer", stacklevel=3)
+
+    def _check_sizes_fit(self) -> None:
+        """The mover's body and the (largest) object must stay on the layout anywhere in their start ranges: a body
+        that overhangs the tiles there is not levitated and goes unflagged (its collision shape is what is checked)."""
+        extent = np.asarray(self.layout.extent)
+        room = float(np.min(np.minimum(self.min_xy, extent - self.max_xy)))  # closest start to the layout's edge
+        half = 0.5 * np.asarray(self.mover.size[:2])
+        reach = float(np.hypot(*half)) if self.learn_mover_c_rotation else float(half.max())
+        if reach > room:
+            size, halves = tuple(round(v, 4) for v in self.mover.size), tuple(float(v) for v in half.round(4))
+            raise ValueError(f"mover of size {size} m (mover_params['size'] = half sizes {halves}) does not fit the "
+                             f"layout: its start range comes within {room:.3f} m of the tiles' edge (collision size + "
+                             f"margins + 0.03 m), so its body would overhang the tiles; the largest half size that "
+                             f"fits is {room:.3f} m (or enlarge collision_size)")
+        obj = self.object
+        parts = np.asarray(_parts(obj))
+        radius = float(np.max(np.hypot(np.abs(parts[:, 0]) + parts[:, 2], np.abs(parts[:, 1]) + parts[:, 3])))
+        obj_room = float(np.min(np.minimum(self.object_min_xy, extent - self.object_max_xy)))
+        if radius > obj_room:
+            size = f"radius {obj.radius:g} m" if obj.shape == "cylinder" else (
+                f"half sizes width {obj.width:g}, height {obj.height:g} m")
+            raise ValueError(f"the {obj.shape} object ({size}; with object_ranges, the largest) does not fit the "
+                             f"layout {self.layout.shape}: it reaches {radius:.3f} m from its centre at any yaw, but "
+                             f"its start range comes within {obj_room:.3f} m of the tiles' edge; the largest that fits "
+                             f"reaches {obj_room:.3f} m")
+
+    def _nonfinite_worlds(self, obs) -> torch.Tensor:
+        b = self.backend
+        state_bad = ~torch.isfinite(b.qpos_t).all(dim=1) | ~torch.isfinite(b.qvel_t).all(dim=1)
+        return state_bad | super()._nonfinite_worlds(obs)
+
+    def state_arrays(self, worlds) -> dict[str, Any]:
+        b = self.backend
+        return {**super().state_arrays(worlds), "qpos": b.qpos_t.cpu().numpy()[worlds],
+                "qvel": b.qvel_t.cpu().numpy()[worlds], "goal_xy": self.goal_xy.cpu().numpy()[worlds],
+                "goal_yaw": self.goal_yaw.cpu().numpy()[worlds]}
 
     def _observation_space(self) -> gym.spaces.Dict:
         m, c = self.num_movers, int(self.learn_mover_c_rotation)

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 from warp import to_torch as wp_to_torch
 
+from magwarp._checks import as_count
 from magwarp.envs.base import _where
 from magwarp.envs.episode import fmt_xy
 from magwarp.envs.push import _CANDIDATES, PushEnv
@@ -75,8 +76,7 @@ class PushWithObstaclesEnv(PushEnv):
         self._mix = _mix_probabilities(obstacle_mode) if isinstance(obstacle_mode, dict) else None
         if self._mix is None and obstacle_mode not in _OBSTACLE_MODES:
             raise ValueError(f"obstacle_mode must be one of {list(_OBSTACLE_MODES)}, got {obstacle_mode!r}")
-        if int(curriculum_episodes) != curriculum_episodes or curriculum_episodes < 1:
-            raise ValueError(f"curriculum_episodes must be a positive integer, got {curriculum_episodes!r}")
+        curriculum_episodes = as_count(curriculum_episodes, "curriculum_episodes")
         if curriculum_success_rate is not None:
             if obstacle_mode != "curriculum":
                 raise ValueError(f"curriculum_success_rate needs obstacle_mode='curriculum', got {obstacle_mode!r}")

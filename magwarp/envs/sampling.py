@@ -7,9 +7,9 @@ no two movers within collision distance: the simulator's collision shapes (grown
 
 * Goals: each step draws ``candidates`` points per mover and takes the first valid one; if none is valid (rare) it
   takes a point from a pool of valid points sampled once at construction.
-* Start configurations: a pool of valid joint configurations is sampled once at construction by rejection, and each
-  reset draws one uniformly. (Rejection per step would need the host to know when to stop; the pool keeps every reset
-  a fixed amount of device work.)
+* Start configurations: a pool of valid joint configurations is sampled by rejection at construction (and again by
+  :meth:`PoseSampler.draw_pools` when the env is reseeded), and each reset draws one uniformly. (Rejection per
+  step would need the host to know when to stop; the pool keeps every reset a fixed amount of device work.)
 """
 
 from __future__ import annotations
@@ -65,8 +65,18 @@ class PoseSampler:
             self.candidates = 1  # every candidate is valid: drawing more would only cost memory traffic
         self.lo = reach.to(self.device)
         self.span = (ext - 2 * reach).to(self.device)
-        self.goal_pool = self._valid_point_pool(pool_size, max_rounds)
-        self.start_pool = self._start_config_pool(pool_size, max_rounds)
+        self._pool_args = (int(pool_size), int(max_rounds))
+        self.draw_pools(generator)
+
+    def draw_pools(self, generator: torch.Generator) -> None:
+        """(Re)draw the goal and start pools with ``generator`` (an env's ``reset(seed=...)`` does, so that the seed
+        alone fixes the pools); per-step sampling then uses :attr:`generator` again."""
+        per_step, self.generator = self.generator, generator
+        try:
+            self.goal_pool = self._valid_point_pool(*self._pool_args)
+            self.start_pool = self._start_config_pool(*self._pool_args)
+        finally:
+            self.generator = per_step
 
     # ------------------------------------------------------------------ primitives
     def uniform(self, *shape: int) -> torch.Tensor:

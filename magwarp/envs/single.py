@@ -12,6 +12,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp._checks import as_seed
+
 __all__ = ["SingleEnv", "to_numpy"]
 
 # The info entries that rewards depend on (collisions of every kind), forwarded to the batched compute_reward.
@@ -39,12 +41,19 @@ class SingleEnv(gym.Env):
         self.action_space = self.vec.single_action_space
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None:
+            seed = as_seed(seed)
         super().reset(seed=seed)
         obs, info = self.vec.reset(seed=seed, options=options)
         return to_numpy(obs, 0), to_numpy(info, 0)
 
     def step(self, action):
-        action = np.asarray(action, dtype=np.float32)
+        try:
+            with np.errstate(over="ignore"):  # a float64 beyond float32's range becomes inf: refused by the vec env
+                action = np.asarray(action, dtype=np.float32)
+        except (TypeError, ValueError):
+            raise TypeError(f"action must be an array of numbers of shape {self.action_space.shape}, "
+                            f"got {action!r}") from None
         if action.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {action.shape}")
         batch = torch.as_tensor(action, device=self.vec.device).unsqueeze(0)

@@ -25,12 +25,13 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp._checks import as_count, check_finite, warp_device
 from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.sampling import PoseSampler
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
-from magwarp.sim import Simulator, default_device
+from magwarp.sim import Simulator
 
 __all__ = ["TrajectoryPlanningEnv"]
 
@@ -116,27 +117,31 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         render_mode: str | None = None,
         autoreset: bool = True,
         check_inputs: bool = True,
+        nan_dump: str | None = None,
     ):
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
+        num_envs = as_count(num_envs, "num_envs")
+        num_cycles = as_count(num_cycles, "num_cycles")
+        check_finite(threshold_pos=threshold_pos, reward_success=reward_success, reward_collision=reward_collision,
+                     reward_per_step=reward_per_step, collision_size=collision_size, collision_offset=collision_offset,
+                     collision_offset_wall=collision_offset_wall, safety_margin=safety_margin, std_noise=std_noise,
+                     v_max=v_max, a_max=a_max, j_max=j_max, allow_none=("collision_size",), vectors=("collision_size",))
+        if timeout_steps is not None:
+            timeout_steps = as_count(timeout_steps, "timeout_steps")
         if isinstance(layout, str):
             layout_obj, default_movers = benchmark_layout(layout)
             self.layout_name = layout
         else:
-            layout_obj = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+            layout_obj = layout if isinstance(layout, Layout) else Layout(layout)
             default_movers = None
             self.layout_name = "custom"
         num_movers = num_movers if num_movers is not None else default_movers
-        if num_movers is None or int(num_movers) < 1:
+        if num_movers is None:
             raise ValueError(f"num_movers must be a positive integer for a custom layout, got {num_movers!r}")
+        num_movers = as_count(num_movers, "num_movers")
         if collision_shape not in ("circle", "box"):
             raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
-        if num_cycles < 1:
-            raise ValueError(f"num_cycles must be >= 1, got {num_cycles!r}")
         if not threshold_pos > 0:
             raise ValueError(f"threshold_pos must be positive, got {threshold_pos!r}")
-        if timeout_steps is not None and timeout_steps < 1:
-            raise ValueError(f"timeout_steps must be None or >= 1, got {timeout_steps!r}")
         if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(
                 max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_episode_steps!r}")
@@ -148,7 +153,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         if halves is not None:
             spec_kwargs["collision_half_size"] = tuple(halves.max(axis=0))
         mover = MoverSpec(**spec_kwargs)
-        device = device or default_device()
+        device = warp_device(device).alias
         # The simulator is built with placeholder starts (every mover at the first tile centre) that are never
         # validated nor simulated: the first reset below replaces them with sampled, collision-free starts, which
         # are then checked with the simulator's own rule. (Tile-centre defaults overlap once the collision size
@@ -160,7 +165,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
             validate_starts=False, collision_radii=radii, collision_half_sizes=halves,
         )
         super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
-                         check_inputs=check_inputs)
+                         check_inputs=check_inputs, nan_dump=nan_dump)
         self.layout = layout_obj
         self.num_movers = int(num_movers)
         self.learn_jerk = learn_jerk
@@ -174,10 +179,11 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.reward_per_step = float(reward_per_step)
         self.timeout_steps = timeout_steps
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
-        # The pools are drawn with their own fixed-seed generator, so that reset(seed=...) alone fixes a run.
-        pool_gen = torch.Generator(device=self.device)
-        pool_gen.manual_seed(0 if seed is None else int(seed))
-        self.sampler = PoseSampler(self.sim, collision_offset, pool_gen)
+        # The pools are drawn with their own generator, seeded like the per-step one: reset(seed=s) redraws them from
+        # s, so that the reset seed alone fixes a run (whatever seed the env was built with).
+        self._pool_generator = torch.Generator(device=self.device)
+        self._pool_generator.manual_seed(0 if seed is None else int(seed))
+        self.sampler = PoseSampler(self.sim, collision_offset, self._pool_generator)
         self.sampler.generator = self._generator
 
         n, m = self.num_envs, self.num_movers
@@ -202,6 +208,18 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.sim._raise_on_start_collisions()
 
     # ------------------------------------------------------------------ task hooks
+    def _reseed(self, seed: int) -> None:
+        super()._reseed(seed)
+        self._pool_generator.manual_seed(seed)
+        self.sampler.draw_pools(self._pool_generator)
+
+    def _nonfinite_worlds(self, obs) -> torch.Tensor:
+        return (self.sim.nonfinite_step >= 0) | super()._nonfinite_worlds(obs)
+
+    def state_arrays(self, worlds) -> dict[str, Any]:
+        return {**super().state_arrays(worlds), **{f"sim_{k}": v for k, v in self.sim.state_arrays(worlds).items()},
+                "goals": self.goals.cpu().numpy()[worlds]}
+
     def _reset_envs(self, mask: torch.Tensor) -> None:
         n = self.num_envs
         starts = self._chosen_or("start_xy", self.sampler.sample_starts(n))

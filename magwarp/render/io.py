@@ -27,5 +27,12 @@ def save_png(path: str | os.PathLike, frame, scale: int = 1) -> str:
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         raise FileNotFoundError(f"cannot write {path}: folder {parent} does not exist")
-    iio.imwrite(path, image, extension=".png")
+    write_encoded(path, iio.imwrite("<bytes>", image, extension=".png"))
     return path
+
+
+def write_encoded(path: str, data: bytes) -> None:
+    """Write an image or video encoded in memory. imageio is never handed the path: when it cannot open a file it
+    raises, and then raises again from its writer's ``__del__`` (a second traceback after the error line)."""
+    with open(path, "wb") as f:
+        f.write(data)

@@ -46,11 +46,12 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp._checks import as_count, warp_device
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.trajectory import TrajectoryPlanningEnv
 from magwarp.kernels.swarm import stop_collided
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
-from magwarp.sim import Simulator, default_device
+from magwarp.sim import Simulator
 from magwarp.swarm.observations import LocalObservations
 from magwarp.swarm.placement import Placer
 
@@ -161,12 +162,11 @@ class SwarmEnv(MagwarpVecEnv):
             raise TypeError(f"unknown SwarmEnv options {unknown}; SwarmConfig has {sorted(fields)}")
         cfg = dataclasses.replace(config or SwarmConfig(), **options)
         self.config = cfg
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs!r}")
+        num_envs = as_count(num_envs, "num_envs")
         self.layout = cfg.make_layout()
         mover = cfg.make_mover()
         n, m = int(num_envs), int(cfg.num_movers)
-        device = device or default_device()
+        device = warp_device(device).alias
         respawn = cfg.on_collision == "respawn"
         # placeholder starts, replaced by the first reset below (never simulated nor validated)
         self.sim = Simulator(

@@ -19,7 +19,8 @@ import torch
 from magwarp.training import distributed as dist
 
 __all__ = ["OBS_KEYS", "make_env", "evaluate", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
-           "plot_curve", "save_checkpoint", "load_checkpoint", "seed_everything", "parse_env_kwargs", "Timer"]
+           "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything",
+           "parse_env_kwargs", "Timer"]
 
 #: order in which a goal-dict observation is flattened (the exported policy's input layout): sorted key order, as
 #: gymnasium's Dict space, SB3 and ``magwarp eval`` flatten it
@@ -39,8 +40,17 @@ def parse_env_kwargs(text: str | None) -> dict[str, Any]:
     named ``layout`` become numpy arrays)."""
     if not text:
         return {}
+    def no_constant(name):  # JSON has no NaN/Infinity; Python's parser accepts them unless told otherwise
+        raise ValueError(f"--env-kwargs must hold finite numbers, got {name} in {text!r}")
+
+    def finite_float(token):
+        value = float(token)
+        if not np.isfinite(value):
+            raise ValueError(f"--env-kwargs must hold finite numbers, got {token} in {text!r}")
+        return value
+
     try:
-        kwargs = json.loads(text)
+        kwargs = json.loads(text, parse_constant=no_constant, parse_float=finite_float)
     except json.JSONDecodeError as e:
         raise ValueError(f"--env-kwargs must be a JSON object, got {text!r}: {e}") from None
     if not isinstance(kwargs, dict):
@@ -274,12 +284,30 @@ def save_checkpoint(path: str, state: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
-def load_checkpoint(path: str, device) -> dict[str, Any]:
-    if os.path.isdir(path):
-        path = os.path.join(path, "checkpoint.pt")
+#: whether :func:`load_checkpoint` may use the full unpickler (``magwarp train --trust`` sets it)
+_TRUST_CHECKPOINTS = False
+
+
+def trust_checkpoints(trusted: bool = True) -> None:
+    """Let :func:`load_checkpoint` (default ``trusted=None``) load checkpoints with pickled objects (``--trust``)."""
+    global _TRUST_CHECKPOINTS
+    _TRUST_CHECKPOINTS = bool(trusted)
+
+
+def checkpoint_path(path: str) -> str:
+    """A run folder means its ``checkpoint.pt``."""
+    return os.path.join(path, "checkpoint.pt") if os.path.isdir(path) else path
+
+
+def load_checkpoint(path: str, device, *, trusted: bool | None = None) -> dict[str, Any]:
+    """A checkpoint dict (file or run folder), loaded without running pickled code unless ``trusted`` (default: the
+    process-wide :func:`trust_checkpoints` setting); see :mod:`magwarp._io`."""
+    from magwarp._io import load_checkpoint_file
+
+    path = checkpoint_path(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no checkpoint at {path!r}")
-    return torch.load(path, map_location=device, weights_only=False)
+    return load_checkpoint_file(path, device, trusted=_TRUST_CHECKPOINTS if trusted is None else trusted)
 
 
 #: when this process imported magwarp.training (for --stop-after, a limit on the whole process)

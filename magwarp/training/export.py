@@ -31,7 +31,7 @@ def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn
 
 
 def export_onnx(policy_path: str, out: str, *, opset: int = 17, obs_dim: int | None = None, check: bool = True,
-                atol: float = 1e-5) -> dict:
+                atol: float = 1e-5, trusted: bool = False) -> dict:
     """Write ``policy_path`` (TorchScript policy, ``torch.save``d module or training folder) as ONNX to ``out``.
 
     Returns ``{"obs_dim", "action_dim", "max_diff", "max_abs_diff"}``: the largest difference as a fraction of the
@@ -44,7 +44,7 @@ def export_onnx(policy_path: str, out: str, *, opset: int = 17, obs_dim: int | N
                           "pip install 'magwarp[onnx]' (or pip install onnx onnxruntime)") from None
     from magwarp.training.policy import load_policy
 
-    policy = load_policy(policy_path, "cpu")
+    policy = load_policy(policy_path, "cpu", trusted=trusted)  # a pickled module needs trusted (magwarp._io)
     flat, dim = _flat_module(policy, obs_dim)
     example = torch.zeros(2, dim)
     with torch.no_grad():

@@ -104,23 +104,27 @@ def save_policy(path: str, net: nn.Module, obs_rms, action_scale: torch.Tensor, 
 
 
 def policy_metadata(path: str) -> dict[str, Any]:
-    """The ``magwarp.json`` metadata of a TorchScript policy file ({} if it has none)."""
+    """The ``magwarp.json`` metadata of a TorchScript policy file ({} if it has none or is not TorchScript)."""
+    from magwarp._io import _is_torchscript
+
+    if not _is_torchscript(path):
+        return {}
     extra = {"magwarp.json": ""}
     torch.jit.load(path, map_location="cpu", _extra_files=extra)
     return json.loads(extra["magwarp.json"]) if extra["magwarp.json"] else {}
 
 
-def load_policy(path: str, device="cpu") -> nn.Module:
-    """A policy module from a TorchScript file, a ``torch.save``d module, or a training folder (its ``policy.pt``)."""
+def load_policy(path: str, device="cpu", *, trusted: bool = False) -> nn.Module:
+    """A policy module from a TorchScript file, a ``torch.save``d module, or a training folder (its ``policy.pt``).
+
+    No pickled code runs while loading (:mod:`magwarp._io`): a whole ``torch.save``d module needs ``trusted=True``
+    (it is unpickled with a warning)."""
+    from magwarp._io import load_module
+
     if os.path.isdir(path):
         path = os.path.join(path, "policy.pt")
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"no policy file at {path!r}")
-    try:
-        module = torch.jit.load(path, map_location=device)
-    except RuntimeError:
-        module = torch.load(path, map_location=device, weights_only=False)
-        if not isinstance(module, nn.Module):
-            raise ValueError(f"{path!r} is neither a TorchScript policy nor a torch.save'd nn.Module "
-                             f"(got {type(module).__name__}; a training checkpoint's policy is OUT/policy.pt)") from None
+    module = load_module(path, device, trusted=trusted)
+    if not isinstance(module, (nn.Module, torch.jit.ScriptModule)):
+        raise ValueError(f"{path!r} is neither a TorchScript policy nor a torch.save'd nn.Module "
+                         f"(got {type(module).__name__}; a training checkpoint's policy is OUT/policy.pt)")
     return module.eval()

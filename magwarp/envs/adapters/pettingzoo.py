@@ -27,6 +27,17 @@ def _np(x: torch.Tensor) -> np.ndarray:
     return x.detach().cpu().numpy()
 
 
+def _check_trajectory_env(env) -> None:
+    """The adapter gives every mover of a trajectory-planning env its own agent; other tasks have no per-mover goals."""
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    cls = env if isinstance(env, type) else type(env)
+    if not (isinstance(cls, type) and issubclass(cls, TrajectoryPlanningEnv)):
+        raise TypeError(f"MagwarpParallelEnv serves trajectory-planning envs (a TrajectoryPlanningEnv class or "
+                        f"instance: one agent per mover with its own goal), got {getattr(cls, '__name__', cls)!r}; "
+                        f"pushing envs are single-agent: use them through gymnasium or the SB3/TorchRL adapters")
+
+
 class MagwarpParallelEnv(ParallelEnv):
     """PettingZoo parallel env. ``env``: a :class:`~magwarp.envs.MagwarpVecEnv` subclass (default
     :class:`~magwarp.envs.TrajectoryPlanningEnv`), constructed with ``num_envs=1``, ``autoreset=False`` and
@@ -42,6 +53,7 @@ class MagwarpParallelEnv(ParallelEnv):
             from magwarp.envs.trajectory import TrajectoryPlanningEnv
 
             env = TrajectoryPlanningEnv
+        _check_trajectory_env(env)
         if isinstance(env, type):
             env = env(num_envs=1, autoreset=False, render_mode=render_mode, **env_kwargs)
         elif env_kwargs:

@@ -1,0 +1,50 @@
+"""NaN guard kernels: count the steps on the device and flag worlds whose state has become non-finite.
+
+Both run inside the simulator's step graph (no host synchronisation): ``count_step`` advances a device step counter
+and ``flag_nonfinite`` records, per world, the step at which any mover's pose or velocity first held a NaN or an
+infinity (``-1`` while the world is finite). The host reads the record only when asked.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from magwarp.kernels.options import MODULE_OPTIONS
+
+wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
+
+
+@wp.func
+def vec3_finite(v: wp.vec3) -> bool:
+    return wp.isfinite(v[0]) and wp.isfinite(v[1]) and wp.isfinite(v[2])
+
+
+@wp.kernel
+def count_step(
+    # State out:
+    steps: wp.array(dtype=wp.int32),
+):
+    steps[0] = steps[0] + 1
+
+
+@wp.kernel
+def flag_nonfinite(
+    # State in:
+    steps: wp.array(dtype=wp.int32),
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    vel: wp.array2d(dtype=wp.vec3),
+    omega: wp.array2d(dtype=wp.vec3),
+    # State out:
+    nonfinite_step: wp.array(dtype=wp.int32),
+):
+    w = wp.tid()
+    if nonfinite_step[w] >= 0:  # keep the first step at which the world went bad
+        return
+    for k in range(pos.shape[1]):
+        q = quat[w, k]
+        ok = vec3_finite(pos[w, k]) and vec3_finite(vel[w, k]) and vec3_finite(omega[w, k])
+        ok = ok and wp.isfinite(q[0]) and wp.isfinite(q[1]) and wp.isfinite(q[2]) and wp.isfinite(q[3])
+        if not ok:
+            nonfinite_step[w] = steps[0]
+            return
