@@ -1,0 +1,287 @@
+"""MJCF of 6D-platform MagBots carried by pairs of movers, through :class:`magwarp.mjcf.XmlHooks`.
+
+The mechanism of platform ``i`` (movers ``mover_{2i}`` = A and ``mover_{2i+1}`` = B; geometry of
+:class:`~magwarp.magbots.geometry.PlatformGeometry`) is a world-rooted tree closed by equality constraints, using only
+joints and constraints that mujoco-warp supports (slide/hinge joints, ``weld``, ``connect``, ``joint`` equality):
+
+- ``p{i}_base``: slide x, y, z and hinge (yaw) joints; the frame between the movers at the movers' centre height,
+  x axis from A to B;
+- ``p{i}_rail_a`` / ``p{i}_rail_b``: slide along the base's x axis (the mover distance), symmetric about the base
+  (a joint equality keeps the base at the movers' midpoint); each carries a turntable
+  ``p{i}_plate_a`` / ``_b`` (hinge z) welded to its mover, so the turntable angle is the mover's yaw relative to the
+  platform;
+- ``p{i}_link_a`` / ``_b``: lifting links (length L) hinged on the rails ``hinge_height`` above the mover centre,
+  kept symmetric by a joint equality; ``p{i}_lift`` hangs on link A's tip and is closed onto link B's tip by a
+  ``connect`` (its hinges are ``2 a`` apart), so it stays level at ``z_mover + hinge_height + L sin(theta)``;
+- ``p{i}_platform``: the platform, its origin (site ``p{i}_platform_site``) at the top centre, ``lift_offset -
+  hinge_height`` above the lift, with a pitch then a roll hinge (orientation ``Rz(yaw) Ry(pitch) Rx(roll)``), each
+  tied to its turntable by the gear ratio through a joint equality (``roll = -gear_a * plate_a``).
+
+Unlike MagBotSim's model, the tilt centre is the platform's top centre, so the IK of
+:mod:`magwarp.magbots.kinematics` is exact for this model (MagBotSim tilts about a ball joint below the top and
+corrects the tilt with a Python P-controller every cycle). The mechanism's geoms are visual only (contype 0):
+the platform carries no contacts here, and mover-mover collision stays geometric. All bodies are gravity
+compensated, as MagBotSim's are.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import mujoco
+import numpy as np
+import torch
+
+from magwarp.layout import Layout, LayoutError, MoverSpec
+from magwarp.magbots.geometry import MagBotLimitError, PlatformGeometry
+from magwarp.magbots.kinematics import check_platform_pose, platform_ik
+from magwarp.mjcf import XmlHooks, generate_mjcf
+
+__all__ = ["PlatformJoints", "PlatformModelSpec", "generate_platform_mjcf", "platform_hooks"]
+
+# Joints of one platform, in qpos order (all 1-dof); {i} is the platform index.
+_JOINTS = ("base_x", "base_y", "base_z", "base_yaw", "rail_a", "plate_a", "link_a", "lift", "pitch", "roll",
+           "rail_b", "plate_b", "link_b")
+
+
+def _f(x) -> str:
+    return format(float(x), ".10g")
+
+
+@dataclass(frozen=True)
+class PlatformModelSpec:
+    """Masses and visual sizes of the platform mechanism (the kinematics live in :class:`PlatformGeometry`).
+
+    ``hinge_height``: height of the links' rail hinges above the mover centre. ``platform_half_size``: half extents
+    of the platform plate (x, y, z). Masses in kg; MagBotSim's parts total about 0.75 kg.
+    """
+
+    hinge_height: float = 0.03
+    platform_half_size: tuple[float, float, float] = (0.08, 0.08, 0.004)
+    base_mass: float = 0.01
+    rail_mass: float = 0.1
+    plate_mass: float = 0.05
+    link_mass: float = 0.02
+    lift_mass: float = 0.1
+    platform_mass: float = 0.2
+
+    def __post_init__(self):
+        for name in ("hinge_height", "base_mass", "rail_mass", "plate_mass", "link_mass", "lift_mass", "platform_mass"):
+            v = float(getattr(self, name))
+            if not math.isfinite(v) or v <= 0:
+                raise MagBotLimitError(f"PlatformModelSpec.{name} must be a positive finite number, got {v!r}")
+        hs = tuple(float(v) for v in self.platform_half_size)
+        if len(hs) != 3 or not all(math.isfinite(v) and v > 0 for v in hs):
+            raise MagBotLimitError(f"PlatformModelSpec.platform_half_size must be three positive numbers, got {hs!r}")
+        object.__setattr__(self, "platform_half_size", hs)
+
+
+def _box_inertia(mass: float, half: tuple[float, float, float]) -> str:
+    hx, hy, hz = half
+    return (f'<inertial pos="0 0 0" mass="{_f(mass)}" diaginertia="{_f(mass * (hy * hy + hz * hz) / 3)} '
+            f'{_f(mass * (hx * hx + hz * hz) / 3)} {_f(mass * (hx * hx + hy * hy) / 3)}"/>')
+
+
+def platform_hooks(i: int, xy: Sequence[float], mover_z: float, geometry: PlatformGeometry, spec: PlatformModelSpec,
+                   num_movers: int) -> XmlHooks:
+    """Worldbody and equality XML of platform ``i`` (movers ``2i``, ``2i+1``), its model pose level, yaw 0, at ``xy``
+    and the middle of its height range, the movers' centres at ``mover_z``."""
+    g, s = geometry, spec
+    lo, hi = g.height_range
+    h0 = 0.5 * (lo + hi) - g.lift_offset  # lift above z_mover + lift_offset at the model pose
+    theta0 = math.asin(h0 / g.link_length)
+    half0 = g.link_offset + g.link_length * math.cos(theta0)
+    L, a, hz = g.link_length, g.link_offset, s.hinge_height
+    p = f"p{i}_"
+    gv = 'contype="0" conaffinity="0" group="1"'
+    plate = f'<geom type="cylinder" size="0.05 0.004" rgba="0.2 0.2 0.2 1" {gv}/>'
+    link_geom = (f'<geom type="capsule" fromto="0 0 0 {_f(L)} 0 0" size="0.006" rgba="0.1 0.6 0.2 1" {gv}/>')
+    hx, hy, hzp = s.platform_half_size
+    body = [
+        f'<body name="{p}base" pos="{_f(xy[0])} {_f(xy[1])} {_f(mover_z)}" gravcomp="1">',
+        _box_inertia(s.base_mass, (0.02, 0.02, 0.02)),
+        f'<joint name="{p}base_x" type="slide" axis="1 0 0"/><joint name="{p}base_y" type="slide" axis="0 1 0"/>',
+        f'<joint name="{p}base_z" type="slide" axis="0 0 1"/><joint name="{p}base_yaw" type="hinge" axis="0 0 1"/>',
+    ]
+    for side, sign in (("a", -1.0), ("b", 1.0)):
+        # link a points inward (+x) and up; link b is turned by pi about z, so the same hinge angle lowers both
+        link_quat = (f"{_f(math.cos(-theta0 / 2))} 0 {_f(math.sin(-theta0 / 2))} 0" if side == "a"
+                     else f"0 {_f(-math.sin(-theta0 / 2))} 0 {_f(math.cos(-theta0 / 2))}")
+        body += [
+            f'<body name="{p}rail_{side}" pos="{_f(sign * half0)} 0 0" gravcomp="1">',
+            _box_inertia(s.rail_mass, (0.03, 0.03, 0.01)),
+            f'<joint name="{p}rail_{side}" type="slide" axis="1 0 0"/>',
+            f'<geom type="box" size="0.03 0.03 0.01" pos="0 0 {_f(0.5 * hz)}" rgba="0.1 0.1 0.1 1" {gv}/>',
+            f'<body name="{p}plate_{side}" gravcomp="1">',
+            _box_inertia(s.plate_mass, (0.05, 0.05, 0.004)),
+            f'<joint name="{p}plate_{side}" type="hinge" axis="0 0 1"/>{plate}</body>',
+            f'<body name="{p}link_{side}" pos="0 0 {_f(hz)}" quat="{link_quat}" gravcomp="1">',
+            _box_inertia(s.link_mass, (0.5 * L, 0.006, 0.006)).replace('pos="0 0 0"', f'pos="{_f(0.5 * L)} 0 0"'),
+            f'<joint name="{p}link_{side}" type="hinge" axis="0 1 0"/>{link_geom}',
+        ]
+        if side == "a":
+            body += [
+                f'<body name="{p}lift" pos="{_f(L)} 0 0" quat="{_f(math.cos(theta0 / 2))} 0 {_f(math.sin(theta0 / 2))} 0" '
+                'gravcomp="1">',
+                _box_inertia(s.lift_mass, (a, 0.03, 0.005)).replace('pos="0 0 0"', f'pos="{_f(a)} 0 0"'),
+                f'<joint name="{p}lift" type="hinge" axis="0 1 0"/>',
+                f'<geom type="box" size="{_f(a)} 0.03 0.005" pos="{_f(a)} 0 0" rgba="0.3 0.3 0.3 1" {gv}/>',
+                f'<body name="{p}platform" pos="{_f(a)} 0 {_f(g.lift_offset - hz)}" gravcomp="1">',
+                _box_inertia(s.platform_mass, (hx, hy, hzp)),
+                f'<joint name="{p}pitch" type="hinge" axis="0 1 0"/><joint name="{p}roll" type="hinge" axis="1 0 0"/>',
+                f'<geom type="box" size="{_f(hx)} {_f(hy)} {_f(hzp)}" pos="0 0 {_f(-hzp)}" rgba="0.15 0.15 0.15 1" {gv}/>',
+                f'<site name="{p}platform_site" size="0.004" rgba="1 0 0 1"/>',
+                "</body></body>",
+            ]
+        body += ["</body></body>"]
+    body.append("</body>")
+    ma, mb = f"mover_{2 * i}", f"mover_{2 * i + 1}"
+    eq = [
+        f'<weld name="{p}weld_a" body1="{ma}" body2="{p}plate_a" relpose="0 0 0 1 0 0 0"/>',
+        f'<weld name="{p}weld_b" body1="{mb}" body2="{p}plate_b" relpose="0 0 0 1 0 0 0"/>',
+        f'<connect name="{p}close" body1="{p}link_b" body2="{p}lift" anchor="{_f(L)} 0 0"/>',
+        f'<joint name="{p}rails" joint1="{p}rail_b" joint2="{p}rail_a" polycoef="0 -1 0 0 0"/>',
+        f'<joint name="{p}links" joint1="{p}link_b" joint2="{p}link_a" polycoef="0 1 0 0 0"/>',
+        f'<joint name="{p}gear_a" joint1="{p}roll" joint2="{p}plate_a" polycoef="0 {_f(-g.gear_a)} 0 0 0"/>',
+        f'<joint name="{p}gear_b" joint1="{p}pitch" joint2="{p}plate_b" polycoef="0 {_f(-g.gear_b)} 0 0 0"/>',
+    ]
+    if 2 * i + 1 >= num_movers:
+        raise LayoutError(f"platform {i} needs movers {2 * i} and {2 * i + 1}, but the model has {num_movers} movers")
+    return XmlHooks(worldbody="\n".join(body), equality="\n".join(eq))
+
+
+def _merge(a: XmlHooks, b: XmlHooks) -> XmlHooks:
+    """``a`` with ``b``'s text sections appended (``b`` carries only worldbody/equality text)."""
+    return replace(a, worldbody=a.worldbody + "\n" + b.worldbody, equality=a.equality + "\n" + b.equality)
+
+
+def generate_platform_mjcf(
+    layout: Layout,
+    platform_xy: Sequence[Sequence[float]],
+    *,
+    geometry: PlatformGeometry | None = None,
+    spec: PlatformModelSpec | None = None,
+    mover: MoverSpec | None = None,
+    hooks: XmlHooks | Mapping[str, object] | None = None,
+    **mjcf_options,
+) -> str:
+    """MJCF with one 6D platform per row of ``platform_xy`` (``[P, 2]``), each carried by two movers.
+
+    Platform ``i`` uses movers ``2i`` (A, -x side) and ``2i+1`` (B); its model pose is level, yaw 0, at mid height.
+    Start poses per world are set without a rebuild through :class:`PlatformJoints`. ``hooks`` (user XML) and
+    ``mjcf_options`` (e.g. ``timestep``, ``solver``, ``objects``) pass through to :func:`magwarp.mjcf.generate_mjcf`.
+    """
+    g = geometry or PlatformGeometry()
+    s = spec or PlatformModelSpec()
+    mover = mover or MoverSpec()
+    xy = np.asarray(platform_xy, dtype=np.float64)
+    if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) < 1 or not np.all(np.isfinite(xy)):
+        raise LayoutError(f"platform_xy must be a finite array of shape (P >= 1, 2), got {xy.tolist()!r}")
+    mover_z = mover.hover_gap + 0.5 * mover.size[2]
+    lo, hi = g.height_range
+    pose = torch.zeros(len(xy), 6, dtype=torch.float64)
+    pose[:, :2] = torch.as_tensor(xy)
+    pose[:, 2] = mover_z + 0.5 * (lo + hi)
+    movers = platform_ik(pose, mover_z, g).numpy()  # [P, 2, 4]
+    merged = XmlHooks.coerce(hooks)
+    for i in range(len(xy)):
+        merged = _merge(merged, platform_hooks(i, xy[i], mover_z, g, s, 2 * len(xy)))
+    return generate_mjcf(layout, 2 * len(xy), mover, mover_xy=movers[:, :, :2].reshape(-1, 2), hooks=merged,
+                         **mjcf_options)
+
+
+class PlatformJoints:
+    """Where the platforms' joints live in ``qpos`` of a compiled model, and batched pose <-> qpos maps (torch).
+
+    :meth:`pose` reads platform poses ``[W, P, 6]`` from ``qpos`` ``[W, nq]`` through the joints (exact, no
+    site kinematics needed); :meth:`write_qpos` writes the mechanism's and the movers' qpos for given platform poses
+    (the IK, every joint of the tree, and the movers' free joints), e.g. into a backend's ``init_qpos`` before a reset.
+    """
+
+    def __init__(self, mjm: mujoco.MjModel, geometry: PlatformGeometry | None = None, spec: PlatformModelSpec | None = None):
+        self.geometry = g = geometry or PlatformGeometry()
+        self.spec = spec or PlatformModelSpec()
+        n = 0
+        while mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"p{n}_base") >= 0:
+            n += 1
+        if n == 0:
+            raise LayoutError("the model has no 6D platform (no body 'p0_base')")
+        self.num_platforms = n
+        adr = np.zeros((n, len(_JOINTS)), dtype=np.int64)
+        for i in range(n):
+            for j, name in enumerate(_JOINTS):
+                jid = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_JOINT, f"p{i}_{name}")
+                if jid < 0:
+                    raise LayoutError(f"platform {i} has no joint 'p{i}_{name}'")
+                adr[i, j] = mjm.jnt_qposadr[jid]
+        movers = np.zeros((n, 2), dtype=np.int64)
+        for k in range(2 * n):
+            bid = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"mover_{k}")
+            if bid < 0:
+                raise LayoutError(f"platform {k // 2} needs body 'mover_{k}'")
+            movers[k // 2, k % 2] = mjm.jnt_qposadr[mjm.body_jntadr[bid]]
+        self.qpos_adr = torch.as_tensor(adr)  # [P, 13]
+        self.mover_qpos_adr = torch.as_tensor(movers)  # [P, 2]
+        # model (qpos0) pose of each platform: base body position, mover distance, lift angle
+        base_pos = np.array([mjm.body_pos[mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"p{i}_base")] for i in range(n)])
+        self.base_pos0 = torch.as_tensor(base_pos)  # [P, 3]
+        lo, hi = g.height_range
+        self.theta0 = math.asin((0.5 * (lo + hi) - g.lift_offset) / g.link_length)
+        self.half0 = g.link_offset + g.link_length * math.cos(self.theta0)
+
+    def _idx(self, name: str) -> torch.Tensor:
+        return self.qpos_adr[:, _JOINTS.index(name)]
+
+    def pose(self, qpos: torch.Tensor) -> torch.Tensor:
+        """Platform poses ``[W, P, 6]`` (x, y, z, roll, pitch, yaw of the top centre) from ``qpos`` ``[W, nq]``."""
+        g = self.geometry
+        dev = qpos.device
+        j = self.qpos_adr.to(dev)
+        q = qpos[:, j]  # [W, P, 13]
+        b0 = self.base_pos0.to(dev, qpos.dtype)
+        theta = self.theta0 - q[..., _JOINTS.index("link_a")]
+        z = b0[:, 2] + q[..., 2] + g.lift_offset + g.link_length * torch.sin(theta)
+        return torch.stack([b0[:, 0] + q[..., 0], b0[:, 1] + q[..., 1], z, q[..., _JOINTS.index("roll")],
+                            q[..., _JOINTS.index("pitch")], q[..., 3]], -1)
+
+    def write_qpos(self, qpos: torch.Tensor, pose: torch.Tensor, mover_z, *, check: bool = True) -> None:
+        """Write platform poses ``pose`` ``[W, P, 6]`` into ``qpos`` ``[W, nq]`` in place: every joint of the
+        mechanism and the two movers' free joints (level, yaw from the IK). ``check`` refuses poses outside the
+        limits (:class:`MagBotLimitError` naming the limit)."""
+        g = self.geometry
+        W, P = qpos.shape[0], self.num_platforms
+        if tuple(pose.shape) != (W, P, 6):
+            raise MagBotLimitError(f"pose must have shape ({W}, {P}, 6), got {tuple(pose.shape)}")
+        pose = pose.to(qpos.dtype)
+        if check:
+            check_platform_pose(pose, mover_z, g)
+        movers = platform_ik(pose, mover_z, g, check=False)  # [W, P, 2, 4]
+        dev = qpos.device
+        b0 = self.base_pos0.to(dev, qpos.dtype)
+        half = 0.5 * torch.linalg.norm(movers[..., 1, :2] - movers[..., 0, :2], dim=-1)
+        h = pose[..., 2] - movers[..., 0, 2] - g.lift_offset
+        theta = torch.asin(h / g.link_length)
+        rel_a = movers[..., 0, 3] - pose[..., 5]
+        rel_b = movers[..., 1, 3] - pose[..., 5]
+        vals = {
+            "base_x": pose[..., 0] - b0[:, 0], "base_y": pose[..., 1] - b0[:, 1], "base_z": movers[..., 0, 2] - b0[:, 2],
+            "base_yaw": pose[..., 5], "rail_a": -(half - self.half0), "rail_b": half - self.half0,
+            "plate_a": rel_a, "plate_b": rel_b, "link_a": self.theta0 - theta, "link_b": self.theta0 - theta,
+            "lift": theta - self.theta0, "pitch": pose[..., 4], "roll": pose[..., 3],
+        }
+        j = self.qpos_adr.to(dev)
+        for k, name in enumerate(_JOINTS):
+            qpos[:, j[:, k]] = vals[name]
+        madr = self.mover_qpos_adr.to(dev)
+        for side in range(2):
+            m = movers[..., side, :]
+            base = madr[:, side]
+            for c in range(3):
+                qpos[:, base + c] = m[..., c]
+            half_yaw = 0.5 * m[..., 3]
+            qpos[:, base + 3] = torch.cos(half_yaw)
+            qpos[:, base + 4] = 0.0
+            qpos[:, base + 5] = 0.0
+            qpos[:, base + 6] = torch.sin(half_yaw)
