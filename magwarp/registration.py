@@ -24,6 +24,7 @@ ENV_CLASSES = {
     "PushLEnv": "magwarp.envs.push",
     "PushXEnv": "magwarp.envs.push",
     "PushWithObstaclesEnv": "magwarp.envs.push_obstacles",
+    "PlatformPoseEnv": "magwarp.envs.platform_pose",
 }
 # Benchmark variants (names only; their layouts live in magwarp.layout.BENCHMARK_LAYOUTS and magwarp.envs.push).
 TRAJECTORY_BENCHMARKS = tuple(f"B{i}" for i in range(10))
@@ -61,6 +62,7 @@ def env_ids() -> dict[str, tuple[str, dict]]:
         for name in PUSH_BENCHMARKS:
             ids[f"magwarp/{task}{name}-v0"] = (f"{task}Env", {"benchmark": name})
     ids["magwarp/PushWithObstacles-v0"] = ("PushWithObstaclesEnv", {})
+    ids["magwarp/PlatformPose-v0"] = ("PlatformPoseEnv", {})
     return ids
 
 
