@@ -115,3 +115,14 @@ def test_bad_options_raise_clear_errors():
         PlatformPoseEnv(1, device="cpu", layout=holes)
     with pytest.raises(ValueError, match="pose_step"):
         PlatformPoseEnv(1, device="cpu", pose_step=(0.1, 0.1))
+
+
+def test_magwarp_eval_reports_the_platform_table():
+    from magwarp.evaluate import evaluate, format_table
+
+    res = evaluate("PlatformPose", episodes=6, repeats=2, device="cpu", progress=False)
+    rows = {r.key: r for r in res.rows}
+    assert res.family == "platform" and rows["success_rate"].n == 6
+    assert rows["success_rate"].mean >= 50.0, format_table(res)
+    assert 0.0 < rows["time_to_success_s"].mean <= 2.0  # within the 50-step (2 s) episode
+    assert {"limit_violations", "collisions", "final_position_error_mm", "process_time_ms"} <= set(rows)

@@ -68,6 +68,9 @@ class PlatformPoseEnv(MagwarpVecEnv):
     default 5 x 5 tiles) must leave room for the platform; ``geometry``/``model`` set the mechanism."""
 
     metadata = {**MagwarpVecEnv.metadata, "render_modes": []}
+    #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
+    benchmark_metrics = None
+    num_movers = 2
 
     def __init__(
         self,
@@ -200,6 +203,14 @@ class PlatformPoseEnv(MagwarpVecEnv):
         self.target_pose.copy_(torch.where(mask[:, None], start, self.target_pose))
         self.target_clipped.masked_fill_(mask, False)
         self.num_steps.masked_fill_(mask, 0)
+        if self.benchmark_metrics is not None:
+            self.benchmark_metrics.episode_reset(mask)
+
+    def scripted_policy(self):
+        """The scripted baseline (:class:`magwarp.policies.platform.PlatformIKPolicy`), as ``magwarp eval`` uses it."""
+        from magwarp.policies.platform import PlatformIKPolicy
+
+        return PlatformIKPolicy(self)
 
     def _apply_action(self, action: torch.Tensor) -> None:
         self.checks.clear()
@@ -243,7 +254,10 @@ class PlatformPoseEnv(MagwarpVecEnv):
         info.update({"is_success": reached & ~failed, "position_error": pos_err, "angle_error": ang_err})
         if self.action_mode == "pose":
             info["target_clipped"] = self.target_clipped.clone()
-        return reward, reached | failed, self.num_steps >= self.max_episode_steps, info
+        terminated, truncated = reached | failed, self.num_steps >= self.max_episode_steps
+        if self.benchmark_metrics is not None:
+            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
+        return reward, terminated, truncated, info
 
     def _failed(self, info: dict[str, Any] | None, shape, device=None) -> torch.Tensor:
         out = torch.zeros(shape, dtype=torch.bool, device=device or self.device)
