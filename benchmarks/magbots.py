@@ -6,9 +6,10 @@ IK and tilt coupling every cycle, MuJoCo C) stepped in the same run on the CPU.
     python benchmarks/magbots.py --device cuda:0 --num-envs 4096,16384,65536 --json benchmarks/results/magbots_gpu.json
     python benchmarks/magbots.py --num-envs 1,4 --steps 5 --magbotsim-steps 5       # smoke check
 
-One env step = 40 control cycles of 1 ms. magwarp: actions uniform random in the action space from a pre-generated
-bank on the device, autoreset on and included (random accelerations break the linkage's limits now and then, so
-resets happen), ``check_inputs`` off. MagBotSim: ``env.step(platform_setposes, num_cycles=40)`` tracking its own
+One env step = 40 control cycles of 1 ms. magwarp: :func:`env_throughput.raw_env_row` (actions uniform random in the
+action space from a pre-generated bank on the device, autoreset on and included: random accelerations break the
+linkage's limits now and then, so resets happen; ``check_inputs`` off; "raw mjw ms" is the bare mujoco-warp step of
+the same model and states). MagBotSim: ``env.step(platform_setposes, num_cycles=40)`` tracking its own
 example's moving set poses, headless (its constructor's viewer switched off). Its env carries two platforms, so the
 table also gives platform-steps/s.
 """
@@ -28,25 +29,14 @@ import torch  # noqa: E402
 import warp as wp  # noqa: E402
 
 from common import header_line, machine_info, print_table, provenance, write_json  # noqa: E402
-from env_throughput import time_steps  # noqa: E402
+from env_throughput import raw_env_row  # noqa: E402
 
 ENV_ID = "magwarp/PlatformPose-v0"
 
 
 def magwarp_row(num_envs: int, device: str, steps: int, action_mode: str) -> dict:
-    import gymnasium as gym
-
-    import magwarp  # noqa: F401  (registers the ids)
-
-    env = gym.make_vec(ENV_ID, num_envs=num_envs, device=device, check_inputs=False, action_mode=action_mode)
-    env.reset(seed=0)
-    space = env.single_action_space
-    gen = torch.Generator(device=env.device).manual_seed(0)
-    low = torch.as_tensor(space.low, device=env.device)
-    high = torch.as_tensor(space.high, device=env.device)
-    actions = low + (high - low) * torch.rand((8, num_envs, *space.shape), generator=gen, device=env.device)
-    res = time_steps(env.step, actions, steps, device)
-    res["env_steps_per_s"] = num_envs / (res["step_ms"] / 1e3)
+    """The push/trajectory benchmark's row (random actions, autoreset, and the bare mujoco-warp step beside it)."""
+    res = raw_env_row(ENV_ID, num_envs, device, steps, action_mode=action_mode)
     res["platforms_per_env"] = 1
     res["platform_steps_per_s"] = res["env_steps_per_s"]
     return res
@@ -131,6 +121,7 @@ def main(argv=None) -> int:
         for r in rows:
             r["x_magbotsim"] = r["platform_steps_per_s"] / ref["platform_steps_per_s"]
     print_table(rows, ["engine", "env", "action_mode", "device", "num_envs", ("step_ms", "ms/step"),
+                       ("raw_mjw_ms", "raw mjw ms"),
                        ("env_steps_per_s", "env-steps/s"), ("platform_steps_per_s", "platform-steps/s"),
                        ("x_magbotsim", "x MagBotSim (platform-steps)")])
     path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
