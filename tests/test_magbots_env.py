@@ -47,6 +47,14 @@ def test_make_check_env_and_make_vec():
     assert obs["observation"].shape == (3, 28) and obs["desired_goal"].shape == (3, 7)
 
 
+def test_top_down_render_shows_movers_and_platform():
+    env = PlatformPoseEnv(2, device="cpu", seed=0, render_mode="rgb_array")
+    img = env.render()
+    assert isinstance(img, np.ndarray) and img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
+    env.step(torch.zeros(2, 6))
+    assert not np.array_equal(img, np.zeros_like(img)) and np.unique(img.reshape(-1, 3), axis=0).shape[0] > 4
+
+
 def test_observation_is_the_state(env):
     obs, _ = env.reset(seed=5)
     pose = env.platform_pose()

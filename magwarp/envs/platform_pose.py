@@ -17,6 +17,8 @@ backend, batched over worlds. Per env step (``num_cycles`` control cycles of 1 m
   ``max_tilt``, mover distance outside its range), else ``success_reward`` at the goal, else ``per_step_penalty``;
 * terminated at the goal, on a collision or on a limit violation; truncated after ``max_episode_steps``.
 
+``render_mode="rgb_array"`` draws the worlds from above (tiles, movers, the platform plate and its goal pose).
+
 Starts and goals are drawn uniformly inside the limits (tilt and height shrunk by ``sample_margin``), the platform
 centre far enough from the layout's edge that both movers stay on the tiles at any yaw and spread.
 """
@@ -67,7 +69,7 @@ class PlatformPoseEnv(MagwarpVecEnv):
     """Batched 6D-platform pose tracking; see the module docstring. ``layout`` (a :class:`Layout` or 0/1 array,
     default 5 x 5 tiles) must leave room for the platform; ``geometry``/``model`` set the mechanism."""
 
-    metadata = {**MagwarpVecEnv.metadata, "render_modes": []}
+    metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array"]}
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
     num_movers = 2
@@ -124,6 +126,7 @@ class PlatformPoseEnv(MagwarpVecEnv):
         self.collision_penalty = float(collision_penalty)
         self.max_episode_steps = int(max_episode_steps)
         self.mover = MoverSpec()
+        self.model_spec = model or PlatformModelSpec()
         g = self.geometry
 
         # Workspace of the platform centre: both movers (at the widest spread, any yaw) stay on the tiles.
@@ -269,6 +272,22 @@ class PlatformPoseEnv(MagwarpVecEnv):
     def _reward(self, reached: torch.Tensor, failed: torch.Tensor) -> torch.Tensor:
         reward = torch.where(reached, self.success_reward, self.per_step_penalty)
         return torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
+
+    def _render_frame(self) -> torch.Tensor:
+        """Top-down view: tiles, the movers (red after a collision), the platform plate and its goal (x, y, yaw)."""
+        worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 16)
+        if getattr(self, "_renderer", None) is None:
+            from magwarp.render import TopDownRenderer
+
+            count = worlds if np.ndim(worlds) == 0 else len(worlds)
+            hx, hy, _ = self.model_spec.platform_half_size
+            self._renderer = TopDownRenderer(self.layout, self.mover, worlds=worlds,
+                                             px_per_tile=96 if count == 1 else 48 if count <= 4 else 32,
+                                             object_shapes=[[(0.0, 0.0, hx, hy)]], device=self.backend.device)
+        pos, _ = self.mover_state()
+        pose = self.platform_pose()
+        return self._renderer.draw(pos[..., :2], pos[..., 2], flags=self.checks.flags_t[:, None].expand(-1, 2),
+                                   object_poses=pose[:, [0, 1, 5]], object_goals=self.goal_pose[:, [0, 1, 5]])
 
     def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
         """Reward for a batch ``(..., 7)``; ``info`` holds the failure flags of the batch shape (or is None)."""
