@@ -2,7 +2,9 @@
 
 - :mod:`magwarp.magbots.geometry` — documented link geometry and limits (:class:`PlatformGeometry`);
 - :mod:`magwarp.magbots.kinematics` — batched torch inverse/forward kinematics and limit checks;
-- :mod:`magwarp.magbots.mjcf` — MJCF of the platform mechanism through :class:`magwarp.mjcf.XmlHooks`.
+- :mod:`magwarp.magbots.mjcf` — MJCF of the platform mechanism through :class:`magwarp.mjcf.XmlHooks`;
+- :mod:`magwarp.magbots.control` — tracking of IK mover targets at the policy rate;
+- :mod:`magwarp.magbots.gripper` — a two-mover gripper (jaw kinematics, MJCF, joint maps).
 """
 
 from __future__ import annotations
