@@ -114,8 +114,8 @@ def main(argv=None) -> int:
         except ImportError as e:
             print(f"  MagBotSim not available ({e}); skipped", flush=True)
         else:
-            rows.append({"engine": "magbotsim", "env": "SixDPlatformMagBotExampleEnv", "action_mode": "platform set pose",
-                         "device": "cpu", "num_envs": 1, **res})
+            rows.append({"engine": "magbotsim", "env": "SixDPlatformMagBotExampleEnv",
+                         "action_mode": "platform set pose", "device": "cpu", "num_envs": 1, **res})
     ref = next((r for r in rows if r["engine"] == "magbotsim"), None)
     if ref is not None:
         for r in rows:

@@ -68,7 +68,8 @@ def test_ik_and_fk_match_the_numpy_reference_and_round_trip(rng):
     d = np.linalg.norm(movers[:, 1, :2] - movers[:, 0, :2], axis=-1)
     assert d.min() >= G.min_mover_distance - 1e-9 and d.max() <= G.max_mover_distance + 1e-9
     # float32 (a policy's dtype) stays within float32 round-off; batch shapes are kept
-    m32 = platform_ik(torch.as_tensor(pose, dtype=torch.float32).reshape(5, 100, 6), torch.as_tensor(mz).float().reshape(5, 100))
+    m32 = platform_ik(torch.as_tensor(pose, dtype=torch.float32).reshape(5, 100, 6),
+                      torch.as_tensor(mz).float().reshape(5, 100))
     assert m32.shape == (5, 100, 2, 4)
     np.testing.assert_allclose(platform_fk(m32).reshape(n, 6).numpy(), pose, rtol=0, atol=2e-4, err_msg=str(rng))
 
@@ -87,7 +88,8 @@ def test_ik_equals_magbotsim_platform_ik(rng):
 
 @pytest.mark.parametrize(
     "index, value, limit",
-    [(3, 0.3, "roll"), (4, -0.3, "pitch"), (2, 0.5, "height_max"), (2, 0.15, "height_min"), (0, float("nan"), "non_finite")],
+    [(3, 0.3, "roll"), (4, -0.3, "pitch"), (2, 0.5, "height_max"), (2, 0.15, "height_min"),
+     (0, float("nan"), "non_finite")],
 )
 def test_limits_are_named_and_nothing_is_clamped(rng, index, value, limit):
     mz = np.full(8, 0.01)

@@ -48,7 +48,8 @@ def test_written_qpos_satisfies_every_constraint_and_the_site_pose(rng):
         mjd.qpos[:] = q[w].numpy()
         mujoco.mj_forward(mjm, mjd)
         assert np.abs(mjd.efc_pos[: mjd.ne]).max() < 1e-9, (w, str(rng))  # welds, connect, gears all closed
-        got = np.concatenate([mjd.site_xpos[site], Rotation.from_matrix(mjd.site_xmat[site].reshape(3, 3)).as_euler("xyz")])
+        euler = Rotation.from_matrix(mjd.site_xmat[site].reshape(3, 3)).as_euler("xyz")
+        got = np.concatenate([mjd.site_xpos[site], euler])
         np.testing.assert_allclose(got, poses[w, 0].numpy(), atol=1e-9, err_msg=f"world {w} {rng}")
         movers = np.stack([mjd.qpos[0:3], mjd.qpos[7:10]])
         yaws = [2 * math.atan2(mjd.qpos[6], mjd.qpos[3]), 2 * math.atan2(mjd.qpos[13], mjd.qpos[10])]
@@ -67,7 +68,8 @@ def test_platform_trajectories_match_mujoco_c(rng):
     b = MjwBackend(XML, 2, control=control, device="cpu")
     pj = PlatformJoints(b.mjm)
     q = b.init_qpos_t.double().clone()
-    start = torch.tensor([[[0.48, 0.48, MOVER_Z + 0.22, 0.0, 0.0, 0.0]], [[0.5, 0.45, MOVER_Z + 0.25, 0.1, -0.12, 0.6]]],
+    start = torch.tensor([[[0.48, 0.48, MOVER_Z + 0.22, 0.0, 0.0, 0.0]],
+                          [[0.5, 0.45, MOVER_Z + 0.25, 0.1, -0.12, 0.6]]],
                          dtype=torch.float64)
     pj.write_qpos(q, start, MOVER_Z)
     b.init_qpos_t.copy_(q)

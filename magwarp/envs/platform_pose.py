@@ -134,11 +134,12 @@ class PlatformPoseEnv(MagwarpVecEnv):
         reach = 0.5 * g.max_mover_distance + self.mover.bounding_radius(self.mover.wall_margin) + 0.01
         self.xy_low, self.xy_high = np.full(2, reach), ext - reach
         if np.any(self.xy_high <= self.xy_low) or not self.layout.tiles.all():
-            raise ValueError(f"layout of shape {self.layout.shape} leaves no room for the platform (a full grid at least "
-                             f"{2 * reach:.3f} m wide in x and y is needed)")
+            raise ValueError(f"layout of shape {self.layout.shape} leaves no room for the platform (a full grid at "
+                             f"least {2 * reach:.3f} m wide in x and y is needed)")
         device = device or _default_device()
         centre = 0.5 * ext
-        self.xml = generate_platform_mjcf(self.layout, [centre], geometry=g, spec=model, mover=self.mover, solver=solver)
+        self.xml = generate_platform_mjcf(self.layout, [centre], geometry=g, spec=model, mover=self.mover,
+                                          solver=solver)
         control = ControlParams(v_max=v_max, a_max=a_max, num_cycles=int(num_cycles), rotation=True, v_max_c=v_max_c,
                                 a_max_c=a_max_c)
         self.backend = MjwBackend(self.xml, int(num_envs), control=control, nconmax=1, njmax=24, device=device)

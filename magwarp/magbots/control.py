@@ -2,7 +2,8 @@
 
 :func:`track_movers` turns target mover poses (from :func:`magwarp.magbots.kinematics.platform_ik`) into the
 per-step x/y and yaw accelerations that :class:`magwarp.physics.MjwBackend` takes with ``ControlParams(rotation=
-True)``: a damped spring per axis, ``a = kp (target - pos) + kd (target_vel - vel)``, the yaw error wrapped to (-pi, pi]. The
+True)``: a damped spring per axis, ``a = kp (target - pos) + kd (target_vel - vel)``, the yaw error wrapped to
+(-pi, pi]. The
 command is held for a whole env step (``num_cycles`` ms), so the default gains (natural frequency ~6 rad/s, damping
 ratio ~1) are chosen for the 25 Hz policy rate; the backend then applies its documented acceleration and speed limits.
 """

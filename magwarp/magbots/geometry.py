@@ -71,7 +71,8 @@ class PlatformGeometry:
         lo, hi = self.min_mover_distance, self.max_mover_distance
         a, L = self.link_offset, self.link_length
         if not lo < hi:
-            raise MagBotLimitError(f"PlatformGeometry.min_mover_distance ({lo}) must be below max_mover_distance ({hi})")
+            raise MagBotLimitError(
+                f"PlatformGeometry.min_mover_distance ({lo}) must be below max_mover_distance ({hi})")
         if lo < 2 * a:
             raise MagBotLimitError(
                 f"PlatformGeometry.min_mover_distance ({lo}) is below 2 * link_offset ({2 * a}): links past vertical"

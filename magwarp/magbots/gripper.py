@@ -4,7 +4,8 @@ Geometry (magwarp's design; lengths in metres; frame of mover A: origin at its c
 
 - Mover A carries the gripper base; mover B rides on the base's rail (the x axis) ``d`` ahead of A, so the gripper's
   yaw is the direction A -> B and its x, y are A's.
-- Each jaw finger (index ``+`` and ``-``, mirrored in y) turns about a vertical hinge at ``(-hinge_back, +-hinge_side)``.
+- Each jaw finger (index ``+`` and ``-``, mirrored in y) turns about a vertical hinge at
+  ``(-hinge_back, +-hinge_side)``.
   A lever of length ``lever`` on the finger, at angle ``theta`` from the -x axis (toward +-y), is pulled by a rod of
   length ``rod`` pinned to the slider (mover B) at ``(d, +-pin_side)``. Closing the loop,
   ``(u + lever cos theta)^2 + (v - lever sin theta)^2 = rod^2`` with ``u = d + hinge_back``, ``v = pin_side -
@@ -153,7 +154,8 @@ def gripper_hooks(i: int, xy: Sequence[float], mover_z: float, g: GripperGeometr
         f'<body name="{p}base" pos="{_f(xy[0])} {_f(xy[1])} {_f(mover_z)}" gravcomp="1">', _inertial(0.05),
         f'<joint name="{p}base_x" type="slide" axis="1 0 0"/><joint name="{p}base_y" type="slide" axis="0 1 0"/>',
         f'<joint name="{p}base_z" type="slide" axis="0 0 1"/><joint name="{p}base_yaw" type="hinge" axis="0 0 1"/>',
-        f'<geom type="box" size="0.03 0.04 0.005" pos="{_f(-0.5 * g.hinge_back)} 0 {_f(hz)}" rgba="0.2 0.2 0.2 1" {vis}/>',
+        f'<geom type="box" size="0.03 0.04 0.005" pos="{_f(-0.5 * g.hinge_back)} 0 {_f(hz)}" rgba="0.2 0.2 0.2 1" '
+        f'{vis}/>',
         f'<body name="{p}slider" pos="{_f(d0)} 0 0" gravcomp="1">', _inertial(0.05),
         f'<joint name="{p}slider" type="slide" axis="1 0 0"/>',
     ]
@@ -177,7 +179,8 @@ def gripper_hooks(i: int, xy: Sequence[float], mover_z: float, g: GripperGeometr
             f'<joint name="{p}finger_{side}" type="hinge" axis="0 0 {_f(-sign)}"/>',
             f'<geom type="capsule" fromto="0 0 0 {_f(lever[0])} {_f(lever[1])} 0" size="0.004" rgba="0.1 0.5 0.8 1" '
             f'{vis}/>',
-            f'<geom type="capsule" fromto="0 0 0 {_f(tip[0])} {_f(tip[1])} 0" size="0.004" rgba="0.1 0.5 0.8 1" {vis}/>',
+            f'<geom type="capsule" fromto="0 0 0 {_f(tip[0])} {_f(tip[1])} 0" size="0.004" rgba="0.1 0.5 0.8 1" '
+            f'{vis}/>',
             f'<geom name="{p}pad_{side}" type="sphere" size="{_f(g.pad)}" pos="{_f(tip[0])} {_f(tip[1])} 0" '
             'rgba="0.9 0.3 0.1 1"/>',
             "</body>",
@@ -188,9 +191,9 @@ def gripper_hooks(i: int, xy: Sequence[float], mover_z: float, g: GripperGeometr
     return XmlHooks(worldbody="\n".join(body), equality="\n".join(eq))
 
 
-def generate_gripper_mjcf(layout: Layout, gripper_xy: Sequence[Sequence[float]], *, geometry: GripperGeometry | None = None,
-                          mover: MoverSpec | None = None, hooks: XmlHooks | Mapping[str, object] | None = None,
-                          **mjcf_options) -> str:
+def generate_gripper_mjcf(layout: Layout, gripper_xy: Sequence[Sequence[float]], *,
+                          geometry: GripperGeometry | None = None, mover: MoverSpec | None = None,
+                          hooks: XmlHooks | Mapping[str, object] | None = None, **mjcf_options) -> str:
     """MJCF with one gripper per row of ``gripper_xy`` (``[G, 2]``: mover A's model position); gripper ``i`` uses
     movers ``2i`` (A) and ``2i+1`` (B, mid distance ahead along +x). Options pass to :func:`generate_mjcf`. The
     finger pads collide (MuJoCo's default contype), the rest of the mechanism is visual."""

@@ -45,10 +45,12 @@ def _mover_z(mover_z, like: torch.Tensor) -> torch.Tensor:
     try:
         return torch.broadcast_to(z, like.shape[:-1])
     except RuntimeError as e:
-        raise MagBotLimitError(f"mover_z of shape {tuple(z.shape)} does not broadcast to {tuple(like.shape[:-1])}") from e
+        raise MagBotLimitError(
+            f"mover_z of shape {tuple(z.shape)} does not broadcast to {tuple(like.shape[:-1])}") from e
 
 
-def platform_limit_violations(pose: torch.Tensor, mover_z, geometry: PlatformGeometry = _DEFAULT) -> dict[str, torch.Tensor]:
+def platform_limit_violations(pose: torch.Tensor, mover_z,
+                              geometry: PlatformGeometry = _DEFAULT) -> dict[str, torch.Tensor]:
     """Per limit in :data:`~magwarp.magbots.geometry.LIMIT_NAMES`, a bool tensor ``[...]``: where ``pose`` breaks it.
 
     ``roll``/``pitch``: ``|angle| > max_tilt``; ``height_min``/``height_max``: the platform height above the movers
@@ -86,7 +88,8 @@ def check_platform_pose(pose: torch.Tensor, mover_z, geometry: PlatformGeometry 
             )
 
 
-def platform_ik(pose: torch.Tensor, mover_z, geometry: PlatformGeometry = _DEFAULT, *, check: bool = True) -> torch.Tensor:
+def platform_ik(pose: torch.Tensor, mover_z, geometry: PlatformGeometry = _DEFAULT, *,
+                check: bool = True) -> torch.Tensor:
     """Mover poses ``[..., 2, 4]`` (x, y, z, yaw of A and B) that put the platform at ``pose`` ``[..., 6]``.
 
     ``mover_z``: the movers' centre height (a number or a tensor broadcastable to ``pose.shape[:-1]``).

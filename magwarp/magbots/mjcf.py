@@ -123,15 +123,16 @@ def platform_hooks(i: int, xy: Sequence[float], mover_z: float, geometry: Platfo
         ]
         if side == "a":
             body += [
-                f'<body name="{p}lift" pos="{_f(L)} 0 0" quat="{_f(math.cos(theta0 / 2))} 0 {_f(math.sin(theta0 / 2))} 0" '
-                'gravcomp="1">',
+                f'<body name="{p}lift" pos="{_f(L)} 0 0" '
+                f'quat="{_f(math.cos(theta0 / 2))} 0 {_f(math.sin(theta0 / 2))} 0" gravcomp="1">',
                 _box_inertia(s.lift_mass, (a, 0.03, 0.005)).replace('pos="0 0 0"', f'pos="{_f(a)} 0 0"'),
                 f'<joint name="{p}lift" type="hinge" axis="0 1 0"/>',
                 f'<geom type="box" size="{_f(a)} 0.03 0.005" pos="{_f(a)} 0 0" rgba="0.3 0.3 0.3 1" {gv}/>',
                 f'<body name="{p}platform" pos="{_f(a)} 0 {_f(g.lift_offset - hz)}" gravcomp="1">',
                 _box_inertia(s.platform_mass, (hx, hy, hzp)),
                 f'<joint name="{p}pitch" type="hinge" axis="0 1 0"/><joint name="{p}roll" type="hinge" axis="1 0 0"/>',
-                f'<geom type="box" size="{_f(hx)} {_f(hy)} {_f(hzp)}" pos="0 0 {_f(-hzp)}" rgba="0.15 0.15 0.15 1" {gv}/>',
+                f'<geom type="box" size="{_f(hx)} {_f(hy)} {_f(hzp)}" pos="0 0 {_f(-hzp)}" '
+                f'rgba="0.15 0.15 0.15 1" {gv}/>',
                 f'<site name="{p}platform_site" size="0.004" rgba="1 0 0 1"/>',
                 "</body></body>",
             ]
@@ -200,7 +201,8 @@ class PlatformJoints:
     (the IK, every joint of the tree, and the movers' free joints), e.g. into a backend's ``init_qpos`` before a reset.
     """
 
-    def __init__(self, mjm: mujoco.MjModel, geometry: PlatformGeometry | None = None, spec: PlatformModelSpec | None = None):
+    def __init__(self, mjm: mujoco.MjModel, geometry: PlatformGeometry | None = None,
+                 spec: PlatformModelSpec | None = None):
         self.geometry = g = geometry or PlatformGeometry()
         self.spec = spec or PlatformModelSpec()
         n = 0
@@ -225,7 +227,8 @@ class PlatformJoints:
         self.qpos_adr = torch.as_tensor(adr)  # [P, 13]
         self.mover_qpos_adr = torch.as_tensor(movers)  # [P, 2]
         # model (qpos0) pose of each platform: base body position, mover distance, lift angle
-        base_pos = np.array([mjm.body_pos[mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"p{i}_base")] for i in range(n)])
+        base_pos = np.array([mjm.body_pos[mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"p{i}_base")]
+                             for i in range(n)])
         self.base_pos0 = torch.as_tensor(base_pos)  # [P, 3]
         lo, hi = g.height_range
         self.theta0 = math.asin((0.5 * (lo + hi) - g.lift_offset) / g.link_length)
@@ -266,7 +269,8 @@ class PlatformJoints:
         rel_a = movers[..., 0, 3] - pose[..., 5]
         rel_b = movers[..., 1, 3] - pose[..., 5]
         vals = {
-            "base_x": pose[..., 0] - b0[:, 0], "base_y": pose[..., 1] - b0[:, 1], "base_z": movers[..., 0, 2] - b0[:, 2],
+            "base_x": pose[..., 0] - b0[:, 0], "base_y": pose[..., 1] - b0[:, 1],
+            "base_z": movers[..., 0, 2] - b0[:, 2],
             "base_yaw": pose[..., 5], "rail_a": -(half - self.half0), "rail_b": half - self.half0,
             "plate_a": rel_a, "plate_b": rel_b, "link_a": self.theta0 - theta, "link_b": self.theta0 - theta,
             "lift": theta - self.theta0, "pitch": pose[..., 4], "roll": pose[..., 3],
