@@ -134,3 +134,20 @@ def test_magwarp_eval_reports_the_platform_table():
     assert rows["success_rate"].mean >= 50.0, format_table(res)
     assert 0.0 < rows["time_to_success_s"].mean <= 2.0  # within the 50-step (2 s) episode
     assert {"limit_violations", "collisions", "final_position_error_mm", "process_time_ms"} <= set(rows)
+
+
+def test_benchmark_script_smoke(tmp_path):
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "magbots.py"
+    spec = importlib.util.spec_from_file_location("bench_magbots", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "mb.json"
+    assert mod.main(["--device", "cpu", "--num-envs", "2", "--steps", "2", "--action-modes", "pose",
+                     "--no-magbotsim", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert len(rows) == 1 and rows[0]["num_envs"] == 2 and rows[0]["env_steps_per_s"] > 0
+    assert {"date_utc", "versions", "command", "device_name"} <= set(rows[0])

@@ -42,7 +42,8 @@ def track_movers(pos: torch.Tensor, vel: torch.Tensor, target: torch.Tensor, gai
     target's rates, default 0) makes the damper act on the velocity error: ``a = kp e + kd (target_vel - vel)``."""
     e = target - pos
     e = torch.cat([e[..., :2], wrap_to_pi(e[..., 2:])], -1)
-    kp = torch.tensor([gains.kp, gains.kp, gains.kp_yaw], dtype=pos.dtype, device=pos.device)
-    kd = torch.tensor([gains.kd, gains.kd, gains.kd_yaw], dtype=pos.dtype, device=pos.device)
     dv = -vel if target_vel is None else target_vel - vel
-    return kp * e + kd * dv
+    # python scalars only: no host-to-device copy per call
+    xy = gains.kp * e[..., :2] + gains.kd * dv[..., :2]
+    yaw = gains.kp_yaw * e[..., 2:] + gains.kd_yaw * dv[..., 2:]
+    return torch.cat([xy, yaw], -1)

@@ -41,6 +41,8 @@ def _as_pose(pose, name: str, width: int) -> torch.Tensor:
 
 
 def _mover_z(mover_z, like: torch.Tensor) -> torch.Tensor:
+    if isinstance(mover_z, (int, float)):  # a fill, not a host-to-device copy (these run inside env steps)
+        return torch.full(like.shape[:-1], float(mover_z), dtype=like.dtype, device=like.device)
     z = torch.as_tensor(mover_z, dtype=like.dtype, device=like.device)
     try:
         return torch.broadcast_to(z, like.shape[:-1])

@@ -35,6 +35,7 @@ class PlatformIKPolicy:
             raise ValueError(f"carrot_step must be six positive numbers, got {carrot_step!r}")
         self.carrot = env.platform_pose().clone()
         self.rate = torch.zeros(env.num_envs, 2, 3, device=env.device)
+        self.high = torch.as_tensor(env.single_action_space.high, device=env.device)
 
     def __call__(self, obs=None) -> torch.Tensor:
         env = self.env
@@ -58,5 +59,4 @@ class PlatformIKPolicy:
         self.rate = rate
         pos, vel = env.mover_state()
         act = (track_movers(pos, vel, movers, env.gains, target_vel=rate) + feed).reshape(env.num_envs, 6)
-        high = torch.as_tensor(env.single_action_space.high, device=env.device)
-        return torch.maximum(torch.minimum(act, high), -high)
+        return torch.maximum(torch.minimum(act, self.high), -self.high)
