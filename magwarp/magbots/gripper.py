@@ -31,6 +31,7 @@ import torch
 
 from magwarp.layout import Layout, LayoutError, MoverSpec
 from magwarp.magbots.geometry import MagBotLimitError
+from magwarp.magbots.joints import MechanismJoints
 from magwarp.mjcf import XmlHooks, generate_mjcf
 
 __all__ = ["GripperGeometry", "GripperJoints", "generate_gripper_mjcf", "gripper_limit_violations", "jaw_width",
@@ -220,29 +221,9 @@ class GripperJoints:
 
     def __init__(self, mjm: mujoco.MjModel, geometry: GripperGeometry | None = None):
         self.geometry = g = geometry or GripperGeometry()
-        n = 0
-        while mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"g{n}_base") >= 0:
-            n += 1
-        if n == 0:
-            raise LayoutError("the model has no gripper (no body 'g0_base')")
-        self.num_grippers = n
-        adr = np.zeros((n, len(_JOINTS)), dtype=np.int64)
-        for i in range(n):
-            for j, name in enumerate(_JOINTS):
-                jid = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_JOINT, f"g{i}_{name}")
-                if jid < 0:
-                    raise LayoutError(f"gripper {i} has no joint 'g{i}_{name}'")
-                adr[i, j] = mjm.jnt_qposadr[jid]
-        movers = np.zeros((n, 2), dtype=np.int64)
-        for k in range(2 * n):
-            bid = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"mover_{k}")
-            if bid < 0:
-                raise LayoutError(f"gripper {k // 2} needs body 'mover_{k}'")
-            movers[k // 2, k % 2] = mjm.jnt_qposadr[mjm.body_jntadr[bid]]
-        self.qpos_adr = torch.as_tensor(adr)
-        self.mover_qpos_adr = torch.as_tensor(movers)
-        self.base_pos0 = torch.as_tensor(np.array(
-            [mjm.body_pos[mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"g{i}_base")] for i in range(n)]))
+        self.map = m = MechanismJoints(mjm, "g", _JOINTS, "gripper")
+        self.num_grippers = m.count
+        self.qpos_adr, self.mover_qpos_adr, self.base_pos0 = m.qpos_adr, m.mover_qpos_adr, m.base_pos0
         self.d0 = 0.5 * (g.min_distance + g.max_distance)
         t = torch.tensor([self.d0], dtype=torch.float64)
         self.theta0, self.gamma0 = float(lever_angle(t, g)), float(_rod_direction(t, g))
@@ -250,8 +231,8 @@ class GripperJoints:
     def state(self, qpos: torch.Tensor) -> torch.Tensor:
         """Gripper states ``[W, G, 4]`` (x, y, yaw, jaw width) from ``qpos`` ``[W, nq]`` (through the joints)."""
         g = self.geometry
-        q = qpos[:, self.qpos_adr.to(qpos.device)]
-        b0 = self.base_pos0.to(qpos.device, qpos.dtype)
+        q = self.map.gather(qpos)
+        b0 = self.map.on("base_pos0", qpos, qpos.dtype)
         theta = self.theta0 + q[..., _JOINTS.index("finger_p")]
         width = 2 * (g.hinge_side + g.finger * torch.sin(theta - g.bend)) - 2 * g.pad
         return torch.stack([b0[:, 0] + q[..., 0], b0[:, 1] + q[..., 1], q[..., 3], width], -1)
@@ -274,16 +255,13 @@ class GripperJoints:
         d = mover_distance(state[..., 3].double(), g).to(qpos.dtype)
         theta = lever_angle(d.double(), g).to(qpos.dtype)
         gam = _rod_direction(d.double(), g).to(qpos.dtype)
-        dev = qpos.device
-        b0 = self.base_pos0.to(dev, qpos.dtype)
-        zm = torch.as_tensor(mover_z, dtype=qpos.dtype, device=dev).expand(W, G)
+        b0 = self.map.on("base_pos0", qpos, qpos.dtype)
+        zm = torch.as_tensor(mover_z, dtype=qpos.dtype, device=qpos.device).expand(W, G)
         vals = {"base_x": state[..., 0] - b0[:, 0], "base_y": state[..., 1] - b0[:, 1], "base_z": zm - b0[:, 2],
                 "base_yaw": state[..., 2], "slider": d - self.d0, "rod_p": gam - self.gamma0,
                 "rod_m": -(gam - self.gamma0), "finger_p": theta - self.theta0, "finger_m": theta - self.theta0}
-        j = self.qpos_adr.to(dev)
-        for k, name in enumerate(_JOINTS):
-            qpos[:, j[:, k]] = vals[name]
-        madr = self.mover_qpos_adr.to(dev)
+        self.map.scatter(qpos, vals)
+        madr = self.map.on("mover_qpos_adr", qpos)
         c, s = torch.cos(state[..., 2]), torch.sin(state[..., 2])
         for side, off in ((0, 0.0), (1, 1.0)):
             base = madr[:, side]

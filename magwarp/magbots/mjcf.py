@@ -36,6 +36,7 @@ import torch
 
 from magwarp.layout import Layout, LayoutError, MoverSpec
 from magwarp.magbots.geometry import MagBotLimitError, PlatformGeometry
+from magwarp.magbots.joints import MechanismJoints
 from magwarp.magbots.kinematics import check_platform_pose, platform_ik
 from magwarp.mjcf import XmlHooks, generate_mjcf
 
@@ -205,45 +206,18 @@ class PlatformJoints:
                  spec: PlatformModelSpec | None = None):
         self.geometry = g = geometry or PlatformGeometry()
         self.spec = spec or PlatformModelSpec()
-        n = 0
-        while mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"p{n}_base") >= 0:
-            n += 1
-        if n == 0:
-            raise LayoutError("the model has no 6D platform (no body 'p0_base')")
-        self.num_platforms = n
-        adr = np.zeros((n, len(_JOINTS)), dtype=np.int64)
-        for i in range(n):
-            for j, name in enumerate(_JOINTS):
-                jid = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_JOINT, f"p{i}_{name}")
-                if jid < 0:
-                    raise LayoutError(f"platform {i} has no joint 'p{i}_{name}'")
-                adr[i, j] = mjm.jnt_qposadr[jid]
-        movers = np.zeros((n, 2), dtype=np.int64)
-        for k in range(2 * n):
-            bid = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"mover_{k}")
-            if bid < 0:
-                raise LayoutError(f"platform {k // 2} needs body 'mover_{k}'")
-            movers[k // 2, k % 2] = mjm.jnt_qposadr[mjm.body_jntadr[bid]]
-        self.qpos_adr = torch.as_tensor(adr)  # [P, 13]
-        self.mover_qpos_adr = torch.as_tensor(movers)  # [P, 2]
-        # model (qpos0) pose of each platform: base body position, mover distance, lift angle
-        base_pos = np.array([mjm.body_pos[mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_BODY, f"p{i}_base")]
-                             for i in range(n)])
-        self.base_pos0 = torch.as_tensor(base_pos)  # [P, 3]
+        self.map = m = MechanismJoints(mjm, "p", _JOINTS, "6D platform")
+        self.num_platforms = m.count
+        self.qpos_adr, self.mover_qpos_adr, self.base_pos0 = m.qpos_adr, m.mover_qpos_adr, m.base_pos0
         lo, hi = g.height_range
         self.theta0 = math.asin((0.5 * (lo + hi) - g.lift_offset) / g.link_length)
         self.half0 = g.link_offset + g.link_length * math.cos(self.theta0)
 
-    def _idx(self, name: str) -> torch.Tensor:
-        return self.qpos_adr[:, _JOINTS.index(name)]
-
     def pose(self, qpos: torch.Tensor) -> torch.Tensor:
         """Platform poses ``[W, P, 6]`` (x, y, z, roll, pitch, yaw of the top centre) from ``qpos`` ``[W, nq]``."""
         g = self.geometry
-        dev = qpos.device
-        j = self.qpos_adr.to(dev)
-        q = qpos[:, j]  # [W, P, 13]
-        b0 = self.base_pos0.to(dev, qpos.dtype)
+        q = self.map.gather(qpos)  # [W, P, 13]
+        b0 = self.map.on("base_pos0", qpos, qpos.dtype)
         theta = self.theta0 - q[..., _JOINTS.index("link_a")]
         z = b0[:, 2] + q[..., 2] + g.lift_offset + g.link_length * torch.sin(theta)
         return torch.stack([b0[:, 0] + q[..., 0], b0[:, 1] + q[..., 1], z, q[..., _JOINTS.index("roll")],
@@ -261,8 +235,7 @@ class PlatformJoints:
         if check:
             check_platform_pose(pose, mover_z, g)
         movers = platform_ik(pose, mover_z, g, check=False)  # [W, P, 2, 4]
-        dev = qpos.device
-        b0 = self.base_pos0.to(dev, qpos.dtype)
+        b0 = self.map.on("base_pos0", qpos, qpos.dtype)
         half = 0.5 * torch.linalg.norm(movers[..., 1, :2] - movers[..., 0, :2], dim=-1)
         h = pose[..., 2] - movers[..., 0, 2] - g.lift_offset
         theta = torch.asin(h / g.link_length)
@@ -275,10 +248,8 @@ class PlatformJoints:
             "plate_a": rel_a, "plate_b": rel_b, "link_a": self.theta0 - theta, "link_b": self.theta0 - theta,
             "lift": theta - self.theta0, "pitch": pose[..., 4], "roll": pose[..., 3],
         }
-        j = self.qpos_adr.to(dev)
-        for k, name in enumerate(_JOINTS):
-            qpos[:, j[:, k]] = vals[name]
-        madr = self.mover_qpos_adr.to(dev)
+        self.map.scatter(qpos, vals)
+        madr = self.map.on("mover_qpos_adr", qpos)
         for side in range(2):
             m = movers[..., side, :]
             base = madr[:, side]
