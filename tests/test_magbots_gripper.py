@@ -15,7 +15,9 @@ from magwarp.layout import Layout
 from magwarp.magbots import MagBotLimitError
 from magwarp.magbots.gripper import (GripperGeometry, GripperJoints, generate_gripper_mjcf, gripper_limit_violations,
                                      jaw_width, lever_angle, mover_distance)
-from magwarp.physics import ControlParams, MjwBackend, oracle
+from magwarp.physics import ControlParams, MjwBackend
+
+from magbots_helpers import rollout_vs_mujoco_c  # noqa: E402  (tests/ is on sys.path)
 
 wp.config.quiet = True
 G = GripperGeometry()
@@ -94,15 +96,8 @@ def test_gripper_trajectories_match_mujoco_c():
     acts[20:, 0] = [[0.0, -1.5], [0.0, -1.5]]
     acts[:15, 1, 0] = [1.2, 0.9]  # world 1: A closes in on B (the jaw closes), then it backs off
     acts[15:, 1, 0] = [-1.2, -0.9]
-    got = []
-    for a in acts:
-        b.step(torch.as_tensor(a, dtype=torch.float32))
-        got.append(b.qpos_t.numpy().copy())
-    got = np.array(got)
-    for w in range(2):
-        want, _ = oracle.rollout(XML, acts[:, w], control, init_qpos=b.init_qpos.numpy()[w].astype(np.float64))
-        err = np.abs(got[:, w] - want).max()
-        assert err < 1e-4, f"world {w}: max |qpos - MuJoCo C| = {err:.3g}"
+    got, errors = rollout_vs_mujoco_c(b, XML, acts)
+    assert max(errors) < 1e-4, f"max |qpos - MuJoCo C| per world: {errors}"
     width = gj.state(torch.as_tensor(got).reshape(steps * 2, -1)).reshape(steps, 2, 4)[..., 3]
     assert float(width[9, 0] - width[0, 0]) > 0.01  # opened
     assert float(width[14, 1] - width[0, 1]) < -0.01  # closed

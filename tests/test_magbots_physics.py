@@ -17,7 +17,9 @@ from scipy.spatial.transform import Rotation
 from magwarp.layout import Layout, LayoutError
 from magwarp.magbots import MagBotLimitError, PlatformGeometry, platform_fk
 from magwarp.magbots.mjcf import PlatformJoints, generate_platform_mjcf
-from magwarp.physics import ControlParams, MjwBackend, oracle
+from magwarp.physics import ControlParams, MjwBackend
+
+from magbots_helpers import rollout_vs_mujoco_c  # noqa: E402  (tests/ is on sys.path)
 
 wp.config.quiet = True
 XML = generate_platform_mjcf(Layout.grid(4, 4), [[0.48, 0.48]])
@@ -81,15 +83,8 @@ def test_platform_trajectories_match_mujoco_c(rng):
     acts[20:, 0] = [[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0]]
     acts[:, 1, :, 2] = np.where(np.arange(steps) < 15, 1.0, -1.0)[:, None] * np.array([30.0, -30.0])  # world 1: tilt
     acts[:, 1, :, :2] = rng.uniform(-1.0, 1.0, (steps, 2, 2))
-    got = []
-    for a in acts:
-        b.step(torch.as_tensor(a, dtype=torch.float32))
-        got.append(b.qpos_t.numpy().copy())
-    got = np.array(got)
-    for w in range(2):
-        want, _ = oracle.rollout(XML, acts[:, w], control, init_qpos=b.init_qpos.numpy()[w].astype(np.float64))
-        err = np.abs(got[:, w] - want).max()
-        assert err < 1e-4, f"world {w}: max |qpos - MuJoCo C| = {err:.3g} ({rng})"
+    got, errors = rollout_vs_mujoco_c(b, XML, acts)
+    assert max(errors) < 1e-4, f"max |qpos - MuJoCo C| per world: {errors} ({rng})"
     pose = pj.pose(torch.as_tensor(got[:, :]).reshape(steps * 2, -1)).reshape(steps, 2, 6)
     # the runs did what they claim: world 0's platform travelled and sank, world 1's tilted both ways
     assert float(pose[9, 0, 0] - pose[0, 0, 0]) > 0.005 and float(pose[-1, 0, 2] - pose[9, 0, 2]) < -0.005

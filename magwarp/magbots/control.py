@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import torch
 
+from magwarp.magbots.common import positive_fields
 from magwarp.magbots.kinematics import wrap_to_pi
 
 __all__ = ["TrackingGains", "track_movers"]
@@ -29,10 +30,7 @@ class TrackingGains:
     kd_yaw: float = 12.0
 
     def __post_init__(self):
-        for name in ("kp", "kd", "kp_yaw", "kd_yaw"):
-            v = float(getattr(self, name))
-            if not (v >= 0 and v < float("inf")):
-                raise ValueError(f"TrackingGains.{name} must be a non-negative finite number, got {v!r}")
+        positive_fields(self, ("kp", "kd", "kp_yaw", "kd_yaw"), error=ValueError, allow_zero=True)
 
 
 def track_movers(pos: torch.Tensor, vel: torch.Tensor, target: torch.Tensor, gains: TrackingGains = TrackingGains(),

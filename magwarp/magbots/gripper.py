@@ -23,16 +23,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 import torch
 
-from magwarp.layout import Layout, LayoutError, MoverSpec
+from magwarp.layout import Layout, MoverSpec
+from magwarp.magbots.common import mechanism_mjcf, positive_fields
 from magwarp.magbots.geometry import MagBotLimitError
 from magwarp.magbots.joints import MechanismJoints
-from magwarp.mjcf import XmlHooks, generate_mjcf
+from magwarp.mjcf import XmlHooks
 
 __all__ = ["GripperGeometry", "GripperJoints", "generate_gripper_mjcf", "gripper_limit_violations", "jaw_width",
            "lever_angle", "mover_distance"]
@@ -55,12 +56,8 @@ class GripperGeometry:
     max_distance: float = 0.30
 
     def __post_init__(self):
-        for name in ("hinge_back", "hinge_side", "lever", "rod", "finger", "pad", "hinge_height", "min_distance",
-                     "max_distance"):
-            v = float(getattr(self, name))
-            if not math.isfinite(v) or v <= 0:
-                raise MagBotLimitError(f"GripperGeometry.{name} must be a positive finite number, got {v!r}")
-            object.__setattr__(self, name, v)
+        positive_fields(self, ("hinge_back", "hinge_side", "lever", "rod", "finger", "pad", "hinge_height",
+                               "min_distance", "max_distance"))
         for name in ("pin_side", "bend"):
             v = float(getattr(self, name))
             if not math.isfinite(v):
@@ -199,19 +196,13 @@ def generate_gripper_mjcf(layout: Layout, gripper_xy: Sequence[Sequence[float]],
     movers ``2i`` (A) and ``2i+1`` (B, mid distance ahead along +x). Options pass to :func:`generate_mjcf`. The
     finger pads collide (MuJoCo's default contype), the rest of the mechanism is visual."""
     g = geometry or GripperGeometry()
-    mover = mover or MoverSpec()
-    xy = np.asarray(gripper_xy, dtype=np.float64)
-    if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) < 1 or not np.all(np.isfinite(xy)):
-        raise LayoutError(f"gripper_xy must be a finite array of shape (G >= 1, 2), got {xy.tolist()!r}")
-    mover_z = mover.hover_gap + 0.5 * mover.size[2]
     d0 = 0.5 * (g.min_distance + g.max_distance)
-    movers = np.stack([xy, xy + np.array([d0, 0.0])], 1).reshape(-1, 2)
-    merged = XmlHooks.coerce(hooks)
-    for i in range(len(xy)):
-        h = gripper_hooks(i, xy[i], mover_z, g)
-        merged = replace(merged, worldbody=merged.worldbody + "\n" + h.worldbody,
-                         equality=merged.equality + "\n" + h.equality)
-    return generate_mjcf(layout, 2 * len(xy), mover, mover_xy=movers, hooks=merged, **mjcf_options)
+
+    def movers(xy: np.ndarray, mover_z: float) -> np.ndarray:
+        return np.stack([xy, xy + np.array([d0, 0.0])], 1).reshape(-1, 2)
+
+    return mechanism_mjcf(layout, gripper_xy, "gripper", mover, hooks, movers,
+                          lambda i, xy, mover_z: gripper_hooks(i, xy, mover_z, g), **mjcf_options)
 
 
 class GripperJoints:

@@ -28,17 +28,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 import torch
 
 from magwarp.layout import Layout, LayoutError, MoverSpec
+from magwarp.magbots.common import mechanism_mjcf, positive_fields
 from magwarp.magbots.geometry import MagBotLimitError, PlatformGeometry
 from magwarp.magbots.joints import MechanismJoints
 from magwarp.magbots.kinematics import check_platform_pose, platform_ik
-from magwarp.mjcf import XmlHooks, generate_mjcf
+from magwarp.mjcf import XmlHooks
 
 __all__ = ["PlatformJoints", "PlatformModelSpec", "generate_platform_mjcf", "platform_hooks"]
 
@@ -69,10 +70,8 @@ class PlatformModelSpec:
     platform_mass: float = 0.2
 
     def __post_init__(self):
-        for name in ("hinge_height", "base_mass", "rail_mass", "plate_mass", "link_mass", "lift_mass", "platform_mass"):
-            v = float(getattr(self, name))
-            if not math.isfinite(v) or v <= 0:
-                raise MagBotLimitError(f"PlatformModelSpec.{name} must be a positive finite number, got {v!r}")
+        positive_fields(self, ("hinge_height", "base_mass", "rail_mass", "plate_mass", "link_mass", "lift_mass",
+                               "platform_mass"))
         hs = tuple(float(v) for v in self.platform_half_size)
         if len(hs) != 3 or not all(math.isfinite(v) and v > 0 for v in hs):
             raise MagBotLimitError(f"PlatformModelSpec.platform_half_size must be three positive numbers, got {hs!r}")
@@ -154,11 +153,6 @@ def platform_hooks(i: int, xy: Sequence[float], mover_z: float, geometry: Platfo
     return XmlHooks(worldbody="\n".join(body), equality="\n".join(eq))
 
 
-def _merge(a: XmlHooks, b: XmlHooks) -> XmlHooks:
-    """``a`` with ``b``'s text sections appended (``b`` carries only worldbody/equality text)."""
-    return replace(a, worldbody=a.worldbody + "\n" + b.worldbody, equality=a.equality + "\n" + b.equality)
-
-
 def generate_platform_mjcf(
     layout: Layout,
     platform_xy: Sequence[Sequence[float]],
@@ -177,21 +171,17 @@ def generate_platform_mjcf(
     """
     g = geometry or PlatformGeometry()
     s = spec or PlatformModelSpec()
-    mover = mover or MoverSpec()
-    xy = np.asarray(platform_xy, dtype=np.float64)
-    if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) < 1 or not np.all(np.isfinite(xy)):
-        raise LayoutError(f"platform_xy must be a finite array of shape (P >= 1, 2), got {xy.tolist()!r}")
-    mover_z = mover.hover_gap + 0.5 * mover.size[2]
     lo, hi = g.height_range
-    pose = torch.zeros(len(xy), 6, dtype=torch.float64)
-    pose[:, :2] = torch.as_tensor(xy)
-    pose[:, 2] = mover_z + 0.5 * (lo + hi)
-    movers = platform_ik(pose, mover_z, g).numpy()  # [P, 2, 4]
-    merged = XmlHooks.coerce(hooks)
-    for i in range(len(xy)):
-        merged = _merge(merged, platform_hooks(i, xy[i], mover_z, g, s, 2 * len(xy)))
-    return generate_mjcf(layout, 2 * len(xy), mover, mover_xy=movers[:, :, :2].reshape(-1, 2), hooks=merged,
-                         **mjcf_options)
+
+    def movers(xy: np.ndarray, mover_z: float) -> np.ndarray:
+        pose = torch.zeros(len(xy), 6, dtype=torch.float64)
+        pose[:, :2] = torch.as_tensor(xy)
+        pose[:, 2] = mover_z + 0.5 * (lo + hi)
+        return platform_ik(pose, mover_z, g).numpy()[:, :, :2].reshape(-1, 2)
+
+    return mechanism_mjcf(layout, platform_xy, "platform", mover, hooks, movers,
+                          lambda i, xy, mover_z: platform_hooks(i, xy, mover_z, g, s, 2 * len(platform_xy)),
+                          **mjcf_options)
 
 
 class PlatformJoints:
