@@ -212,7 +212,11 @@ def _family(env) -> str:
         return "trajectory"
     if isinstance(env, PushEnv):
         return "push"
-    raise EvalError(f"magwarp eval supports trajectory planning and pushing envs, not {type(env).__name__}")
+    from magwarp.envs.platform_pose import PlatformPoseEnv
+
+    if isinstance(env, PlatformPoseEnv):
+        return "platform"
+    raise EvalError(f"magwarp eval supports trajectory planning, pushing and platform envs, not {type(env).__name__}")
 
 
 def _check_device(device) -> str:
@@ -289,7 +293,8 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
             raise EvalError(f"env options {family_kwargs} do not fit {env_id}: {e}") from None
         env = env.unwrapped if hasattr(env, "unwrapped") else env
         family = _family(env)
-        if family == "push":
+        episodic = family != "trajectory"  # one episode (one goal) per world
+        if episodic:
             env.autoreset = False  # one episode per world; a finished world is frozen by the metrics
             num_steps = int(steps or env.max_episode_steps)
             metrics = Metrics(env)
@@ -316,10 +321,10 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
                 start = time.perf_counter()
                 for _ in range(num_steps):
                     obs, _, terminated, truncated, _ = env.step(act(obs))
-                    if family == "push":
+                    if episodic:
                         metrics.freeze(terminated | truncated)
                     bar.update(1)
-                if family == "push":  # episodes cut short by --steps still count, as unfinished (not successful)
+                if episodic:  # episodes cut short by --steps still count, as unfinished (not successful)
                     still = metrics.t["active"].bool()
                     metrics.t["episodes"] += still
                     metrics.freeze(still)
@@ -406,7 +411,7 @@ def _fmt(x: float) -> str:
 def format_table(result: EvalResult) -> str:
     """The paper's table: metric, n (mean count per repeat), mean ± std over repeats."""
     header = (f"{result.env_id}  policy={result.policy}  {result.repeats} repeats x {result.episodes} "
-              f"{'episodes' if result.family == 'push' else f'worlds x {result.steps_per_world} steps'}  "
+              f"{'episodes' if result.family != 'trajectory' else f'worlds x {result.steps_per_world} steps'}  "
               f"device={result.device}  ({result.wall_s:.1f} s)")
     lines = [header]
     w = max(len(r.label) for r in result.rows)

@@ -25,6 +25,7 @@ ENV_CLASSES = {
     "PushXEnv": "magwarp.envs.push",
     "PushWithObstaclesEnv": "magwarp.envs.push_obstacles",
     "SwarmEnv": "magwarp.swarm.env",
+    "PlatformPoseEnv": "magwarp.envs.platform_pose",
 }
 # Benchmark variants (names only; their layouts live in magwarp.layout.BENCHMARK_LAYOUTS and magwarp.envs.push).
 TRAJECTORY_BENCHMARKS = tuple(f"B{i}" for i in range(10))
@@ -64,6 +65,7 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/PushWithObstacles-v0"] = ("PushWithObstaclesEnv", {})
     ids["magwarp/Swarm-v0"] = ("SwarmEnv", {})
     ids["magwarp/SwarmMaterialFlow-v0"] = ("SwarmEnv", {"stations": "auto"})
+    ids["magwarp/PlatformPose-v0"] = ("PlatformPoseEnv", {})
     return ids
 
 

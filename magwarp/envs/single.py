@@ -17,7 +17,8 @@ from magwarp._checks import as_seed
 __all__ = ["SingleEnv", "to_numpy"]
 
 # The info entries that rewards depend on (collisions of every kind), forwarded to the batched compute_reward.
-_REWARD_INFO_KEYS = ("mover_collision", "wall_collision", "obstacle_mover_collision", "obstacle_object_collision")
+_REWARD_INFO_KEYS = ("mover_collision", "wall_collision", "obstacle_mover_collision", "obstacle_object_collision",
+                     "limit_violation")
 
 
 def to_numpy(value: Any, index: int | None = None) -> Any:

@@ -21,6 +21,12 @@ def Metrics(env, **kwargs):  # noqa: N802 - a factory that reads like the class 
     from magwarp.envs.trajectory import TrajectoryPlanningEnv
 
     base = getattr(env, "unwrapped", env)
+    from magwarp.envs.platform_pose import PlatformPoseEnv
+
+    if isinstance(base, PlatformPoseEnv):
+        from magwarp.metrics.platform import PlatformMetrics
+
+        return PlatformMetrics(base, **kwargs)
     if isinstance(base, TrajectoryPlanningEnv):
         return TrajectoryMetrics(base, **kwargs)
     if isinstance(base, PushEnv):
