@@ -15,9 +15,10 @@ import pytest
 import torch
 
 from magwarp import cli
+from magwarp.training.pretrained import pretrained_path
 
 REPO = Path(__file__).resolve().parent.parent
-POLICY = REPO / "policies" / "b0_ppo.pt"
+POLICY = Path(pretrained_path("b0_ppo"))  # a shipped policy (package data)
 EVAL = ("--episodes", "1", "--repeats", "1", "--steps", "2", "--device", "cpu")
 
 

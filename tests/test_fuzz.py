@@ -156,7 +156,7 @@ def _env_ids() -> list[str]:
 
 #: one id per env class (each is built once per session and reused by the action fuzzing)
 REPRESENTATIVES = ["magwarp/TrajectoryPlanningB3-v0", "magwarp/PushBox-v0", "magwarp/PushTB5-v0", "magwarp/PushL-v0",
-                   "magwarp/PushX-v0", "magwarp/PushWithObstacles-v0"]
+                   "magwarp/PushX-v0", "magwarp/PushWithObstacles-v0", "magwarp/Swarm-v0", "magwarp/PlatformPose-v0"]
 _ENVS: dict = {}
 
 
@@ -292,8 +292,7 @@ def test_env_kwargs_are_refused_clearly_or_give_a_finite_env(data):
 CLI_CASES = {
     "eval": ["eval", "TrajectoryPlanningB0", "--episodes", "1", "--repeats", "1", "--steps", "1", "--device", "cpu"],
     "render": ["render", "--synthetic", "--layout", "B0", "--worlds", "1", "--steps", "1", "--device", "cpu"],
-    "export": ["export", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "policies",
-                                      "b0_ppo.pt")],
+    "export": ["export", "pretrained:b0_ppo"],
     "train": ["train", "--resume"],
 }
 CLI_OPTIONS = {
@@ -301,7 +300,7 @@ CLI_OPTIONS = {
              "--makespan-goals", "--json"],
     "render": ["--worlds", "--steps", "--layout", "--device", "-o"],
     "export": ["--onnx", "--opset", "--obs-dim", "--atol"],
-    "train": [],
+    "train": ["--num-envs", "--minutes", "--seed", "--env-kwargs", "--target", "--nproc-per-node"],
 }
 cli_values = st.sampled_from(["nan", "NaN", "-1", "0", "2.5", "1e400", "", "x", "/dev/full", "/proc/x.gif",
                               "/etc/hostname/x", "cuda:7", '{"reward_per_step": NaN}', '{"num_cycles": 0}', "[1]",

@@ -88,7 +88,8 @@ def test_gamma_example_runs(tmp_path):
     from pathlib import Path
 
     root = Path(__file__).resolve().parent.parent
-    env = {**os.environ, "PYTHONPATH": str(root), "MAGWARP_CACHE_DIR": str(tmp_path)}
+    path = os.pathsep.join([str(root), *filter(None, [os.environ.get("PYTHONPATH")])])  # keep the caller's paths
+    env = {**os.environ, "PYTHONPATH": path, "MAGWARP_CACHE_DIR": str(tmp_path)}
     out = tmp_path / "gamma.png"
     proc = subprocess.run([sys.executable, str(root / "examples" / "magnetics_gamma.py"), "--model", "exact",
                            "--coarse", "--points", "4", "--out", str(out)], capture_output=True, text=True, env=env,

@@ -196,7 +196,7 @@ def test_checks_helpers():
     ({"num_movers": NAN}, "num_movers must be an integer"),
     ({"timeout_steps": 0.5}, "timeout_steps must be an integer"),
     ({"layout": [[1, 1], [1]], "num_movers": 1}, "layout must be a rectangular"),
-    ({"v_max": NAN}, "v_max must be a finite number"),
+    ({"v_max": NAN}, r"v_max must be finite \(in float32\), got nan"),
     ({"seed": "x"}, "seed must be None or an integer"),
 ])
 def test_trajectory_env_refuses_bad_kwargs(kwargs, message):

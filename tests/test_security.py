@@ -5,7 +5,6 @@ policies load without it."""
 
 from __future__ import annotations
 
-import glob
 import os
 import pickle
 from pathlib import Path
@@ -14,8 +13,8 @@ import pytest
 import torch
 
 from magwarp import cli
+from magwarp.training.pretrained import pretrained_names, pretrained_path
 
-REPO = Path(__file__).resolve().parent.parent
 
 
 class _Payload:
@@ -115,7 +114,7 @@ def test_state_dicts_and_checkpoints_load_without_trust(tmp_path):
     assert loaded["args"] == state["args"] and torch.equal(loaded["agent"]["weight"], state["agent"]["weight"])
 
 
-@pytest.mark.parametrize("path", sorted(glob.glob(str(REPO / "policies" / "*.pt"))))
+@pytest.mark.parametrize("path", [pretrained_path(name) for name in pretrained_names()])
 def test_shipped_policies_load_without_trust(path):
     import warnings
 

@@ -123,7 +123,7 @@ def run(args) -> int:
     if args.resume is not None:
         saved = resume_algo(args.resume, trusted=args.trust)
         if algo is not None and saved is not None and algo != saved:
-            raise UsageError(f"--algo {algo} but the checkpoint {ckpt_path!r} was trained with {saved}")
+            raise UsageError(f"--algo {algo} but the checkpoint in {args.resume!r} was trained with {saved}")
         algo = algo or saved
     algo = algo or "ppo"
     if args.minutes is None and args.total_steps is None and args.resume is None:

@@ -245,9 +245,13 @@ class SwarmEnv(MagwarpVecEnv):
         """Simulate, reward, then stream goals and respawn collided movers; the observation shows the result."""
         action = self._check_action(action)
         self._apply_action(action)
+        self._step_count += 1
         reward, terminated, truncated, info = self._evaluate(None)
         self._end_step(None, info)
         obs = self._get_obs()
+        # NaN guard: a non-finite world is flagged (info["nonfinite"]), rewarded 0 and terminated (with respawns and
+        # no time limit, worlds never end: it stays flagged)
+        reward, terminated = self._guard_nonfinite(obs, reward, terminated, info, action)
         if self.autoreset and self._can_end:
             done = terminated | truncated
             info["final_obs"] = obs
@@ -255,6 +259,9 @@ class SwarmEnv(MagwarpVecEnv):
             self._reset_envs(done)
             obs = torch.where(done[:, None, None], self._get_obs(), obs)
         return obs, reward, terminated, truncated, info
+
+    def _nonfinite_worlds(self, obs) -> torch.Tensor:
+        return (self.sim.nonfinite_step >= 0) | super()._nonfinite_worlds(obs)
 
     # ------------------------------------------------------------------ task hooks
     def _place(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int, hold: bool = False,
