@@ -4,7 +4,7 @@
 # wheels are staged (python3 ../shared/tools/device_wheels.py magbotsim==1.3.0 magpylib==6.3.0 shapely==2.2.0):
 #   export PYTHONPATH=/tmp/site:$PWD; bash benchmarks/gpu_round.sh STAGE
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
-# (scaling and B0 env throughput), magbots, distributed.
+# (scaling and B0 env throughput), magbots, distributed, compare (B0 env throughput of an older tree beside this one).
 set -u
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
@@ -21,6 +21,7 @@ for stage in "$@"; do
         tests/test_sim_starts.py tests/test_kernels_dynamics.py tests/test_kernels_collision.py \
         tests/test_collision_queries.py tests/test_swarm_placement.py tests/test_swarm_observations.py \
         tests/test_magnetics_exact.py tests/test_magnetics_commutation.py tests/test_magnetics_fast.py \
+        tests/test_reliability.py tests/test_sim_errors.py \
         > "$OUT/pytest_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_gpu.log" | tail -25 ;;
     queries)
@@ -39,7 +40,16 @@ for stage in "$@"; do
     magbots)
       timeout 500 python3 benchmarks/magbots.py --json "$OUT/magbots_gpu.json" 2>&1 | tail -30 ;;
     distributed)
-      timeout 500 python3 benchmarks/distributed.py --json "$OUT/distributed_gpu.json" 2>&1 | tail -30 ;;
+      timeout 400 python3 benchmarks/distributed.py --seconds 20 --json "$OUT/distributed_gpu.json" 2>&1 | tail -30 ;;
+    compare)
+      # B0 env throughput of an older tree (REF, e.g. `git archive ae8dbf4 magwarp benchmarks | tar -x -C .devrun/old`)
+      # beside this one, in the same run
+      for tree in "${REF:-.devrun/old}" .; do
+        echo "--- tree $tree"
+        (cd "$tree" && PYTHONPATH=/tmp/site:$PWD timeout 200 python3 benchmarks/env_throughput.py --device cuda:0 \
+          --no-magbotsim --envs magwarp/TrajectoryPlanningB0-v0 --num-envs 4096,65536,1048576 --steps 50 \
+          --json "$OUT/env_throughput_$(basename "$(realpath "$tree")").json" 2>&1 | tail -8)
+      done ;;
     *) echo "unknown stage $stage"; exit 2 ;;
   esac
 done

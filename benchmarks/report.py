@@ -1,4 +1,4 @@
-"""Markdown tables for RESULTS.md from the JSON rows that scaling.py and env_throughput.py write (``--json``).
+"""Markdown tables for RESULTS.md from the JSON that the benchmark scripts write (``--json``).
 
     python benchmarks/report.py benchmarks/results/*.json > /tmp/tables.md
 
@@ -119,6 +119,32 @@ def eval_summary(results: list[dict]) -> str:
                         ("collisions", "collisions*"), ("wall", "wall-clock (s)")])
 
 
+_PROVENANCE_KEYS = ("device_name", "cpu", "date_utc", "versions", "command", "commit", "info", "provenance",
+                    "machine", "platform", "cpu_count", "argv")
+
+
+def generic_tables(data) -> str:
+    """Any other benchmark JSON (swarm, collision queries, magnetics, MagBots, distributed, soak): its provenance,
+    then one table per list of rows (all columns but the provenance ones) and one row per summary dict."""
+    if isinstance(data, list):
+        data = {"rows": data}
+    prov = next((data[k] for k in ("provenance", "machine", "info", "summary") if isinstance(data.get(k), dict)
+                 and "command" in data[k]), None)
+    if prov is None:
+        prov = next((v[0] for v in data.values() if isinstance(v, list) and v and isinstance(v[0], dict)
+                     and "command" in v[0]), {})
+    out = _provenance([prov]) + "\n"
+    for key, value in data.items():
+        if isinstance(value, dict) and key == "summary":
+            value = [value]
+        if not (isinstance(value, list) and value and isinstance(value[0], dict)):
+            continue
+        columns = [c for c in OrderedDict.fromkeys(k for r in value for k in r) if c not in _PROVENANCE_KEYS
+                   and not isinstance(value[0].get(c), (dict, list))]
+        out += ("" if key == "rows" else f"**{key}**\n\n") + table(value, [(c, c) for c in columns]) + "\n"
+    return out
+
+
 def main(paths: list[str]) -> int:
     if paths and paths[0] == "--eval-summary":
         print(eval_summary([json.load(open(p)) for p in paths[1:]]))
@@ -129,14 +155,18 @@ def main(paths: list[str]) -> int:
         if not rows:
             continue
         print(f"### `{path}`\n")
-        if isinstance(rows, dict) and "rows" in rows:
+        if isinstance(rows, dict) and "rows" in rows and "env_id" in rows:
             print(eval_table(rows))
+        elif isinstance(rows, dict):
+            print(generic_tables(rows))
         elif "age_bin" in rows[0]:
             print(age_tables(rows))
         elif "ms_per_step" in rows[0] and "movers" in rows[0]:
             print(scaling_tables(rows))
-        else:
+        elif "env" in rows[0] and "step_ms" in rows[0] and "x_magbotsim" not in rows[0]:
             print(env_tables(rows))
+        else:
+            print(generic_tables(rows))
     return 0
 
 

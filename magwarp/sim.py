@@ -589,7 +589,7 @@ class Simulator:
         if self.nan_guard:
             s = self.state
             wp.launch(kguard.count_step, dim=1, inputs=[self._steps], device=self.device)
-            wp.launch(kguard.flag_nonfinite, dim=self.num_worlds, device=self.device,
+            wp.launch(kguard.flag_nonfinite, dim=(self.num_worlds, self.num_movers), device=self.device,
                       inputs=[self._steps, s.pos, s.quat, s.vel, s.omega, self._nonfinite])
 
     def _launch_motion(self, n: int) -> None:

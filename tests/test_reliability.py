@@ -304,7 +304,8 @@ def test_guard_kernel_matches_numpy_reference(rng):
     arrays = {k: wp.array(v, dtype=dtypes[k], device="cpu") for k, v in host.items()}
     out = wp.array(record, dtype=wp.int32, device="cpu")
     wp.launch(count_step, dim=1, inputs=[steps], device="cpu")
-    wp.launch(flag_nonfinite, dim=W, inputs=[steps, arrays["pos"], arrays["quat"], arrays["vel"], arrays["omega"], out],
+    wp.launch(flag_nonfinite, dim=(W, M), inputs=[steps, arrays["pos"], arrays["quat"], arrays["vel"], arrays["omega"],
+                                               out],
               device="cpu")
     bad = np.zeros(W, dtype=bool)
     for v in host.values():

@@ -38,13 +38,13 @@ def flag_nonfinite(
     # State out:
     nonfinite_step: wp.array(dtype=wp.int32),
 ):
-    w = wp.tid()
+    """One thread per (world, mover), launched ``dim=(W, M)``: a world of a million movers is checked in parallel.
+    Every thread that finds its mover non-finite writes the same step, so the concurrent writes agree."""
+    w, k = wp.tid()
     if nonfinite_step[w] >= 0:  # keep the first step at which the world went bad
         return
-    for k in range(pos.shape[1]):
-        q = quat[w, k]
-        ok = vec3_finite(pos[w, k]) and vec3_finite(vel[w, k]) and vec3_finite(omega[w, k])
-        ok = ok and wp.isfinite(q[0]) and wp.isfinite(q[1]) and wp.isfinite(q[2]) and wp.isfinite(q[3])
-        if not ok:
-            nonfinite_step[w] = steps[0]
-            return
+    q = quat[w, k]
+    ok = vec3_finite(pos[w, k]) and vec3_finite(vel[w, k]) and vec3_finite(omega[w, k])
+    ok = ok and wp.isfinite(q[0]) and wp.isfinite(q[1]) and wp.isfinite(q[2]) and wp.isfinite(q[3])
+    if not ok:
+        nonfinite_step[w] = steps[0]
