@@ -71,6 +71,17 @@ class Pose:
     omega: wp.vec3
 
 
+@wp.func
+def make_pose(pos: wp.vec3, quat: wp.quat, vel: wp.vec3, omega: wp.vec3) -> Pose:
+    """A :class:`Pose` from its four parts (kernels read them from separate state arrays)."""
+    p = Pose()
+    p.pos = pos
+    p.quat = quat
+    p.vel = vel
+    p.omega = omega
+    return p
+
+
 @wp.struct
 class Wrench:
     force: wp.vec3

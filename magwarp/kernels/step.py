@@ -22,7 +22,8 @@ from magwarp.kernels.collision import hits_wall_cs, movers_collide_cs, push_to_c
 from magwarp.kernels.dynamics import integrate_body, integrate_planar64, planar_acceleration64, sync_planar64
 from magwarp.kernels.impedance import default_force
 from magwarp.kernels.options import MODULE_OPTIONS
-from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, Impedance, Limits, Planar64, Pose
+from magwarp.types import (COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, Impedance, Limits, Planar64, Pose,
+                           make_pose)
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
@@ -74,11 +75,7 @@ def make_advance_kernel(force_fn=default_force):
         planar: wp.array2d(dtype=Planar64),
         wall: wp.array2d(dtype=wp.int32),
     ):
-        p = Pose()
-        p.pos = pos[w, m]
-        p.quat = quat[w, m]
-        p.vel = vel[w, m]
-        p.omega = omega[w, m]
+        p = make_pose(pos[w, m], quat[w, m], vel[w, m], omega[w, m])
         xy0 = sync_planar64(planar[w, m], p.pos, p.vel, acc[w, m])
         n, a, xy = advance_pose(p, xy0, cmd[w, m], body[m], target_pos[w, m], target_quat[w, m], force_aux[w, m], lim,
                                 imp)
@@ -309,11 +306,7 @@ def make_register_kernel(force_fn, num_movers: int):
             if col.stop_on_collision == 1 and stopped == 1:
                 break
             for m in range(M):
-                p = Pose()
-                p.pos = P[m]
-                p.vel = V[m]
-                p.omega = Om[m]
-                p.quat = wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3])
+                p = make_pose(P[m], wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3]), V[m], Om[m])
                 n, a, xy = advance_pose(p, XY[m], C[m], body[m], TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
                                         force_aux[w, m], lim, imp)
                 P[m] = n.pos

@@ -26,7 +26,7 @@ from magwarp.magnetics.commutation import Commutation, CommutationOptions, Commu
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.fast import FastModel, FieldTableSpec
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
-from magwarp.types import Body, Impedance, Limits, Pose, Wrench
+from magwarp.types import Body, Impedance, Limits, Pose, Wrench, make_pose
 
 #: Width of ``force_aux`` the drive needs: the realised wrench (6), the copper loss, the commutation flags.
 AUX_DIM = 8
@@ -74,11 +74,7 @@ def wanted_wrench_kernel(
     """The ideal model's wrench at the cycle's start (what the step kernel would apply), and the pose in float64."""
     w, m = wp.tid()
     i = w * pos.shape[1] + m
-    p = Pose()
-    p.pos = pos[w, m]
-    p.quat = quat[w, m]
-    p.vel = vel[w, m]
-    p.omega = omega[w, m]
+    p = make_pose(pos[w, m], quat[w, m], vel[w, m], omega[w, m])
     b = body[m]
     a = planar_acceleration(p.vel, acc[w, m], cmd[w, m], lim)
     wr = default_force(p, b, wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0), target_pos[w, m], target_quat[w, m], imp,
