@@ -115,6 +115,20 @@ def header_line(info: dict[str, Any]) -> str:
             f"command: {info['command']}")
 
 
+def start_run(device: str | None) -> tuple[dict[str, Any], list[str]]:
+    """A benchmark's opening: Warp quiet, torch on one thread (Warp's CPU kernels are single-threaded; keep torch from
+    competing for the cores), the machine info printed as the header line; returns the info and the devices to run
+    (``device``, or the CPU plus ``cuda:0`` when present)."""
+    import torch
+    import warp as wp
+
+    wp.config.quiet = True
+    torch.set_num_threads(1)
+    info = machine_info(device or "cpu")
+    print(header_line(info))
+    return info, [device] if device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
+
+
 def command_line(argv: Sequence[str] | None = None) -> str:
     """The exact command as a copy-pastable shell line (python + sys.argv)."""
     argv = list(sys.argv if argv is None else argv)

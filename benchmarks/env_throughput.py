@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import warp as wp  # noqa: E402
 
-from common import header_line, machine_info, print_table, provenance, write_json  # noqa: E402
+from common import print_table, provenance, start_run, write_json  # noqa: E402
 
 
 def _sync(device) -> None:
@@ -210,11 +210,7 @@ def main(argv=None) -> int:
     p.add_argument("--json", default=None)
     p.add_argument("--plot", default=None)
     args = p.parse_args(argv)
-    wp.config.quiet = True
-    torch.set_num_threads(1)
-    info = machine_info(args.device or "cpu")
-    print(header_line(info))
-    devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
+    info, devices = start_run(args.device)
     rows: list[dict] = []
     for device in devices:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else

@@ -6,13 +6,7 @@
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
 # (scaling and B0 env throughput), magbots, distributed, compare (B0 env throughput of an older tree beside this one).
 set -u
-OUT=${OUT:-/tmp/out}
-mkdir -p "$OUT"
-export WARP_CACHE_PATH=/tmp/warp_cache PYTHONUNBUFFERED=1
-log() { echo "=== $* ($(date -u +%H:%M:%S))"; }
-log "devices"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
-python3 -c "import torch, warp as wp; wp.init(); print('torch', torch.__version__, 'warp', wp.__version__)"
+source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
   log "$stage"
   case "$stage" in

@@ -3,13 +3,7 @@
 # every GPU benchmark, each writing JSON under $OUT. Usage there (after the wheels are staged):
 #   export PYTHONPATH=/tmp/site:$PWD MAGWARP_COMMIT=<sha>; bash benchmarks/gpu_session.sh [perf|quick]
 set -u
-OUT=${OUT:-/tmp/out}
-mkdir -p "$OUT"
-export WARP_CACHE_PATH=/tmp/warp_cache PYTHONUNBUFFERED=1
-log() { echo "=== $* ($(date -u +%H:%M:%S))"; }
-log "devices"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
-python3 -c "import torch, warp as wp; wp.init(); print('torch', torch.__version__, 'warp', wp.__version__, wp.get_cuda_devices())"
+source "$(dirname "$0")/gpu_common.sh"
 if [ "${1:-}" = "perf" ]; then
   python3 benchmarks/scaling.py --device cuda:0 --no-magbotsim --steps 200 --json "$OUT/scaling_gpu.json"
   python3 benchmarks/env_throughput.py --device cuda:0 --no-magbotsim --envs magwarp/TrajectoryPlanningB0-v0 \

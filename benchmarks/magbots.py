@@ -25,10 +25,8 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
-import torch  # noqa: E402
-import warp as wp  # noqa: E402
 
-from common import header_line, machine_info, print_table, provenance, write_json  # noqa: E402
+from common import print_table, provenance, start_run, write_json  # noqa: E402
 from env_throughput import raw_env_row  # noqa: E402
 
 ENV_ID = "magwarp/PlatformPose-v0"
@@ -93,11 +91,7 @@ def main(argv=None) -> int:
     p.add_argument("--magbotsim-steps", type=int, default=100)
     p.add_argument("--json", default=None, help="default: benchmarks/results/magbots_<device>.json")
     args = p.parse_args(argv)
-    wp.config.quiet = True
-    torch.set_num_threads(1)
-    info = machine_info(args.device or "cpu")
-    print(header_line(info))
-    devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
+    info, devices = start_run(args.device)
     rows: list[dict] = []
     for device in devices:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else

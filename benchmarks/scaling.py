@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import warp as wp  # noqa: E402
 
-from common import header_line, machine_info, print_table, provenance, write_json  # noqa: E402
+from common import print_table, provenance, start_run, write_json  # noqa: E402
 
 PAPER_CONFIGS = ((50, 10), (100, 12), (200, 17), (400, 27), (1000, 57))
 GPU_LARGE = ((10_000, 100), (100_000, 317), (1_000_000, 1000))
@@ -183,10 +183,7 @@ def main(argv=None) -> int:
     p.add_argument("--json", default=None, help="write the rows as JSON")
     p.add_argument("--plot", default=None, help="write a PNG plot like the paper's figure")
     args = p.parse_args(argv)
-    wp.config.quiet = True
-    torch.set_num_threads(1)  # Warp's CPU kernels are single-threaded; keep torch from competing for the cores
-    info = machine_info(args.device or "cpu")
-    print(header_line(info))
+    info, _ = start_run(args.device)
     rows = run(args)
     cols = ["engine", "device", "shape", "movers", "tiles", "worlds", "cycles", ("ms_per_step", "ms/step"), ("std_ms", "std")]
     print_table(rows, cols)
