@@ -239,34 +239,6 @@ class Layout:
         return centers[:num_movers].copy()
 
 
-def validate_starts(layout: Layout, mover: MoverSpec, starts_xy: np.ndarray, yaw: np.ndarray | None = None,
-                    radii=None, half_sizes=None) -> np.ndarray:
-    """Check start positions: shape ``(num_movers, 2)``, finite, footprints on tiles, no two overlapping.
-
-    Returns the positions as a float64 array. Uses the exact numpy collision reference, so the rule is the same one
-    the simulator applies every cycle (with margins).
-    """
-    from magwarp import reference  # local import: reference depends on this module
-
-    starts = np.asarray(starts_xy, dtype=np.float64)
-    if starts.ndim != 2 or starts.shape[1] != 2:
-        raise LayoutError(f"start positions must have shape (num_movers, 2), got {starts.shape}")
-    if not np.all(np.isfinite(starts)):
-        raise LayoutError(f"start positions must be finite, got {starts[~np.isfinite(starts).all(axis=1)][:3]!r}")
-    yaw = np.zeros(len(starts)) if yaw is None else np.asarray(yaw, dtype=np.float64).reshape(len(starts))
-    wall = reference.wall_collisions(layout, mover, starts[None], yaw[None], radii, half_sizes)[0]
-    if wall.any():
-        k = int(np.flatnonzero(wall)[0])
-        raise LayoutError(f"mover {k} starts at {tuple(np.round(starts[k], 4))}, which is off the tiles (or too close to an edge)")
-    pairs = reference.mover_collision_pairs(mover, starts, yaw, radii, half_sizes)
-    if len(pairs):
-        a, b = pairs[0]
-        raise LayoutError(
-            f"movers {a} and {b} overlap at their start positions {tuple(np.round(starts[a], 4))} and {tuple(np.round(starts[b], 4))}"
-        )
-    return starts
-
-
 # MagBotSim's trajectory planning benchmark variants B0..B9 (the paper's benchmark definition, not code): each
 # string is one x index (column of tiles), its characters the y indices; 0 marks a hole. Second item: mover count.
 _BENCHMARK_TILES = {

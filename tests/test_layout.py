@@ -7,7 +7,8 @@ import re
 import numpy as np
 import pytest
 from magwarp.layout import (BENCHMARK_LAYOUTS, Layout, LayoutError, MoverSpec, TileSpec, benchmark_layout,
-                            mover_params_kwargs, validate_starts)
+                            mover_params_kwargs)
+from magwarp.reference import validate_starts
 from magwarp.sim import Simulator
 
 

@@ -30,12 +30,14 @@ is tracked by a jerk command (no safety guarantee then).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from magwarp.envs.trajectory import TrajectoryPlanningEnv
+if TYPE_CHECKING:  # the env builds its scripted planner lazily (scripted_policy): no import at run time
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
 
 
 class GoalSeekingPlanner:
