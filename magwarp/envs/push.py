@@ -260,8 +260,24 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         self._init_sampling_ranges()
         self._check_sizes_fit()
 
-        # Model: built once; starts and goals change per world without a rebuild.
-        device = warp_device(device).alias
+        control = ControlParams(v_max=v_max, a_max=a_max, j_max=j_max, jerk=learn_jerk, num_cycles=int(num_cycles),
+                                rotation=self.learn_mover_c_rotation, v_max_c=v_max_c, a_max_c=a_max_c,
+                                j_max_c=j_max_c, p_max_c=p_max_c)
+        self._build_backend(int(num_envs), warp_device(device).alias, control, solver=solver,
+                            solver_iterations=solver_iterations, ls_iterations=ls_iterations, nconmax=nconmax,
+                            njmax=njmax, varying=varying, object_variants=object_variants, seed=seed)
+        super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
+                         check_inputs=check_inputs, nan_dump=nan_dump)
+        self._init_task_state()
+        self._set_spaces(self._observation_space(), self._action_space())
+        self.reset()
+
+    # ------------------------------------------------------------------ construction
+    def _build_backend(self, num_envs: int, device: str, control: ControlParams, *, solver: str,
+                       solver_iterations: int, ls_iterations: int, nconmax: int | None, njmax: int | None,
+                       varying: dict, object_variants: int, seed: int | None) -> None:
+        """The mujoco-warp model, built once (starts and goals change per world without a rebuild), its object
+        variants, and the collision and contact checks on it."""
         if solver == "auto":
             solver = "Newton" if str(device).startswith("cuda") else "CG"
         self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
@@ -274,13 +290,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         parts = max(len(self.object.rects()), 1)
         n_obs = len(self.obstacles)
         ncon = nconmax or 8 * (parts * (1 + self.num_movers + n_obs) + self.num_movers * n_obs)
-        self.backend = MjwBackend(
-            self.xml, int(num_envs), control=ControlParams(v_max=v_max, a_max=a_max, j_max=j_max, jerk=learn_jerk,
-                                                         num_cycles=int(num_cycles), rotation=self.learn_mover_c_rotation,
-                                                         v_max_c=v_max_c, a_max_c=a_max_c, j_max_c=j_max_c,
-                                                         p_max_c=p_max_c),
-            nconmax=ncon, njmax=njmax or 3 * ncon, device=device,
-        )
+        self.backend = MjwBackend(self.xml, num_envs, control=control, nconmax=ncon, njmax=njmax or 3 * ncon,
+                                  device=device)
         self.variants = None
         if varying:
             def scene(spec):
@@ -299,8 +310,9 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                 {"mover": ["mover_geom_"], "object": ["object_0_geom_"], "obstacle": ["obstacle_geom_"]},
                 [("mover", "obstacle"), ("object", "obstacle")],
             )
-        super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
-                         check_inputs=check_inputs, nan_dump=nan_dump)
+
+    def _init_task_state(self) -> None:
+        """Per-world task tensors (goals, step counters, object variants, obstacle boxes) and the step metrics."""
         #: ``[W, K, 5]`` (cx, cy, hx, hy, yaw) of each world's static obstacles (the same in every world unless a
         #: subclass changes them per episode)
         self.obstacle_boxes = torch.as_tensor(
@@ -315,11 +327,9 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         #: which object variant each world has (0 without ``object_ranges``); ``shapes`` their outlines (coverage)
         self.object_variant = torch.zeros(n, dtype=torch.int32, device=dev)
         self.shapes = ShapeTable(self.variants.specs if self.variants else [self.object], self.backend.device)
-        self.metrics = PushMetrics(self.backend, self.shapes, self.goal_xy, self.goal_yaw, threshold=self.max_position_err,
-                                   learn_pose=self.learn_pose, min_coverage=self.min_coverage,
-                                   shape_index=self.object_variant)
-        self._set_spaces(self._observation_space(), self._action_space())
-        self.reset()
+        self.metrics = PushMetrics(self.backend, self.shapes, self.goal_xy, self.goal_yaw,
+                                   threshold=self.max_position_err, learn_pose=self.learn_pose,
+                                   min_coverage=self.min_coverage, shape_index=self.object_variant)
 
     # ------------------------------------------------------------------ definitions (MagBotSim's)
     def _placeholder_starts(self) -> np.ndarray:
