@@ -72,22 +72,24 @@ def poses_at_yaw0(rng, n, gap):
                  np.zeros((n, 3))]
 
 
-@pytest.mark.parametrize("gap", [0.003, 0.005])
-def test_hover_payload_and_acceleration_at_the_limit(model, rng, gap):
+# The worst direction's largest acceleration while hovering at the current limit, by linear programming over 300
+# random poses per gap (8 directions each): at 3 mm at least 10.1 m/s^2 (median 21), at 5 mm at least 7.2 m/s^2
+# (median 16); the best direction of any pose at most 38.5 m/s^2 (benchmarks/magnetics_acceleration.py). XPlanar's
+# data sheet says 10 m/s^2. The test asks for a little less than the measured minimum, and that 50 is out of reach.
+@pytest.mark.parametrize("gap, a_min", [(0.003, 8.0), (0.005, 6.0)])
+def test_hover_payload_and_acceleration_at_the_limit(model, rng, gap, a_min):
     mass = MoverSpec().mass
     poses = poses_at_yaw0(rng, 3, gap)
     pos, quat = model.as_arrays(poses)
     ids, count = model.active_coils(pos)
     assert count.numpy().max() <= model.max_active, "no active coil may be left out"
     gamma = model.wrench_matrix(pos, quat, ids).numpy()
-    # Per pose: hover with the payload; hover and accelerate at 8 and at 40 m/s^2 in 8 directions. (The worst
-    # direction and pose reach 9-13 m/s^2 at 3-5 mm, the median direction 20-28 m/s^2: measured by linear programming
-    # on 12 poses per gap. XPlanar's data sheet says 10 m/s^2.)
+    # Per pose: hover with the payload; hover and accelerate at a_min and at 50 m/s^2 in 8 directions.
     angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)
     wanted = []
     for _ in poses:
         wanted.append([0, 0, (mass + DEFAULT_PAYLOAD) * G, 0, 0, 0])
-        for a in (8.0, 40.0):
+        for a in (a_min, 50.0):
             wanted += [[mass * a * np.cos(t), mass * a * np.sin(t), mass * G, 0, 0, 0] for t in angles]
     per = 1 + 2 * len(angles)
     wanted = np.asarray(wanted)
@@ -101,6 +103,6 @@ def test_hover_payload_and_acceleration_at_the_limit(model, rng, gap):
     flags, loss = res.flags.numpy(), res.loss.numpy()
     kind = np.tile(np.r_[0, np.ones(len(angles)), np.full(len(angles), 2)], len(poses))
     assert np.all(resid[kind == 0] < 1e-9) and not np.any(flags[kind == 0] & FLAG_NOT_CONVERGED), (rng, resid)
-    assert np.all(resid[kind == 1] < 1e-9), f"{rng}: 8 m/s^2 not reached: {resid[kind == 1]}"
-    assert np.all(resid[kind == 2] > 1e-3), f"{rng}: 40 m/s^2 reached: a far stronger motor than XPlanar's"
+    assert np.all(resid[kind == 1] < 1e-9), f"{rng}: {a_min} m/s^2 not reached: {resid[kind == 1]}"
+    assert np.all(resid[kind == 2] > 1e-3), f"{rng}: 50 m/s^2 reached: a far stronger motor than XPlanar's"
     assert np.all((loss[kind == 0] > 20.0) & (loss[kind == 0] < 600.0)), (rng, loss[kind == 0])
