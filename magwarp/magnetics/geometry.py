@@ -19,8 +19,9 @@ that the exact model gives XPlanar-like figures; ``tests/test_magnetics_defaults
   :attr:`CoilSpec.resistance`). 6 x 2 coils per layer per tile of 240 mm, 24 coils per tile. Layers below a 1 mm
   cover: the layer with long sides along y on top (z -1..-4 mm), the other under it (-4.5..-7.5 mm).
 * Current limit 7 A per coil (33 W in a coil at its limit). With the least-loss commutation at yaw 0 and 3-5 mm
-  gaps, a 1.24 kg mover hovering at the current limit reaches 9-13 m/s^2 in its worst direction and pose and
-  20-28 m/s^2 in the median one (XPlanar's data sheet: 10 m/s^2, as in :mod:`magwarp.layout`); it holds a
+  gaps, a 1.24 kg mover hovering at the current limit reaches in its worst direction at least 10.1 m/s^2 at 3 mm
+  and 7.2 m/s^2 at 5 mm (median over poses 21 and 16 m/s^2; 300 random poses, linear programming,
+  ``benchmarks/magnetics_acceleration.py``; XPlanar's data sheet: 10 m/s^2, as in :mod:`magwarp.layout`); it holds a
   1 kg payload (:data:`DEFAULT_PAYLOAD`); hovering costs about 15-70 W of copper loss without payload, 80-450 W
   with it (a design where the lower coil layer is the weaker one: y forces come from it).
 * Active coils: those within 0.28 m (measured, :func:`~magwarp.magnetics.exact.measure_active_radius`) of the
