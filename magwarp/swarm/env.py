@@ -153,6 +153,8 @@ class SwarmConfig:
 class SwarmEnv(MagwarpVecEnv):
     """Batched swarm env (see the module docstring). ``SwarmEnv(num_envs, config=None, **options)``."""
 
+    benchmark_metrics = None  # a magwarp.metrics tracker, fed once per step (magwarp eval)
+
     def __init__(self, num_envs: int = 1, config: SwarmConfig | None = None, *, device: str | None = None,
                  seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
                  check_inputs: bool = True, **options):
@@ -252,6 +254,8 @@ class SwarmEnv(MagwarpVecEnv):
         # NaN guard: a non-finite world is flagged (info["nonfinite"]), rewarded 0 and terminated (with respawns and
         # no time limit, worlds never end: it stays flagged)
         reward, terminated = self._guard_nonfinite(obs, reward, terminated, info, action)
+        if self.benchmark_metrics is not None:
+            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
         if self.autoreset and self._can_end:
             done = terminated | truncated
             info["final_obs"] = obs
@@ -295,6 +299,8 @@ class SwarmEnv(MagwarpVecEnv):
         self.goal_pending.copy_(torch.where(movers, goal_left, self.goal_pending))
         self.num_steps.masked_fill_(mask, 0)
         self.collected_goals.masked_fill_(mask[:, None], 0)
+        if self.benchmark_metrics is not None:
+            self.benchmark_metrics.episode_reset(mask)
 
     def _apply_action(self, action: torch.Tensor) -> None:
         # stopped movers (pending respawns) ignore their command; the stop hook keeps them still
@@ -337,7 +343,7 @@ class SwarmEnv(MagwarpVecEnv):
             truncated = (self.num_steps + 1 >= self.max_episode_steps) & ~terminated
         info = {"agent_reward": agent_reward, "mover_collision": mover_col, "wall_collision": wall_col,
                 "agent_terminated": collided if cfg.on_collision == "respawn" else collided | terminated[:, None],
-                "goal_reached": reached}
+                "goal_reached": reached, "collided": collided}
         if self.stations is not None:
             info["job_done"] = reached & self.carrying
         return reward, terminated, truncated, info
@@ -376,6 +382,12 @@ class SwarmEnv(MagwarpVecEnv):
             field.masked_fill_(sel, 0.0)
         self.stopped.masked_fill_(placed, 0)
         self.respawn_pending.copy_(left & want)
+
+    def scripted_policy(self):
+        """The scripted ORCA planner (:class:`~magwarp.swarm.SwarmPlanner`) as a policy: ``action = policy(obs)``."""
+        from magwarp.swarm.planner import SwarmPlanner
+
+        return SwarmPlanner(self)
 
     # top-down frames of the first worlds, movers, collisions and goals: the trajectory env's drawing serves as is
     _render_frame = TrajectoryPlanningEnv._render_frame
