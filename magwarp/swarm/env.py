@@ -48,7 +48,6 @@ import warp as wp
 
 from magwarp._checks import as_count, warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.trajectory import TrajectoryPlanningEnv
 from magwarp.kernels.swarm import stop_collided
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.sim import Simulator
@@ -389,5 +388,40 @@ class SwarmEnv(MagwarpVecEnv):
 
         return SwarmPlanner(self)
 
-    # top-down frames of the first worlds, movers, collisions and goals: the trajectory env's drawing serves as is
-    _render_frame = TrajectoryPlanningEnv._render_frame
+    # ------------------------------------------------------------------ rendering
+    def set_render_view(self, *, window=None, px_per_tile: int | None = None, max_image_px: int = 1024) -> None:
+        """How ``render()`` draws (:mod:`magwarp.render.swarm`): the whole world (default) or ``window``
+        ``(cx, cy, width, height)`` m of it, at ``px_per_tile`` (default: the most that keeps the image within
+        ``max_image_px``, up to 48). Movers are coloured by state (moving, idle, collided, carrying, waiting);
+        below 12 pixels per tile they are dots of at least 2 x 2 pixels; goals are drawn from 24 pixels per tile on.
+        Checked here (a bad window raises)."""
+        self._render_view = {"window": window, "px_per_tile": px_per_tile, "max_image_px": max_image_px}
+        self._renderer = self._make_renderer()
+
+    @property
+    def render_states(self) -> tuple[str, ...]:
+        """The mover states ``render()`` colours (names of :data:`magwarp.render.colors.STATE_NAMES`)."""
+        from magwarp.render.colors import STATE_NAMES
+
+        return tuple(n for n in STATE_NAMES if n != "carrying" or self.stations is not None)
+
+    def _make_renderer(self):
+        from magwarp.render.swarm import swarm_renderer
+
+        view = getattr(self, "_render_view", None) or {}
+        worlds = getattr(self, "_render_worlds", None) or 1
+        renderer, self._render_goals = swarm_renderer(self.layout, self.sim.mover, worlds=worlds,
+                                                       device=self.sim.device, **view)
+        return renderer
+
+    def _render_frame(self) -> torch.Tensor:
+        from magwarp.render.swarm import mover_states
+
+        if getattr(self, "_renderer", None) is None:
+            self._renderer = self._make_renderer()
+        sim = self.sim
+        collided = sim.flags_any != 0
+        state = mover_states(sim.vel, sim.pos, self.goals, collided, self.carrying if self.stations is not None
+                             else None, self.respawn_pending, self.config.threshold_pos)
+        return self._renderer.draw(sim.pos, sim.quat, flags=sim.flags_any, radii=sim.radii, half_sizes=sim.half_sizes,
+                                   goals=self.goals if self._render_goals else None, state=state)
