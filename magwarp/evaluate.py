@@ -18,9 +18,9 @@ read back once per batch of repeats.
   the window's end, the makespan is the time at which the slowest mover of a world reached ``makespan_goals``
   goals (:mod:`magwarp.metrics.swarm`).
 
-Process time is the wall-clock time of the batched run (policy and simulation) per goal (trajectory planning) or
-per episode (pushing, platform). On the CPU the evaluation runs with one torch intra-op thread, for stable timings on shared
-machines (the previous setting is restored afterwards).
+Process time is the wall-clock time of the batched run (policy and simulation) per goal (trajectory planning,
+swarms) or per episode (pushing, platform). On the CPU the evaluation runs with one torch intra-op thread, for
+stable timings on shared machines (the previous setting is restored afterwards).
 """
 
 from __future__ import annotations
@@ -253,8 +253,8 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
              steps: int | None = None, makespan_goals: int = 5, max_worlds: int | None = None, seed: int = 0,
              progress: bool | None = None, env_kwargs: dict | None = None, trusted: bool = False) -> EvalResult:
     """Evaluate ``policy`` on ``env_id``; see the module docstring. ``steps``: env steps per world (trajectory
-    planning and swarms, default 10 s: 250 steps of 40 cycles; pushing: the episode length). ``max_worlds``: worlds simulated at once (default
-    65536 on a GPU, 2048 on the CPU).
+    planning and swarms, default 10 s: 250 steps of 40 cycles; pushing: the episode length). ``max_worlds``:
+    worlds simulated at once (default 65536 on a GPU, 2048 on the CPU).
 
     On the CPU, torch runs with one intra-op thread for the whole evaluation (``torch.set_num_threads(1)``): the
     tensors are small, and several threads only make the process times unstable on a shared machine. The previous
@@ -425,9 +425,9 @@ def _fmt(x: float) -> str:
 
 def format_table(result: EvalResult) -> str:
     """The paper's table: metric, n (mean count per repeat), mean ± std over repeats."""
+    windows = f"worlds x {result.steps_per_world} steps"
     header = (f"{result.env_id}  policy={result.policy}  {result.repeats} repeats x {result.episodes} "
-              f"{f'worlds x {result.steps_per_world} steps' if result.family in ('trajectory', 'swarm') else 'episodes'}"
-              f"  "
+              f"{windows if result.family in ('trajectory', 'swarm') else 'episodes'}  "
               f"device={result.device}  ({result.wall_s:.1f} s)")
     lines = [header]
     w = max(len(r.label) for r in result.rows)

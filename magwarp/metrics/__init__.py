@@ -1,9 +1,9 @@
 """The paper's benchmark metrics as device-side accumulators, updated every 1 ms cycle inside the step graph.
 
-``m = Metrics(env)`` attaches a tracker to a batched env (trajectory planning, pushing, platform or swarm). From then on every
-``env.step`` returns ``info["metrics"]`` (per-world counters, no host sync), ``m.summary(num_groups)`` reduces the
-accumulators per group of consecutive worlds (e.g. one evaluation repeat each), ``m.reset(mask)`` zeroes worlds and
-``m.freeze(mask)`` stops counting in worlds whose evaluation episode is over. Definitions:
+``m = Metrics(env)`` attaches a tracker to a batched env (trajectory planning, pushing, platform or swarm). From then
+on every ``env.step`` returns ``info["metrics"]`` (per-world counters, no host sync), ``m.summary(num_groups)``
+reduces the accumulators per group of consecutive worlds (e.g. one evaluation repeat each), ``m.reset(mask)`` zeroes
+worlds and ``m.freeze(mask)`` stops counting in worlds whose evaluation episode is over. Definitions:
 :mod:`magwarp.kernels.metrics`, :mod:`magwarp.metrics.trajectory`, :mod:`magwarp.metrics.push`,
 :mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.swarm`.
 """

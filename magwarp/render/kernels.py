@@ -517,8 +517,8 @@ def draw_topdown(
                 if not near(p, pos[wm, m, 0], pos[wm, m, 1], reject_radius):
                     continue
                 color = paint_mover(color, p, px, m, wm, wr, wf, wrad, whs, pos, rot, flags, radii, half_sizes,
-                                    mover_colors, fixed_colors, shape_kind, footprint_half, margin, reject_radius, style,
-                                    wst, state, state_colors, min_dot)
+                                    mover_colors, fixed_colors, shape_kind, footprint_half, margin, reject_radius,
+                                    style, wst, state, state_colors, min_dot)
             if has_goals:
                 for m in range(num_movers):
                     if m < 31 and ((band >> m) & 1) == 0:
