@@ -31,7 +31,8 @@ MOVING, IDLE, COLLIDED, CARRYING, WAITING = range(5)
 def fit_px_per_tile(layout: Layout, num_worlds: int = 1, window: Sequence[float] | None = None,
                     max_image_px: int = 1024) -> int:
     """The largest resolution (1 to 48 pixels per tile) at which ``num_worlds`` worlds (or their ``window``s,
-    ``(cx, cy, width, height)`` m) fit a square mosaic whose longest side is at most ``max_image_px``."""
+    ``(cx, cy, width, height)`` m) fit a square mosaic whose longest side is at most ``max_image_px`` (views wider
+    than ``max_image_px`` tiles get 1 pixel per tile, and a bigger image)."""
     if isinstance(max_image_px, bool) or int(max_image_px) != max_image_px or max_image_px < 16:
         raise ValueError(f"max_image_px must be an integer >= 16, got {max_image_px!r}")
     cols = math.ceil(math.sqrt(num_worlds))
