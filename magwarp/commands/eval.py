@@ -18,7 +18,7 @@ ends by default (goals stream, collided movers respawn), so what is evaluated is
 world (default 250: 10 s) from a fresh reset; an "episode" is one world of ``num_movers`` movers (--env-kwargs,
 SwarmConfig fields, e.g. '{"num_movers": 1024, "layout": [[1, ...], ...]}'). Rows: throughput (goals, and jobs for
 material flow, per second per world and per mover), collided movers per 1000 goals, movers deadlocked at the
-window's end (stuck for 1 s away from their goal), and the makespan (the slowest mover's --makespan-goals-th goal).
+window's end (slow and away from their goal for 25 steps), and the makespan (the slowest mover's --makespan-goals-th goal).
 A policy file or callable gets the [worlds, movers, D] observation and returns [worlds, movers, 2] accelerations.
 With --device cpu, torch uses one intra-op thread (small tensors: more threads only make timings unstable).
 

@@ -25,6 +25,11 @@ Per env step (``num_cycles`` control cycles at 1 ms, each mover's x/y command he
 * material flow (``stations``): goals are pick-up and drop-off stations in turn; each delivery completes a job
   (``info["job_done"]``, ``info["jobs"]``; the observation gains a carrying flag). Many movers may head for one
   station: queues form as on a real line;
+* ``info["collided"]``: the movers that collided during the step (mover or wall; not those waiting to respawn);
+  with a tracker attached (``magwarp.metrics.Metrics(env)``, as ``magwarp eval`` does) ``info["metrics"]`` holds
+  its per-world counters;
+* rendering (``render_mode="rgb_array"``): the whole world or a window of it, movers coloured by state, legible at
+  thousands of movers (:meth:`SwarmEnv.set_render_view`, :mod:`magwarp.render.swarm`);
 * truncation: after ``max_episode_steps`` steps (default None: worlds run on; goals stream, collided movers respawn).
 
 Starts and goals are drawn by :class:`~magwarp.swarm.Placer` on the device (O(movers)). ``reset()`` checks that
