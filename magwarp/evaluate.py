@@ -9,10 +9,18 @@ read back once per batch of repeats.
 * **Trajectory planning** (Table 2): every world is one long-horizon run of ``steps`` env steps in which reached
   goals are replaced; a collision or a timeout ends the world's episode (its movers' pending goals fail) and a new
   one starts. Makespan: time at which the slowest mover of a world reached ``makespan_goals`` goals.
+* **Swarms** (``magwarp/Swarm-v0``, ``magwarp/SwarmMaterialFlow-v0``): a swarm world has no episode end by default
+  (goals stream, collided movers respawn), so the evaluated window is ``steps`` env steps per world from a fresh
+  reset (default 10 s: 250 steps of 40 cycles); a repeat is ``episodes`` independent worlds, each with
+  ``num_movers`` movers (``env_kwargs``, :class:`~magwarp.swarm.SwarmConfig`). Worlds that end inside the window
+  (``on_collision="end"``, ``max_episode_steps``) restart and keep counting. Throughput is goals (jobs) per
+  second per world and per mover, collisions are collided movers per 1000 goals, deadlocked movers are counted at
+  the window's end, the makespan is the time at which the slowest mover of a world reached ``makespan_goals``
+  goals (:mod:`magwarp.metrics.swarm`).
 
-Process time is the wall-clock time of the batched run (policy and simulation) per goal (trajectory planning) or
-per episode (pushing). On the CPU the evaluation runs with one torch intra-op thread, for stable timings on shared
-machines (the previous setting is restored afterwards).
+Process time is the wall-clock time of the batched run (policy and simulation) per goal (trajectory planning,
+swarms) or per episode (pushing, platform). On the CPU the evaluation runs with one torch intra-op thread, for
+stable timings on shared machines (the previous setting is restored afterwards).
 """
 
 from __future__ import annotations
@@ -98,7 +106,7 @@ class ModulePolicy:
 
     def __init__(self, module, env):
         self.module = module
-        self.num_envs = env.num_envs
+        self.shape = (env.num_envs, *env.single_action_space.shape)
         if isinstance(module, torch.nn.Module):
             module.eval()
 
@@ -107,7 +115,7 @@ class ModulePolicy:
         out = self.module(_flatten_obs(obs))
         if isinstance(out, (tuple, list)):
             out = out[0]
-        return out.reshape(self.num_envs, -1).to(torch.float32)
+        return out.reshape(self.shape).to(torch.float32)
 
 
 def scripted_policy(env) -> Callable:
@@ -210,13 +218,18 @@ def _family(env) -> str:
 
     if isinstance(env, TrajectoryPlanningEnv):
         return "trajectory"
+    from magwarp.swarm.env import SwarmEnv
+
+    if isinstance(env, SwarmEnv):
+        return "swarm"
     if isinstance(env, PushEnv):
         return "push"
     from magwarp.envs.platform_pose import PlatformPoseEnv
 
     if isinstance(env, PlatformPoseEnv):
         return "platform"
-    raise EvalError(f"magwarp eval supports trajectory planning, pushing and platform envs, not {type(env).__name__}")
+    raise EvalError(f"magwarp eval supports trajectory planning, pushing, platform and swarm envs, not "
+                    f"{type(env).__name__}")
 
 
 def _check_device(device) -> str:
@@ -240,8 +253,8 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
              steps: int | None = None, makespan_goals: int = 5, max_worlds: int | None = None, seed: int = 0,
              progress: bool | None = None, env_kwargs: dict | None = None, trusted: bool = False) -> EvalResult:
     """Evaluate ``policy`` on ``env_id``; see the module docstring. ``steps``: env steps per world (trajectory
-    planning, default 10 s: 250 steps of 40 cycles; pushing: the episode length). ``max_worlds``: worlds simulated at once (default
-    65536 on a GPU, 2048 on the CPU).
+    planning and swarms, default 10 s: 250 steps of 40 cycles; pushing: the episode length). ``max_worlds``:
+    worlds simulated at once (default 65536 on a GPU, 2048 on the CPU).
 
     On the CPU, torch runs with one intra-op thread for the whole evaluation (``torch.set_num_threads(1)``): the
     tensors are small, and several threads only make the process times unstable on a shared machine. The previous
@@ -291,9 +304,11 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
             env = gym.make_vec(env_id, num_envs=worlds, device=device, check_inputs=False, seed=seed, **family_kwargs)
         except TypeError as e:  # an option the env does not take
             raise EvalError(f"env options {family_kwargs} do not fit {env_id}: {e}") from None
+        except ValueError as e:  # a bad option value (a config check, an impossible placement): one line
+            raise EvalError(f"env options {family_kwargs} for {env_id}: {_last_line(str(e))}") from None
         env = env.unwrapped if hasattr(env, "unwrapped") else env
         family = _family(env)
-        episodic = family != "trajectory"  # one episode (one goal) per world
+        episodic = family not in ("trajectory", "swarm")  # one episode (one goal) per world
         if episodic:
             env.autoreset = False  # one episode per world; a finished world is frozen by the metrics
             num_steps = int(steps or env.max_episode_steps)
@@ -332,7 +347,7 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
                 act.raise_if_nonfinite()
                 wall = time.perf_counter() - start
                 keep = min(per_batch, repeats - batch * per_batch)
-                units = summary["goals_reached"].sum() if family == "trajectory" else summary["episodes"].sum()
+                units = summary["episodes"].sum() if episodic else summary["goals_reached"].sum()
                 done.append((batch, {k: [float(x) for x in v[:keep]] for k, v in summary.items()},
                              1000.0 * wall / max(float(units), 1.0)))
         bar.close()
@@ -345,9 +360,9 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
                 values.setdefault(k, []).extend(v)
             process.append(ms)
         wall_all = max(w for _, w in ranks)
-        rows = _rows(type(metrics).ROWS, values, env.num_movers)
-        unit = "goal" if family == "trajectory" else "episode"
-        count = values["goals_reached" if family == "trajectory" else "episodes"]
+        rows = _rows(metrics.ROWS, values, env.num_movers)
+        unit = "episode" if episodic else "goal"
+        count = values["episodes" if episodic else "goals_reached"]
         rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
                         float(np.mean(process)), float(np.std(process)), process))
         return EvalResult(env_id, label, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
@@ -410,8 +425,9 @@ def _fmt(x: float) -> str:
 
 def format_table(result: EvalResult) -> str:
     """The paper's table: metric, n (mean count per repeat), mean ± std over repeats."""
+    windows = f"worlds x {result.steps_per_world} steps"
     header = (f"{result.env_id}  policy={result.policy}  {result.repeats} repeats x {result.episodes} "
-              f"{'episodes' if result.family != 'trajectory' else f'worlds x {result.steps_per_world} steps'}  "
+              f"{windows if result.family in ('trajectory', 'swarm') else 'episodes'}  "
               f"device={result.device}  ({result.wall_s:.1f} s)")
     lines = [header]
     w = max(len(r.label) for r in result.rows)

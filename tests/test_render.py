@@ -184,7 +184,7 @@ def test_bad_inputs_raise_clear_errors():
     with pytest.raises(ValueError, match="worlds must be"):
         TopDownRenderer(layout, worlds=0)
     with pytest.raises(ValueError, match="px_per_tile"):
-        TopDownRenderer(layout, px_per_tile=2)
+        TopDownRenderer(layout, px_per_tile=0)  # 1 and up: whole views of big swarms
     with pytest.raises(TypeError, match="layout must be"):
         TopDownRenderer(np.ones((2, 2)))
 

@@ -5,12 +5,21 @@
     magwarp eval PushBox --policy my_agent.pt --episodes 200 --repeats 10 --device cuda:0
     magwarp eval PushBox --policy mypkg.policies:MyPolicy --episodes 50 --repeats 4
     magwarp eval PushBox --policy pretrained:pushbox_sac --episodes 200 --repeats 100
+    magwarp eval Swarm --policy scripted --episodes 4 --repeats 5 --steps 250 --env-kwargs '{"num_movers": 64}'
 
 POLICY: ``scripted`` (the built-in baseline), ``pretrained:NAME`` (a policy shipped with magwarp: b0_ppo,
 pushbox_sac, pusht_sac, obstacles_sac), a TorchScript or ``torch.save``d module file (it receives the
 observation dict flattened in sorted key order: achieved_goal, desired_goal, observation), or ``module:callable``
 (a class is instantiated with the env; a function is called as ``fn(obs) -> actions``). All episodes of a repeat
 run in parallel worlds; for trajectory planning every "episode" is one world's long-horizon run of --steps steps.
+
+SWARMS (magwarp/Swarm-v0, magwarp/SwarmMaterialFlow-v0; ``scripted`` is the ORCA planner): a swarm world never
+ends by default (goals stream, collided movers respawn), so what is evaluated is a window of --steps env steps per
+world (default 250: 10 s) from a fresh reset; an "episode" is one world of ``num_movers`` movers (--env-kwargs,
+SwarmConfig fields, e.g. '{"num_movers": 1024, "layout": [[1, ...], ...]}'). Rows: throughput (goals, and jobs for
+material flow, per second per world and per mover), collided movers per 1000 goals, movers deadlocked at the
+window's end (slow and away from their goal for 25 steps), and the makespan (the slowest mover's --makespan-goals-th goal).
+A policy file or callable gets the [worlds, movers, D] observation and returns [worlds, movers, 2] accelerations.
 With --device cpu, torch uses one intra-op thread (small tensors: more threads only make timings unstable).
 
 SEVERAL GPUS: ``--nproc-per-node N`` runs N processes through torchrun (one per GPU, ``cuda:LOCAL_RANK``; CPU
@@ -43,8 +52,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--device", default=None, help="cpu or cuda:N (default: the best available)")
     p.add_argument("--json", default=None, metavar="PATH", help="also write the results (per-repeat values) as JSON")
     p.add_argument("--steps", type=int, default=None,
-                   help="env steps per world (trajectory planning: default 10 s, 250 steps of 40 cycles; pushing: the "
-                        "episode length)")
+                   help="env steps per world (trajectory planning and swarms: default 10 s, 250 steps of 40 cycles; "
+                        "pushing: the episode length)")
     p.add_argument("--makespan-goals", type=int, default=5, help="goals per mover for the makespan (default 5)")
     p.add_argument("--max-worlds", type=int, default=None, help="worlds simulated at once (default 65536 GPU, 2048 CPU)")
     p.add_argument("--seed", type=int, default=0)

@@ -2,8 +2,15 @@
 
     magwarp render --synthetic --layout B1 --worlds 4 --steps 60 -o run.gif -o last.png
     magwarp render magwarp/TrajectoryPlanning-v0 --worlds 16 --steps 100 --policy random -o tp.mp4
+    magwarp render magwarp/Swarm-v0 --env-kwargs '{"num_movers": 1000}' --steps 50 -o swarm.gif -o swarm.png
+    magwarp render magwarp/Swarm-v0 --env-kwargs '{"num_movers": 1000}' --window 3,3,2 --px-per-tile 48 -o zoom.png
 
 Outputs by extension: ``.png`` (the last frame), ``.gif`` / ``.mp4`` (every frame). Several ``-o`` are allowed.
+
+BIG SWARMS (magwarp/Swarm-v0, magwarp/SwarmMaterialFlow-v0): the whole world fits --max-px (default 1024 pixels on
+the longest side); movers are coloured by state (moving, idle, collided, carrying a job, waiting to respawn) and
+stay at least 2 x 2 pixels however many there are. ``--window CX,CY,W[,H]`` (metres; a tile is 0.24 m) draws only
+that part, at full detail.
 """
 
 from __future__ import annotations
@@ -47,6 +54,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--scale", type=int, default=1, help="integer upscaling of the written images (default 1)")
     p.add_argument("--legend", action=argparse.BooleanOptionalAction, default=True,
                    help="colour key under the images (default on)")
+    p.add_argument("--window", default=None, metavar="CX,CY,W[,H]",
+                   help="swarm envs: draw only this window (metres: centre x, y, width, height; default: the world)")
+    p.add_argument("--max-px", type=int, default=1024,
+                   help="swarm envs: longest image side when --px-per-tile is not given (default 1024)")
+    p.add_argument("--env-kwargs", default=None, metavar="JSON",
+                   help="env options, e.g. '{\"num_movers\": 1000}' (swarm envs: SwarmConfig fields)")
     p.add_argument("--3d", dest="three_d", action="store_true",
                    help="push envs: 3D images through MuJoCo's offscreen renderer (EGL/OSMesa) instead of top-down")
     return p
@@ -90,6 +103,19 @@ def make_synthetic(args):
                           device=device)
 
 
+def parse_window(text: str | None) -> tuple[float, float, float, float] | None:
+    """``--window CX,CY,W[,H]`` (metres) -> (cx, cy, width, height); a square when H is left out."""
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (3, 4):
+        raise UsageError(f"--window must be CX,CY,W or CX,CY,W,H in metres, got {text!r}")
+    return tuple(values) if len(values) == 4 else (*values, values[2])
+
+
 def make_env(args, render_mode: str | None = "rgb_array"):
     """A gymnasium vector env of the magwarp suite, with a clear error while the env is not available."""
     try:
@@ -103,10 +129,22 @@ def make_env(args, render_mode: str | None = "rgb_array"):
     kwargs = {"render_mode": render_mode} if render_mode else {}
     if args.device:
         kwargs["device"] = args.device
+    options = {}
+    if getattr(args, "env_kwargs", None):
+        from magwarp.training.common import parse_env_kwargs
+
+        try:
+            options = parse_env_kwargs(args.env_kwargs)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
     try:
-        return gym.make_vec(args.env_id, num_envs=args.worlds, **kwargs)
+        return gym.make_vec(args.env_id, num_envs=args.worlds, **kwargs, **options)
     except gym.error.Error as e:
         raise UsageError(f"cannot make env {args.env_id!r}: {e}") from e
+    except (TypeError, ValueError) as e:
+        if not options:
+            raise
+        raise UsageError(f"--env-kwargs {args.env_kwargs} for {args.env_id}: {e}") from None
 
 
 def env_policy(env, name: str):
@@ -156,8 +194,8 @@ def run(args) -> int:
         raise UsageError("--3d renders the MuJoCo scene of a push env (e.g. magwarp/PushT-v0), not --synthetic")
     show = shown_worlds(args)
     ppt = args.px_per_tile or default_px_per_tile(show)
-    if ppt < 4:
-        raise UsageError(f"--px-per-tile must be >= 4, got {ppt}")
+    if ppt < 1:
+        raise UsageError(f"--px-per-tile must be >= 1, got {ppt}")
     if args.synthetic:
         scene = make_synthetic(args)
         renderer = scene.make_renderer(worlds=show, px_per_tile=ppt)
@@ -168,6 +206,7 @@ def run(args) -> int:
         def frame():
             return scene.draw(renderer)
     else:
+        window = parse_window(args.window)
         env = make_env(args, render_mode="rgb_array_3d" if args.three_d else "rgb_array")
         base = env.unwrapped if hasattr(env, "unwrapped") else env
         if args.three_d:
@@ -179,6 +218,13 @@ def run(args) -> int:
                 raise CommandError(str(e)) from e
         if hasattr(base, "set_render_worlds"):
             base.set_render_worlds(show)
+        if hasattr(base, "set_render_view"):  # big swarms: resolution, window and state colours
+            try:
+                base.set_render_view(window=window, px_per_tile=args.px_per_tile, max_image_px=args.max_px)
+            except ValueError as e:
+                raise UsageError(str(e)) from None
+        elif window is not None:
+            raise UsageError(f"--window applies to swarm envs (e.g. magwarp/Swarm-v0), not {args.env_id}")
         policy = env_policy(env, args.policy)
         obs, _ = env.reset(seed=args.seed)
         state = {"obs": obs}
@@ -206,7 +252,8 @@ def run(args) -> int:
 
         image = to_numpy_image(image)
         if strip is None:
-            strip = legend_strip(image.shape[1], objects=has_objects, obstacles=has_obstacles)
+            strip = legend_strip(image.shape[1], objects=has_objects, obstacles=has_obstacles,
+                                 states=None if args.synthetic else getattr(base, "render_states", None))
         return with_legend(image, strip)
 
     videos = [VideoRecorder(p, args.fps, scale=args.scale) for p in outputs if not p.lower().endswith(".png")]

@@ -1,10 +1,11 @@
 """The paper's benchmark metrics as device-side accumulators, updated every 1 ms cycle inside the step graph.
 
-``m = Metrics(env)`` attaches a tracker to a batched env (trajectory planning or pushing). From then on every
-``env.step`` returns ``info["metrics"]`` (per-world counters, no host sync), ``m.summary(num_groups)`` reduces the
-accumulators per group of consecutive worlds (e.g. one evaluation repeat each), ``m.reset(mask)`` zeroes worlds and
-``m.freeze(mask)`` stops counting in worlds whose evaluation episode is over. Definitions:
-:mod:`magwarp.kernels.metrics`, :mod:`magwarp.metrics.trajectory`, :mod:`magwarp.metrics.push`.
+``m = Metrics(env)`` attaches a tracker to a batched env (trajectory planning, pushing, platform or swarm). From then
+on every ``env.step`` returns ``info["metrics"]`` (per-world counters, no host sync), ``m.summary(num_groups)``
+reduces the accumulators per group of consecutive worlds (e.g. one evaluation repeat each), ``m.reset(mask)`` zeroes
+worlds and ``m.freeze(mask)`` stops counting in worlds whose evaluation episode is over. Definitions:
+:mod:`magwarp.kernels.metrics`, :mod:`magwarp.metrics.trajectory`, :mod:`magwarp.metrics.push`,
+:mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.swarm`.
 """
 
 from __future__ import annotations
@@ -29,6 +30,13 @@ def Metrics(env, **kwargs):  # noqa: N802 - a factory that reads like the class 
         return PlatformMetrics(base, **kwargs)
     if isinstance(base, TrajectoryPlanningEnv):
         return TrajectoryMetrics(base, **kwargs)
+    from magwarp.swarm.env import SwarmEnv
+
+    if isinstance(base, SwarmEnv):
+        from magwarp.metrics.swarm import SwarmTaskMetrics
+
+        return SwarmTaskMetrics(base, **kwargs)
     if isinstance(base, PushEnv):
         return PushTaskMetrics(base, **kwargs)
-    raise TypeError(f"no benchmark metrics for {type(base).__name__}; expected a trajectory planning or push env")
+    raise TypeError(f"no benchmark metrics for {type(base).__name__}; expected a trajectory planning, push, platform "
+                    f"or swarm env")

@@ -36,6 +36,16 @@ MOVER_PALETTE = (
     (0, 84, 147),  # dark blue
 )
 
+# Per-mover states of big swarms (TopDownRenderer.draw(..., state=...)), in this order.
+STATE_NAMES = ("moving", "idle", "collided", "carrying", "waiting")
+STATE_PALETTE = (
+    (31, 119, 180),  # moving: blue
+    (188, 189, 34),  # idle (slower than 5 cm/s away from its goal): olive
+    (214, 39, 40),  # collided this step: red
+    (255, 127, 14),  # carrying a job (material flow): orange
+    (90, 90, 90),  # waiting for a free spot to respawn: dark grey
+)
+
 # Opacities of translucent layers.
 SAFETY_ZONE_ALPHA = 0.22  # fill of the collision shape (+ margin) around a mover
 GOAL_LINE_ALPHA = 0.45  # line from a mover to its goal

@@ -162,8 +162,16 @@ def paint_mover(
     margin: float,
     reject_radius: float,
     style: int,
+    ws: int,
+    state: wp.array2d[wp.int32],
+    state_colors: wp.array[wp.vec3],
+    min_dot: float,
 ) -> wp.vec3:
-    """Paint mover m over ``color`` at point p: its safety zone (collision shape + margin), footprint, heading."""
+    """Paint mover m over ``color`` at point p: its safety zone (collision shape + margin), footprint, heading.
+
+    With per-mover states (``state`` has one column per mover) the mover takes its state's colour instead of its
+    index colour. A footprint narrower than a few pixels is drawn as a plain square of at least ``min_dot`` (m)
+    half width, without rim or heading (which would hide it)."""
     # Cheap reject: outside a square/circle that holds everything drawn for any mover.
     dx = p[0] - pos[wm, m, 0]
     if wp.abs(dx) > reject_radius:
@@ -176,6 +184,8 @@ def paint_mover(
     cs = mover_heading(rot, wr, m)
     q = to_body(dm, cs[0], cs[1])
     mc = mover_colors[m % mover_colors.shape[0]]
+    if state.shape[1] == pos.shape[1]:
+        mc = state_colors[wp.clamp(state[ws, m], 0, state_colors.shape[0] - 1)]
     # A collided mover keeps its own colour (so you can tell which one it is) inside a red halo: its safety zone
     # turns red, more opaque, with a thicker rim.
     zc = mc
@@ -196,6 +206,11 @@ def paint_mover(
             out = blend(out, zc, zone_alpha)
             if zone > -rim:
                 out = zc
+    small = footprint_half[0] < 3.0 * px or footprint_half[1] < 3.0 * px
+    if small:
+        if wp.abs(dx) <= wp.max(min_dot, footprint_half[0]) and wp.abs(dy) <= wp.max(min_dot, footprint_half[1]):
+            out = mc
+        return out
     foot = box_sdf(q, footprint_half)
     if foot <= 0.0:
         out = mc
@@ -349,6 +364,8 @@ def draw_topdown(
     style: int,
     tile_size: float,
     bin_reach: int,
+    state_colors: wp.array[wp.vec3],
+    min_dot: float,
     # State in:
     pos: wp.array3d[wp.float32],
     rot: wp.array3d[wp.float32],
@@ -357,6 +374,7 @@ def draw_topdown(
     object_poses: wp.array3d[wp.float32],
     object_goals: wp.array3d[wp.float32],
     obstacles: wp.array3d[wp.float32],
+    state: wp.array2d[wp.int32],
     bin_count: wp.array3d[wp.int32],
     bin_items: wp.array4d[wp.int32],
     goal_count: wp.array3d[wp.int32],
@@ -469,6 +487,7 @@ def draw_topdown(
         wf = shared(w, flags.shape[0])
         wrad = shared(w, radii.shape[0])
         whs = shared(w, half_sizes.shape[0])
+        wst = shared(w, state.shape[0])
         use_bins = int(0)
         if bin_count.shape[0] > 0:
             if bin_overflow[cell] == 0:
@@ -484,7 +503,7 @@ def draw_topdown(
                         if near(p, pos[wm, m, 0], pos[wm, m, 1], reject_radius):
                             color = paint_mover(color, p, px, m, wm, wr, wf, wrad, whs, pos, rot, flags, radii,
                                                 half_sizes, mover_colors, fixed_colors, shape_kind, footprint_half,
-                                                margin, reject_radius, style)
+                                                margin, reject_radius, style, wst, state, state_colors, min_dot)
             if has_goals:
                 for bi in range(wp.max(ti - 1, 0), wp.min(ti + 2, bin_count.shape[1])):
                     for bj in range(wp.max(tj - 1, 0), wp.min(tj + 2, bin_count.shape[2])):
@@ -498,7 +517,8 @@ def draw_topdown(
                 if not near(p, pos[wm, m, 0], pos[wm, m, 1], reject_radius):
                     continue
                 color = paint_mover(color, p, px, m, wm, wr, wf, wrad, whs, pos, rot, flags, radii, half_sizes,
-                                    mover_colors, fixed_colors, shape_kind, footprint_half, margin, reject_radius, style)
+                                    mover_colors, fixed_colors, shape_kind, footprint_half, margin, reject_radius,
+                                    style, wst, state, state_colors, min_dot)
             if has_goals:
                 for m in range(num_movers):
                     if m < 31 and ((band >> m) & 1) == 0:

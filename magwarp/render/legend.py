@@ -15,7 +15,11 @@ ROW_PX = 18  # height of one row of legend items
 FONT_PX = 11
 
 
-def _items(objects: bool, obstacles: bool):
+STATE_LABELS = {"moving": "moving", "idle": "idle (stuck away from goal)", "collided": "collided",
+                "carrying": "carrying a job", "waiting": "waiting to respawn"}
+
+
+def _items(objects: bool, obstacles: bool, states=None):
     c = {k: np.asarray(v) / 255.0 for k, v in {
         "tile": colors.TILE, "hole": colors.HOLE, "mover": colors.mover_color(0), "red": colors.COLLISION,
         "object": colors.OBJECT, "goal_area": colors.OBJECT_GOAL, "obstacle": colors.OBSTACLE,
@@ -27,6 +31,11 @@ def _items(objects: bool, obstacles: bool):
         (("goal (mover's colour)", "goal"), "goal", c),
         (("missing tile", "no tile"), "hole", c),
     ]
+    if states:  # big swarms: movers coloured by state (colors.STATE_NAMES); goals keep the mover index colours
+        for name in states:
+            c[f"state_{name}"] = np.asarray(colors.STATE_PALETTE[colors.STATE_NAMES.index(name)]) / 255.0
+        items = [((STATE_LABELS[name], name), f"state_{name}", c) for name in states] + [
+            (("goal", "goal"), "goal", c), (("missing tile", "no tile"), "hole", c)]
     if objects:
         items += [(("object", "object"), "object", c), (("object goal", "obj. goal"), "object_goal", c)]
     if obstacles:
@@ -38,7 +47,9 @@ def _swatch(ax, kind: str, x: float, y: float, s: float, c) -> None:
     from matplotlib.patches import Circle, Rectangle
 
     h = s / 2
-    if kind == "mover":
+    if kind.startswith("state_"):
+        ax.add_patch(Rectangle((x + h * 0.4, y - h * 0.6), h * 1.2, h * 1.2, color=c[kind]))
+    elif kind == "mover":
         ax.add_patch(Rectangle((x, y - h), s, s, color=c["mover"], ec=c["mover"] * 0.6, lw=1))
         ax.plot([x + h, x + s - 2], [y, y], color="white", lw=1.2)
     elif kind == "zone":
@@ -58,14 +69,15 @@ def _swatch(ax, kind: str, x: float, y: float, s: float, c) -> None:
         ax.add_patch(Rectangle((x, y - h), s, s, fc=c["obstacle"], ec="black", lw=1))
 
 
-def legend_strip(width: int, *, objects: bool = False, obstacles: bool = False) -> np.ndarray:
-    """A ``uint8 [h, width, 3]`` colour key, wrapped onto as many rows as ``width`` needs."""
+def legend_strip(width: int, *, objects: bool = False, obstacles: bool = False, states=None) -> np.ndarray:
+    """A ``uint8 [h, width, 3]`` colour key, wrapped onto as many rows as ``width`` needs. ``states``: names of
+    :data:`colors.STATE_NAMES` when movers are coloured by state (big swarms)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     swatch, gap = 12, 10
     # Flow the items into rows (approximate text widths: ~0.6 em per character); short labels on narrow frames.
-    long_items = _items(objects, obstacles)
+    long_items = _items(objects, obstacles, states)
     short = any(swatch + 4 + len(label[0]) * FONT_PX * 0.6 + gap > width for label, _, _ in long_items)
     items = [(label[1] if short else label[0], kind, c) for label, kind, c in long_items]
     widths = [swatch + 4 + int(len(label) * FONT_PX * 0.6) + gap for label, _, _ in items]

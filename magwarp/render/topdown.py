@@ -3,6 +3,9 @@
 Usage::
 
     r = TopDownRenderer(layout, mover, worlds=64, px_per_tile=24)     # 8 x 8 mosaic of worlds 0..63
+    big = TopDownRenderer(layout, mover, px_per_tile=2, safety_zone=False, heading=False, grid=False)
+    frame = big.draw(pos, flags=collided, state=state)                # 1000s of movers: a dot each, by state
+    zoom = TopDownRenderer(layout, mover, px_per_tile=48, window=(cx, cy, 1.0, 1.0))  # 1 m x 1 m around (cx, cy)
     frame = r.draw(pos, quat, flags=collision, goals=goals)          # torch uint8 [H, W, 3] on r.device
     png = r.draw_numpy(pos, quat)                                    # numpy copy
 
@@ -84,6 +87,12 @@ class TopDownRenderer:
         goal_radius: radius of the goal disc in metres (at least 2.5 pixels).
         grid, safety_zone, heading, goal_lines: toggle tile lines, collision-shape zone, yaw mark, mover->goal lines
             (``goal_lines=None``: on for up to 4 worlds, off in bigger mosaics where they are clutter).
+        window: ``(cx, cy, width, height)`` in metres: draw only this part of each world (a zoomed view at
+            ``px_per_tile``; the work per frame is the window's pixels). Default: the whole layout.
+        state_colors: RGB colours ``[S, 3]`` (0..255) of per-mover states, for ``draw(..., state=...)`` (default
+            :data:`colors.STATE_PALETTE`: moving, idle, collided, carrying, waiting).
+        min_mover_px: a mover whose footprint is narrower than a few pixels is drawn as a plain square of at least
+            this half width in pixels (default 1: 2 x 2 pixels), so that whole-world views of big swarms stay legible.
         device: Warp device, name or ``torch.device`` (default: Warp's preferred device); inputs are moved to it.
     """
 
@@ -102,14 +111,19 @@ class TopDownRenderer:
         safety_zone: bool = True,
         heading: bool = True,
         goal_lines: bool | None = None,
+        window: Sequence[float] | None = None,
+        state_colors=None,
+        min_mover_px: float = 1.0,
         device=None,
     ):
         if not isinstance(layout, Layout):
             raise TypeError(f"layout must be a magwarp.layout.Layout, got {type(layout).__name__}")
         self.layout = layout
         self.mover = mover if mover is not None else MoverSpec()
-        if int(px_per_tile) < 4:
-            raise ValueError(f"px_per_tile must be >= 4, got {px_per_tile}")
+        if int(px_per_tile) < 1:
+            raise ValueError(f"px_per_tile must be >= 1, got {px_per_tile}")
+        if not (math.isfinite(min_mover_px) and min_mover_px >= 0):
+            raise ValueError(f"min_mover_px must be a number >= 0, got {min_mover_px!r}")
         if int(border_px) < 0:
             raise ValueError(f"border_px must be >= 0, got {border_px}")
         self.device = warp_device(device)
@@ -118,7 +132,15 @@ class TopDownRenderer:
         self.px_per_m = self.px_per_tile / layout.tile.size
         self.border = int(border_px)
         nx, ny = layout.shape
-        self.cell_w, self.cell_h = nx * self.px_per_tile, ny * self.px_per_tile
+        self.window = self._check_window(window)
+        if self.window is None:
+            self.origin = (0.0, 0.0)
+            self.cell_w, self.cell_h = nx * self.px_per_tile, ny * self.px_per_tile
+        else:
+            cx, cy, ww, wh = self.window
+            self.origin = (cx - 0.5 * ww, cy - 0.5 * wh)
+            self.cell_w, self.cell_h = max(1, round(ww * self.px_per_m)), max(1, round(wh * self.px_per_m))
+        self.min_dot = float(min_mover_px) / self.px_per_m
         self.goal_radius = max(float(goal_radius), 2.5 / self.px_per_m)
         cell_worlds = np.arange(int(worlds)) if np.ndim(worlds) == 0 else np.asarray(worlds, dtype=np.int64).reshape(-1)
         if goal_lines is None:
@@ -151,6 +173,11 @@ class TopDownRenderer:
         # The kernels blend in 0..255 floats (no rescaling per pixel).
         self._fixed_colors = wp.array(np.asarray(fixed, dtype=np.float32), dtype=wp.vec3, device=dev)
         self._mover_colors = wp.array(np.asarray(colors.MOVER_PALETTE, dtype=np.float32), dtype=wp.vec3, device=dev)
+        states = np.asarray(colors.STATE_PALETTE if state_colors is None else state_colors, dtype=np.float32)
+        if states.ndim != 2 or states.shape[1] != 3 or len(states) == 0 or not np.all((states >= 0) & (states <= 255)):
+            raise ValueError(f"state_colors must be RGB colours [S, 3] in 0..255, got {states.tolist()}")
+        self.num_states = len(states)
+        self._state_colors = wp.array(states, dtype=wp.vec3, device=dev)
         parts = _pack_object_shapes(object_shapes)
         self.num_objects = parts.shape[0]
         self._parts = wp.array(parts, dtype=wp.vec4, device=dev)
@@ -161,8 +188,9 @@ class TopDownRenderer:
         col_cell, col_local = self._axis_tables(self.width, self.cell_w)
         self._row_cell = wp.array(row_cell, dtype=wp.int32, device=dev)
         self._col_cell = wp.array(col_cell, dtype=wp.int32, device=dev)
-        self._row_y = wp.array(((self.cell_h - row_local - 0.5) / self.px_per_m).astype(np.float32), device=dev)
-        self._col_x = wp.array(((col_local + 0.5) / self.px_per_m).astype(np.float32), device=dev)
+        x0, y0 = self.origin
+        self._row_y = wp.array((y0 + (self.cell_h - row_local - 0.5) / self.px_per_m).astype(np.float32), device=dev)
+        self._col_x = wp.array((x0 + (col_local + 0.5) / self.px_per_m).astype(np.float32), device=dev)
         self._background = wp.zeros((self.height, self.width, 3), dtype=wp.uint8, device=dev)
         wp.launch(
             K.draw_background,
@@ -193,6 +221,24 @@ class TopDownRenderer:
         idx = np.where((s < 0) | (local >= cell), -1, idx)
         return idx.astype(np.int32), local.astype(np.int32)
 
+    def _check_window(self, window) -> tuple[float, float, float, float] | None:
+        """``(cx, cy, width, height)`` metres, finite, positive sizes, overlapping the layout; None: no window."""
+        if window is None:
+            return None
+        try:
+            w = tuple(float(v) for v in window)
+        except (TypeError, ValueError):
+            raise ValueError(f"window must be (cx, cy, width, height) in metres, got {window!r}") from None
+        if len(w) != 4 or not all(math.isfinite(v) for v in w) or w[2] <= 0 or w[3] <= 0:
+            raise ValueError(f"window must be 4 finite numbers (cx, cy, width, height) with positive sizes (m), "
+                             f"got {window!r}")
+        sx, sy = (n * self.layout.tile.size for n in self.layout.shape)
+        if w[0] + 0.5 * w[2] <= 0 or w[0] - 0.5 * w[2] >= sx or w[1] + 0.5 * w[3] <= 0 or w[1] - 0.5 * w[3] >= sy:
+            raise ValueError(f"window {w} lies outside the layout (x in [0, {sx:g}], y in [0, {sy:g}] m)")
+        if w[2] * self.px_per_m * w[3] * self.px_per_m > 1 << 26:
+            raise ValueError(f"window {w} at {self.px_per_tile} px per tile is over 64 megapixels: lower px_per_tile")
+        return w
+
     def _reject_radius(self, radii_t, half_t, user_sizes: bool) -> float:
         """Radius around a mover's centre that holds everything drawn for it (+2 px), for the kernel's cheap reject.
 
@@ -210,7 +256,7 @@ class TopDownRenderer:
                 zone = float(radii_t.max()) + m if radii_t.numel() else 0.0
             else:
                 zone = float(torch.linalg.vector_norm(half_t + m, dim=-1).max()) if half_t.numel() else 0.0
-        radius = max(zone, foot) + 2.0 / self.px_per_m
+        radius = max(zone, foot, math.sqrt(2.0) * self.min_dot) + 2.0 / self.px_per_m
         if user_sizes:
             self._reject_cache = (key, radius)
         return radius
@@ -244,7 +290,9 @@ class TopDownRenderer:
         (pixel ``(r, c)`` covers ``[r, r+1) x [c, c+1)``; its centre is at ``(r + 0.5, c + 0.5)``)."""
         xy = np.asarray(xy, dtype=np.float64)
         r0, c0 = self.cell_origin(cell)
-        return np.stack([r0 + self.cell_h - xy[..., 1] * self.px_per_m, c0 + xy[..., 0] * self.px_per_m], axis=-1)
+        x0, y0 = self.origin
+        return np.stack([r0 + self.cell_h - (xy[..., 1] - y0) * self.px_per_m, c0 + (xy[..., 0] - x0) * self.px_per_m],
+                        axis=-1)
 
     # ------------------------------------------------------------------ drawing
     def draw(
@@ -260,6 +308,7 @@ class TopDownRenderer:
         object_goals=None,
         obstacles=None,
         object_shape=None,
+        state=None,
     ) -> torch.Tensor:
         """Draw one frame; returns the renderer's ``uint8 [H, W, 3]`` tensor on its device.
 
@@ -275,6 +324,8 @@ class TopDownRenderer:
             obstacles: static rectangles ``[K, 4|5]`` or ``[W, K, 4|5]``: (cx, cy, hx, hy[, yaw]).
             object_shape: which of the renderer's ``object_shapes`` each world's objects have, ints ``[W, O]`` (or
                 ``[W]`` for one object); default: object ``o`` has shape ``o``. Lets worlds differ (size variants).
+            state: per-mover states ``[W, M]``, ints indexing ``state_colors``: each mover is drawn in its state's
+                colour instead of its index colour (big swarms: moving, idle, collided, ...).
         Any per-world array may omit W (or have W = 1) to be shared by all worlds.
         """
         dev, td = self.device, self.torch_device
@@ -319,6 +370,10 @@ class TopDownRenderer:
             if lo < 0 or hi >= self.num_objects:
                 raise ValueError(f"object_shape must index the renderer's {self.num_objects} object shapes, "
                                  f"got values from {lo} to {hi}")
+        if state is None:
+            state_t = torch.zeros((1, 0), dtype=torch.int32, device=td)
+        else:
+            state_t = per_world(state, trailing=(), name="state", device=td, dtype=torch.int32, num_items=num_movers)
         obj_t = self._object_poses(object_poses, "object_poses", num_worlds, shape_t.shape[1])
         objg_t = self._object_poses(object_goals, "object_goals", num_worlds, shape_t.shape[1])
         if obstacles is None:
@@ -338,11 +393,11 @@ class TopDownRenderer:
             wp.from_torch(radii_t), wp.from_torch(half_t), self._parts, wp.from_torch(shape_t.contiguous()),
             self._fixed_colors, self._mover_colors,
             float(self.goal_radius), int(self.style), float(self.layout.tile.size),
-            max(1, math.ceil(reject / self.layout.tile.size)),
+            max(1, math.ceil(reject / self.layout.tile.size)), self._state_colors, float(self.min_dot),
             wp.from_torch(pos_t), wp.from_torch(rot_t), wp.from_torch(flags_t), wp.from_torch(goals_t),
-            wp.from_torch(obj_t), wp.from_torch(objg_t), wp.from_torch(obst_t), *bins,
+            wp.from_torch(obj_t), wp.from_torch(objg_t), wp.from_torch(obst_t), wp.from_torch(state_t), *bins,
         ]
-        self._keep = (pos_t, rot_t, flags_t, radii_t, half_t, goals_t, obj_t, objg_t, obst_t, shape_t)
+        self._keep = (pos_t, rot_t, flags_t, radii_t, half_t, goals_t, obj_t, objg_t, obst_t, shape_t, state_t)
         if self.device.is_cuda:
             # Launch on torch's current stream so the frame is ordered with the caller's torch work.
             with wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(td))):

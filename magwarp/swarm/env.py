@@ -25,6 +25,11 @@ Per env step (``num_cycles`` control cycles at 1 ms, each mover's x/y command he
 * material flow (``stations``): goals are pick-up and drop-off stations in turn; each delivery completes a job
   (``info["job_done"]``, ``info["jobs"]``; the observation gains a carrying flag). Many movers may head for one
   station: queues form as on a real line;
+* ``info["collided"]``: the movers that collided during the step (mover or wall; not those waiting to respawn);
+  with a tracker attached (``magwarp.metrics.Metrics(env)``, as ``magwarp eval`` does) ``info["metrics"]`` holds
+  its per-world counters;
+* rendering (``render_mode="rgb_array"``): the whole world or a window of it, movers coloured by state, legible at
+  thousands of movers (:meth:`SwarmEnv.set_render_view`, :mod:`magwarp.render.swarm`);
 * truncation: after ``max_episode_steps`` steps (default None: worlds run on; goals stream, collided movers respawn).
 
 Starts and goals are drawn by :class:`~magwarp.swarm.Placer` on the device (O(movers)). ``reset()`` checks that
@@ -48,7 +53,6 @@ import warp as wp
 
 from magwarp._checks import as_count, warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.trajectory import TrajectoryPlanningEnv
 from magwarp.kernels.swarm import stop_collided
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.sim import Simulator
@@ -153,6 +157,8 @@ class SwarmConfig:
 class SwarmEnv(MagwarpVecEnv):
     """Batched swarm env (see the module docstring). ``SwarmEnv(num_envs, config=None, **options)``."""
 
+    benchmark_metrics = None  # a magwarp.metrics tracker, fed once per step (magwarp eval)
+
     def __init__(self, num_envs: int = 1, config: SwarmConfig | None = None, *, device: str | None = None,
                  seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
                  check_inputs: bool = True, **options):
@@ -252,6 +258,8 @@ class SwarmEnv(MagwarpVecEnv):
         # NaN guard: a non-finite world is flagged (info["nonfinite"]), rewarded 0 and terminated (with respawns and
         # no time limit, worlds never end: it stays flagged)
         reward, terminated = self._guard_nonfinite(obs, reward, terminated, info, action)
+        if self.benchmark_metrics is not None:
+            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
         if self.autoreset and self._can_end:
             done = terminated | truncated
             info["final_obs"] = obs
@@ -295,6 +303,8 @@ class SwarmEnv(MagwarpVecEnv):
         self.goal_pending.copy_(torch.where(movers, goal_left, self.goal_pending))
         self.num_steps.masked_fill_(mask, 0)
         self.collected_goals.masked_fill_(mask[:, None], 0)
+        if self.benchmark_metrics is not None:
+            self.benchmark_metrics.episode_reset(mask)
 
     def _apply_action(self, action: torch.Tensor) -> None:
         # stopped movers (pending respawns) ignore their command; the stop hook keeps them still
@@ -337,7 +347,7 @@ class SwarmEnv(MagwarpVecEnv):
             truncated = (self.num_steps + 1 >= self.max_episode_steps) & ~terminated
         info = {"agent_reward": agent_reward, "mover_collision": mover_col, "wall_collision": wall_col,
                 "agent_terminated": collided if cfg.on_collision == "respawn" else collided | terminated[:, None],
-                "goal_reached": reached}
+                "goal_reached": reached, "collided": collided}
         if self.stations is not None:
             info["job_done"] = reached & self.carrying
         return reward, terminated, truncated, info
@@ -377,5 +387,46 @@ class SwarmEnv(MagwarpVecEnv):
         self.stopped.masked_fill_(placed, 0)
         self.respawn_pending.copy_(left & want)
 
-    # top-down frames of the first worlds, movers, collisions and goals: the trajectory env's drawing serves as is
-    _render_frame = TrajectoryPlanningEnv._render_frame
+    def scripted_policy(self):
+        """The scripted ORCA planner (:class:`~magwarp.swarm.SwarmPlanner`) as a policy: ``action = policy(obs)``."""
+        from magwarp.swarm.planner import SwarmPlanner
+
+        return SwarmPlanner(self)
+
+    # ------------------------------------------------------------------ rendering
+    def set_render_view(self, *, window=None, px_per_tile: int | None = None, max_image_px: int = 1024) -> None:
+        """How ``render()`` draws (:mod:`magwarp.render.swarm`): the whole world (default) or ``window``
+        ``(cx, cy, width, height)`` m of it, at ``px_per_tile`` (default: the most that keeps the image within
+        ``max_image_px``, up to 48). Movers are coloured by state (moving, idle, collided, carrying, waiting);
+        below 12 pixels per tile they are dots of at least 2 x 2 pixels; goals are drawn from 24 pixels per tile on.
+        Checked here (a bad window raises)."""
+        self._render_view = {"window": window, "px_per_tile": px_per_tile, "max_image_px": max_image_px}
+        self._renderer = self._make_renderer()
+
+    @property
+    def render_states(self) -> tuple[str, ...]:
+        """The mover states ``render()`` colours (names of :data:`magwarp.render.colors.STATE_NAMES`)."""
+        from magwarp.render.colors import STATE_NAMES
+
+        return tuple(n for n in STATE_NAMES if n != "carrying" or self.stations is not None)
+
+    def _make_renderer(self):
+        from magwarp.render.swarm import swarm_renderer
+
+        view = getattr(self, "_render_view", None) or {}
+        worlds = getattr(self, "_render_worlds", None) or 1
+        renderer, self._render_goals = swarm_renderer(self.layout, self.sim.mover, worlds=worlds,
+                                                       device=self.sim.device, **view)
+        return renderer
+
+    def _render_frame(self) -> torch.Tensor:
+        from magwarp.render.swarm import mover_states
+
+        if getattr(self, "_renderer", None) is None:
+            self._renderer = self._make_renderer()
+        sim = self.sim
+        collided = sim.flags_any != 0
+        state = mover_states(sim.vel, sim.pos, self.goals, collided, self.carrying if self.stations is not None
+                             else None, self.respawn_pending, self.config.threshold_pos)
+        return self._renderer.draw(sim.pos, sim.quat, flags=sim.flags_any, radii=sim.radii, half_sizes=sim.half_sizes,
+                                   goals=self.goals if self._render_goals else None, state=state)

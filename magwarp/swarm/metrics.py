@@ -24,59 +24,44 @@ __all__ = ["SwarmMetrics", "run_policy"]
 
 
 class SwarmMetrics:
-    """Tracks the metrics of a :class:`SwarmEnv`; call :meth:`update` with each step's ``info``."""
+    """Tracks the metrics of a :class:`SwarmEnv`; call :meth:`update` with each step's ``info``. The counting is
+    :class:`~magwarp.metrics.swarm.SwarmTaskMetrics` (what ``magwarp eval`` reports per repeat), here summed over
+    every world, with the makespan of the first goal."""
 
     def __init__(self, env: SwarmEnv, *, deadlock_steps: int = 25, stuck_speed: float = 0.05):
-        if int(deadlock_steps) < 1 or not stuck_speed > 0:
-            raise ValueError(f"deadlock_steps must be >= 1 and stuck_speed > 0, got {deadlock_steps!r}, "
-                             f"{stuck_speed!r}")
+        from magwarp.metrics.swarm import SwarmTaskMetrics
+
         self.env = env
-        self.deadlock_steps, self.stuck_speed = int(deadlock_steps), float(stuck_speed)
-        self.step_time = env.num_cycles * float(env.sim.model.limits.dt)
-        n, m, dev = env.num_envs, env.num_movers, env.device
-        self.goals = torch.zeros(n, m, dtype=torch.int64, device=dev)
-        self.jobs = torch.zeros(n, m, dtype=torch.int64, device=dev)
-        self.collisions = torch.zeros(n, m, dtype=torch.int64, device=dev)
-        self.stuck = torch.zeros(n, m, dtype=torch.int64, device=dev)
-        self.first_goal_step = torch.full((n, m), -1, dtype=torch.int64, device=dev)
+        self.tracker = SwarmTaskMetrics(env, 1, deadlock_steps=deadlock_steps, stuck_speed=stuck_speed, attach=False)
+        self.deadlock_steps, self.stuck_speed = self.tracker.deadlock_steps, self.tracker.stuck_speed
+        self.step_time = self.tracker.step_time
         self.steps = 0
 
     def reset(self) -> None:
-        for t in (self.goals, self.jobs, self.collisions, self.stuck):
-            t.zero_()
-        self.first_goal_step.fill_(-1)
+        self.tracker.reset()
         self.steps = 0
 
     def update(self, info: dict) -> None:
-        env = self.env
         self.steps += 1
-        reached = info["goal_reached"]
-        self.goals += reached
-        self.collisions += info["agent_terminated"]
-        if "job_done" in info:
-            self.jobs += info["job_done"]
-        first = (self.first_goal_step < 0) & reached
-        self.first_goal_step.masked_fill_(first, self.steps)
-        speed = env.sim.vel[..., :2].norm(dim=-1)
-        away = (env.goals - env.sim.pos[..., :2]).norm(dim=-1) > env.config.threshold_pos
-        stuck = (speed < self.stuck_speed) & away & ~env.respawn_pending
-        self.stuck.copy_(torch.where(stuck, self.stuck + 1, 0))
+        none = torch.zeros(self.env.num_envs, dtype=torch.bool, device=self.env.device)
+        self.tracker.on_step(None, info, none, none)
 
     def result(self) -> dict:
         """The metrics over every world (one host synchronisation)."""
         n, m = self.env.num_envs, self.env.num_movers
+        s = {k: float(v) for k, v in self.tracker.summary(1).items()}
         seconds = self.steps * self.step_time
-        goals = int(self.goals.sum())
-        collisions = int(self.collisions.sum())
-        done = self.first_goal_step.min() >= 0 if self.steps else False
-        makespan = float(self.first_goal_step.max()) * self.step_time if done else math.nan
+        goals, collisions, jobs = int(s["goals"]), int(s["collisions"]), int(s["jobs"])
+        first = self.tracker.t["nth_goal_step"]
+        done = bool(first.min() >= 0) if self.steps else False
+        makespan = float(first.max()) * self.step_time if done else math.nan
         throughput = goals / (seconds * n) if seconds else 0.0  # per world
         return {
             "worlds": n, "movers": m, "steps": self.steps, "seconds": seconds, "goals": goals,
             "throughput": throughput, "throughput_per_mover": throughput / m, "collisions": collisions,
             "collisions_per_1000_goals": 1000.0 * collisions / goals if goals else math.inf if collisions else 0.0,
-            "deadlocked": int((self.stuck >= self.deadlock_steps).sum()), "makespan": makespan,
-            "jobs": int(self.jobs.sum()), "jobs_per_s": int(self.jobs.sum()) / (seconds * n) if seconds else 0.0,
+            "deadlocked": int(round(s["deadlocked"] * n)), "makespan": makespan,
+            "jobs": jobs, "jobs_per_s": jobs / (seconds * n) if seconds else 0.0,
         }
 
 
