@@ -19,6 +19,8 @@ import numpy as np
 import pytest
 import torch
 
+import magwarp  # noqa: F401 - registers the env ids (a -k selection may run no other test that imports it)
+
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, Phase, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
