@@ -55,6 +55,8 @@ def test_latency_delays_commands_by_exactly_k_cycles(path, control, rng):
             ref.reset(mask)
             prev = torch.where(mask[:, None, None], 0.0, prev)
     assert len(sim._graphs) == 1, "one graph per step"
+    dump = sim.state_arrays([3])
+    assert dump["latency_cycles"].tolist() == [6] and np.array_equal(dump["prev_cmd"], sim.prev_cmd[3:4].numpy())
 
 
 def test_latency_zero_steps_bit_for_bit_and_can_be_turned_off(rng):
