@@ -299,11 +299,13 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         })
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """See :meth:`MagwarpVecEnv.reset`; the sensor model remembers the returned readings (for dropped ones)."""
         obs, info = super().reset(seed=seed, options=options)
         self.sensors.commit(obs)
         return obs, info
 
     def step(self, action):
+        """See :meth:`MagwarpVecEnv.step`; the sensor model remembers the returned readings (for dropped ones)."""
         out = super().step(action)
         self.sensors.commit(out[0])
         return out
