@@ -6,7 +6,8 @@ every world as a single Warp graph replay, on CPU or GPU. State is exposed zero-
 Launch shapes (see :mod:`magwarp.kernels.step`): small worlds run *fused*, one thread per world for all cycles (with
 the whole world in registers up to ``REGISTER_MAX_MOVERS`` movers); larger worlds run two or three kernels per cycle,
 with a uniform-grid broad phase above 32 movers. Per-cycle hooks (e.g. metrics) force the per-cycle shape so that they
-can run between cycles, still inside the same graph.
+can run between cycles, still inside the same graph. Action latency (:meth:`Simulator.set_latency`, per-world delays
+of whole cycles) runs inside the same kernels, compiled in only once it is turned on.
 """
 
 from __future__ import annotations
@@ -176,11 +177,12 @@ class Simulator:
         # NaN guard: a device step counter and, per world, the step at which its state first held a NaN/inf (-1: none).
         self._steps = wp.zeros(1, dtype=wp.int32, device=self.device)
         self._nonfinite = wp.full(self.num_worlds, -1, dtype=wp.int32, device=self.device)
-        force_model = force_model or default_force
-        self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(force_model)
-        if m <= REGISTER_MAX_MOVERS:
-            # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
-            self._fused_kernel = kstep.make_register_kernel(force_model, m)
+        self._force_model = force_model or default_force
+        # Action latency (set_latency): off until asked for; the kernels then take these placeholders.
+        self._latency_bound: int | None = None
+        self._prev_cmd = wp.zeros((1, 1), dtype=wp.vec2, device=self.device)
+        self._delay = wp.zeros(1, dtype=wp.int32, device=self.device)
+        self._build_kernels()
 
         # Start poses live on the device so that resets are a kernel, not a host round trip.
         self._init_pos = wp.zeros((self.num_worlds, m), dtype=wp.vec3, device=self.device)
@@ -192,6 +194,14 @@ class Simulator:
             self._raise_on_start_collisions()
 
     # ------------------------------------------------------------------ construction helpers
+    def _build_kernels(self) -> None:
+        latency = self._latency_bound is not None
+        self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(self._force_model, latency)
+        if self.num_movers <= REGISTER_MAX_MOVERS:
+            # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
+            self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency)
+        self._graphs.clear()
+
     def _start_arrays(self, num_movers, start_xy, start_yaw, start_pose=None) -> np.ndarray:
         """Start poses ``(W, M, 6)`` (x, y, z, roll, pitch, yaw) from ``start_pose`` or from ``start_xy`` /
         ``start_yaw`` (z = hover height, level), each shared by all worlds or per world; refuses NaN/inf naming the
@@ -403,6 +413,78 @@ class Simulator:
         value = self._check_tensor("command", cmd, (self.num_worlds, self.num_movers, 2))
         self.cmd.copy_(value)
 
+    def set_latency(self, cycles, *, bound: int | None = None) -> None:
+        """Action latency. In world ``w``, a command set before a step (:meth:`set_command`, ``step(cmd=...)``) takes
+        effect ``cycles[w]`` control cycles after the step starts: during the step's first ``cycles[w]`` cycles the
+        previous step's command still acts (zero after a reset). ``cycles``: one integer for every world, or ``[W]``
+        integers (host data, or a tensor on any device: read once on the host to check it, outside any step).
+        ``None`` turns latency off again.
+
+        Exact for ``0 <= cycles[w] <= n`` in every later ``step(n)``, which refuses a shorter step (a command delayed
+        past the issue of the next one would need a queue of commands). ``bound`` (default: the largest of
+        ``cycles``) is the largest delay the worlds will hold: code that redraws the delays on the device (writing
+        into :attr:`latency_cycles`, e.g. at resets, with no host round trip) declares its range here.
+
+        Turning latency on builds the step kernels with it compiled in (one compile per kernel) and starts every
+        world's previous command at its current one; delays of 0 then step bit for bit as without latency.
+        """
+        if cycles is None:
+            if self._latency_bound is not None:
+                self._latency_bound = None
+                self._prev_cmd = wp.zeros((1, 1), dtype=wp.vec2, device=self.device)
+                self._delay = wp.zeros(1, dtype=wp.int32, device=self.device)
+                self._build_kernels()
+            return
+        delays = self._check_delays(cycles)
+        top = int(delays.max())
+        if bound is not None:
+            bound = as_count(bound, "latency bound", minimum=0)
+            if bound < top:
+                raise ValueError(f"latency bound must be at least the largest delay given ({top}), got {bound!r}")
+        bound = top if bound is None else bound
+        if self._latency_bound is None:
+            # filled by torch copies below, on torch's stream like every other write into the state
+            self._prev_cmd = wp.empty((self.num_worlds, self.num_movers), dtype=wp.vec2, device=self.device)
+            self._t(self._prev_cmd).copy_(self.cmd)
+            self._delay = wp.empty(self.num_worlds, dtype=wp.int32, device=self.device)
+            self._latency_bound = bound
+            self._build_kernels()
+        self._latency_bound = bound
+        self._t(self._delay).copy_(torch.as_tensor(delays, dtype=torch.int32))
+
+    def _check_delays(self, cycles) -> np.ndarray:
+        """Latency delays as ``[W]`` int64 on the host; refuses non-integers, negatives and wrong shapes, naming
+        them."""
+        if isinstance(cycles, torch.Tensor):
+            cycles = cycles.detach().cpu().numpy()
+        if np.ndim(cycles) == 0:
+            return np.full(self.num_worlds, as_count(cycles.item() if isinstance(cycles, np.ndarray) else cycles,
+                                                     "latency cycles", minimum=0), dtype=np.int64)
+        arr = np.asarray(cycles)
+        if arr.shape != (self.num_worlds,):
+            raise ValueError(f"latency cycles must be one integer or {self.num_worlds} (one per world), got shape "
+                             f"{arr.shape}")
+        for w, value in enumerate(arr.tolist()):
+            as_count(value, f"latency cycles of world {w}", minimum=0)
+        return arr.astype(np.int64)
+
+    @property
+    def latency_cycles(self) -> torch.Tensor | None:
+        """``[W]`` int32 per-world action delays (cycles) on the device, or None without latency
+        (:meth:`set_latency`). Writes into it are not checked: keep them within ``[0, latency_bound]``."""
+        return None if self._latency_bound is None else self._t(self._delay)
+
+    @property
+    def latency_bound(self) -> int | None:
+        """The largest delay the worlds may hold (every step must run at least this many cycles); None: no latency."""
+        return self._latency_bound
+
+    @property
+    def prev_cmd(self) -> torch.Tensor | None:
+        """``[W, M, 2]`` the command acting during a step's delayed cycles (the previous step's), or None without
+        latency."""
+        return None if self._latency_bound is None else self._t(self._prev_cmd)
+
     def set_targets(self, yaw=None, z=None) -> None:
         """Set the impedance targets: heading ``[W, M]`` (rad) and/or hover height ``[W, M]`` (m)."""
         shape = (self.num_worlds, self.num_movers)
@@ -457,6 +539,8 @@ class Simulator:
             self._t(self._reset_mask).copy_(mask.to(torch.int32))
         nonfinite = self._t(self._nonfinite)
         nonfinite.copy_(torch.where(self._t(self._reset_mask).bool(), torch.full_like(nonfinite, -1), nonfinite))
+        if self._latency_bound is not None:  # reset worlds start at rest: their previous command is zero
+            self.prev_cmd.masked_fill_(self._t(self._reset_mask).bool()[:, None, None], 0.0)
         s = self.state
         with self._on_stream():
             wp.launch(
@@ -516,6 +600,9 @@ class Simulator:
         out = {name: self._t(arr).cpu().numpy()[idx] for name, arr in vars(self.state).items()
                if isinstance(arr, wp.array) and arr.shape[0] == self.num_worlds}
         out["nonfinite_step"] = self.nonfinite_step.cpu().numpy()[idx]
+        if self._latency_bound is not None:
+            out["prev_cmd"] = self.prev_cmd.cpu().numpy()[idx]
+            out["latency_cycles"] = self.latency_cycles.cpu().numpy()[idx]
         out["world"] = idx
         return out
 
@@ -549,6 +636,9 @@ class Simulator:
     def step(self, num_cycles: int = 1, cmd=None) -> None:
         """Advance every world ``num_cycles`` control cycles (optionally setting the command first)."""
         n = as_count(num_cycles, "num_cycles")
+        if self._latency_bound is not None and n < self._latency_bound:
+            raise ValueError(f"num_cycles={n} is shorter than the action latency's bound of {self._latency_bound} "
+                             "cycles (set_latency): a step must last at least as long as its longest delay")
         if cmd is not None:
             self.set_command(cmd)
         with self._on_stream():
@@ -599,21 +689,24 @@ class Simulator:
             wp.launch(
                 self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
                 inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd,
-                        s.target_pos, s.target_quat, s.force_aux, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar,
-                        s.wall, s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles,
-                        s.pair_list],
+                        self._delay, s.target_pos, s.target_quat, s.force_aux, self._prev_cmd, s.pos, s.quat, s.vel,
+                        s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any, s.partner, s.world_pairs,
+                        s.world_walls, s.halted, s.cycles, s.pair_list],
             )
             return
         wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
-        for _ in range(n):
+        for c in range(n):
             for hook in self._pre_hooks:
                 hook(self)
-            self._launch_cycle()
+            self._launch_cycle(c)
             for hook in self._hooks:
                 hook(self)
+        if self._latency_bound is not None:
+            wp.launch(kstep.hold_commands, dim=(W, M), inputs=[s.cmd, self._prev_cmd], device=dev)
 
-    def _launch_cycle(self) -> None:
-        """One cycle on the per-cycle path: integrate (+ bin into the grid), then detect. Two or three launches."""
+    def _launch_cycle(self, c: int) -> None:
+        """Cycle ``c`` of a step on the per-cycle path: integrate (+ bin into the grid), then detect. Two or three
+        launches."""
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
         use_grid = M > 32
@@ -623,9 +716,9 @@ class Simulator:
         head, nxt = (self._cell_head, self._next_in_cell) if use_grid else (self._no_cells, self._no_next)
         wp.launch(
             self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
-            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, s.target_pos,
-                    s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall,
-                    s.cycles, m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
+            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, self._prev_cmd,
+                    self._delay, c, s.target_pos, s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel,
+                    s.omega, s.acc, s.planar, s.wall, s.cycles, m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
         )
         self._launch_narrow_phase()
 

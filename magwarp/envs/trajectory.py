@@ -12,8 +12,13 @@ Every mover has a goal. Per env step (``num_cycles`` control cycles at 1 ms, the
 * reached goals are resampled after the reward is computed, so the returned observation still shows the goal the
   reward was computed for (consistent for hindsight relabelling); the new goal appears from the next step on.
 
+Sim2real options (:mod:`magwarp.envs.sim2real`): ``actuation=ActuationConfig(...)`` delays actions by ``k`` control
+cycles per world (fixed or drawn at resets), ``sensors=SensorConfig(...)`` adds per-world bias, white noise and
+dropped readings to the observed positions and velocities; ``num_cycles`` is the zero-order hold at the PLC's rate.
+
 Differences from MagBotSim, on purpose: observations are float32 and noise-free unless ``std_noise`` > 0 (MagBotSim's
-default adds 1e-5 to positions and velocities); an action outside the action space
+default adds 1e-5 to positions and velocities; ``std_noise=s`` is ``SensorConfig(pos_noise_std=s,
+vel_noise_std=s)``); an action outside the action space
 is not box-clipped (its norm is clipped by the mover's acceleration/jerk limit, the physical rule).
 """
 
@@ -30,6 +35,7 @@ from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.sampling import PoseSampler
+from magwarp.envs.sim2real import ActuationConfig, Latency, SensorConfig, SensorModel
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
 
@@ -70,6 +76,11 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
     per episode rarely meets the start states (all movers at rest, three fresh goals), which the benchmark's 10 s runs
     begin with. The benchmark metrics count a goal pending at this cut as neither reached nor failed (as at the end
     of an evaluation run); a collision or a timeout fails it.
+
+    ``actuation`` (:class:`~magwarp.envs.sim2real.ActuationConfig`: action latency) and ``sensors``
+    (:class:`~magwarp.envs.sim2real.SensorConfig`: bias, noise and dropped readings; not together with
+    ``std_noise``) are the sim2real models of :mod:`magwarp.envs.sim2real`. The per-world state they draw is in
+    ``env.sim.latency_cycles`` and ``env.sensors.pos_bias`` / ``vel_bias``.
 
     Chosen episodes (e.g. a MagBotSim episode replayed): ``reset(seed=..., options={...})`` with any of
 
@@ -112,6 +123,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         timeout_steps: int | None = 50,
         max_episode_steps: int | None = None,
         std_noise: float = 0.0,
+        actuation: ActuationConfig | dict | None = None,
+        sensors: SensorConfig | dict | None = None,
         device: str | None = None,
         seed: int | None = None,
         render_mode: str | None = None,
@@ -171,8 +184,15 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.learn_jerk = learn_jerk
         if not (np.isfinite(std_noise) and std_noise >= 0):
             raise ValueError(f"std_noise must be a non-negative number, got {std_noise!r}")
+        if sensors is not None and std_noise != 0:
+            raise ValueError(f"give std_noise or sensors, not both (got std_noise={std_noise!r}; it is "
+                             "SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise))")
         self.std_noise = float(std_noise)
         self.num_cycles = int(num_cycles)
+        if sensors is None:
+            sensors = SensorConfig(pos_noise_std=self.std_noise, vel_noise_std=self.std_noise)
+        self.sensors = SensorModel(sensors, self.num_envs, int(num_movers), self.device, self._generator)
+        self.latency = Latency(actuation, self.sim, self.num_cycles, self._generator)
         self.threshold_pos = float(threshold_pos)
         self.reward_success = float(reward_success)
         self.reward_collision = float(reward_collision)
@@ -235,6 +255,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.num_steps.copy_(torch.where(mask, zero, self.num_steps))
         self.last_goal_step.copy_(torch.where(mask, zero, self.last_goal_step))
         self.collected_goals.masked_fill_(mask[:, None], 0)
+        self.latency.reset(mask)
+        self.sensors.reset(mask)
         if self.benchmark_metrics is not None:
             self.benchmark_metrics.episode_reset(mask)
 
@@ -263,17 +285,30 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
 
     def _apply_action(self, action: torch.Tensor) -> None:
         self.sim.step(self.num_cycles, action.view(self.num_envs, self.num_movers, 2))
+        self.sensors.new_step()
 
     def _get_obs(self) -> dict[str, torch.Tensor]:
         n = self.num_envs
-        obs = self._noisy(self.sim.vel[..., :2].reshape(n, -1), self.std_noise)
+        pos, obs = self.sensors.read(self.sim.pos[..., :2], self.sim.vel[..., :2])
         if self.learn_jerk:
             obs = torch.cat([obs, self.sim.acc.reshape(n, -1)], dim=1)
-        return {
+        return self.sensors.hold({
             "observation": obs.clone(),
-            "achieved_goal": self._noisy(self.sim.pos[..., :2].reshape(n, -1), self.std_noise).clone(),
+            "achieved_goal": pos.clone(),
             "desired_goal": self.goals.reshape(n, -1).clone(),
-        }
+        })
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """See :meth:`MagwarpVecEnv.reset`; the sensor model remembers the returned readings (for dropped ones)."""
+        obs, info = super().reset(seed=seed, options=options)
+        self.sensors.commit(obs)
+        return obs, info
+
+    def step(self, action):
+        """See :meth:`MagwarpVecEnv.step`; the sensor model remembers the returned readings (for dropped ones)."""
+        out = super().step(action)
+        self.sensors.commit(out[0])
+        return out
 
     def _collisions(self) -> tuple[torch.Tensor, torch.Tensor]:
         flags = self.sim.flags_any

@@ -8,6 +8,9 @@ into the launch shapes the simulator uses.
 * :func:`make_register_kernel` — the same fused step with the whole world held in registers, specialised for a mover
   count: the fast shape for many small worlds (the RL regime).
 
+Action latency (per-world delays, :meth:`magwarp.sim.Simulator.set_latency`) is compiled in only when asked for
+(``latency=True``): without it the kernels take placeholder arguments they never read.
+
 All are built from a user-swappable force model (see :mod:`magwarp.kernels.impedance`), so a custom wrench law
 needs no fork of the kernels: pass another ``@wp.func`` with the same signature.
 """
@@ -29,8 +32,26 @@ from magwarp.types import (COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, I
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 
+@wp.func
+def delayed_command(
+    cmd: wp.array2d(dtype=wp.vec2), prev_cmd: wp.array2d(dtype=wp.vec2), delay: wp.array(dtype=wp.int32), w: int,
+    m: int, c: int,
+):
+    """Action latency: the command acting in cycle ``c`` of a step, the previous step's command during the world's
+    first ``delay[w]`` cycles, then the new one."""
+    if c < delay[w]:
+        return prev_cmd[w, m]
+    return cmd[w, m]
+
+
 @functools.cache
-def make_advance_kernel(force_fn=default_force):
+def make_advance_kernel(force_fn=default_force, latency: bool = False):
+    """The per-cycle kernel, the fused per-world kernel and the one-mover cycle function, for ``force_fn``.
+
+    ``latency`` compiles in the action latency (:meth:`magwarp.sim.Simulator.set_latency`): the kernels then read the
+    previous command ``prev_cmd`` during the first ``delay[w]`` cycles of a step, and the fused kernel copies the
+    command into ``prev_cmd`` at the end of the step. Without it these arguments are placeholders, never read."""
+
     @wp.func
     def advance_pose(
         p: Pose, xy: Planar64, cmd: wp.vec2, b: Body, target_pos: wp.vec3, target_quat: wp.quat,
@@ -64,6 +85,9 @@ def make_advance_kernel(force_fn=default_force):
         radius: wp.array(dtype=float),
         half_size: wp.array(dtype=wp.vec2),
         cmd: wp.array2d(dtype=wp.vec2),
+        prev_cmd: wp.array2d(dtype=wp.vec2),
+        delay: wp.array(dtype=wp.int32),
+        c: int,
         target_pos: wp.array2d(dtype=wp.vec3),
         target_quat: wp.array2d(dtype=wp.quat),
         force_aux: wp.array3d(dtype=float),
@@ -77,7 +101,10 @@ def make_advance_kernel(force_fn=default_force):
     ):
         p = make_pose(pos[w, m], quat[w, m], vel[w, m], omega[w, m])
         xy0 = sync_planar64(planar[w, m], p.pos, p.vel, acc[w, m])
-        n, a, xy = advance_pose(p, xy0, cmd[w, m], body[m], target_pos[w, m], target_quat[w, m], force_aux[w, m], lim,
+        u = cmd[w, m]
+        if wp.static(latency):
+            u = delayed_command(cmd, prev_cmd, delay, w, m, c)
+        n, a, xy = advance_pose(p, xy0, u, body[m], target_pos[w, m], target_quat[w, m], force_aux[w, m], lim,
                                 imp)
         pos[w, m] = n.pos
         quat[w, m] = n.quat
@@ -102,6 +129,9 @@ def make_advance_kernel(force_fn=default_force):
         half_size: wp.array(dtype=wp.vec2),
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
+        prev_cmd: wp.array2d(dtype=wp.vec2),  # latency only: the previous step's command
+        delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
+        cycle: int,  # latency only: this cycle's index in the step
         target_pos: wp.array2d(dtype=wp.vec3),
         target_quat: wp.array2d(dtype=wp.quat),
         force_aux: wp.array3d(dtype=float),
@@ -128,8 +158,8 @@ def make_advance_kernel(force_fn=default_force):
             world_pairs[w] = 0
             world_walls[w] = 0
         if col.stop_on_collision == 0 or halted[w] == 0:
-            advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, target_pos, target_quat,
-                          force_aux, pos, quat, vel, omega, acc, planar, wall)
+            advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, prev_cmd, delay, cycle,
+                          target_pos, target_quat, force_aux, pos, quat, vel, omega, acc, planar, wall)
             if m == 0:
                 cycles[w] = cycles[w] + 1
         if bin_cells == 1:  # halted worlds are binned too: the collision check still runs on them
@@ -148,10 +178,12 @@ def make_advance_kernel(force_fn=default_force):
         half_size: wp.array(dtype=wp.vec2),
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
+        delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
         target_pos: wp.array2d(dtype=wp.vec3),
         target_quat: wp.array2d(dtype=wp.quat),
         force_aux: wp.array3d(dtype=float),
         # State out:
+        prev_cmd: wp.array2d(dtype=wp.vec2),  # latency only: the previous step's command, then this step's
         pos: wp.array2d(dtype=wp.vec3),
         quat: wp.array2d(dtype=wp.quat),
         vel: wp.array2d(dtype=wp.vec3),
@@ -175,12 +207,12 @@ def make_advance_kernel(force_fn=default_force):
         cycles[w] = 0
         for m in range(num_movers):
             flags_any[w, m] = 0
-        for _c in range(num_cycles):
+        for c in range(num_cycles):
             if col.stop_on_collision == 1 and halted[w] == 1:
                 break
             for m in range(num_movers):
-                advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, target_pos, target_quat,
-                              force_aux, pos, quat, vel, omega, acc, planar, wall)
+                advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, prev_cmd, delay, c,
+                              target_pos, target_quat, force_aux, pos, quat, vel, omega, acc, planar, wall)
             cycles[w] = cycles[w] + 1
             # Brute-force pairs: each pair once, partner = lowest colliding index, same as the per-mover kernels.
             for m in range(num_movers):
@@ -215,20 +247,23 @@ def make_advance_kernel(force_fn=default_force):
             world_walls[w] = walls
             if pairs > 0 or walls > 0:
                 halted[w] = 1
+        if wp.static(latency):  # the next step's previous command
+            for m in range(num_movers):
+                prev_cmd[w, m] = cmd[w, m]
 
     return advance_movers, fused_worlds, advance_pose
 
 
 @functools.cache
-def make_register_kernel(force_fn, num_movers: int):
+def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
     """The fused small-world kernel with every mover's state held in registers for the whole step.
 
     Specialised for ``num_movers`` (loops over movers unroll), it reads the world's state once, runs all cycles and
     writes the state back once: global memory traffic no longer scales with the cycle count. Same semantics as
-    ``fused_worlds``.
+    ``fused_worlds``, action latency (``latency``) included.
     """
     M = int(num_movers)
-    advance_pose = make_advance_kernel(force_fn)[2]
+    advance_pose = make_advance_kernel(force_fn, latency)[2]
     Rows3 = wp.types.matrix(shape=(M, 3), dtype=wp.float32)
     Rows4 = wp.types.matrix(shape=(M, 4), dtype=wp.float32)
     Rows2 = wp.types.matrix(shape=(M, 2), dtype=wp.float32)
@@ -248,10 +283,12 @@ def make_register_kernel(force_fn, num_movers: int):
         half_size: wp.array(dtype=wp.vec2),
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
+        delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
         target_pos: wp.array2d(dtype=wp.vec3),
         target_quat: wp.array2d(dtype=wp.quat),
         force_aux: wp.array3d(dtype=float),
         # State out:
+        prev_cmd: wp.array2d(dtype=wp.vec2),  # latency only: the previous step's command, then this step's
         pos: wp.array2d(dtype=wp.vec3),
         quat: wp.array2d(dtype=wp.quat),
         vel: wp.array2d(dtype=wp.vec3),
@@ -280,10 +317,16 @@ def make_register_kernel(force_fn, num_movers: int):
         Fa = Ints()
         Pr = Ints()
         C = Rows2()  # the command and the targets hold for the whole step: load them once
+        Cp = Rows2()  # latency only: the previous command, acting for the first d cycles
+        held = int(0)
+        if wp.static(latency):
+            held = delay[w]
         TP = Rows3()
         TQ = Rows4()
         for m in range(M):
             C[m] = cmd[w, m]
+            if wp.static(latency):
+                Cp[m] = prev_cmd[w, m]
             TP[m] = target_pos[w, m]
             tq = target_quat[w, m]
             TQ[m] = wp.vec4(tq[0], tq[1], tq[2], tq[3])
@@ -302,12 +345,16 @@ def make_register_kernel(force_fn, num_movers: int):
         walls = world_walls[w]
         stopped = int(0)
         done = int(0)
-        for _c in range(num_cycles):
+        for c in range(num_cycles):
             if col.stop_on_collision == 1 and stopped == 1:
                 break
             for m in range(M):
                 p = make_pose(P[m], wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3]), V[m], Om[m])
-                n, a, xy = advance_pose(p, XY[m], C[m], body[m], TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
+                u = C[m]
+                if wp.static(latency):
+                    if c < held:
+                        u = Cp[m]
+                n, a, xy = advance_pose(p, XY[m], u, body[m], TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
                                         force_aux[w, m], lim, imp)
                 P[m] = n.pos
                 V[m] = n.vel
@@ -361,6 +408,8 @@ def make_register_kernel(force_fn, num_movers: int):
             flags[w, m] = F[m]
             flags_any[w, m] = Fa[m]
             partner[w, m] = Pr[m]
+            if wp.static(latency):  # the next step's previous command
+                prev_cmd[w, m] = C[m]
         world_pairs[w] = pairs
         world_walls[w] = walls
         halted[w] = stopped
@@ -379,6 +428,13 @@ def begin_step(
     if m == 0:
         halted[w] = 0
         cycles[w] = 0
+
+
+@wp.kernel
+def hold_commands(cmd: wp.array2d(dtype=wp.vec2), prev_cmd: wp.array2d(dtype=wp.vec2)):
+    """Action latency on the per-cycle path: at the end of a step its command becomes the previous one."""
+    w, m = wp.tid()
+    prev_cmd[w, m] = cmd[w, m]
 
 
 @wp.kernel

@@ -1,0 +1,245 @@
+"""Actuation and sensing models for sim2real (the trajectory-planning env's ``actuation=`` and ``sensors=`` options).
+
+* :class:`ActuationConfig`: **action latency**. With a delay of ``k`` control cycles (1 ms each) the action given to
+  ``env.step`` at step ``t`` takes effect ``k`` cycles after the step starts; during the step's first ``k`` cycles
+  the previous step's action still acts (zero after a reset). The delay is per world: one value for all, one per
+  world, or drawn uniformly from an integer range at every reset of a world (the env's generator). It runs inside
+  the simulator's step kernels (:meth:`magwarp.sim.Simulator.set_latency`): exact to the cycle, no host sync, one
+  graph per step. ``0 <= k <= num_cycles``: a longer delay would act after the next action is issued (it would need a
+  queue of actions) and is refused.
+* **Zero-order hold at the PLC's rate**: this is what ``num_cycles`` already is. An env step holds the action for
+  ``num_cycles`` cycles of 1 ms, i.e. the policy runs on a PLC task of period ``num_cycles`` ms and XPlanar's setpoint
+  is held between its calls. A hold of ``P`` cycles inside an env step of ``k * P`` cycles is the same as an env step
+  of ``P`` cycles with the action repeated ``k`` times, so there is no separate knob.
+* :class:`SensorConfig`: **sensor models** on the mover positions (``achieved_goal``) and velocities (the first
+  ``2 * num_movers`` entries of ``observation``): a per-world constant bias (per mover and axis, drawn at every reset
+  of a world from a Gaussian of mean ``pos_bias``/``vel_bias`` and std ``pos_bias_std``/``vel_bias_std``: std 0 sets
+  it), white Gaussian noise drawn every reading (``pos_noise_std``, ``vel_noise_std``), and dropped readings: with
+  probability ``dropout_prob`` per world per step, the env returns that world's previous ``observation`` and
+  ``achieved_goal`` again (whole entries, the accelerations of ``learn_jerk`` included; ``desired_goal`` is the env's
+  own goal, never dropped). The first reading of an episode is never dropped. Rewards, goal checks and metrics see
+  what the policy sees (as with MagBotSim's noise). The env's ``std_noise`` is ``SensorConfig(pos_noise_std=s,
+  vel_noise_std=s)``, with the same draws for the same seed.
+
+Everything runs on the env's device, seeded by its generator, with no host sync. A model draws only when it has
+something to draw (a latency range of more than one value, a bias std, noise, a dropout probability): with any of
+these on, the env's later draws (goals, starts) differ from an env without them for the same seed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+
+from magwarp._checks import as_count, check_finite
+
+__all__ = ["ActuationConfig", "SensorConfig", "Latency", "SensorModel", "as_config"]
+
+
+def as_config(cls, value, name: str):
+    """``value`` as a ``cls`` dataclass: an instance, a dict of its fields (JSON env kwargs, e.g.
+    ``--env-kwargs '{"actuation": {"latency_range": [0, 5]}}'``) or None (the defaults: no model)."""
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, dict):
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(str(k) for k in value if k not in known)
+        if unknown:
+            raise ValueError(f"{name} has unknown option(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        if isinstance(value.get("latency_range"), list):
+            value = {**value, "latency_range": tuple(value["latency_range"])}
+        return cls(**value)
+    raise TypeError(f"{name} must be a {cls.__name__}, a dict of its fields or None, got {value!r}")
+
+
+@dataclass(frozen=True)
+class ActuationConfig:
+    """Action latency (see the module docstring). ``latency_cycles``: one delay (control cycles) for every world, or
+    one per world (a sequence of ``num_envs`` integers); ``latency_range``: ``(low, high)`` (inclusive): every reset
+    of a world draws its delay uniformly from it (then ``latency_cycles`` must be left at 0). Delays must lie in
+    ``[0, num_cycles]``."""
+
+    latency_cycles: int | Sequence[int] = 0
+    latency_range: tuple[int, int] | None = None
+
+    def __post_init__(self):
+        if np.ndim(self.latency_cycles) == 0:
+            as_count(self.latency_cycles, "latency_cycles", minimum=0)
+        else:
+            for w, value in enumerate(np.asarray(self.latency_cycles, dtype=object).reshape(-1).tolist()):
+                as_count(value, f"latency_cycles[{w}]", minimum=0)
+        if self.latency_range is not None:
+            rng = self.latency_range
+            if isinstance(rng, (str, bytes)) or not isinstance(rng, Sequence) or len(rng) != 2:
+                raise ValueError(f"latency_range must be (low, high) integers, got {rng!r}")
+            low = as_count(rng[0], "latency_range low", minimum=0)
+            high = as_count(rng[1], "latency_range high", minimum=0)
+            if low > high:
+                raise ValueError(f"latency_range must have low <= high, got {rng!r}")
+            if np.any(np.asarray(self.latency_cycles) != 0):
+                raise ValueError(f"give latency_cycles or latency_range, not both (got latency_cycles="
+                                 f"{self.latency_cycles!r} and latency_range={rng!r})")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the simulator needs its latency path (a range, even ``(0, 0)``, or a non-zero delay)."""
+        return self.latency_range is not None or bool(np.any(np.asarray(self.latency_cycles) != 0))
+
+    def delays(self, num_envs: int, num_cycles: int) -> tuple[np.ndarray, int]:
+        """The fixed per-world delays ``[num_envs]`` (the range's low end when drawn) and their bound, checked against
+        ``num_envs`` and ``num_cycles`` (errors name the value)."""
+        if self.latency_range is not None:
+            low, high = (int(v) for v in self.latency_range)
+            fixed, bound, what = np.full(num_envs, low), high, f"latency_range={self.latency_range!r}"
+        else:
+            fixed = np.broadcast_to(np.asarray(self.latency_cycles), (num_envs,)) if np.ndim(
+                self.latency_cycles) == 0 else np.asarray(self.latency_cycles).reshape(-1)
+            if fixed.shape != (num_envs,):
+                raise ValueError(f"latency_cycles must be one integer or {num_envs} (one per env), got "
+                                 f"{len(fixed)} values")
+            bound, what = int(fixed.max()), f"latency_cycles={self.latency_cycles!r}"
+        if bound > num_cycles:
+            raise ValueError(f"{what} exceeds num_cycles={num_cycles}: an action must take effect within its own env "
+                             f"step (a delay of at most num_cycles cycles)")
+        return fixed.astype(np.int64), bound
+
+
+def _bias_mean(value, name: str) -> torch.Tensor:
+    check_finite(**{name: value}, vectors=(name,))
+    return torch.as_tensor(np.asarray(value, dtype=np.float32))
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Sensor models on mover positions and velocities (see the module docstring). Bias means ``pos_bias`` (m) and
+    ``vel_bias`` (m/s): a number, an x/y pair, or anything that broadcasts to ``(num_envs, num_movers, 2)``; stds
+    (``*_std``) non-negative; ``dropout_prob`` in ``[0, 1]``."""
+
+    pos_bias: float | Sequence[float] | np.ndarray = 0.0
+    pos_bias_std: float = 0.0
+    vel_bias: float | Sequence[float] | np.ndarray = 0.0
+    vel_bias_std: float = 0.0
+    pos_noise_std: float = 0.0
+    vel_noise_std: float = 0.0
+    dropout_prob: float = 0.0
+
+    def __post_init__(self):
+        _bias_mean(self.pos_bias, "pos_bias")
+        _bias_mean(self.vel_bias, "vel_bias")
+        stds = dict(pos_bias_std=self.pos_bias_std, vel_bias_std=self.vel_bias_std, pos_noise_std=self.pos_noise_std,
+                    vel_noise_std=self.vel_noise_std, dropout_prob=self.dropout_prob)
+        check_finite(**stds)
+        for name, value in stds.items():
+            if value < 0:
+                raise ValueError(f"{name} must be >= 0, got {value!r}")
+        if self.dropout_prob > 1:
+            raise ValueError(f"dropout_prob must be a probability in [0, 1], got {self.dropout_prob!r}")
+
+
+class Latency:
+    """Per-world action delays of a simulator, drawn at resets from an :class:`ActuationConfig`'s range."""
+
+    def __init__(self, config: ActuationConfig | dict | None, sim, num_cycles: int, generator: torch.Generator):
+        self.config = config = as_config(ActuationConfig, config, "actuation")
+        self.sim = sim
+        self.generator = generator
+        fixed, bound = config.delays(sim.num_worlds, num_cycles)
+        if config.enabled:
+            sim.set_latency(fixed, bound=bound)
+
+    def reset(self, mask: torch.Tensor) -> None:
+        """Draw new delays for the worlds in ``mask`` (with a range of more than one value; fixed delays stay)."""
+        if self.config.latency_range is None:
+            return
+        low, high = (int(v) for v in self.config.latency_range)
+        if low == high:  # nothing to draw: the generator's stream (goals, starts) stays as without latency
+            return
+        cycles = self.sim.latency_cycles
+        draw = torch.randint(low, high + 1, cycles.shape, generator=self.generator, device=cycles.device,
+                             dtype=cycles.dtype)
+        cycles.copy_(torch.where(mask, draw, cycles))
+
+
+class SensorModel:
+    """Biased, noisy, dropping readings of mover x/y positions and velocities (a :class:`SensorConfig`), on the
+    device. The env calls :meth:`reset` for reset worlds, :meth:`new_step` after simulating, :meth:`read` in every
+    observation, :meth:`hold` on the observation and :meth:`commit` on what it returned."""
+
+    HELD_KEYS = ("observation", "achieved_goal")
+
+    def __init__(self, config: SensorConfig | dict | None, num_envs: int, num_movers: int, device,
+                 generator: torch.Generator):
+        self.config = config = as_config(SensorConfig, config, "sensors")
+        self.generator = generator
+        shape = (num_envs, num_movers, 2)
+        self.pos_bias = self._bias_tensor(config.pos_bias, config.pos_bias_std, "pos_bias", shape, device)
+        self.vel_bias = self._bias_tensor(config.vel_bias, config.vel_bias_std, "vel_bias", shape, device)
+        self._drop = torch.zeros(num_envs, dtype=torch.bool, device=device)
+        self._held: dict[str, torch.Tensor] | None = None
+
+    @staticmethod
+    def _bias_tensor(mean, std: float, name: str, shape, device) -> torch.Tensor | None:
+        """``[num_envs, num_movers, 2]`` bias (set at resets), or None where there is none (mean 0, std 0)."""
+        value = _bias_mean(mean, name)
+        try:
+            value = torch.broadcast_to(value, shape)
+        except RuntimeError:
+            raise ValueError(f"{name} must broadcast to (num_envs, num_movers, 2) = {shape}, got shape "
+                             f"{tuple(value.shape)}") from None
+        if std == 0 and not value.any():  # checked on the host, before the copy to the device
+            return None
+        return value.to(device).clone()
+
+    def reset(self, mask: torch.Tensor) -> None:
+        """New biases for the worlds in ``mask``; their next reading is not dropped."""
+        for bias, mean, std in ((self.vel_bias, self.config.vel_bias, self.config.vel_bias_std),
+                                (self.pos_bias, self.config.pos_bias, self.config.pos_bias_std)):
+            if bias is None or std == 0:  # a set bias stays
+                continue
+            mean = torch.as_tensor(np.asarray(mean, dtype=np.float32), device=bias.device)
+            draw = mean + std * torch.randn(bias.shape, generator=self.generator, device=bias.device)
+            bias.copy_(torch.where(mask[:, None, None], draw, bias))
+        self._drop &= ~mask
+
+    def new_step(self) -> None:
+        """Draw which worlds drop this step's reading."""
+        p = self.config.dropout_prob
+        if p > 0:
+            self._drop = torch.rand(self._drop.shape, generator=self.generator, device=self._drop.device) < p
+
+    def _sense(self, x: torch.Tensor, bias: torch.Tensor | None, std: float) -> torch.Tensor:
+        n = x.shape[0]
+        if bias is not None:
+            x = x + bias
+        x = x.reshape(n, -1)
+        if std == 0.0:
+            return x
+        return x + std * torch.randn(x.shape, generator=self.generator, device=x.device, dtype=x.dtype)
+
+    def read(self, pos_xy: torch.Tensor, vel_xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Sensed ``(positions, velocities)``, flattened ``[num_envs, num_movers * 2]`` (velocity noise is drawn
+        first, as the env's ``std_noise`` always did)."""
+        vel = self._sense(vel_xy, self.vel_bias, self.config.vel_noise_std)
+        pos = self._sense(pos_xy, self.pos_bias, self.config.pos_noise_std)
+        return pos, vel
+
+    def hold(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """``obs`` with the dropping worlds' :attr:`HELD_KEYS` entries replaced by the ones last returned."""
+        if self.config.dropout_prob == 0 or self._held is None:
+            return obs
+        drop = self._drop[:, None]
+        return {k: torch.where(drop, self._held[k], v) if k in self._held else v for k, v in obs.items()}
+
+    def commit(self, obs: dict[str, torch.Tensor]) -> None:
+        """Remember what the env returned (the next dropped reading repeats it); readings after this are fresh until
+        the next step."""
+        if self.config.dropout_prob == 0:
+            return
+        self._held = {k: obs[k].clone() for k in self.HELD_KEYS}
+        self._drop.zero_()
+
