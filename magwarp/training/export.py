@@ -19,7 +19,10 @@ import warnings
 import numpy as np
 import torch
 
-__all__ = ["export_onnx", "check_onnx"]
+__all__ = ["TARGETS", "export_onnx", "check_onnx"]
+
+#: export targets: ``onnx`` (the policy's flat path, dynamic batch) and ``twincat`` (:mod:`magwarp.training.twincat`)
+TARGETS = ("onnx", "twincat")
 
 
 def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn.Module, int]:
@@ -31,18 +34,30 @@ def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn
 
 
 def export_onnx(policy_path: str, out: str, *, opset: int = 17, obs_dim: int | None = None, check: bool = True,
-                atol: float = 1e-5, trusted: bool = False) -> dict:
+                atol: float = 1e-5, trusted: bool = False, target: str = "onnx") -> dict:
     """Write ``policy_path`` (TorchScript policy, ``torch.save``d module or training folder) as ONNX to ``out``.
 
     Returns ``{"obs_dim", "action_dim", "max_diff", "max_abs_diff"}``: the largest difference as a fraction of the
     action range (checked against ``atol``) and in the env's units; both None without onnxruntime or ``check``.
+    ``target="twincat"``: :func:`magwarp.training.twincat.export_twincat` (batch 1, checked operator set, metadata
+    and ``OUT.json`` sidecar; it takes the observation size from the policy and its env, so ``obs_dim`` must be None).
     """
+    if target not in TARGETS:
+        raise ValueError(f"unknown export target {target!r}; choose one of {', '.join(TARGETS)}")
+    if target == "twincat" and obs_dim is not None:
+        raise ValueError("the twincat target takes the observation size from the policy and its env: drop obs_dim "
+                         "(--obs-dim)")
     try:
         import onnx
     except ImportError:
         raise ImportError("ONNX export needs the optional packages onnx and onnxruntime: "
                           "pip install 'magwarp[onnx]' (or pip install onnx onnxruntime)") from None
     from magwarp.training.policy import load_policy
+
+    if target == "twincat":
+        from magwarp.training.twincat import export_twincat
+
+        return export_twincat(policy_path, out, opset=opset, check=check, atol=atol, trusted=trusted)
 
     policy = load_policy(policy_path, "cpu", trusted=trusted)  # a pickled module needs trusted (magwarp._io)
     flat, dim = _flat_module(policy, obs_dim)
@@ -81,7 +96,11 @@ def check_onnx(path: str, flat: torch.nn.Module, obs_dim: int, *, atol: float = 
     with torch.no_grad():
         ref = flat(obs).numpy()
     sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
-    got = sess.run(["action"], {"obs": obs.numpy().astype(np.float32)})[0]
+    rows = obs.numpy().astype(np.float32)
+    if sess.get_inputs()[0].shape[0] == 1:  # a fixed batch of 1 (the twincat target): one row per run
+        got = np.concatenate([sess.run(["action"], {"obs": rows[i:i + 1]})[0] for i in range(batch)])
+    else:
+        got = sess.run(["action"], {"obs": rows})[0]
     scale = getattr(flat, "action_scale", None)
     scale = np.ones(ref.shape[-1], np.float32) if scale is None else scale.detach().cpu().numpy()
     abs_diff = np.abs(got - ref)
