@@ -142,6 +142,29 @@ def test_policy_outside_the_contract_is_refused(tmp_path):
     assert info["metadata"]["env_kwargs"] == {} and info["metadata"]["control"]["num_cycles"] == 40
 
 
+@pytest.mark.parametrize("env_id, options, n_obs, n_act, units, limits", [
+    ("magwarp/TrajectoryPlanningB0-v0", {"learn_jerk": True, "num_cycles": 30, "j_max": 50.0}, 24, 6,
+     {"m/s^3"}, {"v_max": 2.0, "a_max": 10.0, "j_max": 50.0}),
+    ("magwarp/PushBox-v0", {"learn_mover_c_rotation": True, "a_max_c": 20.0}, 11, 3, {"m/s^2", "rad/s^2"},
+     {"v_max": 2.0, "a_max": 10.0, "j_max": 100.0, "v_max_c": 122.17305, "a_max_c": 20.0, "j_max_c": 610.86524,
+      "p_max_c": None}),
+])
+def test_metadata_follows_env_options(tmp_path, env_id, options, n_obs, n_act, units, limits):
+    """Jerk policies are described in m/s^3 with their env's limits; a yaw ("c") axis per mover in rad."""
+    torch.manual_seed(0)
+    rms = RunningMeanStd(n_obs, "cpu")
+    path = str(tmp_path / "policy.pt")
+    save_policy(path, mlp(n_obs, [8], n_act, act=torch.nn.ReLU), rms, torch.full((n_act,), 3.0), squash="tanh",
+                env_id=env_id, metadata={"eval_env_kwargs": json.dumps(options)})
+    meta = export_onnx(path, str(tmp_path / "p.onnx"), target="twincat")["metadata"]
+    assert meta["env_kwargs"] == options and meta["train_env_kwargs"] is None
+    assert {c["unit"] for c in meta["action"]["components"]} == units
+    assert [c["axis"] for c in meta["action"]["components"]] == (["x", "y"] * 3 if n_act == 6 else ["x", "y", "c"])
+    assert meta["action"]["quantity"] == ("jerk" if options.get("learn_jerk") else "acceleration")
+    assert meta["control"]["limits"] == limits and meta["control"]["num_cycles"] == options.get("num_cycles", 40)
+    assert meta["action"]["scale"] == [3.0] * n_act  # the policy's own scale, whatever the env's bounds
+
+
 def test_twincat_command(tmp_path, capsys):
     from magwarp.cli import main
 

@@ -62,6 +62,12 @@ def run(args) -> int:
                          "(the policy and its env give the observation size)")
     from magwarp.training.export import export_onnx
 
+    if args.target == "twincat":  # it builds the policy's env (one world, CPU) to describe it
+        import warp as wp
+
+        wp.config.quiet = True  # Warp < 1.19
+        wp.config.log_level = getattr(wp, "LOG_WARNING", 30)  # no init banner or module-load lines
+
     with loading_errors():
         try:
             info = export_onnx(args.policy, args.onnx, opset=args.opset, obs_dim=args.obs_dim, check=not args.no_check,
