@@ -20,8 +20,8 @@ ort = pytest.importorskip("onnxruntime")
 from onnx import TensorProto, helper  # noqa: E402
 
 from magwarp.training.export import export_onnx  # noqa: E402
-from magwarp.training.twincat import (ALLOWED_OPS, FORMAT, check_operators, check_static_shapes,  # noqa: E402
-                                      read_onnx_metadata, read_sidecar)
+from magwarp.training.twincat import (ALLOWED_OPS, FORMAT, MLP_OPS, check_operators,  # noqa: E402
+                                      check_static_shapes, read_onnx_metadata, read_sidecar)
 
 SHIPPED = ["b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac"]
 
@@ -47,7 +47,7 @@ def test_shipped_policy_twincat(tmp_path, name, rng):
     # Metadata: ONNX metadata_props and the sidecar say the same, and describe this policy and its env.
     meta = read_onnx_metadata(out)
     assert meta == read_sidecar(out) == info["metadata"]
-    assert meta["format"] == FORMAT and meta["env_id"] == stored["env_id"]
+    assert meta["format"] == FORMAT and meta["target"] == "twincat" and meta["env_id"] == stored["env_id"]
     assert meta["env_kwargs"] == json.loads(stored["eval_env_kwargs"])
     assert meta["train_env_kwargs"] == json.loads(stored["env_kwargs"])
     assert [e["key"] for e in meta["obs_layout"]] == list(OBS_KEYS)
@@ -60,6 +60,7 @@ def test_shipped_policy_twincat(tmp_path, name, rng):
     assert {c["unit"] for c in action["components"]} == {"m/s^2"} and action["quantity"] == "acceleration"
     np.testing.assert_array_equal(action["scale"], policy.flat.action_scale.numpy())
     assert action["high"] == [10.0] * n_act and action["squash"] == ("tanh" if policy.flat.use_tanh else "clip")
+    assert action["squash_in_graph"] and action["scale_in_graph"] and not meta["obs_normalization"]["plc_clips_obs"]
     np.testing.assert_array_equal(meta["obs_normalization"]["mean"], policy.flat.obs_mean.numpy())
 
     # onnxruntime, one observation per run as a PLC calls it, equals the torch policy on random observations.
@@ -71,6 +72,59 @@ def test_shipped_policy_twincat(tmp_path, name, rng):
     np.testing.assert_allclose(got / action["scale"], ref / action["scale"], rtol=0, atol=1e-5, err_msg=str(rng))
     with pytest.raises(Exception, match="(?i)dimension|shape"):
         sess.run(["action"], {"obs": obs[:2]})  # the batch really is fixed
+
+
+def _plc_run(out: str, obs: np.ndarray) -> np.ndarray:
+    """A twincat-mlp file run as docs/twincat.md tells a PLC to: clip the raw observation, one prediction per
+    observation, clip a clip-squashed output, scale."""
+    meta = read_sidecar(out)
+    norm, action = meta["obs_normalization"], meta["action"]
+    sess = ort.InferenceSession(out, providers=["CPUExecutionProvider"])
+    rows = np.clip(obs, np.float32(norm["raw_low"]), np.float32(norm["raw_high"]))
+    y = np.concatenate([sess.run(["action"], {"obs": rows[i:i + 1]})[0] for i in range(len(rows))])
+    return (y if action["squash_in_graph"] else np.clip(y, -1.0, 1.0)) * np.float32(action["scale"])
+
+
+@pytest.mark.parametrize("name", ["pushbox_sac", "pusht_sac"])
+def test_shipped_policy_twincat_mlp(tmp_path, name, rng):
+    """Gemm, Relu and Tanh only (what Beckhoff documents for its real-time MLPs); with the PLC's part, it is the
+    policy."""
+    path = pretrained_path(name)
+    out = str(tmp_path / f"{name}.onnx")
+    info = export_onnx(path, out, target="twincat-mlp")
+    assert info["operators"] == ["Gemm", "Relu", "Tanh"] and set(info["operators"]) <= MLP_OPS
+    meta = read_onnx_metadata(out)
+    assert meta == read_sidecar(out) and meta["target"] == "twincat-mlp"
+    assert meta["obs_normalization"]["plc_clips_obs"] and not meta["action"]["scale_in_graph"]
+    policy = load_policy(path)
+    obs = (rng.normal(size=(16, policy.obs_dim)) * 2).astype(np.float32)  # many beyond the clip: the PLC clips them
+    with torch.no_grad():
+        ref = policy(torch.as_tensor(obs)).numpy()
+    np.testing.assert_allclose(_plc_run(out, obs) / 10.0, ref / 10.0, rtol=0, atol=1e-5, err_msg=str(rng))
+
+
+def test_twincat_mlp_refusals_and_clip_squash(tmp_path, rng):
+    out = tmp_path / "m.onnx"
+    with pytest.raises(ValueError, match=r"outside the twincat-mlp allow-list: Elu \(3 nodes"):
+        export_onnx(pretrained_path("b0_ppo"), str(out), target="twincat-mlp")
+    # The obstacle corners never varied in training (std 1e-4): W / std in float32 is too coarse; the check says so.
+    with pytest.raises(RuntimeError, match=r"float32 precision.*smallest: 0.0001.*--target twincat"):
+        export_onnx(pretrained_path("obstacles_sac"), str(out), target="twincat-mlp")
+    assert not out.exists() and not (tmp_path / "m.onnx.json").exists()
+    # A clip-squashed ReLU policy: the graph ends at the last layer, the PLC clips and scales.
+    torch.manual_seed(1)
+    rms = RunningMeanStd(18, "cpu", clip=5.0)
+    rms.update(torch.randn(64, 18) * 0.3 + 0.4)
+    path = str(tmp_path / "policy.pt")
+    save_policy(path, mlp(18, [32, 32], 6, act=torch.nn.ReLU), rms, torch.full((6,), 10.0), squash="clip",
+                env_id="magwarp/TrajectoryPlanningB0-v0")
+    info = export_onnx(path, str(out), target="twincat-mlp")
+    assert info["operators"] == ["Gemm", "Relu"] and not info["metadata"]["action"]["squash_in_graph"]
+    obs = (rng.normal(size=(16, 18)) * 3).astype(np.float32)
+    with torch.no_grad():
+        ref = load_policy(path)(torch.as_tensor(obs)).numpy()
+    assert np.abs(ref).max() == 10.0  # some outputs are clipped
+    np.testing.assert_allclose(_plc_run(str(out), obs) / 10.0, ref / 10.0, rtol=0, atol=1e-5, err_msg=str(rng))
 
 
 def _graph(nodes, inputs, outputs, initializers=()):
@@ -180,6 +234,12 @@ def test_twincat_command(tmp_path, capsys):
         assert main(["export", "pretrained:pushbox_sac", "--onnx", str(out), *argv]) == 2
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) == 1
+    assert main(["export", "pretrained:b0_ppo", "--onnx", str(out), "--target", "twincat-mlp"]) == 2
+    err = capsys.readouterr().err  # the policy's mistake: the message alone, exit 2
+    assert err.startswith("magwarp export: error: the graph uses operators outside the twincat-mlp allow-list: Elu (3 "
+                          "nodes") and len(err.strip().splitlines()) == 1
+    assert main(["export", "pretrained:pushbox_sac", "--onnx", str(out), "--target", "twincat-mlp"]) == 0
+    assert "the PLC's part: clip obs to obs_normalization.raw_low/raw_high" in capsys.readouterr().out
     bad = _b0_policy(tmp_path, env_id="")
     assert main(["export", bad, "--onnx", str(tmp_path / "b.onnx"), "--target", "twincat"]) == 2
     err = capsys.readouterr().err

@@ -14,30 +14,36 @@ action period (e.g. Beckhoff TwinCAT's ML runtime, ``FB_MllPrediction``, on a 1 
 Operator allow-list (:data:`ALLOWED_OPS`, default ONNX domain only; every node of the written graph is checked and a
 graph with any other operator is refused, naming it):
 
-==================  =====================================================================================
-``Gemm``, ``MatMul``  the linear layers (weights as initializers)
-``Add``, ``Sub``    bias, observation mean
-``Mul``, ``Div``    action scale, observation standard deviation
-``Relu``, ``Elu``, ``Tanh``  hidden activations (the shipped SAC nets use Relu, the PPO net Elu), tanh squashing
-``Clip``            the normalised-observation clip, the clip squashing (scalar constant bounds)
-``Constant``        scalar constants (clip bounds)
-``Identity``        pass-through
-``Flatten``, ``Reshape``  only with static shapes (a Reshape's shape must be a constant)
-==================  =====================================================================================
+* ``Gemm``, ``MatMul``, ``Add``: the linear layers (weights as initializers);
+* ``Sub``, ``Div``: the observation mean and standard deviation;
+* ``Clip``, ``Constant``: the normalised-observation clip and the clip squashing (scalar constant bounds);
+* ``Relu``, ``Elu``, ``Tanh``: hidden activations (the shipped SAC nets use Relu, the PPO net Elu), tanh squashing;
+* ``Mul``: the action scale;
+* ``Identity``, ``Flatten``, ``Reshape``: pass-through, with static shapes (a Reshape's shape must be a constant).
 
-No ``Slice``/``Gather``/``Shape``/``Cast``, no control flow (``If``/``Loop``/``Scan``), no other domain. Whether a
-given TwinCAT product accepts every listed operator is not checked here (``docs/twincat.md`` says what Beckhoff
-documents).
+No ``Slice``/``Gather``/``Shape``/``Cast``, no control flow (``If``/``Loop``/``Scan``), no other domain.
+
+``--target twincat-mlp`` (:data:`MLP_OPS`) keeps to the operators Beckhoff documents for its real-time runtime's
+multi-layer perceptrons (``Gemm``, ``MatMul`` + ``Add``, and the activations ``Tanh``, ``Sigmoid``, ``Softmax``,
+``Sin``, ``Cos``, ``Relu``, ``Abs``, ``Identity``, ``Exp``, ``LogSoftmax``, ``Sign``, ``Softplus``, ``Softsign``): the
+normalisation is folded into the first layer's weights (``W / std``, ``b - W mean / std``); the graph ends at the
+squashing (tanh) or, for a clip-squashed policy, at the last layer; the PLC clips the raw observation to
+``mean +- clip * std`` before the call and, after it, clips a clip-squashed output to [-1, 1] and multiplies by the
+action scale (all in the metadata). A policy with another activation (the PPO nets' Elu) is refused.
+
+Whether a given TwinCAT product accepts a file is not checked here (``docs/twincat.md`` says what Beckhoff documents).
 
 Metadata (:func:`deployment_metadata`): observation layout (each key's slice of ``obs`` and its bounds), action
 components, scale, limits and units, control cycles per action and cycle time, env id and env options (the policy
-file's ``eval_env_kwargs`` and training ``env_kwargs``), normaliser, ONNX interface and magwarp version. It is written
-twice: in the ONNX ``metadata_props`` (one entry ``magwarp.<key>`` per top-level key, its value JSON) and as a JSON
-sidecar ``OUT.json``; :func:`read_onnx_metadata` and :func:`read_sidecar` read them back.
+file's ``eval_env_kwargs`` and training ``env_kwargs``), normaliser (and which parts the PLC must do), ONNX interface
+and magwarp version. It is written twice: in the ONNX ``metadata_props`` (one entry ``magwarp.<key>`` per top-level
+key, its value JSON) and as a JSON sidecar ``OUT.json``; :func:`read_onnx_metadata` and :func:`read_sidecar` read them
+back.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import warnings
@@ -46,12 +52,18 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["ALLOWED_OPS", "FORMAT", "TwinCatPolicy", "check_operators", "check_static_shapes", "deployment_metadata",
-           "export_twincat", "read_onnx_metadata", "read_sidecar", "sidecar_path"]
+__all__ = ["ALLOWED_OPS", "MLP_OPS", "PROFILES", "FORMAT", "TwinCatPolicy", "TwinCatMlp", "check_operators",
+           "check_static_shapes", "deployment_metadata", "export_twincat", "read_onnx_metadata", "read_sidecar",
+           "sidecar_path"]
 
 #: the operators a TwinCAT-target graph may contain (default ONNX domain), see the module docstring
 ALLOWED_OPS = frozenset({"Gemm", "MatMul", "Add", "Sub", "Mul", "Div", "Relu", "Elu", "Tanh", "Clip", "Constant",
                          "Identity", "Flatten", "Reshape"})
+#: the operators of ``--target twincat-mlp``: those Beckhoff's real-time ML runtime documents for MLPs
+MLP_OPS = frozenset({"Gemm", "MatMul", "Add", "Tanh", "Sigmoid", "Softmax", "Sin", "Cos", "Relu", "Abs", "Identity",
+                     "Exp", "LogSoftmax", "Sign", "Softplus", "Softsign"})
+#: export target -> its operator allow-list
+PROFILES = {"twincat": ALLOWED_OPS, "twincat-mlp": MLP_OPS}
 FORMAT = "magwarp-twincat-v1"
 _PREFIX = "magwarp."
 _LIMIT_UNITS = {"v_max": "m/s", "a_max": "m/s^2", "j_max": "m/s^3", "v_max_c": "rad/s", "a_max_c": "rad/s^2",
@@ -82,9 +94,35 @@ class TwinCatPolicy(torch.nn.Module):
         return y * self.action_scale
 
 
-def check_operators(model, allowed=ALLOWED_OPS) -> list[str]:
+class TwinCatMlp(torch.nn.Module):
+    """The policy's network with the observation normalisation folded into its first layer, squashed by tanh (or, for
+    a clip-squashed policy, not squashed) and unscaled: the PLC clips the raw observation to ``mean +- clip * std``
+    before, and clips (clip squashing) and scales after (see the module docstring)."""
+
+    def __init__(self, flat: torch.nn.Module):
+        super().__init__()
+        plain = TwinCatPolicy(flat)  # checks the attributes, float32 copies
+        self.net = copy.deepcopy(flat.net)
+        first = next(iter(self.net.children()), None)
+        w, b = getattr(first, "weight", None), getattr(first, "bias", None)
+        obs_dim = plain.obs_mean.numel()
+        if w is None or b is None or w.dim() != 2 or w.shape[1] != obs_dim:
+            raise ValueError(f"the twincat-mlp target folds the normaliser into the first layer, but the network does "
+                             f"not start with a linear layer of {obs_dim} inputs")
+        mean, std = plain.obs_mean.double(), plain.obs_std.double()
+        with torch.no_grad():  # W (x - m) / s + b = (W / s) x + (b - W m / s), computed in float64
+            b.copy_((b.double() - w.double() @ (mean / std)).float())
+            w.copy_((w.double() / std).float())
+        self.use_tanh = plain.use_tanh
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        y = self.net(obs)
+        return torch.tanh(y) if self.use_tanh else y
+
+
+def check_operators(model, allowed=ALLOWED_OPS, target: str = "twincat") -> list[str]:
     """The sorted operator types of ``model`` (an ``onnx.ModelProto``); raises ValueError naming every node outside
-    ``allowed`` (or outside the default ONNX domain), and every node with a subgraph."""
+    ``allowed`` (the allow-list of ``target``, or outside the default ONNX domain), and every node with a subgraph."""
     bad: dict[str, list[str]] = {}
     for node in model.graph.node:
         op = node.op_type if node.domain in ("", "ai.onnx") else f"{node.domain}.{node.op_type}"
@@ -93,7 +131,7 @@ def check_operators(model, allowed=ALLOWED_OPS) -> list[str]:
     if bad:
         listed = "; ".join(f"{op} ({len(names)} node{'s' * (len(names) > 1)}: {', '.join(names[:3])})"
                            for op, names in sorted(bad.items()))
-        raise ValueError(f"the graph uses operators outside the TwinCAT allow-list: {listed}; allowed: "
+        raise ValueError(f"the graph uses operators outside the {target} allow-list: {listed}; allowed: "
                          f"{', '.join(sorted(allowed))}")
     return sorted({n.op_type for n in model.graph.node})
 
@@ -137,9 +175,14 @@ def _control(base, rotation: bool) -> tuple[float, dict[str, float | None]]:
     return float(lim.dt64), {"v_max": float(lim.v_max64), "a_max": float(lim.a_max64), "j_max": float(lim.j_max64)}
 
 
-def deployment_metadata(policy_path: str, module: TwinCatPolicy, env_id: str, stored: dict[str, Any]) -> dict:
-    """What a PLC program needs besides the graph (see the module docstring). Builds the env (one world, CPU) with the
-    policy's evaluation options to read its spaces; raises ValueError if they disagree with the policy."""
+def deployment_metadata(policy_path: str, module: TwinCatPolicy, env_id: str, stored: dict[str, Any],
+                        target: str = "twincat") -> dict:
+    """What a PLC program needs besides the graph (see the module docstring), for ``target`` ``twincat`` or
+    ``twincat-mlp`` (which leaves the observation clip, the clip squashing and the scale to the PLC). Builds the env
+    (one world, CPU) with the policy's evaluation options to read its spaces; raises ValueError if they disagree with
+    the policy."""
+    if target not in PROFILES:
+        raise ValueError(f"unknown twincat target {target!r}; choose one of {', '.join(PROFILES)}")
     import magwarp
     from magwarp.training.common import OBS_KEYS, make_env, parse_env_kwargs
 
@@ -172,8 +215,10 @@ def deployment_metadata(policy_path: str, module: TwinCatPolicy, env_id: str, st
         raise ValueError(f"{env_id}: {action_dim} actions for {num_movers} movers with axes {axes}: the twincat "
                          f"target describes per-mover x/y(/c) actions only")
     lin, rot = ("m/s^3", "rad/s^3") if jerk else ("m/s^2", "rad/s^2")
+    full = target == "twincat"
     return {
         "format": FORMAT,
+        "target": target,
         "magwarp_version": magwarp.__version__,
         "source": os.path.basename(policy_path),
         "algo": stored.get("algo", ""),
@@ -183,13 +228,20 @@ def deployment_metadata(policy_path: str, module: TwinCatPolicy, env_id: str, st
         "onnx": {"input": "obs", "input_shape": [1, obs_dim], "output": "action", "output_shape": [1, action_dim],
                  "dtype": "float32"},
         "obs_layout": layout,
-        "obs_normalization": {"in_graph": True, "mean": module.obs_mean.tolist(), "std": module.obs_std.tolist(),
-                              "clip": module.clip},
+        "obs_normalization": {
+            "in_graph": "nodes" if full else "folded into the first layer",
+            "plc_clips_obs": not full,  # to [raw_low, raw_high] before the call (twincat-mlp)
+            "mean": module.obs_mean.tolist(), "std": module.obs_std.tolist(), "clip": module.clip,
+            "raw_low": (module.obs_mean - module.clip * module.obs_std).tolist(),
+            "raw_high": (module.obs_mean + module.clip * module.obs_std).tolist(),
+        },
         "action": {
             "quantity": "jerk" if jerk else "acceleration",
             "components": [{"mover": i, "axis": a, "unit": rot if a == "c" else lin}
                            for i in range(num_movers) for a in axes],
             "squash": "tanh" if module.use_tanh else "clip",
+            "squash_in_graph": full or module.use_tanh,
+            "scale_in_graph": full,
             "scale": module.action_scale.tolist(),
             "low": _bounds(act_space.low),
             "high": _bounds(act_space.high),
@@ -198,6 +250,24 @@ def deployment_metadata(policy_path: str, module: TwinCatPolicy, env_id: str, st
                     "num_movers": num_movers, "limits": limits,
                     "limit_units": {k: _LIMIT_UNITS[k] for k in limits}},
     }
+
+
+def _plc_steps(meta: dict[str, Any]):
+    """What the PLC does around the graph, as the metadata says: (observation -> graph input, graph output -> action)
+    on float32 arrays; None where it does nothing."""
+    norm, action = meta["obs_normalization"], meta["action"]
+    pre = post = None
+    if norm["plc_clips_obs"]:
+        low, high = np.float32(norm["raw_low"]), np.float32(norm["raw_high"])
+
+        def pre(obs):
+            return np.clip(obs, low, high)
+    if not (action["squash_in_graph"] and action["scale_in_graph"]):
+        squash, scale = not action["squash_in_graph"], np.float32(action["scale"])
+
+        def post(y):
+            return (np.clip(y, -1.0, 1.0) if squash else y) * scale
+    return pre, post
 
 
 def sidecar_path(out: str) -> str:
@@ -220,11 +290,13 @@ def read_sidecar(out: str) -> dict[str, Any]:
 
 
 def export_twincat(policy_path: str, out: str, *, opset: int = 17, check: bool = True, atol: float = 1e-5,
-                   trusted: bool = False) -> dict:
-    """Write the TwinCAT-target graph of ``policy_path`` to ``out`` and its metadata sidecar to ``OUT.json``.
+                   trusted: bool = False, target: str = "twincat") -> dict:
+    """Write the ``target`` (``twincat`` or ``twincat-mlp``) graph of ``policy_path`` to ``out`` and its metadata
+    sidecar to ``OUT.json``.
 
     Returns ``{"obs_dim", "action_dim", "max_diff", "max_abs_diff", "operators", "sidecar", "metadata"}``
-    (``max_diff``: :func:`magwarp.training.export.check_onnx`'s, None without onnxruntime or ``check``)."""
+    (``max_diff``: :func:`magwarp.training.export.check_onnx`'s, None without onnxruntime or ``check``; for
+    ``twincat-mlp`` the check runs the PLC's part too: observation clip before, squash clip and scale after)."""
     import onnx
 
     from magwarp.training.export import check_onnx
@@ -240,8 +312,12 @@ def export_twincat(policy_path: str, out: str, *, opset: int = 17, check: bool =
     if not env_id:
         raise ValueError(f"{policy_path!r} records no env id: the twincat target describes the env the policy was "
                          f"trained for (a policy.pt written by magwarp train records it)")
-    module = TwinCatPolicy(getattr(policy, "flat", policy)).eval()
-    meta = deployment_metadata(policy_path, module, env_id, stored)  # before writing: a mismatch leaves no file
+    if target not in PROFILES:
+        raise ValueError(f"unknown twincat target {target!r}; choose one of {', '.join(PROFILES)}")
+    flat = getattr(policy, "flat", policy)
+    plain = TwinCatPolicy(flat).eval()
+    module = plain if target == "twincat" else TwinCatMlp(flat).eval()
+    meta = deployment_metadata(policy_path, plain, env_id, stored, target)  # before writing: a mismatch leaves no file
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     example = torch.zeros(1, meta["onnx"]["input_shape"][1])
     with warnings.catch_warnings():
@@ -252,7 +328,7 @@ def export_twincat(policy_path: str, out: str, *, opset: int = 17, check: bool =
     model = onnx.load(out)
     try:
         meta["onnx"]["opset"] = int(opset)
-        meta["onnx"]["operators"] = check_operators(model)
+        meta["onnx"]["operators"] = check_operators(model, PROFILES[target], target)
         check_static_shapes(model)
     except ValueError:
         os.remove(out)
@@ -265,8 +341,21 @@ def export_twincat(policy_path: str, out: str, *, opset: int = 17, check: bool =
     with open(sidecar_path(out), "w", encoding="utf-8") as f:
         json.dump(meta, f, indent=1)
         f.write("\n")
-    reference = getattr(policy, "flat", policy)  # the policy file's own path, not the rewrite that was exported
-    diff = check_onnx(out, reference, meta["onnx"]["input_shape"][1], atol=atol) if check else None
+    diff = None
+    if check:  # against the policy file's own path, not the rewrite that was exported
+        pre, post = _plc_steps(meta)
+        try:
+            diff = check_onnx(out, flat, meta["onnx"]["input_shape"][1], atol=atol, pre=pre, post=post)
+        except RuntimeError as e:
+            os.remove(out)
+            os.remove(sidecar_path(out))
+            if target == "twincat":
+                raise
+            std = plain.obs_std
+            smallest = f"smallest: {float(std.min()):.2g}, obs[{int(std.argmin())}]"
+            raise RuntimeError(f"{e}: folding the normaliser into the first layer costs float32 precision where an "
+                               f"observation's std is tiny ({smallest}); --target twincat keeps it as separate nodes"
+                               ) from None
     return {"obs_dim": meta["onnx"]["input_shape"][1], "action_dim": meta["onnx"]["output_shape"][1],
             "max_diff": None if diff is None else diff[0], "max_abs_diff": None if diff is None else diff[1],
             "operators": meta["onnx"]["operators"], "sidecar": sidecar_path(out), "metadata": meta}
