@@ -123,10 +123,13 @@ class TwinCatMlp(torch.nn.Module):
 def check_operators(model, allowed=ALLOWED_OPS, target: str = "twincat") -> list[str]:
     """The sorted operator types of ``model`` (an ``onnx.ModelProto``); raises ValueError naming every node outside
     ``allowed`` (the allow-list of ``target``, or outside the default ONNX domain), and every node with a subgraph."""
+    from onnx import AttributeProto
+
+    subgraphs = (AttributeProto.GRAPH, AttributeProto.GRAPHS)  # If/Loop/Scan bodies, or any op that carries one
     bad: dict[str, list[str]] = {}
     for node in model.graph.node:
         op = node.op_type if node.domain in ("", "ai.onnx") else f"{node.domain}.{node.op_type}"
-        if op not in allowed or any(a.type in (5, 10) for a in node.attribute):  # GRAPH, GRAPHS attributes
+        if op not in allowed or any(a.type in subgraphs for a in node.attribute):
             bad.setdefault(op, []).append(node.name or "?")
     if bad:
         listed = "; ".join(f"{op} ({len(names)} node{'s' * (len(names) > 1)}: {', '.join(names[:3])})"
