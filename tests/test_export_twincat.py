@@ -24,6 +24,9 @@ from magwarp.training.twincat import (ALLOWED_OPS, FORMAT, MLP_OPS, check_operat
                                       check_static_shapes, read_onnx_metadata, read_sidecar)
 
 SHIPPED = ["b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac"]
+# |onnxruntime - torch| as a fraction of the action range on fresh random observations: the export's own check (64
+# observations, seed 0) holds 1e-5, but over 5000 observations float32 summation order reaches 1.3e-5 (both targets)
+ATOL = 3e-5
 
 
 @pytest.mark.parametrize("name", SHIPPED)
@@ -69,7 +72,7 @@ def test_shipped_policy_twincat(tmp_path, name, rng):
     got = np.concatenate([sess.run(["action"], {"obs": obs[i:i + 1]})[0] for i in range(len(obs))])
     with torch.no_grad():
         ref = policy(torch.as_tensor(obs)).numpy()
-    np.testing.assert_allclose(got / action["scale"], ref / action["scale"], rtol=0, atol=1e-5, err_msg=str(rng))
+    np.testing.assert_allclose(got / action["scale"], ref / action["scale"], rtol=0, atol=ATOL, err_msg=str(rng))
     with pytest.raises(Exception, match="(?i)dimension|shape"):
         sess.run(["action"], {"obs": obs[:2]})  # the batch really is fixed
 
@@ -100,7 +103,7 @@ def test_shipped_policy_twincat_mlp(tmp_path, name, rng):
     obs = (rng.normal(size=(16, policy.obs_dim)) * 2).astype(np.float32)  # many beyond the clip: the PLC clips them
     with torch.no_grad():
         ref = policy(torch.as_tensor(obs)).numpy()
-    np.testing.assert_allclose(_plc_run(out, obs) / 10.0, ref / 10.0, rtol=0, atol=1e-5, err_msg=str(rng))
+    np.testing.assert_allclose(_plc_run(out, obs) / 10.0, ref / 10.0, rtol=0, atol=ATOL, err_msg=str(rng))
 
 
 def test_twincat_mlp_refusals_and_clip_squash(tmp_path, rng):
@@ -116,15 +119,18 @@ def test_twincat_mlp_refusals_and_clip_squash(tmp_path, rng):
     rms = RunningMeanStd(18, "cpu", clip=5.0)
     rms.update(torch.randn(64, 18) * 0.3 + 0.4)
     path = str(tmp_path / "policy.pt")
-    save_policy(path, mlp(18, [32, 32], 6, act=torch.nn.ReLU), rms, torch.full((6,), 10.0), squash="clip",
-                env_id="magwarp/TrajectoryPlanningB0-v0")
+    net = mlp(18, [32, 32], 6, act=torch.nn.ReLU)
+    with torch.no_grad():
+        net[-1].weight.mul_(30.0)  # pre-squash outputs well beyond [-1, 1]: many get clipped, some not
+    save_policy(path, net, rms, torch.full((6,), 10.0), squash="clip", env_id="magwarp/TrajectoryPlanningB0-v0")
     info = export_onnx(path, str(out), target="twincat-mlp")
     assert info["operators"] == ["Gemm", "Relu"] and not info["metadata"]["action"]["squash_in_graph"]
     obs = (rng.normal(size=(16, 18)) * 3).astype(np.float32)
     with torch.no_grad():
         ref = load_policy(path)(torch.as_tensor(obs)).numpy()
-    assert np.abs(ref).max() == 10.0  # some outputs are clipped
-    np.testing.assert_allclose(_plc_run(str(out), obs) / 10.0, ref / 10.0, rtol=0, atol=1e-5, err_msg=str(rng))
+    clipped = np.abs(ref) == 10.0
+    assert 0 < clipped.sum() < clipped.size, str(rng)
+    np.testing.assert_allclose(_plc_run(str(out), obs) / 10.0, ref / 10.0, rtol=0, atol=ATOL, err_msg=str(rng))
 
 
 def _graph(nodes, inputs, outputs, initializers=()):
