@@ -19,7 +19,11 @@ import warnings
 import numpy as np
 import torch
 
-__all__ = ["export_onnx", "check_onnx"]
+__all__ = ["TARGETS", "export_onnx", "check_onnx"]
+
+#: export targets: ``onnx`` (the policy's flat path, dynamic batch), ``twincat`` and ``twincat-mlp``
+#: (:mod:`magwarp.training.twincat`)
+TARGETS = ("onnx", "twincat", "twincat-mlp")
 
 
 def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn.Module, int]:
@@ -31,18 +35,31 @@ def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn
 
 
 def export_onnx(policy_path: str, out: str, *, opset: int = 17, obs_dim: int | None = None, check: bool = True,
-                atol: float = 1e-5, trusted: bool = False) -> dict:
+                atol: float = 1e-5, trusted: bool = False, target: str = "onnx") -> dict:
     """Write ``policy_path`` (TorchScript policy, ``torch.save``d module or training folder) as ONNX to ``out``.
 
     Returns ``{"obs_dim", "action_dim", "max_diff", "max_abs_diff"}``: the largest difference as a fraction of the
     action range (checked against ``atol``) and in the env's units; both None without onnxruntime or ``check``.
+    ``target="twincat"`` or ``"twincat-mlp"``: :func:`magwarp.training.twincat.export_twincat` (batch 1, checked
+    operator set, metadata
+    and ``OUT.json`` sidecar; it takes the observation size from the policy and its env, so ``obs_dim`` must be None).
     """
+    if target not in TARGETS:
+        raise ValueError(f"unknown export target {target!r}; choose one of {', '.join(TARGETS)}")
+    if target != "onnx" and obs_dim is not None:
+        raise ValueError("the twincat target takes the observation size from the policy and its env: drop obs_dim "
+                         "(--obs-dim)")
     try:
         import onnx
     except ImportError:
         raise ImportError("ONNX export needs the optional packages onnx and onnxruntime: "
                           "pip install 'magwarp[onnx]' (or pip install onnx onnxruntime)") from None
     from magwarp.training.policy import load_policy
+
+    if target != "onnx":
+        from magwarp.training.twincat import export_twincat
+
+        return export_twincat(policy_path, out, opset=opset, check=check, atol=atol, trusted=trusted, target=target)
 
     policy = load_policy(policy_path, "cpu", trusted=trusted)  # a pickled module needs trusted (magwarp._io)
     flat, dim = _flat_module(policy, obs_dim)
@@ -68,10 +85,12 @@ def export_onnx(policy_path: str, out: str, *, opset: int = 17, obs_dim: int | N
 
 
 def check_onnx(path: str, flat: torch.nn.Module, obs_dim: int, *, atol: float = 1e-5, batch: int = 64,
-               seed: int = 0) -> tuple[float, float] | None:
+               seed: int = 0, pre=None, post=None) -> tuple[float, float] | None:
     """Largest ``|onnxruntime - torch|`` over random observations, as a fraction of the action range (``flat``'s
     ``action_scale``, 1 where it has none) and in the env's units; None when onnxruntime is missing. Raises if the
-    first exceeds ``atol``."""
+    first exceeds ``atol``. ``pre``/``post``: numpy functions applied to the observations before onnxruntime and to
+    its output (what a runtime does around a graph that leaves steps to it); a graph with a fixed batch of 1 is run
+    one observation at a time."""
     try:
         import onnxruntime as ort
     except ImportError:
@@ -81,7 +100,13 @@ def check_onnx(path: str, flat: torch.nn.Module, obs_dim: int, *, atol: float = 
     with torch.no_grad():
         ref = flat(obs).numpy()
     sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
-    got = sess.run(["action"], {"obs": obs.numpy().astype(np.float32)})[0]
+    rows = obs.numpy().astype(np.float32)
+    rows = rows if pre is None else pre(rows)
+    if sess.get_inputs()[0].shape[0] == 1:  # a fixed batch of 1 (the twincat targets): one row per run
+        got = np.concatenate([sess.run(["action"], {"obs": rows[i:i + 1]})[0] for i in range(batch)])
+    else:
+        got = sess.run(["action"], {"obs": rows})[0]
+    got = got if post is None else post(got)
     scale = getattr(flat, "action_scale", None)
     scale = np.ones(ref.shape[-1], np.float32) if scale is None else scale.detach().cpu().numpy()
     abs_diff = np.abs(got - ref)
