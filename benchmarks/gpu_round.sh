@@ -4,7 +4,8 @@
 # wheels are staged (python3 ../shared/tools/device_wheels.py magbotsim==1.3.0 magpylib==6.3.0 shapely==2.2.0):
 #   export PYTHONPATH=/tmp/site:$PWD; bash benchmarks/gpu_round.sh STAGE
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
-# (scaling and B0 env throughput), magbots, distributed, compare (B0 env throughput of an older tree beside this one).
+# (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), swarm_render,
+# compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -15,7 +16,7 @@ for stage in "$@"; do
         tests/test_sim_starts.py tests/test_kernels_dynamics.py tests/test_kernels_collision.py \
         tests/test_collision_queries.py tests/test_swarm_placement.py tests/test_swarm_observations.py \
         tests/test_magnetics_exact.py tests/test_magnetics_commutation.py tests/test_magnetics_fast.py \
-        tests/test_reliability.py tests/test_sim_errors.py \
+        tests/test_reliability.py tests/test_sim_errors.py tests/test_sim2real_models.py \
         > "$OUT/pytest_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_gpu.log" | tail -25 ;;
     queries)
@@ -35,6 +36,11 @@ for stage in "$@"; do
       timeout 500 python3 benchmarks/magbots.py --json "$OUT/magbots_gpu.json" 2>&1 | tail -30 ;;
     distributed)
       timeout 400 python3 benchmarks/distributed.py --seconds 20 --json "$OUT/distributed_gpu.json" 2>&1 | tail -30 ;;
+    sim2real)
+      timeout 400 python3 benchmarks/sim2real_models.py --device cuda:0 --num-envs 4096,65536,262144,1048576 \
+        --json "$OUT/sim2real_models_gpu.json" 2>&1 | tail -25 ;;
+    swarm_render)
+      timeout 300 python3 benchmarks/swarm_render.py --json "$OUT/swarm_render_gpu.json" 2>&1 | tail -20 ;;
     compare)
       # B0 env throughput of an older tree (REF, e.g. `git archive ae8dbf4 magwarp benchmarks | tar -x -C .devrun/old`)
       # beside this one, in the same run
