@@ -163,7 +163,7 @@ def main(paths: list[str]) -> int:
             print(age_tables(rows))
         elif "ms_per_step" in rows[0] and "movers" in rows[0]:
             print(scaling_tables(rows))
-        elif "env" in rows[0] and "step_ms" in rows[0] and "x_magbotsim" not in rows[0]:
+        elif "env" in rows[0] and "step_ms" in rows[0] and "adapter" in rows[0]:
             print(env_tables(rows))
         else:
             print(generic_tables(rows))
