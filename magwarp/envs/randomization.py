@@ -361,45 +361,44 @@ class Randomizer:
             arr[:, floor] = arr[:, src:src + 1].clone()
 
     def _nominal(self) -> dict[str, torch.Tensor]:
-        b, f, dev = self.backend, self.fields, self.device
-        out = {}
-        if "body_mass" in f:
-            out["object_mass"] = f["body_mass"][0, torch.as_tensor(b.object_body, device=dev).long()].clone()
-            out["mover_mass"] = f["body_mass"][0, torch.as_tensor(b.mover_body, device=dev).long()].clone()
-            out["payload_mass"] = torch.zeros(b.num_movers, device=dev)
-            self._body_nominal = {}
-            for group, bodies, dadr in (("object", b.object_body, b.object_dadr), ("mover", b.mover_body, b.mover_dadr)):
-                bi = torch.as_tensor(bodies, device=dev).long()
-                di = torch.as_tensor(dadr, device=dev).long()[:, None] + torch.arange(6, device=dev)
-                chain = np.zeros((len(bodies), b.mjm.nbody), np.float32)  # each body and its ancestors
-                for j, body in enumerate(bodies):
-                    while True:
-                        chain[j, body] = 1.0
-                        if body == 0:
-                            break
-                        body = b.mjm.body_parentid[body]
-                quat = b.mjm.body_iquat[bodies] if len(bodies) else np.zeros((0, 4))
-                rot = np.stack([_quat_mat(q) for q in quat]) if len(bodies) else np.zeros((0, 3, 3))
-                self._body_nominal[group] = {
-                    "bodies": bi, "dofs": di, "chain": torch.as_tensor(chain, device=dev),
-                    "mass": f["body_mass"][0, bi].clone(), "inertia": f["body_inertia"][0, bi].clone(),
-                    "ipos": f["body_ipos"][0, bi].clone(), "invweight": f["body_invweight0"][0, bi].clone(),
-                    "dof_invweight": f["dof_invweight0"][0][di].clone(),
-                    "rot": torch.as_tensor(rot, dtype=torch.float32, device=dev),
-                }
-        if "geom_friction" in f:
-            fr = f["geom_friction"][0, :, 0]
-            out["object_friction"] = torch.stack([fr[g[0]] for g in self.object_geoms]) if self.object_geoms \
-                else torch.zeros(0, device=dev)
-            out["floor_friction"] = fr[self.floor_geoms[:1]].clone()
-            self._geom_owner = {
-                "object_friction": self._owner_index(self.object_geoms),
-                "floor_friction": self._owner_index([self.floor_geoms]),
+        """The compiled model's values (``backend.mjm``), whatever the device arrays hold now."""
+        b, mjm, dev = self.backend, self.backend.mjm, self.device
+
+        def t(x):
+            return torch.as_tensor(np.asarray(x, np.float32), device=dev)
+
+        out = {"object_mass": t(mjm.body_mass[b.object_body]), "mover_mass": t(mjm.body_mass[b.mover_body]),
+               "payload_mass": torch.zeros(b.num_movers, device=dev)}
+        # subtree[:, b] = sum of body_mass over b's subtree: body_mass @ inside, inside[j, b] = j lies under b
+        inside = np.zeros((mjm.nbody, mjm.nbody), np.float32)
+        for j in range(mjm.nbody):
+            body = j
+            while True:
+                inside[j, body] = 1.0
+                if body == 0:
+                    break
+                body = mjm.body_parentid[body]
+        self._subtree = t(inside)
+        self._body_nominal = {}
+        for group, bodies, dadr in (("object", b.object_body, b.object_dadr), ("mover", b.mover_body, b.mover_dadr)):
+            dofs = np.asarray(dadr, np.int64).reshape(-1, 1) + np.arange(6)
+            rot = np.stack([_quat_mat(q) for q in mjm.body_iquat[bodies]]) if len(bodies) else np.zeros((0, 3, 3))
+            self._body_nominal[group] = {
+                "bodies": torch.as_tensor(bodies, device=dev).long(), "dofs": torch.as_tensor(dofs, device=dev),
+                "mass": t(mjm.body_mass[bodies]), "inertia": t(mjm.body_inertia[bodies]),
+                "ipos": t(mjm.body_ipos[bodies]), "invweight": t(mjm.body_invweight0[bodies]),
+                "dof_invweight": t(mjm.dof_invweight0[dofs]), "rot": t(rot),
             }
-        if "geom_pos" in f:
-            g = torch.tensor(self.obstacle_geoms, device=dev, dtype=torch.long)
-            out["obstacle_xy"] = f["geom_pos"][0, g, :2].clone()
-            self._obstacle_index = g
+        src = [g[0] for g in self.object_geoms]
+        out["object_friction"] = t(mjm.geom_friction[src, 0])
+        # the floor's nominal friction is the object's (see _floor_priority)
+        out["floor_friction"] = t(mjm.geom_friction[src[:1], 0]) if self.floor_geoms else torch.zeros(0, device=dev)
+        self._geom_owner = {
+            "object_friction": self._owner_index(self.object_geoms),
+            "floor_friction": self._owner_index([self.floor_geoms]),
+        }
+        out["obstacle_xy"] = t(mjm.geom_pos[self.obstacle_geoms, :2].reshape(-1, 2))
+        self._obstacle_index = torch.as_tensor(self.obstacle_geoms, device=dev, dtype=torch.long)
         return out
 
     def _owner_index(self, groups: list[list[int]]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -511,10 +510,8 @@ class Randomizer:
             r = torch.einsum("tji,wtj->wti", n["rot"], offset)  # into the principal (iquat) frame
             inertia = inertia + mu * ((r * r).sum(-1, keepdim=True) - r * r)
             ipos = ipos + (payload / total)[..., None] * offset
-        old_mass = f["body_mass"][:, bi]
-        delta = torch.where(mask[:, None], total - old_mass, 0.0) if mask is not None else total - old_mass
-        f["body_subtreemass"].add_(delta @ n["chain"])
         _put(f["body_mass"], (slice(None), bi), total, mask)
+        _put(f["body_subtreemass"], (slice(None),), f["body_mass"] @ self._subtree, mask)
         _put(f["body_inertia"], (slice(None), bi), inertia, mask)
         _put(f["body_ipos"], (slice(None), bi), ipos, mask)
         rot_ratio = (1.0 / inertia).mean(-1) / (1.0 / n["inertia"]).mean(-1)
