@@ -138,25 +138,30 @@ def test_seeds_reproduce(env, rng):
         assert torch.equal(v, first[k]), k
 
 
-def test_interval_fires_every_n_steps_relative_to_nominal(env, rng):
+def test_interval_fires_every_n_steps_relative_to_nominal(rng):
+    env = PushBoxEnv(4, device="cpu", seed=5, randomization=[
+        EventTerm("floor_friction", Uniform(-0.2, 0.2), op="add", mode="interval", interval_steps=3),
+        EventTerm("mover_mass", Uniform(0.9, 1.1), op="scale", mode="interval", interval_steps=2)])
     env.reset(seed=_seed(rng))
     r = env.randomizer
-    floor = r.floor_geoms
+    floor, mover = r.floor_geoms, int(env.backend.mover_body[0])
     nominal = float(r.nominal["floor_friction"][0])
     assert nominal == pytest.approx(0.6)  # the object's friction, which the floor takes over as its nominal
-    before = r.fields["geom_friction"][:, floor, 0].clone()
-    fired = []
-    action = torch.zeros(W, 2)
-    for _ in range(7):
-        steps = r.steps
-        env.step(action)
-        now = r.fields["geom_friction"][:, floor, 0].clone()
-        fired.append((steps + 1, bool(torch.any(now != before))))
-        assert torch.all((now - nominal).abs() <= 0.2 + 1e-6)  # add is relative to the nominal: no compounding
-        assert torch.all(now == now[:, :1])  # one floor per world
+    before = (r.fields["geom_friction"][:, floor, 0].clone(), r.fields["body_mass"][:, mover].clone())
+    fired = {"floor": [], "mover": []}
+    for step in range(1, 8):
+        env.step(torch.zeros(4, 2))
+        now = (r.fields["geom_friction"][:, floor, 0].clone(), r.fields["body_mass"][:, mover].clone())
+        assert r.steps == step
+        if torch.any(now[0] != before[0]):
+            fired["floor"].append(step)
+        if torch.any(now[1] != before[1]):
+            fired["mover"].append(step)
+        assert torch.all((now[0] - nominal).abs() <= 0.2 + 1e-6)  # add is relative to the nominal: no compounding
+        assert torch.all((now[1] / 1.24 - 1).abs() <= 0.1 + 1e-6)
+        assert torch.all(now[0] == now[0][:, :1])  # one floor per world
         before = now
-    assert [s for s, f in fired if f] == [s for s, _ in fired if s % 3 == 0]
-    assert len([s for s, f in fired if f]) >= 2
+    assert fired == {"floor": [3, 6], "mover": [2, 4, 6]}
 
 
 def test_mass_changes_dynamics_as_f_equals_m_a(dyn, rng):
