@@ -133,6 +133,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
+    #: domain randomisation (:mod:`magwarp.envs.randomization`); None without ``randomization`` terms
+    randomizer = None
 
     metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
 
@@ -276,7 +278,6 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                          check_inputs=check_inputs, nan_dump=nan_dump)
         self._init_task_state()
         self._set_spaces(self._observation_space(), self._action_space())
-        #: domain randomisation (:mod:`magwarp.envs.randomization`); None without ``randomization`` terms
         self.randomizer = Randomizer(self, randomization) if randomization else None
         self.reset()
 

@@ -69,6 +69,16 @@ def _finite(value, what: str) -> float:
     return v
 
 
+def _check_interval(dist, positive: bool) -> None:
+    """Validate and store ``dist.lo``/``dist.hi`` as floats: finite, ``lo <= hi`` (and ``0 < lo`` if ``positive``)."""
+    kind = type(dist).__name__
+    lo, hi = _finite(dist.lo, f"{kind}.lo"), _finite(dist.hi, f"{kind}.hi")
+    if lo > hi or (positive and lo <= 0):
+        raise ValueError(f"{kind} needs {'0 < ' if positive else ''}lo <= hi, got lo={dist.lo!r}, hi={dist.hi!r}")
+    object.__setattr__(dist, "lo", lo)
+    object.__setattr__(dist, "hi", hi)
+
+
 @dataclasses.dataclass(frozen=True)
 class Uniform:
     """Uniform on ``[lo, hi]``."""
@@ -77,11 +87,7 @@ class Uniform:
     hi: float
 
     def __post_init__(self):
-        lo, hi = _finite(self.lo, "Uniform.lo"), _finite(self.hi, "Uniform.hi")
-        if lo > hi:
-            raise ValueError(f"Uniform needs lo <= hi, got lo={self.lo!r}, hi={self.hi!r}")
-        object.__setattr__(self, "lo", lo)
-        object.__setattr__(self, "hi", hi)
+        _check_interval(self, positive=False)
 
     def support(self) -> tuple[float, float]:
         return self.lo, self.hi
@@ -98,11 +104,7 @@ class LogUniform:
     hi: float
 
     def __post_init__(self):
-        lo, hi = _finite(self.lo, "LogUniform.lo"), _finite(self.hi, "LogUniform.hi")
-        if not 0 < lo <= hi:
-            raise ValueError(f"LogUniform needs 0 < lo <= hi, got lo={self.lo!r}, hi={self.hi!r}")
-        object.__setattr__(self, "lo", lo)
-        object.__setattr__(self, "hi", hi)
+        _check_interval(self, positive=True)
 
     def support(self) -> tuple[float, float]:
         return self.lo, self.hi
