@@ -186,6 +186,9 @@ def test_mass_changes_dynamics_as_f_equals_m_a(dyn, rng):
     m = r.values["mover_mass"][:, 0] + r.values["payload_mass"][:, 0]
     acc = b.mover_qacc[:, 0, :2]
     torch.testing.assert_close(acc, 1.24 * a_cmd / m[:, None], rtol=2e-4, atol=1e-5)
+    # gravity compensation reads each world's mass: the mover hovers whatever it weighs (uncompensated, masses up to
+    # 1.3 kg off the nominal would sink or lift it by millimetres within this step, dm g / k_z = 13 cm at rest)
+    assert torch.all((b.mover_qpos[:, 0, 2] - float(b.hover_z[0])).abs() < 1e-4), b.mover_qpos[:, 0, 2]
     acc_z = b.qacc_t[:, int(b.object_dadr[0]) + 2]
     torch.testing.assert_close(acc_z, force / m_obj - G, rtol=2e-4, atol=1e-4)
 
