@@ -27,7 +27,8 @@ FULL = [
     {"field": "object_friction", "dist": {"gaussian": [0.6, 0.1], "clip": [0.3, 0.9]}},
     {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
     {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.02, 0.0, 0.01]},
-    {"field": "floor_friction", "dist": {"uniform": [-0.2, 0.2]}, "op": "add", "mode": "interval", "interval_steps": 10},
+    {"field": "floor_friction", "dist": {"uniform": [-0.2, 0.2]}, "op": "add", "mode": "interval",
+     "interval_steps": 10},
 ]
 SETTINGS = {"off": {}, "full": {"randomization": FULL}}
 
@@ -36,7 +37,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help="cpu or cuda:N (default: cpu, plus cuda:0 when present)")
     p.add_argument("--env", default="magwarp/PushBox-v0")
-    p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 64,256 on CPU, up to 65536 on GPU)")
+    p.add_argument("--num-envs", default=None,
+                   help="comma-separated sizes (default: 64,256 on CPU, up to 65536 on GPU)")
     p.add_argument("--steps", type=int, default=20)
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)

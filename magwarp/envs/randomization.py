@@ -29,8 +29,8 @@ Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its 
   geoms, of the colliding tile geoms. The object's geoms have contact priority 1 (MuJoCo then takes their friction
   for every contact of the object), so with a ``floor_friction`` term the tiles get priority 2 (set once, for all
   worlds) and the object's friction, solref and solimp as their nominal values (their condim must match the
-  object's): the nominal scene is unchanged, object-floor contacts take the floor's friction from then on, and ``object_friction`` sets the object's
-  contacts with the movers and obstacles.
+  object's): the nominal scene is unchanged, every contact with the floor takes the floor's friction from then on,
+  and ``object_friction`` sets the object's contacts with the movers and obstacles.
 * ``obstacle_xy`` (per obstacle, 2 values: x and y in m, op ``set`` or ``add``): the obstacle geom's position
   (``geom_pos`` and its world pose ``geom_xpos``, which mujoco-warp computes once for static geoms) and the env's
   ``obstacle_boxes`` (observations, checks and rendering read them). Not with obstacle modes that move the walls per
@@ -310,12 +310,12 @@ class Randomizer:
             names.add("geom_friction")
         if "obstacle_xy" in used:
             names.add("geom_pos")
+        self.nominal = self._nominal()
+        for i, t in enumerate(self.terms):
+            self._check_bounds(i, t)  # before anything on the device changes
         self.fields = b.batch_model_fields(sorted(names))
         if "floor_friction" in used:
             self._floor_priority(mjm)
-        self.nominal = self._nominal()
-        for i, t in enumerate(self.terms):
-            self._check_bounds(i, t)
         self.values = {f: self.nominal[f].expand(self.num_worlds, *self.nominal[f].shape).clone() for f in used}
         if "payload_mass" in used:
             self.payload_offset = torch.zeros(self.num_worlds, self._targets["payload_mass"], 3, device=self.device)
