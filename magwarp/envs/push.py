@@ -45,7 +45,7 @@ from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
-from magwarp.envs.randomization import EventTerm, Randomizer
+from magwarp.envs.randomization import EventTerm, Randomizer, as_terms
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
 from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
@@ -227,6 +227,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
             raise ValueError(f"max_position_err must be positive, got {max_position_err!r}")
         if early_termination_steps is not None:
             early_termination_steps = as_count(early_termination_steps, "early_termination_steps")
+        terms = as_terms(randomization) if randomization is not None else []  # bad terms fail before the build
         self.num_movers = int(num_movers)
         self.learn_pose = bool(learn_pose)
         self.learn_jerk = bool(learn_jerk)
@@ -278,7 +279,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                          check_inputs=check_inputs, nan_dump=nan_dump)
         self._init_task_state()
         self._set_spaces(self._observation_space(), self._action_space())
-        self.randomizer = Randomizer(self, randomization) if randomization else None
+        self.randomizer = Randomizer(self, terms) if terms else None
         self.reset()
 
     # ------------------------------------------------------------------ construction
