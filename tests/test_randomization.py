@@ -13,6 +13,8 @@ from magwarp.envs.push import PushBoxEnv
 from magwarp.envs.push_obstacles import PushWithObstaclesEnv
 from magwarp.envs.randomization import EventTerm, Gaussian, LogUniform, Randomizer, Uniform
 
+from conftest import cuda_available
+
 W = 256  # worlds for the moment tests: standard errors of 1/16 of a standard deviation
 G = 9.81
 
@@ -215,12 +217,13 @@ def test_floor_friction_sets_the_object_floor_contact(dyn, rng):
 
 def test_obstacle_xy_moves_geoms_and_boxes(rng):
     env = PushWithObstaclesEnv(4, device="cpu", seed=3, randomization=[
-        EventTerm("obstacle_xy", Uniform(-0.01, 0.01), op="add")])
+        EventTerm("obstacle_xy", Uniform(-0.01, 0.01), op="add", targets=(0,))])
     r, b = env.randomizer, env.backend
     nominal = r.nominal["obstacle_xy"]
     env.reset(seed=_seed(rng))
     xy = r.values["obstacle_xy"]
-    assert torch.all((xy - nominal).abs() <= 0.01 + 1e-7) and torch.any(xy != nominal)
+    assert torch.all((xy[:, 0] - nominal[0]).abs() <= 0.01 + 1e-7) and torch.all(xy[:, 0] != nominal[0])
+    assert torch.equal(xy[:, 1], nominal[1].expand(4, 2))  # not a target
     import warp as wp
 
     g = r.obstacle_geoms
@@ -302,3 +305,26 @@ def test_env_option_rejects_bad_terms_before_building():
         PushBoxEnv(2, device="cpu", randomization=[{"field": "object_size", "dist": {"uniform": [0.2, 0.4]}}])
     with pytest.raises(ValueError, match=r"randomization\[1\] must be an EventTerm or a mapping, got 3"):
         PushBoxEnv(2, device="cpu", randomization=[EventTerm("object_mass", Uniform(0.2, 0.4)), 3])
+
+
+@pytest.mark.skipif(not cuda_available(), reason="needs CUDA (torch's sync debug mode)")
+def test_no_host_sync_on_cuda():
+    """Reset and interval events are device work only: torch raises on any synchronising call inside."""
+    env = PushWithObstaclesEnv(4, device="cuda:0", seed=6, randomization=[
+        EventTerm("object_mass", Uniform(0.2, 0.4)), EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
+        EventTerm("payload_mass", Uniform(0.0, 0.3), offset=(0.01, 0.0, 0.01)),
+        EventTerm("object_friction", Gaussian(0.6, 0.1, clip=(0.3, 0.9))),
+        EventTerm("floor_friction", Uniform(-0.2, 0.2), op="add", mode="interval", interval_steps=1),
+        EventTerm("obstacle_xy", Uniform(-0.01, 0.01), op="add", targets=(1,))])
+    r = env.randomizer
+    mask = torch.tensor([True, False, True, False], device="cuda:0")
+    before = r.values["object_mass"].clone()
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        r.reset(mask)
+        r.step()
+    finally:
+        torch.cuda.set_sync_debug_mode("default")
+    assert torch.equal(r.values["object_mass"][~mask], before[~mask])
+    assert torch.all(r.values["object_mass"][mask] != before[mask])
