@@ -33,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -45,6 +45,7 @@ from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
+from magwarp.envs.randomization import EventTerm, Randomizer, as_terms
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
 from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
@@ -101,6 +102,10 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
     ...}`` over ``width``, ``height``, ``depth``, ``segment_width``, ``radius`` and ``mass``; a range with low < high
     gives every episode an object drawn from ``object_variants`` samples of the ranges
     (:mod:`magwarp.envs.object_variants`; ``info["object_variant"]`` says which), a fixed one just sets the value.
+    ``randomization``: a list of :class:`magwarp.envs.randomization.EventTerm` (or mappings of their fields) that
+    randomise object and mover mass, a payload on the movers, object and floor friction and obstacle positions per
+    world, at startup, at each reset (reset worlds only) or every N steps, without a model rebuild
+    (:mod:`magwarp.envs.randomization`).
 
     Physics: ``solver`` is MuJoCo's constraint solver for the contacts: ``"Newton"`` (MagBotSim's), ``"CG"``, or
     ``"auto"`` (default): CG on CPU, Newton on CUDA, the faster one on each (benchmarks/RESULTS.md; on a GPU the batch
@@ -128,6 +133,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
+    #: domain randomisation (:mod:`magwarp.envs.randomization`); None without ``randomization`` terms
+    randomizer = None
 
     metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
 
@@ -188,6 +195,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
         nan_dump: str | None = None,
+        randomization: Sequence[EventTerm | Mapping[str, Any]] | None = None,
     ):
         if benchmark is not None:
             layout, num_movers = push_benchmark(benchmark)
@@ -219,6 +227,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
             raise ValueError(f"max_position_err must be positive, got {max_position_err!r}")
         if early_termination_steps is not None:
             early_termination_steps = as_count(early_termination_steps, "early_termination_steps")
+        terms = as_terms(randomization) if randomization is not None else []  # bad terms fail before the build
         self.num_movers = int(num_movers)
         self.learn_pose = bool(learn_pose)
         self.learn_jerk = bool(learn_jerk)
@@ -270,6 +279,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                          check_inputs=check_inputs, nan_dump=nan_dump)
         self._init_task_state()
         self._set_spaces(self._observation_space(), self._action_space())
+        self.randomizer = Randomizer(self, terms) if terms else None
         self.reset()
 
     # ------------------------------------------------------------------ construction
@@ -523,6 +533,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         b = self.backend
         if self.variants is not None:
             self._assign_variants(mask)
+        if self.randomizer is not None:
+            self.randomizer.reset(mask)
         s = {key: self._chosen_or(key, value) for key, value in self._sample_episode(self.num_envs).items()}
         m3 = mask[:, None, None]
         mover_q = b.init_mover_qpos
@@ -609,6 +621,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         self.checks.clear()
         if self.contacts is not None:
             self.contacts.clear()
+        if self.randomizer is not None:
+            self.randomizer.step()
         self.backend.step(action.reshape(self.num_envs, self.num_movers, -1), check_finite=False)
 
     def _mover_obs(self) -> torch.Tensor:

@@ -1,0 +1,539 @@
+"""Domain randomisation as declarative event terms, per world on the device, with no model rebuild.
+
+An :class:`EventTerm` names a friendly ``field``, a distribution (:class:`Uniform`, :class:`LogUniform`,
+:class:`Gaussian`), an operation (``"set"``: the draw is the value; ``"scale"``: nominal x draw; ``"add"``: nominal +
+draw) and a mode (``"startup"``: once, when the env is built; ``"reset"``: at every reset, for the reset worlds only;
+``"interval"``: every ``interval_steps`` env steps, for all worlds, before the step is simulated). Scale and add are
+relative to each world's *nominal* value (the built model's), so they never compound across resets or intervals; when
+several terms write one field, the one that fired last sets it. Draws use the env's torch generator (``seed`` and
+``reset(seed=...)`` reproduce them) and every update is a handful of torch ops on the env's device: no host sync, no
+recompilation (mujoco-warp reads model arrays at ``worldid % shape[0]``, so :meth:`MjwBackend.batch_model_fields`
+makes them per world).
+
+Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its variants), one draw per target:
+
+* ``object_mass`` (per object, kg) and ``mover_mass`` (per mover, kg): ``body_mass``; the body's principal inertia is
+  scaled with the mass (uniform density), ``body_subtreemass`` of the body and its ancestors follows, and
+  ``body_invweight0``/``dof_invweight0`` (the constraint solver's regularisation scales) are divided by the mass and
+  inertia ratios (exact for a free body without children, which movers and objects are in these envs). The movers
+  are gravity compensated (``gravcomp``) with their randomised mass, but the x/y controller
+  (:mod:`magwarp.physics.control`) keeps applying ``nominal mass x commanded acceleration``: a heavier mover accelerates
+  less, ``a = m_nominal a_cmd / m`` (a payload the controller does not know of). Not with a varying ``object_ranges``
+  for ``object_mass`` (its variants set the object's mass rows at every reset: use its ``mass`` range).
+* ``payload_mass`` (per mover, kg, op ``set`` or ``add``: the nominal payload is 0): a point mass at ``offset``
+  (x, y, z in the mover's body frame, from its nominal centre of mass; default at it) added to the mover body: the
+  mass, the centre of mass (``body_ipos``), and the inertia by the parallel-axis theorem about the new centre of mass
+  (the diagonal terms in the body's principal frame; the products of inertia ``-mu r_i r_j`` of an offset off the
+  principal axes are dropped), with the same caveats as ``mover_mass``.
+* ``object_friction`` (per object) and ``floor_friction`` (one per world): the sliding coefficient of the object's
+  geoms, of the colliding tile geoms. The object's geoms have contact priority 1 (MuJoCo then takes their friction
+  for every contact of the object), so with a ``floor_friction`` term the tiles get priority 2 (set once, for all
+  worlds) and the object's friction, solref and solimp as their nominal values (their condim must match the
+  object's): the nominal scene is unchanged, every contact with the floor takes the floor's friction from then on,
+  and ``object_friction`` sets the object's contacts with the movers and obstacles.
+* ``obstacle_xy`` (per obstacle, 2 values: x and y in m, op ``set`` or ``add``): the obstacle geom's position
+  (``geom_pos`` and its world pose ``geom_xpos``, which mujoco-warp computes once for static geoms) and the env's
+  ``obstacle_boxes`` (observations, checks and rendering read them). Not with obstacle modes that move the walls per
+  episode (``PushWithObstaclesEnv`` ``random``, ``curriculum`` or a mix).
+
+Plain mappings work too (``--env-kwargs`` JSON): ``{"field": "object_mass", "dist": {"type": "uniform", "lo": 0.2,
+"hi": 0.4}, "op": "set", "mode": "reset"}``, or the distribution as ``{"uniform": [0.2, 0.4]}``,
+``{"log_uniform": [lo, hi]}``, ``{"gaussian": [mean, std], "clip": [lo, hi]}``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+import warp as wp
+
+__all__ = ["FIELDS", "EventTerm", "Gaussian", "LogUniform", "Randomizer", "Uniform", "as_terms"]
+
+OPS = ("set", "scale", "add")
+MODES = ("startup", "reset", "interval")
+
+
+def _finite(value, what: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{what} must be finite, got {value!r}")
+    return v
+
+
+def _check_interval(dist, positive: bool) -> None:
+    """Validate and store ``dist.lo``/``dist.hi`` as floats: finite, ``lo <= hi`` (and ``0 < lo`` if ``positive``)."""
+    kind = type(dist).__name__
+    lo, hi = _finite(dist.lo, f"{kind}.lo"), _finite(dist.hi, f"{kind}.hi")
+    if lo > hi or (positive and lo <= 0):
+        raise ValueError(f"{kind} needs {'0 < ' if positive else ''}lo <= hi, got lo={dist.lo!r}, hi={dist.hi!r}")
+    object.__setattr__(dist, "lo", lo)
+    object.__setattr__(dist, "hi", hi)
+
+
+@dataclasses.dataclass(frozen=True)
+class Uniform:
+    """Uniform on ``[lo, hi]``."""
+
+    lo: float
+    hi: float
+
+    def __post_init__(self):
+        _check_interval(self, positive=False)
+
+    def support(self) -> tuple[float, float]:
+        return self.lo, self.hi
+
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
+        return self.lo + (self.hi - self.lo) * torch.rand(shape, generator=gen, device=device)
+
+
+@dataclasses.dataclass(frozen=True)
+class LogUniform:
+    """``exp(U(log lo, log hi))`` with ``0 < lo <= hi`` (scales spread evenly in ratio)."""
+
+    lo: float
+    hi: float
+
+    def __post_init__(self):
+        _check_interval(self, positive=True)
+
+    def support(self) -> tuple[float, float]:
+        return self.lo, self.hi
+
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
+        a, b = math.log(self.lo), math.log(self.hi)
+        return torch.exp(a + (b - a) * torch.rand(shape, generator=gen, device=device))
+
+
+@dataclasses.dataclass(frozen=True)
+class Gaussian:
+    """Normal ``N(mean, std^2)``; ``clip=(lo, hi)`` clamps the draws (only when given)."""
+
+    mean: float
+    std: float
+    clip: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "mean", _finite(self.mean, "Gaussian.mean"))
+        std = _finite(self.std, "Gaussian.std")
+        if std < 0:
+            raise ValueError(f"Gaussian.std must be >= 0, got {self.std!r}")
+        object.__setattr__(self, "std", std)
+        if self.clip is not None:
+            try:
+                lo, hi = self.clip
+            except (TypeError, ValueError):
+                raise ValueError(f"Gaussian.clip must be a pair (lo, hi), got {self.clip!r}") from None
+            lo, hi = _finite(lo, "Gaussian.clip[0]"), _finite(hi, "Gaussian.clip[1]")
+            if lo > hi:
+                raise ValueError(f"Gaussian.clip needs lo <= hi, got {self.clip!r}")
+            object.__setattr__(self, "clip", (lo, hi))
+
+    def support(self) -> tuple[float, float]:
+        return self.clip if self.clip is not None else (-math.inf, math.inf)
+
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
+        x = self.mean + self.std * torch.randn(shape, generator=gen, device=device)
+        return x if self.clip is None else x.clamp(*self.clip)
+
+
+Distribution = Uniform | LogUniform | Gaussian
+_DISTS = {"uniform": Uniform, "log_uniform": LogUniform, "loguniform": LogUniform, "gaussian": Gaussian,
+          "normal": Gaussian}
+
+
+def as_distribution(value, where: str = "dist") -> Distribution:
+    """A distribution from itself or a mapping (``{"type": "uniform", "lo": .., "hi": ..}`` or ``{"uniform": [lo,
+    hi]}``, ``{"gaussian": [mean, std], "clip": [lo, hi]}``)."""
+    if isinstance(value, (Uniform, LogUniform, Gaussian)):
+        return value
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{where} must be Uniform, LogUniform, Gaussian or a mapping, got {value!r}")
+    d = dict(value)
+    kind = d.pop("type", None)
+    if kind is None:
+        keys = [k for k in d if k in _DISTS]
+        if len(keys) != 1:
+            raise ValueError(f"{where} must name one distribution ({', '.join(_DISTS)}), got {value!r}")
+        kind = keys[0]
+        args = d.pop(kind)
+        if not isinstance(args, (list, tuple)):
+            raise ValueError(f"{where}[{kind!r}] must be a list of parameters, got {args!r}")
+        return _build_dist(kind, args, d, where, value)
+    if kind not in _DISTS:
+        raise ValueError(f"{where} has an unknown distribution type {kind!r}; known: {', '.join(_DISTS)}")
+    return _build_dist(kind, (), d, where, value)
+
+
+def _build_dist(kind, args, kwargs, where, value) -> Distribution:
+    try:
+        return _DISTS[kind](*args, **kwargs)
+    except TypeError as e:
+        raise ValueError(f"{where}: bad parameters for {kind!r} in {value!r} ({e})") from None
+
+
+@dataclasses.dataclass(frozen=True)
+class EventTerm:
+    """One randomisation: ``field`` <- ``op``(nominal, draw from ``dist``) when ``mode`` says.
+
+    ``targets``: indices of the field's targets (movers, objects, obstacles) to change (default: all).
+    ``offset``: ``payload_mass`` only, where the payload sits (see the module doc)."""
+
+    field: str
+    dist: Any
+    op: str = "set"
+    mode: str = "reset"
+    interval_steps: int | None = None
+    targets: tuple[int, ...] | None = None
+    offset: tuple[float, float, float] | None = None
+
+    def __post_init__(self):
+        if self.field not in FIELDS:
+            raise ValueError(f"EventTerm.field {self.field!r} is unknown; known: {', '.join(FIELDS)}")
+        object.__setattr__(self, "dist", as_distribution(self.dist, f"EventTerm({self.field!r}).dist"))
+        if self.op not in OPS:
+            raise ValueError(f"EventTerm({self.field!r}).op must be one of {OPS}, got {self.op!r}")
+        spec = FIELDS[self.field]
+        if self.op not in spec.ops:
+            raise ValueError(f"EventTerm({self.field!r}).op {self.op!r} is not allowed for this field; use one of "
+                             f"{spec.ops}")
+        if self.mode not in MODES:
+            raise ValueError(f"EventTerm({self.field!r}).mode must be one of {MODES}, got {self.mode!r}")
+        if self.mode == "interval":
+            n = self.interval_steps
+            if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+                raise ValueError(f"EventTerm({self.field!r}) in interval mode needs interval_steps >= 1, got {n!r}")
+        elif self.interval_steps is not None:
+            raise ValueError(f"EventTerm({self.field!r}).interval_steps={self.interval_steps!r} needs mode='interval', "
+                             f"got mode={self.mode!r}")
+        if self.targets is not None:
+            t = tuple(self.targets) if isinstance(self.targets, (list, tuple)) else (self.targets,)
+            if not t or not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in t):
+                raise ValueError(f"EventTerm({self.field!r}).targets must be indices, got {self.targets!r}")
+            if len(set(t)) != len(t):
+                raise ValueError(f"EventTerm({self.field!r}).targets has repeated indices: {self.targets!r}")
+            object.__setattr__(self, "targets", tuple(int(i) for i in t))
+        if self.offset is not None:
+            if self.field != "payload_mass":
+                raise ValueError(f"EventTerm({self.field!r}).offset is for 'payload_mass' only, got {self.offset!r}")
+            off = tuple(self.offset) if isinstance(self.offset, (list, tuple)) else ()
+            if len(off) != 3:
+                raise ValueError(f"EventTerm('payload_mass').offset must be (x, y, z) in m, got {self.offset!r}")
+            object.__setattr__(self, "offset", tuple(_finite(v, "EventTerm('payload_mass').offset") for v in off))
+
+
+@dataclasses.dataclass(frozen=True)
+class FieldSpec:
+    """A friendly field: its value per target has ``dim`` components, must stay ``> lower`` (``strict``) or ``>=``."""
+
+    dim: int
+    lower: float | None
+    strict: bool
+    ops: tuple[str, ...]
+
+
+FIELDS = {
+    "object_mass": FieldSpec(1, 0.0, True, OPS),
+    "mover_mass": FieldSpec(1, 0.0, True, OPS),
+    "payload_mass": FieldSpec(1, 0.0, False, ("set", "add")),
+    "object_friction": FieldSpec(1, 0.0, False, OPS),
+    "floor_friction": FieldSpec(1, 0.0, False, OPS),
+    "obstacle_xy": FieldSpec(2, None, False, ("set", "add")),
+}
+
+
+def as_terms(terms) -> list[EventTerm]:
+    """EventTerms from EventTerms or mappings; names the bad entry."""
+    if isinstance(terms, (EventTerm, Mapping)) or not isinstance(terms, Sequence) or isinstance(terms, str):
+        raise ValueError(f"randomization must be a list of EventTerm (or mappings), got {terms!r}")
+    out = []
+    for i, t in enumerate(terms):
+        if isinstance(t, EventTerm):
+            out.append(t)
+        elif isinstance(t, Mapping):
+            try:
+                out.append(EventTerm(**t))
+            except TypeError as e:
+                raise ValueError(f"randomization[{i}] = {dict(t)!r}: {e}") from None
+        else:
+            raise ValueError(f"randomization[{i}] must be an EventTerm or a mapping, got {t!r}")
+    return out
+
+
+def _apply_op(op: str, nominal: torch.Tensor, draw: torch.Tensor) -> torch.Tensor:
+    return draw if op == "set" else nominal * draw if op == "scale" else nominal + draw
+
+
+def _geom_ids(mjm: mujoco.MjModel, prefix: str) -> list[int]:
+    out = []
+    for g in range(mjm.ngeom):
+        name = mujoco.mj_id2name(mjm, mujoco.mjtObj.mjOBJ_GEOM, g) or ""
+        if name.startswith(prefix):
+            out.append(g)
+    return out
+
+
+class Randomizer:
+    """Applies a list of :class:`EventTerm` to a push env's mujoco-warp backend, per world (see the module doc).
+
+    ``values[field]``: the current value per world and target (``[W, T]``, ``obstacle_xy``: ``[W, T, 2]``);
+    ``nominal[field]``: the built model's (``[T]`` / ``[T, 2]``)."""
+
+    def __init__(self, env, terms):
+        self.terms = as_terms(terms)
+        self.env = env
+        b = self.backend = env.backend
+        self.num_worlds, self.device = b.num_worlds, b.torch_device
+        mjm = b.mjm
+        used = {t.field for t in self.terms}
+        self._targets = self._resolve_targets(env, used)
+        for i, t in enumerate(self.terms):
+            count = self._targets[t.field]
+            if count == 0:
+                raise ValueError(f"randomization[{i}] targets {t.field!r}, but this env has none")
+            if t.targets is not None and not all(0 <= k < count for k in t.targets):
+                raise ValueError(f"randomization[{i}] ({t.field!r}).targets {t.targets!r} out of range: this env has "
+                                 f"{count}")
+        names = set()
+        if used & {"object_mass", "mover_mass", "payload_mass"}:
+            names |= {"body_mass", "body_subtreemass", "body_inertia", "body_ipos", "body_invweight0", "dof_invweight0"}
+        if used & {"object_friction", "floor_friction"}:
+            names.add("geom_friction")
+        if "obstacle_xy" in used:
+            names.add("geom_pos")
+        self.nominal = self._nominal()
+        for i, t in enumerate(self.terms):
+            self._check_bounds(i, t)  # before anything on the device changes
+        self.fields = b.batch_model_fields(sorted(names))
+        if "floor_friction" in used:
+            self._floor_priority(mjm)
+        self.values = {f: self.nominal[f].expand(self.num_worlds, *self.nominal[f].shape).clone() for f in used}
+        if "payload_mass" in used:
+            self.payload_offset = torch.zeros(self.num_worlds, self._targets["payload_mass"], 3, device=self.device)
+        self._terms_idx = [None if t.targets is None else torch.tensor(t.targets, device=self.device)
+                           for t in self.terms]
+        self._offsets = [None if t.offset is None else torch.tensor(t.offset, device=self.device) for t in self.terms]
+        self.steps = 0
+        self._fire("startup", None)
+        self.commit(None)
+
+    # ------------------------------------------------------------------ construction
+    def _resolve_targets(self, env, used) -> dict[str, int]:
+        b, mjm = self.backend, self.backend.mjm
+        if "object_mass" in used and getattr(env, "variants", None) is not None:
+            raise ValueError("randomization of 'object_mass' with a varying object_ranges: its object variants set "
+                             "the object's mass rows at every reset; use object_ranges' 'mass' range instead")
+        if "obstacle_xy" in used and getattr(env, "_varying_walls", lambda: False)():
+            raise ValueError(f"randomization of 'obstacle_xy' with obstacle_mode={env.obstacle_mode!r}: that mode "
+                             "already moves the walls per episode; use a fixed mode ('simple', 'medium', 'hard')")
+        self.object_geoms = [_geom_ids(mjm, f"object_{k}_geom_") for k in range(b.num_objects)]
+        self.floor_geoms = [g for g in _geom_ids(mjm, "tile_")
+                            if mjm.geom_contype[g] or mjm.geom_conaffinity[g]]
+        self.obstacle_geoms = _geom_ids(mjm, "obstacle_geom_")
+        for g in self.obstacle_geoms:
+            if mjm.body_weldid[mjm.geom_bodyid[g]] != 0:
+                raise ValueError(f"obstacle geom {g} is not attached to the world body; obstacle_xy moves static geoms")
+        return {"object_mass": b.num_objects, "mover_mass": b.num_movers, "payload_mass": b.num_movers,
+                "object_friction": b.num_objects, "floor_friction": int(bool(self.floor_geoms)),
+                "obstacle_xy": len(self.obstacle_geoms)}
+
+    def _floor_priority(self, mjm) -> None:
+        """Give the floor contact priority over the object, with the object's contact parameters as nominal."""
+        if not self.object_geoms or not self.object_geoms[0]:
+            raise ValueError("floor_friction needs an object whose contacts with the floor it sets; this env has none")
+        src = self.object_geoms[0][0]
+        bad = [g for g in self.floor_geoms if mjm.geom_condim[g] != mjm.geom_condim[src]]
+        if bad:
+            raise ValueError(f"floor_friction: the floor geoms {bad} have condim {mjm.geom_condim[bad[0]]}, the object "
+                             f"{mjm.geom_condim[src]}; give them the same condim")
+        m = self.backend.model
+        floor = torch.tensor(self.floor_geoms, device=self.device)
+        wp.to_torch(m.geom_priority)[floor] = int(mjm.geom_priority.max()) + 1
+        for name in ("geom_solref", "geom_solimp", "geom_friction"):
+            arr = self.fields.get(name) if name in self.fields else wp.to_torch(getattr(m, name))
+            arr[:, floor] = arr[:, src:src + 1].clone()
+
+    def _nominal(self) -> dict[str, torch.Tensor]:
+        """The compiled model's values (``backend.mjm``), whatever the device arrays hold now."""
+        b, mjm, dev = self.backend, self.backend.mjm, self.device
+
+        def t(x):
+            return torch.as_tensor(np.asarray(x, np.float32), device=dev)
+
+        out = {"object_mass": t(mjm.body_mass[b.object_body]), "mover_mass": t(mjm.body_mass[b.mover_body]),
+               "payload_mass": torch.zeros(b.num_movers, device=dev)}
+        # subtree[:, b] = sum of body_mass over b's subtree: body_mass @ inside, inside[j, b] = j lies under b
+        inside = np.zeros((mjm.nbody, mjm.nbody), np.float32)
+        for j in range(mjm.nbody):
+            body = j
+            while True:
+                inside[j, body] = 1.0
+                if body == 0:
+                    break
+                body = mjm.body_parentid[body]
+        self._subtree = t(inside)
+        self._body_nominal = {}
+        for group, bodies, dadr in (("object", b.object_body, b.object_dadr), ("mover", b.mover_body, b.mover_dadr)):
+            dofs = np.asarray(dadr, np.int64).reshape(-1, 1) + np.arange(6)
+            rot = np.stack([_quat_mat(q) for q in mjm.body_iquat[bodies]]) if len(bodies) else np.zeros((0, 3, 3))
+            self._body_nominal[group] = {
+                "bodies": torch.as_tensor(bodies, device=dev).long(), "dofs": torch.as_tensor(dofs, device=dev),
+                "mass": t(mjm.body_mass[bodies]), "inertia": t(mjm.body_inertia[bodies]),
+                "ipos": t(mjm.body_ipos[bodies]), "invweight": t(mjm.body_invweight0[bodies]),
+                "dof_invweight": t(mjm.dof_invweight0[dofs]), "rot": t(rot),
+            }
+        src = [g[0] for g in self.object_geoms]
+        out["object_friction"] = t(mjm.geom_friction[src, 0])
+        # the floor's nominal friction is the object's (see _floor_priority)
+        out["floor_friction"] = t(mjm.geom_friction[src[:1], 0]) if self.floor_geoms else torch.zeros(0, device=dev)
+        self._geom_owner = {
+            "object_friction": self._owner_index(self.object_geoms),
+            "floor_friction": self._owner_index([self.floor_geoms]),
+        }
+        out["obstacle_xy"] = t(mjm.geom_pos[self.obstacle_geoms, :2].reshape(-1, 2))
+        self._obstacle_index = torch.as_tensor(self.obstacle_geoms, device=dev, dtype=torch.long)
+        return out
+
+    def _owner_index(self, groups: list[list[int]]) -> tuple[torch.Tensor, torch.Tensor]:
+        geoms = [g for grp in groups for g in grp]
+        owner = [k for k, grp in enumerate(groups) for _ in grp]
+        return (torch.tensor(geoms, device=self.device, dtype=torch.long),
+                torch.tensor(owner, device=self.device, dtype=torch.long))
+
+    def _check_bounds(self, i: int, t: EventTerm) -> None:
+        spec = FIELDS[t.field]
+        if spec.lower is None:
+            return
+        lo, hi = t.dist.support()
+        nom = self.nominal[t.field].reshape(-1)
+        if t.targets is not None:
+            nom = nom[list(t.targets)]
+        nom = nom.cpu().numpy().astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            if t.op == "set":
+                least = lo
+            elif t.op == "add":
+                least = float(nom.min()) + lo
+            else:
+                least = float(min(np.min(nom * lo), np.min(nom * hi)))
+        bad = least <= spec.lower if spec.strict else least < spec.lower
+        if bad or not np.isfinite(least):
+            rel = ">" if spec.strict else ">="
+            hint = " (a Gaussian needs clip=(lo, hi) to bound it)" if isinstance(t.dist, Gaussian) else ""
+            raise ValueError(f"randomization[{i}] ({t.field!r}, op {t.op!r}, {t.dist!r}) can make {t.field} "
+                             f"{least:g}, but it must stay {rel} {spec.lower:g}{hint}")
+
+    # ------------------------------------------------------------------ events
+    def reset(self, mask: torch.Tensor) -> None:
+        """Reset-mode terms for the worlds in ``mask``; rewrites their randomised model entries (after a reset that
+        changed model rows, e.g. object variants)."""
+        self._fire("reset", mask)
+        self.commit(mask)
+
+    def step(self) -> None:
+        """Count an env step; interval terms whose period divides the count fire (all worlds)."""
+        self.steps += 1
+        if self._fire("interval", None):
+            self.commit(None)
+
+    def _fire(self, mode: str, mask: torch.Tensor | None) -> bool:
+        fired = False
+        for i, t in enumerate(self.terms):
+            if t.mode != mode or (mode == "interval" and self.steps % t.interval_steps):
+                continue
+            fired = True
+            idx = self._terms_idx[i]
+            nom = self.nominal[t.field] if idx is None else self.nominal[t.field][idx]
+            draw = t.dist.sample((self.num_worlds, *nom.shape), self.env._generator, self.device)
+            new = _apply_op(t.op, nom, draw)
+            cur = self.values[t.field]
+            old = cur if idx is None else cur[:, idx]
+            if mask is not None:
+                new = torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, old)
+            if idx is None:
+                cur.copy_(new)
+            else:
+                cur[:, idx] = new
+            if t.field == "payload_mass":
+                off = self._offsets[i] if self._offsets[i] is not None else torch.zeros(3, device=self.device)
+                po = self.payload_offset if idx is None else self.payload_offset[:, idx]
+                po_new = off.expand_as(po)
+                if mask is not None:
+                    po_new = torch.where(mask.view(-1, 1, 1), po_new, po)
+                if idx is None:
+                    self.payload_offset.copy_(po_new)
+                else:
+                    self.payload_offset[:, idx] = po_new
+        return fired
+
+    # ------------------------------------------------------------------ model writes
+    def commit(self, mask: torch.Tensor | None) -> None:
+        """Write the current values into the model arrays for the worlds in ``mask`` (all if None)."""
+        v = self.values
+        if "object_mass" in v:
+            self._commit_bodies("object", v["object_mass"], None, None, mask)
+        if "mover_mass" in v or "payload_mass" in v:
+            mass = v.get("mover_mass", self.nominal["mover_mass"].expand(self.num_worlds, -1))
+            pay = v.get("payload_mass")
+            self._commit_bodies("mover", mass, pay, self.payload_offset if pay is not None else None, mask)
+        for name in ("object_friction", "floor_friction"):
+            if name in v:
+                geoms, owner = self._geom_owner[name]
+                fr = self.fields["geom_friction"]
+                _put(fr, (slice(None), geoms, 0), v[name][:, owner], mask)
+        if "obstacle_xy" in v:
+            g = self._obstacle_index
+            _put(self.fields["geom_pos"], (slice(None), g, slice(0, 2)), v["obstacle_xy"], mask)
+            xpos = wp.to_torch(self.backend.data.geom_xpos)
+            _put(xpos, (slice(None), g, slice(0, 2)), v["obstacle_xy"], mask)
+            boxes = getattr(self.env, "obstacle_boxes", None)
+            if boxes is not None and boxes.shape[1] == len(self.obstacle_geoms):
+                _put(boxes, (slice(None), slice(None), slice(0, 2)), v["obstacle_xy"], mask)
+
+    def _commit_bodies(self, group: str, mass, payload, offset, mask) -> None:
+        n, f = self._body_nominal[group], self.fields
+        bi = n["bodies"]
+        s = mass / n["mass"]  # uniform-density scale of the body itself
+        inertia = s[..., None] * n["inertia"]
+        ipos = n["ipos"].expand(mass.shape[0], -1, -1)
+        total = mass
+        if payload is not None:
+            total = mass + payload
+            mu = (mass * payload / total)[..., None]
+            r = torch.einsum("tji,wtj->wti", n["rot"], offset)  # into the principal (iquat) frame
+            inertia = inertia + mu * ((r * r).sum(-1, keepdim=True) - r * r)
+            ipos = ipos + (payload / total)[..., None] * offset
+        _put(f["body_mass"], (slice(None), bi), total, mask)
+        _put(f["body_subtreemass"], (slice(None),), f["body_mass"] @ self._subtree, mask)
+        _put(f["body_inertia"], (slice(None), bi), inertia, mask)
+        _put(f["body_ipos"], (slice(None), bi), ipos, mask)
+        rot_ratio = (1.0 / inertia).mean(-1) / (1.0 / n["inertia"]).mean(-1)
+        lin_ratio = n["mass"] / total
+        iw = n["invweight"] * torch.stack([lin_ratio, rot_ratio], -1)
+        _put(f["body_invweight0"], (slice(None), bi), iw, mask)
+        ratios = torch.cat([lin_ratio[..., None].expand(-1, -1, 3), rot_ratio[..., None].expand(-1, -1, 3)], -1)
+        _put(f["dof_invweight0"], (slice(None), n["dofs"]), n["dof_invweight"] * ratios, mask)
+
+
+def _put(dst: torch.Tensor, index: tuple, value: torch.Tensor, mask: torch.Tensor | None) -> None:
+    """``dst[index] = value`` for the worlds in ``mask`` (all if None); the leading axis is the world."""
+    if mask is not None:
+        old = dst[index]
+        value = torch.where(mask.view(-1, *([1] * (old.dim() - 1))), value.expand_as(old), old)
+    dst[index] = value
+
+
+def _quat_mat(q) -> np.ndarray:
+    """Rotation matrix of a MuJoCo quaternion (w, x, y, z)."""
+    m = np.zeros(9)
+    mujoco.mju_quat2Mat(m, np.asarray(q, np.float64))
+    return m.reshape(3, 3)
