@@ -4,7 +4,8 @@
 # wheels are staged (python3 ../shared/tools/device_wheels.py magbotsim==1.3.0 magpylib==6.3.0 shapely==2.2.0):
 #   export PYTHONPATH=/tmp/site:$PWD; bash benchmarks/gpu_round.sh STAGE
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
-# (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), swarm_render,
+# (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
+# swarm_render,
 # compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
@@ -39,6 +40,11 @@ for stage in "$@"; do
     sim2real)
       timeout 400 python3 benchmarks/sim2real_models.py --device cuda:0 --num-envs 4096,65536,262144,1048576 \
         --json "$OUT/sim2real_models_gpu.json" 2>&1 | tail -25 ;;
+    randomization)
+      timeout 120 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_randomization.py -k no_host_sync \
+        2>&1 | tail -3
+      timeout 400 python3 benchmarks/randomization.py --device cuda:0 --num-envs 4096,16384,65536 \
+        --json "$OUT/randomization_gpu.json" 2>&1 | tail -15 ;;
     swarm_render)
       timeout 300 python3 benchmarks/swarm_render.py --json "$OUT/swarm_render_gpu.json" 2>&1 | tail -20 ;;
     compare)
