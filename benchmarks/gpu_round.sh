@@ -5,8 +5,7 @@
 #   export PYTHONPATH=/tmp/site:$PWD; bash benchmarks/gpu_round.sh STAGE
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
-# swarm_render,
-# compare (B0 env throughput of an older tree beside this one).
+# swarm_render, compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
