@@ -129,6 +129,16 @@ def start_run(device: str | None) -> tuple[dict[str, Any], list[str]]:
     return info, [device] if device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
 
 
+def finish(rows: list[dict[str, Any]], columns: Sequence[str | tuple[str, str]], info: dict[str, Any],
+           json_path: str | None) -> int:
+    """A benchmark's closing: print the table, write the rows with their provenance to ``json_path`` (if given)."""
+    print_table(rows, columns)
+    if json_path:
+        stamp = provenance(info)
+        write_json(json_path, [{**r, **stamp} for r in rows])
+    return 0
+
+
 def command_line(argv: Sequence[str] | None = None) -> str:
     """The exact command as a copy-pastable shell line (python + sys.argv)."""
     argv = list(sys.argv if argv is None else argv)

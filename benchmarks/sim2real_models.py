@@ -19,7 +19,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from common import print_table, provenance, start_run, write_json  # noqa: E402
+from common import finish, start_run  # noqa: E402
 from env_throughput import raw_env_row  # noqa: E402
 
 MODELS = {
@@ -57,12 +57,9 @@ def main(argv=None) -> int:
                 rows.append({"env": args.env, "device": device, "num_envs": n, "models": model, "cost_pct": cost,
                              **res})
                 print(f"  {device} num_envs={n} {model}: {res['env_steps_per_s']:.4g} env-steps/s", flush=True)
-    print_table(rows, ["env", "device", "num_envs", "models", ("step_ms", "ms/step"), ("sim_ms", "physics ms"),
-                       ("env_steps_per_s", "env-steps/s"), ("cost_pct", "cost % vs off")])
-    if args.json:
-        stamp = provenance(info)
-        write_json(args.json, [{**r, **stamp} for r in rows])
-    return 0
+    columns = ["env", "device", "num_envs", "models", ("step_ms", "ms/step"), ("sim_ms", "physics ms"),
+            ("env_steps_per_s", "env-steps/s"), ("cost_pct", "cost % vs off")]
+    return finish(rows, columns, info, args.json)
 
 
 if __name__ == "__main__":
