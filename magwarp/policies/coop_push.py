@@ -52,7 +52,7 @@ class CoopPushPolicy:
         cruise: top speed (m/s) while approaching; push_speed: top speed while pushing.
         approach_brake: deceleration (m/s^2) planned when arriving at points and before the layout's sides.
         push_brake: deceleration (m/s^2) of the planned push speed towards the goal.
-        spacing: distance (m) between neighbouring slots (default: the collision box width + 12 mm); with box checks
+        spacing: distance (m) between neighbouring slots (default: the collision box width + 20 mm); with box checks
             the larger of its x and y components is this (slots along a diagonal are further apart).
         standoff: distance (m) of the staging points behind the slots (default: enough to clear the object at any yaw).
         clearance: gap (m) kept around the object's bounding circle while circling it.
@@ -76,7 +76,7 @@ class CoopPushPolicy:
                   float(max(mover.collision_half_size)))
         self.box = mover.collision_shape == "box"
         self.c_half = c_half
-        self.spacing = 2 * c_half + 0.012 if spacing is None else float(spacing)
+        self.spacing = 2 * c_half + 0.02 if spacing is None else float(spacing)
         self.slots = torch.arange(m, device=dev, dtype=torch.float32) - 0.5 * (m - 1)  # [M], in spacings
         obj = env.object
         rects = (np.array([[0.0, 0.0, obj.radius, obj.radius]]) if obj.shape == "cylinder" else
@@ -103,6 +103,8 @@ class CoopPushPolicy:
         self.lo = torch.tensor([wall, wall], dtype=torch.float32, device=dev)
         self.hi = torch.as_tensor(ext - wall, dtype=torch.float32, device=dev)
         self.pushing = torch.zeros(env.num_envs, dtype=torch.bool, device=dev)
+        self.dir = torch.zeros(env.num_envs, 2, device=dev)
+        self.hold_dir = 3 * env.max_position_err
 
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Forget the push phase of the worlds in ``mask`` (all by default); new episodes start approaching."""
@@ -145,7 +147,9 @@ class CoopPushPolicy:
         goal = obs["desired_goal"][:, :2]
         to_goal = goal - obj
         dist = to_goal.norm(dim=-1)
-        d = _unit(to_goal)
+        # the push direction; while pushing near the goal it is held (it would swing as the object passes the goal)
+        d = torch.where((self.pushing & (dist < self.hold_dir))[:, None], self.dir, _unit(to_goal))
+        self.dir = d
         side = _perp(d)
         back = self._support(yaw, -d)  # [N]
         rel = pos - obj[:, None]
@@ -177,7 +181,7 @@ class CoopPushPolicy:
         diff = pos[:, :, None] - pos[:, None]  # [N, M, M, 2]
         gap = (diff.abs().amax(-1) if self.box else diff.norm(dim=-1)) + torch.eye(m, device=o.device) * 1e3
         near = (self.spacing - 0.004 - gap).clamp_min(0.0)
-        v_app = v_app + (_unit(diff) * near[..., None]).sum(2) / self.dt
+        v_app = v_app + (_unit(diff) * near[..., None]).sum(2) * (2 / self.dt)
 
         # push: all movers drive along d, holding their slots and closing up on the object's back
         lined = (((u - stage_u).abs() < self.tolerance) & ((lat - offset).abs() < self.tolerance)
