@@ -184,8 +184,8 @@ def solved():
 
 
 def test_scripted_baseline_solves_a_real_share(solved):
-    # measured: 9 of 16 worlds (56%) with seed 1
-    assert solved.float().mean() >= 0.3, solved
+    # measured: 13 of 16 worlds (81%) with seed 1, no collision (three movers: 7 of 16, four: 3 of 16)
+    assert solved.float().mean() >= 0.5, solved
 
 
 def test_eval_prints_the_push_table(capsys):

@@ -11,8 +11,8 @@ together can (``2 F_1 = 24.8 N > F_f``) and accelerate the object with the mover
 + 2 m_mover) = 1.1 m/s^2``. Released, the object stops at ``mu g = 5.9 m/s^2``. tests/test_coop_push.py checks
 both: one mover pushing at full force for 1 s moves it less than 5 mm, two move it more than 5 cm.
 
-Defaults: a 0.2 m square box (``object_width`` = 0.1 m half-size), two movers (``num_movers`` 2 to 4), a 6 x 6 tile
-layout, box-shaped mover collision checks (half-size 0.08 m: movers side by side behind the object are not a
+Defaults: two movers (``num_movers`` 2 to 4), a square box 0.1 m wide per mover (``object_width`` = ``object_height``
+= 0.05 m per mover, half-sizes: 0.2 m for two movers, so that all of them fit behind one face), a 6 x 6 tile layout, box-shaped mover collision checks (half-size 0.08 m: movers side by side behind the object are not a
 collision), position goals (``max_position_err`` = 0.05 m; ``learn_pose=True`` gives pose goals scored by coverage as
 in Push-T), 100 steps of 40 ms. The object starts at least one mover length plus a margin from the layout's edge, so
 that the movers can get behind it from any side. Reward, success, termination and ``info`` are the push env's
@@ -67,7 +67,8 @@ class CoopPushEnv(PushEnv):
     combined push exceeds the object's friction. Every other option is :class:`~magwarp.envs.push.PushEnv`'s."""
 
     def __init__(self, num_envs: int = 1, num_movers: int = 2, *, object_type: str = "square_box",
-                 layout: Layout | np.ndarray | None = None, object_width: float = 0.1, object_height: float = 0.1,
+                 layout: Layout | np.ndarray | None = None, object_width: float | None = None,
+                 object_height: float | None = None,
                  object_mass: float | None = None, object_sliding_friction: float = 0.6, force_ratio: float = 1.5,
                  a_max: float = 10.0, max_episode_steps: int = 100, collision_shape: str = "box",
                  collision_size: float | tuple[float, float] | None = 0.08, learn_mover_c_rotation: bool = False,
@@ -83,6 +84,9 @@ class CoopPushEnv(PushEnv):
         self.friction_force = float(object_sliding_friction) * float(object_mass) * GRAVITY  # N
         #: the least number of movers whose combined largest push exceeds the object's sliding friction
         self.movers_needed = int(self.friction_force // self.mover_force) + 1
+        size = 0.05 * num_movers if isinstance(num_movers, (int, np.integer)) else 0.1  # half-size: 5 cm per mover
+        object_width = size if object_width is None else object_width
+        object_height = size if object_height is None else object_height
         layout = Layout(np.ones((6, 6), dtype=np.int32)) if layout is None else layout
         super().__init__(num_envs, object_type, layout, num_movers, object_width=object_width,
                          object_height=object_height, object_mass=object_mass,

@@ -8,7 +8,8 @@ Every env step, per world (batched torch, no loop over worlds or movers):
   do not cross);
 * **approach**: a mover flies to a staging point ``standoff`` behind its slot at up to ``cruise`` speed, braking to
   arrive; where the straight way would clip the object it circles the object at a clearance (towards its staging
-  point the short way round); movers closer than a collision half-size apart are pushed apart;
+  point the short way round); movers closer than a slot spacing are pushed apart, and each pair's closing speed is
+  capped to what can still brake before their collision shapes touch;
 * **push**: once every mover is at its staging point (or already pushing), they all drive along ``d`` at a speed that
   brakes (at ``push_brake``) to reach zero ``stop_at`` short of the goal, holding their slots laterally; the heavy
   object lags behind that speed, so each mover pushes at its full force until the object is moving;
@@ -52,7 +53,7 @@ class CoopPushPolicy:
         cruise: top speed (m/s) while approaching; push_speed: top speed while pushing.
         approach_brake: deceleration (m/s^2) planned when arriving at points and before the layout's sides.
         push_brake: deceleration (m/s^2) of the planned push speed towards the goal.
-        spacing: distance (m) between neighbouring slots (default: the collision box width + 20 mm); with box checks
+        spacing: distance (m) between neighbouring slots (default: the collision box width + 40 mm); with box checks
             the larger of its x and y components is this (slots along a diagonal are further apart).
         standoff: distance (m) of the staging points behind the slots (default: enough to clear the object at any yaw).
         clearance: gap (m) kept around the object's bounding circle while circling it.
@@ -76,7 +77,7 @@ class CoopPushPolicy:
                   float(max(mover.collision_half_size)))
         self.box = mover.collision_shape == "box"
         self.c_half = c_half
-        self.spacing = 2 * c_half + 0.02 if spacing is None else float(spacing)
+        self.spacing = 2 * c_half + 0.04 if spacing is None else float(spacing)
         self.slots = torch.arange(m, device=dev, dtype=torch.float32) - 0.5 * (m - 1)  # [M], in spacings
         obj = env.object
         rects = (np.array([[0.0, 0.0, obj.radius, obj.radius]]) if obj.shape == "cylinder" else
@@ -122,9 +123,9 @@ class CoopPushPolicy:
 
     def _wall_cap(self, pos: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         """``v`` with its components towards the layout's sides capped to what can still brake before them."""
-        b = self.approach_brake
-        up = torch.sqrt(2 * b * (self.hi - pos).clamp_min(0.0))
-        down = torch.sqrt(2 * b * (pos - self.lo).clamp_min(0.0))
+        b, lag = self.approach_brake, self.approach_brake * self.dt  # one held step of latency
+        up = (torch.sqrt(lag * lag + 2 * b * (self.hi - pos).clamp_min(0.0)) - lag).clamp_min(0.0)
+        down = (torch.sqrt(lag * lag + 2 * b * (pos - self.lo).clamp_min(0.0)) - lag).clamp_min(0.0)
         return torch.maximum(torch.minimum(v, up), -down)
 
     def _goto(self, pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -182,6 +183,13 @@ class CoopPushPolicy:
         gap = (diff.abs().amax(-1) if self.box else diff.norm(dim=-1)) + torch.eye(m, device=o.device) * 1e3
         near = (self.spacing - 0.004 - gap).clamp_min(0.0)
         v_app = v_app + (_unit(diff) * near[..., None]).sum(2) * (2 / self.dt)
+        # and cap each pair's closing speed to what can still brake before their collision shapes touch
+        r_hat = _unit(diff)  # from mover j to mover i
+        closing = -((v_app[:, :, None] - v_app[:, None]) * r_hat).sum(-1)  # [N, M, M]
+        room = (gap - 2 * self.c_half - 0.005).clamp_min(0.0)
+        lag = self.approach_brake * self.dt  # one held step of latency
+        excess = (closing - torch.sqrt(lag * lag + 2 * self.approach_brake * room) + lag).clamp_min(0.0)
+        v_app = v_app + (r_hat * (0.5 * excess)[..., None]).sum(2)
 
         # push: all movers drive along d, holding their slots and closing up on the object's back
         lined = (((u - stage_u).abs() < self.tolerance) & ((lat - offset).abs() < self.tolerance)
