@@ -60,11 +60,13 @@ class CoopPushPolicy:
         tolerance: lateral and longitudinal distance (m) from the staging point within which a mover counts as lined up.
         settle: the movers stop once the object's resting place is within this fraction of the position threshold.
         stop_at: distance (m) short of the goal at which the planned push speed reaches zero.
+        lateral_share: largest share of ``a_max`` a pushing mover spends holding its slot sideways.
     """
 
     def __init__(self, env, cruise: float = 1.2, push_speed: float = 0.6, approach_brake: float = 5.0,
                  push_brake: float = 3.0, spacing: float | None = None, standoff: float | None = None,
-                 clearance: float = 0.015, tolerance: float = 0.03, settle: float = 0.5, stop_at: float = 0.01):
+                 clearance: float = 0.015, tolerance: float = 0.03, settle: float = 0.5, stop_at: float = 0.01,
+                 lateral_share: float = 0.35):
         self.env = env
         self.m = m = env.num_movers
         self.jerk = bool(env.learn_jerk)
@@ -93,6 +95,7 @@ class CoopPushPolicy:
         self.cruise, self.push_speed = float(cruise), float(push_speed)
         self.approach_brake, self.push_brake = float(approach_brake), float(push_brake)
         self.tolerance = float(tolerance)
+        self.lateral_share = float(lateral_share)
         self.settle = float(settle) * env.max_position_err
         self.stop_at = float(stop_at)
         self.decel = float(env.object.friction[0]) * GRAVITY  # the object's friction deceleration when let go
@@ -204,7 +207,9 @@ class CoopPushPolicy:
         # lateral first (holding the slots keeps the movers apart), the rest of the acceleration along d
         v_lat = (vel * side[:, None]).sum(-1)
         a_lat = ((offset - lat) * 0.5 / self.dt - v_lat) / self.dt
-        a_lat = torch.where(settled[:, None], -v_lat / self.dt, a_lat).clamp(-self.a_max, self.a_max)
+        # (capped: a mover held sideways by the object's face must not spend its push on that)
+        lat_max = self.lateral_share * self.a_max
+        a_lat = torch.where(settled[:, None], -v_lat / self.dt, a_lat).clamp(-lat_max, lat_max)
         v_long = torch.where(settled, torch.zeros_like(speed), speed)[:, None]
         room = torch.sqrt((self.a_max ** 2 - a_lat ** 2).clamp_min(0.0))
         a_long = torch.maximum(torch.minimum((v_long - (vel * d[:, None]).sum(-1)) / self.dt, room), -room)
