@@ -11,9 +11,11 @@ together can (``2 F_1 = 24.8 N > F_f``) and accelerate the object with the mover
 + 2 m_mover) = 1.1 m/s^2``. Released, the object stops at ``mu g = 5.9 m/s^2``. tests/test_coop_push.py checks
 both: one mover pushing at full force for 1 s moves it less than 5 mm, two move it more than 5 cm.
 
-Defaults: two movers (``num_movers`` 2 to 4), a square box 0.1 m wide per mover (``object_width`` = ``object_height``
-= 0.05 m per mover, half-sizes: 0.2 m for two movers, so that all of them fit behind one face), a 6 x 6 tile layout, box-shaped mover collision checks (half-size 0.08 m: movers side by side behind the object are not a
-collision), position goals (``max_position_err`` = 0.05 m; ``learn_pose=True`` gives pose goals scored by coverage as
+Defaults: two movers (``num_movers`` 2 to 4), a square box of half-size (``object_width`` = ``object_height``) 0.05 m
+per mover (0.2 m wide for two movers: all of them fit behind one face; its mass does not depend on the mover count:
+``force_ratio=2.5`` makes one that needs three), a 6 x 6 tile layout,
+box-shaped mover collision checks (half-size 0.08 m: movers side by side behind the object are not a collision),
+position goals (``max_position_err`` = 0.05 m; ``learn_pose=True`` gives pose goals scored by coverage as
 in Push-T), 100 steps of 40 ms. The object starts at least one mover length plus a margin from the layout's edge, so
 that the movers can get behind it from any side. Reward, success, termination and ``info`` are the push env's
 (``PushEnv`` docstring): the reward is shared by all movers.

@@ -202,7 +202,8 @@ class MultiAgentVecEnv:
         if not isinstance(actions, torch.Tensor):
             raise TypeError(f"actions must be a torch tensor or numpy array, got {type(actions).__name__}")
         if tuple(actions.shape) != (n, m, a):
-            raise ValueError(f"actions must have shape ({n}, {m}, {a}) (env, mover, action), got {tuple(actions.shape)}")
+            raise ValueError(f"actions must have shape ({n}, {m}, {a}) (env, mover, action), "
+                             f"got {tuple(actions.shape)}")
         obs, reward, terminated, truncated, info = self.env.step(actions.reshape(n, a * m))
         info["state"] = state = global_state(obs)
         if "final_obs" in info:
