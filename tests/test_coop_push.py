@@ -83,7 +83,7 @@ def _agent_reference(obs: dict, m: int, dict_mode: bool):
 
 
 @pytest.mark.parametrize("num_movers", [2, 3])
-def test_agent_observations_match_the_documented_layout(env, rng, num_movers):
+def test_agent_observations_match_the_documented_layout(rng, num_movers):
     from magwarp.envs.coop_push import CoopAgentObservations
 
     n, m = 3, num_movers

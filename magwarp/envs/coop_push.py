@@ -16,9 +16,9 @@ per mover (0.2 m wide for two movers: all of them fit behind one face; its mass 
 ``force_ratio=2.5`` makes one that needs three), a 6 x 6 tile layout,
 box-shaped mover collision checks (half-size 0.08 m: movers side by side behind the object are not a collision),
 position goals (``max_position_err`` = 0.05 m; ``learn_pose=True`` gives pose goals scored by coverage as
-in Push-T), 100 steps of 40 ms. The object starts at least one mover length plus a margin from the layout's edge, so
-that the movers can get behind it from any side. Reward, success, termination and ``info`` are the push env's
-(``PushEnv`` docstring): the reward is shared by all movers.
+in Push-T), 100 steps of 40 ms. The object starts, and its goal lies, at least one mover length plus a margin further
+from the layout's edge than in the push envs, so that the movers can get behind it from any side. Reward, success,
+termination and ``info`` are the push env's (``PushEnv`` docstring): the reward is shared by all movers.
 
 Observations: the push env's goal dict, with the object's state appended to ``"observation"``::
 
