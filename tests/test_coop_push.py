@@ -144,6 +144,18 @@ def test_pettingzoo_parallel_api():
     pz.close()
 
 
+def test_three_movers_get_a_wider_object_and_three_agents():
+    from magwarp.envs.adapters import MagwarpParallelEnv
+
+    pz = MagwarpParallelEnv(CoopPushEnv, obs_mode="dict", device="cpu", num_movers=3)
+    assert pz.vec.object.width == pytest.approx(0.15) and pz.vec.movers_needed == 2
+    obs, _ = pz.reset(seed=0)
+    assert pz.possible_agents == ["mover_0", "mover_1", "mover_2"]
+    assert obs["mover_2"]["observation"].shape == (4 + 6 + 8,)
+    np.testing.assert_array_equal(obs["mover_0"]["desired_goal"], obs["mover_2"]["desired_goal"])
+    pz.close()
+
+
 def test_pettingzoo_still_refuses_single_agent_pushing():
     from magwarp.envs.adapters import MagwarpParallelEnv
     from magwarp.envs.push import PushBoxEnv
