@@ -26,6 +26,7 @@ ENV_CLASSES = {
     "PushWithObstaclesEnv": "magwarp.envs.push_obstacles",
     "SwarmEnv": "magwarp.swarm.env",
     "PlatformPoseEnv": "magwarp.envs.platform_pose",
+    "CoopPushEnv": "magwarp.envs.coop_push",
 }
 # Benchmark variants (names only; their layouts live in magwarp.layout.BENCHMARK_LAYOUTS and magwarp.envs.push).
 TRAJECTORY_BENCHMARKS = tuple(f"B{i}" for i in range(10))
@@ -66,6 +67,7 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/Swarm-v0"] = ("SwarmEnv", {})
     ids["magwarp/SwarmMaterialFlow-v0"] = ("SwarmEnv", {"stations": "auto"})
     ids["magwarp/PlatformPose-v0"] = ("PlatformPoseEnv", {})
+    ids["magwarp/CoopPush-v0"] = ("CoopPushEnv", {})
     return ids
 
 

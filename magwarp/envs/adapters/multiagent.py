@@ -1,4 +1,10 @@
-"""A batched, torch-native multi-agent view of a trajectory-planning-like env: one agent per mover.
+"""A batched, torch-native multi-agent view of a magwarp env: one agent per mover.
+
+Two kinds of env have one: trajectory-planning-like envs (per-mover goals; :class:`AgentObservations` below) and envs
+that define their own per-agent view through a method ``agent_observations(obs_mode)`` returning an object with
+``num_movers``, ``action_dim``, ``spaces()`` and ``__call__(obs, state)`` (e.g.
+:class:`~magwarp.envs.coop_push.CoopPushEnv`, whose agents share one object and goal). :func:`make_agent_view` picks.
+The rest of this docstring describes the trajectory-planning view.
 
 The per-agent observations are gathered from the env's goal-dict observation with a few batched tensor ops (no loop
 over envs or movers), so the same code serves the PettingZoo adapter (one world, numpy) and the TorchRL multi-agent
@@ -27,7 +33,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-__all__ = ["AgentObservations", "MultiAgentVecEnv", "agent_names"]
+__all__ = ["AgentObservations", "MultiAgentVecEnv", "agent_names", "make_agent_view"]
 
 OBS_MODES = ("flat", "dict")
 
@@ -56,6 +62,32 @@ def _check_task(env) -> tuple[int, bool]:
     return m, jerk
 
 
+def multi_agent_capable(env) -> bool:
+    """Does ``env`` (an instance or a class) have a multi-agent view (trajectory planning, or its own)?"""
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    cls = env if isinstance(env, type) else type(env)
+    return isinstance(cls, type) and (issubclass(cls, TrajectoryPlanningEnv) or
+                                      callable(getattr(cls, "agent_observations", None)))
+
+
+def make_agent_view(env, obs_mode: str = "flat"):
+    """The per-agent observation view of ``env``: its own (``env.agent_observations(obs_mode)``) where it defines
+    one, else :class:`AgentObservations` after checking the trajectory-planning observation layout."""
+    if obs_mode not in OBS_MODES:
+        raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
+    hook = getattr(env, "agent_observations", None)
+    if callable(hook):
+        view = hook(obs_mode)
+        m = env.num_movers
+        if env.single_action_space.shape != (m * view.action_dim,):
+            raise TypeError(f"the action space must have shape ({m * view.action_dim},) ({view.action_dim} per mover), "
+                            f"got {env.single_action_space.shape}")
+        return view
+    m, jerk = _check_task(env)
+    return AgentObservations(m, jerk, obs_mode, env.device)
+
+
 class AgentObservations:
     """Splits batched goal-dict observations ``[..., ...]`` into per-mover observations ``[..., M, D]``.
 
@@ -70,6 +102,7 @@ class AgentObservations:
         self.num_movers = m = int(num_movers)
         self.learn_jerk = bool(learn_jerk)
         self.obs_mode = obs_mode
+        self.action_dim = 2  # x/y per mover
         o = 2 * m * (2 if learn_jerk else 1)  # width of "observation"
         zero = o + 4 * m  # index of an appended zero column
 
@@ -130,10 +163,12 @@ def global_state(obs: dict[str, torch.Tensor]) -> torch.Tensor:
 
 class MultiAgentVecEnv:
     """Batched multi-agent view of ``env`` (a :class:`~magwarp.envs.MagwarpVecEnv` with the trajectory-planning
-    observation layout, e.g. :class:`~magwarp.envs.TrajectoryPlanningEnv`); torch in and out, on the env's device.
+    observation layout, e.g. :class:`~magwarp.envs.TrajectoryPlanningEnv`, or one with its own
+    ``agent_observations``, see :func:`make_agent_view`); torch in and out, on the env's device.
 
     * ``reset(seed=None, options=None)`` -> ``obs, info``;
-    * ``step(actions)`` with ``actions`` ``[num_envs, num_movers, 2]`` -> ``obs, reward, terminated, truncated, info``
+    * ``step(actions)`` with ``actions`` ``[num_envs, num_movers, A]`` (``A = action_dim``, 2: x/y) -> ``obs, reward,
+      terminated, truncated, info``
       where ``obs`` is ``[num_envs, num_movers, D]`` (or a dict of such tensors), ``reward``, ``terminated`` and
       ``truncated`` are ``[num_envs, num_movers]`` (shared within a world) and ``info`` is the env's info, plus
       ``info["state"]`` ``[num_envs, S]`` (the flat world state). With the env's autoreset on, ``info["final_obs"]``
@@ -144,12 +179,13 @@ class MultiAgentVecEnv:
         self.env = env
         self.num_envs = env.num_envs
         self.device = env.device
-        self.num_movers, self.learn_jerk = _check_task(env)
+        self.split = make_agent_view(env, obs_mode)
+        self.num_movers, self.action_dim = self.split.num_movers, self.split.action_dim
+        self.learn_jerk = bool(getattr(env, "learn_jerk", False))
         self.agents = agent_names(self.num_movers)
-        self.split = AgentObservations(self.num_movers, self.learn_jerk, obs_mode, env.device)
         self.single_agent_observation_space = self.split.spaces()
-        high = float(env.single_action_space.high.reshape(-1)[0])
-        self.single_agent_action_space = gym.spaces.Box(-high, high, (2,), np.float32)
+        high = np.asarray(env.single_action_space.high, np.float32).reshape(self.num_movers, self.action_dim)[0]
+        self.single_agent_action_space = gym.spaces.Box(-high, high, dtype=np.float32)
         s_dim = sum(int(np.prod(env.single_observation_space[k].shape)) for k in ("observation", "achieved_goal", "desired_goal"))
         self.state_space = gym.spaces.Box(-np.inf, np.inf, (s_dim,), np.float32)
 
@@ -160,14 +196,15 @@ class MultiAgentVecEnv:
         return self.split(obs, state), info
 
     def step(self, actions):
-        n, m = self.num_envs, self.num_movers
+        n, m, a = self.num_envs, self.num_movers, self.action_dim
         if isinstance(actions, np.ndarray):
             actions = torch.from_numpy(actions)
         if not isinstance(actions, torch.Tensor):
             raise TypeError(f"actions must be a torch tensor or numpy array, got {type(actions).__name__}")
-        if tuple(actions.shape) != (n, m, 2):
-            raise ValueError(f"actions must have shape ({n}, {m}, 2) (env, mover, x/y), got {tuple(actions.shape)}")
-        obs, reward, terminated, truncated, info = self.env.step(actions.reshape(n, 2 * m))
+        if tuple(actions.shape) != (n, m, a):
+            raise ValueError(f"actions must have shape ({n}, {m}, {a}) (env, mover, action), "
+                             f"got {tuple(actions.shape)}")
+        obs, reward, terminated, truncated, info = self.env.step(actions.reshape(n, a * m))
         info["state"] = state = global_state(obs)
         if "final_obs" in info:
             info["final_obs"] = self.split(info["final_obs"])

@@ -1,6 +1,9 @@
 """A PettingZoo ``ParallelEnv`` with one agent per mover, over one world of a batched magwarp env (numpy in/out).
 
-``MagwarpParallelEnv()`` is trajectory planning on B0 (3 agents ``mover_0`` .. ``mover_2``). Observations, actions
+``MagwarpParallelEnv()`` is trajectory planning on B0 (3 agents ``mover_0`` .. ``mover_2``);
+``MagwarpParallelEnv(CoopPushEnv)`` is cooperative pushing (per-agent view and shared reward of
+:mod:`magwarp.envs.coop_push`; per-agent infos hold the world's ``is_success`` as ``goal_reached``). For trajectory
+planning: Observations, actions
 and rewards are those of :mod:`magwarp.envs.adapters.multiagent`: per-agent observation of own velocity (and
 acceleration in jerk mode), own position, own goal, the other movers' relative positions and velocities; per-agent
 action = the mover's x/y acceleration (jerk); shared team reward; all agents terminate (collision) or truncate
@@ -27,15 +30,17 @@ def _np(x: torch.Tensor) -> np.ndarray:
     return x.detach().cpu().numpy()
 
 
-def _check_trajectory_env(env) -> None:
-    """The adapter gives every mover of a trajectory-planning env its own agent; other tasks have no per-mover goals."""
-    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+def _check_multi_agent_env(env) -> None:
+    """The adapter gives every mover its own agent: trajectory-planning envs (per-mover goals) and envs with their own
+    per-agent view (``agent_observations``, e.g. cooperative pushing); other tasks are single-agent."""
+    from magwarp.envs.adapters.multiagent import multi_agent_capable
 
-    cls = env if isinstance(env, type) else type(env)
-    if not (isinstance(cls, type) and issubclass(cls, TrajectoryPlanningEnv)):
-        raise TypeError(f"MagwarpParallelEnv serves trajectory-planning envs (a TrajectoryPlanningEnv class or "
-                        f"instance: one agent per mover with its own goal), got {getattr(cls, '__name__', cls)!r}; "
-                        f"pushing envs are single-agent: use them through gymnasium or the SB3/TorchRL adapters")
+    if not multi_agent_capable(env):
+        cls = env if isinstance(env, type) else type(env)
+        raise TypeError(f"MagwarpParallelEnv serves multi-agent envs (a TrajectoryPlanningEnv, or an env with "
+                        f"agent_observations() such as CoopPushEnv: one agent per mover), got "
+                        f"{getattr(cls, '__name__', cls)!r}; single-agent pushing envs are used through gymnasium or "
+                        f"the SB3/TorchRL adapters")
 
 
 class MagwarpParallelEnv(ParallelEnv):
@@ -53,7 +58,7 @@ class MagwarpParallelEnv(ParallelEnv):
             from magwarp.envs.trajectory import TrajectoryPlanningEnv
 
             env = TrajectoryPlanningEnv
-        _check_trajectory_env(env)
+        _check_multi_agent_env(env)
         if isinstance(env, type):
             env = env(num_envs=1, autoreset=False, render_mode=render_mode, **env_kwargs)
         elif env_kwargs:
@@ -63,6 +68,8 @@ class MagwarpParallelEnv(ParallelEnv):
                              f"autoreset={env.autoreset}")
         self.vec = env
         self.ma = MultiAgentVecEnv(env, obs_mode)
+        name = "".join(f"_{c.lower()}" if c.isupper() else c for c in type(env).__name__.removesuffix("Env"))
+        self.metadata = {**self.metadata, "name": f"magwarp{name}_v0"}
         self.render_mode = env.render_mode
         self.possible_agents = list(self.ma.agents)
         self.agents: list[str] = []
@@ -102,17 +109,20 @@ class MagwarpParallelEnv(ParallelEnv):
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise KeyError(f"no action given for agents {missing}")
-        batch = np.empty((1, len(self.possible_agents), 2), np.float32)
+        dim = self.ma.action_dim
+        batch = np.empty((1, len(self.possible_agents), dim), np.float32)
         for a, i in self._index.items():
             act = np.asarray(actions[a], dtype=np.float32)
-            if act.shape != (2,):
-                raise ValueError(f"action of {a} must have shape (2,), got {act.shape}")
+            if act.shape != (dim,):
+                raise ValueError(f"action of {a} must have shape ({dim},), got {act.shape}")
             batch[0, i] = act
         obs, reward, terminated, truncated, info = self.ma.step(torch.from_numpy(batch).to(self.vec.device))
         self._state = _np(info["state"][0])
         r, te, tr = float(reward[0, 0]), bool(terminated[0, 0]), bool(truncated[0, 0])
         mc, wc = bool(info["mover_collision"][0]), bool(info["wall_collision"][0])
-        reached = _np(info["goals_reached"][0]) if "goals_reached" in info else np.zeros(len(self._index), bool)
+        reached = (_np(info["goals_reached"][0]) if "goals_reached" in info else  # per-mover goals, or the world's
+                   np.full(len(self._index), bool(info["is_success"][0])) if "is_success" in info else
+                   np.zeros(len(self._index), bool))
         collected = _np(info["collected_goals"][0]) if "collected_goals" in info else np.zeros(len(self._index), int)
         agents = self.agents
         infos = {a: {"mover_collision": mc, "wall_collision": wc, "goal_reached": bool(reached[self._index[a]]),

@@ -8,7 +8,9 @@ Single-agent (default): the env's observation keys (``observation``, ``achieved_
 tasks, or ``observation``), ``action`` ``[N, A]``, ``reward`` ``[N, 1]``, ``done`` / ``terminated`` /
 ``truncated`` ``[N, 1]``. Specs are built from the gymnasium spaces.
 
-Multi-agent (``multi_agent=True``, trajectory-planning-like envs): one agent per mover under the ``"agents"`` group,
+Multi-agent (``multi_agent=True``; trajectory-planning-like envs and envs with their own per-agent view such as
+:class:`~magwarp.envs.coop_push.CoopPushEnv`, see :func:`~magwarp.envs.adapters.multiagent.make_agent_view`): one
+agent per mover under the ``"agents"`` group,
 as TorchRL's MARL envs (VMAS) lay it out: ``("agents", "observation")`` ``[N, M, D]`` (see
 :mod:`magwarp.envs.adapters.multiagent`), ``("agents", "action")`` ``[N, M, 2]``, ``("agents", "reward")``
 ``[N, M, 1]`` (shared team reward), plus the flat world ``state`` ``[N, S]`` for centralised critics and ``done`` /
@@ -24,7 +26,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from magwarp.envs.adapters.multiagent import AgentObservations, _check_task, global_state
+from magwarp.envs.adapters.multiagent import global_state, make_agent_view
 from magwarp.envs.base import MagwarpVecEnv
 
 __all__ = ["TorchRLEnv"]
@@ -66,9 +68,9 @@ class TorchRLEnv(EnvBase):
         n, dev = env.num_envs, env.device
         self._done = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         if multi_agent:
-            m, jerk = _check_task(env)
-            self.num_movers = m
-            self._split = AgentObservations(m, jerk, obs_mode, dev)
+            self._split = make_agent_view(env, obs_mode)
+            self.num_movers = m = self._split.num_movers
+            a = self._split.action_dim
             group = (n, m)
             agent_obs = _spec(self._split.spaces(), group, dev)
             agents_obs = (Composite({"observation": agent_obs}, shape=group, device=dev) if obs_mode == "flat" else
@@ -76,8 +78,9 @@ class TorchRLEnv(EnvBase):
             s_dim = sum(int(np.prod(env.single_observation_space[k].shape)) for k in ("observation", "achieved_goal", "desired_goal"))
             self.observation_spec = Composite({"agents": agents_obs, "state": Unbounded((n, s_dim), device=dev)},
                                               shape=(n,), device=dev)
-            high = float(env.single_action_space.high.reshape(-1)[0])
-            act = Bounded(low=-high, high=high, shape=(n, m, 2), dtype=torch.float32, device=dev)
+            high = torch.as_tensor(np.asarray(env.single_action_space.high, np.float32).reshape(m, a), device=dev)
+            high = high.expand(n, m, a)
+            act = Bounded(low=-high, high=high, shape=(n, m, a), dtype=torch.float32, device=dev)
             self.action_spec = Composite({"agents": Composite({"action": act}, shape=group, device=dev)}, shape=(n,),
                                          device=dev)
             self.reward_spec = Composite({"agents": Composite({"reward": Unbounded((n, m, 1), device=dev)}, shape=group,
