@@ -1,6 +1,8 @@
 """The scripted swarm planner: its ORCA lines against the geometry they promise (a relative velocity moved by
-``u`` grazes the safe disc within the horizon: closest approach = the radius), a head-on pass, and a swarm where it
-collides far less and reaches more goals than straight goal seeking."""
+``u`` grazes the safe disc within the horizon: closest approach = the radius), the braking shield's stop speed
+against the held-then-braked kinematics, a head-on pass, a swarm where it collides far less and reaches more goals
+than straight goal seeking, and its quality on a small seeded swarm at 25% occupancy (goals, collisions per 1000
+goals, deadlocks, share of first goals reached)."""
 
 from __future__ import annotations
 
@@ -9,7 +11,8 @@ import pytest
 import torch
 
 from magwarp.swarm import SwarmEnv
-from magwarp.swarm.planner import SwarmPlanner, orca_lines
+from magwarp.swarm.metrics import SwarmMetrics
+from magwarp.swarm.planner import SwarmPlanner, orca_lines, stop_speed
 
 
 def closest_approach(d: np.ndarray, u: np.ndarray, horizon: float) -> np.ndarray:
@@ -108,13 +111,58 @@ def test_solve_lines_finds_the_closest_feasible_velocity(rng):
 
 def test_planner_options_keep_commands_within_limits():
     env = SwarmEnv(1, num_movers=24, layout=np.ones((8, 8)), device="cpu", seed=5)
-    for options in (dict(relax=0.1), dict(reachable=True), dict(brake_factor=1.0, yield_share=0.8)):
+    for options in (dict(relax=0.1), dict(reachable=True), dict(brake_factor=1.0, yield_share=0.8),
+                    dict(greedy=False, relax=1.0), dict(greedy=False, shield=0.0), dict(reachable=True, greedy=True)):
         planner = SwarmPlanner(env, **options)
         for _ in range(10):
             action = planner()
             assert action.shape == (1, 24, 2) and torch.isfinite(action).all()
             assert float(action.norm(dim=-1).max()) <= env.config.a_max * (1 + 1e-5)
             env.step(action)
-    for bad in (dict(relax=-1.0), dict(yield_share=1.5), dict(brake_factor=2.0), dict(cruise=0.0)):
+    for bad in (dict(relax=-1.0), dict(yield_share=1.5), dict(brake_factor=2.0), dict(cruise=0.0), dict(shield=1.5),
+                dict(margin=-0.01)):
         with pytest.raises(ValueError):
             SwarmPlanner(env, **bad)
+
+
+def test_stop_speed_matches_the_held_then_braked_kinematics(rng):
+    """At the stop speed the gap closes by exactly ``room``: the closing speed moves linearly from ``c0`` to ``c``
+    within the step, then brakes at ``decel`` to rest (numerical integration of that profile)."""
+    n, step, decel = 400, 0.04, 8.0
+    room = rng.uniform(0.0, 0.5, n)
+    c0 = rng.uniform(-1.0, 2.0, n)
+    c = stop_speed(torch.tensor(room), torch.tensor(c0), decel, step).numpy()
+    fits = room - 0.5 * step * c0 >= 0
+    # the closed-form distance: the step's trapezoid, then c^2 / (2 decel) while braking (c >= 0 where room is left)
+    assert (c[fits] >= -1e-12).all(), str(rng)
+    travelled = 0.5 * step * (c0 + c) + np.where(c > 0, c * c / (2 * decel), 0.0)
+    np.testing.assert_allclose(travelled[fits], room[fits], atol=1e-9, err_msg=str(rng))
+    # fine time steps of the same profile
+    t = np.linspace(0.0, step, 2001)
+    hold = np.trapezoid(c0[:, None] + (c - c0)[:, None] * t / step, t, axis=1)
+    tb = np.linspace(0.0, 1.0, 20001)[None, :] * (np.maximum(c, 0.0) / decel)[:, None]
+    brake = np.trapezoid(np.maximum(c, 0.0)[:, None] - decel * tb, tb, axis=1)
+    np.testing.assert_allclose((hold + brake)[fits], room[fits], atol=1e-6, err_msg=str(rng))
+    # no room left: open the gap back within one step
+    np.testing.assert_allclose(c[~fits], 2.0 * (room[~fits] - 0.5 * step * c0[~fits]) / step, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_planner_quality_on_a_small_dense_swarm(seed):
+    """64 movers on 16 x 16 tiles (25% occupancy), 2 worlds, 100 steps (4 s): the planner as shipped keeps moving
+    (no deadlocked mover), reaches goals and collides rarely. Measured with this seed: 62 / 75 goals, 113 / 200
+    collided movers per 1000 goals, 0 deadlocked, 45-48% of the first goals reached; the planner before the braking
+    shield and the greedy program reached 29 / 43 goals at 395-414 per 1000 goals, with 13-16 movers deadlocked."""
+    env = SwarmEnv(2, num_movers=64, layout=np.ones((16, 16)), device="cpu", seed=seed, check_inputs=False)
+    planner = SwarmPlanner(env)
+    metrics = SwarmMetrics(env)
+    env.reset()
+    for _ in range(100):
+        _, _, _, _, info = env.step(planner())
+        metrics.update(info)
+    r = metrics.result()
+    first = float((metrics.tracker.t["nth_goal_step"] >= 0).float().mean())  # movers that reached a first goal
+    assert r["goals"] >= 55, r
+    assert r["collisions_per_1000_goals"] <= 300, r
+    assert r["deadlocked"] <= 2, r
+    assert first >= 0.38, (first, r)

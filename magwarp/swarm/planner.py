@@ -1,5 +1,5 @@
 """A scripted, decentralised planner for the swarm env: ORCA (optimal reciprocal collision avoidance) on the
-local view.
+local view, with a braking shield for the 40 ms command hold.
 
 Each mover looks only at what its observation holds (its goal, the ``k`` nearest movers within the observation
 radius, the wall rays), so a step costs O(k) per mover, on the device, for any swarm size. Per mover:
@@ -8,14 +8,29 @@ radius, the wall rays), so a step costs O(k) per mover, on the device, for any s
    (``sqrt(2 a_brake d)``);
 2. *reciprocal avoidance*: every neighbour gives one half-plane of allowed velocities, the ORCA line of van den
    Berg et al. (2011) for a time horizon ``horizon`` and the safe distance (both collision shapes' reach, the safety
-   margin and a ``buffer`` for the 25 Hz control; movers already closer than that separate within ``separate``
-   seconds, gently, since the buffer is not a collision). The mover of lower index takes ``1 - yield_share`` of the
-   avoidance and the other ``yield_share`` (fixed priorities break symmetric deadlocks);
-3. *walls*: every wall ray gives a half-plane too: no faster towards the wall than stopping before it allows;
-4. the new velocity is the one closest to the preferred one, within ``cruise``, that satisfies every half-plane
+   margin and a ``buffer``). The command is an acceleration held for the whole env step, so the velocity changes
+   linearly within it: the lines are drawn from the positions half a step ahead (where the new velocity in effect
+   starts). Pairs already inside the safe distance use 0.98 x their gap as the radius, but never less than
+   ``2 margin`` above contact (no creep into contact; below that they separate within ``separate`` s). The mover of
+   lower index takes ``1 - yield_share`` of the avoidance and the other ``yield_share``;
+3. *braking shield*: per neighbour, the closing speed at the end of the step may be no more than the one from
+   which both movers, braking at ``shield * a_max``, stop ``margin`` short of contact (:func:`stop_speed`, counting
+   the closing during the held step); each mover takes half of the change. This is what keeps a crowd collision
+   free when the ORCA lines leave no room;
+4. *walls*: every wall ray gives a half-plane too: no faster towards the wall than stopping before it allows (the
+   same held-then-braked rule at ``a_brake``);
+5. the new velocity is the one closest to the preferred one, within ``cruise``, that satisfies the half-planes
    (ORCA's incremental 2-D linear program, :func:`solve_lines`: O((k + rays)^2) tensor operations, whatever the
-   swarm size); where the half-planes leave no room (a crowd) the mover brakes to ``brake_factor`` of its velocity.
-   The command is the acceleration that reaches the new velocity within one env step.
+   swarm size), taken in order of urgency: walls, shield, then the neighbours nearest first; a line that leaves
+   no room with the earlier ones is dropped (``greedy``, the default), so a crowd keeps the most urgent constraints
+   and keeps moving instead of braking into a jam. ``greedy=False`` is the plain program with fallbacks (every
+   line; else lines relaxed by ``relax`` x their slack; else shield and walls alone; else brake to
+   ``brake_factor`` of the velocity); ``reachable`` solves within the velocities one step of ``a_max`` reaches.
+   The command is the acceleration that reaches the new velocity within one env step, within ``a_max``.
+
+Quality (``benchmarks/swarm.py`` planner rows, :class:`~magwarp.swarm.SwarmMetrics`): goals reached in the
+window, collided movers per 1000 goals, deadlocked movers at the end, and the share of movers that reached their
+first goal (the one drawn at reset) within the window.
 """
 
 from __future__ import annotations
@@ -27,7 +42,7 @@ import torch
 from magwarp.swarm.env import SwarmEnv
 from magwarp.swarm.observations import ray_directions
 
-__all__ = ["SwarmPlanner", "orca_lines", "solve_lines"]
+__all__ = ["SwarmPlanner", "orca_lines", "solve_lines", "stop_speed"]
 
 
 def _det(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -70,7 +85,8 @@ def orca_lines(rel_pos: torch.Tensor, rel_vel: torch.Tensor, radius: float | tor
     return direction, u
 
 
-def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float) -> tuple[torch.Tensor, torch.Tensor]:
+def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float,
+                skip: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """The velocity closest to ``v_pref`` within speed ``max_speed`` that satisfies every half-plane of ``lines``
     (``(point, direction, live)`` triples, each ``[..., 2]``, ``[..., 2]``, ``[...]``): ORCA's incremental 2-D linear
     program (constraints added one by one; when the new one is violated, the best point on its line that keeps the
@@ -79,6 +95,7 @@ def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float) -> tuple[to
     n = v_pref.norm(dim=-1, keepdim=True)
     v = torch.where(n > max_speed, v_pref * (max_speed / n.clamp_min(1e-9)), v_pref)
     ok = torch.ones(v.shape[:-1], dtype=torch.bool, device=v.device)
+    lines = list(lines)
     for i, (p_i, d_i, live_i) in enumerate(lines):
         violated = live_i & (_det(d_i, p_i - v) > 0)
         # the part of line i inside the speed circle ...
@@ -103,28 +120,46 @@ def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float) -> tuple[to
         take = violated & feasible
         v = torch.where(take[..., None], best, v)
         ok = ok & ~(violated & ~feasible)
+        if skip:  # an infeasible line is dropped: the later lines need not keep it
+            lines[i] = (p_i, d_i, live_i & ~(violated & ~feasible))
     return v, ok
+
+
+def stop_speed(room: torch.Tensor, closing: torch.Tensor, decel: float, step: float) -> torch.Tensor:
+    """The fastest closing speed ``c`` at the end of a step from which the gap can still be closed no further than
+    ``room`` (m): the speed changes linearly within the step, from ``closing`` to ``c``, then brakes at ``decel``:
+    ``room - step (closing + c) / 2 - c^2 / (2 decel) >= 0``. Where ``room`` is already spent (< 0) the result is
+    the opening speed that gives it back within one step."""
+    left = room - 0.5 * step * closing
+    root = torch.sqrt((0.25 * step * step + 2.0 * left.clamp_min(0.0) / decel))
+    return torch.where(left >= 0, decel * (root - 0.5 * step), 2.0 * left / step)
 
 
 class SwarmPlanner:
     """``action = SwarmPlanner(env)()``: x/y accelerations ``[num_envs, num_movers, 2]`` for a :class:`SwarmEnv`
     (acceleration control). See the module docstring for the rule and its parameters."""
 
-    def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 1.0,
-                 buffer: float = 0.06, yield_share: float = 0.5, brake_factor: float = 0.5,
-                 separate: float = 0.3, relax: float = 0.0, reachable: bool = False):
+    def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 2.0,
+                 buffer: float = 0.06, yield_share: float = 0.5, shield: float = 0.4, margin: float = 0.005,
+                 greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3, relax: float = 0.0,
+                 reachable: bool = False):
         if env.learn_jerk:
             raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
-        if not 0.0 <= yield_share <= 1.0:
-            raise ValueError(f"yield_share must be in [0, 1], got {yield_share!r}")
-        if not 0.0 <= brake_factor <= 1.0:
-            raise ValueError(f"brake_factor must be in [0, 1], got {brake_factor!r}")
+        for name, value, hi in (("yield_share", yield_share, 1.0), ("brake_factor", brake_factor, 1.0),
+                                ("shield", shield, 1.0)):
+            if not 0.0 <= value <= hi:
+                raise ValueError(f"{name} must be in [0, {hi}], got {value!r}")
+        for name, value in (("relax", relax), ("margin", margin), ("buffer", buffer)):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a number >= 0, got {value!r}")
         self.env = env
         self.cruise, self.a_brake, self.horizon = float(cruise), float(a_brake), float(horizon)
         self.yield_share, self.brake_factor = float(yield_share), float(brake_factor)
+        self.shield, self.margin, self.greedy = float(shield), float(margin), bool(greedy)
+        self.relax, self.reachable = float(relax), bool(reachable)
         sim = env.sim
         col = sim.model.collision
         reach = float(sim._radii_np.max()) if col.shape == 0 else float(math.hypot(*sim._half_np.max(axis=0)))
@@ -134,13 +169,63 @@ class SwarmPlanner:
         self.a_max = float(env.config.a_max)
         self.step_time = env.num_cycles * float(sim.model.limits.dt)
         self.separate = max(float(separate), self.step_time)
-        if not (math.isfinite(relax) and relax >= 0):
-            raise ValueError(f"relax must be a number >= 0, got {relax!r}")
-        self.relax = float(relax)
-        self.reachable = bool(reachable)
         dev = env.device
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
+
+    def _neighbour_lines(self, vel: torch.Tensor) -> tuple[list, list, list]:
+        """ORCA lines, their slack (for ``relax``) and the braking-shield lines of the ``k`` neighbours."""
+        local, T = self.env.local, self.step_time
+        # the command is held for the step and the velocity changes linearly within it: from the middle of the
+        # step on, the mover travels at its new velocity as if it had started there
+        rel_pos = local.rel_pos + (0.5 * T) * local.rel_vel
+        gap = rel_pos.norm(dim=-1)
+        # pairs already inside the safe distance use (almost) their gap as the radius, down to ``margin`` above
+        # contact (below it they separate, within ``separate`` s): they may not close it further
+        floor = self.contact + 2.0 * self.margin
+        radius = torch.minimum(torch.full_like(gap, self.safe), (0.98 * gap).clamp_min(floor))
+        direction, u = orca_lines(rel_pos, -local.rel_vel, radius, self.horizon, self.separate)
+        share = torch.where(local.index < self.index, self.yield_share, 1.0 - self.yield_share)
+        point = vel[..., None, :] + share[..., None] * u
+        k, mask = local.k, local.mask
+        lines = [(point[..., s, :], direction[..., s, :], mask[..., s]) for s in range(k)]
+        slack = [(gap[..., s] - floor).clamp_min(0.0) for s in range(k)]
+        shield = []
+        if self.shield > 0:
+            # braking shield: after this step the pair can still stop ``margin`` short of contact, both braking at
+            # ``shield * a_max``; each mover takes half of the change: v_i . n <= v_i0 . n + (c_max - c0) / 2
+            d0 = local.rel_pos.norm(dim=-1).clamp_min(1e-6)
+            nrm = local.rel_pos / d0[..., None]
+            c0 = -(local.rel_vel * nrm).sum(-1)
+            c_max = stop_speed(d0 - self.contact - self.margin, c0, 2.0 * self.shield * self.a_max, T)
+            lim = (vel[..., None, :] * nrm).sum(-1) + 0.5 * (c_max - c0)
+            sdir = torch.stack([-nrm[..., 1], nrm[..., 0]], -1)  # det(sdir, lim n - v) <= 0 <=> v . n <= lim
+            spoint = lim[..., None] * nrm
+            shield = [(spoint[..., s, :], sdir[..., s, :], mask[..., s]) for s in range(k)]
+        return lines, slack, shield
+
+    def _wall_lines(self, vel: torch.Tensor) -> tuple[list, list]:
+        """One line per wall ray: ``v . ray <= c`` with ``c`` the fastest approach that can still stop before the
+        wall (the speed changing linearly within the step, then braking at ``a_brake``)."""
+        local = self.env.local
+        room = (local.walls - self.wall_reach).clamp_min(0.0)
+        approach = (vel[..., None, :] * self.rays[: local.num_rays]).sum(-1)
+        limit = stop_speed(room, approach, self.a_brake, self.step_time).clamp_min(0.0)
+        live = torch.ones_like(room[..., 0], dtype=torch.bool)
+        lines, slack = [], []
+        for r in range(local.num_rays):
+            ray = self.rays[r]
+            normal_dir = torch.stack([-ray[1], ray[0]]).expand_as(vel)  # det(dir, point - v) <= 0 <=> v.ray <= lim
+            lines.append((limit[..., r, None] * ray, normal_dir, live))
+            slack.append(room[..., r])
+        return lines, slack
+
+    def _solve(self, lines: list, v_pref: torch.Tensor, vel: torch.Tensor, skip: bool = False):
+        if self.reachable:  # among the velocities reachable within one step (a disc around the velocity)
+            dv, ok = solve_lines([(p - vel, d, live) for p, d, live in lines], v_pref - vel,
+                                 self.a_max * self.step_time, skip=skip)
+            return vel + dv, ok
+        return solve_lines(lines, v_pref, self.cruise, skip=skip)
 
     def __call__(self, obs=None) -> torch.Tensor:
         env, sim = self.env, self.env.sim
@@ -150,49 +235,30 @@ class SwarmPlanner:
         err = env.goals - pos
         dist = err.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         speed = torch.minimum(torch.full_like(dist, self.cruise), torch.sqrt(2.0 * self.a_brake * dist))
-        v = err / dist * speed
-        # 2. ORCA lines of the neighbours (relative velocity v_i - v_j = -rel_vel)
-        lines = []
-        if local.k > 0:
-            # pairs already inside the safe distance (but apart) use their gap as the radius: they may not close
-            # it further, and are not asked to open it at once (a mover packed between two could not)
-            gap = local.rel_pos.norm(dim=-1)
-            radius = torch.where(gap > self.contact, torch.minimum(torch.full_like(gap, self.safe), 0.98 * gap),
-                                 torch.full_like(gap, self.safe))
-            direction, u = orca_lines(local.rel_pos, -local.rel_vel, radius, self.horizon, self.separate)
-            share = torch.where(local.index < self.index, self.yield_share, 1.0 - self.yield_share)
-            point = vel[..., None, :] + share[..., None] * u
-            lines = [(point[..., s, :], direction[..., s, :], local.mask[..., s]) for s in range(local.k)]
-        # 3. wall lines: v . ray <= room / stop time, i.e. the line through room * ray along the ray's normal
-        if local.num_rays > 0:
-            room = (local.walls - self.wall_reach).clamp_min(0.0)
-            # fastest approach that can still stop in time, and that does not cross the room within one step
-            limit = torch.minimum(torch.sqrt(2.0 * self.a_brake * room), room / self.step_time)
-            for r in range(local.num_rays):
-                ray = self.rays[r]
-                normal_dir = torch.stack([-ray[1], ray[0]]).expand_as(v)  # det(dir, point - v) <= 0 <=> v.ray <= lim
-                lines.append((limit[..., r, None] * ray, normal_dir, torch.ones_like(room[..., r], dtype=torch.bool)))
-        v_pref = v
-        if self.reachable:
-            # solve among the velocities the mover can reach within one step (centred on its velocity)
-            shifted = [(p - vel, d, live) for p, d, live in lines]
-            dv, ok = solve_lines(shifted, v_pref - vel, self.a_max * self.step_time)
-            v = vel + dv
-            lines = shifted if self.relax > 0 else lines
+        v_pref = err / dist * speed
+        # 2. lines: walls, the braking shield, the neighbours' ORCA lines (nearest first)
+        orca, slack, shield = self._neighbour_lines(vel) if local.k > 0 else ([], [], [])
+        walls, wall_slack = self._wall_lines(vel) if local.num_rays > 0 else ([], [])
+        if self.greedy:
+            # 3. a line that leaves no room with the earlier ones is dropped: the most urgent ones are kept
+            v, _ = self._solve(walls + shield + orca, v_pref, vel, skip=True)
         else:
-            v, ok = solve_lines(lines, v_pref, self.cruise)
-        if self.relax > 0:
-            # a crowd leaves no velocity that satisfies every line: allow each line to be missed by ``relax`` m/s
-            loose = [(p + self.relax * torch.stack([d[..., 1], -d[..., 0]], -1), d, live) for p, d, live in lines]
-            if self.reachable:
-                v2, ok2 = solve_lines(loose, v_pref - vel, self.a_max * self.step_time)
-                v2 = v2 + vel
-            else:
-                v2, ok2 = solve_lines(loose, v_pref, self.cruise)
-            v = torch.where((~ok & ok2)[..., None], v2, v)
-            ok = ok | ok2
-        # still nothing: brake, which keeps the reciprocal promise best
-        v = torch.where(ok[..., None], v, vel * self.brake_factor)
+            # 3'. every line, else (``relax``) lines missed by up to ``relax`` x their slack, else the shield and
+            # walls alone, else brake
+            lines = shield + orca + walls
+            slack = [torch.zeros_like(p[..., 0]) for p, _, _ in shield] + slack + wall_slack
+            v, ok = self._solve(lines, v_pref, vel)
+            if self.relax > 0:
+                loose = [(p + (self.relax * sl)[..., None] * torch.stack([d[..., 1], -d[..., 0]], -1), d, live)
+                         for (p, d, live), sl in zip(lines, slack)]
+                v2, ok2 = self._solve(loose, v_pref, vel)
+                v = torch.where((~ok & ok2)[..., None], v2, v)
+                ok = ok | ok2
+            if shield:
+                v3, ok3 = self._solve(shield + walls, v_pref, vel)
+                v = torch.where((~ok & ok3)[..., None], v3, v)
+                ok = ok | ok3
+            v = torch.where(ok[..., None], v, vel * self.brake_factor)
         # 4. the acceleration that reaches v within one env step, within the limit
         acc = (v - vel) / self.step_time
         n = acc.norm(dim=-1, keepdim=True)
