@@ -42,11 +42,17 @@ def default_device() -> str:
 
 
 def _vec(values, n: int, name: str) -> tuple[float, ...]:
-    arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    what = f"{name} must be {n} finite non-negative numbers, got {values!r}"
+    if isinstance(values, (str, bytes)):
+        raise TypeError(what)
+    try:
+        arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        raise TypeError(what) from None
     if arr.size == 1:
         arr = np.repeat(arr, n)
     if arr.size != n or not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise ValueError(f"{name} must be {n} finite non-negative numbers, got {values!r}")
+        raise ValueError(what)
     return tuple(float(v) for v in arr)
 
 

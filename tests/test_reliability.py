@@ -231,7 +231,7 @@ def test_pettingzoo_adapter_names_the_envs_it_serves():
     from magwarp.envs.adapters.pettingzoo import MagwarpParallelEnv
     from magwarp.envs.push import PushBoxEnv
 
-    with pytest.raises(TypeError, match="serves trajectory-planning envs.*PushBoxEnv"):
+    with pytest.raises(TypeError, match="serves multi-agent envs.*got 'PushBoxEnv'"):
         MagwarpParallelEnv(PushBoxEnv, device="cpu")
 
 

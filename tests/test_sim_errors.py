@@ -118,6 +118,8 @@ def test_overlapping_starts():
         (dict(num_movers=1, a_max=float("inf")), ValueError, "a_max.*inf"),
         (dict(num_movers=1, stiffness_lin=(1, 1)), ValueError, "stiffness_lin"),
         (dict(num_movers=1, stiffness_rot=(0.1, -0.1, 1)), ValueError, "stiffness_rot"),
+        (dict(num_movers=1, stiffness_rot=""), TypeError, "stiffness_rot must be 3 finite non-negative numbers, got ''"),
+        (dict(num_movers=1, stiffness_lin=("a", 1, 1)), TypeError, r"stiffness_lin must be 3 .*'a'"),
         (dict(num_movers=1, hold_mask=(0, 0, 1, 1, 1)), ValueError, "hold_mask"),
         (dict(num_movers=1, hold_mask=(0, 0, 2, 1, 1, 1)), ValueError, "hold_mask"),
         (dict(num_movers=2, collision_radii=[0.1]), ValueError, r"collision_radii.*2"),
