@@ -172,6 +172,16 @@ def test_bad_options_and_infeasible_density():
         env.step(torch.zeros(1, 6))
 
 
+def test_benchmark_layout_by_name():
+    from magwarp.layout import LayoutError, benchmark_layout
+
+    env = SwarmEnv(2, num_movers=5, layout="B2", k=2, device="cpu")  # B2 has holes; its own mover count is 4
+    np.testing.assert_array_equal(env.layout.tiles, benchmark_layout("B2")[0].tiles)
+    assert env.num_movers == 5 and env.sim.num_movers == 5
+    with pytest.raises(LayoutError, match="unknown benchmark layout 'B99'"):
+        SwarmEnv(1, num_movers=3, layout="B99", device="cpu")
+
+
 def test_render_draws_the_worlds():
     env = SwarmEnv(2, num_movers=4, layout=np.ones((3, 3)), k=1, num_rays=0, device="cpu", render_mode="rgb_array")
     img = env.render()

@@ -54,7 +54,7 @@ import warp as wp
 from magwarp._checks import as_count, warp_device
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.kernels.swarm import stop_collided
-from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
+from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
 from magwarp.swarm.observations import LocalObservations
 from magwarp.swarm.placement import Placer
@@ -66,8 +66,9 @@ COLLISION_MODES = ("respawn", "end")
 
 @dataclass(frozen=True)
 class SwarmConfig:
-    """Options of :class:`SwarmEnv`. ``layout``: a :class:`Layout`, a 0/1 array, or None for a square grid of full
-    tiles with about ``occupancy`` movers per tile. Collision options as in trajectory planning: ``collision_shape``
+    """Options of :class:`SwarmEnv`. ``layout``: a :class:`Layout`, a 0/1 array, a benchmark name (``"B0"``..``"B9"``:
+    its tiles; ``num_movers`` stays this config's), or None for a square grid of full tiles with about ``occupancy``
+    movers per tile. Collision options as in trajectory planning: ``collision_shape``
     ``"circle"``/``"box"``, ``collision_size`` (radius or half sizes), ``safety_margin`` (grows every shape in the
     per-cycle check), ``collision_offset`` (extra room kept when placing starts and goals),
     ``collision_offset_wall`` (wall margin). ``k``, ``obs_radius``, ``num_rays``, ``ray_range``: the local view.
@@ -141,6 +142,8 @@ class SwarmConfig:
         if self.layout is None:
             side = int(np.ceil(np.sqrt(self.num_movers / self.occupancy)))
             return Layout.grid(side, side)
+        if isinstance(self.layout, str):  # a benchmark layout by name ("B0".."B9"); its mover count is not used
+            return benchmark_layout(self.layout)[0]
         return self.layout if isinstance(self.layout, Layout) else Layout(np.asarray(self.layout))
 
     def make_mover(self) -> MoverSpec:
