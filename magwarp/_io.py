@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import pickle
 import re
+import struct
 import warnings
 import zipfile
 from typing import Any
@@ -73,8 +74,11 @@ def safe_torch_load(path: str, map_location="cpu", *, trusted: bool = False, wha
         _reraise_unreadable(e, path, what)
 
 
-_READ_ERRORS = (RuntimeError, EOFError, ValueError, zipfile.BadZipFile, OSError, UnicodeDecodeError, KeyError,
-                pickle.UnpicklingError, AttributeError, ImportError)
+#: what torch.load raises on a file that is not what it expects; random bytes reach the unpickler's internals too
+#: (an empty stack, a short struct, a length beyond memory), so those count as unreadable as well
+_READ_ERRORS = (RuntimeError, EOFError, ValueError, zipfile.BadZipFile, OSError, UnicodeDecodeError, LookupError,
+                pickle.UnpicklingError, AttributeError, ImportError, TypeError, struct.error, OverflowError,
+                MemoryError)
 
 
 def _reraise_unreadable(e: BaseException, path: str, what: str):

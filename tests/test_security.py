@@ -136,3 +136,17 @@ def test_the_payload_really_runs_when_unpickled(evil):
     marker.unlink()
     pickle.loads(pickle.dumps(_Payload(str(marker))))
     assert marker.exists()
+
+
+@pytest.mark.parametrize("trusted", [False, True])
+def test_random_bytes_are_unreadable_files_whatever_they_hold(tmp_path, rng, trusted):
+    """Random bytes (bare, behind a pickle header or a zip header) reach the unpickler's internals (an empty stack, a
+    short struct, a length beyond memory): every one must be an UnreadableFileError, never a raw IndexError."""
+    from magwarp._io import UnreadableFileError, safe_torch_load
+
+    path = tmp_path / "random.pt"
+    for i in range(300):
+        head = (b"", b"\x80\x02", b"PK\x03\x04")[i % 3]
+        path.write_bytes(head + rng.bytes(int(rng.integers(1, 2048))))
+        with pytest.raises(UnreadableFileError, match="random.pt"):
+            safe_torch_load(str(path), trusted=trusted)
