@@ -173,9 +173,15 @@ class Simulator:
         radii, half = self._collision_sizes(collision_radii, collision_half_sizes)
         self._fused = m <= fused_max_movers
 
-        hold = np.asarray(hold_mask, dtype=np.float64).reshape(-1)
+        hold_what = f"hold_mask must be six 0/1 flags (x, y, z, roll, pitch, yaw), got {hold_mask!r}"
+        if isinstance(hold_mask, (str, bytes)):
+            raise TypeError(hold_what)
+        try:
+            hold = np.asarray(hold_mask, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError, OverflowError):
+            raise TypeError(hold_what) from None
         if hold.shape != (6,) or not np.all(np.isin(hold, (0, 1))):
-            raise ValueError(f"hold_mask must be six 0/1 flags (x, y, z, roll, pitch, yaw), got {hold_mask!r}")
+            raise ValueError(hold_what)
         self.model = self._build_model(dt, v_max, a_max, j_max, gravity, stiffness_lin, stiffness_rot, hold,
                                        stop_on_collision, radii, half)
         self.state = self._alloc_state(force_aux_dim)
