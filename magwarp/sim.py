@@ -56,11 +56,17 @@ def _vec(values, n: int, name: str) -> tuple[float, ...]:
     return tuple(float(v) for v in arr)
 
 
-def _host_array(value) -> np.ndarray:
-    """A float64 numpy copy of host or device data (tensors are moved to the host)."""
+def _host_array(value, name: str) -> np.ndarray:
+    """A float64 numpy copy of host or device data (tensors are moved to the host); a TypeError naming ``name`` for
+    anything that is not numbers (strings, ragged or mixed sequences)."""
     if isinstance(value, torch.Tensor):
         value = value.detach().cpu().numpy()
-    return np.asarray(value, dtype=np.float64)
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be numbers (an array), got {value!r}")
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise TypeError(f"{name} must be numbers (an array), got {value!r}") from None
 
 
 def _check_finite(name: str, arr: np.ndarray) -> None:
@@ -221,7 +227,7 @@ class Simulator:
         if start_pose is not None:
             if start_xy is not None or start_yaw is not None:
                 raise ValueError("give either start_pose or start_xy/start_yaw, not both")
-            pose = _host_array(start_pose)
+            pose = _host_array(start_pose, "start_pose")
             if pose.ndim == 2:
                 pose = np.broadcast_to(pose, (self.num_worlds, *pose.shape))
             if pose.ndim != 3 or pose.shape[0] != self.num_worlds or pose.shape[2] != 6:
@@ -237,7 +243,7 @@ class Simulator:
             if int(num_movers) < 1:
                 raise ValueError(f"num_movers must be >= 1, got {num_movers!r}")
             start_xy = self.layout.default_starts(int(num_movers))
-        xy = _host_array(start_xy)
+        xy = _host_array(start_xy, "start_xy")
         if xy.ndim == 2:
             xy = np.broadcast_to(xy, (self.num_worlds, *xy.shape))
         if xy.ndim != 3 or xy.shape[0] != self.num_worlds or xy.shape[2] != 2:
@@ -245,7 +251,7 @@ class Simulator:
         _check_finite("start_xy", xy)
         if num_movers is not None and xy.shape[1] != int(num_movers):
             raise LayoutError(f"start_xy has {xy.shape[1]} movers but num_movers={num_movers}")
-        yaw = np.zeros(xy.shape[:2]) if start_yaw is None else _host_array(start_yaw)
+        yaw = np.zeros(xy.shape[:2]) if start_yaw is None else _host_array(start_yaw, "start_yaw")
         if yaw.ndim == 1 and yaw.shape[0] == xy.shape[1]:  # (M,) shared by all worlds; other shapes fail below
             yaw = np.broadcast_to(yaw, xy.shape[:2])
         if yaw.shape != xy.shape[:2]:
@@ -260,13 +266,14 @@ class Simulator:
     def _collision_sizes(self, radii, half):
         m = self.num_movers
         if radii is not None:
-            r = np.asarray(radii, dtype=np.float64).reshape(-1)
+            r = _host_array(radii, "collision_radii").reshape(-1)
             if r.shape != (m,) or not np.all(np.isfinite(r)) or np.any(r <= 0):
                 raise ValueError(f"collision_radii must be {m} positive finite numbers, got {radii!r}")
         if half is not None:
-            h = np.asarray(half, dtype=np.float64)
+            h = _host_array(half, "collision_half_sizes")
             if h.shape != (m, 2) or not np.all(np.isfinite(h)) or np.any(h <= 0):
-                raise ValueError(f"collision_half_sizes must have shape ({m}, 2) with positive entries, got shape {h.shape}")
+                raise ValueError(f"collision_half_sizes must have shape ({m}, 2) with positive entries, got shape "
+                                 f"{h.shape}")
         self._radii_np = np.full(m, self.mover.collision_radius) if radii is None else r
         self._half_np = np.tile(np.asarray(self.mover.collision_half_size), (m, 1)) if half is None else h
         return self._radii_np, self._half_np
