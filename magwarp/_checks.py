@@ -14,7 +14,7 @@ import tempfile
 
 import numpy as np
 
-__all__ = ["as_count", "as_seed", "as_finite", "check_finite", "device_name", "warp_device", "init_warp",
+__all__ = ["as_count", "as_flag", "as_seed", "as_finite", "check_finite", "device_name", "warp_device", "init_warp",
            "stiffness_limit"]
 
 #: the largest seed torch and numpy accept (unsigned 64-bit)
@@ -23,6 +23,16 @@ SEED_MAX = 2**64 - 1
 
 #: counts are Warp launch sizes and array dimensions: int32
 COUNT_MAX = 2**31 - 1
+
+
+def as_flag(value, name: str) -> bool:
+    """``value`` as a ``bool``: True/False (numpy's too) or the integers 0 and 1; anything else (NaN, strings, 2) is a
+    TypeError naming it, instead of Python's truthiness deciding."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)) and int(value) in (0, 1):
+        return bool(value)
+    raise TypeError(f"{name} must be True or False, got {value!r}")
 
 
 def as_count(value, name: str, minimum: int = 1) -> int:

@@ -156,6 +156,8 @@ class Simulator:
         for name, value in (("dt", dt), ("v_max", v_max), ("a_max", a_max), ("j_max", j_max)):
             if as_finite(value, name) <= 0:
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if float(dt) < 1e-6:  # the limits and the stiffness bound divide by dt (squared)
+            raise ValueError(f"dt must be at least 1e-6 s (one microsecond; the real cycle is 1e-3 s), got {dt!r}")
         gravity = as_finite(gravity, "gravity")
         fused_max_movers = as_count(fused_max_movers, "fused_max_movers", minimum=0)
         max_pairs = as_count(max_pairs, "max_pairs")

@@ -387,3 +387,27 @@ def test_no_cuda_driver_warning_on_a_cpu_machine():
     assert res.returncode == 0, res.stderr
     assert "device=" in res.stderr
     assert "Could not find or load the NVIDIA CUDA driver" not in res.stderr + res.stdout
+
+
+# ---------------------------------------------------------------------------------------------------- long-fuzz finds
+@pytest.mark.parametrize("env_id, kwargs, match", [
+    ("magwarp/PushBox-v0", {"learn_jerk": float("nan")}, "learn_jerk must be True or False, got nan"),
+    ("magwarp/PushBox-v0", {"use_sparse_pose_reward": "yes"}, "use_sparse_pose_reward must be True or False"),
+    ("magwarp/PushBox-v0", {"object_noise": 1e40}, r"object_noise must be finite \(in float32\)"),
+    ("magwarp/CoopPush-v0", {"object_mass": float("nan")}, "object_mass must be finite"),
+    ("magwarp/CoopPush-v0", {"force_ratio": -1.0}, "force_ratio must be positive"),
+    ("magwarp/CoopPush-v0", {"num_movers": 2.5}, "num_movers must be an integer"),
+    ("magwarp/TrajectoryPlanningB0-v0", {"learn_jerk": 2}, "learn_jerk must be True or False, got 2"),
+])
+def test_env_flags_and_values_found_by_the_long_fuzz_profile_are_named(env_id, kwargs, match):
+    """Cases the fuzz module's ``local`` profile (HYPOTHESIS_PROFILE=local) found: Python truthiness decided NaN
+    flags, 1e40 noise overflowed float32 observations, CoopPush converted a NaN mass to an integer."""
+    import gymnasium as gym
+
+    with pytest.raises((TypeError, ValueError), match=match):
+        gym.make_vec(env_id, num_envs=1, device="cpu", **kwargs)
+
+
+def test_a_cycle_shorter_than_a_microsecond_is_refused():
+    with pytest.raises(ValueError, match=r"dt must be at least 1e-6 s.*2e-293"):
+        Simulator(np.ones((2, 2)), 1, 1, dt=2e-293, device="cpu")

@@ -42,6 +42,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp._checks import as_count, as_flag, check_finite
 from magwarp.envs.push import PushEnv
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 
@@ -75,9 +76,16 @@ class CoopPushEnv(PushEnv):
                  a_max: float = 10.0, max_episode_steps: int = 100, collision_shape: str = "box",
                  collision_size: float | tuple[float, float] | None = 0.08, learn_mover_c_rotation: bool = False,
                  mover_params: dict | None = None, **kwargs):
-        if isinstance(num_movers, (int, np.integer)) and not isinstance(num_movers, bool) and not 2 <= num_movers <= 4:
+        num_movers = as_count(num_movers, "num_movers")
+        if not 2 <= num_movers <= 4:
             raise ValueError(f"CoopPush takes 2 to 4 movers, got num_movers={num_movers!r}")
-        if learn_mover_c_rotation:
+        check_finite(a_max=a_max, object_sliding_friction=object_sliding_friction, force_ratio=force_ratio,
+                     object_mass=object_mass, allow_none=("object_mass",))
+        for name, value in (("a_max", a_max), ("object_sliding_friction", object_sliding_friction),
+                            ("force_ratio", force_ratio), ("object_mass", object_mass)):
+            if value is not None and not value > 0:
+                raise ValueError(f"{name} must be positive, got {value!r}")
+        if as_flag(learn_mover_c_rotation, "learn_mover_c_rotation"):
             raise ValueError("CoopPush drives the movers' x/y only: learn_mover_c_rotation=True is not supported")
         mover_mass = float(mover_params_kwargs(mover_params).get("mass", MoverSpec.mass))
         if object_mass is None:
@@ -86,7 +94,7 @@ class CoopPushEnv(PushEnv):
         self.friction_force = float(object_sliding_friction) * float(object_mass) * GRAVITY  # N
         #: the least number of movers whose combined largest push exceeds the object's sliding friction
         self.movers_needed = int(self.friction_force // self.mover_force) + 1
-        size = 0.05 * num_movers if isinstance(num_movers, (int, np.integer)) else 0.1  # half-size: 5 cm per mover
+        size = 0.05 * num_movers  # half-size: 5 cm per mover
         object_width = size if object_width is None else object_width
         object_height = size if object_height is None else object_height
         layout = Layout(np.ones((6, 6), dtype=np.int32)) if layout is None else layout

@@ -40,7 +40,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, check_finite, warp_device
+from magwarp._checks import as_count, as_flag, check_finite, warp_device
 from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
@@ -219,7 +219,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                      collision_penalty=collision_penalty, per_step_penalty=per_step_penalty,
                      object_at_goal_reward=object_at_goal_reward, collision_size=collision_size,
                      collision_offset=collision_offset, collision_offset_wall=collision_offset_wall,
-                     initial_mover_zpos=initial_mover_zpos, allow_none=("p_max_c", "collision_size"),
+                     initial_mover_zpos=initial_mover_zpos, std_noise=std_noise, object_noise=object_noise,
+                     allow_none=("p_max_c", "collision_size"),
                      vectors=("collision_size",))
         if not 0.0 <= min_coverage <= 1.0:
             raise ValueError(f"min_coverage must lie in [0, 1], got {min_coverage!r}")
@@ -229,9 +230,9 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
             early_termination_steps = as_count(early_termination_steps, "early_termination_steps")
         terms = as_terms(randomization) if randomization is not None else []  # bad terms fail before the build
         self.num_movers = int(num_movers)
-        self.learn_pose = bool(learn_pose)
-        self.learn_jerk = bool(learn_jerk)
-        self.learn_mover_c_rotation = bool(learn_mover_c_rotation)
+        self.learn_pose = learn_pose = as_flag(learn_pose, "learn_pose")
+        self.learn_jerk = learn_jerk = as_flag(learn_jerk, "learn_jerk")
+        self.learn_mover_c_rotation = as_flag(learn_mover_c_rotation, "learn_mover_c_rotation")
         for name, value in (("std_noise", std_noise), ("object_noise", object_noise)):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative number, got {value!r}")
@@ -239,7 +240,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         self.num_cycles = int(num_cycles)  # control cycles (1 ms) per env step
         self.max_position_err = float(max_position_err)
         self.min_coverage = float(min_coverage)
-        self.use_sparse_pose_reward = bool(use_sparse_pose_reward)
+        self.use_sparse_pose_reward = as_flag(use_sparse_pose_reward, "use_sparse_pose_reward")
         self.collision_penalty = float(collision_penalty)
         self.per_step_penalty = float(per_step_penalty)
         self.object_at_goal_reward = float(object_at_goal_reward)

@@ -30,7 +30,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, check_finite, warp_device
+from magwarp._checks import as_count, as_flag, check_finite, warp_device
 from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
@@ -134,6 +134,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
     ):
         num_envs = as_count(num_envs, "num_envs")
         num_cycles = as_count(num_cycles, "num_cycles")
+        learn_jerk = as_flag(learn_jerk, "learn_jerk")
         check_finite(threshold_pos=threshold_pos, reward_success=reward_success, reward_collision=reward_collision,
                      reward_per_step=reward_per_step, collision_size=collision_size, collision_offset=collision_offset,
                      collision_offset_wall=collision_offset_wall, safety_margin=safety_margin, std_noise=std_noise,

@@ -51,7 +51,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from magwarp._checks import as_count, warp_device
+from magwarp._checks import as_count, as_flag, warp_device
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.kernels.swarm import stop_collided
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
@@ -186,7 +186,7 @@ class SwarmEnv(MagwarpVecEnv):
         super().__init__(n, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs)
         self.num_movers = m
-        self.learn_jerk = bool(cfg.learn_jerk)
+        self.learn_jerk = as_flag(cfg.learn_jerk, "learn_jerk")
         self.num_cycles = int(cfg.num_cycles)
         self.max_episode_steps = cfg.max_episode_steps
         wdev = self.sim.device
