@@ -14,7 +14,7 @@ import tempfile
 
 import numpy as np
 
-__all__ = ["as_count", "as_flag", "as_seed", "as_finite", "check_finite", "device_name", "warp_device", "init_warp",
+__all__ = ["MAGNITUDE_MAX", "check_magnitude", "as_count", "as_flag", "as_seed", "as_finite", "check_finite", "device_name", "warp_device", "init_warp",
            "stiffness_limit"]
 
 #: the largest seed torch and numpy accept (unsigned 64-bit)
@@ -23,6 +23,19 @@ SEED_MAX = 2**64 - 1
 
 #: counts are Warp launch sizes and array dimensions: int32
 COUNT_MAX = 2**31 - 1
+
+
+#: the largest limit, gain or noise level a model accepts (SI units): far beyond any maglev system (XPlanar: 2-4 m/s,
+#: 10-50 m/s^2), and small enough that a step's float32 arithmetic (products with each other and with dt) stays finite
+MAGNITUDE_MAX = 1e6
+
+
+def check_magnitude(**values) -> None:
+    """Refuse the first number whose magnitude exceeds :data:`MAGNITUDE_MAX` (None passes), naming it."""
+    for name, value in values.items():
+        if value is not None and abs(float(value)) > MAGNITUDE_MAX:
+            raise ValueError(f"{name} must be at most {MAGNITUDE_MAX:g} in magnitude (a step's float32 arithmetic "
+                             f"would overflow), got {value!r}")
 
 
 def as_flag(value, name: str) -> bool:

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from magwarp._checks import as_count, as_finite, init_warp, stiffness_limit, warp_device
+from magwarp._checks import as_count, as_finite, check_magnitude, init_warp, stiffness_limit, warp_device
 from magwarp.kernels import collision as kcol
 from magwarp.kernels import guard as kguard
 from magwarp.kernels import step as kstep
@@ -159,6 +159,7 @@ class Simulator:
         if float(dt) < 1e-6:  # the limits and the stiffness bound divide by dt (squared)
             raise ValueError(f"dt must be at least 1e-6 s (one microsecond; the real cycle is 1e-3 s), got {dt!r}")
         gravity = as_finite(gravity, "gravity")
+        check_magnitude(v_max=v_max, a_max=a_max, j_max=j_max, gravity=gravity)
         fused_max_movers = as_count(fused_max_movers, "fused_max_movers", minimum=0)
         max_pairs = as_count(max_pairs, "max_pairs")
         force_aux_dim = as_count(force_aux_dim, "force_aux_dim")

@@ -411,3 +411,18 @@ def test_env_flags_and_values_found_by_the_long_fuzz_profile_are_named(env_id, k
 def test_a_cycle_shorter_than_a_microsecond_is_refused():
     with pytest.raises(ValueError, match=r"dt must be at least 1e-6 s.*2e-293"):
         Simulator(np.ones((2, 2)), 1, 1, dt=2e-293, device="cpu")
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"a_max": 3.4028235e38}, "a_max must be at most 1e"), ({"gravity": 2.7e38}, "gravity must be at most 1e"),
+])
+def test_limits_whose_arithmetic_overflows_float32_are_refused(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        Simulator(np.ones((2, 2)), 1, 1, device="cpu", **kwargs)
+
+
+def test_push_noise_that_overflows_observations_is_refused():
+    import gymnasium as gym
+
+    with pytest.raises(ValueError, match="object_noise must be at most 1e"):
+        gym.make_vec("magwarp/CoopPush-v0", num_envs=1, device="cpu", object_noise=3.4e38)

@@ -40,7 +40,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, as_flag, check_finite, warp_device
+from magwarp._checks import as_count, as_flag, check_finite, check_magnitude, warp_device
 from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
@@ -236,6 +236,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         for name, value in (("std_noise", std_noise), ("object_noise", object_noise)):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative number, got {value!r}")
+        check_magnitude(std_noise=std_noise, object_noise=object_noise)
         self.std_noise, self.object_noise = float(std_noise), float(object_noise)
         self.num_cycles = int(num_cycles)  # control cycles (1 ms) per env step
         self.max_position_err = float(max_position_err)

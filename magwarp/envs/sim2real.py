@@ -34,7 +34,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, check_finite
+from magwarp._checks import as_count, check_finite, check_magnitude
 
 __all__ = ["ActuationConfig", "SensorConfig", "Latency", "SensorModel", "as_config"]
 
@@ -134,6 +134,7 @@ class SensorConfig:
         stds = dict(pos_bias_std=self.pos_bias_std, vel_bias_std=self.vel_bias_std, pos_noise_std=self.pos_noise_std,
                     vel_noise_std=self.vel_noise_std, dropout_prob=self.dropout_prob)
         check_finite(**stds)
+        check_magnitude(**stds)
         for name, value in stds.items():
             if value < 0:
                 raise ValueError(f"{name} must be >= 0, got {value!r}")

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp._checks import MAGNITUDE_MAX
 from magwarp.physics.control import (
     YawDrive,
     copy_rows_masked_kernel,
@@ -61,8 +62,9 @@ class ControlParams:
             raise PhysicsInputError(f"ControlParams.p_max_c must be None or in (0, pi], got {self.p_max_c!r}")
         for name in ("v_max", "a_max", "j_max", "v_max_c", "a_max_c", "j_max_c"):
             v = float(getattr(self, name))
-            if not np.isfinite(v) or v <= 0:
-                raise PhysicsInputError(f"ControlParams.{name} must be positive and finite, got {v!r}")
+            if not np.isfinite(v) or v <= 0 or v > MAGNITUDE_MAX:
+                raise PhysicsInputError(f"ControlParams.{name} must be positive, finite and at most {MAGNITUDE_MAX:g} "
+                                        f"(a step's float32 arithmetic would overflow), got {v!r}")
         for name in ("k_lin", "k_rot"):
             v = tuple(float(x) for x in getattr(self, name))
             if len(v) != 3 or not all(np.isfinite(x) and x >= 0 for x in v):
