@@ -43,12 +43,7 @@ def default_device() -> str:
 
 def _vec(values, n: int, name: str) -> tuple[float, ...]:
     what = f"{name} must be {n} finite non-negative numbers, got {values!r}"
-    if isinstance(values, (str, bytes)):
-        raise TypeError(what)
-    try:
-        arr = np.asarray(values, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError, OverflowError):
-        raise TypeError(what) from None
+    arr = _host_array(values, name, what).reshape(-1)
     if arr.size == 1:
         arr = np.repeat(arr, n)
     if arr.size != n or not np.all(np.isfinite(arr)) or np.any(arr < 0):
@@ -56,17 +51,18 @@ def _vec(values, n: int, name: str) -> tuple[float, ...]:
     return tuple(float(v) for v in arr)
 
 
-def _host_array(value, name: str) -> np.ndarray:
-    """A float64 numpy copy of host or device data (tensors are moved to the host); a TypeError naming ``name`` for
-    anything that is not numbers (strings, ragged or mixed sequences)."""
+def _host_array(value, name: str, what: str | None = None) -> np.ndarray:
+    """A float64 numpy copy of host or device data (tensors are moved to the host); a TypeError (``what``, or one
+    naming ``name``) for anything that is not numbers (strings, ragged or mixed sequences)."""
+    what = what or f"{name} must be numbers (an array), got {value!r}"
     if isinstance(value, torch.Tensor):
         value = value.detach().cpu().numpy()
     if isinstance(value, (str, bytes)):
-        raise TypeError(f"{name} must be numbers (an array), got {value!r}")
+        raise TypeError(what)
     try:
         return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise TypeError(f"{name} must be numbers (an array), got {value!r}") from None
+        raise TypeError(what) from None
 
 
 def _check_finite(name: str, arr: np.ndarray) -> None:
@@ -183,12 +179,7 @@ class Simulator:
         self._fused = m <= fused_max_movers
 
         hold_what = f"hold_mask must be six 0/1 flags (x, y, z, roll, pitch, yaw), got {hold_mask!r}"
-        if isinstance(hold_mask, (str, bytes)):
-            raise TypeError(hold_what)
-        try:
-            hold = np.asarray(hold_mask, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError, OverflowError):
-            raise TypeError(hold_what) from None
+        hold = _host_array(hold_mask, "hold_mask", hold_what).reshape(-1)
         if hold.shape != (6,) or not np.all(np.isin(hold, (0, 1))):
             raise ValueError(hold_what)
         self.model = self._build_model(dt, v_max, a_max, j_max, gravity, stiffness_lin, stiffness_rot, hold,
