@@ -76,3 +76,8 @@ def test_wheel_trains_evaluates_exports_and_ships_the_policies(venv):
     out = _run(venv, str(bin_ / "magwarp"), "eval", "magwarp/TrajectoryPlanningB0-v0", "--policy", "pretrained:b0_ppo",
                "--device", "cpu", "--episodes", "2", "--repeats", "1", "--steps", "5")
     assert "policy=pretrained:b0_ppo" in out and "env options from" in out
+    # the README's main job, from the wheel (small: the test times nothing)
+    out = _run(venv, str(bin_ / "magwarp"), "demo", "--device", "cpu", "--num-envs", "16", "--steps", "2",
+               "--video-steps", "2", "--worlds-shown", "4", "--out-dir", "demo_out")
+    assert "env-steps/s" in out and (venv / "work" / "demo_out" / "demo.gif").is_file()
+    assert (venv / "work" / "demo_out" / "demo.png").is_file()
