@@ -233,8 +233,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         self.learn_pose = learn_pose = as_flag(learn_pose, "learn_pose")
         self.learn_jerk = learn_jerk = as_flag(learn_jerk, "learn_jerk")
         self.learn_mover_c_rotation = as_flag(learn_mover_c_rotation, "learn_mover_c_rotation")
-        for name, value in (("std_noise", std_noise), ("object_noise", object_noise)):
-            if not (np.isfinite(value) and value >= 0):
+        for name, value in (("std_noise", std_noise), ("object_noise", object_noise)):  # finite: checked above
+            if value < 0:
                 raise ValueError(f"{name} must be a non-negative number, got {value!r}")
         check_magnitude(std_noise=std_noise, object_noise=object_noise)
         self.std_noise, self.object_noise = float(std_noise), float(object_noise)
