@@ -35,6 +35,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp._checks import warp_device
 from magwarp.kernels import collision as kcol
 from magwarp.layout import Layout
 from magwarp.types import SHAPE_BOX, SHAPE_CIRCLE, Collision
@@ -89,8 +90,6 @@ class CollisionQuery:
 
     def __init__(self, layout: Layout | np.ndarray, shape: str = "circle", *, offset: float = 0.0,
                  offset_wall: float = 0.0, device: str | None = None, check_inputs: bool = True):
-        from magwarp.sim import default_device
-
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
         if shape not in ("circle", "box"):
             raise ValueError(f"shape must be 'circle' or 'box', got {shape!r}")
@@ -101,7 +100,7 @@ class CollisionQuery:
         self.check_inputs = bool(check_inputs)
         self.offset = float(offset)
         self.offset_wall = float(offset_wall)
-        self.device = wp.get_device(device or default_device())
+        self.device = warp_device(device)
         self.torch_device = torch.device("cuda", self.device.ordinal) if self.device.is_cuda else torch.device("cpu")
         self._tiles = wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=self.device)
 

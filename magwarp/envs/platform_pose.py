@@ -32,6 +32,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp._checks import warp_device
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.layout import Layout, MoverSpec
 from magwarp.magbots.control import TrackingGains, track_movers
@@ -136,7 +137,7 @@ class PlatformPoseEnv(MagwarpVecEnv):
         if np.any(self.xy_high <= self.xy_low) or not self.layout.tiles.all():
             raise ValueError(f"layout of shape {self.layout.shape} leaves no room for the platform (a full grid at "
                              f"least {2 * reach:.3f} m wide in x and y is needed)")
-        device = device or _default_device()
+        device = warp_device(device).alias
         centre = 0.5 * ext
         self.xml = generate_platform_mjcf(self.layout, [centre], geometry=g, spec=model, mover=self.mover,
                                           solver=solver)
@@ -297,9 +298,3 @@ class PlatformPoseEnv(MagwarpVecEnv):
         pos_err, ang_err = goal_errors(achieved_goal, desired_goal)
         reached = (pos_err <= self.position_tolerance) & (ang_err <= self.angle_tolerance)
         return self._reward(reached, self._failed(info, reached.shape, reached.device))
-
-
-def _default_device() -> str:
-    from magwarp.sim import default_device
-
-    return default_device()
