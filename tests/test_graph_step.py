@@ -148,3 +148,12 @@ def test_graph_step_matches_eager_on_cuda(name):
     nograph = TrajectoryPlanningEnv(**{"num_envs": 24, "device": "cuda:0", "seed": 11, **CONFIGS[name]}, graph=False)
     assert nograph.step_path == "fused"
     run_twins(eager, nograph, 50, seed=6)
+
+
+def test_fused_step_first_built_in_inference_mode():
+    """A training loop may take the first step under torch.inference_mode: later steps outside it still work."""
+    env = TrajectoryPlanningEnv(4, device="cpu")
+    with torch.inference_mode():
+        env.step(torch.zeros(4, 6))
+    obs = env.step(torch.ones(4, 6))[0]
+    assert torch.isfinite(obs["observation"]).all()

@@ -337,9 +337,10 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         step and overwritten by the one after it (:mod:`magwarp.envs.trajectory_fused`)."""
         if fused_step_blocker(self) is None:
             action = self._check_action(action)
-            if self._fused_step is None:
-                self._fused_step = FusedTrajectoryStep(self, graph=self._graph)
-            return self._fused_step.step(action)
+            with torch.inference_mode(False):  # its buffers are updated in place in and outside inference mode
+                if self._fused_step is None:
+                    self._fused_step = FusedTrajectoryStep(self, graph=self._graph)
+                return self._fused_step.step(action)
         out = super().step(action)
         self.sensors.commit(out[0])
         return out
