@@ -157,3 +157,14 @@ def test_fused_step_first_built_in_inference_mode():
         env.step(torch.zeros(4, 6))
     obs = env.step(torch.ones(4, 6))[0]
     assert torch.isfinite(obs["observation"]).all()
+
+
+def test_subclass_overriding_a_task_hook_keeps_the_torch_step():
+    class Shaped(TrajectoryPlanningEnv):
+        def compute_reward(self, achieved_goal, desired_goal, info):
+            return super().compute_reward(achieved_goal, desired_goal, info) * 0.5
+
+    env = Shaped(4, device="cpu")
+    assert env.step_path == "eager (Shaped overrides compute_reward)"
+    reward = env.step(torch.zeros(4, 6))[1]
+    assert torch.equal(reward, torch.full((4,), -0.5))

@@ -24,6 +24,8 @@ what you keep longer.
 
 from __future__ import annotations
 
+import functools
+
 import torch
 import warp as wp
 
@@ -32,11 +34,24 @@ from magwarp.kernels import task as ktask
 __all__ = ["FusedTrajectoryStep", "fused_step_blocker"]
 
 
+#: the task hooks the fused step replaces: a subclass that overrides one keeps the torch step
+REPLACED_HOOKS = ("_reset_envs", "_apply_action", "_get_obs", "_evaluate", "_end_step", "_nonfinite_worlds",
+                  "_guard_nonfinite", "compute_reward", "goal_distance")
+
+
+@functools.cache
+def _overridden_hook(cls) -> str | None:
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    return next((h for h in REPLACED_HOOKS if getattr(cls, h) is not getattr(TrajectoryPlanningEnv, h)), None)
+
+
 def fused_step_blocker(env) -> str | None:
     """Why ``env`` (a :class:`~magwarp.envs.trajectory.TrajectoryPlanningEnv`) must take the eager torch step now, or
     None when the fused step applies. The fused step covers the default configuration, action latency (fixed or
     drawn at resets), ``learn_jerk``, box or circle shapes, any layout, ``max_episode_steps`` and ``timeout_steps``;
-    the sensor models, benchmark metrics, ``nan_dump`` and ``autoreset=False`` keep the torch step."""
+    the sensor models, benchmark metrics, ``nan_dump``, ``autoreset=False``, simulator cycle hooks and subclasses that
+    override a task hook (:data:`REPLACED_HOOKS`) keep the torch step."""
     if not env.fused:
         return "fused=False"
     if not env.autoreset:
@@ -52,6 +67,9 @@ def fused_step_blocker(env) -> str | None:
         return "sensor model (bias, noise or dropout)"
     if env.sim._hooks or env.sim._pre_hooks:
         return "simulator cycle hooks"
+    hook = _overridden_hook(type(env))
+    if hook is not None:
+        return f"{type(env).__name__} overrides {hook}"
     return None
 
 
@@ -243,7 +261,7 @@ class FusedTrajectoryStep:
         """One env step for a checked float32 action ``[num_envs, num_movers * 2]``; the step's returns."""
         env = self.env
         self._sync_state()
-        self._cmd.copy_(action.view(self._cmd.shape))
+        self._cmd.copy_(action.reshape(self._cmd.shape))
         out = self._outputs[self._slot]
         if not self.graph:
             self._launch_eager(out)

@@ -80,6 +80,24 @@ def sample_goal(
 
 
 @wp.func
+def write_obs(
+    w: int, m: int, num_movers: int, learn_jerk: int, v: wp.vec2, a: wp.vec2, p: wp.vec2, g: wp.vec2,
+    obs: wp.array2d(dtype=float), achieved: wp.array2d(dtype=float), desired: wp.array2d(dtype=float),
+):
+    """Mover ``m``'s entries of world ``w``'s observation: velocity (then acceleration when learning jerk, after all
+    velocities), position (achieved goal) and goal (desired goal)."""
+    obs[w, 2 * m] = v[0]
+    obs[w, 2 * m + 1] = v[1]
+    if learn_jerk == 1:
+        obs[w, 2 * num_movers + 2 * m] = a[0]
+        obs[w, 2 * num_movers + 2 * m + 1] = a[1]
+    achieved[w, 2 * m] = p[0]
+    achieved[w, 2 * m + 1] = p[1]
+    desired[w, 2 * m] = g[0]
+    desired[w, 2 * m + 1] = g[1]
+
+
+@wp.func
 def finite2(v: wp.vec2):
     return wp.isfinite(v[0]) and wp.isfinite(v[1])
 
@@ -143,18 +161,11 @@ def trajectory_step(
         v = wp.vec2(vel[w, m][0], vel[w, m][1])
         p = wp.vec2(pos[w, m][0], pos[w, m][1])
         g = goals[w, m]
-        final_obs[w, 2 * m] = v[0]
-        final_obs[w, 2 * m + 1] = v[1]
+        a = acc[w, m]
+        write_obs(w, m, num_movers, task.learn_jerk, v, a, p, g, final_obs, final_achieved, final_desired)
         ok = ok and finite2(v) and finite2(p) and finite2(g)
         if task.learn_jerk == 1:
-            a = acc[w, m]
-            final_obs[w, 2 * num_movers + 2 * m] = a[0]
-            final_obs[w, 2 * num_movers + 2 * m + 1] = a[1]
             ok = ok and finite2(a)
-        final_achieved[w, 2 * m] = p[0]
-        final_achieved[w, 2 * m + 1] = p[1]
-        final_desired[w, 2 * m] = g[0]
-        final_desired[w, 2 * m + 1] = g[1]
         f = flags_any[w, m]
         hit_mover = hit_mover or (f & COLLIDE_MOVER) != 0
         hit_wall = hit_wall or (f & COLLIDE_WALL) != 0
@@ -252,12 +263,5 @@ def trajectory_obs(
         return
     num_movers = pos.shape[1]
     for m in range(num_movers):
-        obs[w, 2 * m] = vel[w, m][0]
-        obs[w, 2 * m + 1] = vel[w, m][1]
-        if learn_jerk == 1:
-            obs[w, 2 * num_movers + 2 * m] = acc[w, m][0]
-            obs[w, 2 * num_movers + 2 * m + 1] = acc[w, m][1]
-        achieved[w, 2 * m] = pos[w, m][0]
-        achieved[w, 2 * m + 1] = pos[w, m][1]
-        desired[w, 2 * m] = goals[w, m][0]
-        desired[w, 2 * m + 1] = goals[w, m][1]
+        write_obs(w, m, num_movers, learn_jerk, wp.vec2(vel[w, m][0], vel[w, m][1]), acc[w, m],
+                  wp.vec2(pos[w, m][0], pos[w, m][1]), goals[w, m], obs, achieved, desired)
