@@ -9,7 +9,8 @@ beside MagBotSim's ``env.step()`` measured in the same run, and the cost of the 
 For the trajectory-planning envs each row also shows the env's own physics (its simulator's step alone, "physics
 ms"), the bare-kernel ceiling of a B0 step at the same size (:mod:`ceiling`, "ceiling ms"), ``env/physics`` (step
 time over physics time) and ``env/ceiling`` (env-steps/s as a fraction of the ceiling's), all from the same run;
-"path" is the env's :attr:`step_path` (``--compare-eager`` adds rows of the torch step, ``fused=False``).
+"path" is the env's :attr:`step_path` (``--compare-eager`` adds rows of the torch step, ``fused=False``, and on CUDA of
+the fused kernels launched one by one, ``graph=False``).
 
 Actions are uniform random in the action space, drawn on the device from a pre-generated bank (so the timing is the
 env's, not the random generator's). Autoreset is on and included. ``check_inputs`` is off in the timed loop (it is a
@@ -232,7 +233,8 @@ def main(argv=None) -> int:
                         "with an iteration cap as SOLVER:N (e.g. Newton:4)")
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--compare-eager", action="store_true",
-                   help="trajectory envs: also time the torch step (fused=False) at every size")
+                   help="trajectory envs: also time the torch step (fused=False) and, on CUDA, the fused kernels "
+                        "without the graph (graph=False) at every size")
     p.add_argument("--adapters-at", type=int, default=4096, help="num_envs at which adapters are compared")
     p.add_argument("--no-magbotsim", action="store_true")
     p.add_argument("--magbotsim-steps", type=int, default=200)
@@ -254,7 +256,9 @@ def main(argv=None) -> int:
                     name, _, cap = solver.partition(":")
                     extra = {"solver": name, **({"solver_iterations": int(cap)} if cap else {})}
                 for n in (push_sizes if is_push else sizes):
-                    variants = [{}] + ([{"fused": False}] if args.compare_eager and "Trajectory" in env_id else [])
+                    variants = [{}]
+                    if args.compare_eager and "Trajectory" in env_id:  # the same kernels uncaptured, the torch step
+                        variants += ([{"graph": False}] if device.startswith("cuda") else []) + [{"fused": False}]
                     for variant in variants:
                         res = raw_env_row(env_id, n, device, args.steps, **extra, **variant)
                         if "Trajectory" in env_id:
