@@ -3,6 +3,8 @@ for bit, for the same seed and actions, with autoresets and goal resamples; on C
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -97,6 +99,21 @@ def test_fused_step_reseed_and_partial_reset_midway():
     run_twins(eager, fused, 20, seed=77)  # reset(seed=77) redraws the pools: the fused step copies them in
 
 
+def test_fused_step_nan_guard_matches_eager():
+    eager, fused = twin_envs("cpu")
+    run_twins(eager, fused, 5, seed=2)
+    gen = torch.Generator().manual_seed(4)
+    for t, (world, field) in enumerate([(3, "vel"), (7, "pos"), (3, "vel")]):
+        for env in (eager, fused):
+            getattr(env.sim, field)[world, 1, 0] = float("nan")  # a world's state turns non-finite
+        act = (2 * torch.rand(eager.num_envs, 6, generator=gen) - 1) * 10
+        out_e, out_f = eager.step(act), fused.step(act)
+        assert_same(out_e, out_f, f"nan step {t}")
+        assert bool(out_f[4]["nonfinite"][world]) and bool(out_f[2][world]) and float(out_f[1][world]) == 0.0
+        assert int(out_f[4]["nonfinite_step"][world]) == fused._step_count
+        assert torch.isfinite(out_f[0]["observation"]).all()  # the world was reset
+
+
 def test_fused_step_refuses_bad_actions_before_any_change():
     _, env = twin_envs("cpu")
     env.step(torch.zeros(env.num_envs, 6))
@@ -143,8 +160,11 @@ def test_fused_outputs_stay_valid_through_the_next_step():
 def test_graph_step_matches_eager_on_cuda(name):
     eager, fused = twin_envs("cuda:0", **CONFIGS[name])
     assert fused.step_path == "fused graph"
-    run_twins(eager, fused, 200, seed=3)
-    run_twins(eager, fused, 100, seed=5, policy=eager.scripted_policy())  # reseeded: pools copied, graph replayed
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # a capture that falls back to eager launches fails here
+        run_twins(eager, fused, 200, seed=3)
+        run_twins(eager, fused, 100, seed=5, policy=eager.scripted_policy())  # reseeded: pools copied, graph replayed
+    assert fused.step_path == "fused graph" and fused._fused_step._graphs[0] is not None
     nograph = TrajectoryPlanningEnv(**{"num_envs": 24, "device": "cuda:0", "seed": 11, **CONFIGS[name]}, graph=False)
     assert nograph.step_path == "fused"
     run_twins(eager, nograph, 50, seed=6)
