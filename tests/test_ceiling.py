@@ -35,7 +35,8 @@ def reference_step(start, cmd, cycles: int):
                 v = vel[w, m, :2] + a * dt
                 s = np.linalg.norm(v)
                 v = v * (v_max / s) if s > v_max else v
-                vz = vel[w, m, 2] + (ceiling.K_Z * (ceiling.HOVER_Z - pos[w, m, 2]) - d_z * vel[w, m, 2]) / ceiling.MASS * dt
+                force_z = ceiling.K_Z * (ceiling.HOVER_Z - pos[w, m, 2]) - d_z * vel[w, m, 2]
+                vz = vel[w, m, 2] + force_z / ceiling.MASS * dt
                 vel[w, m] = (*v, vz)
                 pos[w, m] += vel[w, m] * dt
                 om[w, m] += (-k_rot * rot[w, m] - d_rot * om[w, m]) / inertia * dt

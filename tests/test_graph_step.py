@@ -32,7 +32,8 @@ def assert_same(x, y, where: str) -> None:
         for k in x:
             assert_same(x[k], y[k], f"{where}[{k!r}]")
     else:
-        assert x.dtype == y.dtype and x.shape == y.shape, f"{where}: {x.dtype}{tuple(x.shape)} != {y.dtype}{tuple(y.shape)}"
+        assert x.dtype == y.dtype and x.shape == y.shape, \
+            f"{where}: {x.dtype}{tuple(x.shape)} != {y.dtype}{tuple(y.shape)}"
         assert x.device == y.device, where
         bad = (x != y) & ~(x.isnan() & y.isnan()) if x.is_floating_point() else x != y
         assert not bool(bad.any()), f"{where}: differs at {bad.nonzero()[:4].tolist()}"

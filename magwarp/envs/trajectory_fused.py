@@ -269,7 +269,7 @@ class FusedTrajectoryStep:
             self._launch_eager(out)  # loads the kernels; the graph is recorded after this real step
             try:
                 self._graphs[self._slot] = self._capture(out)
-            except (RuntimeError, AttributeError) as e:  # e.g. a torch without generator registration: the same kernels, eager
+            except (RuntimeError, AttributeError) as e:  # e.g. no generator registration: the same kernels, eager
                 import warnings
 
                 warnings.warn(f"TrajectoryPlanningEnv: the step could not be captured as a CUDA graph ({e}); it runs "
