@@ -3,6 +3,14 @@ beside MagBotSim's ``env.step()`` measured in the same run, and the cost of the 
 
     python benchmarks/env_throughput.py                          # B0 on cpu (+cuda:0), adapters, MagBotSim
     python benchmarks/env_throughput.py --device cuda:0 --num-envs 4096,65536,1048576 --json out.json --plot out.png
+    python benchmarks/env_throughput.py --devices cuda:0 --envs magwarp/TrajectoryPlanningB0-v0 --compare-eager \
+        --no-magbotsim --adapters-at 0 --json b0.json      # the B0 step: fused graph vs torch step vs ceiling
+
+For the trajectory-planning envs each row also shows the env's own physics (its simulator's step alone, "physics
+ms"), the bare-kernel ceiling of a B0 step at the same size (:mod:`ceiling`, "ceiling ms"), ``env/physics`` (step
+time over physics time) and ``env/ceiling`` (env-steps/s as a fraction of the ceiling's), all from the same run;
+"path" is the env's :attr:`step_path` (``--compare-eager`` adds rows of the torch step, ``fused=False``, and on CUDA of
+the fused kernels launched one by one, ``graph=False``).
 
 Actions are uniform random in the action space, drawn on the device from a pre-generated bank (so the timing is the
 env's, not the random generator's). Autoreset is on and included. ``check_inputs`` is off in the timed loop (it is a
@@ -67,6 +75,8 @@ def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_input
 
     res = time_steps(env_step, actions, steps, device)
     res["env_steps_per_s"] = num_envs / (res["step_ms"] / 1e3)
+    if getattr(env.unwrapped, "step_path", None) is not None:
+        res["path"] = env.unwrapped.step_path
     if backend is not None:
         res["raw_mjw_ms"] = raw_mujoco_warp_ms(backend, steps, device, snapshots)
         res["x_raw_mjw"] = res["step_ms"] / res["raw_mjw_ms"]
@@ -81,7 +91,23 @@ def raw_env_row(env_id: str, num_envs: int, device: str, steps: int, check_input
 
         sim.check_inputs = False
         res["sim_ms"] = time_steps(physics, actions, steps, device)["step_ms"]
+        res["x_physics"] = res["step_ms"] / res["sim_ms"]
     return res
+
+
+_CEILINGS: dict[tuple[str, int], dict] = {}
+
+
+def with_ceiling(res: dict, num_envs: int, device: str, steps: int) -> dict:
+    """``res`` with the B0 bare-kernel ceiling at ``num_envs`` (measured once per size and device in a run) and the
+    env's fraction of it."""
+    from ceiling import ceiling_ms
+
+    key = (device, num_envs)
+    if key not in _CEILINGS:
+        _CEILINGS[key] = ceiling_ms(num_envs, device, steps)
+    c = _CEILINGS[key]
+    return {**res, "ceiling_ms": c["ceiling_ms"], "x_ceiling": c["ceiling_ms"] / res["step_ms"]}
 
 
 def _physics_state(backend) -> list[torch.Tensor]:
@@ -175,6 +201,7 @@ def plot(rows: list[dict], path: str) -> None:
     for r in rows:
         if r.get("adapter") in (None, "raw") and not r.get("check_inputs"):
             name = f"MagBotSim {r['magbotsim_env']}" if r["engine"] == "magbotsim" else f"magwarp {r['env']}"
+            name += f" [{r['path']}]" if r.get("path") else ""
             series.setdefault(f"{name} ({r['device']})", []).append((r["num_envs"], r["env_steps_per_s"]))
     for name, pts in sorted(series.items()):
         pts.sort()
@@ -195,7 +222,8 @@ def plot(rows: list[dict], path: str) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--device", default=None, help="cpu or cuda:N (default: cpu, plus cuda:0 when present)")
+    p.add_argument("--device", "--devices", default=None,
+                   help="cpu or cuda:N (default: cpu, plus cuda:0 when present)")
     p.add_argument("--envs", default="magwarp/TrajectoryPlanningB0-v0,magwarp/PushBox-v0,magwarp/PushT-v0",
                    help="comma-separated magwarp env ids")
     p.add_argument("--push-num-envs", default=None, help="sizes for push envs (default: 1..64 on CPU, up to 16384 on GPU)")
@@ -204,6 +232,9 @@ def main(argv=None) -> int:
                    help="comma-separated MuJoCo solvers to time the push envs with: auto, Newton or CG, optionally "
                         "with an iteration cap as SOLVER:N (e.g. Newton:4)")
     p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--compare-eager", action="store_true",
+                   help="trajectory envs: also time the torch step (fused=False) and, on CUDA, the fused kernels "
+                        "without the graph (graph=False) at every size")
     p.add_argument("--adapters-at", type=int, default=4096, help="num_envs at which adapters are compared")
     p.add_argument("--no-magbotsim", action="store_true")
     p.add_argument("--magbotsim-steps", type=int, default=200)
@@ -214,7 +245,7 @@ def main(argv=None) -> int:
     rows: list[dict] = []
     for device in devices:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else
-                 ([1, 64, 1024, 4096] if device == "cpu" else [1024, 16384, 262144, 1048576]))
+                 ([1, 64, 1024, 4096] if device == "cpu" else [4096, 16384, 65536, 262144, 1048576, 2097152]))
         push_sizes = ([int(x) for x in args.push_num_envs.split(",")] if args.push_num_envs else
                       ([1, 16, 64] if device == "cpu" else [1024, 4096, 16384]))
         for env_id in args.envs.split(","):
@@ -225,14 +256,20 @@ def main(argv=None) -> int:
                     name, _, cap = solver.partition(":")
                     extra = {"solver": name, **({"solver_iterations": int(cap)} if cap else {})}
                 for n in (push_sizes if is_push else sizes):
-                    res = raw_env_row(env_id, n, device, args.steps, **extra)
-                    rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n, "adapter": "raw",
-                                 **extra, **res})
-                    if solver:
-                        rows[-1]["solver"] = solver
-                    print(f"  {env_id} {solver or ''} {device} num_envs={n}: {res['env_steps_per_s']:.4g} env-steps/s",
-                          flush=True)
-            if is_push:
+                    variants = [{}]
+                    if args.compare_eager and "Trajectory" in env_id:  # the same kernels uncaptured, the torch step
+                        variants += ([{"graph": False}] if device.startswith("cuda") else []) + [{"fused": False}]
+                    for variant in variants:
+                        res = raw_env_row(env_id, n, device, args.steps, **extra, **variant)
+                        if "Trajectory" in env_id:
+                            res = with_ceiling(res, n, device, args.steps)
+                        rows.append({"engine": "magwarp", "env": env_id, "device": device, "num_envs": n,
+                                     "adapter": "raw", **extra, **res})
+                        if solver:
+                            rows[-1]["solver"] = solver
+                        print(f"  {env_id} {solver or ''} {res.get('path', '')} {device} num_envs={n}: "
+                              f"{res['env_steps_per_s']:.4g} env-steps/s", flush=True)
+            if is_push or args.adapters_at <= 0:
                 continue
             n = args.adapters_at
             res = raw_env_row(env_id, n, device, args.steps, check_inputs=True)
@@ -252,9 +289,10 @@ def main(argv=None) -> int:
                     rows.append({"engine": "magbotsim", "env": env_id, "magbotsim_env": mapping[env_id], "device": "cpu",
                                  "num_envs": 1, "adapter": "raw",
                                  "step_ms": res["step_ms_mean"], "env_steps_per_s": res["steps_per_s"]})
-    print_table(rows, ["engine", "env", "device", "num_envs", "solver", "adapter", "check_inputs", ("step_ms", "ms/step"),
-                       ("sim_ms", "physics ms"), ("raw_mjw_ms", "raw mjw ms"), ("x_raw_mjw", "x raw mjw"),
-                       ("env_steps_per_s", "env-steps/s")])
+    print_table(rows, ["engine", "env", "device", "num_envs", "solver", "adapter", "path", "check_inputs",
+                       ("step_ms", "ms/step"), ("sim_ms", "physics ms"), ("ceiling_ms", "ceiling ms"),
+                       ("x_physics", "env/physics"), ("x_ceiling", "env/ceiling"), ("raw_mjw_ms", "raw mjw ms"),
+                       ("x_raw_mjw", "x raw mjw"), ("env_steps_per_s", "env-steps/s")])
     if args.json:
         stamp = provenance(info)
         write_json(args.json, [{**r, **stamp} for r in rows])

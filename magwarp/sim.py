@@ -550,18 +550,24 @@ class Simulator:
             if mask.device != self.torch_device:
                 raise ValueError(f"reset mask is on {mask.device}, but the simulator runs on {self.torch_device}")
             self._t(self._reset_mask).copy_(mask.to(torch.int32))
-        nonfinite = self._t(self._nonfinite)
-        nonfinite.copy_(torch.where(self._t(self._reset_mask).bool(), torch.full_like(nonfinite, -1), nonfinite))
-        if self._latency_bound is not None:  # reset worlds start at rest: their previous command is zero
-            self.prev_cmd.masked_fill_(self._t(self._reset_mask).bool()[:, None, None], 0.0)
-        s = self.state
         with self._on_stream():
-            wp.launch(
-                kstep.reset_worlds, dim=(self.num_worlds, self.num_movers), device=self.device,
-                inputs=[self._reset_mask, self._init_pos, self._init_quat, s.pos, s.quat, s.vel, s.omega, s.acc,
-                        s.cmd, s.target_pos, s.target_quat, s.flags, s.flags_any, s.partner, s.wall,
-                        s.world_pairs, s.world_walls, s.halted, s.cycles],
-            )
+            self._launch_reset()
+
+    def _launch_reset(self) -> None:
+        """Reset the worlds flagged in ``_reset_mask`` (int32 ``[W]``) with kernels only, on the current Warp stream:
+        no torch op and no host sync, so that a larger captured step (the fused env step, which writes the mask in
+        its own kernel) can include it."""
+        s = self.state
+        # Reset worlds start over as finite and at rest (no previous command for the action latency).
+        wp.launch(kguard.clear_reset_worlds, dim=(self.num_worlds, self.num_movers), device=self.device,
+                  inputs=[self._reset_mask, 0 if self._latency_bound is None else 1],
+                  outputs=[self._nonfinite, self._prev_cmd])
+        wp.launch(
+            kstep.reset_worlds, dim=(self.num_worlds, self.num_movers), device=self.device,
+            inputs=[self._reset_mask, self._init_pos, self._init_quat, s.pos, s.quat, s.vel, s.omega, s.acc,
+                    s.cmd, s.target_pos, s.target_quat, s.flags, s.flags_any, s.partner, s.wall,
+                    s.world_pairs, s.world_walls, s.halted, s.cycles],
+        )
 
     def _on_stream(self):
         return wp.ScopedStream(self._stream) if self._stream is not None else contextlib.nullcontext()

@@ -36,6 +36,7 @@ from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.sampling import PoseSampler
 from magwarp.envs.sim2real import ActuationConfig, Latency, SensorConfig, SensorModel
+from magwarp.envs.trajectory_fused import FusedTrajectoryStep, fused_step_blocker
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
 
@@ -92,6 +93,14 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
     Starts must be on the tiles and collision free under the per-cycle rule (collision sizes, ``safety_margin``,
     ``collision_offset_wall``), goals on the tiles (a mover's footprint there, wall margin included); a value that is
     not raises a ``ValueError`` naming it, and nothing is reset. Keys not given are sampled as usual.
+
+    The step (:mod:`magwarp.envs.trajectory_fused`): with ``fused=True`` (default) the task logic after the physics
+    (observations, reward, terminations, goal resampling, NaN guard, autoreset) runs as two Warp kernels around the
+    simulator's, and on CUDA with ``graph=True`` (default) the whole step is one captured CUDA graph, replayed with no
+    host sync. Its results are the same as the torch step's (``fused=False``) for the same seed and actions. The
+    sensor models (``sensors``, ``std_noise``), benchmark metrics, ``nan_dump`` and ``autoreset=False`` take the torch
+    step; :attr:`step_path` says which one runs. On the fused path the returned tensors are the env's buffers: valid
+    through the next step, overwritten by the one after it (clone what you keep longer).
     """
 
     EPISODE_OPTIONS = {"start_xy": ("M", 2), "start_yaw": ("M",), "goals": ("M", 2)}
@@ -131,8 +140,12 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
         nan_dump: str | None = None,
+        fused: bool = True,
+        graph: bool = True,
     ):
         num_envs = as_count(num_envs, "num_envs")
+        self.fused = as_flag(fused, "fused")
+        graph = as_flag(graph, "graph")
         num_cycles = as_count(num_cycles, "num_cycles")
         learn_jerk = as_flag(learn_jerk, "learn_jerk")
         check_finite(threshold_pos=threshold_pos, reward_success=reward_success, reward_collision=reward_collision,
@@ -224,6 +237,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
             }),
             gym.spaces.Box(-limit, limit, (m * 2,), np.float32),
         )
+        self._fused_step = None
+        self._graph = graph
         self.reset()
         # The sampled starts must satisfy the per-cycle rule (walls and mover-mover with the safety margin).
         self.sim._raise_on_start_collisions()
@@ -305,8 +320,27 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.sensors.commit(obs)
         return obs, info
 
+    @property
+    def step_path(self) -> str:
+        """Which step :meth:`step` runs now: ``"fused graph"`` (CUDA, one graph replay), ``"fused"`` (the same
+        kernels, eager: CPU or ``graph=False``) or ``"eager (REASON)"`` (the torch step; see
+        :func:`~magwarp.envs.trajectory_fused.fused_step_blocker`)."""
+        reason = fused_step_blocker(self)
+        if reason is not None:
+            return f"eager ({reason})"
+        return "fused graph" if self._graph and self.sim.device.is_cuda else "fused"
+
     def step(self, action):
-        """See :meth:`MagwarpVecEnv.step`; the sensor model remembers the returned readings (for dropped ones)."""
+        """See :meth:`MagwarpVecEnv.step`; the sensor model remembers the returned readings (for dropped ones).
+
+        On the fused path (:attr:`step_path`) the returned tensors are the env's own buffers, valid through the next
+        step and overwritten by the one after it (:mod:`magwarp.envs.trajectory_fused`)."""
+        if fused_step_blocker(self) is None:
+            action = self._check_action(action)
+            with torch.inference_mode(False):  # its buffers are updated in place in and outside inference mode
+                if self._fused_step is None:
+                    self._fused_step = FusedTrajectoryStep(self, graph=self._graph)
+                return self._fused_step.step(action)
         out = super().step(action)
         self.sensors.commit(out[0])
         return out

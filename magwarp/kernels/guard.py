@@ -48,3 +48,23 @@ def flag_nonfinite(
     ok = ok and wp.isfinite(q[0]) and wp.isfinite(q[1]) and wp.isfinite(q[2]) and wp.isfinite(q[3])
     if not ok:
         nonfinite_step[w] = steps[0]
+
+
+@wp.kernel
+def clear_reset_worlds(
+    # State in:
+    mask: wp.array(dtype=wp.int32),
+    latency: int,  # 1: the simulator holds previous commands (action latency)
+    # State out:
+    nonfinite_step: wp.array(dtype=wp.int32),
+    prev_cmd: wp.array2d(dtype=wp.vec2),
+):
+    """Reset worlds (``mask[w] != 0``) start over as finite, at rest: no NaN record, no previous command (one thread
+    per (world, mover))."""
+    w, m = wp.tid()
+    if mask[w] == 0:
+        return
+    if m == 0:
+        nonfinite_step[w] = -1
+    if latency == 1:
+        prev_cmd[w, m] = wp.vec2(0.0)

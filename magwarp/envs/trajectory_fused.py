@@ -1,0 +1,284 @@
+"""The trajectory-planning env's fused step: physics, observations, rewards, terminations, goal resampling, NaN guard
+and autoreset in a handful of launches, captured as one CUDA graph on a GPU.
+
+One step (after the host-side input check and the copy of the action into the simulator's command buffer) is:
+
+1. the simulator's step kernels (``num_cycles`` cycles, NaN guard);
+2. the random numbers of the step, drawn with the env's torch generator in the same calls, shapes and order as the
+   eager step draws them (goals for reached goals; a start configuration, goals and, with a latency range, a delay
+   for every world), so that both paths give the same episodes for the same seed;
+3. :func:`magwarp.kernels.task.trajectory_step` (one thread per world): the final observation, reward, flags, info,
+   goal counters, resampled goals, and the next episode's starts and goals for the worlds that finished;
+4. the simulator's reset kernels for those worlds;
+5. :func:`magwarp.kernels.task.trajectory_obs`: the returned observation.
+
+On CUDA (``graph=True``) steps 1-5 are one CUDA graph recorded with ``torch.cuda.graph`` (the env's generator is
+registered with it, so every replay draws new numbers), replayed with no host sync and no Python beyond the replay.
+The first step runs eagerly (it loads the kernels) and the graph is recorded after it. On the CPU the same kernels
+run eagerly (the simulator's own step is a Warp CPU graph).
+
+The returned tensors are the env's buffers, not copies: two sets alternate, so a step's tensors stay valid through
+the next step (``obs = next_obs`` loops, replay buffers that copy) and are overwritten by the step after it. Clone
+what you keep longer.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+import warp as wp
+
+from magwarp.kernels import task as ktask
+
+__all__ = ["FusedTrajectoryStep", "fused_step_blocker"]
+
+
+#: the task hooks the fused step replaces: a subclass that overrides one keeps the torch step
+REPLACED_HOOKS = ("_reset_envs", "_apply_action", "_get_obs", "_evaluate", "_end_step", "_nonfinite_worlds",
+                  "_guard_nonfinite", "compute_reward", "goal_distance")
+
+
+@functools.cache
+def _overridden_hook(cls) -> str | None:
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    return next((h for h in REPLACED_HOOKS if getattr(cls, h) is not getattr(TrajectoryPlanningEnv, h)), None)
+
+
+def fused_step_blocker(env) -> str | None:
+    """Why ``env`` (a :class:`~magwarp.envs.trajectory.TrajectoryPlanningEnv`) must take the eager torch step now, or
+    None when the fused step applies. The fused step covers the default configuration, action latency (fixed or
+    drawn at resets), ``learn_jerk``, box or circle shapes, any layout, ``max_episode_steps`` and ``timeout_steps``;
+    the sensor models, benchmark metrics, ``nan_dump``, ``autoreset=False``, simulator cycle hooks and subclasses that
+    override a task hook (:data:`REPLACED_HOOKS`) keep the torch step."""
+    if not env.fused:
+        return "fused=False"
+    if not env.autoreset:
+        return "autoreset=False"
+    if env.nan_dump is not None:
+        return "nan_dump"
+    if env.benchmark_metrics is not None:
+        return "benchmark metrics"
+    sensors = env.sensors
+    cfg = sensors.config
+    if sensors.pos_bias is not None or sensors.vel_bias is not None or cfg.pos_noise_std or cfg.vel_noise_std or \
+            cfg.dropout_prob:
+        return "sensor model (bias, noise or dropout)"
+    if env.sim._hooks or env.sim._pre_hooks:
+        return "simulator cycle hooks"
+    hook = _overridden_hook(type(env))
+    if hook is not None:
+        return f"{type(env).__name__} overrides {hook}"
+    return None
+
+
+class _Outputs:
+    """One set of the step's returned tensors (the env's buffers) and their Warp views."""
+
+    def __init__(self, n: int, m: int, obs_dim: int, device: torch.device):
+        def f32(*shape):
+            return torch.zeros(shape, dtype=torch.float32, device=device)
+
+        def flag(*shape):
+            return torch.zeros(shape, dtype=torch.bool, device=device)
+
+        def i64(*shape):
+            return torch.zeros(shape, dtype=torch.int64, device=device)
+
+        self.obs = {"observation": f32(n, obs_dim), "achieved_goal": f32(n, 2 * m), "desired_goal": f32(n, 2 * m)}
+        self.final = {"observation": f32(n, obs_dim), "achieved_goal": f32(n, 2 * m), "desired_goal": f32(n, 2 * m)}
+        self.reward, self.terminated, self.truncated = f32(n), flag(n), flag(n)
+        self.mover_collision, self.wall_collision, self.time_limit = flag(n), flag(n), flag(n)
+        self.steps_since_goal, self.collected, self.goals_reached = i64(n), i64(n, m), flag(n, m)
+        self.nonfinite, self.nonfinite_step, self.done = flag(n), i64(n), flag(n)
+        w = wp.from_torch
+        self.step_outputs = [
+            w(self.final["observation"]), w(self.final["achieved_goal"]), w(self.final["desired_goal"]),
+            w(self.reward), w(self.terminated), w(self.truncated), w(self.mover_collision), w(self.wall_collision),
+            w(self.steps_since_goal), w(self.collected), w(self.goals_reached), w(self.time_limit), w(self.nonfinite),
+            w(self.nonfinite_step), w(self.done),
+        ]
+        self.obs_wp = [w(self.obs["observation"]), w(self.obs["achieved_goal"]), w(self.obs["desired_goal"])]
+
+    def returns(self, time_limit: bool):
+        """``obs, reward, terminated, truncated, info`` with the eager step's keys (fresh dicts, shared tensors)."""
+        info = {"mover_collision": self.mover_collision, "wall_collision": self.wall_collision,
+                "steps_since_goal": self.steps_since_goal, "collected_goals": self.collected}
+        if time_limit:
+            info["time_limit"] = self.time_limit
+        info.update(goals_reached=self.goals_reached, nonfinite=self.nonfinite, nonfinite_step=self.nonfinite_step,
+                    final_obs=dict(self.final), _final_obs=self.done)
+        return dict(self.obs), self.reward, self.terminated, self.truncated, info
+
+
+class FusedTrajectoryStep:
+    """The fused step of one :class:`~magwarp.envs.trajectory.TrajectoryPlanningEnv` (see the module docstring)."""
+
+    def __init__(self, env, graph: bool = True):
+        self.env = env
+        sim, sampler = env.sim, env.sampler
+        n, m = env.num_envs, env.num_movers
+        dev = env.device
+        self.graph = bool(graph) and sim.device.is_cuda
+        self._outputs = [_Outputs(n, m, env.single_observation_space["observation"].shape[0], dev) for _ in range(2)]
+        self._slot = 0
+        self._graphs: list = [None, None]
+        self._graph_key = None
+        # Random draws (filled by torch in the eager step's order; the kernels select among them).
+        c = sampler.candidates
+        self._step_u = torch.zeros(n, m, c, 2, device=dev)
+        self._step_fallback = torch.zeros(n, m, dtype=torch.int64, device=dev)
+        self._start_index = torch.zeros(n, dtype=torch.int64, device=dev)
+        self._reset_u = torch.zeros(n, m, c, 2, device=dev)
+        self._reset_fallback = torch.zeros(n, m, dtype=torch.int64, device=dev)
+        self._delay_draw = torch.zeros(n, dtype=torch.int32, device=dev)
+        rng = env.latency.config.latency_range
+        self._delay_range = None if rng is None or rng[0] == rng[1] else (int(rng[0]), int(rng[1]) + 1)
+        # Stable copies of the sampler's pools (reset(seed=...) redraws them; they are copied in, same sizes).
+        self._goal_pool = sampler.goal_pool.clone()
+        self._start_pool = sampler.start_pool.clone()
+        self._pool_sources = (sampler.goal_pool, sampler.start_pool)
+        # The device env-step counter (for info["nonfinite_step"]) and the host count it was last set from.
+        self._env_step = torch.zeros(1, dtype=torch.int64, device=dev)
+        self._env_step_host = 0
+        self._cmd = sim.cmd
+        # Warp views of the env's and these buffers (all stable: converted once).
+        w = wp.from_torch
+        self._wp = {
+            "goal_pool": w(self._goal_pool, dtype=wp.vec2), "start_pool": w(self._start_pool, dtype=wp.vec2),
+            "env_step": w(self._env_step), "step_u": w(self._step_u, dtype=wp.vec2),
+            "step_fallback": w(self._step_fallback), "start_index": w(self._start_index),
+            "reset_u": w(self._reset_u, dtype=wp.vec2), "reset_fallback": w(self._reset_fallback),
+            "delay_draw": w(self._delay_draw), "goals": w(env.goals, dtype=wp.vec2), "num_steps": w(env.num_steps),
+            "last_goal_step": w(env.last_goal_step), "collected": w(env.collected_goals),
+        }
+
+        task = ktask.TrajectoryTask()
+        task.learn_jerk = 1 if env.learn_jerk else 0
+        task.threshold = env.threshold_pos
+        task.reward_success = env.reward_success
+        task.reward_collision = env.reward_collision
+        task.reward_per_step = env.reward_per_step
+        task.timeout_steps = -1 if env.timeout_steps is None else int(env.timeout_steps)
+        task.max_episode_steps = -1 if env.max_episode_steps is None else int(env.max_episode_steps)
+        task.draw_latency = 0 if self._delay_range is None else 1
+        self._task = task
+        s = ktask.GoalSampler()
+        lo, span = sampler.lo.cpu(), sampler.span.cpu()
+        s.lo, s.span = wp.vec2(*lo.tolist()), wp.vec2(*span.tolist())
+        s.hi = wp.vec2(*(sampler.lo + sampler.span).cpu().tolist())  # rounded as the sampler's test rounds it
+        s.candidates = int(c)
+        s.full_rect = 1 if sampler.full_rectangle else 0
+        s.radius = sampler.radius
+        s.half = wp.vec2(*sampler.half.tolist())
+        s.offset = sampler.offset
+        self._sampler = s
+
+    # ------------------------------------------------------------------ launches
+    def _sim_arrays(self):
+        """The simulator arrays the kernels touch (looked up per launch/capture: set_latency replaces some)."""
+        sim = self.env.sim
+        st = sim.state
+        delay = sim._delay if self._delay_range is not None else self._wp["delay_draw"]
+        return st, delay
+
+    def _draw(self) -> None:
+        env, sampler = self.env, self.env.sampler
+        g = sampler.generator
+        n, m = env.num_envs, env.num_movers
+        torch.rand(self._step_u.shape, generator=g, out=self._step_u)
+        torch.randint(len(sampler.goal_pool), (n, m), generator=g, out=self._step_fallback)
+        torch.randint(len(sampler.start_pool), (n,), generator=g, out=self._start_index)
+        torch.rand(self._reset_u.shape, generator=g, out=self._reset_u)
+        torch.randint(len(sampler.goal_pool), (n, m), generator=g, out=self._reset_fallback)
+        if self._delay_range is not None:
+            torch.randint(*self._delay_range, (n,), generator=g, out=self._delay_draw)
+
+    def _launch_task(self, out: _Outputs) -> None:
+        """Steps 2-5 (draws, task kernels, reset) on the current streams."""
+        env = self.env
+        sim = env.sim
+        st, delay = self._sim_arrays()
+        a = self._wp
+        self._draw()
+        m = sim.model
+        wp.launch(
+            ktask.trajectory_step, dim=env.num_envs, device=sim.device,
+            inputs=[self._task, self._sampler, m.tiles, m.collision, a["goal_pool"], a["start_pool"], st.pos, st.vel,
+                    st.acc, st.flags_any, sim._nonfinite, a["env_step"], a["step_u"], a["step_fallback"],
+                    a["start_index"], a["reset_u"], a["reset_fallback"], a["delay_draw"], a["goals"], a["num_steps"],
+                    a["last_goal_step"], a["collected"], sim._init_pos, sim._init_quat, sim._reset_mask, delay],
+            outputs=out.step_outputs,
+        )
+        sim._launch_reset()
+        wp.launch(
+            ktask.trajectory_obs, dim=env.num_envs, device=sim.device,
+            inputs=[self._task.learn_jerk, st.pos, st.vel, st.acc, a["goals"], out.step_outputs[-1],
+                    *out.step_outputs[:3], a["env_step"]],
+            outputs=out.obs_wp,
+        )
+
+    def _launch_eager(self, out: _Outputs) -> None:
+        env = self.env
+        env.sim.step(env.num_cycles)
+        with env.sim._on_stream():
+            self._launch_task(out)
+
+    def _capture(self, out: _Outputs):
+        """Record steps 1-5 as one CUDA graph on a side stream (CUDA cannot capture torch's legacy default stream)."""
+        env, sim = self.env, self.env.sim
+        graph = torch.cuda.CUDAGraph()
+        graph.register_generator_state(env.sampler.generator)
+        stream = torch.cuda.Stream(device=env.device)
+        wstream = wp.stream_from_torch(stream)
+        with torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
+            with wp.ScopedStream(wstream, sync_enter=False, sync_exit=False), wp.ScopedCapture(
+                    device=sim.device, stream=wstream, external=True, force_module_load=False):
+                sim._launch_step(env.num_cycles)
+                self._launch_task(out)
+        return graph
+
+    def _sync_state(self) -> None:
+        """Host-side bookkeeping that needs no device sync: new pools after a reseed, the step count after eager
+        steps, and graphs recorded against arrays the simulator has since replaced."""
+        env, sampler = self.env, self.env.sampler
+        if sampler.goal_pool is not self._pool_sources[0] or sampler.start_pool is not self._pool_sources[1]:
+            self._goal_pool.copy_(sampler.goal_pool)
+            self._start_pool.copy_(sampler.start_pool)
+            self._pool_sources = (sampler.goal_pool, sampler.start_pool)
+        if self._env_step_host != env._step_count:
+            self._env_step.fill_(env._step_count)
+        sim = env.sim
+        key = (id(sim._fused_kernel), id(sim._advance_kernel), id(sim._delay), id(sim._prev_cmd), id(sim.state),
+               sim._fused)
+        if key != self._graph_key:
+            self._graphs = [None, None]
+            self._graph_key = key
+            self._cmd = sim.cmd
+
+    def step(self, action: torch.Tensor):
+        """One env step for a checked float32 action ``[num_envs, num_movers * 2]``; the step's returns."""
+        env = self.env
+        self._sync_state()
+        self._cmd.copy_(action.reshape(self._cmd.shape))
+        out = self._outputs[self._slot]
+        if not self.graph:
+            self._launch_eager(out)
+        elif self._graphs[self._slot] is None:
+            self._launch_eager(out)  # loads the kernels; the graph is recorded after this real step
+            try:
+                self._graphs[self._slot] = self._capture(out)
+            except (RuntimeError, AttributeError) as e:  # e.g. no generator registration: the same kernels, eager
+                import warnings
+
+                warnings.warn(f"TrajectoryPlanningEnv: the step could not be captured as a CUDA graph ({e}); it runs "
+                              "the same kernels eagerly (graph=False)", RuntimeWarning, stacklevel=3)
+                self.graph = self.env._graph = False
+        else:
+            self._graphs[self._slot].replay()
+        self._slot ^= 1
+        env._step_count += 1
+        self._env_step_host = env._step_count
+        return out.returns(env.max_episode_steps is not None)
+

@@ -1,0 +1,151 @@
+"""The fused trajectory step's task kernels (magwarp.kernels.task) and the simulator's reset-guard kernel against
+plain numpy references on random inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from magwarp.kernels import guard as kguard
+from magwarp.kernels import task as ktask
+from magwarp.layout import Layout
+from magwarp.sim import Simulator
+
+
+def _task(rng, learn_jerk: int) -> ktask.TrajectoryTask:
+    t = ktask.TrajectoryTask()
+    t.learn_jerk = learn_jerk
+    t.threshold = 0.1
+    t.reward_success, t.reward_collision, t.reward_per_step = 20.0, -20.0, -1.0
+    t.timeout_steps = int(rng.choice([-1, 2, 4]))
+    t.max_episode_steps = int(rng.choice([-1, 5, 8]))
+    t.draw_latency = 1
+    return t
+
+
+def test_trajectory_step_and_obs_match_numpy(rng):
+    W, M, C, P = 200, 3, 2, 50
+    sim = Simulator(Layout.grid(4, 3), M, 1, device="cpu", validate_starts=False)  # for a Collision and tiles
+    learn_jerk = int(rng.integers(0, 2))
+    task = _task(rng, learn_jerk)
+    s = ktask.GoalSampler()
+    s.lo, s.span, s.hi = wp.vec2(0.1, 0.1), wp.vec2(0.76, 0.52), wp.vec2(0.86, 0.62)
+    s.candidates, s.full_rect, s.radius, s.half, s.offset = C, 1, 0.1, wp.vec2(0.1, 0.1), 0.0
+    f32 = np.float32
+    pos = rng.uniform(0, 1, (W, M, 3)).astype(f32)
+    goals = (pos[..., :2] + rng.normal(0, 0.08, (W, M, 2))).astype(f32)
+    vel = rng.normal(0, 1, (W, M, 3)).astype(f32)
+    acc = rng.normal(0, 5, (W, M, 2)).astype(f32)
+    vel[3, 1, 0] = np.nan  # one non-finite world
+    flags = rng.choice([0] * 16 + [1, 2, 3], (W, M)).astype(np.int32)
+    sim_bad = np.where(rng.uniform(size=W) < 0.05, 4, -1).astype(np.int32)
+    u1 = rng.uniform(-0.3, 1, (W, M, C, 2)).astype(f32)  # some candidates outside the box: the fallback is taken
+    u2 = rng.uniform(-0.3, 1, (W, M, C, 2)).astype(f32)
+    i1, i2 = rng.integers(0, P, (W, M)), rng.integers(0, P, (W, M))
+    si, lat = rng.integers(0, P, W), rng.integers(0, 9, W).astype(np.int32)
+    goal_pool = rng.uniform(0, 1, (P, 2)).astype(f32)
+    start_pool = rng.uniform(0, 1, (P, M, 2)).astype(f32)
+    num_steps = rng.integers(0, 8, W)
+    last = np.minimum(num_steps, rng.integers(0, 8, W))
+    collected = rng.integers(0, 5, (W, M))
+    init_pos = rng.uniform(0, 1, (W, M, 3)).astype(f32)
+    env_step = np.array([17])
+    D = 2 * M * (1 + learn_jerk)
+
+    a = {k: wp.array(v, device="cpu", dtype=dt) for k, v, dt in [
+        ("goals", goals, wp.vec2), ("num_steps", num_steps, wp.int64), ("last", last, wp.int64),
+        ("collected", collected, wp.int64), ("init_pos", init_pos, wp.vec3), ("pos", pos, wp.vec3),
+        ("vel", vel, wp.vec3), ("acc", acc, wp.vec2), ("env_step", env_step, wp.int64)]}
+    init_quat = wp.zeros((W, M), dtype=wp.quat, device="cpu")
+    mask, delay = wp.zeros(W, dtype=wp.int32, device="cpu"), wp.zeros(W, dtype=wp.int32, device="cpu")
+    outs = [wp.zeros((W, D), dtype=float, device="cpu"), wp.zeros((W, 2 * M), dtype=float, device="cpu"),
+            wp.zeros((W, 2 * M), dtype=float, device="cpu"), wp.zeros(W, dtype=float, device="cpu"),
+            *[wp.zeros(W, dtype=wp.bool, device="cpu") for _ in range(4)], wp.zeros(W, dtype=wp.int64, device="cpu"),
+            wp.zeros((W, M), dtype=wp.int64, device="cpu"), wp.zeros((W, M), dtype=wp.bool, device="cpu"),
+            wp.zeros(W, dtype=wp.bool, device="cpu"), wp.zeros(W, dtype=wp.bool, device="cpu"),
+            wp.zeros(W, dtype=wp.int64, device="cpu"), wp.zeros(W, dtype=wp.bool, device="cpu")]
+    m = sim.model
+
+    def arr(x, dt=None):
+        return wp.array(x, device="cpu") if dt is None else wp.array(x, dtype=dt, device="cpu")
+
+    wp.launch(ktask.trajectory_step, dim=W, device="cpu",
+              inputs=[task, s, m.tiles, m.collision, arr(goal_pool, wp.vec2), arr(start_pool, wp.vec2), a["pos"],
+                      a["vel"], a["acc"], arr(flags), arr(sim_bad), a["env_step"], arr(u1, wp.vec2), arr(i1),
+                      arr(si), arr(u2, wp.vec2), arr(i2), arr(lat), a["goals"], a["num_steps"], a["last"],
+                      a["collected"], a["init_pos"], init_quat, mask, delay], outputs=outs)
+    obs = [wp.zeros((W, D), dtype=float, device="cpu"), wp.zeros((W, 2 * M), dtype=float, device="cpu"),
+           wp.zeros((W, 2 * M), dtype=float, device="cpu")]
+    wp.launch(ktask.trajectory_obs, dim=W, device="cpu",
+              inputs=[learn_jerk, a["pos"], a["vel"], a["acc"], a["goals"], outs[-1], *outs[:3], a["env_step"]],
+              outputs=obs)
+    (f_obs, f_ach, f_des, reward, term, trunc, mc, wc, since, coll_out, reached, tl, bad, bad_step,
+     done) = (o.numpy() for o in outs)
+
+    # numpy reference
+    def pick(u, idx):
+        cand = np.float32(0.1) + u * np.array([0.76, 0.52], f32)  # lo + u * span, in float32
+        ok = (cand >= f32(0.1)).all(-1) & (cand[..., 0] <= f32(0.86)) & (cand[..., 1] <= f32(0.62))
+        first = ok.argmax(-1)
+        chosen = np.take_along_axis(cand, first[..., None, None].repeat(2, -1), 2)[:, :, 0]
+        return np.where(ok.any(-1)[..., None], chosen, goal_pool[idx])
+
+    ref_obs = np.concatenate([vel[..., :2].reshape(W, -1)] + ([acc.reshape(W, -1)] if learn_jerk else []), 1)
+    np.testing.assert_array_equal(f_obs, ref_obs)
+    np.testing.assert_array_equal(f_ach, pos[..., :2].reshape(W, -1))
+    np.testing.assert_array_equal(f_des, goals.reshape(W, -1))
+    d = pos[..., :2] - goals
+    at = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]) <= f32(0.1)
+    np.testing.assert_array_equal(reached, at)
+    np.testing.assert_array_equal(mc, (flags & 1).any(1))
+    np.testing.assert_array_equal(wc, (flags & 2).any(1))
+    col = mc | wc
+    n_at = at.sum(1)
+    ref_r = np.where(col, -20.0, np.where(n_at > 0, 20.0 * n_at, -1.0)).astype(f32)
+    finite = np.isfinite(ref_obs).all(1) & np.isfinite(pos[..., :2]).all((1, 2)) & (sim_bad < 0)
+    np.testing.assert_array_equal(bad, ~finite)
+    np.testing.assert_array_equal(reward, np.where(finite, ref_r, 0.0))
+    np.testing.assert_array_equal(since, num_steps - last)
+    timed_out = (task.timeout_steps >= 0) & (num_steps - last > task.timeout_steps)
+    cut = (task.max_episode_steps >= 0) & (num_steps + 1 >= task.max_episode_steps)
+    np.testing.assert_array_equal(term, col | ~finite)
+    np.testing.assert_array_equal(trunc, timed_out | cut)
+    if task.max_episode_steps >= 0:
+        np.testing.assert_array_equal(tl, cut & ~timed_out & ~col)
+    np.testing.assert_array_equal(done, term | trunc)
+    np.testing.assert_array_equal(bad_step, np.where(finite, -1, 18))
+    np.testing.assert_array_equal(coll_out, collected + at)
+    # state after the step: counters, goals (reached: resampled; finished: the reset draws), starts, mask, delays
+    new_goals = np.where(at[..., None], pick(u1, i1), goals)
+    new_goals = np.where(done[:, None, None], pick(u2, i2), new_goals)
+    np.testing.assert_array_equal(a["goals"].numpy(), new_goals)
+    steps = num_steps + 1
+    np.testing.assert_array_equal(a["num_steps"].numpy(), np.where(done, 0, steps))
+    np.testing.assert_array_equal(a["last"].numpy(), np.where(done, 0, np.where(at.any(1), steps, last)))
+    np.testing.assert_array_equal(a["collected"].numpy(), np.where(done[:, None], 0, collected + at))
+    ref_init = init_pos.copy()
+    ref_init[done, :, :2] = start_pool[si[done]]
+    np.testing.assert_array_equal(a["init_pos"].numpy(), ref_init)
+    np.testing.assert_array_equal(init_quat.numpy()[done], np.tile([0, 0, 0, 1], (done.sum(), M, 1)))
+    np.testing.assert_array_equal(mask.numpy(), done.astype(np.int32))
+    np.testing.assert_array_equal(delay.numpy(), np.where(done, lat, 0))
+    # the returned observation: the next episode's first where finished, the final one elsewhere
+    ref_next = np.concatenate([vel[..., :2].reshape(W, -1)] + ([acc.reshape(W, -1)] if learn_jerk else []), 1)
+    np.testing.assert_array_equal(obs[0].numpy(), np.where(done[:, None], ref_next, f_obs))
+    np.testing.assert_array_equal(obs[2].numpy(), np.where(done[:, None], new_goals.reshape(W, -1), f_des))
+    assert a["env_step"].numpy()[0] == 18
+    assert done.any() and (~done).any() and at.any()
+
+
+def test_clear_reset_worlds_matches_numpy(rng):
+    W, M = 64, 4
+    mask = rng.integers(0, 2, W).astype(np.int32)
+    nonfinite = rng.integers(-1, 9, W).astype(np.int32)
+    prev = rng.normal(size=(W, M, 2)).astype(np.float32)
+    for latency in (0, 1):
+        nf, pc = wp.array(nonfinite, device="cpu"), wp.array(prev, dtype=wp.vec2, device="cpu")
+        wp.launch(kguard.clear_reset_worlds, dim=(W, M), inputs=[wp.array(mask, device="cpu"), latency],
+                  outputs=[nf, pc], device="cpu")
+        np.testing.assert_array_equal(nf.numpy(), np.where(mask == 1, -1, nonfinite))
+        ref = np.where((mask == 1)[:, None, None] & bool(latency), 0.0, prev)
+        np.testing.assert_array_equal(pc.numpy(), ref)
