@@ -5,7 +5,7 @@
 #   export PYTHONPATH=/tmp/site:$PWD; bash benchmarks/gpu_round.sh STAGE
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
-# swarm_render, compare (B0 env throughput of an older tree beside this one).
+# swarm_render, graph (#23: the fused B0 step, ceiling), compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -55,6 +55,15 @@ for stage in "$@"; do
           --no-magbotsim --envs magwarp/TrajectoryPlanningB0-v0 --num-envs 4096,65536,1048576 --steps 50 \
           --json "$OUT/env_throughput_$(basename "$(realpath "$tree")").json" 2>&1 | tail -8)
       done ;;
+    graph)
+      # #23: the fused B0 step (one CUDA graph) against the torch step, its physics and the bare-kernel ceiling
+      timeout 300 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_graph_step.py \
+        tests/test_kernels_task.py tests/test_ceiling.py 2>&1 | tail -4
+      timeout 200 python3 benchmarks/ceiling.py --device cuda:0 --num-envs 4096,65536,1048576,2097152 \
+        --json "$OUT/ceiling_gpu.json" 2>&1 | tail -8
+      timeout 400 python3 benchmarks/env_throughput.py --devices cuda:0 --envs magwarp/TrajectoryPlanningB0-v0 \
+        --num-envs 4096,16384,65536,262144,1048576,2097152 --compare-eager --no-magbotsim --adapters-at 0 --steps 50 \
+        --json "$OUT/env_throughput_b0_graph_gpu.json" 2>&1 | tail -25 ;;
     *) echo "unknown stage $stage"; exit 2 ;;
   esac
 done
