@@ -63,6 +63,7 @@ class TaskGraph:
         self.graph: torch.cuda.CUDAGraph | None = None
         self.failed = False
         self._out = None
+        self._warp_graph = None
 
     def __call__(self) -> Any:
         if self.graph is not None:
@@ -93,7 +94,8 @@ class TaskGraph:
                             stack.enter_context(rec(wstream))
                         out = self.fn()
                 finally:
-                    wp.capture_end(device=wdev, stream=wstream)
+                    # Warp's record of the capture keeps the modules and arrays it launched with alive
+                    self._warp_graph = wp.capture_end(device=wdev, stream=wstream)
             torch.cuda.current_stream(self.device).wait_stream(stream)
         except Exception as e:  # noqa: BLE001 - any capture failure: report it and run eagerly
             self.failed = True
