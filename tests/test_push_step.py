@@ -131,3 +131,19 @@ def test_two_ms_physics_keeps_trajectories_of_one_ms():
     assert pushed.max() > 0.05, pushed  # the box was pushed: the comparison covers contact
     assert worst[0] <= MOVER_TOL_M and worst[1] <= OBJECT_TOL_M and worst[2] <= OBJECT_YAW_TOL, worst
     assert worst[0] > 0  # the two modes do differ (the option reached the physics)
+
+
+def test_time_to_success_freezes_after_the_same_time_at_two_ms():
+    # MagBotSim freezes time to success once the object stays 150 cycles (0.15 s) at the goal; at 2 ms that is 75
+    env = PushBoxEnv(1, device="cpu", seed=0, num_cycles=2, physics_dt=0.002, max_episode_steps=1000)
+    env.reset()
+    assert env.substeps == 1 and env.metrics._streak_max == 75
+    obj = env.backend.object_qpos[:, 0, :2].clone()
+    at_goal = torch.zeros(140, dtype=torch.bool)
+    at_goal[10:90] = True  # 80 steps (0.16 s) at the goal: frozen after 75
+    at_goal[120:130] = True  # a later streak must not restart the clock
+    for t in range(140):
+        env.goal_xy.copy_(obj + torch.tensor([[0.02 if at_goal[t] else 0.2, 0.0]]))
+        env.step(torch.zeros(1, 2))
+    assert env.metrics.t["time_to_success"].item() == pytest.approx(11 * 0.002)  # the streak began at step 11
+    assert env.metrics.t["streak"].item() == 75
