@@ -154,3 +154,15 @@ def test_time_to_success_freezes_after_the_same_time_at_two_ms():
         env.step(torch.zeros(1, 2))
     assert env.metrics.t["time_to_success"].item() == pytest.approx(11 * 0.002)  # the streak began at step 11
     assert env.metrics.t["streak"].item() == 75
+
+
+def test_task_graph_outputs_are_fresh_copies_and_cuda_only():
+    from magwarp.envs.step_graph import TaskGraph, clone_outputs
+
+    out = ({"a": torch.arange(3)}, torch.ones(2), [torch.zeros(1)], 5)
+    copy = clone_outputs(out)
+    assert copy[3] == 5 and isinstance(copy[2], list)
+    for x, y in ((out[0]["a"], copy[0]["a"]), (out[1], copy[1]), (out[2][0], copy[2][0])):
+        assert torch.equal(x, y) and x.data_ptr() != y.data_ptr()
+    with pytest.raises(ValueError, match="not a CUDA device"):
+        TaskGraph(lambda: None, torch.device("cpu"))
