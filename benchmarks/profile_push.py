@@ -35,13 +35,15 @@ def magwarp_kernel_names() -> set[str]:
     return names
 
 
-def profile(env_id: str, num_envs: int, solver: str, device: str, steps: int, top: int) -> tuple[dict, list[dict]]:
+def profile(env_id: str, num_envs: int, solver: str, device: str, steps: int, top: int,
+            physics_dt: float = 0.001) -> tuple[dict, list[dict]]:
     import gymnasium as gym
 
     import magwarp  # noqa: F401
 
-    env = gym.make_vec(env_id, num_envs=num_envs, device=device, solver=solver)
+    env = gym.make_vec(env_id, num_envs=num_envs, device=device, solver=solver, physics_dt=physics_dt)
     env.backend.use_graph = False
+    env.use_step_graph = False  # every kernel launched eagerly, so each is timed
     env.reset(seed=0)
     space = env.single_action_space
     low, high = (torch.as_tensor(v, device=env.device) for v in (space.low, space.high))
@@ -66,7 +68,8 @@ def profile(env_id: str, num_envs: int, solver: str, device: str, steps: int, to
     groups = collections.defaultdict(float)
     for name, ms in per_kernel.items():
         groups["magwarp" if any(name.startswith(k) or k in name for k in ours) else "mujoco_warp"] += ms
-    summary = {"env": env_id, "num_envs": num_envs, "solver": solver, "eager_wall_ms": wall_ms,
+    summary = {"env": env_id, "num_envs": num_envs, "solver": solver, "physics_dt": physics_dt,
+               "eager_wall_ms": wall_ms,
                "mujoco_warp_ms": groups["mujoco_warp"], "magwarp_kernels_ms": groups["magwarp"],
                "launches_per_step": sum(launches.values()) / steps,
                "solver_niter_max": int(env.backend.data.solver_niter.numpy().max())}
@@ -82,6 +85,7 @@ def main(argv=None) -> int:
     p.add_argument("--num-envs", type=int, default=65536)
     p.add_argument("--solvers", default="Newton,CG")
     p.add_argument("--steps", type=int, default=5)
+    p.add_argument("--physics-dt", type=float, default=0.001, help="the push envs' physics step (s)")
     p.add_argument("--top", type=int, default=15, help="kernels listed per configuration")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
@@ -94,11 +98,12 @@ def main(argv=None) -> int:
     summaries, kernels = [], []
     for env_id in args.envs.split(","):
         for solver in args.solvers.split(","):
-            s, k = profile(env_id, args.num_envs, solver, args.device, args.steps, args.top)
+            s, k = profile(env_id, args.num_envs, solver, args.device, args.steps, args.top, args.physics_dt)
             summaries.append(s)
             kernels.extend(k)
     print_table(kernels, ["env", "solver", "kernel", ("ms_per_step", "ms/step"), "launches"])
-    print_table(summaries, ["env", "num_envs", "solver", ("eager_wall_ms", "eager wall ms"), ("mujoco_warp_ms", "mjw kernels ms"),
+    print_table(summaries, ["env", "num_envs", "solver", "physics_dt", ("eager_wall_ms", "eager wall ms"),
+                            ("mujoco_warp_ms", "mjw kernels ms"),
                             ("magwarp_kernels_ms", "magwarp kernels ms"), ("launches_per_step", "launches"),
                             ("solver_niter_max", "max solver iters")])
     if args.json:

@@ -1,7 +1,8 @@
 """Object pushing on mujoco-warp (MagBotSim's ``StateBasedGlobalPushingEnv`` family), batched and torch-native.
 
 One or more movers push an object (box, square box, cylinder, T, L, X) to a goal position (``learn_pose=False``)
-or a goal pose (``learn_pose=True``). Per env step (``num_cycles`` control cycles of 1 ms, the same action held):
+or a goal pose (``learn_pose=True``). Per env step (``num_cycles`` control cycles of 1 ms, the same action held; the
+physics steps at ``physics_dt``, 1 ms by default, see :class:`PushEnv`):
 
 * observation: mover x/y positions then x/y velocities (then x/y accelerations when learning jerk), each flattened
   mover by mover (with ``learn_mover_c_rotation``: x, y, sin and cos of the yaw, then x/y/yaw rates, as MagBotSim;
@@ -49,6 +50,7 @@ from magwarp.envs.randomization import EventTerm, Randomizer, as_terms
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
 from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
+from magwarp.physics.backend import physics_substeps
 from magwarp.physics.coverage import ShapeTable
 from magwarp.physics.mover_checks import MoverChecks
 from magwarp.physics.push_metrics import PushMetrics
@@ -115,6 +117,17 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
     with accuracy in the hardest contacts). ``nconmax``/``njmax`` (contacts and constraint rows
     per world) default to the most the scene can produce: 8 contacts per colliding geom pair, 3 rows per contact.
 
+    Physics step: ``physics_dt`` (s) is mujoco-warp's timestep and the period of the mover control law; an env step
+    of ``num_cycles`` control cycles (1 ms each, MagBotSim's and the real system's cycle: 40 ms by default) runs
+    ``num_cycles * 1 ms / physics_dt`` physics steps (``substeps``). The default, 0.001, is MagBotSim's. 0.002 (20
+    steps per 40 ms env step) is an opt-in fast mode, about 2x the env-steps/s on a GPU: the x/y command law,
+    jerk/acceleration integration, velocity cap and impedance hold update every physics step instead of every 1 ms,
+    contacts resolve at that step (MuJoCo's contact time constant, 0.02 s, stays above 2 steps, so contact
+    stiffness is unchanged), and collisions and the corrective-movement metrics are checked once per physics step.
+    Episode lengths and timeouts count env steps and do not change. ``physics_dt`` must divide the env step and be
+    at most :data:`~magwarp.physics.backend.PHYSICS_DT_MAX` (5 ms); see ``docs/push_physics_dt.md`` for what was
+    measured.
+
     Rendering: ``render_mode="rgb_array"`` draws the worlds of :meth:`set_render_worlds` from above (tiles, movers,
     the object, its goal and obstacles); ``"rgb_array_3d"`` renders them in 3D through MuJoCo's offscreen renderer
     (:mod:`magwarp.render.mujoco3d`; needs EGL or OSMesa).
@@ -168,6 +181,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         a_max: float = 10.0,
         j_max: float = 100.0,
         num_cycles: int = 40,
+        physics_dt: float = 0.001,
         max_position_err: float = 0.05,
         min_coverage: float = 0.7,
         use_sparse_pose_reward: bool = False,
@@ -206,6 +220,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         if collision_shape not in ("circle", "box"):
             raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
         num_cycles = as_count(num_cycles, "num_cycles")
+        substeps = physics_substeps(physics_dt, num_cycles)  # a bad physics_dt fails before anything is built
         max_episode_steps = as_count(max_episode_steps, "max_episode_steps")
         solver_iterations = as_count(solver_iterations, "solver_iterations")
         ls_iterations = as_count(ls_iterations, "ls_iterations")
@@ -239,6 +254,8 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         check_magnitude(std_noise=std_noise, object_noise=object_noise)
         self.std_noise, self.object_noise = float(std_noise), float(object_noise)
         self.num_cycles = int(num_cycles)  # control cycles (1 ms) per env step
+        self.physics_dt = float(physics_dt)  # mujoco-warp timestep and control period (s)
+        self.substeps = substeps  # physics steps per env step
         self.max_position_err = float(max_position_err)
         self.min_coverage = float(min_coverage)
         self.use_sparse_pose_reward = as_flag(use_sparse_pose_reward, "use_sparse_pose_reward")
@@ -271,7 +288,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         self._init_sampling_ranges()
         self._check_sizes_fit()
 
-        control = ControlParams(v_max=v_max, a_max=a_max, j_max=j_max, jerk=learn_jerk, num_cycles=int(num_cycles),
+        control = ControlParams(v_max=v_max, a_max=a_max, j_max=j_max, jerk=learn_jerk, num_cycles=substeps,
                                 rotation=self.learn_mover_c_rotation, v_max_c=v_max_c, a_max_c=a_max_c,
                                 j_max_c=j_max_c, p_max_c=p_max_c)
         self._build_backend(int(num_envs), warp_device(device).alias, control, solver=solver,
@@ -292,9 +309,13 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         variants, and the collision and contact checks on it."""
         if solver == "auto":
             solver = "Newton" if str(device).startswith("cuda") else "CG"
-        self.xml = generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
-                                 objects=[self.object], obstacles=self.obstacles, solver=solver,
-                                 iterations=solver_iterations, ls_iterations=ls_iterations)
+
+        def scene(spec):
+            return generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
+                                 objects=[spec], obstacles=self.obstacles, solver=solver, iterations=solver_iterations,
+                                 ls_iterations=ls_iterations, timestep=self.physics_dt)
+
+        self.xml = scene(self.object)
         # Contacts per world: up to 8 per colliding geom pair (MuJoCo's box-box and plane-box tests return at most 8):
         # every object part with the support, each mover and each obstacle, and each mover with each obstacle. An
         # elliptic-cone contact (condim 3) is 3 constraint rows. mujoco-warp's solver kernels run over njmax rows
@@ -306,11 +327,6 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                                   device=device)
         self.variants = None
         if varying:
-            def scene(spec):
-                return generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
-                                     objects=[spec], obstacles=self.obstacles, solver=solver,
-                                     iterations=solver_iterations, ls_iterations=ls_iterations)
-
             self.variants = build_variants(self.object, varying, object_variants, scene,
                                            np.random.default_rng(seed), self.backend.torch_device)
             self._variant_fields = self.backend.batch_model_fields(MODEL_FIELDS)
@@ -322,6 +338,13 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                 {"mover": ["mover_geom_"], "object": ["object_0_geom_"], "obstacle": ["obstacle_geom_"]},
                 [("mover", "obstacle"), ("object", "obstacle")],
             )
+        self.backend.add_step_hook(self._clear_step_flags)
+
+    def _clear_step_flags(self) -> None:
+        """Per-step collision and contact flags start at zero: memsets at the head of the physics graph."""
+        self.checks.flags.zero_()
+        if self.contacts is not None:
+            self.contacts.flags.zero_()
 
     def _init_task_state(self) -> None:
         """Per-world task tensors (goals, step counters, object variants, obstacle boxes) and the step metrics."""
@@ -336,6 +359,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         self.goal_yaw = torch.zeros(n, device=dev)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
         self.steps_at_goal = torch.zeros(n, dtype=torch.int64, device=dev)
+        self._step_count_t = torch.zeros((), dtype=torch.int64, device=dev)  # env steps since construction
         #: which object variant each world has (0 without ``object_ranges``); ``shapes`` their outlines (coverage)
         self.object_variant = torch.zeros(n, dtype=torch.int32, device=dev)
         self.shapes = ShapeTable(self.variants.specs if self.variants else [self.object], self.backend.device)
@@ -620,12 +644,61 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
                     f"mover {i[1]} at {fmt_xy(mover_xy[i[0], i[1]])}"))
 
     def _apply_action(self, action: torch.Tensor) -> None:
-        self.checks.clear()
-        if self.contacts is not None:
-            self.contacts.clear()
+        # the collision and contact flags are cleared inside the physics graph (_clear_step_flags)
         if self.randomizer is not None:
             self.randomizer.step()
         self.backend.step(action.reshape(self.num_envs, self.num_movers, -1), check_finite=False)
+
+    # ------------------------------------------------------------------ the step
+    #: on CUDA, record the task work after the physics as one CUDA graph (:mod:`magwarp.envs.step_graph`); False runs
+    #: it eagerly (the same results, bit for bit)
+    use_step_graph = True
+    _task_graph = None
+
+    def step(self, action):
+        """One env step: the action is checked (a host sync only with ``check_inputs``), written into the physics
+        graph's command buffer and the physics graph replayed (``substeps`` physics steps, collision checks and
+        metrics per physics step); then observations, rewards, terminations, goal resampling and autoreset run as
+        one more graph on CUDA (a torch CUDA graph with the reset's Warp kernels inside), eagerly on the CPU. No
+        host sync; randomness follows the env's seeded generator either way. With ``nan_dump``, a randomizer or
+        benchmark metrics attached the task work runs eagerly (they keep host-side state)."""
+        if self.nan_dump is not None:  # debugging mode: the base class's step, one host sync per step
+            out = super().step(action)
+            self._step_count_t += 1
+            return out
+        action = self._check_action(action)
+        self._apply_action(action)
+        self._step_count += 1
+        graph = self._task_graph_for_step()
+        return graph() if graph is not None else self._finish_step()
+
+    def _task_graph_for_step(self):
+        if not self.use_step_graph or self.device.type != "cuda" or self.randomizer is not None \
+                or self.benchmark_metrics is not None:
+            return None
+        if self._task_graph is None:
+            from magwarp.envs.step_graph import TaskGraph
+
+            self._task_graph = TaskGraph(self._finish_step, self.device, generators=[self._generator],
+                                         recorders=[self.backend.recording])
+        return None if self._task_graph.failed else self._task_graph
+
+    def _finish_step(self):
+        """The step after the physics (the base class's step from its observation on): observation, reward,
+        termination, NaN guard, autoreset. The step count is a device counter here, so a graph replays it right."""
+        self._step_count_t += 1
+        obs = self._get_obs()
+        reward, terminated, truncated, info = self._evaluate(obs)
+        self._end_step(obs, info)
+        reward, terminated = self._guard_nonfinite(obs, reward, terminated, info, None)
+        info["nonfinite_step"] = torch.where(info["nonfinite"], self._step_count_t, -1)
+        if self.autoreset:
+            done = terminated | truncated
+            info["final_obs"] = obs
+            info["_final_obs"] = done
+            self._reset_envs(done)
+            obs = _where(done, self._get_obs(), obs)
+        return obs, reward, terminated, truncated, info
 
     def _mover_obs(self) -> torch.Tensor:
         b, n = self.backend, self.num_envs

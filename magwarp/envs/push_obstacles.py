@@ -159,7 +159,7 @@ class PushWithObstaclesEnv(PushEnv):
                 self.curriculum_success.masked_fill_(up, 0.0)
             self.curriculum_level += up.long()
             self._episodes_at_level.copy_(torch.where(up, torch.ones_like(count), count))
-            levels = torch.tensor(list(_OBSTACLE_HALF_Y.values()), device=self.device)
+            levels = self._const(np.array(list(_OBSTACLE_HALF_Y.values()), np.float32))
             half_y = levels[self.curriculum_level]
         boxes = self.obstacle_boxes.clone()
         boxes[:, 0, 1] = half_y
@@ -230,7 +230,7 @@ class PushWithObstaclesEnv(PushEnv):
     def obstacle_vertices(self) -> torch.Tensor:
         """``[W, 16]``: each wall's corners (x, y) in MagBotSim's order (+x+y, +x-y, -x-y, -x+y), wall 0 first."""
         c, h = self.obstacle_boxes[..., :2], self.obstacle_boxes[..., 2:4]
-        signs = torch.tensor([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]], device=self.device)
+        signs = self._const(np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]], np.float32))
         return (c[:, :, None, :] + signs * h[:, :, None, :]).reshape(self.num_envs, -1)
 
     def _get_obs(self) -> dict[str, torch.Tensor]:

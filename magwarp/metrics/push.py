@@ -15,6 +15,7 @@ import warp as wp
 from magwarp.kernels import metrics as km
 from magwarp.metrics._common import Tracker, group_sum
 from magwarp.physics import ContactFlags
+from magwarp.physics.backend import CONTROL_CYCLE_S
 
 __all__ = ["PushTaskMetrics"]
 
@@ -105,6 +106,7 @@ class PushTaskMetrics(Tracker):
             "mover_mover": group_sum(ev[:, km.EV_MOVER_MOVER], G) / episodes,
             "mover_obstacle": group_sum(ev[:, km.EV_MOVER_WALL:km.EV_OBJECT_OBSTACLE], G) / episodes,
             "object_obstacle": group_sum(ev[:, km.EV_OBJECT_OBSTACLE], G) / episodes,
-            "smoothness": group_sum(t["smooth"], G) / time_s,
+            # summed per physics step: scaled to 1 ms cycles (MagBotSim's), so a longer physics_dt reads the same
+            "smoothness": group_sum(t["smooth"], G) * (float(self.backend.dt) / CONTROL_CYCLE_S) / time_s,
             "time_to_success_s": group_sum(t["time_to_success_sum"], G) / successes,
         }

@@ -27,11 +27,44 @@ from magwarp.physics.control import (
     zero_vec2_masked_kernel,
 )
 
-__all__ = ["ControlParams", "MjwBackend", "PhysicsInputError"]
+__all__ = ["CONTROL_CYCLE_S", "PHYSICS_DT_MAX", "ControlParams", "MjwBackend", "PhysicsInputError", "physics_substeps"]
 
 
 class PhysicsInputError(ValueError):
     """An input (action, mask, state, option) that the backend cannot use."""
+
+
+#: The control cycle of MagBotSim and of the real system (s): envs count an env step in these cycles.
+CONTROL_CYCLE_S = 0.001
+#: The largest physics step (s) the push envs accept. Two bounds meet here: MuJoCo's contact time constant (default
+#: solref 0.02 s) is raised to at least 2 x timestep when it is shorter (refsafe), so steps above 10 ms would
+#: silently soften every contact; and a mover at v_max = 2 m/s moves v_max x dt per step, 1 cm at 5 ms, half the
+#: half-thickness of the thinnest default object part (T/L/X segments, 0.02 m), so nothing tunnels. 5 ms keeps a
+#: factor of 2 on both.
+PHYSICS_DT_MAX = 0.005
+
+
+def physics_substeps(physics_dt, num_cycles: int) -> int:
+    """Physics steps per env step of ``num_cycles`` control cycles of :data:`CONTROL_CYCLE_S` at ``physics_dt`` (s).
+
+    ``physics_dt`` must be a positive finite number, at most :data:`PHYSICS_DT_MAX`, that divides the env step
+    (``num_cycles`` ms) into a whole number of steps; anything else raises :class:`PhysicsInputError` naming it."""
+    if isinstance(physics_dt, (bool, np.bool_)) or not isinstance(physics_dt, (int, float, np.integer, np.floating)):
+        raise PhysicsInputError(f"physics_dt must be a number of seconds, got {physics_dt!r}")
+    dt = float(physics_dt)
+    if not np.isfinite(dt) or dt <= 0:
+        raise PhysicsInputError(f"physics_dt must be a positive, finite number of seconds, got {physics_dt!r}")
+    if dt > PHYSICS_DT_MAX * (1 + 1e-9):
+        raise PhysicsInputError(
+            f"physics_dt={physics_dt!r} s is above {PHYSICS_DT_MAX} s: MuJoCo would soften the contacts (time constant "
+            f"0.02 s < 2 physics_dt near 10 ms) and a mover at 2 m/s would move over 1 cm per physics step")
+    step = int(num_cycles) * CONTROL_CYCLE_S
+    ratio = step / dt
+    n = int(round(ratio))
+    if n < 1 or abs(ratio - n) > 1e-6 * ratio:
+        raise PhysicsInputError(f"physics_dt={physics_dt!r} s does not divide the env step of {int(num_cycles)} "
+                                f"control cycles ({step:g} s) into whole physics steps (ratio {ratio:.6g})")
+    return n
 
 
 @dataclass(frozen=True)
@@ -195,6 +228,8 @@ class MjwBackend:
             self.init_mocap_quat = wp.array(np.tile(mjd.mocap_quat, (W, 1, 1)), dtype=wp.quat) if mjm.nmocap else None
 
         self._cycle_hooks: list[Callable[[], None]] = []
+        self._step_hooks: list[Callable[[], None]] = []
+        self._record_stream = None  # set by recording(): launch into an outer capture instead of replaying graphs
         self._step_graph = None
         self._reset_graph = None
         #: per-world model arrays made by :meth:`batch_model_fields` (name -> torch view ``[W, ...]``)
@@ -269,6 +304,25 @@ class MjwBackend:
         self._cycle_hooks.append(fn)
         self._step_graph = None
 
+    def add_step_hook(self, fn: Callable[[], None]) -> None:
+        """Register ``fn()`` (which issues Warp operations) to run once at the start of every step, inside the step
+        graph, before the first cycle (e.g. clearing per-step flags without a separate launch from Python).
+        Registering a hook drops the recorded graph."""
+        self._step_hooks.append(fn)
+        self._step_graph = None
+
+    @contextlib.contextmanager
+    def recording(self, stream: wp.Stream):
+        """Inside an outer capture on ``stream`` (e.g. a torch CUDA graph of a whole env step): :meth:`step` and
+        :meth:`reset` issue their kernels on ``stream`` directly, so they join the outer graph, instead of replaying
+        their own graphs (a graph cannot be launched into a capture)."""
+        previous = self._record_stream
+        self._record_stream = stream
+        try:
+            yield
+        finally:
+            self._record_stream = previous
+
     # ------------------------------------------------------------------ stepping
     def apply_control(self) -> None:
         """Launch one cycle of the mover control law (writes ``qfrc_applied``, updates the command states); the step
@@ -288,6 +342,8 @@ class MjwBackend:
         )
 
     def _launch_cycles(self):
+        for hook in self._step_hooks:
+            hook()
         for _ in range(self.control.num_cycles):
             if self.num_movers:
                 self.apply_control()
@@ -323,6 +379,11 @@ class MjwBackend:
         return wp.ScopedStream(self._stream) if self._stream is not None else contextlib.nullcontext()
 
     def _run(self, attr: str, launcher: Callable[[], None]):
+        if self._record_stream is not None:
+            # no wait on the previous stream: inside a capture that would join a stream outside the graph
+            with wp.ScopedDevice(self.device), wp.ScopedStream(self._record_stream, sync_enter=False):
+                launcher()
+            return
         with wp.ScopedDevice(self.device), self._on_stream():
             if not self.use_graph:
                 launcher()

@@ -4,8 +4,9 @@ Per world and control cycle, with ``d`` the object's x/y distance to its goal an
 
 * overshoot correction: the object was at the goal last cycle (``d < e``) and is not now, by more than 2e-5 m;
 * distance correction: ``d`` rose by more than 2e-5 m, and later falls by more than 2e-5 m (counted at the fall);
-* time to success: cycles until the start of the current streak of cycles at the goal (distance ``<= e``, or
-  coverage ``>= min_coverage`` for pose goals), frozen once a streak lasts 150 cycles; -1 if never at the goal.
+* time to success: time until the start of the current streak of cycles at the goal (distance ``<= e``, or
+  coverage ``>= min_coverage`` for pose goals), frozen once a streak lasts 0.15 s (150 cycles of 1 ms; with a
+  longer physics step, the same time in its cycles); -1 if never at the goal.
 
 These are the definitions of MagBotSim's ``CorrectiveMovementMeasurement`` and its throughput bookkeeping, counted
 on the device for all worlds. State lives in Warp arrays with torch views; :meth:`PushMetrics.reset` clears worlds.
@@ -23,7 +24,7 @@ from magwarp.physics.coverage import ShapeTable, shape_overlap
 
 __all__ = ["PushMetrics"]
 
-_STREAK = wp.constant(150)  # cycles at the goal after which time to success is frozen
+_STREAK_S = 0.15  # time at the goal after which time to success is frozen (MagBotSim: 150 cycles of 1 ms)
 
 
 @wp.struct
@@ -43,6 +44,7 @@ def push_metrics_kernel(
     shape_index: wp.array[int],
     qadr: int,
     dt: float,
+    streak_max: int,
     # State in:
     qpos: wp.array2d[float],
     goal_xy: wp.array[wp.vec2],
@@ -68,7 +70,7 @@ def push_metrics_kernel(
     dist_increased[w] = inc
     last_dist[w] = dist
     # time to success
-    if streak[w] < _STREAK:
+    if streak[w] < streak_max:
         elapsed[w] += 1
         reached = dist <= goal.threshold
         if goal.learn_pose != 0:
@@ -115,6 +117,7 @@ class PushMetrics:
         self._shapes = obj if isinstance(obj, ShapeTable) else ShapeTable([obj], dev)
         self._shape_index = self._shapes.zero_index if shape_index is None else wp.from_torch(shape_index)
         self._qadr = int(backend.object_qadr[object_index])
+        self._streak_max = max(1, int(round(_STREAK_S / backend.dt)))
         self._state = {
             "success_last": wp.zeros(W, dtype=int, device=dev),
             "last_dist": wp.array(np.full(W, np.inf, np.float32), dtype=float, device=dev),
@@ -133,7 +136,7 @@ class PushMetrics:
         s = self._state
         wp.launch(push_metrics_kernel, dim=b.num_worlds,
                   inputs=[self._goal, self._shapes.parts, self._shapes.radius, self._shapes.area, self._shape_index,
-                          self._qadr, b.dt, b.data.qpos, self._goal_xy, self._goal_yaw],
+                          self._qadr, b.dt, self._streak_max, b.data.qpos, self._goal_xy, self._goal_yaw],
                   outputs=[s["success_last"], s["last_dist"], s["dist_increased"], s["overshoots"], s["dist_corrections"],
                            s["elapsed"], s["streak"], s["time_to_success"]],
                   device=b.device)

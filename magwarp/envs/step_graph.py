@@ -1,0 +1,105 @@
+"""The task work of an env step (observations, rewards, terminations, goal resampling, autoreset) as one CUDA graph.
+
+:class:`TaskGraph` records a step function that issues torch operations and Warp kernels on one stream as one
+``torch.cuda.CUDAGraph`` and replays it: one launch from Python per step, no host synchronisation, no allocation
+(torch keeps the graph's tensors in its private memory pool). The first call runs the function eagerly (a real step
+that also loads every Warp module and creates every constant the step uses); the capture follows it and executes
+nothing. Randomness stays seeded: the env's ``torch.Generator`` is registered with the graph, so each replay draws the
+numbers the eager step would draw (Philox offsets advance per replay as they do per eager call).
+
+Warp inside the capture: ``wp.capture_begin(external=True)`` tells Warp that torch's capture is in progress, and
+simulation objects issue their kernels into it through a ``recording(stream)`` context (see
+:meth:`magwarp.physics.MjwBackend.recording`) instead of replaying graphs of their own.
+
+The replay returns fresh tensors (clones of the graph's outputs), so what a caller keeps from one step is not
+overwritten by the next. CUDA only; on the CPU the env calls its step function directly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import torch
+import warp as wp
+
+__all__ = ["TaskGraph", "clone_outputs"]
+
+
+def clone_outputs(out: Any) -> Any:
+    """A copy of a nest of tuples, lists and dicts of tensors (other leaves as they are)."""
+    if isinstance(out, torch.Tensor):
+        return out.clone()
+    if isinstance(out, dict):
+        return {k: clone_outputs(v) for k, v in out.items()}
+    if isinstance(out, (tuple, list)):
+        return type(out)(clone_outputs(v) for v in out)
+    return out
+
+
+class TaskGraph:
+    """Replays ``fn()`` (no arguments: it reads the state it needs from fixed tensors) as one CUDA graph.
+
+    :param fn: the step's task work; returns a nest of tensors.
+    :param device: its torch CUDA device.
+    :param generators: torch generators ``fn`` draws from (registered with the graph).
+    :param recorders: ``stream -> context manager`` factories of the simulation objects ``fn`` steps or resets
+        (e.g. ``backend.recording``), entered for the capture.
+
+    If the capture fails (an operation that cannot be captured, an old torch without graph-safe generators), the
+    failure is reported once as a warning, :attr:`failed` is set and the caller runs ``fn`` eagerly from then on.
+    """
+
+    def __init__(self, fn: Callable[[], Any], device: torch.device, generators: Sequence[torch.Generator] = (),
+                 recorders: Sequence[Callable[[wp.Stream], contextlib.AbstractContextManager]] = ()):
+        self.fn = fn
+        self.device = torch.device(device)
+        if self.device.type != "cuda":
+            raise ValueError(f"TaskGraph records CUDA graphs; device {self.device} is not a CUDA device")
+        self.generators = tuple(generators)
+        self.recorders = tuple(recorders)
+        self.graph: torch.cuda.CUDAGraph | None = None
+        self.failed = False
+        self._out = None
+        self._warp_graph = None
+
+    def __call__(self) -> Any:
+        if self.graph is not None:
+            self.graph.replay()
+            return clone_outputs(self._out)
+        out = self.fn()  # a real step, eagerly: loads modules, makes constants
+        self._capture()
+        return out
+
+    def _capture(self) -> None:
+        graph = torch.cuda.CUDAGraph()
+        try:
+            for gen in self.generators:
+                if not hasattr(graph, "register_generator_state"):
+                    raise RuntimeError(f"torch {torch.__version__} cannot register generators with a CUDA graph")
+                graph.register_generator_state(gen)
+            stream = torch.cuda.Stream(self.device)
+            stream.wait_stream(torch.cuda.current_stream(self.device))
+            wdev = wp.device_from_torch(self.device)
+            with torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
+                wstream = wp.stream_from_torch(stream)
+                wp.capture_begin(device=wdev, stream=wstream, external=True, force_module_load=False)
+                try:
+                    with contextlib.ExitStack() as stack:
+                        stack.enter_context(wp.ScopedDevice(wdev))
+                        stack.enter_context(wp.ScopedStream(wstream, sync_enter=False))  # no wait on a stream outside
+                        for rec in self.recorders:
+                            stack.enter_context(rec(wstream))
+                        out = self.fn()
+                finally:
+                    # Warp's record of the capture keeps the modules and arrays it launched with alive
+                    self._warp_graph = wp.capture_end(device=wdev, stream=wstream)
+            torch.cuda.current_stream(self.device).wait_stream(stream)
+        except Exception as e:  # noqa: BLE001 - any capture failure: report it and run eagerly
+            self.failed = True
+            warnings.warn(f"the env step could not be recorded as a CUDA graph ({type(e).__name__}: {e}); it runs "
+                          "eagerly (same results, more launches)", RuntimeWarning, stacklevel=3)
+            return
+        self.graph, self._out = graph, out
