@@ -64,6 +64,11 @@ for stage in "$@"; do
       timeout 400 python3 benchmarks/env_throughput.py --devices cuda:0 --envs magwarp/TrajectoryPlanningB0-v0 \
         --num-envs 4096,16384,65536,262144,1048576,2097152 --compare-eager --no-magbotsim --adapters-at 0 --steps 50 \
         --json "$OUT/env_throughput_b0_graph_gpu.json" 2>&1 | tail -25 ;;
+    push_dt)
+      # #23: the push envs' fused step and the 2 ms mode (shipped policies' success at 1 and 2 ms; env vs raw mjw)
+      timeout 300 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_push_step.py 2>&1 | tail -4
+      timeout 550 python3 benchmarks/push_physics_dt.py --device cuda:0 --num-envs 4096,65536 \
+        --json "$OUT/push_physics_dt_gpu.json" 2>&1 | tail -30 ;;
     *) echo "unknown stage $stage"; exit 2 ;;
   esac
 done
