@@ -148,11 +148,15 @@ def main(argv=None) -> int:
                               "within_1pt"])
     if args.json:
         write_json(args.json, [{**r, **provenance(info)} for r in rows])
-    return finish([r for r in rows if r["part"] == "throughput"],
+    timed = [r for r in rows if r["part"] == "throughput"]
+    if not timed:
+        return 0
+    return finish(timed,
                   ["env", "device", "num_envs", "physics_dt", "substeps", "task_graph", ("step_ms", "ms/step"),
                    ("env_steps_per_s", "env-steps/s"), ("physics_ms", "physics ms"), ("raw_mjw_ms", "raw mjw ms"),
                    ("raw_steps_per_s", "raw steps/s"), ("env_over_raw", "env / raw"), "meets_0.95x", "meets_450k"],
                   info, None)
+
 
 if __name__ == "__main__":
     raise SystemExit(main())
