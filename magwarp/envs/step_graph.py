@@ -11,6 +11,12 @@ Warp inside the capture: ``wp.capture_begin(external=True)`` tells Warp that tor
 simulation objects issue their kernels into it through a ``recording(stream)`` context (see
 :meth:`magwarp.physics.MjwBackend.recording`) instead of replaying graphs of their own.
 
+Why the physics stays a graph of its own (one more launch per step): mujoco-warp's solver loop is a conditional graph
+node (``wp.capture_while``), CUDA refuses conditional nodes inside child graphs and a graph launch inside a capture
+(NVIDIA/warp#1827), and recording it live would pause and resume torch's capture under a new capture id, which
+torch's allocator does not follow. So a push env step on CUDA is: one copy of the action, the physics graph
+(:class:`~magwarp.physics.MjwBackend`), this graph; all on one stream, no host sync.
+
 The replay returns fresh tensors (clones of the graph's outputs), so what a caller keeps from one step is not
 overwritten by the next. CUDA only; on the CPU the env calls its step function directly.
 """
