@@ -19,6 +19,7 @@ is the task work and physics - raw the control law and checks.
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 
@@ -112,6 +113,10 @@ def throughput_rows(env_id: str, num_envs: int, dt: float, device: str, steps: i
         rows[-1]["task_graph"] = graph and graph_on
         print(f"  {env_id} {device} n={num_envs} physics_dt={dt} graph={graph}: "
               f"{rows[-1]['env_steps_per_s']:.4g} env-steps/s, {rows[-1]['env_over_raw']:.3f}x raw", flush=True)
+    del env, snaps  # the env and its graphs (a reference cycle) go before the next, larger configuration
+    gc.collect()
+    if torch.cuda.is_available():
+        torch.cuda.empty_cache()
     return rows
 
 
