@@ -2,7 +2,7 @@
 
 :class:`TaskGraph` records a step function that issues torch operations and Warp kernels on one stream as one
 ``torch.cuda.CUDAGraph`` and replays it: one launch from Python per step, no host synchronisation, no allocation
-(torch keeps the graph's tensors in its private memory pool). The first call runs the function eagerly (a real step
+inside the graph (torch keeps its tensors in the graph's private memory pool). The first call runs the function eagerly (a real step
 that also loads every Warp module and creates every constant the step uses); the capture follows it and executes
 nothing. Randomness stays seeded: the env's ``torch.Generator`` is registered with the graph, so each replay draws the
 numbers the eager step would draw (Philox offsets advance per replay as they do per eager call).
