@@ -49,12 +49,14 @@ def _random_actions(env, steps, seed=0):
             for _ in range(steps)]
 
 
-def _compare(make, step_b, steps=30):
-    """Steps two equally seeded envs with the same random actions: ``env.step`` against ``step_b(env, action)``;
-    returns how many episodes ended (autoresets) along the way."""
+def _compare(make, step_b, steps=30, reseed_at=None):
+    """Steps two equally seeded envs with the same random actions: ``env.step`` against ``step_b(env, action)``
+    (both reset with a new seed at step ``reseed_at``); returns how many episodes ended (autoresets) on the way."""
     a, b = make(), make()
     ended = 0
     for i, act in enumerate(_random_actions(a, steps)):
+        if i == reseed_at:
+            _assert_same(a.reset(seed=9), b.reset(seed=9), i)
         out_a, out_b = a.step(act), step_b(b, act)
         _assert_same(out_a, out_b, i)
         ended += int(out_a[4]["_final_obs"].sum())
@@ -95,7 +97,7 @@ def test_cuda_graph_step_equals_eager_step():
         return env.step(act)
 
     with torch.no_grad():
-        ended = _compare(make, eager, steps=40)
+        ended = _compare(make, eager, steps=40, reseed_at=30)  # a reseed mid-way: the graph reads the new seed
     assert ended >= 64
     env = make()
     env.step(_random_actions(env, 1)[0])

@@ -2,7 +2,7 @@
 
 :class:`TaskGraph` records a step function that issues torch operations and Warp kernels on one stream as one
 ``torch.cuda.CUDAGraph`` and replays it: one launch from Python per step, no host synchronisation, no allocation
-(torch keeps the graph's tensors in its private memory pool). The first call runs the function eagerly (a real step
+inside the graph (torch keeps its tensors in the graph's private memory pool). The first call runs the function eagerly (a real step
 that also loads every Warp module and creates every constant the step uses); the capture follows it and executes
 nothing. Randomness stays seeded: the env's ``torch.Generator`` is registered with the graph, so each replay draws the
 numbers the eager step would draw (Philox offsets advance per replay as they do per eager call).
@@ -10,6 +10,12 @@ numbers the eager step would draw (Philox offsets advance per replay as they do 
 Warp inside the capture: ``wp.capture_begin(external=True)`` tells Warp that torch's capture is in progress, and
 simulation objects issue their kernels into it through a ``recording(stream)`` context (see
 :meth:`magwarp.physics.MjwBackend.recording`) instead of replaying graphs of their own.
+
+Why the physics stays a graph of its own (one more launch per step): mujoco-warp's solver loop is a conditional graph
+node (``wp.capture_while``), CUDA refuses conditional nodes inside child graphs and a graph launch inside a capture
+(NVIDIA/warp#1827), and recording it live would pause and resume torch's capture under a new capture id, which
+torch's allocator does not follow. So a push env step on CUDA is: one copy of the action, the physics graph
+(:class:`~magwarp.physics.MjwBackend`), this graph; all on one stream, no host sync.
 
 The replay returns fresh tensors (clones of the graph's outputs), so what a caller keeps from one step is not
 overwritten by the next. CUDA only; on the CPU the env calls its step function directly.

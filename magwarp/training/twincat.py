@@ -173,7 +173,9 @@ def _control(base, rotation: bool) -> tuple[float, dict[str, float | None]]:
     backend = getattr(base, "backend", None)
     if backend is not None and hasattr(backend, "control"):  # mujoco-warp envs (pushing)
         keys = ("v_max", "a_max", "j_max") + (("v_max_c", "a_max_c", "j_max_c", "p_max_c") if rotation else ())
-        return float(backend.dt), {k: getattr(backend.control, k) for k in keys}
+        # the env step over its control cycles: 1 ms whatever the simulation's physics_dt (the PLC's cycle)
+        cycle = backend.control.num_cycles * float(backend.dt) / int(base.num_cycles)
+        return cycle, {k: getattr(backend.control, k) for k in keys}
     lim = base.sim.model.limits  # the planar simulator (trajectory planning)
     return float(lim.dt64), {"v_max": float(lim.v_max64), "a_max": float(lim.a_max64), "j_max": float(lim.j_max64)}
 
