@@ -164,7 +164,7 @@ def _cholesky(a, shift):
 
 def commutate(gamma, resistance, limit, wrench, max_iter: int = 64, reg: float = 1e-6):
     """Least-copper-loss currents for one mover (float64): ``gamma (6, K)``, ``resistance (K,)``, ``limit (K,)``,
-    ``wrench (6,)``. Mirrors :func:`magwarp.magnetics.commutation.commutation_kernel`: solve for the free coils,
+    ``wrench (6,)``. Mirrors :func:`magwarp.magnetics.commutation.make_commutation_kernel`: solve for the free coils,
     step from the current currents toward that optimum as far as the limits allow, fix the coils that reach their
     limit, repeat; at most ``max_iter`` solves.
     The unit-diagonal 6 x 6 system is regularised (+ reg I) when a Cholesky pivot falls below ``reg``.
