@@ -79,7 +79,7 @@ class WrenchTableSpec:
     ``footprint`` (m): the coils a mover uses are those whose rectangle lies within it (xy) of the mover's centre;
     ``field``: the field table the columns are computed with (its quadrature too)."""
 
-    step: float = 0.002
+    step: float = 0.0025
     z_step: float = 0.001
     gap: tuple[float, float] = (0.002, 0.006)
     yaw_steps: int = 32
@@ -330,6 +330,7 @@ class TableModel(WrenchModel):
         t.footprint = sp.footprint
         t.out_of_range = wp.zeros(1, dtype=wp.int32, device=dev)
         self.table = t
+        self.lo, self.z0, self.nz, self.directions = lo, z0, nz, direction
         self.table_bytes = int(data.nbytes)
         self.source = None
 
