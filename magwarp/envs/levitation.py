@@ -54,6 +54,17 @@ def _rpy(q: torch.Tensor) -> torch.Tensor:
     return torch.stack([roll, pitch, yaw], -1)
 
 
+def _pair(name: str, value, minimum: float = 0.0) -> tuple[float, float]:
+    """Two finite numbers ``(low, high)``, ``minimum <= low < high``, or a ValueError naming ``name``."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be two numbers (low, high), got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and minimum <= lo < hi):
+        raise ValueError(f"{name} must be two finite numbers with {minimum} <= low < high, got {value!r}")
+    return lo, hi
+
+
 def _wrap(a: torch.Tensor) -> torch.Tensor:
     return torch.remainder(a + math.pi, 2 * math.pi) - math.pi
 
@@ -108,6 +119,22 @@ class LevitationEnv(MagwarpVecEnv):
                             ("setpoint_yaw", setpoint_yaw), ("loss_weight", loss_weight)):
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if not isinstance(failure_reward, (int, float)) or not math.isfinite(failure_reward):
+            raise ValueError(f"failure_reward must be a finite number, got {failure_reward!r}")
+        setpoint_gap, fail_gap = _pair("setpoint_gap", setpoint_gap), _pair("fail_gap", fail_gap)
+        try:
+            scales = tuple(float(v) for v in wrench_scale)
+        except (TypeError, ValueError):
+            scales = ()
+        if len(scales) != 2 or not all(math.isfinite(v) and v > 0 for v in scales):
+            raise ValueError(f"wrench_scale must be two positive numbers (N, N m), got {wrench_scale!r}")
+        wrench_scale = scales
+        try:
+            tiles = tuple(as_count(t, "tiles") for t in tiles)
+        except TypeError:
+            raise TypeError(f"tiles must be two positive integers (nx, ny), got {tiles!r}") from None
+        if len(tiles) != 2:
+            raise ValueError(f"tiles must be two positive integers (nx, ny), got {tiles!r}")
         magnetics = magnetics if magnetics is not None else MagneticModel()
         if not isinstance(magnetics, MagneticModel):
             raise TypeError(f"magnetics must be a MagneticModel, got {type(magnetics).__name__}")
@@ -115,11 +142,10 @@ class LevitationEnv(MagwarpVecEnv):
         self.num_cycles = as_count(num_cycles, "num_cycles")
         self.max_episode_steps = as_count(max_episode_steps, "max_episode_steps")
         self.start_range, self.setpoint_range, self.setpoint_yaw = start_range, setpoint_range, setpoint_yaw
-        self.setpoint_gap = tuple(float(g) for g in setpoint_gap)
-        self.fail_gap = tuple(float(g) for g in fail_gap)
+        self.setpoint_gap, self.fail_gap = setpoint_gap, fail_gap
         self.pos_scale, self.rot_scale, self.loss_weight = pos_scale, rot_scale, loss_weight
         self.failure_reward, self.fail_tilt, self.fail_distance = failure_reward, fail_tilt, fail_distance
-        self.wrench_scale = tuple(float(s) for s in wrench_scale)
+        self.wrench_scale = wrench_scale
         layout = Layout.grid(*tiles)
         self.mover = MoverSpec()
         self.centre = (0.5 * layout.shape[0] * layout.tile.size, 0.5 * layout.shape[1] * layout.tile.size)
