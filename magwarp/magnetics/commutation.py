@@ -147,6 +147,8 @@ def make_commutation_kernel(col_type):
             flag = flag | 8
         converged = bool(False)
         done = bool(n_coils == 0)
+        out = vec6d()
+        p = ZERO
         for it in range(max_iter):
             if not done:
                 a = mat66d()
@@ -159,7 +161,7 @@ def make_commutation_kernel(col_type):
                         if saturated[m, j] != 0:
                             rhs = rhs - g * currents[m, j]
                         else:
-                            a = a + wp.outer(g, g) / resistance[k]
+                            a = a + wp.outer(g / resistance[k], g)
                             n_free += 1
                 if n_free == 0:
                     done = True
@@ -188,29 +190,39 @@ def make_commutation_kernel(col_type):
                             if wp.abs(t) > limit[k]:
                                 alpha = wp.min(alpha, (wp.sign(t) * limit[k] - currents[m, j]) / (t - currents[m, j]))
                     hit = alpha * (ONE + wp.float64(1.0e-12))
+                    # The step, and (used when it ends the solve: no final pass) the delivered wrench and the loss.
+                    out = vec6d()
+                    p = ZERO
                     for j in range(slots):
                         k = coil_ids[m, j]
-                        if k >= 0 and saturated[m, j] == 0:
-                            t = wp.dot(as_vec6d(gamma[m, j]), y) / resistance[k]
-                            i = currents[m, j] + alpha * (t - currents[m, j])
-                            if wp.abs(t) > limit[k]:
-                                if (wp.sign(t) * limit[k] - currents[m, j]) / (t - currents[m, j]) <= hit:
-                                    i = wp.sign(t) * limit[k]
-                                    saturated[m, j] = 1
-                            currents[m, j] = i
+                        if k >= 0:
+                            g = as_vec6d(gamma[m, j])
+                            i = currents[m, j]
+                            if saturated[m, j] == 0:
+                                t = wp.dot(g, y) / resistance[k]
+                                i0 = i
+                                i = i0 + alpha * (t - i0)
+                                if wp.abs(t) > limit[k]:
+                                    if (wp.sign(t) * limit[k] - i0) / (t - i0) <= hit:
+                                        i = wp.sign(t) * limit[k]
+                                        saturated[m, j] = 1
+                                currents[m, j] = i
+                            out = out + g * i
+                            p = p + resistance[k] * i * i
                     if alpha >= ONE:
                         converged = True
                         done = True
-        if not converged and n_coils > 0:
-            flag = flag | 2
-        out = vec6d()
-        p = ZERO
-        for j in range(slots):
-            k = coil_ids[m, j]
-            if k >= 0:
-                i = currents[m, j]
-                out = out + as_vec6d(gamma[m, j]) * i
-                p = p + resistance[k] * i * i
+        if not converged:
+            if n_coils > 0:
+                flag = flag | 2
+            out = vec6d()
+            p = ZERO
+            for j in range(slots):
+                k = coil_ids[m, j]
+                if k >= 0:
+                    i = currents[m, j]
+                    out = out + as_vec6d(gamma[m, j]) * i
+                    p = p + resistance[k] * i * i
         delivered[m] = out
         residual[m] = wrench[m] - out
         loss[m] = p

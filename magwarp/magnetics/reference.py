@@ -205,20 +205,20 @@ def commutate(gamma, resistance, limit, wrench, max_iter: int = 64, reg: float =
 
 
 
-def table_column(data, lo, step: float, z0: float, z_step: float, nz: int, yaw_scale: float, direction: int,
-                 layer: int, dx: float, dy: float, z: float, yaw: float) -> np.ndarray:
+def table_column(data, lo, step: float, z0: float, z_step: float, yaw_steps: int, yaw_scale: float,
+                 direction: int, layer: int, dx: float, dy: float, z: float, yaw: float) -> np.ndarray:
     """One column (world frame) of the wrench table, mirroring :func:`magwarp.magnetics.table.table_column`:
-    ``data`` ``(layers * nz, yaw_steps, n_across, n_along, 6)``, ``lo`` the first (across, along) offset; linear
+    ``data`` ``(layers * yaw_steps, n_across, n_along, nz, 6)``, ``lo`` the first (across, along) offset; linear
     in height (clamped to the table) and yaw, bilinear in the offset (mover minus coil centre, world); each of the
     two yaw samples is read at the offset turned by (sample yaw - yaw) and its column turned back."""
     data = np.asarray(data, dtype=np.float64)
-    ny, ni, nj = data.shape[1:4]
+    ni, nj, nz = data.shape[1:4]
     gk = np.clip((z - z0) / z_step, 0.0, nz - 1)
     k = min(int(gk), nz - 2)
     fk = gk - k
     gy = yaw * yaw_scale
     fy = gy - np.floor(gy)
-    y0 = int(np.floor(gy)) % ny
+    y0 = int(np.floor(gy)) % yaw_steps
     out = np.zeros(6)
     for d in (0, 1):
         delta = (d - fy) / yaw_scale
@@ -229,11 +229,12 @@ def table_column(data, lo, step: float, z0: float, z_step: float, nz: int, yaw_s
         gj = np.clip((along - lo[1]) / step, 0.0, nj - 1)
         i, j = min(int(gi), ni - 2), min(int(gj), nj - 2)
         fi, fj = gi - i, gj - j
+        block = data[layer * yaw_steps + (y0 + d) % yaw_steps]
         col = np.zeros(6)
         for kk, wk in ((k, 1.0 - fk), (k + 1, fk)):
-            block = data[layer * nz + kk, (y0 + d) % ny]
-            col += wk * ((block[i, j] * (1 - fi) + block[i + 1, j] * fi) * (1 - fj)
-                         + (block[i, j + 1] * (1 - fi) + block[i + 1, j + 1] * fi) * fj)
+            b = block[..., kk, :]
+            col += wk * ((b[i, j] * (1 - fi) + b[i + 1, j] * fi) * (1 - fj)
+                         + (b[i, j + 1] * (1 - fi) + b[i + 1, j + 1] * fi) * fj)
         rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # turn back by -delta
         out += (1.0 - fy if d == 0 else fy) * np.concatenate([rot @ col[:3], rot @ col[3:]])
     return out

@@ -44,6 +44,8 @@ import warp as wp
 from magwarp.layout import Layout
 from magwarp.magnetics.cache import cached_arrays
 from magwarp.magnetics.commutation import vec6f
+
+vec6h = wp.types.vector(length=6, dtype=wp.float16)
 from magwarp.magnetics.exact import WrenchModel
 from magwarp.magnetics.fast import FastModel, FieldTableSpec
 from magwarp.magnetics.geometry import CoilSet, MagneticParams, MagneticsError
@@ -106,11 +108,12 @@ class WrenchTableSpec:
 
 @wp.struct
 class WrenchTable:
-    """Per layer ``l``: ``data[l * nz + k, yaw, across, along]`` columns (world frame, level mover), the grid's
-    first offsets ``lo`` (across, along), the layer's coil ``direction`` (0: long sides along x, 1: along y), coil
-    ``half`` sizes (x, y) and grid ``pitch`` (x, y); the height axis (mover centre z) and the yaw axis."""
+    """Per layer ``l`` and yaw sample ``y``: ``data[l * ny + y, across, along, height]`` columns (world frame, level
+    mover; float16, the heights innermost so that a look-up reads few cache lines), the grid's first offsets ``lo``
+    (across, along), the layer's coil ``direction`` (0: long sides along x, 1: along y), coil ``half`` sizes (x, y)
+    and grid ``pitch`` (x, y); the height axis (mover centre z) and the yaw axis."""
 
-    data: wp.array4d(dtype=vec6f)
+    data: wp.array4d(dtype=vec6h)
     lo: wp.array(dtype=wp.vec2)
     direction: wp.array(dtype=wp.int32)
     half: wp.array(dtype=wp.vec2)
@@ -119,30 +122,35 @@ class WrenchTable:
     inv_step: float
     z0: float
     inv_z_step: float
-    nz: int
+    ny: int
     yaw_scale: float  # samples per radian
     footprint: float
     out_of_range: wp.array(dtype=wp.int32)
 
 
 @wp.func
-def _corner(t: WrenchTable, l: int, k: int, y: int, i: int, j: int) -> vec6f:
-    return t.data[l * t.nz + k, y, i, j]
+def _corner(t: WrenchTable, ly: int, i: int, j: int, k: int) -> vec6f:
+    c = t.data[ly, i, j, k]
+    return vec6f(float(c[0]), float(c[1]), float(c[2]), float(c[3]), float(c[4]), float(c[5]))
 
 
 @wp.func
-def _bilinear(t: WrenchTable, l: int, k: int, yy: int, across: float, along: float) -> vec6f:
-    gi = wp.clamp((across - t.lo[l][0]) * t.inv_step, 0.0, float(t.data.shape[2] - 1))
-    gj = wp.clamp((along - t.lo[l][1]) * t.inv_step, 0.0, float(t.data.shape[3] - 1))
-    i = wp.min(int(gi), t.data.shape[2] - 2)
-    j = wp.min(int(gj), t.data.shape[3] - 2)
+def _trilinear(t: WrenchTable, ly: int, across: float, along: float, k: int, fk: float) -> vec6f:
+    """Trilinear interpolation of one yaw sample's table at an offset (clamped to the grid) and height cell."""
+    gi = wp.clamp((across - t.lo[0][0]) * t.inv_step, 0.0, float(t.data.shape[1] - 1))
+    gj = wp.clamp((along - t.lo[0][1]) * t.inv_step, 0.0, float(t.data.shape[2] - 1))
+    i = wp.min(int(gi), t.data.shape[1] - 2)
+    j = wp.min(int(gj), t.data.shape[2] - 2)
     fi = gi - float(i)
     fj = gj - float(j)
-    c00 = _corner(t, l, k, yy, i, j)
-    c10 = _corner(t, l, k, yy, i + 1, j)
-    c01 = _corner(t, l, k, yy, i, j + 1)
-    c11 = _corner(t, l, k, yy, i + 1, j + 1)
-    return (c00 * (1.0 - fi) + c10 * fi) * (1.0 - fj) + (c01 * (1.0 - fi) + c11 * fi) * fj
+    out = vec6f()
+    for di in range(2):
+        wi = wp.where(di == 0, 1.0 - fi, fi)
+        for dj in range(2):
+            wij = wi * wp.where(dj == 0, 1.0 - fj, fj)
+            out = out + (wij * (1.0 - fk)) * _corner(t, ly, i + di, j + dj, k)
+            out = out + (wij * fk) * _corner(t, ly, i + di, j + dj, k + 1)
+    return out
 
 
 @wp.func
@@ -154,12 +162,13 @@ def table_column(t: WrenchTable, l: int, dx: float, dy: float, z: float, yaw: fl
     rotation-compensated: sample k is read at the offset turned by psi_k - yaw (where the coil sits at the same
     place relative to the magnets) and its column turned back, so only the coil's turn about its own centre is
     interpolated (a lever of the coil's size, not of its distance)."""
-    ny = t.data.shape[1]
+    ny = t.ny
+    nz = t.data.shape[3]
     gk = (z - t.z0) * t.inv_z_step
-    if gk < 0.0 or gk > float(t.nz - 1):
+    if gk < 0.0 or gk > float(nz - 1):
         wp.atomic_add(t.out_of_range, 0, 1)
-        gk = wp.clamp(gk, 0.0, float(t.nz - 1))
-    k = wp.min(int(gk), t.nz - 2)
+        gk = wp.clamp(gk, 0.0, float(nz - 1))
+    k = wp.min(int(gk), nz - 2)
     fk = gk - float(k)
     gy = yaw * t.yaw_scale
     fy0 = wp.floor(gy)
@@ -181,7 +190,7 @@ def table_column(t: WrenchTable, l: int, dx: float, dy: float, z: float, yaw: fl
         if t.direction[l] == 0:
             across = ry
             along = rx
-        col = _bilinear(t, l, k, yy, across, along) * (1.0 - fk) + _bilinear(t, l, k + 1, yy, across, along) * fk
+        col = _trilinear(t, l * ny + yy, across, along, k, fk)
         # turn the sample's column back by -delta
         f = wp.vec3(c * col[0] + s * col[1], -s * col[0] + c * col[1], col[2])
         tq = wp.vec3(c * col[3] + s * col[4], -s * col[3] + c * col[4], col[5])
@@ -308,15 +317,15 @@ class TableModel(WrenchModel):
         def build():
             return {"data": build_table(params, self.spec, lo, shape_xy, z0, nz, self.yaw_period, dev)}
 
-        text = json.dumps([asdict(params.magnets), asdict(params.coils), asdict(self.spec), lo.tolist(), shape_xy,
+        text = json.dumps(["float16, heights innermost", asdict(params.magnets), asdict(params.coils), asdict(self.spec), lo.tolist(), shape_xy,
                            z0, nz, self.yaw_period], default=str)
         key = hashlib.sha256(text.encode()).hexdigest()[:16]
         data = cached_arrays("wrench_table", key, build, use_cache)["data"]
-        want = (n_layers * nz, int(sp.yaw_steps), *shape_xy, 6)
+        want = (n_layers * int(sp.yaw_steps), *shape_xy, nz, 6)
         if data.shape != want:
             raise MagneticsError(f"cached wrench table has shape {data.shape}, expected {want}")
         t = WrenchTable()
-        t.data = wp.array(data, dtype=vec6f, device=dev)
+        t.data = wp.array(data, dtype=vec6h, device=dev)
         t.lo = wp.array(np.tile(lo, (n_layers, 1)), dtype=wp.vec2, device=dev)
         t.direction = wp.array(direction, dtype=wp.int32, device=dev)
         t.half = wp.array(half, dtype=wp.vec2, device=dev)
@@ -325,7 +334,7 @@ class TableModel(WrenchModel):
         t.inv_step = 1.0 / sp.step
         t.z0 = z0
         t.inv_z_step = 1.0 / sp.z_step
-        t.nz = nz
+        t.ny = int(sp.yaw_steps)
         t.yaw_scale = sp.yaw_steps / self.yaw_period
         t.footprint = sp.footprint
         t.out_of_range = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -367,7 +376,7 @@ class TableModel(WrenchModel):
 
 def build_table(params: MagneticParams, spec: WrenchTableSpec, lo, shape_xy, z0: float, nz: int, period: float,
                 device) -> np.ndarray:
-    """The table ``(layers * nz, yaw_steps, n_across, n_along, 6)`` (float32): columns of the first coil of each
+    """The table ``(layers * yaw_steps, n_across, n_along, nz, 6)`` (float16): columns of the first coil of each
     layer of a one-tile layout, computed with the field-table quadrature model (spec.field)."""
     layout = Layout.grid(1, 1)
     fixed = MagneticParams(params.magnets, params.coils, params.quadrature, active_radius=1.0, max_active=1)
@@ -392,5 +401,5 @@ def build_table(params: MagneticParams, spec: WrenchTableSpec, lo, shape_xy, z0:
             pos, quat = model.as_arrays(poses[s:s + chunk])
             ids = wp.full((pos.shape[0], 1), k, dtype=wp.int32, device=model.device)
             cols[s:s + chunk] = model.wrench_matrix(pos, quat, ids).numpy()[:, 0]
-        out.append(cols.reshape(nz, spec.yaw_steps, *shape_xy, 6))
-    return np.concatenate(out, axis=0)
+        out.append(cols.reshape(nz, spec.yaw_steps, *shape_xy, 6).transpose(1, 2, 3, 0, 4))
+    return np.concatenate(out, axis=0).astype(np.float16)
