@@ -33,7 +33,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from common import finish, print_table, start_run, time_call  # noqa: E402
+from common import finish, provenance, start_run, time_call, write_json  # noqa: E402
 
 GAP = (0.003, 0.005)
 
@@ -401,15 +401,6 @@ def main(argv=None) -> int:
     if args.magpylib_movers > 0:
         magpylib += magpylib_rows(args, devices[-1], params)
     print()
-    for rows, columns in ((sim, ["device", "worlds", ("ideal_step_ms", "ideal ms/step"),
-                                 ("magnetic_step_ms", "magnetic ms/step"), ("magnetic_share_of_ideal_speed", "share")]),
-                          (env, ["device", "num_envs", ("ideal_env_steps_per_s", "ideal env-steps/s"),
-                                 ("magnetic_env_steps_per_s", "magnetic env-steps/s"),
-                                 ("magnetic_share_of_ideal_speed", "share")]),
-                          (accuracy, ["device", "model", "max_tilt_rad", ("force_error_share", "force err/peak"),
-                                      ("torque_error_share", "torque err/peak"), ("table_mb", "MB")])):
-        if rows:
-            print_table(rows, columns)
     gpu = any(d.startswith("cuda") for d in devices)
     path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
                                      f"magnetics_{'gpu' if gpu else 'cpu'}.json")
@@ -418,10 +409,15 @@ def main(argv=None) -> int:
             + [{"kind": "env", **r} for r in env] + [{"kind": "accuracy", **r} for r in accuracy]
             + [{"kind": "footprint", **r} for r in footprint] + [{"kind": "magpylib", **r} for r in magpylib]
             + [{"kind": "options", **options, "table_spec": repr(args.table_spec)}])
-    finish(rows, ["kind", "device", "model", "movers", ("gamma_per_s", "Gamma evals/s"),
-                  ("commutation_per_s", "commutations/s"), ("cycle_ms", "cycle ms"),
-                  ("active_coils_mean", "coils/mover"), ("saturated_movers", "saturated")],
-           info, path)
+    finish([r for r in rows if r["kind"] != "options"],
+           ["kind", "device", "model", "movers", "worlds", "num_envs", ("gamma_ms", "Gamma ms"),
+            ("commutation_ms", "commutation ms"), ("cycle_ms", "cycle ms"), ("active_coils_mean", "coils/mover"),
+            ("ideal_step_ms", "ideal ms/step"), ("magnetic_step_ms", "magnetic ms/step"),
+            ("magnetic_share_of_ideal_speed", "magnetic/ideal speed"), ("max_tilt_rad", "tilt"),
+            ("force_error_share", "force err/peak"), ("torque_error_share", "torque err/peak"),
+            ("hover_loss_ratio_mean", "footprint loss ratio"), ("speedup", "exact vs magpylib")],
+           info, None)
+    write_json(path, [{**r, **provenance(info)} for r in rows])
     print(f"wrote {path}")
     return 0
 

@@ -12,23 +12,30 @@ a regular grid of
   pinwheel Halbach array, which is the same array after a quarter turn: the field, hence every column, repeats).
 
 It is built once from the field-table quadrature model (:class:`~magwarp.magnetics.fast.FastModel`, itself sampled
-from the exact cuboid model), cached on disk (:mod:`~magwarp.magnetics.cache`), and interpolated
-(quadrilinear, 16 table entries per column) in one kernel with one thread per (mover, window slot): the window of a
-mover is, per layer, the block of the layer's coil grid that holds every coil within ``footprint`` (coils beyond it
-get id -1 and are not driven). The commutation (:mod:`~magwarp.magnetics.commutation`) runs as one more kernel.
+from the exact cuboid model; 5 M columns, about 15 s on one CPU core, well under a second on a GPU), stored in
+float16 (57 MB for the defaults) and cached on disk (:mod:`~magwarp.magnetics.cache`), and interpolated in one
+kernel with one thread per (mover, window slot): linear in height and yaw, bilinear in the offset (2 yaw samples x
+4 corners x 2 heights, adjacent in memory), the yaw rotation-compensated (each yaw sample is read where the coil
+sits at the same place relative to the magnets, so only the coil's turn about its own centre is interpolated: this
+halves the error of a plain linear yaw interpolation at the same memory). The window of a mover is, per layer, the
+block of the layer's coil grid that holds every coil within ``footprint`` (42 slots for the defaults; coils beyond
+the footprint get id -1 and are not driven). The commutation (:mod:`~magwarp.magnetics.commutation`) runs as one
+more kernel.
 
-Footprint: coils whose rectangle lies within 0.1 m (xy) of the mover's centre (about 29 coils for the default
-design, the 150 mm array's footprint): hovering with them alone costs 0-2% more copper loss than with every coil
-within the 1e-4 radius (0.28 m, about 140 coils; 12 random poses, ``benchmarks/magnetics.py`` records it). Coils
-outside the footprint carry no current, so the realised wrench Gamma i is exact for the coils used; the footprint
-is a controller choice, not a model error.
+Footprint: coils whose rectangle lies within 0.1 m (xy) of the mover's centre (28 coils on average for the default
+design, the 150 mm array's footprint): hovering with them alone costs 0.2% more copper loss on average (0.9% at
+most) than with every coil within the 1e-4 radius (0.285 m, about 147 coils; 8 random level poses,
+``benchmarks/magnetics.py``, ``footprint`` rows). Coils outside the footprint carry no current, so the realised
+wrench Gamma i is exact for the coils used: the footprint is a controller choice, not a model error.
 
-Accuracy against the exact model: ``benchmarks/magnetics.py`` records the largest column error as a share of the
-peak column (``table`` rows); the default table (2 mm, 1 mm, 32 yaw samples over a quarter turn, 2 x 6.6 MB) is
-within about 1% of the peak force and torque at 2-6 mm gaps for a level mover (see the benchmark's JSON). Roll
-and pitch are not in the table: a tilted mover is looked up level, which costs about 1% of the peak per 2 mrad of
-tilt (the impedance hold keeps movers level to well below that); the z clamp beyond the table's gaps is counted in
-``out_of_range``.
+Accuracy against the exact model (``benchmarks/magnetics.py``, ``accuracy`` rows: largest column error as a share
+of the peak column over 8 random poses at 2-6 mm gaps and any yaw): the default table (2.5 mm offsets, 1 mm
+heights, 32 yaw samples over a quarter turn) is within 0.74% (force) and 0.66% (torque) for a level mover. Roll and
+pitch are not in the table: a tilted mover is looked up level, which costs 1.2% (force) and 1.4% (torque) at tilts
+up to 2 mrad (the impedance hold keeps movers level to well below that; the Levitation env's movers tilt more while
+they settle). Heights beyond the table's gaps are clamped and counted in ``out_of_range``. Resolution trade-off
+measured while choosing the defaults (level poses, 3-5 mm): 4 mm / 16 yaw samples 2.2%, 3 mm / 24 1.1%,
+2 mm / 32 0.48% of the peak.
 """
 
 from __future__ import annotations
