@@ -51,54 +51,28 @@ def wanted_wrench(rng, n: int, mass: float = 1.24) -> np.ndarray:
 
 
 def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int) -> dict:
-    """Seconds per call of the Gamma evaluation, the commutation and both, for all movers at once."""
+    """Seconds per call of the Gamma evaluation, the commutation and both, for all movers at once: the table model's
+    coils + columns (one launch), or another model's active coils, Gamma and w = Gamma i."""
     from magwarp.magnetics.exact import vec6d
 
     dev = model.device
     pos, quat = model.as_arrays(poses)
-    ids, count = model.active_coils(pos)
-    gamma = model.wrench_matrix(pos, quat, ids)
-    currents = wp.zeros(ids.shape, dtype=wp.float64, device=dev)
-    w_out = model.wrench(gamma, currents)
+    if hasattr(model, "columns"):  # the wrench-table model
+        ids, gamma, count = model.columns(pos, quat)
+
+        def gamma_eval():
+            model.columns(pos, quat, ids, gamma, count)
+    else:
+        ids, count = model.active_coils(pos)
+        gamma = model.wrench_matrix(pos, quat, ids)
+        w_out = model.wrench(gamma, wp.zeros(ids.shape, dtype=wp.float64, device=dev))
+
+        def gamma_eval():
+            model.active_coils(pos, ids, count)
+            model.wrench_matrix(pos, quat, ids, gamma)
+            model.wrench(gamma, res.currents, w_out)
     w_in = wp.array(wrench, dtype=vec6d, device=dev)
     res = com.solve(gamma, ids, count, w_in)
-
-    def gamma_eval():
-        model.active_coils(pos, ids, count)
-        model.wrench_matrix(pos, quat, ids, gamma)
-        model.wrench(gamma, res.currents, w_out)
-
-    def commutate():
-        com.solve(gamma, ids, count, w_in, res)
-
-    def cycle():
-        gamma_eval()
-        commutate()
-
-    sync = lambda: wp.synchronize_device(dev)  # noqa: E731
-    out = {}
-    for name, fn in (("gamma", gamma_eval), ("commutation", commutate), ("cycle", cycle)):
-        mean, std, median = time_call(fn, repeats, warmup=1, sync=sync)
-        out[f"{name}_ms"] = median
-    flags = res.flags.numpy()
-    out.update(active_coils_mean=float(count.numpy().mean()), saturated_movers=int((res.saturated.numpy() != 0)
-               .any(axis=1).sum()), flagged_movers=int((flags != 0).sum()),
-               loss_w_mean=float(res.loss.numpy().mean()))
-    return out
-
-
-def time_table(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int) -> dict:
-    """Seconds per call of the table model's coils + columns (one launch), the commutation and both."""
-    from magwarp.magnetics.exact import vec6d
-
-    dev = model.device
-    pos, quat = model.as_arrays(poses)
-    ids, gamma, count = model.columns(pos, quat)
-    w_in = wp.array(wrench, dtype=vec6d, device=dev)
-    res = com.solve(gamma, ids, count, w_in)
-
-    def gamma_eval():
-        model.columns(pos, quat, ids, gamma, count)
 
     def commutate():
         com.solve(gamma, ids, count, w_in, res)
@@ -143,8 +117,7 @@ def speed_rows(args, device: str, params, spec) -> list[dict]:
     plan += [("exact", exact, n) for n in (args.exact_sizes if gpu else args.cpu_exact_sizes)]
     for name, model, n in plan:
         poses = random_poses(rng, n, args.tiles, bottom)
-        timer = time_table if name == "table" else time_model
-        res = timer(model, com, poses, wanted_wrench(rng, n), args.repeats)
+        res = time_model(model, com, poses, wanted_wrench(rng, n), args.repeats)
         row = {"device": device, "model": name, "movers": n, **res,
                "gamma_per_s": n / (res["gamma_ms"] * 1e-3), "commutation_per_s": n / (res["commutation_ms"] * 1e-3),
                "cycle_per_s": n / (res["cycle_ms"] * 1e-3)}

@@ -4,21 +4,11 @@ from __future__ import annotations
 
 import pytest
 
+from magnetics_helpers import coarse_model, magnetics_cache  # noqa: E402, F401  (tests/ is on sys.path; a fixture)
+
 from magwarp.evaluate import evaluate, format_table
-from magwarp.magnetics.drive import MagneticModel
-from magwarp.magnetics.fast import FieldTableSpec
-from magwarp.magnetics.table import WrenchTableSpec
 
-MAG = MagneticModel(table=WrenchTableSpec(step=0.004, yaw_steps=8, z_step=0.002, gap=(0.003, 0.005),
-                                          field=FieldTableSpec(step=0.002, z_step=0.001, margin=0.08)))
-
-
-@pytest.fixture(scope="module", autouse=True)
-def cache(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("MAGWARP_CACHE_DIR", str(tmp_path_factory.mktemp("magnetics_cache")))
-    yield
-    mp.undo()
+MAG = coarse_model(gap=(0.003, 0.005), z_step=0.002, yaw_steps=8)
 
 
 def test_trajectory_eval_reports_copper_energy():

@@ -8,24 +8,14 @@ import numpy as np
 import pytest
 import torch
 
+from magnetics_helpers import coarse_model, magnetics_cache  # noqa: F401  (tests/ is on sys.path; a fixture)
+
 import magwarp  # noqa: F401  (registers the ids)
 from magwarp.envs.levitation import LevitationEnv
-from magwarp.magnetics.drive import MagneticModel
-from magwarp.magnetics.fast import FieldTableSpec
-from magwarp.magnetics.table import WrenchTableSpec
 from magwarp.policies.levitation import LevitationPD
 
 # A coarse table over the env's gaps (2-6 mm): about a second to build on a CPU.
-MAG = MagneticModel(table=WrenchTableSpec(step=0.004, yaw_steps=16, z_step=0.001, gap=(0.002, 0.006),
-                                          field=FieldTableSpec(step=0.002, z_step=0.001, margin=0.08)))
-
-
-@pytest.fixture(scope="module", autouse=True)
-def cache(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("MAGWARP_CACHE_DIR", str(tmp_path_factory.mktemp("magnetics_cache")))
-    yield
-    mp.undo()
+MAG = coarse_model()
 
 
 def test_check_env_and_make_vec():

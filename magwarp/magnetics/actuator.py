@@ -130,10 +130,7 @@ class CoilActuator:
         self._command = wp.zeros((n, slots), dtype=float, device=dev)
         self._wanted = wp.zeros(n, dtype=vec6f, device=dev)
         self._wanted_d = wp.zeros(n, dtype=vec6d, device=dev)
-        self._res = CommutationResult(
-            wp.zeros((n, slots), dtype=wp.float64, device=dev), wp.zeros((n, slots), dtype=wp.int32, device=dev),
-            wp.zeros(n, dtype=vec6d, device=dev), wp.zeros(n, dtype=vec6d, device=dev),
-            wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.int32, device=dev))
+        self._res = CommutationResult.zeros(n, slots, dev)
         self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
         self._dt = float(sim.model.limits.dt)
         sim.add_cycle_hook(self._before_cycle, before=True)

@@ -246,6 +246,14 @@ class CommutationResult:
     loss: wp.array
     flags: wp.array
 
+    @classmethod
+    def zeros(cls, n: int, slots: int, device) -> "CommutationResult":
+        """Zeroed buffers for ``n`` movers of ``slots`` slots on ``device``."""
+        return cls(wp.zeros((n, slots), dtype=wp.float64, device=device),
+                   wp.zeros((n, slots), dtype=wp.int32, device=device), wp.zeros(n, dtype=vec6d, device=device),
+                   wp.zeros(n, dtype=vec6d, device=device), wp.zeros(n, dtype=wp.float64, device=device),
+                   wp.zeros(n, dtype=wp.int32, device=device))
+
 
 class Commutation:
     """Commutation for the coils of a :class:`~magwarp.magnetics.geometry.CoilSet` (resistances and limits per
@@ -274,10 +282,7 @@ class Commutation:
                                  f"{count.shape} and wrench {wrench.shape} must agree on (movers, slots)")
         d = self.device
         if out is None:
-            out = CommutationResult(wp.empty((n, slots), dtype=wp.float64, device=d),
-                                    wp.empty((n, slots), dtype=wp.int32, device=d),
-                                    wp.empty(n, dtype=vec6d, device=d), wp.empty(n, dtype=vec6d, device=d),
-                                    wp.empty(n, dtype=wp.float64, device=d), wp.empty(n, dtype=wp.int32, device=d))
+            out = CommutationResult.zeros(n, slots, d)
         if gamma.dtype not in KERNELS:
             raise MagneticsError(f"Commutation.solve: gamma must hold vec6d or vec6f columns, got {gamma.dtype}")
         wp.launch(KERNELS[gamma.dtype], dim=n, device=d,
