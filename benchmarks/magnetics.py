@@ -9,7 +9,9 @@ Per device and mover count (movers at random poses over an 8 x 8-tile layout, 3-
 * ``cycle``: both (one control cycle: for ``table``, the issue's <= 2 ms at 1M movers on the GPU).
 * ``sim``: one 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with
   ``force_model="magnetic"`` (:class:`magwarp.magnetics.drive.MagneticDrive`), and the drive's share of the ideal
-  speed; ``env``: the same for the ``magwarp/TrajectoryPlanningB0-v0`` env's env-steps/s (the issue's >= 25%).
+  speed; ``env``: the same for the ``magwarp/TrajectoryPlanningB0-v0`` env's env-steps/s (the issue's >= 25%);
+* ``sweep``: the shipped B0 policy's success rate and copper energy per goal with the ideal model and with the
+  magnetic model as the coil current limit falls (``--limits``; ``magwarp eval`` with ``force_model``).
 Also: the table and fast models' largest column error as a share of the peak force and torque against the exact
 model, over random poses in the hover range and any yaw, level and tilted (``--accuracy-poses``); the copper loss
 of hovering with the footprint's coils against every coil within the 1e-4 radius (``footprint`` rows); and
@@ -329,6 +331,39 @@ def env_rows(args, device: str, params) -> list[dict]:
     return rows
 
 
+def sweep_rows(args, device: str, params) -> list[dict]:
+    """The shipped B0 policy (``--sweep-policy``) evaluated with the ideal model and with the magnetic model at
+    falling coil current limits (``--limits``, A): success rate and copper energy per goal."""
+    from dataclasses import replace
+
+    from magwarp.evaluate import evaluate
+    from magwarp.magnetics.drive import MagneticModel
+
+    rows = []
+    for limit in [None, *args.limits]:
+        kwargs = {}
+        if limit is not None:
+            coils = replace(params.coils, coil=replace(params.coils.coil, current_limit=float(limit)))
+            kwargs = {"force_model": MagneticModel(replace(params, coils=coils), args.table_spec)}
+        res = evaluate("TrajectoryPlanningB0", args.sweep_policy, args.sweep_episodes, args.sweep_repeats,
+                       device=device, steps=args.sweep_steps, progress=False, env_kwargs=kwargs)
+        r = {row.key: row for row in res.rows}
+        row = {"device": device, "policy": args.sweep_policy, "model": "ideal" if limit is None else "magnetic",
+               "current_limit_a": limit, "episodes": args.sweep_episodes, "repeats": args.sweep_repeats,
+               "steps": args.sweep_steps, "success_rate": r["success_rate"].mean,
+               "success_rate_std": r["success_rate"].std, "goals_per_repeat": r["success_rate"].n,
+               "copper_energy_j_per_goal": r["copper_energy_j_per_goal"].mean if limit is not None else None,
+               "copper_power_w": r["copper_power_w"].mean if limit is not None else None}
+        rows.append(row)
+        print(f"  B0 {args.sweep_policy} {row['model']} limit {limit} A: success {row['success_rate']:.2f}%, "
+              f"{row['goals_per_repeat']:.0f} goals, {row['copper_energy_j_per_goal'] or 0:.1f} J/goal", flush=True)
+    return rows
+
+
+def floats(text: str) -> list[float]:
+    return [float(s) for s in text.split(",") if s]
+
+
 def sizes(text: str) -> list[int]:
     return [int(float(s)) for s in text.split(",") if s]
 
@@ -352,6 +387,12 @@ def main(argv=None) -> int:
     parser.add_argument("--accuracy-poses", type=int, default=8, help="0 skips the accuracy and footprint checks")
     parser.add_argument("--magpylib-movers", type=int, default=1, help="0 skips the magpylib comparison")
     parser.add_argument("--meshing", type=int, default=100, help="magpylib getFT points per polyline")
+    parser.add_argument("--limits", type=floats, default=floats("7,5,3,2"),
+                        help="coil current limits (A) of the B0 policy sweep ('' skips it)")
+    parser.add_argument("--sweep-policy", default="pretrained:b0_ppo")
+    parser.add_argument("--sweep-episodes", type=int, default=None, help="worlds per repeat (GPU 1024, CPU 8)")
+    parser.add_argument("--sweep-repeats", type=int, default=None, help="repeats (GPU 10, CPU 1)")
+    parser.add_argument("--sweep-steps", type=int, default=250, help="env steps per world (250: 10 s)")
     parser.add_argument("--json", default=None, help="default: benchmarks/results/magnetics_<cpu|gpu>.json")
     args = parser.parse_args(argv)
 
@@ -373,6 +414,12 @@ def main(argv=None) -> int:
         footprint += footprint_rows(args, devices[-1], params)
     if args.magpylib_movers > 0:
         magpylib += magpylib_rows(args, devices[-1], params)
+    sweep = []
+    if args.limits:
+        gpu = devices[-1].startswith("cuda")
+        args.sweep_episodes = args.sweep_episodes or (1024 if gpu else 8)
+        args.sweep_repeats = args.sweep_repeats or (10 if gpu else 1)
+        sweep = sweep_rows(args, devices[-1], params)
     print()
     gpu = any(d.startswith("cuda") for d in devices)
     path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
@@ -381,6 +428,7 @@ def main(argv=None) -> int:
     rows = ([{"kind": "speed", **r} for r in speed] + [{"kind": "sim", **r} for r in sim]
             + [{"kind": "env", **r} for r in env] + [{"kind": "accuracy", **r} for r in accuracy]
             + [{"kind": "footprint", **r} for r in footprint] + [{"kind": "magpylib", **r} for r in magpylib]
+            + [{"kind": "sweep", **r} for r in sweep]
             + [{"kind": "options", **options, "table_spec": repr(args.table_spec)}])
     finish([r for r in rows if r["kind"] != "options"],
            ["kind", "device", "model", "movers", "worlds", "num_envs", ("gamma_ms", "Gamma ms"),
@@ -388,7 +436,9 @@ def main(argv=None) -> int:
             ("ideal_step_ms", "ideal ms/step"), ("magnetic_step_ms", "magnetic ms/step"),
             ("magnetic_share_of_ideal_speed", "magnetic/ideal speed"), ("max_tilt_rad", "tilt"),
             ("force_error_share", "force err/peak"), ("torque_error_share", "torque err/peak"),
-            ("hover_loss_ratio_mean", "footprint loss ratio"), ("speedup", "exact vs magpylib")],
+            ("hover_loss_ratio_mean", "footprint loss ratio"), ("speedup", "exact vs magpylib"),
+            ("current_limit_a", "limit A"), ("success_rate", "success %"),
+            ("copper_energy_j_per_goal", "J/goal")],
            info, None)
     write_json(path, [{**r, **provenance(info)} for r in rows])
     print(f"wrote {path}")

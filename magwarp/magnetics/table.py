@@ -324,7 +324,11 @@ class TableModel(WrenchModel):
         def build():
             return {"data": build_table(params, self.spec, lo, shape_xy, z0, nz, self.yaw_period, dev)}
 
-        text = json.dumps(["float16, heights innermost", asdict(params.magnets), asdict(params.coils), asdict(self.spec), lo.tolist(), shape_xy,
+        # What shapes the columns: the magnets, the coils' geometry and turns (not their limits or resistance).
+        coils = asdict(params.coils)
+        for name in ("current_limit", "resistivity", "fill_factor"):
+            coils["coil"].pop(name)
+        text = json.dumps(["float16, heights innermost", asdict(params.magnets), coils, asdict(self.spec), lo.tolist(), shape_xy,
                            z0, nz, self.yaw_period], default=str)
         key = hashlib.sha256(text.encode()).hexdigest()[:16]
         data = cached_arrays("wrench_table", key, build, use_cache)["data"]
