@@ -70,6 +70,8 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/PlatformPose-v0"] = ("PlatformPoseEnv", {})
     ids["magwarp/CoopPush-v0"] = ("CoopPushEnv", {})
     ids["magwarp/Levitation-v0"] = ("LevitationEnv", {})
+    ids["magwarp/LevitationHover-v0"] = ("LevitationEnv", {"task": "hover"})
+    ids["magwarp/LevitationWrench-v0"] = ("LevitationEnv", {"action": "wrench"})
     return ids
 
 

@@ -28,6 +28,11 @@ def test_check_env_and_make_vec():
     assert obs.shape == (3, 19) and vec.single_action_space.shape == (vec.actuator.slots,)
     ids = vec.coil_ids
     assert ids.shape == (3, vec.actuator.slots) and (ids >= 0).sum(1).min() >= 20
+    hover = gym.make_vec("magwarp/LevitationHover-v0", num_envs=2, magnetics=MAG, device="cpu")
+    hover.reset(seed=0)
+    assert hover.task == "hover" and hover.errors()[0].max() == 0.0  # the setpoint is the start pose
+    wrench = gym.make_vec("magwarp/LevitationWrench-v0", num_envs=2, magnetics=MAG, device="cpu")
+    assert wrench.single_action_space.shape == (6,)
 
 
 @pytest.mark.parametrize("action", ["currents", "wrench"])

@@ -1,4 +1,5 @@
-"""Low-level control of one levitating mover by its coil currents: ``magwarp/Levitation-v0``.
+"""Low-level control of one levitating mover by its coil currents: ``magwarp/Levitation-v0`` (and
+``magwarp/LevitationHover-v0``: ``task="hover"``; ``magwarp/LevitationWrench-v0``: ``action="wrench"``).
 
 The mover is a free 6-DoF rigid body (no impedance hold, no planar drive) under gravity and the magnetic wrench of
 the coils under it (:class:`~magwarp.magnetics.actuator.CoilActuator`: the wrench-table model, Gamma(q) updated
