@@ -40,14 +40,16 @@ def pose64_kernel(
     # State out:
     pos_d: wp.array(dtype=wp.vec3d),
     quat_d: wp.array(dtype=wp.quatd),
+    count: wp.array(dtype=wp.int32),
 ):
-    """The simulator's poses as the flat float64 arrays of the wrench model."""
+    """The simulator's poses as the flat float64 arrays of the wrench model; the coil counts zeroed."""
     w, m = wp.tid()
     i = w * pos.shape[1] + m
     p = pos[w, m]
     q = quat[w, m]
     pos_d[i] = wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
     quat_d[i] = wp.normalize(wp.quatd(wp.float64(q[0]), wp.float64(q[1]), wp.float64(q[2]), wp.float64(q[3])))
+    count[i] = 0
 
 
 @wp.kernel
@@ -138,8 +140,8 @@ class CoilActuator:
     def _columns(self) -> None:
         s, dev = self.sim.state, self.sim.device
         wp.launch(pose64_kernel, dim=(self.sim.num_worlds, self.sim.num_movers), device=dev,
-                  inputs=[s.pos, s.quat], outputs=[self._pos, self._quat])
-        self.model.columns(self._pos, self._quat, self._ids, self._gamma, self._count)
+                  inputs=[s.pos, s.quat], outputs=[self._pos, self._quat, self._count])
+        self.model.columns(self._pos, self._quat, self._ids, self._gamma, self._count, zero_count=False)
 
     def _solve_wanted(self) -> None:
         wp.launch(wanted64_kernel, dim=self._wanted.shape[0], device=self.sim.device, inputs=[self._wanted],

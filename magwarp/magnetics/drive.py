@@ -76,8 +76,10 @@ def wanted_wrench_kernel(
     pos_d: wp.array(dtype=wp.vec3d),
     quat_d: wp.array(dtype=wp.quatd),
     wanted: wp.array(dtype=vec6d),
+    count: wp.array(dtype=wp.int32),
 ):
-    """The ideal model's wrench at the cycle's start (what the step kernel would apply), and the pose in float64."""
+    """The ideal model's wrench at the cycle's start (what the step kernel would apply), the pose in float64, and
+    the coil counts zeroed for the table model's launch."""
     w, m = wp.tid()
     i = w * pos.shape[1] + m
     p = make_pose(pos[w, m], quat[w, m], vel[w, m], omega[w, m])
@@ -90,6 +92,7 @@ def wanted_wrench_kernel(
     quat_d[i] = wp.normalize(q)
     wanted[i] = vec6d(wp.float64(wr.force[0]), wp.float64(wr.force[1]), wp.float64(wr.force[2]),
                       wp.float64(wr.torque[0]), wp.float64(wr.torque[1]), wp.float64(wr.torque[2]))
+    count[i] = 0
 
 
 @wp.kernel
@@ -148,8 +151,8 @@ class MagneticDrive:
         dims = (sim.num_worlds, sim.num_movers)
         wp.launch(wanted_wrench_kernel, dim=dims, device=dev,
                   inputs=[m.limits, m.impedance, m.body, s.cmd, s.target_pos, s.target_quat, s.force_aux, s.pos,
-                          s.quat, s.vel, s.omega, s.acc], outputs=[self._pos, self._quat, self._wanted])
-        self.model.columns(self._pos, self._quat, self._ids, self._gamma, self._count)
+                          s.quat, s.vel, s.omega, s.acc], outputs=[self._pos, self._quat, self._wanted, self._count])
+        self.model.columns(self._pos, self._quat, self._ids, self._gamma, self._count, zero_count=False)
         self.commutation.solve(self._gamma, self._ids, self._count, self._wanted, self._res)
         wp.launch(store_wrench_kernel, dim=dims, device=dev,
                   inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],

@@ -355,14 +355,16 @@ class TableModel(WrenchModel):
         self.source = None
 
     def columns(self, pos: wp.array, quat: wp.array, coil_ids: wp.array | None = None, gamma: wp.array | None = None,
-                count: wp.array | None = None):
+                count: wp.array | None = None, zero_count: bool = True):
         """Coil ids ``(n, slots)`` (-1: not driven), float32 columns ``(n, slots)`` and coil counts ``(n,)`` of
-        movers at ``pos``/``quat`` (one launch, plus zeroing the counts)."""
+        movers at ``pos``/``quat`` (one launch, plus zeroing the counts unless ``zero_count=False``: the caller's
+        kernel zeroed them)."""
         n, k, dev = pos.shape[0], self.max_active, self.device
         coil_ids = coil_ids if coil_ids is not None else wp.empty((n, k), dtype=wp.int32, device=dev)
         gamma = gamma if gamma is not None else wp.empty((n, k), dtype=vec6f, device=dev)
-        count = count if count is not None else wp.empty(n, dtype=wp.int32, device=dev)
-        count.zero_()
+        count = count if count is not None else wp.zeros(n, dtype=wp.int32, device=dev)
+        if zero_count:
+            count.zero_()
         wp.launch(table_columns_kernel, dim=(n, k), device=dev,
                   inputs=[self.table, self.slot_layer, self.slot_offset, pos, quat], outputs=[coil_ids, gamma, count])
         return coil_ids, gamma, count
