@@ -96,8 +96,8 @@ class Simulator:
     ``"acceleration"`` or ``"jerk"``. stiffness_lin / stiffness_rot: impedance stiffness; hold_mask: 6 flags (x, y,
     z, roll, pitch, yaw) the impedance controller holds. stop_on_collision: a world stops moving for the rest of a
     step after a collision (MagBotSim's behaviour). force_model: a ``@wp.func`` with
-    :func:`~magwarp.kernels.impedance.default_force`'s signature, ``"magnetic"`` or a
-    :class:`~magwarp.magnetics.drive.MagneticModel` (coil currents; :attr:`magnetic_drive`); force_aux_dim: width of its free per-mover input
+    :func:`~magwarp.kernels.impedance.default_force`'s signature, or ``"magnetic"`` / a ``MagneticModel`` (coil
+    currents: :mod:`magwarp.magnetics.drive`, :attr:`magnetic_drive`); force_aux_dim: width of its free per-mover input
     row ``force_aux``. device: ``"cpu"``, ``"cuda:N"`` or None for the best one. fused_max_movers: worlds up to this
     size run fused. max_pairs: room per world in ``pair_list`` (the list of colliding pairs; ``world_pairs`` always
     counts all of them). check_inputs: validate commands (costs a device sync per command; turn off in tight loops

@@ -13,9 +13,10 @@ from magwarp.magnetics.fast import FieldTableSpec
 from magwarp.magnetics.geometry import Cuboid, MagneticParams, MagneticsError, MagnetArray, Quadrature, halbach_array
 from magwarp.magnetics.table import TableModel, WrenchTableSpec, yaw_period
 
-# Coarse: builds in about two seconds on a CPU (the default table is finer: benchmarks/magnetics.py states its error).
+# Coarser than the default (3 mm, 24 yaw samples: about 1.1% of the peak column; the default 0.74%,
+# benchmarks/magnetics.py): builds in a few seconds on a CPU.
 PARAMS = MagneticParams(quadrature=Quadrature(order=2, max_interval=0.01), active_radius=0.2)
-SPEC = WrenchTableSpec(step=0.003, yaw_steps=16, z_step=0.001, gap=(0.003, 0.005),
+SPEC = WrenchTableSpec(step=0.003, yaw_steps=24, z_step=0.001, gap=(0.003, 0.005),
                        field=FieldTableSpec(step=0.002, z_step=0.001, margin=0.08))
 LAYOUT = Layout.grid(3, 2)
 
@@ -65,8 +66,8 @@ def test_lookup_matches_numpy_mirror(model, rng):
 
 
 def test_columns_match_exact_model(model, rng):
-    """Level movers at 3-5 mm gaps, any yaw: within 3% of the peak column for this coarse table (the default
-    table: about 1%, benchmarks/magnetics.py)."""
+    """Level movers at 3-5 mm gaps, any yaw: within 2.5% of the peak column for this coarse table and coarse
+    field table (the default tables: 0.74%, benchmarks/magnetics.py)."""
     exact = ExactModel(LAYOUT, PARAMS, device="cpu")
     poses = random_poses(rng, 3)
     ids, _, gamma = model.evaluate(poses)
@@ -78,7 +79,7 @@ def test_columns_match_exact_model(model, rng):
     pt = np.linalg.norm(g_exact[..., 3:], axis=-1).max()
     err_f = np.abs(gamma - g_exact)[..., :3].max() / pf
     err_t = np.abs(gamma - g_exact)[..., 3:].max() / pt
-    assert err_f < 0.03 and err_t < 0.03, f"{rng}: force {err_f:.3%}, torque {err_t:.3%}"
+    assert err_f < 0.025 and err_t < 0.025, f"{rng}: force {err_f:.3%}, torque {err_t:.3%}"
     assert err_f > 1e-4  # a table, not the exact model
 
 

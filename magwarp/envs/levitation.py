@@ -20,8 +20,9 @@ every control cycle), at a 250 µs control cycle; one env step holds the action 
   mover's hover gap.
 * **Reward** per step: ``-(|p - p*| / pos_scale + |rotation error| / rot_scale) - loss_weight * P`` with ``P`` the
   copper loss (W, the mean over the step's cycles); ``failure_reward`` when the mover fails.
-* **Ends**: terminated when the gap leaves ``fail_gap`` (m; the table covers 2-6 mm), a tilt exceeds
-  ``fail_tilt`` (rad) or the x/y error exceeds ``fail_distance`` (m); truncated after ``max_episode_steps``.
+* **Ends**: terminated when the gap leaves ``fail_gap`` (m; the default ``magnetics``' table covers 2-6 mm), a
+  tilt exceeds ``fail_tilt`` (rad) or the x/y error exceeds ``fail_distance`` (m); truncated after
+  ``max_episode_steps``.
 * ``info``: ``copper_loss`` (W, ``[N]``), ``pos_error`` (m), ``rot_error`` (rad), ``saturated`` (coils at their
   limit); :attr:`energy` (J, since construction) as a torch view.
 
@@ -136,7 +137,10 @@ class LevitationEnv(MagwarpVecEnv):
             raise TypeError(f"tiles must be two positive integers (nx, ny), got {tiles!r}") from None
         if len(tiles) != 2:
             raise ValueError(f"tiles must be two positive integers (nx, ny), got {tiles!r}")
-        magnetics = magnetics if magnetics is not None else MagneticModel()
+        if magnetics is None:  # the default design, its table over the gaps a free mover may reach
+            from magwarp.magnetics.table import WrenchTableSpec
+
+            magnetics = MagneticModel(table=WrenchTableSpec(gap=(0.002, 0.006)))
         if not isinstance(magnetics, MagneticModel):
             raise TypeError(f"magnetics must be a MagneticModel, got {type(magnetics).__name__}")
         self.task, self.action_mode = task, action

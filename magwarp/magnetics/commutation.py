@@ -181,7 +181,8 @@ def make_commutation_kernel(col_type):
                         flag = flag | 1
                     y = cholesky6_solve(lo, wp.cw_mul(rhs, scale))
                     y = wp.cw_mul(y, scale)
-                    # Step from the current (feasible) currents toward the free coils' optimum, as far as the limits allow.
+                    # Step from the current (feasible) currents toward the free coils' optimum, as far as the limits
+                    # allow.
                     alpha = ONE
                     for j in range(slots):
                         k = coil_ids[m, j]

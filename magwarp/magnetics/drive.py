@@ -8,11 +8,11 @@
 
 Before every cycle (a pre-cycle hook, inside the step graph, no host sync): the wrench the ideal model would apply
 at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
-of the command, the impedance hold) is the wanted wrench; the wrench-table model (:mod:`~magwarp.magnetics.table`) gives each mover's Gamma(q); the
-commutation gives the least-loss currents within the limits; the realised wrench Gamma i goes into
-``force_aux[w, m, 0:6]`` (float32), which :func:`magnetic_force` returns to the integrator. When no coil saturates,
-the realised wrench is the wanted one (to float32 rounding) and the motion matches the ideal model; when coils
-saturate, the wrench falls short (the mover accelerates less, or sinks) as on the real system.
+of the command, the impedance hold) is the wanted wrench; the wrench-table model (:mod:`~magwarp.magnetics.table`)
+gives each mover's Gamma(q); the commutation gives the least-loss currents within the limits; the realised wrench
+Gamma i goes into ``force_aux[w, m, 0:6]`` (float32), which :func:`magnetic_force` returns to the integrator. When
+no coil saturates, the realised wrench is the wanted one (to float32 rounding) and the motion matches the ideal
+model; when coils saturate, the wrench falls short (the mover accelerates less, or sinks) as on the real system.
 
 ``force_aux[w, m, 6]`` is the copper loss (W) and ``[7]`` the commutation flags
 (:mod:`~magwarp.magnetics.commutation`); :attr:`MagneticDrive.energy` accumulates the loss over time (J);

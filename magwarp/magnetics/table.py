@@ -12,8 +12,9 @@ a regular grid of
   pinwheel Halbach array, which is the same array after a quarter turn: the field, hence every column, repeats).
 
 It is built once from the field-table quadrature model (:class:`~magwarp.magnetics.fast.FastModel`, itself sampled
-from the exact cuboid model; 5 M columns, about 15 s on one CPU core, well under a second on a GPU), stored in
-float16 (57 MB for the defaults) and cached on disk (:mod:`~magwarp.magnetics.cache`), and interpolated in one
+from the exact cuboid model; 2.9 M columns, about 10 s on one CPU core, well under a second on a GPU), stored in
+float16 (34 MB for the defaults, the issue's 3-5 mm hover range: it stays in a GPU's L2 cache; 57 MB over 2-6 mm,
+the Levitation env's) and cached on disk (:mod:`~magwarp.magnetics.cache`), and interpolated in one
 kernel with one thread per (mover, window slot): linear in height and yaw, bilinear in the offset (2 yaw samples x
 4 corners x 2 heights, adjacent in memory), the yaw rotation-compensated (each yaw sample is read where the coil
 sits at the same place relative to the magnets, so only the coil's turn about its own centre is interpolated: this
@@ -29,7 +30,7 @@ most) than with every coil within the 1e-4 radius (0.285 m, about 147 coils; 8 r
 wrench Gamma i is exact for the coils used: the footprint is a controller choice, not a model error.
 
 Accuracy against the exact model (``benchmarks/magnetics.py``, ``accuracy`` rows: largest column error as a share
-of the peak column over 8 random poses at 2-6 mm gaps and any yaw): the default table (2.5 mm offsets, 1 mm
+of the peak column over 8 random poses at the table's gaps and any yaw): the default table (2.5 mm offsets, 1 mm
 heights, 32 yaw samples over a quarter turn) is within 0.74% (force) and 0.66% (torque) for a level mover. Roll and
 pitch are not in the table: a tilted mover is looked up level, which costs 1.2% (force) and 1.4% (torque) at tilts
 up to 2 mrad (the impedance hold keeps movers level to well below that; the Levitation env's movers tilt more while
@@ -84,13 +85,14 @@ def yaw_period(magnets, tol: float = 1e-9) -> float:
 @dataclass(frozen=True)
 class WrenchTableSpec:
     """The wrench table's grid: ``step`` (m, offsets across and along the coil), ``z_step`` (m) over the gaps
-    ``gap`` (m, tile surface to the mover's bottom), ``yaw_steps`` samples over the array's yaw period;
+    ``gap`` (m, tile surface to the mover's bottom; the default is the hover range, 3-5 mm: the simulator holds
+    movers at 4 mm), ``yaw_steps`` samples over the array's yaw period;
     ``footprint`` (m): the coils a mover uses are those whose rectangle lies within it (xy) of the mover's centre;
     ``field``: the field table the columns are computed with (its quadrature too)."""
 
     step: float = 0.0025
     z_step: float = 0.001
-    gap: tuple[float, float] = (0.002, 0.006)
+    gap: tuple[float, float] = (0.003, 0.005)
     yaw_steps: int = 32
     footprint: float = 0.1
     field: FieldTableSpec = field(default_factory=FieldTableSpec)
@@ -328,8 +330,8 @@ class TableModel(WrenchModel):
         coils = asdict(params.coils)
         for name in ("current_limit", "resistivity", "fill_factor"):
             coils["coil"].pop(name)
-        text = json.dumps(["float16, heights innermost", asdict(params.magnets), coils, asdict(self.spec), lo.tolist(), shape_xy,
-                           z0, nz, self.yaw_period], default=str)
+        text = json.dumps(["float16, heights innermost", asdict(params.magnets), coils, asdict(self.spec),
+                           lo.tolist(), shape_xy, z0, nz, self.yaw_period], default=str)
         key = hashlib.sha256(text.encode()).hexdigest()[:16]
         data = cached_arrays("wrench_table", key, build, use_cache)["data"]
         want = (n_layers * int(sp.yaw_steps), *shape_xy, nz, 6)
