@@ -93,5 +93,9 @@ def test_bad_options_are_refused():
         LevitationEnv(1, task="lift", magnetics=MAG, device="cpu")
     with pytest.raises(ValueError, match="dt"):
         LevitationEnv(1, dt=-1.0, magnetics=MAG, device="cpu")
+    with pytest.raises(ValueError, match="setpoint_gap"):
+        LevitationEnv(1, setpoint_gap=(0.003, 1e40), magnetics=MAG, device="cpu")
+    with pytest.raises(ValueError, match="pos_scale"):
+        LevitationEnv(1, pos_scale=1e-45, magnetics=MAG, device="cpu")
     with pytest.raises(TypeError, match="MagneticModel"):
         LevitationEnv(1, magnetics="magnetic", device="cpu")

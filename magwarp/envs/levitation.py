@@ -113,23 +113,28 @@ class LevitationEnv(MagwarpVecEnv):
             raise ValueError(f"task must be 'hover' or 'setpoint', got {task!r}")
         if action not in ("currents", "wrench"):
             raise ValueError(f"action must be 'currents' or 'wrench', got {action!r}")
-        for name, value in (("dt", dt), ("pos_scale", pos_scale), ("rot_scale", rot_scale),
-                            ("fail_tilt", fail_tilt), ("fail_distance", fail_distance)):
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        for name, value in (("start_range", start_range), ("setpoint_range", setpoint_range),
-                            ("setpoint_yaw", setpoint_yaw), ("loss_weight", loss_weight)):
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        if not isinstance(failure_reward, (int, float)) or not math.isfinite(failure_reward):
-            raise ValueError(f"failure_reward must be a finite number, got {failure_reward!r}")
+        # (low, high, low included): what keeps every reward, observation and pose finite and an episode possible
+        ranges = {"dt": (dt, 0.0, 0.01, False), "pos_scale": (pos_scale, 1e-6, 1e3, True),
+                  "rot_scale": (rot_scale, 1e-6, 1e3, True), "fail_tilt": (fail_tilt, 0.0, math.pi, False),
+                  "fail_distance": (fail_distance, 0.0, 1.0, False), "start_range": (start_range, 0.0, 1.0, True),
+                  "setpoint_range": (setpoint_range, 0.0, 1.0, True),
+                  "setpoint_yaw": (setpoint_yaw, 0.0, math.pi, True),
+                  "loss_weight": (loss_weight, 0.0, 1e3, True), "failure_reward": (failure_reward, -1e6, 1e6, True)}
+        for name, (value, low, high, closed) in ranges.items():
+            ok = isinstance(value, (int, float)) and math.isfinite(value) and value <= high
+            if not ok or value < low or (value == low and not closed):
+                raise ValueError(f"{name} must be a finite number in {'[' if closed else '('}{low}, {high}], got "
+                                 f"{value!r}")
         setpoint_gap, fail_gap = _pair("setpoint_gap", setpoint_gap), _pair("fail_gap", fail_gap)
+        if not fail_gap[0] < setpoint_gap[0] <= setpoint_gap[1] < fail_gap[1] <= 0.05:
+            raise ValueError(f"setpoint_gap {setpoint_gap} must lie inside fail_gap {fail_gap}, which must end at "
+                             f"most 0.05 m above the tiles")
         try:
             scales = tuple(float(v) for v in wrench_scale)
         except (TypeError, ValueError):
             scales = ()
-        if len(scales) != 2 or not all(math.isfinite(v) and v > 0 for v in scales):
-            raise ValueError(f"wrench_scale must be two positive numbers (N, N m), got {wrench_scale!r}")
+        if len(scales) != 2 or not all(math.isfinite(v) and 0 < v <= 1e6 for v in scales):
+            raise ValueError(f"wrench_scale must be two numbers in (0, 1e6] (N, N m), got {wrench_scale!r}")
         wrench_scale = scales
         try:
             tiles = tuple(as_count(t, "tiles") for t in tiles)
@@ -137,10 +142,7 @@ class LevitationEnv(MagwarpVecEnv):
             raise TypeError(f"tiles must be two positive integers (nx, ny), got {tiles!r}") from None
         if len(tiles) != 2:
             raise ValueError(f"tiles must be two positive integers (nx, ny), got {tiles!r}")
-        if magnetics is None:  # the default design, its table over the gaps a free mover may reach
-            from magwarp.magnetics.table import WrenchTableSpec
-
-            magnetics = MagneticModel(table=WrenchTableSpec(gap=(0.002, 0.006)))
+        magnetics = magnetics if magnetics is not None else MagneticModel()  # its table covers 2-6 mm
         if not isinstance(magnetics, MagneticModel):
             raise TypeError(f"magnetics must be a MagneticModel, got {type(magnetics).__name__}")
         self.task, self.action_mode = task, action

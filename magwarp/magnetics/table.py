@@ -12,16 +12,16 @@ a regular grid of
   pinwheel Halbach array, which is the same array after a quarter turn: the field, hence every column, repeats).
 
 It is built once from the field-table quadrature model (:class:`~magwarp.magnetics.fast.FastModel`, itself sampled
-from the exact cuboid model; 2.9 M columns, about 10 s on one CPU core, well under a second on a GPU), stored in
-float16 (34 MB for the defaults, the issue's 3-5 mm hover range: it stays in a GPU's L2 cache; 57 MB over 2-6 mm,
-the Levitation env's) and cached on disk (:mod:`~magwarp.magnetics.cache`), and interpolated in one
-kernel with one thread per (mover, window slot): linear in height and yaw, bilinear in the offset (2 yaw samples x
-4 corners x 2 heights, adjacent in memory), the yaw rotation-compensated (each yaw sample is read where the coil
-sits at the same place relative to the magnets, so only the coil's turn about its own centre is interpolated: this
-halves the error of a plain linear yaw interpolation at the same memory). The window of a mover is, per layer, the
-block of the layer's coil grid that holds every coil within ``footprint`` (42 slots for the defaults; coils beyond
-the footprint get id -1 and are not driven). The commutation (:mod:`~magwarp.magnetics.commutation`) runs as one
-more kernel.
+from the exact cuboid model; 4.8 M columns, about 15 s on one CPU core, well under a second on a GPU), stored in
+float16 (57 MB for the defaults, 2-6 mm gaps; 34 MB over the hover range 3-5 mm, which fits a GPU's L2 cache but
+clamps movers that sink: the B0 policy's success at a 2 A current limit falls from 88% to 52% with it) and cached on
+disk (:mod:`~magwarp.magnetics.cache`), and interpolated in one kernel with one thread per (mover, window slot):
+linear in height and yaw, bilinear in the offset (2 yaw samples x 4 corners x 2 heights, adjacent in memory), the
+yaw rotation-compensated (each yaw sample is read where the coil sits at the same place relative to the magnets, so
+only the coil's turn about its own centre is interpolated: this halves the error of a plain linear yaw interpolation
+at the same memory). The window of a mover is, per layer, the block of the layer's coil grid that holds every coil
+within ``footprint`` (42 slots for the defaults; coils beyond the footprint get id -1 and are not driven). The
+commutation (:mod:`~magwarp.magnetics.commutation`) runs as one more kernel.
 
 Footprint: coils whose rectangle lies within 0.1 m (xy) of the mover's centre (28 coils on average for the default
 design, the 150 mm array's footprint): hovering with them alone costs 0.2% more copper loss on average (0.9% at
@@ -31,12 +31,12 @@ wrench Gamma i is exact for the coils used: the footprint is a controller choice
 
 Accuracy against the exact model (``benchmarks/magnetics.py``, ``accuracy`` rows: largest column error as a share
 of the peak column over 8 random poses at the table's gaps and any yaw): the default table (2.5 mm offsets, 1 mm
-heights, 32 yaw samples over a quarter turn) is within 0.74% (force) and 0.66% (torque) for a level mover. Roll and
-pitch are not in the table: a tilted mover is looked up level, which costs 1.2% (force) and 1.4% (torque) at tilts
-up to 2 mrad (the impedance hold keeps movers level to well below that; the Levitation env's movers tilt more while
-they settle). Heights beyond the table's gaps are clamped and counted in ``out_of_range``. Resolution trade-off
-measured while choosing the defaults (level poses, 3-5 mm): 4 mm / 16 yaw samples 2.2%, 3 mm / 24 1.1%,
-2 mm / 32 0.48% of the peak.
+heights, 32 yaw samples over a quarter turn, 2-6 mm) is within 0.74% (force) and 0.66% (torque) for a level mover
+(0.67% and 0.53% over 3-5 mm). Roll and pitch are not in the table: a tilted mover is looked up level, which costs
+1.3% (force) and 1.4% (torque) at tilts up to 2 mrad (the impedance hold keeps movers level to well below that;
+the Levitation env's movers tilt more while they settle). Heights beyond the table's gaps are clamped and counted
+in ``out_of_range``. Resolution trade-off measured while choosing the defaults (level poses, 3-5 mm, against the
+field-table model): 4 mm / 16 yaw samples 2.2%, 3 mm / 24 1.1%, 2 mm / 32 0.48% of the peak.
 """
 
 from __future__ import annotations
@@ -85,14 +85,15 @@ def yaw_period(magnets, tol: float = 1e-9) -> float:
 @dataclass(frozen=True)
 class WrenchTableSpec:
     """The wrench table's grid: ``step`` (m, offsets across and along the coil), ``z_step`` (m) over the gaps
-    ``gap`` (m, tile surface to the mover's bottom; the default is the hover range, 3-5 mm: the simulator holds
-    movers at 4 mm), ``yaw_steps`` samples over the array's yaw period;
+    ``gap`` (m, tile surface to the mover's bottom; the simulator holds movers at 4 mm; the default 2-6 mm also
+    covers movers that sink when their coils saturate: beyond the gaps a look-up is clamped, which makes a sinking
+    mover's coils too weak), ``yaw_steps`` samples over the array's yaw period;
     ``footprint`` (m): the coils a mover uses are those whose rectangle lies within it (xy) of the mover's centre;
     ``field``: the field table the columns are computed with (its quadrature too)."""
 
     step: float = 0.0025
     z_step: float = 0.001
-    gap: tuple[float, float] = (0.003, 0.005)
+    gap: tuple[float, float] = (0.002, 0.006)
     yaw_steps: int = 32
     footprint: float = 0.1
     field: FieldTableSpec = field(default_factory=FieldTableSpec)
