@@ -107,3 +107,29 @@ def test_bad_specs_are_refused():
         WrenchTableSpec(footprint=-0.1)
     with pytest.raises(MagneticsError, match="field table"):
         WrenchTableSpec(gap=(0.001, 0.005))
+
+
+def test_gpu_matches_cpu(model, devices, rng):
+    """On a GPU (when there is one) the look-up and the float32-column commutation give the CPU's numbers."""
+    if len(devices) < 2:
+        pytest.skip("no CUDA device")
+    import warp as wp
+
+    from magwarp.magnetics.commutation import Commutation
+    from magwarp.magnetics.exact import vec6d
+
+    gpu = TableModel(LAYOUT, PARAMS, SPEC, device=devices[1])  # the same cached table
+    poses = random_poses(rng, 64)
+    wrench = np.c_[rng.uniform(-2, 2, (64, 2)), np.full(64, 12.2), rng.uniform(-0.02, 0.02, (64, 3))]  # no limit hit
+    out = {}
+    for m in (model, gpu):
+        pos, quat = m.as_arrays(poses)
+        ids, gamma, count = m.columns(pos, quat)
+        res = Commutation(m.coilset, device=m.device).solve(gamma, ids, count,
+                                                            wp.array(wrench, dtype=vec6d, device=m.device))
+        out[str(m.device)] = (ids.numpy(), gamma.numpy(), res.currents.numpy(), res.loss.numpy())
+    (ic, gc, cc, lc), (ig, gg, cg, lg) = out.values()
+    assert np.array_equal(ic, ig), rng
+    np.testing.assert_allclose(gg, gc, rtol=0, atol=1e-5 * np.abs(gc).max(), err_msg=str(rng))
+    np.testing.assert_allclose(cg, cc, rtol=0, atol=1e-3, err_msg=str(rng))
+    np.testing.assert_allclose(lg, lc, rtol=1e-3, err_msg=str(rng))
