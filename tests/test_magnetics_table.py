@@ -44,6 +44,13 @@ def test_coils_are_the_footprint(model, rng):
         assert sorted(got) == list(want[m]) and count[m] == len(want[m]), (rng, m)
         assert np.all(gamma[m][ids[m] < 0] == 0.0)
     assert count.min() >= 8 and count.max() <= 40, count
+    # a layout with a hole (the same cached table)
+    holed = TableModel(Layout(np.array([[1, 0], [1, 1]])), PARAMS, SPEC, device="cpu")
+    xy = np.c_[rng.uniform(0.0, 0.48, (40, 2)), np.full((40, 1), 0.01), np.zeros((40, 2)), rng.uniform(-4, 4, 40)]
+    ids, count, _ = holed.evaluate(xy)
+    want = ref.active_coils(holed.coilset, xy[:, :2], SPEC.footprint)
+    assert all(sorted(ids[m][ids[m] >= 0]) == list(want[m]) for m in range(40)), rng
+    assert count.min() < count.max()  # movers near the hole or the edge have fewer coils
 
 
 def test_lookup_matches_numpy_mirror(model, rng):
