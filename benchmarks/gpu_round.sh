@@ -16,6 +16,7 @@ for stage in "$@"; do
         tests/test_sim_starts.py tests/test_kernels_dynamics.py tests/test_kernels_collision.py \
         tests/test_collision_queries.py tests/test_swarm_placement.py tests/test_swarm_observations.py \
         tests/test_magnetics_exact.py tests/test_magnetics_commutation.py tests/test_magnetics_fast.py \
+        tests/test_magnetics_table.py \
         tests/test_reliability.py tests/test_sim_errors.py tests/test_sim2real_models.py \
         > "$OUT/pytest_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_gpu.log" | tail -25 ;;

@@ -2,18 +2,24 @@
 error against the exact model, and the exact model against magpylib (CPU) for the same wrenches, in one run.
 
 Per device and mover count (movers at random poses over an 8 x 8-tile layout, 3-5 mm gaps, any yaw):
-* ``gamma``: active coils + the wrench matrix Gamma(q) of every mover (fast model; exact model at the smaller
-  ``--exact-sizes``), then w = Gamma i;
+* ``gamma``: the coils + the wrench matrix Gamma(q) of every mover: the wrench-table model (``table``, one launch:
+  :mod:`magwarp.magnetics.table`) at ``--sizes``, the field-table quadrature model (``fast``) at ``--fast-sizes``,
+  the exact model at ``--exact-sizes``; then w = Gamma i (not for ``table``: the commutation delivers it);
 * ``commutation``: least-loss currents for a hover-and-accelerate wrench per mover, given Gamma;
-* ``cycle``: both (one control cycle of the fast model).
-* ``sim``: one 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with the magnetic drive
-  (:class:`magwarp.magnetics.drive.MagneticDrive`), and the drive's share of the ideal speed.
-Also: the fast model's largest column error as a share of the peak force and torque, over random poses in the
-hover range and any yaw (``--accuracy-poses``), and magpylib's ``getFT`` on the CPU for the same currents and poses
-as the exact model (``--magpylib-movers``): its time per mover, the ratio, and how far the two wrenches differ.
+* ``cycle``: both (one control cycle: for ``table``, the issue's <= 2 ms at 1M movers on the GPU).
+* ``sim``: one 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with
+  ``force_model="magnetic"`` (:class:`magwarp.magnetics.drive.MagneticDrive`), and the drive's share of the ideal
+  speed; ``env``: the same for the ``magwarp/TrajectoryPlanningB0-v0`` env's env-steps/s (the issue's >= 25%);
+* ``sweep``: the shipped B0 policy's success rate and copper energy per goal with the ideal model and with the
+  magnetic model as the coil current limit falls (``--limits``; ``magwarp eval`` with ``force_model``).
+Also: the table and fast models' largest column error as a share of the peak force and torque against the exact
+model, over random poses in the hover range and any yaw, level and tilted (``--accuracy-poses``); the copper loss
+of hovering with the footprint's coils against every coil within the 1e-4 radius (``footprint`` rows); and
+magpylib's ``getFT`` on the CPU for the same currents and poses as the exact model (``--magpylib-movers``): its time
+per mover, the ratio, and how far the two wrenches differ.
 
-    python benchmarks/magnetics.py                                   # CPU (+ cuda:0 when present)
-    python benchmarks/magnetics.py --device cpu --cpu-sizes 10,100   # a quick CPU smoke run
+    python benchmarks/magnetics.py --device cpu --json benchmarks/results/magnetics_cpu.json   # CPU
+    python benchmarks/magnetics.py --device cpu --sizes 10,100 --cpu-sim-worlds 2 --env-envs 2 --json /tmp/m.json
     python benchmarks/magnetics.py --device cuda:0 --json benchmarks/results/magnetics_gpu.json   # the GPU run
 """
 
@@ -29,7 +35,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
-from common import header_line, machine_info, print_table, provenance, time_call, write_json  # noqa: E402
+from common import finish, provenance, start_run, time_call, write_json  # noqa: E402
 
 GAP = (0.003, 0.005)
 
@@ -47,22 +53,28 @@ def wanted_wrench(rng, n: int, mass: float = 1.24) -> np.ndarray:
 
 
 def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int) -> dict:
-    """Seconds per call of the Gamma evaluation, the commutation and both, for all movers at once."""
+    """Seconds per call of the Gamma evaluation, the commutation and both, for all movers at once: the table model's
+    coils + columns (one launch), or another model's active coils, Gamma and w = Gamma i."""
     from magwarp.magnetics.exact import vec6d
 
     dev = model.device
     pos, quat = model.as_arrays(poses)
-    ids, count = model.active_coils(pos)
-    gamma = model.wrench_matrix(pos, quat, ids)
-    currents = wp.zeros(ids.shape, dtype=wp.float64, device=dev)
-    w_out = model.wrench(gamma, currents)
+    if hasattr(model, "columns"):  # the wrench-table model
+        ids, gamma, count = model.columns(pos, quat)
+
+        def gamma_eval():
+            model.columns(pos, quat, ids, gamma, count)
+    else:
+        ids, count = model.active_coils(pos)
+        gamma = model.wrench_matrix(pos, quat, ids)
+        w_out = model.wrench(gamma, wp.zeros(ids.shape, dtype=wp.float64, device=dev))
+
+        def gamma_eval():
+            model.active_coils(pos, ids, count)
+            model.wrench_matrix(pos, quat, ids, gamma)
+            model.wrench(gamma, res.currents, w_out)
     w_in = wp.array(wrench, dtype=vec6d, device=dev)
     res = com.solve(gamma, ids, count, w_in)
-
-    def gamma_eval():
-        model.active_coils(pos, ids, count)
-        model.wrench_matrix(pos, quat, ids, gamma)
-        model.wrench(gamma, res.currents, w_out)
 
     def commutate():
         com.solve(gamma, ids, count, w_in, res)
@@ -74,12 +86,11 @@ def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int) 
     sync = lambda: wp.synchronize_device(dev)  # noqa: E731
     out = {}
     for name, fn in (("gamma", gamma_eval), ("commutation", commutate), ("cycle", cycle)):
-        mean, std, median = time_call(fn, repeats, warmup=1, sync=sync)
-        out[f"{name}_ms"] = median
+        out[f"{name}_ms"] = time_call(fn, repeats, warmup=1, sync=sync)[2]
     flags = res.flags.numpy()
     out.update(active_coils_mean=float(count.numpy().mean()), saturated_movers=int((res.saturated.numpy() != 0)
                .any(axis=1).sum()), flagged_movers=int((flags != 0).sum()),
-               loss_w_mean=float(res.loss.numpy().mean()))
+               loss_w_mean=float(res.loss.numpy().mean()), slots=int(ids.shape[1]))
     return out
 
 
@@ -88,9 +99,13 @@ def speed_rows(args, device: str, params, spec) -> list[dict]:
     from magwarp.magnetics.commutation import Commutation
     from magwarp.magnetics.exact import ExactModel
     from magwarp.magnetics.fast import FastModel
+    from magwarp.magnetics.table import TableModel
 
     layout = Layout.grid(args.tiles, args.tiles)
     gpu = device.startswith("cuda")
+    t0 = time.perf_counter()
+    table = TableModel(layout, params, args.table_spec, device=device)
+    table_build_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     fast = FastModel(layout, params, spec, device=device)
     build_s = time.perf_counter() - t0
@@ -99,7 +114,8 @@ def speed_rows(args, device: str, params, spec) -> list[dict]:
     rng = np.random.default_rng(0)
     bottom = float(params.magnets.bounds[0, 2])
     rows = []
-    plan = [("fast", fast, n) for n in (args.sizes if gpu else args.cpu_sizes)]
+    plan = [("table", table, n) for n in (args.sizes if gpu else args.cpu_sizes)]
+    plan += [("fast", fast, n) for n in (args.fast_sizes if gpu else args.cpu_fast_sizes)]
     plan += [("exact", exact, n) for n in (args.exact_sizes if gpu else args.cpu_exact_sizes)]
     for name, model, n in plan:
         poses = random_poses(rng, n, args.tiles, bottom)
@@ -109,10 +125,79 @@ def speed_rows(args, device: str, params, spec) -> list[dict]:
                "cycle_per_s": n / (res["cycle_ms"] * 1e-3)}
         if name == "fast":
             row.update(table_mb=fast.table_bytes / 1e6, table_build_s=build_s)
+        if name == "table":
+            row.update(table_mb=table.table_bytes / 1e6, table_build_s=table_build_s)
         rows.append(row)
         print(f"  {device:7s} {name:5s} movers={n:>8}  gamma {res['gamma_ms']:.3f} ms  commutation "
               f"{res['commutation_ms']:.3f} ms  cycle {res['cycle_ms']:.3f} ms", flush=True)
     return rows
+
+
+def accuracy_rows(args, device: str, params, spec) -> list[dict]:
+    """Largest |Gamma_model - Gamma_exact| as a share of the peak column force and torque, over random poses: the
+    wrench-table model (level, and tilted by up to 2 mrad) and the field-table model (tilts up to 0.02 rad)."""
+    from magwarp.layout import Layout
+    from magwarp.magnetics.exact import ExactModel
+    from magwarp.magnetics.table import TableModel
+
+    layout = Layout.grid(4, 4)
+    exact, table = ExactModel(layout, params, device=device), TableModel(layout, params, args.table_spec,
+                                                                          device=device)
+    rows = [accuracy_row(args, device, params, spec)]
+    rng = np.random.default_rng(3)
+    n = args.accuracy_poses
+    lo, hi = args.table_spec.gap
+    for tilt in (0.0, 0.002):
+        poses = np.c_[rng.uniform(0.25, 0.71, (n, 2)), rng.uniform(lo, hi, n) - float(params.magnets.bounds[0, 2]),
+                      rng.uniform(-tilt, tilt, (n, 2)), rng.uniform(-np.pi, np.pi, n)]
+        ids, _, gt = table.evaluate(poses)
+        pos, quat = exact.as_arrays(poses)
+        ge = exact.wrench_matrix(pos, quat, wp.array(ids, dtype=wp.int32, device=exact.device)).numpy()
+        pf, pt = np.linalg.norm(ge[..., :3], axis=-1).max(), np.linalg.norm(ge[..., 3:], axis=-1).max()
+        ts = args.table_spec
+        row = {"device": device, "model": "table", "poses": n, "gap_range_m": list(ts.gap), "max_tilt_rad": tilt,
+               "force_error_share": float(np.abs(gt - ge)[..., :3].max() / pf),
+               "torque_error_share": float(np.abs(gt - ge)[..., 3:].max() / pt),
+               "peak_force_n_per_a": float(pf), "peak_torque_nm_per_a": float(pt), "out_of_range": table.out_of_range,
+               "table_mb": table.table_bytes / 1e6, "table_step_m": ts.step, "table_z_step_m": ts.z_step,
+               "table_yaw_steps": ts.yaw_steps, "footprint_m": ts.footprint}
+        rows.append(row)
+        print(f"  table vs exact over {n} poses (tilt <= {tilt} rad): force error {row['force_error_share']:.3%}, "
+              f"torque error {row['torque_error_share']:.3%} of the peak column", flush=True)
+    return rows
+
+
+def footprint_rows(args, device: str, params) -> list[dict]:
+    """Copper loss of hovering (least-loss, no limits) with the footprint's coils and with every coil within the
+    1e-4 radius, at random level poses (float64 least squares on the exact model's columns)."""
+    from magwarp.layout import Layout
+    from magwarp.magnetics import reference as ref
+    from magwarp.magnetics.exact import ExactModel
+
+    layout = Layout.grid(4, 4)
+    exact = ExactModel(layout, params, device=device)
+    rng = np.random.default_rng(4)
+    n = args.accuracy_poses
+    poses = np.c_[rng.uniform(0.3, 0.66, (n, 2)), rng.uniform(*GAP, n) - float(params.magnets.bounds[0, 2]),
+                  np.zeros((n, 2)), rng.uniform(-np.pi, np.pi, n)]
+    ids, _, g = exact.evaluate(poses)
+    hover = np.array([0.0, 0.0, 1.24 * 9.81, 0.0, 0.0, 0.0])
+    r = exact.coilset.resistance[0]
+    fp = args.table_spec.footprint
+    ratios, counts = [], []
+    for m in range(n):
+        act = ids[m] >= 0
+        near = np.isin(ids[m], ref.active_coils(exact.coilset, poses[m:m + 1, :2], fp)[0]) & act
+        loss = [r * np.sum(np.linalg.lstsq(g[m][sel].T, hover, rcond=None)[0] ** 2) for sel in (near, act)]
+        ratios.append(loss[0] / loss[1])
+        counts.append(int(near.sum()))
+    row = {"device": device, "poses": n, "footprint_m": fp, "active_radius_m": exact.active_radius,
+           "footprint_coils_mean": float(np.mean(counts)), "radius_coils_mean": float((ids >= 0).sum(1).mean()),
+           "hover_loss_ratio_max": float(np.max(ratios)), "hover_loss_ratio_mean": float(np.mean(ratios))}
+    print(f"  footprint {fp} m ({row['footprint_coils_mean']:.1f} coils) vs radius {exact.active_radius:.3f} m "
+          f"({row['radius_coils_mean']:.1f} coils): hover loss x{row['hover_loss_ratio_mean']:.4f} mean, "
+          f"x{row['hover_loss_ratio_max']:.4f} max", flush=True)
+    return [row]
 
 
 def accuracy_row(args, device: str, params, spec) -> dict:
@@ -131,7 +216,7 @@ def accuracy_row(args, device: str, params, spec) -> dict:
     _, _, ge = exact.evaluate(poses)
     _, _, gf = fast.evaluate(poses)
     pf, pt = np.linalg.norm(ge[..., :3], axis=-1).max(), np.linalg.norm(ge[..., 3:], axis=-1).max()
-    row = {"device": device, "poses": n, "gap_range_m": list(spec.gap), "max_tilt_rad": 0.02,
+    row = {"device": device, "model": "fast", "poses": n, "gap_range_m": list(spec.gap), "max_tilt_rad": 0.02,
            "force_error_share": float(np.abs(gf - ge)[..., :3].max() / pf),
            "torque_error_share": float(np.abs(gf - ge)[..., 3:].max() / pt),
            "peak_force_n_per_a": float(pf), "peak_torque_nm_per_a": float(pt), "out_of_range": fast.out_of_range,
@@ -200,7 +285,7 @@ def sim_rows(args, device: str, params, spec) -> list[dict]:
     import torch
 
     from magwarp.layout import benchmark_layout
-    from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, magnetic_force
+    from magwarp.magnetics.drive import MagneticModel
     from magwarp.sim import Simulator
 
     layout, movers = benchmark_layout("B0")
@@ -208,10 +293,9 @@ def sim_rows(args, device: str, params, spec) -> list[dict]:
     for worlds in (args.sim_worlds if device.startswith("cuda") else args.cpu_sim_worlds):
         out = {"device": device, "worlds": worlds, "movers_per_world": movers, "cycles": 40}
         for name in ("ideal", "magnetic"):
-            kw = dict(force_model=magnetic_force, force_aux_dim=AUX_DIM) if name == "magnetic" else {}
-            sim = Simulator(layout, movers, worlds, device=device, stop_on_collision=False, check_inputs=False, **kw)
-            if name == "magnetic":
-                MagneticDrive(sim, params, spec)
+            model = MagneticModel(params, args.table_spec) if name == "magnetic" else None
+            sim = Simulator(layout, movers, worlds, device=device, stop_on_collision=False, check_inputs=False,
+                            force_model=model)
             gen = torch.Generator(device=sim.torch_device).manual_seed(0)
             cmd = torch.rand((worlds, movers, 2), generator=gen, device=sim.torch_device) * 2.0 - 1.0
             sim.set_command(cmd)
@@ -226,59 +310,140 @@ def sim_rows(args, device: str, params, spec) -> list[dict]:
     return rows
 
 
+def env_rows(args, device: str, params) -> list[dict]:
+    """env-steps/s of ``magwarp/TrajectoryPlanningB0-v0`` (random actions) with the ideal and the magnetic model."""
+    from env_throughput import raw_env_row
+
+    from magwarp.magnetics.drive import MagneticModel
+
+    rows = []
+    for n in (args.env_envs if device.startswith("cuda") else args.cpu_env_envs):
+        out = {"device": device, "env": "magwarp/TrajectoryPlanningB0-v0", "num_envs": n}
+        for name in ("ideal", "magnetic"):
+            model = MagneticModel(params, args.table_spec) if name == "magnetic" else None
+            res = raw_env_row(out["env"], n, device, args.env_steps, force_model=model)
+            out[f"{name}_step_ms"] = res["step_ms"]
+            out[f"{name}_env_steps_per_s"] = res["env_steps_per_s"]
+        out["magnetic_share_of_ideal_speed"] = out["magnetic_env_steps_per_s"] / out["ideal_env_steps_per_s"]
+        rows.append(out)
+        print(f"  {device:7s} B0 env x {n:>6}: ideal {out['ideal_env_steps_per_s']:.4g} env-steps/s, magnetic "
+              f"{out['magnetic_env_steps_per_s']:.4g} ({out['magnetic_share_of_ideal_speed']:.1%})", flush=True)
+    return rows
+
+
+def sweep_rows(args, device: str, params) -> list[dict]:
+    """The shipped B0 policy (``--sweep-policy``) evaluated with the ideal model and with the magnetic model at
+    falling coil current limits (``--limits``, A): success rate and copper energy per goal."""
+    from dataclasses import replace
+
+    from magwarp.evaluate import evaluate
+    from magwarp.magnetics.drive import MagneticModel
+
+    rows = []
+    for limit in [None, *args.limits]:
+        kwargs = {}
+        if limit is not None:
+            coils = replace(params.coils, coil=replace(params.coils.coil, current_limit=float(limit)))
+            kwargs = {"force_model": MagneticModel(replace(params, coils=coils), args.table_spec)}
+        res = evaluate("TrajectoryPlanningB0", args.sweep_policy, args.sweep_episodes, args.sweep_repeats,
+                       device=device, steps=args.sweep_steps, progress=False, env_kwargs=kwargs)
+        r = {row.key: row for row in res.rows}
+        row = {"device": device, "policy": args.sweep_policy, "model": "ideal" if limit is None else "magnetic",
+               "current_limit_a": limit, "episodes": args.sweep_episodes, "repeats": args.sweep_repeats,
+               "steps": args.sweep_steps, "success_rate": r["success_rate"].mean,
+               "success_rate_std": r["success_rate"].std, "goals_per_repeat": r["success_rate"].n,
+               "copper_energy_j_per_goal": r["copper_energy_j_per_goal"].mean if limit is not None else None,
+               "copper_power_w": r["copper_power_w"].mean if limit is not None else None}
+        rows.append(row)
+        print(f"  B0 {args.sweep_policy} {row['model']} limit {limit} A: success {row['success_rate']:.2f}%, "
+              f"{row['goals_per_repeat']:.0f} goals, {row['copper_energy_j_per_goal'] or 0:.1f} J/goal", flush=True)
+    return rows
+
+
+def floats(text: str) -> list[float]:
+    return [float(s) for s in text.split(",") if s]
+
+
 def sizes(text: str) -> list[int]:
     return [int(float(s)) for s in text.split(",") if s]
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="cpu or cuda:0 (default: cpu, and cuda:0 when present)")
-    parser.add_argument("--sizes", type=sizes, default=sizes("1000,100000,1000000"), help="GPU mover counts")
-    parser.add_argument("--cpu-sizes", type=sizes, default=sizes("100,1000"), help="CPU mover counts (fast model)")
+    parser.add_argument("--sizes", type=sizes, default=sizes("1000,100000,1000000"), help="GPU movers, table model")
+    parser.add_argument("--cpu-sizes", type=sizes, default=sizes("100,1000"), help="CPU movers, table model")
+    parser.add_argument("--fast-sizes", type=sizes, default=sizes("1000,100000"), help="GPU movers, fast model")
+    parser.add_argument("--cpu-fast-sizes", type=sizes, default=sizes("100"), help="CPU movers, fast model")
     parser.add_argument("--exact-sizes", type=sizes, default=sizes("100,1000"), help="GPU mover counts, exact model")
     parser.add_argument("--cpu-exact-sizes", type=sizes, default=sizes("4"), help="CPU mover counts, exact model")
-    parser.add_argument("--sim-worlds", type=sizes, default=sizes("64,4096"), help="GPU B0 worlds, sim step")
+    parser.add_argument("--sim-worlds", type=sizes, default=sizes("4096,65536"), help="GPU B0 worlds, sim step")
     parser.add_argument("--cpu-sim-worlds", type=sizes, default=sizes("4"), help="CPU B0 worlds, sim step")
+    parser.add_argument("--env-envs", type=sizes, default=sizes("4096,65536"), help="GPU B0 envs, env step")
+    parser.add_argument("--cpu-env-envs", type=sizes, default=sizes("4"), help="CPU B0 envs, env step")
+    parser.add_argument("--env-steps", type=int, default=20, help="env steps timed per row")
     parser.add_argument("--tiles", type=int, default=8, help="the layout is tiles x tiles")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--accuracy-poses", type=int, default=8, help="0 skips the fast-vs-exact accuracy check")
+    parser.add_argument("--accuracy-poses", type=int, default=8, help="0 skips the accuracy and footprint checks")
     parser.add_argument("--magpylib-movers", type=int, default=1, help="0 skips the magpylib comparison")
     parser.add_argument("--meshing", type=int, default=100, help="magpylib getFT points per polyline")
+    parser.add_argument("--limits", type=floats, default=floats("7,5,3,2"),
+                        help="coil current limits (A) of the B0 policy sweep ('' skips it)")
+    parser.add_argument("--sweep-policy", default="pretrained:b0_ppo")
+    parser.add_argument("--sweep-episodes", type=int, default=None, help="worlds per repeat (GPU 1024, CPU 8)")
+    parser.add_argument("--sweep-repeats", type=int, default=None, help="repeats (GPU 10, CPU 1)")
+    parser.add_argument("--sweep-steps", type=int, default=250, help="env steps per world (250: 10 s)")
     parser.add_argument("--json", default=None, help="default: benchmarks/results/magnetics_<cpu|gpu>.json")
     args = parser.parse_args(argv)
 
     from magwarp.magnetics.fast import FieldTableSpec
     from magwarp.magnetics.geometry import MagneticParams
+    from magwarp.magnetics.table import WrenchTableSpec
 
-    wp.config.quiet = True
+    info, devices = start_run(args.device)
     wp.init()
-    devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
-    info = machine_info(devices[-1])
-    print(header_line(info), flush=True)
     params, spec = MagneticParams(), FieldTableSpec()
-    speed, accuracy, magpylib, sim = [], [], [], []
+    args.table_spec = WrenchTableSpec()
+    speed, accuracy, footprint, magpylib, sim, env = [], [], [], [], [], []
     for device in devices:
         speed += speed_rows(args, device, params, spec)
         sim += sim_rows(args, device, params, spec)
+        env += env_rows(args, device, params)
     if args.accuracy_poses > 0:
-        accuracy.append(accuracy_row(args, devices[-1], params, spec))
+        accuracy += accuracy_rows(args, devices[-1], params, spec)
+        footprint += footprint_rows(args, devices[-1], params)
     if args.magpylib_movers > 0:
         magpylib += magpylib_rows(args, devices[-1], params)
+    sweep = []
+    if args.limits:
+        gpu = devices[-1].startswith("cuda")
+        args.sweep_episodes = args.sweep_episodes or (1024 if gpu else 8)
+        args.sweep_repeats = args.sweep_repeats or (10 if gpu else 1)
+        sweep = sweep_rows(args, devices[-1], params)
     print()
-    print_table(speed, ["device", "model", "movers", ("gamma_per_s", "Gamma evals/s"),
-                        ("commutation_per_s", "commutations/s"), ("cycle_per_s", "cycles/s"),
-                        ("cycle_ms", "cycle ms"), ("active_coils_mean", "coils/mover"),
-                        ("saturated_movers", "saturated")])
-    if sim:
-        print_table(sim, ["device", "worlds", ("ideal_step_ms", "ideal ms/step"),
-                          ("magnetic_step_ms", "magnetic ms/step"), ("magnetic_share_of_ideal_speed", "share")])
     gpu = any(d.startswith("cuda") for d in devices)
     path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
                                      f"magnetics_{'gpu' if gpu else 'cpu'}.json")
-    write_json(path, {"info": info, "provenance": provenance(info), "speed": speed, "accuracy": accuracy,
-                      "magpylib": magpylib, "sim": sim, "options": vars(args)})
+    options = {k: v for k, v in vars(args).items() if k != "table_spec"}
+    rows = ([{"kind": "speed", **r} for r in speed] + [{"kind": "sim", **r} for r in sim]
+            + [{"kind": "env", **r} for r in env] + [{"kind": "accuracy", **r} for r in accuracy]
+            + [{"kind": "footprint", **r} for r in footprint] + [{"kind": "magpylib", **r} for r in magpylib]
+            + [{"kind": "sweep", **r} for r in sweep]
+            + [{"kind": "options", **options, "table_spec": repr(args.table_spec)}])
+    finish([r for r in rows if r["kind"] != "options"],
+           ["kind", "device", "model", "movers", "worlds", "num_envs", ("gamma_ms", "Gamma ms"),
+            ("commutation_ms", "commutation ms"), ("cycle_ms", "cycle ms"), ("active_coils_mean", "coils/mover"),
+            ("ideal_step_ms", "ideal ms/step"), ("magnetic_step_ms", "magnetic ms/step"),
+            ("magnetic_share_of_ideal_speed", "magnetic/ideal speed"), ("max_tilt_rad", "tilt"),
+            ("force_error_share", "force err/peak"), ("torque_error_share", "torque err/peak"),
+            ("hover_loss_ratio_mean", "footprint loss ratio"), ("speedup", "exact vs magpylib"),
+            ("current_limit_a", "limit A"), ("success_rate", "success %"),
+            ("copper_energy_j_per_goal", "J/goal")],
+           info, None)
+    write_json(path, [{**r, **provenance(info)} for r in rows])
     print(f"wrote {path}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

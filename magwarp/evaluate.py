@@ -18,6 +18,12 @@ read back once per batch of repeats.
   the window's end, the makespan is the time at which the slowest mover of a world reached ``makespan_goals``
   goals (:mod:`magwarp.metrics.swarm`).
 
+Copper energy (the coils' physical energy, :mod:`magwarp.metrics.energy`): when the env runs the magnetic model
+(``env_kwargs={"force_model": "magnetic"}``, ``--env-kwargs '{"force_model": "magnetic"}'``), the table gains the
+copper energy per goal (trajectory planning, swarms) or per episode (J: every mover of a repeat's worlds over the
+window, divided by its goals or episodes) and the mean copper loss per mover (W), beside MagBotSim's kinematic
+smoothness proxy.
+
 Process time is the wall-clock time of the batched run (policy and simulation) per goal (trajectory planning,
 swarms) or per episode (pushing, platform). On the CPU the evaluation runs with one torch intra-op thread, for
 stable timings on shared machines (the previous setting is restored afterwards).
@@ -317,6 +323,9 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
             num_steps = int(steps or round(10_000 / env.num_cycles))  # 10 s of 1 ms cycles (250 steps of 40)
             metrics = Metrics(env, makespan_goals=makespan_goals)
         act = _checked(load_policy(policy, env, trusted=trusted), policy, env)
+        from magwarp.metrics.energy import CopperEnergy
+
+        energy = CopperEnergy.attach(env)  # None unless the env runs the magnetic model (force_model="magnetic")
 
         mine = range(rank, num_batches, world)  # this rank's batches
         done: list[tuple[int, dict[str, list[float]], float]] = []  # (batch, metric values, process time)
@@ -332,6 +341,8 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
             for batch in mine:
                 obs, _ = env.reset(seed=seed + batch)
                 metrics.reset()
+                if energy is not None:
+                    energy.reset()
                 _sync(device)
                 start = time.perf_counter()
                 for _ in range(num_steps):
@@ -343,7 +354,11 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
                     still = metrics.t["active"].bool()
                     metrics.t["episodes"] += still
                     metrics.freeze(still)
-                summary = {k: v.cpu().numpy() for k, v in metrics.summary(per_batch).items()}  # one sync per batch
+                summary = metrics.summary(per_batch)
+                if energy is not None:
+                    sim_s = num_steps * env.num_cycles * float(env.sim.model.limits.dt)
+                    summary.update(energy.summary(per_batch, sim_s))
+                summary = {k: v.cpu().numpy() for k, v in summary.items()}  # one sync per batch
                 act.raise_if_nonfinite()
                 wall = time.perf_counter() - start
                 keep = min(per_batch, repeats - batch * per_batch)
@@ -363,6 +378,13 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
         rows = _rows(metrics.ROWS, values, env.num_movers)
         unit = "episode" if episodic else "goal"
         count = values["episodes" if episodic else "goals_reached"]
+        if "copper_energy_j" in values:  # the magnetic model: the coils' physical energy
+            joules = np.asarray(values["copper_energy_j"]) / np.maximum(np.asarray(count, dtype=np.float64), 1.0)
+            watts = np.asarray(values["copper_power_w"])
+            rows.append(Row("copper_energy_j_per_goal", f"Copper Energy (J per {unit})", float(np.mean(count)),
+                            float(joules.mean()), float(joules.std()), [float(x) for x in joules]))
+            rows.append(Row("copper_power_w", "Copper Loss (W per mover, mean)", float(np.mean(count)),
+                            float(watts.mean()), float(watts.std()), [float(x) for x in watts]))
         rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
                         float(np.mean(process)), float(np.std(process)), process))
         return EvalResult(env_id, label, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)

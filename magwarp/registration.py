@@ -27,6 +27,7 @@ ENV_CLASSES = {
     "SwarmEnv": "magwarp.swarm.env",
     "PlatformPoseEnv": "magwarp.envs.platform_pose",
     "CoopPushEnv": "magwarp.envs.coop_push",
+    "LevitationEnv": "magwarp.envs.levitation",
 }
 # Benchmark variants (names only; their layouts live in magwarp.layout.BENCHMARK_LAYOUTS and magwarp.envs.push).
 TRAJECTORY_BENCHMARKS = tuple(f"B{i}" for i in range(10))
@@ -68,6 +69,9 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/SwarmMaterialFlow-v0"] = ("SwarmEnv", {"stations": "auto"})
     ids["magwarp/PlatformPose-v0"] = ("PlatformPoseEnv", {})
     ids["magwarp/CoopPush-v0"] = ("CoopPushEnv", {})
+    ids["magwarp/Levitation-v0"] = ("LevitationEnv", {})
+    ids["magwarp/LevitationHover-v0"] = ("LevitationEnv", {"task": "hover"})
+    ids["magwarp/LevitationWrench-v0"] = ("LevitationEnv", {"action": "wrench"})
     return ids
 
 

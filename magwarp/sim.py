@@ -96,7 +96,8 @@ class Simulator:
     ``"acceleration"`` or ``"jerk"``. stiffness_lin / stiffness_rot: impedance stiffness; hold_mask: 6 flags (x, y,
     z, roll, pitch, yaw) the impedance controller holds. stop_on_collision: a world stops moving for the rest of a
     step after a collision (MagBotSim's behaviour). force_model: a ``@wp.func`` with
-    :func:`~magwarp.kernels.impedance.default_force`'s signature; force_aux_dim: width of its free per-mover input
+    :func:`~magwarp.kernels.impedance.default_force`'s signature, or ``"magnetic"`` / a ``MagneticModel`` (coil
+    currents: :mod:`magwarp.magnetics.drive`, :attr:`magnetic_drive`); force_aux_dim: width of its free per-mover input
     row ``force_aux``. device: ``"cpu"``, ``"cuda:N"`` or None for the best one. fused_max_movers: worlds up to this
     size run fused. max_pairs: room per world in ``pair_list`` (the list of colliding pairs; ``world_pairs`` always
     counts all of them). check_inputs: validate commands (costs a device sync per command; turn off in tight loops
@@ -159,6 +160,9 @@ class Simulator:
         fused_max_movers = as_count(fused_max_movers, "fused_max_movers", minimum=0)
         max_pairs = as_count(max_pairs, "max_pairs")
         force_aux_dim = as_count(force_aux_dim, "force_aux_dim")
+        from magwarp.magnetics.drive import resolve_force_model  # a name ("magnetic") or a MagneticModel
+
+        force_model, force_aux_dim, attach_drive = resolve_force_model(force_model, force_aux_dim)
         self.num_worlds = num_worlds
         self.device = warp_device(device)
         self.control = control
@@ -204,6 +208,7 @@ class Simulator:
         self.reset()
         if validate_starts:
             self._raise_on_start_collisions()
+        self.magnetic_drive = attach_drive(self) if attach_drive is not None else None
 
     # ------------------------------------------------------------------ construction helpers
     def _build_kernels(self) -> None:

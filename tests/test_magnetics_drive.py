@@ -9,13 +9,15 @@ import torch
 
 from magwarp.layout import Layout
 from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED
-from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, magnetic_force
+from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, MagneticModel, magnetic_force
 from magwarp.magnetics.fast import FieldTableSpec
+from magwarp.magnetics.table import WrenchTableSpec
 from magwarp.magnetics.geometry import CoilSpec, MagneticParams, MagneticsError, Quadrature, TileCoils
 from magwarp.sim import Simulator
 
-# A coarse quadrature and table and a smaller active radius: seconds on a CPU.
-SPEC = FieldTableSpec(step=0.002, z_step=0.001, margin=0.08)
+# A coarse quadrature, field table and wrench table: seconds on a CPU.
+SPEC = WrenchTableSpec(step=0.004, yaw_steps=8, z_step=0.002, gap=(0.003, 0.005),
+                       field=FieldTableSpec(step=0.002, z_step=0.001, margin=0.08))
 
 
 def params(limit: float) -> MagneticParams:
@@ -47,7 +49,7 @@ def test_motion_matches_ideal_model_without_saturation(cache, rng):
     cmd = rng.uniform(-3.0, 3.0, (2, 1, 2))
     ideal = make()
     mag_sim = make(magnetic_force, AUX_DIM)
-    drive = MagneticDrive(mag_sim, params(limit=1e3))
+    drive = MagneticDrive(mag_sim, params(limit=1e3), SPEC)
     p0, v0 = run(ideal, cmd, 20)
     p1, v1 = run(mag_sim, cmd, 20)
     np.testing.assert_allclose(p1, p0, atol=1e-6, err_msg=str(rng))
@@ -63,7 +65,7 @@ def test_motion_matches_ideal_model_without_saturation(cache, rng):
 
 def test_low_current_limit_limits_the_wrench(cache):
     ideal, weak = make(), make(magnetic_force, AUX_DIM)
-    drive = MagneticDrive(weak, params(limit=0.5))
+    drive = MagneticDrive(weak, params(limit=0.5), SPEC)
     cmd = np.zeros((2, 1, 2))
     p0, _ = run(ideal, cmd, 20)
     p1, _ = run(weak, cmd, 20)
@@ -74,4 +76,15 @@ def test_low_current_limit_limits_the_wrench(cache):
 
 def test_drive_needs_the_aux_columns(cache):
     with pytest.raises(MagneticsError, match="force_aux_dim"):
-        MagneticDrive(make(), params(limit=7.0))
+        MagneticDrive(make(), params(limit=7.0), SPEC)
+
+
+def test_force_model_by_name_or_object(cache):
+    """``force_model="magnetic"`` / ``MagneticModel(...)`` build the drive; unknown names are refused by name."""
+    sim = make(MagneticModel(params(limit=7.0), SPEC))
+    assert isinstance(sim.magnetic_drive, MagneticDrive) and sim.force_aux.shape[-1] == AUX_DIM
+    run(sim, np.zeros((2, 1, 2)), 3)
+    assert np.all(sim.magnetic_drive.loss.numpy() > 1.0)
+    assert make().magnetic_drive is None
+    with pytest.raises(ValueError, match="'magnetc'"):
+        make("magnetc")

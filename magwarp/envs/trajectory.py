@@ -140,6 +140,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
         nan_dump: str | None = None,
+        force_model=None,  # None (ideal), "magnetic" or a MagneticModel: passed to the Simulator
         fused: bool = True,
         graph: bool = True,
     ):
@@ -189,7 +190,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.sim = Simulator(
             layout_obj, int(num_movers), int(num_envs), mover=mover, control="jerk" if learn_jerk else "acceleration",
             v_max=v_max, a_max=a_max, j_max=j_max, device=device, check_inputs=False, start_xy=placeholder,
-            validate_starts=False, collision_radii=radii, collision_half_sizes=halves,
+            validate_starts=False, collision_radii=radii, collision_half_sizes=halves, force_model=force_model,
         )
         super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs, nan_dump=nan_dump)

@@ -26,6 +26,8 @@ import warp as wp
 
 from magwarp.magnetics.cuboid import ONE, ZERO
 from magwarp.magnetics.exact import vec6d
+
+vec6f = wp.types.vector(length=6, dtype=wp.float32)
 from magwarp.magnetics.geometry import MagneticsError
 
 mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
@@ -94,110 +96,143 @@ def cholesky6_solve(lo: mat66d, b: vec6d) -> vec6d:
     return x
 
 
-@wp.kernel
-def commutation_kernel(
-    # Model:
-    resistance: wp.array(dtype=wp.float64),
-    limit: wp.array(dtype=wp.float64),
-    max_iter: int,
-    reg: wp.float64,
-    # State in:
-    gamma: wp.array2d(dtype=vec6d),
-    coil_ids: wp.array2d(dtype=wp.int32),
-    count: wp.array(dtype=wp.int32),
-    wrench: wp.array(dtype=vec6d),
-    # State out:
-    currents: wp.array2d(dtype=wp.float64),
-    saturated: wp.array2d(dtype=wp.int32),
-    delivered: wp.array(dtype=vec6d),
-    residual: wp.array(dtype=vec6d),
-    loss: wp.array(dtype=wp.float64),
-    flags: wp.array(dtype=wp.int32),
-):
-    """Least-copper-loss currents under per-coil limits, one mover per thread (see the module docstring)."""
-    m = wp.tid()
-    slots = gamma.shape[1]
-    flag = int(0)
-    n_coils = int(0)
-    for j in range(slots):
-        currents[m, j] = ZERO
-        saturated[m, j] = 0
-        if coil_ids[m, j] >= 0:
-            n_coils += 1
-    if n_coils == 0:
-        flag = flag | 4
-    if count[m] > slots:
-        flag = flag | 8
-    converged = bool(False)
-    done = bool(n_coils == 0)
-    for it in range(max_iter):
-        if not done:
-            a = mat66d()
-            rhs = wrench[m]
-            n_free = int(0)
+@wp.func
+def as_vec6d(g: vec6d) -> vec6d:
+    return g
+
+
+@wp.func
+def as_vec6d(g: vec6f) -> vec6d:  # noqa: F811 (an overload for float32 columns)
+    return vec6d(wp.float64(g[0]), wp.float64(g[1]), wp.float64(g[2]), wp.float64(g[3]), wp.float64(g[4]),
+                 wp.float64(g[5]))
+
+
+def make_commutation_kernel(col_type):
+    """The commutation kernel for columns of ``col_type`` (``vec6d``: the exact and fast models; ``vec6f``: the
+    table model); the arithmetic is float64 either way."""
+
+    @wp.kernel(module="unique")
+    def commutation_kernel(
+        # Model:
+        resistance: wp.array(dtype=wp.float64),
+        limit: wp.array(dtype=wp.float64),
+        max_iter: int,
+        reg: wp.float64,
+        # State in:
+        gamma: wp.array2d(dtype=col_type),
+        coil_ids: wp.array2d(dtype=wp.int32),
+        count: wp.array(dtype=wp.int32),
+        wrench: wp.array(dtype=vec6d),
+        # State out:
+        currents: wp.array2d(dtype=wp.float64),
+        saturated: wp.array2d(dtype=wp.int32),
+        delivered: wp.array(dtype=vec6d),
+        residual: wp.array(dtype=vec6d),
+        loss: wp.array(dtype=wp.float64),
+        flags: wp.array(dtype=wp.int32),
+    ):
+        """Least-copper-loss currents under per-coil limits, one mover per thread (see the module docstring)."""
+        m = wp.tid()
+        slots = gamma.shape[1]
+        flag = int(0)
+        n_coils = int(0)
+        for j in range(slots):
+            currents[m, j] = ZERO
+            saturated[m, j] = 0
+            if coil_ids[m, j] >= 0:
+                n_coils += 1
+        if n_coils == 0:
+            flag = flag | 4
+        if count[m] > slots:
+            flag = flag | 8
+        converged = bool(False)
+        done = bool(n_coils == 0)
+        out = vec6d()
+        p = ZERO
+        for it in range(max_iter):
+            if not done:
+                a = mat66d()
+                rhs = wrench[m]
+                n_free = int(0)
+                for j in range(slots):
+                    k = coil_ids[m, j]
+                    if k >= 0:
+                        g = as_vec6d(gamma[m, j])
+                        if saturated[m, j] != 0:
+                            rhs = rhs - g * currents[m, j]
+                        else:
+                            a = a + wp.outer(g / resistance[k], g)
+                            n_free += 1
+                if n_free == 0:
+                    done = True
+                else:
+                    scale = vec6d()
+                    for r in range(6):
+                        scale[r] = ONE
+                        if a[r, r] > ZERO:
+                            scale[r] = ONE / wp.sqrt(a[r, r])
+                    a_s = mat66d()
+                    for r in range(6):
+                        for c in range(6):
+                            a_s[r, c] = a[r, c] * scale[r] * scale[c]
+                    lo, piv = cholesky6(a_s, ZERO)
+                    if piv < reg:
+                        lo, piv = cholesky6(a_s, reg)
+                        flag = flag | 1
+                    y = cholesky6_solve(lo, wp.cw_mul(rhs, scale))
+                    y = wp.cw_mul(y, scale)
+                    # Step from the current (feasible) currents toward the free coils' optimum, as far as the limits
+                    # allow.
+                    alpha = ONE
+                    for j in range(slots):
+                        k = coil_ids[m, j]
+                        if k >= 0 and saturated[m, j] == 0:
+                            t = wp.dot(as_vec6d(gamma[m, j]), y) / resistance[k]
+                            if wp.abs(t) > limit[k]:
+                                alpha = wp.min(alpha, (wp.sign(t) * limit[k] - currents[m, j]) / (t - currents[m, j]))
+                    hit = alpha * (ONE + wp.float64(1.0e-12))
+                    # The step, and (used when it ends the solve: no final pass) the delivered wrench and the loss.
+                    out = vec6d()
+                    p = ZERO
+                    for j in range(slots):
+                        k = coil_ids[m, j]
+                        if k >= 0:
+                            g = as_vec6d(gamma[m, j])
+                            i = currents[m, j]
+                            if saturated[m, j] == 0:
+                                t = wp.dot(g, y) / resistance[k]
+                                i0 = i
+                                i = i0 + alpha * (t - i0)
+                                if wp.abs(t) > limit[k]:
+                                    if (wp.sign(t) * limit[k] - i0) / (t - i0) <= hit:
+                                        i = wp.sign(t) * limit[k]
+                                        saturated[m, j] = 1
+                                currents[m, j] = i
+                            out = out + g * i
+                            p = p + resistance[k] * i * i
+                    if alpha >= ONE:
+                        converged = True
+                        done = True
+        if not converged:
+            if n_coils > 0:
+                flag = flag | 2
+            out = vec6d()
+            p = ZERO
             for j in range(slots):
                 k = coil_ids[m, j]
                 if k >= 0:
-                    g = gamma[m, j]
-                    if saturated[m, j] != 0:
-                        rhs = rhs - g * currents[m, j]
-                    else:
-                        a = a + wp.outer(g, g) / resistance[k]
-                        n_free += 1
-            if n_free == 0:
-                done = True
-            else:
-                scale = vec6d()
-                for r in range(6):
-                    scale[r] = ONE
-                    if a[r, r] > ZERO:
-                        scale[r] = ONE / wp.sqrt(a[r, r])
-                a_s = mat66d()
-                for r in range(6):
-                    for c in range(6):
-                        a_s[r, c] = a[r, c] * scale[r] * scale[c]
-                lo, piv = cholesky6(a_s, ZERO)
-                if piv < reg:
-                    lo, piv = cholesky6(a_s, reg)
-                    flag = flag | 1
-                y = cholesky6_solve(lo, wp.cw_mul(rhs, scale))
-                y = wp.cw_mul(y, scale)
-                # Step from the current (feasible) currents toward the free coils' optimum, as far as the limits allow.
-                alpha = ONE
-                for j in range(slots):
-                    k = coil_ids[m, j]
-                    if k >= 0 and saturated[m, j] == 0:
-                        t = wp.dot(gamma[m, j], y) / resistance[k]
-                        if wp.abs(t) > limit[k]:
-                            alpha = wp.min(alpha, (wp.sign(t) * limit[k] - currents[m, j]) / (t - currents[m, j]))
-                hit = alpha * (ONE + wp.float64(1.0e-12))
-                for j in range(slots):
-                    k = coil_ids[m, j]
-                    if k >= 0 and saturated[m, j] == 0:
-                        t = wp.dot(gamma[m, j], y) / resistance[k]
-                        i = currents[m, j] + alpha * (t - currents[m, j])
-                        if wp.abs(t) > limit[k]:
-                            if (wp.sign(t) * limit[k] - currents[m, j]) / (t - currents[m, j]) <= hit:
-                                i = wp.sign(t) * limit[k]
-                                saturated[m, j] = 1
-                        currents[m, j] = i
-                if alpha >= ONE:
-                    converged = True
-                    done = True
-    if not converged and n_coils > 0:
-        flag = flag | 2
-    out = vec6d()
-    p = ZERO
-    for j in range(slots):
-        k = coil_ids[m, j]
-        if k >= 0:
-            i = currents[m, j]
-            out = out + gamma[m, j] * i
-            p = p + resistance[k] * i * i
-    delivered[m] = out
-    residual[m] = wrench[m] - out
-    loss[m] = p
-    flags[m] = flag
+                    i = currents[m, j]
+                    out = out + as_vec6d(gamma[m, j]) * i
+                    p = p + resistance[k] * i * i
+        delivered[m] = out
+        residual[m] = wrench[m] - out
+        loss[m] = p
+        flags[m] = flag
+
+    return commutation_kernel
+
+
+KERNELS = {vec6d: make_commutation_kernel(vec6d), vec6f: make_commutation_kernel(vec6f)}
 
 
 @dataclass
@@ -211,6 +246,14 @@ class CommutationResult:
     residual: wp.array
     loss: wp.array
     flags: wp.array
+
+    @classmethod
+    def zeros(cls, n: int, slots: int, device) -> "CommutationResult":
+        """Zeroed buffers for ``n`` movers of ``slots`` slots on ``device``."""
+        return cls(wp.zeros((n, slots), dtype=wp.float64, device=device),
+                   wp.zeros((n, slots), dtype=wp.int32, device=device), wp.zeros(n, dtype=vec6d, device=device),
+                   wp.zeros(n, dtype=vec6d, device=device), wp.zeros(n, dtype=wp.float64, device=device),
+                   wp.zeros(n, dtype=wp.int32, device=device))
 
 
 class Commutation:
@@ -240,11 +283,10 @@ class Commutation:
                                  f"{count.shape} and wrench {wrench.shape} must agree on (movers, slots)")
         d = self.device
         if out is None:
-            out = CommutationResult(wp.empty((n, slots), dtype=wp.float64, device=d),
-                                    wp.empty((n, slots), dtype=wp.int32, device=d),
-                                    wp.empty(n, dtype=vec6d, device=d), wp.empty(n, dtype=vec6d, device=d),
-                                    wp.empty(n, dtype=wp.float64, device=d), wp.empty(n, dtype=wp.int32, device=d))
-        wp.launch(commutation_kernel, dim=n, device=d,
+            out = CommutationResult.zeros(n, slots, d)
+        if gamma.dtype not in KERNELS:
+            raise MagneticsError(f"Commutation.solve: gamma must hold vec6d or vec6f columns, got {gamma.dtype}")
+        wp.launch(KERNELS[gamma.dtype], dim=n, device=d,
                   inputs=[self.resistance, self.limit, int(self.options.max_iter),
                           wp.float64(self.options.regularization), gamma, coil_ids, count, wrench],
                   outputs=[out.currents, out.saturated, out.delivered, out.residual, out.loss, out.flags])

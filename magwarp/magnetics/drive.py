@@ -1,16 +1,18 @@
 """The magnetic drive in the simulator: the wrench on every mover comes from its coil currents.
 
-    sim = Simulator(layout, num_movers, num_worlds, force_model=magnetic_force, force_aux_dim=AUX_DIM)
-    drive = MagneticDrive(sim)                      # the fast model of the default design (cached on disk)
+    sim = Simulator(layout, num_movers, num_worlds, force_model="magnetic")   # or MagneticModel(params, table)
+    drive = sim.magnetic_drive                      # the wrench-table model of the default design (cached on disk)
     sim.step(40)                                    # currents, copper loss and energy follow every cycle
+
+(by hand: ``Simulator(..., force_model=magnetic_force, force_aux_dim=AUX_DIM)``, then ``MagneticDrive(sim)``).
 
 Before every cycle (a pre-cycle hook, inside the step graph, no host sync): the wrench the ideal model would apply
 at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
-of the command, the impedance hold) is the wanted wrench; the fast model gives each mover's Gamma(q); the
-commutation gives the least-loss currents within the limits; the realised wrench Gamma i goes into
-``force_aux[w, m, 0:6]`` (float32), which :func:`magnetic_force` returns to the integrator. When no coil saturates,
-the realised wrench is the wanted one (to float32 rounding) and the motion matches the ideal model; when coils
-saturate, the wrench falls short (the mover accelerates less, or sinks) as on the real system.
+of the command, the impedance hold) is the wanted wrench; the wrench-table model (:mod:`~magwarp.magnetics.table`)
+gives each mover's Gamma(q); the commutation gives the least-loss currents within the limits; the realised wrench
+Gamma i goes into ``force_aux[w, m, 0:6]`` (float32), which :func:`magnetic_force` returns to the integrator. When
+no coil saturates, the realised wrench is the wanted one (to float32 rounding) and the motion matches the ideal
+model; when coils saturate, the wrench falls short (the mover accelerates less, or sinks) as on the real system.
 
 ``force_aux[w, m, 6]`` is the copper loss (W) and ``[7]`` the commutation flags
 (:mod:`~magwarp.magnetics.commutation`); :attr:`MagneticDrive.energy` accumulates the loss over time (J);
@@ -18,13 +20,17 @@ saturate, the wrench falls short (the mover accelerates less, or sinks) as on th
 The hook forces the simulator's per-cycle launch path (as any cycle hook does).
 """
 
+from __future__ import annotations
+
+from dataclasses import dataclass
+
 import warp as wp
 
 from magwarp.kernels.dynamics import planar_acceleration
 from magwarp.kernels.impedance import default_force
-from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult
+from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
 from magwarp.magnetics.exact import vec6d
-from magwarp.magnetics.fast import FastModel, FieldTableSpec
+from magwarp.magnetics.table import TableModel, WrenchTableSpec
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
 from magwarp.types import Body, Impedance, Limits, Pose, Wrench, make_pose
 
@@ -70,8 +76,10 @@ def wanted_wrench_kernel(
     pos_d: wp.array(dtype=wp.vec3d),
     quat_d: wp.array(dtype=wp.quatd),
     wanted: wp.array(dtype=vec6d),
+    count: wp.array(dtype=wp.int32),
 ):
-    """The ideal model's wrench at the cycle's start (what the step kernel would apply), and the pose in float64."""
+    """The ideal model's wrench at the cycle's start (what the step kernel would apply), the pose in float64, and
+    the coil counts zeroed for the table model's launch."""
     w, m = wp.tid()
     i = w * pos.shape[1] + m
     p = make_pose(pos[w, m], quat[w, m], vel[w, m], omega[w, m])
@@ -84,6 +92,7 @@ def wanted_wrench_kernel(
     quat_d[i] = wp.normalize(q)
     wanted[i] = vec6d(wp.float64(wr.force[0]), wp.float64(wr.force[1]), wp.float64(wr.force[2]),
                       wp.float64(wr.torque[0]), wp.float64(wr.torque[1]), wp.float64(wr.torque[2]))
+    count[i] = 0
 
 
 @wp.kernel
@@ -111,10 +120,10 @@ def store_wrench_kernel(
 
 class MagneticDrive:
     """Attach the magnetic drive to ``sim`` (built with ``force_model=magnetic_force`` and ``force_aux_dim >=
-    AUX_DIM``): a :class:`~magwarp.magnetics.fast.FastModel` of ``params`` on the simulator's layout and device,
+    AUX_DIM``): a :class:`~magwarp.magnetics.table.TableModel` of ``params`` on the simulator's layout and device,
     and the commutation, run before every cycle."""
 
-    def __init__(self, sim, params: MagneticParams | None = None, spec: FieldTableSpec | None = None,
+    def __init__(self, sim, params: MagneticParams | None = None, spec: WrenchTableSpec | None = None,
                  options: CommutationOptions | None = None, use_cache: bool = True):
         aux = sim.state.force_aux
         if aux.shape[2] < AUX_DIM:
@@ -122,7 +131,7 @@ class MagneticDrive:
                                  f"force_aux_dim >= {AUX_DIM} (and force_model=magnetic_force)")
         self.sim = sim
         dev = sim.device
-        self.model = FastModel(sim.layout, params, spec, device=dev, use_cache=use_cache)
+        self.model = TableModel(sim.layout, params, spec, device=dev, use_cache=use_cache)
         self.commutation = Commutation(self.model.coilset, options, device=dev)
         w_, m_ = sim.num_worlds, sim.num_movers
         n, slots = w_ * m_, self.model.max_active
@@ -131,11 +140,8 @@ class MagneticDrive:
         self._wanted = wp.zeros(n, dtype=vec6d, device=dev)
         self._ids = wp.full((n, slots), -1, dtype=wp.int32, device=dev)
         self._count = wp.zeros(n, dtype=wp.int32, device=dev)
-        self._gamma = wp.zeros((n, slots), dtype=vec6d, device=dev)
-        self._res = CommutationResult(
-            wp.zeros((n, slots), dtype=wp.float64, device=dev), wp.zeros((n, slots), dtype=wp.int32, device=dev),
-            wp.zeros(n, dtype=vec6d, device=dev), wp.zeros(n, dtype=vec6d, device=dev),
-            wp.zeros(n, dtype=wp.float64, device=dev), wp.zeros(n, dtype=wp.int32, device=dev))
+        self._gamma = wp.zeros((n, slots), dtype=vec6f, device=dev)
+        self._res = CommutationResult.zeros(n, slots, dev)
         self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
         self._dt = float(sim.model.limits.dt)
         sim.add_cycle_hook(self._before_cycle, before=True)
@@ -145,9 +151,8 @@ class MagneticDrive:
         dims = (sim.num_worlds, sim.num_movers)
         wp.launch(wanted_wrench_kernel, dim=dims, device=dev,
                   inputs=[m.limits, m.impedance, m.body, s.cmd, s.target_pos, s.target_quat, s.force_aux, s.pos,
-                          s.quat, s.vel, s.omega, s.acc], outputs=[self._pos, self._quat, self._wanted])
-        self.model.active_coils(self._pos, self._ids, self._count)
-        self.model.wrench_matrix(self._pos, self._quat, self._ids, self._gamma)
+                          s.quat, s.vel, s.omega, s.acc], outputs=[self._pos, self._quat, self._wanted, self._count])
+        self.model.columns(self._pos, self._quat, self._ids, self._gamma, self._count, zero_count=False)
         self.commutation.solve(self._gamma, self._ids, self._count, self._wanted, self._res)
         wp.launch(store_wrench_kernel, dim=dims, device=dev,
                   inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
@@ -180,3 +185,37 @@ class MagneticDrive:
     def energy(self):
         """[W, M] copper energy (J) since the drive was attached (torch view; zero it to restart)."""
         return self.sim._t(self._energy)
+
+
+@dataclass(frozen=True)
+class MagneticModel:
+    """The magnetic force model as a simulator option: ``Simulator(..., force_model=MagneticModel(...))`` or
+    ``force_model="magnetic"`` (the defaults). ``params``: the design (:class:`MagneticParams`); ``table``: the
+    wrench table's grid (:class:`~magwarp.magnetics.table.WrenchTableSpec`); ``options``: the commutation's."""
+
+    params: MagneticParams | None = None
+    table: WrenchTableSpec | None = None
+    options: CommutationOptions | None = None
+    use_cache: bool = True
+
+    def attach(self, sim) -> MagneticDrive:
+        return MagneticDrive(sim, self.params, self.table, self.options, self.use_cache)
+
+
+#: Force models by name (``Simulator(force_model=NAME)``); None: the ideal model.
+FORCE_MODELS = {"ideal": None, "magnetic": MagneticModel}
+
+
+def resolve_force_model(force_model, force_aux_dim: int):
+    """``(force function or None, force_aux_dim, attach or None)`` for a simulator's ``force_model`` argument: a
+    name of :data:`FORCE_MODELS`, a :class:`MagneticModel`, or a ``@wp.func`` (returned as given). ``attach(sim)``
+    runs once the simulator is built (the magnetic drive's hook)."""
+    if isinstance(force_model, str):
+        if force_model not in FORCE_MODELS:
+            raise ValueError(f"unknown force_model {force_model!r}; known: {sorted(FORCE_MODELS)} (or a @wp.func "
+                             f"or a MagneticModel)")
+        factory = FORCE_MODELS[force_model]
+        force_model = factory() if factory is not None else None
+    if isinstance(force_model, MagneticModel):
+        return magnetic_force, max(int(force_aux_dim), AUX_DIM), force_model.attach
+    return force_model, force_aux_dim, None

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cuboid_field", "array_field", "rotation", "coil_columns", "active_coils", "commutate", "flux_linkage"]
+__all__ = ["cuboid_field", "array_field", "rotation", "coil_columns", "active_coils", "commutate", "flux_linkage",
+           "table_column"]
 
 
 def _log_ratio(vl, vh, a2):
@@ -164,7 +165,7 @@ def _cholesky(a, shift):
 
 def commutate(gamma, resistance, limit, wrench, max_iter: int = 64, reg: float = 1e-6):
     """Least-copper-loss currents for one mover (float64): ``gamma (6, K)``, ``resistance (K,)``, ``limit (K,)``,
-    ``wrench (6,)``. Mirrors :func:`magwarp.magnetics.commutation.commutation_kernel`: solve for the free coils,
+    ``wrench (6,)``. Mirrors :func:`magwarp.magnetics.commutation.make_commutation_kernel`: solve for the free coils,
     step from the current currents toward that optimum as far as the limits allow, fix the coils that reach their
     limit, repeat; at most ``max_iter`` solves.
     The unit-diagonal 6 x 6 system is regularised (+ reg I) when a Cholesky pivot falls below ``reg``.
@@ -201,3 +202,39 @@ def commutate(gamma, resistance, limit, wrench, max_iter: int = 64, reg: float =
         sat[np.nonzero(free)[0][hit]] = True
         converged = alpha >= 1.0
     return cur, gamma @ cur, sat, regularised, converged
+
+
+
+def table_column(data, lo, step: float, z0: float, z_step: float, yaw_steps: int, yaw_scale: float,
+                 direction: int, layer: int, dx: float, dy: float, z: float, yaw: float) -> np.ndarray:
+    """One column (world frame) of the wrench table, mirroring :func:`magwarp.magnetics.table.table_column`:
+    ``data`` ``(layers * yaw_steps, n_across, n_along, nz, 6)``, ``lo`` the first (across, along) offset; linear
+    in height (clamped to the table) and yaw, bilinear in the offset (mover minus coil centre, world); each of the
+    two yaw samples is read at the offset turned by (sample yaw - yaw) and its column turned back."""
+    data = np.asarray(data, dtype=np.float64)
+    ni, nj, nz = data.shape[1:4]
+    gk = np.clip((z - z0) / z_step, 0.0, nz - 1)
+    k = min(int(gk), nz - 2)
+    fk = gk - k
+    gy = yaw * yaw_scale
+    fy = gy - np.floor(gy)
+    y0 = int(np.floor(gy)) % yaw_steps
+    out = np.zeros(6)
+    for d in (0, 1):
+        delta = (d - fy) / yaw_scale
+        c, s = np.cos(delta), np.sin(delta)
+        rx, ry = c * dx - s * dy, s * dx + c * dy
+        across, along = (rx, ry) if direction == 1 else (ry, rx)
+        gi = np.clip((across - lo[0]) / step, 0.0, ni - 1)
+        gj = np.clip((along - lo[1]) / step, 0.0, nj - 1)
+        i, j = min(int(gi), ni - 2), min(int(gj), nj - 2)
+        fi, fj = gi - i, gj - j
+        block = data[layer * yaw_steps + (y0 + d) % yaw_steps]
+        col = np.zeros(6)
+        for kk, wk in ((k, 1.0 - fk), (k + 1, fk)):
+            b = block[..., kk, :]
+            col += wk * ((b[i, j] * (1 - fi) + b[i + 1, j] * fi) * (1 - fj)
+                         + (b[i, j + 1] * (1 - fi) + b[i + 1, j + 1] * fi) * fj)
+        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # turn back by -delta
+        out += (1.0 - fy if d == 0 else fy) * np.concatenate([rot @ col[:3], rot @ col[3:]])
+    return out

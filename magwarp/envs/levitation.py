@@ -1,0 +1,267 @@
+"""Low-level control of one levitating mover by its coil currents: ``magwarp/Levitation-v0`` (and
+``magwarp/LevitationHover-v0``: ``task="hover"``; ``magwarp/LevitationWrench-v0``: ``action="wrench"``).
+
+The mover is a free 6-DoF rigid body (no impedance hold, no planar drive) under gravity and the magnetic wrench of
+the coils under it (:class:`~magwarp.magnetics.actuator.CoilActuator`: the wrench-table model, Gamma(q) updated
+every control cycle), at a 250 µs control cycle; one env step holds the action for ``num_cycles`` cycles (default
+4: 1 ms, a 1 kHz policy).
+
+* **Action** (``action="currents"``, default): the currents of the coil window under the mover, as shares of the
+  coil current limit in [-1, 1] (``[slots]``; slot order: per coil layer, the block of the layer's coil grid that
+  holds every coil within the footprint of the mover's centre, row by row: :attr:`coil_ids` names the coils).
+  Beyond +-1 a current stays at its limit (the amplifier saturates; :attr:`saturated`). Slots without a coil are
+  ignored. ``action="wrench"``: a wanted wrench (force / ``wrench_scale[0]`` N, torque / ``wrench_scale[1]`` N m,
+  each in [-1, 1]) that the commutation turns into least-loss currents every cycle.
+* **Observation** (``[19]``, SI): position (3), roll/pitch/yaw (3), velocity (3), angular velocity (3), the
+  setpoint's position (3) and yaw (1), and the position error (3).
+* **Task** (``task``): ``"hover"`` holds the start pose; ``"setpoint"`` (default) reaches a setpoint up to
+  ``setpoint_range`` (m) away in x/y, at a gap in ``setpoint_gap`` and a yaw up to ``setpoint_yaw`` (rad) from the
+  start. Starts: a random x/y within ``start_range`` of the layout's centre, any yaw, level, at rest, at the
+  mover's hover gap.
+* **Reward** per step: ``-(|p - p*| / pos_scale + |rotation error| / rot_scale) - loss_weight * P`` with ``P`` the
+  copper loss (W, the mean over the step's cycles); ``failure_reward`` when the mover fails.
+* **Ends**: terminated when the gap leaves ``fail_gap`` (m; the default ``magnetics``' table covers 2-6 mm), a
+  tilt exceeds ``fail_tilt`` (rad) or the x/y error exceeds ``fail_distance`` (m); truncated after
+  ``max_episode_steps``.
+* ``info``: ``copper_loss`` (W, ``[N]``), ``pos_error`` (m), ``rot_error`` (rad), ``saturated`` (coils at their
+  limit); :attr:`energy` (J, since construction) as a torch view.
+
+The wrench table takes the mover level (its roll and pitch are not looked up): keep tilts small (about 1% of the
+peak column per 2 mrad, :mod:`magwarp.magnetics.table`). The scripted baseline is
+:class:`magwarp.policies.levitation.LevitationPD` (a PD law through the commutation).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from magwarp._checks import as_count
+from magwarp.envs.base import MagwarpVecEnv
+from magwarp.layout import Layout, MoverSpec
+
+__all__ = ["LevitationEnv"]
+
+
+def _rpy(q: torch.Tensor) -> torch.Tensor:
+    """roll, pitch, yaw ``[..., 3]`` of quaternions (x, y, z, w), R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    x, y, z, w = q.unbind(-1)
+    roll = torch.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = torch.asin(torch.clamp(2 * (w * y - z * x), -1.0, 1.0))
+    yaw = torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return torch.stack([roll, pitch, yaw], -1)
+
+
+def _pair(name: str, value, minimum: float = 0.0) -> tuple[float, float]:
+    """Two finite numbers ``(low, high)``, ``minimum <= low < high``, or a ValueError naming ``name``."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be two numbers (low, high), got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and minimum <= lo < hi):
+        raise ValueError(f"{name} must be two finite numbers with {minimum} <= low < high, got {value!r}")
+    return lo, hi
+
+
+def _wrap(a: torch.Tensor) -> torch.Tensor:
+    return torch.remainder(a + math.pi, 2 * math.pi) - math.pi
+
+
+class LevitationEnv(MagwarpVecEnv):
+    """Batched low-level levitation control (see the module docstring)."""
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        task: str = "setpoint",
+        action: str = "currents",
+        tiles: tuple[int, int] = (2, 2),
+        dt: float = 2.5e-4,
+        num_cycles: int = 4,
+        max_episode_steps: int = 500,
+        start_range: float = 0.03,
+        setpoint_range: float = 0.01,
+        setpoint_gap: tuple[float, float] = (0.003, 0.005),
+        setpoint_yaw: float = 0.1,
+        pos_scale: float = 0.01,
+        rot_scale: float = 0.1,
+        loss_weight: float = 1e-3,
+        failure_reward: float = -100.0,
+        fail_gap: tuple[float, float] = (0.001, 0.007),
+        fail_tilt: float = 0.05,
+        fail_distance: float = 0.05,
+        wrench_scale: tuple[float, float] = (40.0, 2.0),
+        magnetics=None,
+        device: str | None = None,
+        seed: int | None = None,
+        render_mode: str | None = None,
+        autoreset: bool = True,
+        check_inputs: bool = True,
+        nan_dump: str | None = None,
+    ):
+        from magwarp.magnetics.actuator import CoilActuator
+        from magwarp.magnetics.drive import AUX_DIM, MagneticModel, magnetic_force
+        from magwarp.sim import Simulator
+
+        num_envs = as_count(num_envs, "num_envs")
+        if task not in ("hover", "setpoint"):
+            raise ValueError(f"task must be 'hover' or 'setpoint', got {task!r}")
+        if action not in ("currents", "wrench"):
+            raise ValueError(f"action must be 'currents' or 'wrench', got {action!r}")
+        # (low, high, low included): what keeps every reward, observation and pose finite and an episode possible
+        ranges = {"dt": (dt, 0.0, 0.01, False), "pos_scale": (pos_scale, 1e-6, 1e3, True),
+                  "rot_scale": (rot_scale, 1e-6, 1e3, True), "fail_tilt": (fail_tilt, 0.0, math.pi, False),
+                  "fail_distance": (fail_distance, 0.0, 1.0, False), "start_range": (start_range, 0.0, 1.0, True),
+                  "setpoint_range": (setpoint_range, 0.0, 1.0, True),
+                  "setpoint_yaw": (setpoint_yaw, 0.0, math.pi, True),
+                  "loss_weight": (loss_weight, 0.0, 1e3, True), "failure_reward": (failure_reward, -1e6, 1e6, True)}
+        for name, (value, low, high, closed) in ranges.items():
+            ok = isinstance(value, (int, float)) and math.isfinite(value) and value <= high
+            if not ok or value < low or (value == low and not closed):
+                raise ValueError(f"{name} must be a finite number in {'[' if closed else '('}{low}, {high}], got "
+                                 f"{value!r}")
+        setpoint_gap, fail_gap = _pair("setpoint_gap", setpoint_gap), _pair("fail_gap", fail_gap)
+        if not fail_gap[0] < setpoint_gap[0] <= setpoint_gap[1] < fail_gap[1] <= 0.05:
+            raise ValueError(f"setpoint_gap {setpoint_gap} must lie inside fail_gap {fail_gap}, which must end at "
+                             f"most 0.05 m above the tiles")
+        try:
+            scales = tuple(float(v) for v in wrench_scale)
+        except (TypeError, ValueError):
+            scales = ()
+        if len(scales) != 2 or not all(math.isfinite(v) and 0 < v <= 1e6 for v in scales):
+            raise ValueError(f"wrench_scale must be two numbers in (0, 1e6] (N, N m), got {wrench_scale!r}")
+        wrench_scale = scales
+        try:
+            tiles = tuple(as_count(t, "tiles") for t in tiles)
+        except TypeError:
+            raise TypeError(f"tiles must be two positive integers (nx, ny), got {tiles!r}") from None
+        if len(tiles) != 2:
+            raise ValueError(f"tiles must be two positive integers (nx, ny), got {tiles!r}")
+        magnetics = magnetics if magnetics is not None else MagneticModel()  # its table covers 2-6 mm
+        if not isinstance(magnetics, MagneticModel):
+            raise TypeError(f"magnetics must be a MagneticModel, got {type(magnetics).__name__}")
+        self.task, self.action_mode = task, action
+        self.num_cycles = as_count(num_cycles, "num_cycles")
+        self.max_episode_steps = as_count(max_episode_steps, "max_episode_steps")
+        self.start_range, self.setpoint_range, self.setpoint_yaw = start_range, setpoint_range, setpoint_yaw
+        self.setpoint_gap, self.fail_gap = setpoint_gap, fail_gap
+        self.pos_scale, self.rot_scale, self.loss_weight = pos_scale, rot_scale, loss_weight
+        self.failure_reward, self.fail_tilt, self.fail_distance = failure_reward, fail_tilt, fail_distance
+        self.wrench_scale = wrench_scale
+        layout = Layout.grid(*tiles)
+        self.mover = MoverSpec()
+        self.centre = (0.5 * layout.shape[0] * layout.tile.size, 0.5 * layout.shape[1] * layout.tile.size)
+        start = np.array([[[*self.centre, self.mover.hover_z, 0.0, 0.0, 0.0]]] * num_envs)
+        self.sim = Simulator(layout, 1, num_envs, mover=self.mover, start_pose=start, dt=dt, hold_mask=(0,) * 6,
+                             force_model=magnetic_force, force_aux_dim=AUX_DIM, stop_on_collision=False,
+                             check_inputs=False, device=device)
+        super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
+                         check_inputs=check_inputs, nan_dump=nan_dump)
+        self.actuator = CoilActuator(self.sim, magnetics.params, magnetics.table, mode=action,
+                                     options=magnetics.options, use_cache=magnetics.use_cache)
+        self.layout = layout
+        self.bottom = 0.5 * self.mover.size[2]
+        self.current_limit = float(self.actuator.model.params.coils.coil.current_limit)
+        slots = self.actuator.slots
+        n_act = slots if action == "currents" else 6
+        self._set_spaces(gym.spaces.Box(-np.inf, np.inf, (19,), np.float32),
+                         gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32))
+        dev = self.device
+        self.setpoint = torch.zeros((num_envs, 4), device=dev)  # x, y, z, yaw
+        self.steps = torch.zeros(num_envs, dtype=torch.int64, device=dev)
+        self._scale = torch.tensor([self.wrench_scale[0]] * 3 + [self.wrench_scale[1]] * 3, device=dev)
+        self._loss = torch.zeros(num_envs, device=dev)
+        self.dt = float(dt)
+
+    # ------------------------------------------------------------------ episodes
+    def _reset_envs(self, mask: torch.Tensor) -> None:
+        n, dev = self.num_envs, self.device
+        xy = torch.tensor(self.centre, device=dev) + (2 * self._rand(n, 2) - 1) * self.start_range
+        yaw = (2 * self._rand(n) - 1) * math.pi
+        start_pos = self.sim.start_pos
+        new_pos = torch.cat([xy, torch.full((n, 1), self.mover.hover_z, device=dev)], 1)[:, None]
+        start_pos.copy_(torch.where(mask[:, None, None], new_pos, start_pos))
+        quat = torch.stack([torch.zeros_like(yaw), torch.zeros_like(yaw), torch.sin(0.5 * yaw),
+                            torch.cos(0.5 * yaw)], -1)[:, None]
+        self.sim.start_quat.copy_(torch.where(mask[:, None, None], quat, self.sim.start_quat))
+        self.sim.reset(mask)
+        if self.task == "hover":
+            sp = torch.cat([new_pos[:, 0], yaw[:, None]], 1)
+        else:
+            d = (2 * self._rand(n, 2) - 1) * self.setpoint_range
+            gap = self.setpoint_gap[0] + (self.setpoint_gap[1] - self.setpoint_gap[0]) * self._rand(n)
+            dyaw = (2 * self._rand(n) - 1) * self.setpoint_yaw
+            sp = torch.cat([xy + d, (gap + self.bottom)[:, None], _wrap(yaw + dyaw)[:, None]], 1)
+        self.setpoint.copy_(torch.where(mask[:, None], sp, self.setpoint))
+        self.steps.masked_fill_(mask, 0)
+        zero = torch.zeros_like(self.actuator.currents)
+        self.actuator.currents.copy_(torch.where(mask[:, None, None], zero, self.actuator.currents))
+        self.actuator.refresh()  # the slots' coils at the new poses
+
+    # ------------------------------------------------------------------ stepping
+    def _apply_action(self, action: torch.Tensor) -> None:
+        if self.action_mode == "currents":
+            self.actuator.currents.copy_((action * self.current_limit)[:, None, :])
+        else:
+            self.actuator.wanted.copy_((action * self._scale)[:, None, :])
+        before = self.actuator.energy[:, 0].clone()
+        self.sim.step(self.num_cycles)
+        # the mean copper loss over the step's cycles (W): the energy it spent over its duration
+        self._loss.copy_((self.actuator.energy[:, 0] - before) / (self.num_cycles * self.dt))
+        self.steps += 1
+
+    def _state(self) -> tuple[torch.Tensor, ...]:
+        pos = self.sim.pos[:, 0]
+        rpy = _rpy(self.sim.quat[:, 0])
+        return pos, rpy, self.sim.vel[:, 0], self.sim.omega[:, 0]
+
+    def _get_obs(self) -> torch.Tensor:
+        pos, rpy, vel, omega = self._state()
+        return torch.cat([pos, rpy, vel, omega, self.setpoint, pos - self.setpoint[:, :3]], 1)
+
+    def errors(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Position error (m) and rotation error (rad: tilt and yaw error together) ``[N]`` each."""
+        pos, rpy, _, _ = self._state()
+        pos_err = torch.linalg.vector_norm(pos - self.setpoint[:, :3], dim=1)
+        rot = torch.stack([rpy[:, 0], rpy[:, 1], _wrap(rpy[:, 2] - self.setpoint[:, 3])], 1)
+        return pos_err, torch.linalg.vector_norm(rot, dim=1)
+
+    def _evaluate(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        pos, rpy, _, _ = self._state()
+        pos_err, rot_err = self.errors()
+        loss = self._loss
+        gap = pos[:, 2] - self.bottom
+        xy_err = torch.linalg.vector_norm(pos[:, :2] - self.setpoint[:, :2], dim=1)
+        failed = ((gap < self.fail_gap[0]) | (gap > self.fail_gap[1]) | (rpy[:, :2].abs().amax(1) > self.fail_tilt)
+                  | (xy_err > self.fail_distance))
+        reward = -(pos_err / self.pos_scale + rot_err / self.rot_scale) - self.loss_weight * loss
+        reward = torch.where(failed, torch.full_like(reward, self.failure_reward), reward)
+        truncated = (self.steps >= self.max_episode_steps) & ~failed
+        info = {"copper_loss": loss, "pos_error": pos_err, "rot_error": rot_err, "failed": failed,
+                "saturated": self.actuator.saturated[:, 0].sum(1)}
+        return reward, failed, truncated, info
+
+    # ------------------------------------------------------------------ views
+    @property
+    def coil_ids(self) -> torch.Tensor:
+        """``[N, slots]`` the coils of the action's slots at the last cycle's start (-1: no coil)."""
+        return self.actuator.coil_ids[:, 0]
+
+    @property
+    def saturated(self) -> torch.Tensor:
+        return self.actuator.saturated[:, 0]
+
+    @property
+    def energy(self) -> torch.Tensor:
+        """``[N]`` copper energy (J) since construction."""
+        return self.actuator.energy[:, 0]
+
+    def state_arrays(self, worlds) -> dict[str, Any]:
+        out = super().state_arrays(worlds)
+        out.update(self.sim.state_arrays(worlds))
+        return out
