@@ -23,6 +23,7 @@ import warp as wp
 from magwarp._checks import as_count, as_finite, check_magnitude, init_warp, stiffness_limit, warp_device
 from magwarp.kernels import collision as kcol
 from magwarp.kernels import guard as kguard
+from magwarp.kernels import params as kparams
 from magwarp.kernels import step as kstep
 from magwarp.kernels.impedance import default_force
 from magwarp.layout import Layout, LayoutError, MoverSpec
@@ -166,6 +167,7 @@ class Simulator:
         self._use_graph = use_graph
         self._hooks: list[Callable[[Simulator], None]] = []
         self._pre_hooks: list[Callable[[Simulator], None]] = []
+        self._step_callbacks: list[Callable[[], None]] = []
         self._graphs: dict[int, wp.Graph] = {}
         # On CUDA, Warp launches on torch's current stream so that kernels and torch ops on the state are ordered
         # without any host synchronisation.
@@ -190,6 +192,7 @@ class Simulator:
         self._steps = wp.zeros(1, dtype=wp.int32, device=self.device)
         self._nonfinite = wp.full(self.num_worlds, -1, dtype=wp.int32, device=self.device)
         self._force_model = force_model or default_force
+        self._mover_params: dict[str, torch.Tensor] | None = None  # built by mover_params on first use
         # Action latency (set_latency): off until asked for; the kernels then take these placeholders.
         self._latency_bound: int | None = None
         self._prev_cmd = wp.zeros((1, 1), dtype=wp.vec2, device=self.device)
@@ -304,12 +307,18 @@ class Simulator:
         ext = self.layout.extent
         grid.ncx = max(1, int(np.ceil(ext[0] / grid.cell_size)))
         grid.ncy = max(1, int(np.ceil(ext[1] / grid.cell_size)))
-        bodies = np.zeros(m, dtype=Body.numpy_dtype())
+        W = self.num_worlds
+        bodies = np.zeros((W, m), dtype=Body.numpy_dtype())
         bodies["mass"] = self.mover.mass
         bodies["inv_mass"] = 1.0 / self.mover.mass
         bodies["inertia"] = np.asarray(self.mover.inertia)
         bodies["damp_lin"] = 2.0 * np.sqrt(np.asarray(imp.k_lin) * self.mover.mass)
         bodies["damp_rot"] = 2.0 * np.sqrt(np.asarray(imp.k_rot) * np.asarray(self.mover.inertia))
+        bodies["k_lin"] = np.asarray(imp.k_lin)
+        bodies["k_rot"] = np.asarray(imp.k_rot)
+        bodies["drive_gain"] = 1.0
+        bodies["v_max"], bodies["a_max"], bodies["j_max"] = lim.v_max64, lim.a_max64, lim.j_max64
+        margins = np.tile(np.array([col.margin, col.wall_margin], np.float32), (W, 1))
         return Model(
             num_worlds=self.num_worlds,
             num_movers=m,
@@ -320,8 +329,9 @@ class Simulator:
             grid=grid,
             tiles=wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=dev),
             body=wp.array(bodies, dtype=Body, device=dev),
-            radius=wp.array(radii.astype(np.float32), dtype=float, device=dev),
-            half_size=wp.array(half.astype(np.float32), dtype=wp.vec2, device=dev),
+            radius=wp.array(np.tile(radii.astype(np.float32), (W, 1)), dtype=float, device=dev),
+            half_size=wp.array(np.tile(half.astype(np.float32), (W, 1, 1)), dtype=wp.vec2, device=dev),
+            margins=wp.array(margins, dtype=wp.vec2, device=dev),
             hover_z=self.mover.hover_z,
         )
 
@@ -397,11 +407,61 @@ class Simulator:
 
     @property
     def radii(self) -> torch.Tensor:
+        """[W, M] collision circle radii (m), per world (domain randomisation may change them)."""
         return self._t(self.model.radius)
 
     @property
     def half_sizes(self) -> torch.Tensor:
+        """[W, M, 2] collision box half sizes (m), per world."""
         return self._t(self.model.half_size)
+
+    @property
+    def margins(self) -> torch.Tensor:
+        """[W, 2] per-world collision margins: (mover-mover safety margin, wall margin) in m."""
+        return self._t(self.model.margins)
+
+    @property
+    def mover_params(self) -> dict[str, torch.Tensor]:
+        """Per-world mover parameters, ``[W, M]`` or ``[W, M, 3]`` float64 tensors on the device, which
+        :meth:`commit_mover_params` packs into the model's :class:`~magwarp.types.Body` rows: ``mass`` (kg, the true
+        mass), ``inertia`` (principal moments, kg m^2), ``k_lin`` / ``k_rot`` (impedance stiffness), ``com`` (centre of
+        mass in the body frame, m), ``v_max`` / ``a_max`` / ``j_max`` (x/y limits). Built on first use with the
+        configured values. The controller keeps the configured mass and inertia (``mover.mass``, ``mover.inertia``): its
+        x/y drive force is ``mover.mass * a``, so a mover of mass ``m`` accelerates by ``mover.mass / m * a``, and its
+        impedance damping is ``2 sqrt(K M)`` with the configured ``M`` (critical for the nominal mover)."""
+        if self._mover_params is None:
+            W, M, dev = self.num_worlds, self.num_movers, self.torch_device
+            lim, imp = self.model.limits, self.model.impedance
+
+            def full(value, *shape):
+                return torch.tensor(value, dtype=torch.float64, device=dev).expand(W, M, *shape).clone()
+
+            self._mover_params = {
+                "mass": full(self.mover.mass), "inertia": full(list(self.mover.inertia), 3),
+                "k_lin": full(list(imp.k_lin), 3), "k_rot": full(list(imp.k_rot), 3), "com": full([0.0] * 3, 3),
+                "v_max": full(lim.v_max64), "a_max": full(lim.a_max64), "j_max": full(lim.j_max64),
+            }
+        return self._mover_params
+
+    def commit_mover_params(self, mask=None) -> None:
+        """Pack :attr:`mover_params` into the model's body rows of the worlds in ``mask`` (``[W]`` bool tensor on the
+        device; all if None): one kernel launch, no host sync, no rebuild; the next step uses them. Values are not
+        checked here (the randomiser checks its distributions' supports): keep masses, inertias and limits
+        positive and stiffness stable (see the class doc)."""
+        p, dev = self.mover_params, self.device
+        W = self.num_worlds
+        if mask is None:
+            mask_t = torch.ones(W, dtype=torch.bool, device=self.torch_device)
+        else:
+            mask_t = mask.to(torch.bool)
+        v3 = {k: wp.from_torch(p[k].contiguous(), dtype=wp.vec3d) for k in ("inertia", "k_lin", "k_rot", "com")}
+        f = {k: wp.from_torch(p[k].contiguous(), dtype=wp.float64) for k in ("mass", "v_max", "a_max", "j_max")}
+        inertia = self.mover.inertia
+        with self._on_stream():
+            wp.launch(kparams.pack_bodies, dim=(W, self.num_movers), device=dev,
+                      inputs=[wp.from_torch(mask_t, dtype=wp.bool), float(self.mover.mass),
+                              wp.vec3d(*[float(v) for v in inertia]), f["mass"], v3["inertia"], v3["k_lin"],
+                              v3["k_rot"], v3["com"], f["v_max"], f["a_max"], f["j_max"], self.model.body])
 
     # ------------------------------------------------------------------ inputs
     def _check_tensor(self, name: str, value, shape: tuple[int, ...]) -> torch.Tensor:
@@ -572,7 +632,7 @@ class Simulator:
         W, M = self.num_worlds, self.num_movers
         with self._on_stream():
             wp.launch(kcol.detect_walls, dim=(W, M), device=dev,
-                      inputs=[m.tiles, m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall])
+                      inputs=[m.tiles, m.collision, m.radius, m.half_size, m.margins, s.pos, s.quat, s.wall])
             self._detect_pairs()
 
     def _raise_on_start_collisions(self) -> None:
@@ -639,6 +699,11 @@ class Simulator:
         np.savez(path, params=np.array(json.dumps(params, default=float)), **arrays)
         return path if path.endswith(".npz") else f"{path}.npz"
 
+    def add_step_callback(self, callback: Callable[[], None]) -> None:
+        """Call ``callback()`` on the host at the start of every :meth:`step`, before its graph runs (e.g. interval
+        domain-randomisation events, which only queue device work)."""
+        self._step_callbacks.append(callback)
+
     def add_cycle_hook(self, hook: Callable[["Simulator"], None], before: bool = False) -> None:
         """Run ``hook(sim)`` after every cycle (``before=True``: before it, e.g. to prepare ``force_aux`` from the
         cycle's starting state), inside the step graph. It must only launch device work."""
@@ -654,6 +719,8 @@ class Simulator:
                              "cycles (set_latency): a step must last at least as long as its longest delay")
         if cmd is not None:
             self.set_command(cmd)
+        for callback in self._step_callbacks:
+            callback()
         with self._on_stream():
             if not self._use_graph:
                 self._launch_step(n)
@@ -701,7 +768,7 @@ class Simulator:
         if self._fused:  # the fused kernels clear their per-step accumulators themselves
             wp.launch(
                 self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
-                inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd,
+                inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins, s.cmd,
                         self._delay, s.target_pos, s.target_quat, s.force_aux, self._prev_cmd, s.pos, s.quat, s.vel,
                         s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any, s.partner, s.world_pairs,
                         s.world_walls, s.halted, s.cycles, s.pair_list],
@@ -729,8 +796,8 @@ class Simulator:
         head, nxt = (self._cell_head, self._next_in_cell) if use_grid else (self._no_cells, self._no_next)
         wp.launch(
             self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
-            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, self._prev_cmd,
-                    self._delay, c, s.target_pos, s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel,
+            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins, s.cmd,
+                    self._prev_cmd, self._delay, c, s.target_pos, s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel,
                     s.omega, s.acc, s.planar, s.wall, s.cycles, m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
         )
         self._launch_narrow_phase()
@@ -741,11 +808,11 @@ class Simulator:
         outputs = [s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.pair_list]
         if M <= 32:
             wp.launch(kcol.detect_collisions_brute, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
-                      inputs=[m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall, *outputs])
+                      inputs=[m.collision, m.radius, m.half_size, m.margins, s.pos, s.quat, s.wall, *outputs])
             return
         wp.launch(
             kcol.detect_collisions_grid, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
-            inputs=[m.collision, m.grid, m.radius, m.half_size, s.pos, s.quat, s.wall, self._cell_head,
+            inputs=[m.collision, m.grid, m.radius, m.half_size, m.margins, s.pos, s.quat, s.wall, self._cell_head,
                     self._next_in_cell, *outputs],
         )
 

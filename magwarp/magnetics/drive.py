@@ -55,7 +55,7 @@ def wanted_wrench_kernel(
     # Model:
     lim: Limits,
     imp: Impedance,
-    body: wp.array(dtype=Body),
+    body: wp.array2d(dtype=Body),
     # State in:
     cmd: wp.array2d(dtype=wp.vec2),
     target_pos: wp.array2d(dtype=wp.vec3),
@@ -75,7 +75,7 @@ def wanted_wrench_kernel(
     w, m = wp.tid()
     i = w * pos.shape[1] + m
     p = make_pose(pos[w, m], quat[w, m], vel[w, m], omega[w, m])
-    b = body[m]
+    b = body[w, m]
     a = planar_acceleration(p.vel, acc[w, m], cmd[w, m], lim)
     wr = default_force(p, b, wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0), target_pos[w, m], target_quat[w, m], imp,
                        lim, force_aux[w, m])
