@@ -423,12 +423,16 @@ class Simulator:
     @property
     def mover_params(self) -> dict[str, torch.Tensor]:
         """Per-world mover parameters, ``[W, M]`` or ``[W, M, 3]`` float64 tensors on the device, which
-        :meth:`commit_mover_params` packs into the model's :class:`~magwarp.types.Body` rows: ``mass`` (kg, the true
-        mass), ``inertia`` (principal moments, kg m^2), ``k_lin`` / ``k_rot`` (impedance stiffness), ``com`` (centre of
-        mass in the body frame, m), ``v_max`` / ``a_max`` / ``j_max`` (x/y limits). Built on first use with the
-        configured values. The controller keeps the configured mass and inertia (``mover.mass``, ``mover.inertia``): its
-        x/y drive force is ``mover.mass * a``, so a mover of mass ``m`` accelerates by ``mover.mass / m * a``, and its
-        impedance damping is ``2 sqrt(K M)`` with the configured ``M`` (critical for the nominal mover)."""
+        :meth:`commit_mover_params` packs into the model's :class:`~magwarp.types.Body` rows: ``mass`` (kg, the
+        mover's own), ``inertia`` (its principal moments, kg m^2), ``payload`` (kg, a point mass) at
+        ``payload_offset`` (m, body frame from the mover centre), ``k_lin`` / ``k_rot`` (impedance stiffness),
+        ``v_max`` / ``a_max`` / ``j_max`` (x/y limits). Built on first use with the configured values (no payload).
+
+        The controller keeps the configured mass and inertia (``mover.mass``, ``mover.inertia``): its x/y drive force
+        is ``mover.mass * a``, so a mover of true mass ``m`` (payload included) accelerates by ``mover.mass / m * a``;
+        its impedance damping is ``2 sqrt(K M)`` with the configured ``M`` (critical for the nominal mover); the
+        levitation carries the true weight at the mover centre, so a payload off the vertical axis tilts the mover
+        against the impedance hold (see :func:`magwarp.kernels.step.make_advance_kernel`)."""
         if self._mover_params is None:
             W, M, dev = self.num_worlds, self.num_movers, self.torch_device
             lim, imp = self.model.limits, self.model.impedance
@@ -436,32 +440,36 @@ class Simulator:
             def full(value, *shape):
                 return torch.tensor(value, dtype=torch.float64, device=dev).expand(W, M, *shape).clone()
 
-            self._mover_params = {
-                "mass": full(self.mover.mass), "inertia": full(list(self.mover.inertia), 3),
-                "k_lin": full(list(imp.k_lin), 3), "k_rot": full(list(imp.k_rot), 3), "com": full([0.0] * 3, 3),
-                "v_max": full(lim.v_max64), "a_max": full(lim.a_max64), "j_max": full(lim.j_max64),
+            p = self._mover_params = {
+                "mass": full(self.mover.mass), "inertia": full(list(self.mover.inertia), 3), "payload": full(0.0),
+                "payload_offset": full([0.0] * 3, 3), "k_lin": full(list(imp.k_lin), 3),
+                "k_rot": full(list(imp.k_rot), 3), "v_max": full(lim.v_max64), "a_max": full(lim.a_max64),
+                "j_max": full(lim.j_max64),
             }
+            self._pack_mask = torch.ones(W, dtype=torch.bool, device=dev)
+            vec = ("inertia", "payload_offset", "k_lin", "k_rot")
+            arrays = {k: wp.from_torch(t, dtype=wp.vec3d if k in vec else wp.float64) for k, t in p.items()}
+            self._pack_inputs = [arrays[k] for k in ("mass", "inertia", "payload", "payload_offset", "k_lin", "k_rot",
+                                                     "v_max", "a_max", "j_max")]
+            self._pack_mask_wp = wp.from_torch(self._pack_mask, dtype=wp.bool)
         return self._mover_params
 
-    def commit_mover_params(self, mask=None) -> None:
+    def commit_mover_params(self, mask=None, *, scale_inertia: bool = False) -> None:
         """Pack :attr:`mover_params` into the model's body rows of the worlds in ``mask`` (``[W]`` bool tensor on the
-        device; all if None): one kernel launch, no host sync, no rebuild; the next step uses them. Values are not
-        checked here (the randomiser checks its distributions' supports): keep masses, inertias and limits
-        positive and stiffness stable (see the class doc)."""
-        p, dev = self.mover_params, self.device
-        W = self.num_worlds
+        device; all if None): one kernel launch, no host sync, no rebuild; the next step uses them.
+        ``scale_inertia``: use the configured inertia scaled with each mover's mass (uniform density) instead of
+        ``mover_params["inertia"]``. Values are not checked here (the randomiser checks its distributions'
+        supports): keep masses, inertias and limits positive and the stiffness stable (see the class doc)."""
+        self.mover_params  # noqa: B018 - builds the tensors and the launch inputs
         if mask is None:
-            mask_t = torch.ones(W, dtype=torch.bool, device=self.torch_device)
+            self._pack_mask.fill_(True)
         else:
-            mask_t = mask.to(torch.bool)
-        v3 = {k: wp.from_torch(p[k].contiguous(), dtype=wp.vec3d) for k in ("inertia", "k_lin", "k_rot", "com")}
-        f = {k: wp.from_torch(p[k].contiguous(), dtype=wp.float64) for k in ("mass", "v_max", "a_max", "j_max")}
+            self._pack_mask.copy_(mask)
         inertia = self.mover.inertia
         with self._on_stream():
-            wp.launch(kparams.pack_bodies, dim=(W, self.num_movers), device=dev,
-                      inputs=[wp.from_torch(mask_t, dtype=wp.bool), float(self.mover.mass),
-                              wp.vec3d(*[float(v) for v in inertia]), f["mass"], v3["inertia"], v3["k_lin"],
-                              v3["k_rot"], v3["com"], f["v_max"], f["a_max"], f["j_max"], self.model.body])
+            wp.launch(kparams.pack_bodies, dim=(self.num_worlds, self.num_movers), device=self.device,
+                      inputs=[self._pack_mask_wp, float(self.mover.mass), wp.vec3d(*[float(v) for v in inertia]),
+                              int(bool(scale_inertia)), *self._pack_inputs, self.model.body])
 
     # ------------------------------------------------------------------ inputs
     def _check_tensor(self, name: str, value, shape: tuple[int, ...]) -> torch.Tensor:

@@ -40,8 +40,9 @@ from magwarp.envs.randomization import EventRunner, EventTerm
 
 __all__ = ["PlanarRandomizer"]
 
-BODY_FIELDS = ("mover_mass", "mover_inertia", "payload_mass", "stiffness_lin", "stiffness_rot", "v_max", "a_max",
-               "j_max")
+#: the body fields and their :attr:`magwarp.sim.Simulator.mover_params` keys
+BODY_KEYS = {"mover_mass": "mass", "mover_inertia": "inertia", "payload_mass": "payload", "stiffness_lin": "k_lin",
+             "stiffness_rot": "k_rot", "v_max": "v_max", "a_max": "a_max", "j_max": "j_max"}
 SIZE_FIELDS = ("collision_radius", "collision_half_size", "collision_margin", "wall_margin")
 
 
@@ -60,20 +61,26 @@ class PlanarRandomizer(EventRunner):
     def _resolve_targets(self, env, used) -> dict[str, int]:
         m = self.sim.num_movers
         circle = self.sim.mover.collision_shape == "circle"
-        out = {f: m for f in BODY_FIELDS}
+        out = {f: m for f in BODY_KEYS}
         out.update({"collision_radius": m if circle else 0, "collision_half_size": 0 if circle else m,
                     "collision_margin": 1, "wall_margin": 1})
         return out
 
     def _nominal(self) -> dict[str, torch.Tensor]:
         p, sim = self.sim.mover_params, self.sim
-        out = {"mover_mass": p["mass"][0].clone(), "mover_inertia": p["inertia"][0].clone(),
-               "payload_mass": torch.zeros_like(p["mass"][0]), "stiffness_lin": p["k_lin"][0].clone(),
-               "stiffness_rot": p["k_rot"][0].clone()}
-        out.update({k: p[k][0].clone() for k in ("v_max", "a_max", "j_max")})
+        out = {field: p[key][0].clone() for field, key in BODY_KEYS.items()}
         out.update({"collision_radius": sim.radii[0].clone(), "collision_half_size": sim.half_sizes[0].clone(),
                     "collision_margin": sim.margins[0, :1].clone(), "wall_margin": sim.margins[0, 1:].clone()})
         return out
+
+    def _initial_values(self, used: set[str]) -> dict[str, torch.Tensor]:
+        """The simulator's own per-world tensors (views): the terms write into them, and a commit is one kernel."""
+        sim, p = self.sim, self.sim.mover_params
+        views = {field: p[key] for field, key in BODY_KEYS.items()}
+        views.update({"collision_radius": sim.radii, "collision_half_size": sim.half_sizes,
+                      "collision_margin": sim.margins[:, :1], "wall_margin": sim.margins[:, 1:]})
+        self.payload_offset = p["payload_offset"]
+        return {f: views[f] for f in used}
 
     def _prepare(self, used: set[str]) -> None:
         for i, t in enumerate(self.terms):
@@ -109,44 +116,8 @@ class PlanarRandomizer(EventRunner):
 
     # ------------------------------------------------------------------ model writes
     def commit(self, mask: torch.Tensor | None) -> None:
-        """Write the current values into the simulator's per-world arrays for the worlds in ``mask`` (all if None)."""
-        v, sim = self.values, self.sim
-        if any(f in v for f in BODY_FIELDS):
-            p = sim.mover_params
-            nominal_mass = self.nominal["mover_mass"]
-            mass = v.get("mover_mass", nominal_mass.expand(self.num_worlds, -1))
-            if "mover_inertia" in v:
-                inertia = v["mover_inertia"]
-            else:  # uniform density
-                inertia = (mass / nominal_mass)[..., None] * self.nominal["mover_inertia"]
-            com = torch.zeros_like(inertia)
-            total = mass
-            if "payload_mass" in v:
-                pay, r = v["payload_mass"], self.payload_offset.to(torch.float64)
-                total = mass + pay
-                mu = (mass * pay / total)[..., None]
-                inertia = inertia + mu * ((r * r).sum(-1, keepdim=True) - r * r)
-                com = (pay / total)[..., None] * r
-            new = {"mass": total, "inertia": inertia, "com": com}
-            for field, key in (("stiffness_lin", "k_lin"), ("stiffness_rot", "k_rot"), ("v_max", "v_max"),
-                               ("a_max", "a_max"), ("j_max", "j_max")):
-                if field in v:
-                    new[key] = v[field]
-            for key, value in new.items():
-                _put(p[key], value.to(torch.float64), mask)
-            sim.commit_mover_params(mask)
-        if "collision_radius" in v:
-            _put(sim.radii, v["collision_radius"], mask)
-        if "collision_half_size" in v:
-            _put(sim.half_sizes, v["collision_half_size"], mask)
-        for k, field in enumerate(("collision_margin", "wall_margin")):
-            if field in v:
-                _put(sim.margins[:, k:k + 1], v[field], mask)
-
-
-def _put(dst: torch.Tensor, value: torch.Tensor, mask: torch.Tensor | None) -> None:
-    """``dst[:] = value`` for the worlds in ``mask`` (all if None); the leading axis is the world."""
-    value = value.to(dst.dtype).expand_as(dst)
-    if mask is not None:
-        value = torch.where(mask.view(-1, *([1] * (dst.dim() - 1))), value, dst)
-    dst.copy_(value)
+        """Pack the body fields of the worlds in ``mask`` (all if None): one kernel (the terms wrote the simulator's
+        parameter tensors and its collision sizes directly)."""
+        used = self.values
+        if any(f in used for f in BODY_KEYS):
+            self.sim.commit_mover_params(mask, scale_inertia="mover_mass" in used and "mover_inertia" not in used)

@@ -92,8 +92,8 @@ class Uniform:
     def support(self) -> tuple[float, float]:
         return self.lo, self.hi
 
-    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
-        return self.lo + (self.hi - self.lo) * torch.rand(shape, generator=gen, device=device)
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device, dtype=torch.float32) -> torch.Tensor:
+        return torch.empty(shape, device=device, dtype=dtype).uniform_(self.lo, self.hi, generator=gen)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,9 +109,9 @@ class LogUniform:
     def support(self) -> tuple[float, float]:
         return self.lo, self.hi
 
-    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
-        a, b = math.log(self.lo), math.log(self.hi)
-        return torch.exp(a + (b - a) * torch.rand(shape, generator=gen, device=device))
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device, dtype=torch.float32) -> torch.Tensor:
+        x = torch.empty(shape, device=device, dtype=dtype)
+        return x.uniform_(math.log(self.lo), math.log(self.hi), generator=gen).exp_()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,9 +141,9 @@ class Gaussian:
     def support(self) -> tuple[float, float]:
         return self.clip if self.clip is not None else (-math.inf, math.inf)
 
-    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
-        x = self.mean + self.std * torch.randn(shape, generator=gen, device=device)
-        return x if self.clip is None else x.clamp(*self.clip)
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device, dtype=torch.float32) -> torch.Tensor:
+        x = torch.empty(shape, device=device, dtype=dtype).normal_(self.mean, self.std, generator=gen)
+        return x if self.clip is None else x.clamp_(*self.clip)
 
 
 Distribution = Uniform | LogUniform | Gaussian
@@ -269,7 +269,8 @@ FIELDS = {
 
 #: Named sets of terms (``randomization="sim2real"``, e.g. from ``--env-kwargs``), per backend: ``"planar"`` (the
 #: trajectory-planning env's simulator) or ``"push"`` (the mujoco-warp push envs). Ranges: mover mass +-20 % (a
-#: payload of up to 0.3 kg, 2 cm off centre), impedance stiffness +-30 %, acceleration and speed limits -10 % .. 0
+#: payload of up to 0.3 kg on top of the mover: off the vertical axis it would tilt the planar simulator's mover
+#: against the RL envs' weak attitude hold, K = 0.1 N m/rad, by tenths of a radian), impedance stiffness +-30 %, acceleration and speed limits -10 % .. 0
 #: (a drive that delivers a little less than asked); on the push envs object mass and friction, mover mass and a
 #: payload. All drawn at every reset of a world. (Collision sizes are left out: starts are sampled with the built
 #: sizes, see :mod:`magwarp.envs.planar_randomization`.)
@@ -277,7 +278,7 @@ PRESETS: dict[str, dict[str, list[dict]]] = {
     "sim2real": {
         "planar": [
             {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
-            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.02, 0.0, 0.006]},
+            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.0, 0.0, 0.006]},
             {"field": "stiffness_lin", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
             {"field": "stiffness_rot", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
             {"field": "a_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale"},
@@ -348,7 +349,8 @@ def object_ranges_from_terms(terms: list[EventTerm]) -> tuple[list[EventTerm], d
 
 
 def _apply_op(op: str, nominal: torch.Tensor, draw: torch.Tensor) -> torch.Tensor:
-    return draw if op == "set" else nominal * draw if op == "scale" else nominal + draw
+    """The new value from a fresh ``draw`` (overwritten: one op at most, none for ``set``)."""
+    return draw if op == "set" else draw.mul_(nominal) if op == "scale" else draw.add_(nominal)
 
 
 def _geom_ids(mjm: mujoco.MjModel, prefix: str) -> list[int]:
@@ -389,9 +391,7 @@ class EventRunner:
         for i, t in enumerate(self.terms):
             self._check_bounds(i, t)  # before anything on the device changes
         self._prepare(used)
-        self.values = {f: self.nominal[f].expand(self.num_worlds, *self.nominal[f].shape).clone() for f in used}
-        if "payload_mass" in used:
-            self.payload_offset = torch.zeros(self.num_worlds, self._targets["payload_mass"], 3, device=self.device)
+        self.values = self._initial_values(used)
         self._terms_idx = [None if t.targets is None else torch.tensor(t.targets, device=self.device)
                            for t in self.terms]
         self._offsets = [None if t.offset is None else torch.tensor(t.offset, device=self.device) for t in self.terms]
@@ -407,6 +407,12 @@ class EventRunner:
 
     def _prepare(self, used: set[str]) -> None:
         """Make the model's arrays per world where the terms need it (after every check passed)."""
+
+    def _initial_values(self, used: set[str]) -> dict[str, torch.Tensor]:
+        """``values`` (the nominal ones in every world) and ``payload_offset`` (``[W, M, 3]``, zero)."""
+        if "payload_mass" in used:
+            self.payload_offset = torch.zeros(self.num_worlds, self._targets["payload_mass"], 3, device=self.device)
+        return {f: self.nominal[f].expand(self.num_worlds, *self.nominal[f].shape).clone() for f in used}
 
     def commit(self, mask: torch.Tensor | None) -> None:
         raise NotImplementedError
@@ -459,20 +465,24 @@ class EventRunner:
             fired = True
             idx = self._terms_idx[i]
             nom = self.nominal[t.field] if idx is None else self.nominal[t.field][idx]
-            draw = t.dist.sample((self.num_worlds, *nom.shape), self.env._generator, self.device)
-            cur = self.values[t.field]
-            new = _apply_op(t.op, nom, draw).to(cur.dtype)
-            old = cur if idx is None else cur[:, idx]
-            if mask is not None:
-                new = torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, old)
+            cur = self.values[t.field]  # drawn in its dtype (the planar body fields: float64)
+            draw = t.dist.sample((self.num_worlds, *nom.shape), self.env._generator, self.device, cur.dtype)
+            new = _apply_op(t.op, nom, draw)
+            # few ops: every reset of every step runs this (autoreset), for the reset worlds (often none)
             if idx is None:
-                cur.copy_(new)
+                if mask is None:
+                    cur.copy_(new)
+                else:
+                    torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, cur, out=cur)
             else:
-                cur[:, idx] = new
+                old = cur[:, idx]
+                if mask is not None:
+                    new = torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, old)
+                cur[:, idx] = new.to(cur.dtype)
             if t.field == "payload_mass":
                 off = self._offsets[i] if self._offsets[i] is not None else torch.zeros(3, device=self.device)
                 po = self.payload_offset if idx is None else self.payload_offset[:, idx]
-                po_new = off.expand_as(po)
+                po_new = off.to(po.dtype).expand_as(po)
                 if mask is not None:
                     po_new = torch.where(mask.view(-1, 1, 1), po_new, po)
                 if idx is None:

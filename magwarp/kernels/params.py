@@ -39,27 +39,50 @@ def pack_body(m_ctrl: wp.float64, i_ctrl: wp.vec3d, mass: wp.float64, inertia: w
     return b
 
 
+@wp.func
+def with_payload(mass: wp.float64, inertia: wp.vec3d, payload: wp.float64, offset: wp.vec3d):
+    """Mass, principal inertia about the new centre of mass (parallel axis, diagonal terms) and that centre (body
+    frame, from the mover centre) of a body with a point ``payload`` at ``offset``."""
+    total = mass + payload
+    mu = mass * payload / total
+    r2 = wp.dot(offset, offset)
+    shift = wp.vec3d(r2 - offset[0] * offset[0], r2 - offset[1] * offset[1], r2 - offset[2] * offset[2])
+    return total, inertia + mu * shift, offset * (payload / total)
+
+
 @wp.kernel
 def pack_bodies(
     mask: wp.array(dtype=wp.bool),
     # Model:
     m_ctrl: wp.float64,
     i_ctrl: wp.vec3d,
+    scale_inertia: int,
     # State in:
     mass: wp.array2d(dtype=wp.float64),
     inertia: wp.array2d(dtype=wp.vec3d),
+    payload: wp.array2d(dtype=wp.float64),
+    offset: wp.array2d(dtype=wp.vec3d),
     k_lin: wp.array2d(dtype=wp.vec3d),
     k_rot: wp.array2d(dtype=wp.vec3d),
-    com: wp.array2d(dtype=wp.vec3d),
     v_max: wp.array2d(dtype=wp.float64),
     a_max: wp.array2d(dtype=wp.float64),
     j_max: wp.array2d(dtype=wp.float64),
     # State out:
     body: wp.array2d(dtype=Body),
 ):
-    """Pack the masked worlds' mover parameters into their body rows (one thread per mover)."""
+    """Pack the masked worlds' mover parameters into their body rows (one thread per mover): the mover's own mass and
+    inertia (``scale_inertia``: the configured inertia scaled with the mass, uniform density) plus a point payload
+    (:func:`with_payload`; none when it is 0), then :func:`pack_body`."""
     w, m = wp.tid()
     if not mask[w]:
         return
-    body[w, m] = pack_body(m_ctrl, i_ctrl, mass[w, m], inertia[w, m], k_lin[w, m], k_rot[w, m], com[w, m], v_max[w, m],
-                           a_max[w, m], j_max[w, m])
+    mw = mass[w, m]
+    iw = inertia[w, m]
+    if scale_inertia != 0:
+        iw = iw * (mw / m_ctrl)
+    com = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    p = payload[w, m]
+    if p != wp.float64(0.0):
+        mw, iw, com = with_payload(mw, iw, p, offset[w, m])
+    body[w, m] = pack_body(m_ctrl, i_ctrl, mw, iw, k_lin[w, m], k_rot[w, m], com, v_max[w, m], a_max[w, m],
+                           j_max[w, m])
