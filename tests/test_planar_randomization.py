@@ -197,3 +197,39 @@ def test_bad_terms_are_named():
         make(2, "nope")
     with pytest.raises(ValueError, match="'collision_half_size'.*none"):
         make(2, [EventTerm("collision_half_size", Uniform(0.05, 0.06))])
+
+
+def test_pack_bodies_matches_numpy(rng):
+    """kernels.params.pack_bodies on random parameters and mask vs a float64 numpy reference."""
+    W, M = 6, 4
+    sim = Simulator(Layout.grid(6, 6), num_movers=M, num_worlds=W, device="cpu")
+    p = sim.mover_params
+    mass = rng.uniform(0.5, 3.0, (W, M))
+    inertia = rng.uniform(1e-3, 5e-3, (W, M, 3))
+    payload = np.where(rng.random((W, M)) < 0.5, 0.0, rng.uniform(0.0, 0.5, (W, M)))
+    offset = rng.uniform(-0.03, 0.03, (W, M, 3))
+    k_lin, k_rot = rng.uniform(1, 200, (W, M, 3)), rng.uniform(0.01, 2, (W, M, 3))
+    for key, value in (("mass", mass), ("inertia", inertia), ("payload", payload), ("payload_offset", offset),
+                       ("k_lin", k_lin), ("k_rot", k_rot)):
+        p[key].copy_(torch.as_tensor(value))
+    mask = torch.as_tensor(rng.random(W) < 0.6)
+    before = sim.model.body.numpy().copy()
+    for scale in (False, True):
+        sim.commit_mover_params(mask, scale_inertia=scale)
+        b = sim.model.body.numpy()
+        m_ctrl, i_ctrl = sim.mover.mass, np.asarray(sim.mover.inertia)
+        own = inertia * (mass / m_ctrl)[..., None] if scale else inertia
+        total = mass + payload
+        mu = (mass * payload / total)[..., None]
+        r2 = (offset ** 2).sum(-1, keepdims=True)
+        ref_inertia = own + mu * (r2 - offset ** 2)
+        ref_com = (payload / total)[..., None] * offset
+        sel = mask.numpy()
+        np.testing.assert_allclose(b["mass"][sel], total[sel], rtol=1e-6)
+        np.testing.assert_allclose(b["inv_mass"][sel], 1 / total[sel], rtol=1e-6)
+        np.testing.assert_allclose(b["inertia"][sel], ref_inertia[sel], rtol=1e-5)
+        np.testing.assert_allclose(b["com"][sel], ref_com[sel], rtol=1e-5, atol=1e-9)
+        np.testing.assert_allclose(b["drive_gain"][sel], m_ctrl / total[sel], rtol=1e-12)
+        np.testing.assert_allclose(b["damp_lin"][sel], 2 * np.sqrt(k_lin[sel] * m_ctrl), rtol=1e-5)
+        np.testing.assert_allclose(b["damp_rot"][sel], 2 * np.sqrt(k_rot[sel] * i_ctrl), rtol=1e-5)
+        assert same(b[~sel], before[~sel])
