@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 import torch
 
-from magwarp.envs.randomization import EventTerm, Gaussian, LogUniform, Uniform
+from magwarp.envs.randomization import PRESETS, EventTerm, Gaussian, LogUniform, Uniform
 from magwarp.envs.trajectory import TrajectoryPlanningEnv
 from magwarp.layout import Layout
 from magwarp.sim import Simulator
+
+from conftest import cuda_available
 
 DT = 1e-3
 MASS = 1.24  # MoverSpec's default
@@ -233,3 +235,21 @@ def test_pack_bodies_matches_numpy(rng):
         np.testing.assert_allclose(b["damp_lin"][sel], 2 * np.sqrt(k_lin[sel] * m_ctrl), rtol=1e-5)
         np.testing.assert_allclose(b["damp_rot"][sel], 2 * np.sqrt(k_rot[sel] * i_ctrl), rtol=1e-5)
         assert same(b[~sel], before[~sel])
+
+
+@pytest.mark.skipif(not cuda_available(), reason="needs CUDA (torch's sync debug mode)")
+def test_no_host_sync_on_cuda():
+    """Reset and interval events, and the step that reads them, are device work only."""
+    terms = PRESETS["sim2real"]["planar"] + [EventTerm("j_max", Uniform(50.0, 90.0), mode="interval", interval_steps=1)]
+    env = TrajectoryPlanningEnv(4, device="cuda:0", seed=6, randomization=terms, actuation={"latency_range": [0, 5]})
+    mask = torch.tensor([True, False, True, False], device="cuda:0")
+    before = env.sim.mover_params["mass"].clone()
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        env.randomizer.reset(mask)
+        env.sim.step(40)
+    finally:
+        torch.cuda.set_sync_debug_mode("default")
+    after = env.sim.mover_params["mass"]
+    assert torch.equal(after[~mask], before[~mask]) and torch.all(after[mask] != before[mask])

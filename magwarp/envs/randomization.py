@@ -36,6 +36,20 @@ Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its 
   ``obstacle_boxes`` (observations, checks and rendering read them). Not with obstacle modes that move the walls per
   episode (``PushWithObstaclesEnv`` ``random``, ``curriculum`` or a mix).
 
+* object sizes: ``object_width``, ``object_height``, ``object_depth``, ``object_segment_width``, ``object_radius``
+  (uniform, op ``set``, mode ``reset``): the env's ``object_ranges`` as terms (:func:`object_ranges_from_terms`),
+  drawn per episode from ``object_variants`` pre-compiled variants, with the same draws for the same seed.
+
+Where today's options are not re-expressed as terms: ``PushWithObstaclesEnv``'s obstacle modes (``random``,
+``curriculum``) place the walls with rules (clear of the start, of each other), not as independent draws per wall:
+they stay modes, and ``obstacle_xy`` is the term for fixed layouts; ``std_noise`` / ``object_noise`` are observation
+noise, not model fields: :class:`magwarp.envs.sim2real.SensorConfig` (``sensors=``) is their declarative form (on
+the trajectory env with the same draws for the same seed; on the push envs in another order).
+
+The planar simulator (trajectory planning) takes the same terms over its own fields
+(:mod:`magwarp.envs.planar_randomization`); :data:`PRESETS` names sets of terms per backend (``randomization=
+"sim2real"``).
+
 Plain mappings work too (``--env-kwargs`` JSON): ``{"field": "object_mass", "dist": {"type": "uniform", "lo": 0.2,
 "hi": 0.4}, "op": "set", "mode": "reset"}``, or the distribution as ``{"uniform": [0.2, 0.4]}``,
 ``{"log_uniform": [lo, hi]}``, ``{"gaussian": [mean, std], "clip": [lo, hi]}``.
