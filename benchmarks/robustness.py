@@ -28,7 +28,7 @@ RANDOMIZED = {
     "randomization": "sim2real",
     "actuation": {"latency_range": [0, 5]},
     "sensors": {"pos_bias_std": 0.001, "vel_bias_std": 0.01, "pos_noise_std": 0.0005, "vel_noise_std": 0.005,
-                "dropout_prob": 0.05},
+                "dropout_prob": 0.02},
 }
 SIM2REAL_KEYS = ("randomization", "actuation", "sensors", "std_noise")
 #: evaluation conditions (``--conditions``): the options added to the policy's nominal ones

@@ -307,8 +307,7 @@ class Simulator:
         ext = self.layout.extent
         grid.ncx = max(1, int(np.ceil(ext[0] / grid.cell_size)))
         grid.ncy = max(1, int(np.ceil(ext[1] / grid.cell_size)))
-        W = self.num_worlds
-        bodies = np.zeros((W, m), dtype=Body.numpy_dtype())
+        bodies = np.zeros((1, m), dtype=Body.numpy_dtype())  # one shared row until made per world
         bodies["mass"] = self.mover.mass
         bodies["inv_mass"] = 1.0 / self.mover.mass
         bodies["inertia"] = np.asarray(self.mover.inertia)
@@ -318,7 +317,7 @@ class Simulator:
         bodies["k_rot"] = np.asarray(imp.k_rot)
         bodies["drive_gain"] = 1.0
         bodies["v_max"], bodies["a_max"], bodies["j_max"] = lim.v_max64, lim.a_max64, lim.j_max64
-        margins = np.tile(np.array([col.margin, col.wall_margin], np.float32), (W, 1))
+        margins = np.array([[col.margin, col.wall_margin]], np.float32)
         return Model(
             num_worlds=self.num_worlds,
             num_movers=m,
@@ -329,8 +328,8 @@ class Simulator:
             grid=grid,
             tiles=wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=dev),
             body=wp.array(bodies, dtype=Body, device=dev),
-            radius=wp.array(np.tile(radii.astype(np.float32), (W, 1)), dtype=float, device=dev),
-            half_size=wp.array(np.tile(half.astype(np.float32), (W, 1, 1)), dtype=wp.vec2, device=dev),
+            radius=wp.array(radii.astype(np.float32)[None], dtype=float, device=dev),
+            half_size=wp.array(half.astype(np.float32)[None], dtype=wp.vec2, device=dev),
             margins=wp.array(margins, dtype=wp.vec2, device=dev),
             hover_z=self.mover.hover_z,
         )
@@ -407,18 +406,36 @@ class Simulator:
 
     @property
     def radii(self) -> torch.Tensor:
-        """[W, M] collision circle radii (m), per world (domain randomisation may change them)."""
-        return self._t(self.model.radius)
+        """[W, M] collision circle radii (m) per world: a broadcast view of the one shared row until
+        :meth:`make_per_world` (domain randomisation) gives every world its own."""
+        return self._world_view(self.model.radius)
 
     @property
     def half_sizes(self) -> torch.Tensor:
-        """[W, M, 2] collision box half sizes (m), per world."""
-        return self._t(self.model.half_size)
+        """[W, M, 2] collision box half sizes (m) per world (see :attr:`radii`)."""
+        return self._world_view(self.model.half_size)
 
     @property
     def margins(self) -> torch.Tensor:
-        """[W, 2] per-world collision margins: (mover-mover safety margin, wall margin) in m."""
-        return self._t(self.model.margins)
+        """[W, 2] collision margins per world: (mover-mover safety margin, wall margin) in m (see :attr:`radii`)."""
+        return self._world_view(self.model.margins)
+
+    def _world_view(self, arr: wp.array) -> torch.Tensor:
+        t = self._t(arr)
+        return t if t.shape[0] == self.num_worlds else t.expand(self.num_worlds, *t.shape[1:])
+
+    def make_per_world(self, *names: str) -> None:
+        """Give every world its own row of the model arrays ``names`` (``"body"``, ``"radius"``, ``"half_size"``,
+        ``"margins"``; default all), copied from the shared one. The model is built with one row shared by all
+        worlds (the kernels read row ``w`` of a per-world array, row 0 of a shared one: less memory traffic when
+        nothing is randomised); per-world rows can then be rewritten on the device between steps. Drops the recorded
+        step graphs (they hold the old arrays)."""
+        for name in names or ("body", "radius", "half_size", "margins"):
+            arr = getattr(self.model, name)
+            if arr.shape[0] != self.num_worlds:
+                rows = np.repeat(arr.numpy(), self.num_worlds, axis=0)
+                setattr(self.model, name, wp.array(rows, dtype=arr.dtype, device=self.device))
+                self._graphs.clear()
 
     @property
     def mover_params(self) -> dict[str, torch.Tensor]:
@@ -434,6 +451,7 @@ class Simulator:
         levitation carries the true weight at the mover centre, so a payload off the vertical axis tilts the mover
         against the impedance hold (see :func:`magwarp.kernels.step.make_advance_kernel`)."""
         if self._mover_params is None:
+            self.make_per_world("body")
             W, M, dev = self.num_worlds, self.num_movers, self.torch_device
             lim, imp = self.model.limits, self.model.impedance
 

@@ -35,9 +35,11 @@ def test_default_parameters_pack_to_the_constructors_bits():
     sim = Simulator(Layout.grid(4, 3), num_movers=3, num_worlds=4, device="cpu", stiffness_lin=(1.0, 1.0, 37.0),
                     stiffness_rot=(0.3, 0.2, 0.7), v_max=1.7, a_max=9.3, j_max=77.0)
     before = sim.model.body.numpy().copy()
+    assert before.shape == (1, 3)  # one row shared by all worlds until randomisation asks for more
     sim.commit_mover_params()
     after = sim.model.body.numpy()
-    assert all(np.array_equal(before[f], after[f]) for f in before.dtype.names)
+    assert after.shape == (4, 3)
+    assert all(np.array_equal(np.repeat(before[f], 4, 0), after[f]) for f in before.dtype.names)
     assert after["drive_gain"].min() == after["drive_gain"].max() == 1.0
 
 

@@ -67,22 +67,28 @@ class PlanarRandomizer(EventRunner):
         return out
 
     def _nominal(self) -> dict[str, torch.Tensor]:
-        p, sim = self.sim.mover_params, self.sim
-        out = {field: p[key][0].clone() for field, key in BODY_KEYS.items()}
+        sim, out = self.sim, {}
+        if any(t.field in BODY_KEYS for t in self.terms):  # makes the body rows per world
+            p = sim.mover_params
+            out = {field: p[key][0].clone() for field, key in BODY_KEYS.items()}
         out.update({"collision_radius": sim.radii[0].clone(), "collision_half_size": sim.half_sizes[0].clone(),
                     "collision_margin": sim.margins[0, :1].clone(), "wall_margin": sim.margins[0, 1:].clone()})
         return out
 
     def _initial_values(self, used: set[str]) -> dict[str, torch.Tensor]:
         """The simulator's own per-world tensors (views): the terms write into them, and a commit is one kernel."""
-        sim, p = self.sim, self.sim.mover_params
-        views = {field: p[key] for field, key in BODY_KEYS.items()}
+        sim = self.sim
+        views = {}
+        if any(f in BODY_KEYS for f in used):
+            views = {field: sim.mover_params[key] for field, key in BODY_KEYS.items()}
+            self.payload_offset = sim.mover_params["payload_offset"]
         views.update({"collision_radius": sim.radii, "collision_half_size": sim.half_sizes,
                       "collision_margin": sim.margins[:, :1], "wall_margin": sim.margins[:, 1:]})
-        self.payload_offset = p["payload_offset"]
         return {f: views[f] for f in used}
 
     def _prepare(self, used: set[str]) -> None:
+        arrays = {"collision_radius": "radius", "collision_half_size": "half_size", "collision_margin": "margins",
+                  "wall_margin": "margins"}
         for i, t in enumerate(self.terms):
             if t.field in ("stiffness_lin", "stiffness_rot"):
                 self._check_stiffness(i, t)
@@ -93,6 +99,7 @@ class PlanarRandomizer(EventRunner):
                     raise ValueError(f"randomization[{i}] ({t.field!r}) can grow it to {top:g} m, above the built "
                                      f"{built:g} m: worlds of more than 32 movers bin them in grid cells sized at "
                                      "build; build the env with the largest size")
+        self.sim.make_per_world(*sorted({arrays[f] for f in used if f in arrays}))
 
     def _check_stiffness(self, i: int, t: EventTerm) -> None:
         sim = self.sim

@@ -227,10 +227,19 @@ def bin_movers(
 
 
 @wp.func
+def model_row(rows: int, w: int) -> int:
+    """The row of world ``w`` in a model array of ``rows`` rows: its own when the array is per world, else the one
+    shared row (a model array stays shared until domain randomisation makes it per world, as mujoco-warp's do)."""
+    if rows == 1:
+        return 0
+    return w
+
+
+@wp.func
 def world_collision(col: Collision, margins: wp.array(dtype=wp.vec2), w: int) -> Collision:
     """``col`` with world ``w``'s margins (``margins[w]`` = (mover-mover margin, wall margin); per world so that domain
     randomisation can change them on the device)."""
-    mw = margins[w]
+    mw = margins[model_row(margins.shape[0], w)]
     out = Collision()
     out.shape = col.shape
     out.margin = mw[0]
@@ -272,8 +281,10 @@ def visit_pair(
         return partner
     q = pos[w, j]
     d = wp.vec2(p[0] - q[0], p[1] - q[1])
-    if not movers_collide_cs(col, d, hd, radius[w, m], half_size[w, m], shape_heading(col, quat[w, j]), radius[w, j],
-                             half_size[w, j]):
+    wr = model_row(radius.shape[0], w)
+    wh = model_row(half_size.shape[0], w)
+    if not movers_collide_cs(col, d, hd, radius[wr, m], half_size[wh, m], shape_heading(col, quat[w, j]), radius[wr, j],
+                             half_size[wh, j]):
         return partner
     if j > m:
         add_pair(w, m, j, world_pairs, pair_list)
@@ -435,7 +446,8 @@ def detect_walls(
     col = world_collision(col_shared, margins, w)
     p = pos[w, m]
     hit = int(0)
-    if hits_wall_cs(tiles, col, wp.vec2(p[0], p[1]), shape_heading(col, quat[w, m]), radius[w, m], half_size[w, m]):
+    if hits_wall_cs(tiles, col, wp.vec2(p[0], p[1]), shape_heading(col, quat[w, m]),
+                    radius[model_row(radius.shape[0], w), m], half_size[model_row(half_size.shape[0], w), m]):
         hit = 1
     wall[w, m] = hit
 

@@ -21,7 +21,8 @@ import functools
 
 import warp as wp
 
-from magwarp.kernels.collision import hits_wall_cs, movers_collide_cs, push_to_cell, shape_heading, world_collision
+from magwarp.kernels.collision import (hits_wall_cs, model_row, movers_collide_cs, push_to_cell, shape_heading,
+                                       world_collision)
 from magwarp.kernels.dynamics import integrate_body, integrate_planar64, planar_acceleration64, sync_planar64
 from magwarp.kernels.impedance import default_force
 from magwarp.kernels.options import MODULE_OPTIONS
@@ -126,8 +127,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         u = cmd[w, m]
         if wp.static(latency):
             u = delayed_command(cmd, prev_cmd, delay, w, m, c)
-        n, a, xy = advance_pose(p, xy0, u, body[w, m], target_pos[w, m], target_quat[w, m], force_aux[w, m], lim,
-                                imp)
+        n, a, xy = advance_pose(p, xy0, u, body[model_row(body.shape[0], w), m], target_pos[w, m], target_quat[w, m],
+                                force_aux[w, m], lim, imp)
         pos[w, m] = n.pos
         quat[w, m] = n.quat
         vel[w, m] = n.vel
@@ -135,8 +136,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         acc[w, m] = a
         planar[w, m] = xy
         hit = int(0)
-        if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[w, m],
-                        half_size[w, m]):
+        if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat),
+                        radius[model_row(radius.shape[0], w), m], half_size[model_row(half_size.shape[0], w), m]):
             hit = 1
         wall[w, m] = hit
 
@@ -228,6 +229,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
     ):
         w = wp.tid()
         col = world_collision(col_shared, margins, w)
+        wr = model_row(radius.shape[0], w)
+        wh = model_row(half_size.shape[0], w)
         num_movers = pos.shape[1]
         # The per-step accumulators start here (no separate begin_step launch for fused steps).
         halted[w] = 0
@@ -252,8 +255,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
                 for j in range(i + 1, num_movers):
                     pj = pos[w, j]
                     d = wp.vec2(pi[0] - pj[0], pi[1] - pj[1])
-                    if movers_collide_cs(col, d, yi, radius[w, i], half_size[w, i], shape_heading(col, quat[w, j]),
-                                         radius[w, j], half_size[w, j]):
+                    if movers_collide_cs(col, d, yi, radius[wr, i], half_size[wh, i], shape_heading(col, quat[w, j]),
+                                         radius[wr, j], half_size[wh, j]):
                         if pairs < pair_list.shape[1]:
                             pair_list[w, pairs] = wp.vec2i(i, j)
                         pairs += 1
@@ -335,6 +338,9 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
     ):
         w = wp.tid()
         col = world_collision(col_shared, margins, w)
+        wb = model_row(body.shape[0], w)
+        wr = model_row(radius.shape[0], w)
+        wh = model_row(half_size.shape[0], w)
         P = Rows3()
         V = Rows3()
         Om = Rows3()
@@ -383,7 +389,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
                 if wp.static(latency):
                     if c < held:
                         u = Cp[m]
-                n, a, xy = advance_pose(p, XY[m], u, body[w, m], TP[m],
+                n, a, xy = advance_pose(p, XY[m], u, body[wb, m], TP[m],
                                         wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]), force_aux[w, m], lim, imp)
                 P[m] = n.pos
                 V[m] = n.vel
@@ -392,8 +398,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
                 A[m] = a
                 XY[m] = xy
                 hit = int(0)
-                if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[w, m],
-                                half_size[w, m]):
+                if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[wr, m],
+                                half_size[wh, m]):
                     hit = 1
                 Wl[m] = hit
                 Pr[m] = -1
@@ -408,8 +414,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
                     if j > i:
                         d = wp.vec2(P[i, 0] - P[j, 0], P[i, 1] - P[j, 1])
                         yj = shape_heading(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
-                        if movers_collide_cs(col, d, yi, radius[w, i], half_size[w, i], yj, radius[w, j],
-                                             half_size[w, j]):
+                        if movers_collide_cs(col, d, yi, radius[wr, i], half_size[wh, i], yj, radius[wr, j],
+                                             half_size[wh, j]):
                             if pairs < pair_list.shape[1]:
                                 pair_list[w, pairs] = wp.vec2i(i, j)
                             pairs += 1
