@@ -5,14 +5,14 @@ sensor model on, against none, per env and num_envs, on CPU and CUDA.
     python benchmarks/randomization.py --device cuda:0 --num-envs 4096,65536 --json randomization_gpu.json
 
 Envs: the trajectory-planning env (B0, the planar simulator: :mod:`magwarp.envs.planar_randomization`) and Push-Box
-(mujoco-warp: :mod:`magwarp.envs.randomization`). Settings: ``off`` (no terms), ``terms`` (every event term of the
-env's backend, drawn at every reset, one of them also every 10 steps), ``full`` (the terms, plus an action latency
-drawn in 0..5 cycles at every reset and sensor bias, white noise and 5 % dropped readings). Autoreset runs the reset
-hook in every step (for the worlds that finished, often none), so the reset terms' draws and model writes are paid at
-every step: that is the cost shown. The planar payload (the preset's) sits on the mover's vertical axis: off it, gravity's torque
-tilts the mover, and its attitude dynamics (which a level mover skips) run every cycle, a physics cost of about 3x on
-the CPU. Timing as in env_throughput.py (random actions from a bank, autoreset on,
-``check_inputs`` off). Target: ``full`` costs at most 10 % at 65,536 envs on the GPU.
+(mujoco-warp: :mod:`magwarp.envs.randomization`). Settings: ``off`` (no terms), ``terms`` (every event term of the env's
+backend, drawn at every reset, one of them also every 10 steps), ``full`` (the terms, plus an action latency drawn in
+0..5 cycles at every reset and sensor bias, white noise and 5 % dropped readings). Autoreset runs the reset hook in
+every step (for the worlds that finished, often none), so the reset terms' draws and model writes are paid at every
+step: that is the cost shown. The planar payload (the preset's) sits on the mover's vertical axis: off it, gravity's
+torque tilts the mover, and its attitude dynamics (which a level mover skips) run every cycle, a physics cost of about
+3x on the CPU. Timing as in env_throughput.py (random actions from a bank, autoreset on, ``check_inputs`` off). Target:
+``full`` costs at most 10 % at 65,536 envs on the GPU.
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ Each policy is evaluated with the options it records (its ``eval_env_kwargs``, a
 randomisation, latency and sensor options stripped (``nominal``), then with :data:`RANDOMIZED` added (``randomised``:
 the planar ``"sim2real"`` preset of :data:`magwarp.envs.randomization.PRESETS`, a latency drawn in 0..5 cycles and
 sensor bias/noise/dropout, per world at every reset). ``loss`` is the success rate's drop from nominal to randomised
-(points). ``--conditions nominal,terms,latency,sensors,randomised`` also evaluates each part alone. The issue's goal: a policy trained with randomisation loses at most 1 point; the shipped one loses more.
+(points). ``--conditions nominal,terms,latency,sensors,randomised`` also evaluates each part alone. The issue's goal: a
+policy trained with randomisation loses at most 1 point; the shipped one loses more.
 ``--smoke`` runs a tiny CPU evaluation (2 episodes, 1 repeat, 5 steps) to check the script.
 """
 

@@ -823,8 +823,9 @@ class Simulator:
         wp.launch(
             self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
             inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins, s.cmd,
-                    self._prev_cmd, self._delay, c, s.target_pos, s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel,
-                    s.omega, s.acc, s.planar, s.wall, s.cycles, m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
+                    self._prev_cmd, self._delay, c, s.target_pos, s.target_quat, s.force_aux, s.halted, s.pos, s.quat,
+                    s.vel, s.omega, s.acc, s.planar, s.wall, s.cycles, m.grid, 1 if use_grid else 0, head, nxt,
+                    s.world_pairs, s.world_walls],
         )
         self._launch_narrow_phase()
 

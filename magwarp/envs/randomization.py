@@ -67,7 +67,8 @@ import numpy as np
 import torch
 import warp as wp
 
-__all__ = ["FIELDS", "PRESETS", "EventRunner", "EventTerm", "Gaussian", "LogUniform", "Randomizer", "Uniform", "as_terms"]
+__all__ = ["FIELDS", "PRESETS", "EventRunner", "EventTerm", "Gaussian", "LogUniform", "Randomizer", "Uniform", "as_terms",
+           "object_ranges_from_terms"]
 
 OPS = ("set", "scale", "add")
 MODES = ("startup", "reset", "interval")
@@ -284,10 +285,10 @@ FIELDS = {
 #: Named sets of terms (``randomization="sim2real"``, e.g. from ``--env-kwargs``), per backend: ``"planar"`` (the
 #: trajectory-planning env's simulator) or ``"push"`` (the mujoco-warp push envs). Ranges: mover mass +-20 % (a
 #: payload of up to 0.3 kg on top of the mover: off the vertical axis it would tilt the planar simulator's mover
-#: against the RL envs' weak attitude hold, K = 0.1 N m/rad, by tenths of a radian), impedance stiffness +-30 %, acceleration and speed limits -10 % .. 0
-#: (a drive that delivers a little less than asked); on the push envs object mass and friction, mover mass and a
-#: payload. All drawn at every reset of a world. (Collision sizes are left out: starts are sampled with the built
-#: sizes, see :mod:`magwarp.envs.planar_randomization`.)
+#: against the RL envs' weak attitude hold, K = 0.1 N m/rad, by tenths of a radian), impedance stiffness +-30 %,
+#: acceleration and speed limits -10 % .. 0 (a drive that delivers a little less than asked); on the push envs object
+#: mass and friction, mover mass and a payload. All drawn at every reset of a world. (Collision sizes are left out:
+#: starts are sampled with the built sizes, see :mod:`magwarp.envs.planar_randomization`.)
 PRESETS: dict[str, dict[str, list[dict]]] = {
     "sim2real": {
         "planar": [
