@@ -1,14 +1,18 @@
-"""Cost of domain randomisation (magwarp.envs.randomization) on the push envs: env-steps/s with every event term on,
-against none, per num_envs, on CPU and CUDA.
+"""Cost of domain randomisation and the sim2real models: env-steps/s with every event term, action latency and the
+sensor model on, against none, per env and num_envs, on CPU and CUDA.
 
-    python benchmarks/randomization.py                                    # Push-Box on cpu (+cuda:0), default sizes
-    python benchmarks/randomization.py --device cuda:0 --num-envs 4096,16384,65536 --json out.json
+    python benchmarks/randomization.py                                    # cpu (+cuda:0 when present), default sizes
+    python benchmarks/randomization.py --device cuda:0 --num-envs 4096,65536 --json randomization_gpu.json
 
-``full`` randomises, at every reset, the object's mass and friction, the mover's mass and a payload on it, and every
-10 steps the floor friction (all terms of a push scene without obstacles). Autoreset runs the reset hook in every
-step (for the worlds that finished, often none), so the reset terms' draws and model writes are paid at every step:
-that is the cost shown. Timing as in env_throughput.py (random actions from a bank, autoreset on, ``check_inputs``
-off); ``raw mjw ms`` is bare mujoco-warp on the env's model for reference.
+Envs: the trajectory-planning env (B0, the planar simulator: :mod:`magwarp.envs.planar_randomization`) and Push-Box
+(mujoco-warp: :mod:`magwarp.envs.randomization`). Settings: ``off`` (no terms), ``terms`` (every event term of the env's
+backend, drawn at every reset, one of them also every 10 steps), ``full`` (the terms, plus an action latency drawn in
+0..5 cycles at every reset and sensor bias, white noise and 5 % dropped readings). Autoreset runs the reset hook in
+every step (for the worlds that finished, often none), so the reset terms' draws and model writes are paid at every
+step: that is the cost shown. The planar payload (the preset's) sits on the mover's vertical axis: off it, gravity's
+torque tilts the mover, and its attitude dynamics (which a level mover skips) run every cycle, a physics cost of about
+3x on the CPU. Timing as in env_throughput.py (random actions from a bank, autoreset on, ``check_inputs`` off). Target:
+``full`` costs at most 10 % at 65,536 envs on the GPU.
 """
 
 from __future__ import annotations
@@ -22,42 +26,57 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import finish, start_run  # noqa: E402
 from env_throughput import raw_env_row  # noqa: E402
 
-FULL = [
-    {"field": "object_mass", "dist": {"uniform": [0.2, 0.4]}},
-    {"field": "object_friction", "dist": {"gaussian": [0.6, 0.1], "clip": [0.3, 0.9]}},
-    {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
-    {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.02, 0.0, 0.01]},
+from magwarp.envs.randomization import PRESETS  # noqa: E402
+
+# every field of each backend: the "sim2real" preset plus the fields it leaves out
+PUSH_TERMS = PRESETS["sim2real"]["push"] + [
     {"field": "floor_friction", "dist": {"uniform": [-0.2, 0.2]}, "op": "add", "mode": "interval",
      "interval_steps": 10},
 ]
-SETTINGS = {"off": {}, "full": {"randomization": FULL}}
+PLANAR_TERMS = PRESETS["sim2real"]["planar"] + [
+    {"field": "mover_inertia", "dist": {"uniform": [0.9, 1.1]}, "op": "scale"},
+    {"field": "j_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale", "mode": "interval", "interval_steps": 10},
+    {"field": "collision_radius", "dist": {"uniform": [-0.005, 0.0]}, "op": "add"},
+]
+SIM2REAL = {"actuation": {"latency_range": [0, 5]},
+            "sensors": {"pos_bias_std": 0.001, "vel_bias_std": 0.01, "pos_noise_std": 0.0005, "vel_noise_std": 0.005,
+                        "dropout_prob": 0.05}}
+ENVS = {
+    "magwarp/TrajectoryPlanningB0-v0": {"off": {}, "terms": {"randomization": PLANAR_TERMS},
+                                        "full": {"randomization": PLANAR_TERMS, **SIM2REAL}},
+    "magwarp/PushBox-v0": {"off": {}, "terms": {"randomization": PUSH_TERMS},
+                           "full": {"randomization": PUSH_TERMS, **SIM2REAL}},
+}
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help="cpu or cuda:N (default: cpu, plus cuda:0 when present)")
-    p.add_argument("--env", default="magwarp/PushBox-v0")
-    p.add_argument("--num-envs", default=None,
-                   help="comma-separated sizes (default: 64,256 on CPU, up to 65536 on GPU)")
+    p.add_argument("--env", default=None, help=f"one env id (default: {', '.join(ENVS)})")
+    p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 64,256 on CPU, 4096,65536 on GPU)")
     p.add_argument("--steps", type=int, default=20)
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
+    if args.env is not None and args.env not in ENVS:
+        p.error(f"--env must be one of {', '.join(ENVS)}, got {args.env!r}")
     info, devices = start_run(args.device)
     rows: list[dict] = []
     for device in devices:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else
-                 ([64, 256] if device == "cpu" else [4096, 16384, 65536]))
-        for n in sizes:
-            base = None
-            for name, kwargs in SETTINGS.items():
-                res = raw_env_row(args.env, n, device, args.steps, **kwargs)
-                base = res if name == "off" else base
-                cost = 100.0 * (res["step_ms"] / base["step_ms"] - 1.0)
-                rows.append({"env": args.env, "device": device, "num_envs": n, "randomization": name,
-                             "cost_pct": cost, **res})
-                print(f"  {device} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s", flush=True)
-    columns = ["env", "device", "num_envs", "randomization", ("step_ms", "ms/step"), ("raw_mjw_ms", "raw mjw ms"),
-            ("env_steps_per_s", "env-steps/s"), ("cost_pct", "cost % vs off")]
+                 ([64, 256] if device == "cpu" else [4096, 65536]))
+        for env_id in [args.env] if args.env else list(ENVS):
+            for n in sizes:
+                base = None
+                for name, kwargs in ENVS[env_id].items():
+                    res = raw_env_row(env_id, n, device, args.steps, **kwargs)
+                    base = res if name == "off" else base
+                    cost = 100.0 * (res["step_ms"] / base["step_ms"] - 1.0)
+                    rows.append({"env": env_id, "device": device, "num_envs": n, "randomization": name,
+                                 "cost_pct": cost, **res})
+                    print(f"  {device} {env_id} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s "
+                          f"({cost:+.1f} %)", flush=True)
+    columns = ["env", "device", "num_envs", "randomization", ("step_ms", "ms/step"), ("env_steps_per_s", "env-steps/s"),
+               ("cost_pct", "cost % vs off")]
     return finish(rows, columns, info, args.json)
 
 

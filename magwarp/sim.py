@@ -23,6 +23,7 @@ import warp as wp
 from magwarp._checks import as_count, as_finite, check_magnitude, init_warp, stiffness_limit, warp_device
 from magwarp.kernels import collision as kcol
 from magwarp.kernels import guard as kguard
+from magwarp.kernels import params as kparams
 from magwarp.kernels import step as kstep
 from magwarp.kernels.impedance import default_force
 from magwarp.layout import Layout, LayoutError, MoverSpec
@@ -170,6 +171,7 @@ class Simulator:
         self._use_graph = use_graph
         self._hooks: list[Callable[[Simulator], None]] = []
         self._pre_hooks: list[Callable[[Simulator], None]] = []
+        self._step_callbacks: list[Callable[[], None]] = []
         self._graphs: dict[int, wp.Graph] = {}
         # On CUDA, Warp launches on torch's current stream so that kernels and torch ops on the state are ordered
         # without any host synchronisation.
@@ -194,6 +196,7 @@ class Simulator:
         self._steps = wp.zeros(1, dtype=wp.int32, device=self.device)
         self._nonfinite = wp.full(self.num_worlds, -1, dtype=wp.int32, device=self.device)
         self._force_model = force_model or default_force
+        self._mover_params: dict[str, torch.Tensor] | None = None  # built by mover_params on first use
         # Action latency (set_latency): off until asked for; the kernels then take these placeholders.
         self._latency_bound: int | None = None
         self._prev_cmd = wp.zeros((1, 1), dtype=wp.vec2, device=self.device)
@@ -309,12 +312,17 @@ class Simulator:
         ext = self.layout.extent
         grid.ncx = max(1, int(np.ceil(ext[0] / grid.cell_size)))
         grid.ncy = max(1, int(np.ceil(ext[1] / grid.cell_size)))
-        bodies = np.zeros(m, dtype=Body.numpy_dtype())
+        bodies = np.zeros((1, m), dtype=Body.numpy_dtype())  # one shared row until made per world
         bodies["mass"] = self.mover.mass
         bodies["inv_mass"] = 1.0 / self.mover.mass
         bodies["inertia"] = np.asarray(self.mover.inertia)
         bodies["damp_lin"] = 2.0 * np.sqrt(np.asarray(imp.k_lin) * self.mover.mass)
         bodies["damp_rot"] = 2.0 * np.sqrt(np.asarray(imp.k_rot) * np.asarray(self.mover.inertia))
+        bodies["k_lin"] = np.asarray(imp.k_lin)
+        bodies["k_rot"] = np.asarray(imp.k_rot)
+        bodies["drive_gain"] = 1.0
+        bodies["v_max"], bodies["a_max"], bodies["j_max"] = lim.v_max64, lim.a_max64, lim.j_max64
+        margins = np.array([[col.margin, col.wall_margin]], np.float32)
         return Model(
             num_worlds=self.num_worlds,
             num_movers=m,
@@ -325,8 +333,9 @@ class Simulator:
             grid=grid,
             tiles=wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=dev),
             body=wp.array(bodies, dtype=Body, device=dev),
-            radius=wp.array(radii.astype(np.float32), dtype=float, device=dev),
-            half_size=wp.array(half.astype(np.float32), dtype=wp.vec2, device=dev),
+            radius=wp.array(radii.astype(np.float32)[None], dtype=float, device=dev),
+            half_size=wp.array(half.astype(np.float32)[None], dtype=wp.vec2, device=dev),
+            margins=wp.array(margins, dtype=wp.vec2, device=dev),
             hover_z=self.mover.hover_z,
         )
 
@@ -402,11 +411,88 @@ class Simulator:
 
     @property
     def radii(self) -> torch.Tensor:
-        return self._t(self.model.radius)
+        """[W, M] collision circle radii (m) per world: a broadcast view of the one shared row until
+        :meth:`make_per_world` (domain randomisation) gives every world its own."""
+        return self._world_view(self.model.radius)
 
     @property
     def half_sizes(self) -> torch.Tensor:
-        return self._t(self.model.half_size)
+        """[W, M, 2] collision box half sizes (m) per world (see :attr:`radii`)."""
+        return self._world_view(self.model.half_size)
+
+    @property
+    def margins(self) -> torch.Tensor:
+        """[W, 2] collision margins per world: (mover-mover safety margin, wall margin) in m (see :attr:`radii`)."""
+        return self._world_view(self.model.margins)
+
+    def _world_view(self, arr: wp.array) -> torch.Tensor:
+        t = self._t(arr)
+        return t if t.shape[0] == self.num_worlds else t.expand(self.num_worlds, *t.shape[1:])
+
+    def make_per_world(self, *names: str) -> None:
+        """Give every world its own row of the model arrays ``names`` (``"body"``, ``"radius"``, ``"half_size"``,
+        ``"margins"``; default all), copied from the shared one. The model is built with one row shared by all
+        worlds (the kernels read row ``w`` of a per-world array, row 0 of a shared one: less memory traffic when
+        nothing is randomised); per-world rows can then be rewritten on the device between steps. Drops the recorded
+        step graphs (they hold the old arrays)."""
+        for name in names or ("body", "radius", "half_size", "margins"):
+            arr = getattr(self.model, name)
+            if arr.shape[0] != self.num_worlds:
+                rows = np.repeat(arr.numpy(), self.num_worlds, axis=0)
+                setattr(self.model, name, wp.array(rows, dtype=arr.dtype, device=self.device))
+                self._graphs.clear()
+
+    @property
+    def mover_params(self) -> dict[str, torch.Tensor]:
+        """Per-world mover parameters, ``[W, M]`` or ``[W, M, 3]`` float64 tensors on the device, which
+        :meth:`commit_mover_params` packs into the model's :class:`~magwarp.types.Body` rows: ``mass`` (kg, the
+        mover's own), ``inertia`` (its principal moments, kg m^2), ``payload`` (kg, a point mass) at
+        ``payload_offset`` (m, body frame from the mover centre), ``k_lin`` / ``k_rot`` (impedance stiffness),
+        ``v_max`` / ``a_max`` / ``j_max`` (x/y limits). Built on first use with the configured values (no payload).
+
+        The controller keeps the configured mass and inertia (``mover.mass``, ``mover.inertia``): its x/y drive force
+        is ``mover.mass * a``, so a mover of true mass ``m`` (payload included) accelerates by ``mover.mass / m * a``;
+        its impedance damping is ``2 sqrt(K M)`` with the configured ``M`` (critical for the nominal mover); the
+        levitation carries the true weight at the mover centre, so a payload off the vertical axis tilts the mover
+        against the impedance hold (see :func:`magwarp.kernels.step.make_advance_kernel`)."""
+        if self._mover_params is None:
+            self.make_per_world("body")
+            W, M, dev = self.num_worlds, self.num_movers, self.torch_device
+            lim, imp = self.model.limits, self.model.impedance
+
+            def full(value, *shape):
+                return torch.tensor(value, dtype=torch.float64, device=dev).expand(W, M, *shape).clone()
+
+            p = self._mover_params = {
+                "mass": full(self.mover.mass), "inertia": full(list(self.mover.inertia), 3), "payload": full(0.0),
+                "payload_offset": full([0.0] * 3, 3), "k_lin": full(list(imp.k_lin), 3),
+                "k_rot": full(list(imp.k_rot), 3), "v_max": full(lim.v_max64), "a_max": full(lim.a_max64),
+                "j_max": full(lim.j_max64),
+            }
+            self._pack_mask = torch.ones(W, dtype=torch.bool, device=dev)
+            vec = ("inertia", "payload_offset", "k_lin", "k_rot")
+            arrays = {k: wp.from_torch(t, dtype=wp.vec3d if k in vec else wp.float64) for k, t in p.items()}
+            self._pack_inputs = [arrays[k] for k in ("mass", "inertia", "payload", "payload_offset", "k_lin", "k_rot",
+                                                     "v_max", "a_max", "j_max")]
+            self._pack_mask_wp = wp.from_torch(self._pack_mask, dtype=wp.bool)
+        return self._mover_params
+
+    def commit_mover_params(self, mask=None, *, scale_inertia: bool = False) -> None:
+        """Pack :attr:`mover_params` into the model's body rows of the worlds in ``mask`` (``[W]`` bool tensor on the
+        device; all if None): one kernel launch, no host sync, no rebuild; the next step uses them.
+        ``scale_inertia``: use the configured inertia scaled with each mover's mass (uniform density) instead of
+        ``mover_params["inertia"]``. Values are not checked here (the randomiser checks its distributions'
+        supports): keep masses, inertias and limits positive and the stiffness stable (see the class doc)."""
+        self.mover_params  # noqa: B018 - builds the tensors and the launch inputs
+        if mask is None:
+            self._pack_mask.fill_(True)
+        else:
+            self._pack_mask.copy_(mask)
+        inertia = self.mover.inertia
+        with self._on_stream():
+            wp.launch(kparams.pack_bodies, dim=(self.num_worlds, self.num_movers), device=self.device,
+                      inputs=[self._pack_mask_wp, float(self.mover.mass), wp.vec3d(*[float(v) for v in inertia]),
+                              int(bool(scale_inertia)), *self._pack_inputs, self.model.body])
 
     # ------------------------------------------------------------------ inputs
     def _check_tensor(self, name: str, value, shape: tuple[int, ...]) -> torch.Tensor:
@@ -583,7 +669,7 @@ class Simulator:
         W, M = self.num_worlds, self.num_movers
         with self._on_stream():
             wp.launch(kcol.detect_walls, dim=(W, M), device=dev,
-                      inputs=[m.tiles, m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall])
+                      inputs=[m.tiles, m.collision, m.radius, m.half_size, m.margins, s.pos, s.quat, s.wall])
             self._detect_pairs()
 
     def _raise_on_start_collisions(self) -> None:
@@ -650,6 +736,11 @@ class Simulator:
         np.savez(path, params=np.array(json.dumps(params, default=float)), **arrays)
         return path if path.endswith(".npz") else f"{path}.npz"
 
+    def add_step_callback(self, callback: Callable[[], None]) -> None:
+        """Call ``callback()`` on the host at the start of every :meth:`step`, before its graph runs (e.g. interval
+        domain-randomisation events, which only queue device work)."""
+        self._step_callbacks.append(callback)
+
     def add_cycle_hook(self, hook: Callable[["Simulator"], None], before: bool = False) -> None:
         """Run ``hook(sim)`` after every cycle (``before=True``: before it, e.g. to prepare ``force_aux`` from the
         cycle's starting state), inside the step graph. It must only launch device work."""
@@ -665,6 +756,8 @@ class Simulator:
                              "cycles (set_latency): a step must last at least as long as its longest delay")
         if cmd is not None:
             self.set_command(cmd)
+        for callback in self._step_callbacks:
+            callback()
         with self._on_stream():
             if not self._use_graph:
                 self._launch_step(n)
@@ -712,7 +805,7 @@ class Simulator:
         if self._fused:  # the fused kernels clear their per-step accumulators themselves
             wp.launch(
                 self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
-                inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd,
+                inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins, s.cmd,
                         self._delay, s.target_pos, s.target_quat, s.force_aux, self._prev_cmd, s.pos, s.quat, s.vel,
                         s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any, s.partner, s.world_pairs,
                         s.world_walls, s.halted, s.cycles, s.pair_list],
@@ -740,9 +833,10 @@ class Simulator:
         head, nxt = (self._cell_head, self._next_in_cell) if use_grid else (self._no_cells, self._no_next)
         wp.launch(
             self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
-            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, s.cmd, self._prev_cmd,
-                    self._delay, c, s.target_pos, s.target_quat, s.force_aux, s.halted, s.pos, s.quat, s.vel,
-                    s.omega, s.acc, s.planar, s.wall, s.cycles, m.grid, 1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
+            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins, s.cmd,
+                    self._prev_cmd, self._delay, c, s.target_pos, s.target_quat, s.force_aux, s.halted, s.pos, s.quat,
+                    s.vel, s.omega, s.acc, s.planar, s.wall, s.cycles, m.grid, 1 if use_grid else 0, head, nxt,
+                    s.world_pairs, s.world_walls],
         )
         self._launch_narrow_phase()
 
@@ -752,11 +846,11 @@ class Simulator:
         outputs = [s.flags, s.flags_any, s.partner, s.world_pairs, s.world_walls, s.halted, s.pair_list]
         if M <= 32:
             wp.launch(kcol.detect_collisions_brute, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
-                      inputs=[m.collision, m.radius, m.half_size, s.pos, s.quat, s.wall, *outputs])
+                      inputs=[m.collision, m.radius, m.half_size, m.margins, s.pos, s.quat, s.wall, *outputs])
             return
         wp.launch(
             kcol.detect_collisions_grid, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
-            inputs=[m.collision, m.grid, m.radius, m.half_size, s.pos, s.quat, s.wall, self._cell_head,
+            inputs=[m.collision, m.grid, m.radius, m.half_size, m.margins, s.pos, s.quat, s.wall, self._cell_head,
                     self._next_in_cell, *outputs],
         )
 

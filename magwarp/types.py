@@ -52,13 +52,22 @@ class Impedance:
 
 @wp.struct
 class Body:
-    """Rigid-body parameters of one mover."""
+    """Parameters of one mover in one world (the model's ``body`` array is ``[num_worlds, num_movers]``: domain
+    randomisation, :mod:`magwarp.envs.randomization`, rewrites rows on the device): rigid body, impedance gains and x/y
+    limits. Built with every row at the simulator's configured values."""
 
-    mass: float
+    mass: float  # true mass (mover plus payload)
     inv_mass: float  # 1 / mass, so that the integrator multiplies instead of dividing every cycle
     inertia: wp.vec3  # principal moments in the body frame
     damp_lin: wp.vec3  # critical damping of the impedance hold, 2 sqrt(K m), per world axis
     damp_rot: wp.vec3  # 2 sqrt(K I) per axis, with the principal inertia (not the mass, as MagBotSim does)
+    k_lin: wp.vec3  # impedance stiffness (the force model sees it as ``Impedance.k_lin``)
+    k_rot: wp.vec3
+    drive_gain: wp.float64  # x/y acceleration per commanded one: the controller's mass / the true mass (1 nominal)
+    com: wp.vec3  # centre of mass in the body frame, from the mover centre (a payload's offset; 0 nominal)
+    v_max: wp.float64  # x/y limits of this mover (float64, as the x/y law runs)
+    a_max: wp.float64
+    j_max: wp.float64
 
 
 @wp.struct
@@ -112,7 +121,8 @@ class Grid:
 
 @dataclass
 class Model:
-    """Static parameters. Per-mover arrays have length ``num_movers`` and are shared by all worlds."""
+    """Parameters. Per-mover arrays are ``[num_worlds, num_movers]`` (filled with the configured values; domain
+    randomisation changes rows on the device, no rebuild), structs are shared by all worlds."""
 
     num_worlds: int
     num_movers: int
@@ -122,9 +132,10 @@ class Model:
     collision: Collision
     grid: Grid
     tiles: wp.array2d  # int32 (nx, ny), 1 = tile present
-    body: wp.array  # Body per mover
-    radius: wp.array  # float32 per mover, circle collision radius
-    half_size: wp.array  # vec2 per mover, box collision half extents
+    body: wp.array2d  # Body per world and mover
+    radius: wp.array2d  # float32 per world and mover, circle collision radius
+    half_size: wp.array2d  # vec2 per world and mover, box collision half extents
+    margins: wp.array  # vec2 per world: (mover-mover margin, wall margin); Collision holds the configured ones
     hover_z: float
 
 

@@ -78,7 +78,7 @@ def test_unknown_option_is_named_in_a_warning(env):
 def test_trajectory_per_mover_collision_sizes():
     radii = [0.05, 0.08, 0.11]
     env = TrajectoryPlanningEnv(num_envs=2, layout="B0", device="cpu", collision_size=radii, seed=0)
-    np.testing.assert_allclose(env.sim.radii.numpy(), radii, atol=1e-7)
+    np.testing.assert_allclose(env.sim.radii.numpy(), [radii, radii], atol=1e-7)  # per world
     # movers 0 and 1 are 0.14 m apart: free with radii 0.05 + 0.08, a collision with one radius of 0.11
     start = [[0.12, 0.3], [0.26, 0.3], [0.7, 0.4]]
     env.reset(options={"start_xy": start})
@@ -93,7 +93,7 @@ def test_trajectory_per_mover_collision_sizes():
         uniform.reset(options={"start_xy": start})
     box = TrajectoryPlanningEnv(num_envs=1, layout="B0", device="cpu", collision_shape="box",
                                 collision_size=[[0.05, 0.05], [0.08, 0.06], [0.07, 0.07]], seed=0)
-    np.testing.assert_allclose(box.sim.half_sizes.numpy(), [[0.05, 0.05], [0.08, 0.06], [0.07, 0.07]], atol=1e-7)
+    np.testing.assert_allclose(box.sim.half_sizes.numpy()[0], [[0.05, 0.05], [0.08, 0.06], [0.07, 0.07]], atol=1e-7)
     with pytest.raises(ValueError, match=r"collision_size for a circle .* got \[0.1, 0.1\]"):
         TrajectoryPlanningEnv(num_envs=1, layout="B0", device="cpu", collision_size=[0.1, 0.1])
 

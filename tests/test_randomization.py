@@ -301,8 +301,8 @@ def test_env_kwargs_json_terms(dyn):
 def test_env_option_rejects_bad_terms_before_building():
     with pytest.raises(ValueError, match="list of EventTerm"):
         PushBoxEnv(2, device="cpu", randomization={"field": "object_mass", "dist": {"uniform": [0.2, 0.4]}})
-    with pytest.raises(ValueError, match="'object_size' is unknown"):
-        PushBoxEnv(2, device="cpu", randomization=[{"field": "object_size", "dist": {"uniform": [0.2, 0.4]}}])
+    with pytest.raises(ValueError, match="'object_colour' is unknown"):
+        PushBoxEnv(2, device="cpu", randomization=[{"field": "object_colour", "dist": {"uniform": [0.2, 0.4]}}])
     with pytest.raises(ValueError, match=r"randomization\[1\] must be an EventTerm or a mapping, got 3"):
         PushBoxEnv(2, device="cpu", randomization=[EventTerm("object_mass", Uniform(0.2, 0.4)), 3])
 

@@ -46,7 +46,8 @@ from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv, _where
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
-from magwarp.envs.randomization import EventTerm, Randomizer, as_terms
+from magwarp.envs.randomization import EventTerm, Randomizer, as_terms, object_ranges_from_terms
+from magwarp.envs.sim2real import ActuationConfig, PushSim2Real, SensorConfig
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
 from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
@@ -91,7 +92,7 @@ def _yaw_from_quat(q: torch.Tensor) -> torch.Tensor:
     return torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-class PushEnv(ChosenEpisodes, MagwarpVecEnv):
+class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
     """Batched object pushing. ``layout`` is a :class:`Layout` or 0/1 array (default: 4 x 3 tiles); ``benchmark``
     (``"B0"``..``"B9"``) picks MagBotSim's pushing benchmark layout and mover count instead.
 
@@ -107,7 +108,9 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
     ``randomization``: a list of :class:`magwarp.envs.randomization.EventTerm` (or mappings of their fields) that
     randomise object and mover mass, a payload on the movers, object and floor friction and obstacle positions per
     world, at startup, at each reset (reset worlds only) or every N steps, without a model rebuild
-    (:mod:`magwarp.envs.randomization`).
+    (:mod:`magwarp.envs.randomization`), or a preset's name (``"sim2real"``). ``actuation`` (action latency) and
+    ``sensors`` (bias, noise, dropped readings of the mover x/y positions and velocities) are the sim2real models of
+    :mod:`magwarp.envs.sim2real` (:class:`~magwarp.envs.sim2real.PushSim2Real`).
 
     Physics: ``solver`` is MuJoCo's constraint solver for the contacts: ``"Newton"`` (MagBotSim's), ``"CG"``, or
     ``"auto"`` (default): CG on CPU, Newton on CUDA, the faster one on each (benchmarks/RESULTS.md; on a GPU the batch
@@ -209,7 +212,9 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
         nan_dump: str | None = None,
-        randomization: Sequence[EventTerm | Mapping[str, Any]] | None = None,
+        randomization: Sequence[EventTerm | Mapping[str, Any]] | str | None = None,
+        actuation: ActuationConfig | dict | None = None,
+        sensors: SensorConfig | dict | None = None,
     ):
         if benchmark is not None:
             layout, num_movers = push_benchmark(benchmark)
@@ -243,7 +248,13 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
             raise ValueError(f"max_position_err must be positive, got {max_position_err!r}")
         if early_termination_steps is not None:
             early_termination_steps = as_count(early_termination_steps, "early_termination_steps")
-        terms = as_terms(randomization) if randomization is not None else []  # bad terms fail before the build
+        terms = as_terms(randomization, "push") if randomization is not None else []  # bad terms fail before the build
+        terms, size_ranges = object_ranges_from_terms(terms)
+        if size_ranges:
+            if object_ranges is not None:
+                raise ValueError(f"give object sizes as object_ranges or as randomization terms, not both "
+                                 f"object_ranges={object_ranges!r} and terms for {sorted(size_ranges)}")
+            object_ranges = size_ranges
         self.num_movers = int(num_movers)
         self.learn_pose = learn_pose = as_flag(learn_pose, "learn_pose")
         self.learn_jerk = learn_jerk = as_flag(learn_jerk, "learn_jerk")
@@ -299,6 +310,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         self._init_task_state()
         self._set_spaces(self._observation_space(), self._action_space())
         self.randomizer = Randomizer(self, terms) if terms else None
+        self._init_sim2real(actuation, sensors)
         self.reset()
 
     # ------------------------------------------------------------------ construction
@@ -561,6 +573,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
             self._assign_variants(mask)
         if self.randomizer is not None:
             self.randomizer.reset(mask)
+        self._sim2real_reset(mask)
         s = {key: self._chosen_or(key, value) for key, value in self._sample_episode(self.num_envs).items()}
         m3 = mask[:, None, None]
         mover_q = b.init_mover_qpos
@@ -647,7 +660,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
         # the collision and contact flags are cleared inside the physics graph (_clear_step_flags)
         if self.randomizer is not None:
             self.randomizer.step()
-        self.backend.step(action.reshape(self.num_envs, self.num_movers, -1), check_finite=False)
+        self._step_backend(action.reshape(self.num_envs, self.num_movers, -1))
 
     # ------------------------------------------------------------------ the step
     #: on CUDA, record the task work after the physics as one CUDA graph (:mod:`magwarp.envs.step_graph`); False runs
@@ -711,8 +724,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
             if self.learn_jerk:
                 parts.append(b.mover_qacc[..., [0, 1, 5]].reshape(n, -1))
             return torch.cat(parts, dim=1)
-        parts = [self._noisy(b.mover_qpos[..., :2], self.std_noise).reshape(n, -1),
-                 self._noisy(b.mover_qvel[..., :2], self.std_noise).reshape(n, -1)]
+        parts = list(self._sense_movers(b.mover_qpos[..., :2], b.mover_qvel[..., :2]))
         if self.learn_jerk:
             parts.append(b.mover_qacc[..., :2].reshape(n, -1))
         return torch.cat(parts, dim=1)
@@ -729,7 +741,7 @@ class PushEnv(ChosenEpisodes, MagwarpVecEnv):
 
     def _get_obs(self) -> dict[str, torch.Tensor]:
         achieved, desired = self._goals()
-        return {"observation": self._mover_obs(), "achieved_goal": achieved, "desired_goal": desired}
+        return self._hold_obs({"observation": self._mover_obs(), "achieved_goal": achieved, "desired_goal": desired})
 
     def _collision_info(self) -> dict[str, torch.Tensor]:
         return {"mover_collision": self.checks.mover_collision.clone(), "wall_collision": self.checks.wall_collision.clone()}

@@ -36,6 +36,20 @@ Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its 
   ``obstacle_boxes`` (observations, checks and rendering read them). Not with obstacle modes that move the walls per
   episode (``PushWithObstaclesEnv`` ``random``, ``curriculum`` or a mix).
 
+* object sizes: ``object_width``, ``object_height``, ``object_depth``, ``object_segment_width``, ``object_radius``
+  (uniform, op ``set``, mode ``reset``): the env's ``object_ranges`` as terms (:func:`object_ranges_from_terms`),
+  drawn per episode from ``object_variants`` pre-compiled variants, with the same draws for the same seed.
+
+Where today's options are not re-expressed as terms: ``PushWithObstaclesEnv``'s obstacle modes (``random``,
+``curriculum``) place the walls with rules (clear of the start, of each other), not as independent draws per wall:
+they stay modes, and ``obstacle_xy`` is the term for fixed layouts; ``std_noise`` / ``object_noise`` are observation
+noise, not model fields: :class:`magwarp.envs.sim2real.SensorConfig` (``sensors=``) is their declarative form (on
+the trajectory env with the same draws for the same seed; on the push envs in another order).
+
+The planar simulator (trajectory planning) takes the same terms over its own fields
+(:mod:`magwarp.envs.planar_randomization`); :data:`PRESETS` names sets of terms per backend (``randomization=
+"sim2real"``).
+
 Plain mappings work too (``--env-kwargs`` JSON): ``{"field": "object_mass", "dist": {"type": "uniform", "lo": 0.2,
 "hi": 0.4}, "op": "set", "mode": "reset"}``, or the distribution as ``{"uniform": [0.2, 0.4]}``,
 ``{"log_uniform": [lo, hi]}``, ``{"gaussian": [mean, std], "clip": [lo, hi]}``.
@@ -53,7 +67,8 @@ import numpy as np
 import torch
 import warp as wp
 
-__all__ = ["FIELDS", "EventTerm", "Gaussian", "LogUniform", "Randomizer", "Uniform", "as_terms"]
+__all__ = ["FIELDS", "PRESETS", "EventRunner", "EventTerm", "Gaussian", "LogUniform", "Randomizer", "Uniform", "as_terms",
+           "object_ranges_from_terms"]
 
 OPS = ("set", "scale", "add")
 MODES = ("startup", "reset", "interval")
@@ -92,8 +107,8 @@ class Uniform:
     def support(self) -> tuple[float, float]:
         return self.lo, self.hi
 
-    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
-        return self.lo + (self.hi - self.lo) * torch.rand(shape, generator=gen, device=device)
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device, dtype=torch.float32) -> torch.Tensor:
+        return torch.empty(shape, device=device, dtype=dtype).uniform_(self.lo, self.hi, generator=gen)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,9 +124,9 @@ class LogUniform:
     def support(self) -> tuple[float, float]:
         return self.lo, self.hi
 
-    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
-        a, b = math.log(self.lo), math.log(self.hi)
-        return torch.exp(a + (b - a) * torch.rand(shape, generator=gen, device=device))
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device, dtype=torch.float32) -> torch.Tensor:
+        x = torch.empty(shape, device=device, dtype=dtype)
+        return x.uniform_(math.log(self.lo), math.log(self.hi), generator=gen).exp_()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,9 +156,9 @@ class Gaussian:
     def support(self) -> tuple[float, float]:
         return self.clip if self.clip is not None else (-math.inf, math.inf)
 
-    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device) -> torch.Tensor:
-        x = self.mean + self.std * torch.randn(shape, generator=gen, device=device)
-        return x if self.clip is None else x.clamp(*self.clip)
+    def sample(self, shape: tuple[int, ...], gen: torch.Generator, device, dtype=torch.float32) -> torch.Tensor:
+        x = torch.empty(shape, device=device, dtype=dtype).normal_(self.mean, self.std, generator=gen)
+        return x if self.clip is None else x.clamp_(*self.clip)
 
 
 Distribution = Uniform | LogUniform | Gaussian
@@ -248,13 +263,64 @@ FIELDS = {
     "object_friction": FieldSpec(1, 0.0, False, OPS),
     "floor_friction": FieldSpec(1, 0.0, False, OPS),
     "obstacle_xy": FieldSpec(2, None, False, ("set", "add")),
+    # object sizes (push envs): per episode from object variants, as object_ranges (see object_ranges_from_terms)
+    "object_width": FieldSpec(1, 0.0, True, OPS),
+    "object_height": FieldSpec(1, 0.0, True, OPS),
+    "object_depth": FieldSpec(1, 0.0, True, OPS),
+    "object_segment_width": FieldSpec(1, 0.0, True, OPS),
+    "object_radius": FieldSpec(1, 0.0, True, OPS),
+    # the planar simulator's (magwarp.envs.planar_randomization)
+    "mover_inertia": FieldSpec(3, 0.0, True, OPS),
+    "stiffness_lin": FieldSpec(3, 0.0, False, OPS),
+    "stiffness_rot": FieldSpec(3, 0.0, False, OPS),
+    "v_max": FieldSpec(1, 0.0, True, OPS),
+    "a_max": FieldSpec(1, 0.0, True, OPS),
+    "j_max": FieldSpec(1, 0.0, True, OPS),
+    "collision_radius": FieldSpec(1, 0.0, True, OPS),
+    "collision_half_size": FieldSpec(2, 0.0, True, OPS),
+    "collision_margin": FieldSpec(1, 0.0, False, OPS),
+    "wall_margin": FieldSpec(1, 0.0, False, OPS),
+}
+
+#: Named sets of terms (``randomization="sim2real"``, e.g. from ``--env-kwargs``), per backend: ``"planar"`` (the
+#: trajectory-planning env's simulator) or ``"push"`` (the mujoco-warp push envs). Ranges: mover mass +-20 % (a
+#: payload of up to 0.3 kg on top of the mover: off the vertical axis it would tilt the planar simulator's mover
+#: against the RL envs' weak attitude hold, K = 0.1 N m/rad, by tenths of a radian), impedance stiffness +-30 %,
+#: acceleration and speed limits -10 % .. 0 (a drive that delivers a little less than asked); on the push envs object
+#: mass and friction, mover mass and a payload. All drawn at every reset of a world. (Collision sizes are left out:
+#: starts are sampled with the built sizes, see :mod:`magwarp.envs.planar_randomization`.)
+PRESETS: dict[str, dict[str, list[dict]]] = {
+    "sim2real": {
+        "planar": [
+            {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
+            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.0, 0.0, 0.006]},
+            {"field": "stiffness_lin", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
+            {"field": "stiffness_rot", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
+            {"field": "a_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale"},
+            {"field": "v_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale"},
+        ],
+        "push": [
+            {"field": "object_mass", "dist": {"uniform": [0.2, 0.4]}},
+            {"field": "object_friction", "dist": {"gaussian": [0.6, 0.1], "clip": [0.3, 0.9]}},
+            {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
+            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.02, 0.0, 0.01]},
+        ],
+    },
 }
 
 
-def as_terms(terms) -> list[EventTerm]:
-    """EventTerms from EventTerms or mappings; names the bad entry."""
-    if isinstance(terms, (EventTerm, Mapping)) or not isinstance(terms, Sequence) or isinstance(terms, str):
-        raise ValueError(f"randomization must be a list of EventTerm (or mappings), got {terms!r}")
+def as_terms(terms, backend: str | None = None) -> list[EventTerm]:
+    """EventTerms from EventTerms or mappings, or a preset's name (:data:`PRESETS`, for ``backend``); names the bad
+    entry."""
+    if isinstance(terms, str):
+        if terms not in PRESETS:
+            raise ValueError(f"randomization preset {terms!r} is unknown; known: {', '.join(PRESETS)}")
+        if backend not in PRESETS[terms]:
+            raise ValueError(f"randomization preset {terms!r} has no terms for the {backend!r} backend; it has "
+                             f"{', '.join(PRESETS[terms])}")
+        terms = PRESETS[terms][backend]
+    if isinstance(terms, (EventTerm, Mapping)) or not isinstance(terms, Sequence):
+        raise ValueError(f"randomization must be a list of EventTerm (or mappings) or a preset name, got {terms!r}")
     out = []
     for i, t in enumerate(terms):
         if isinstance(t, EventTerm):
@@ -269,8 +335,37 @@ def as_terms(terms) -> list[EventTerm]:
     return out
 
 
+#: object size fields -> ``object_ranges`` keys
+OBJECT_SIZE_FIELDS = {"object_width": "width", "object_height": "height", "object_depth": "depth",
+                      "object_segment_width": "segment_width", "object_radius": "radius"}
+
+
+def object_ranges_from_terms(terms: list[EventTerm]) -> tuple[list[EventTerm], dict[str, tuple[float, float]]]:
+    """Split the object size terms off ``terms`` as ``object_ranges`` (the push envs' per-episode object variants,
+    :mod:`magwarp.envs.object_variants`): ``EventTerm("object_width", Uniform(lo, hi))`` (op ``set``, mode ``reset``)
+    is ``object_ranges={"width": (lo, hi)}``, with the same draws for the same seed. Sizes change the object's
+    geometry, which mujoco-warp's collision, the coverage tables and the start sampling read, so they come from
+    ``object_variants`` pre-compiled variants (a pool, not a continuous draw per world): other distributions,
+    operations or modes are refused, naming the term."""
+    rest, ranges = [], {}
+    for i, t in enumerate(terms):
+        key = OBJECT_SIZE_FIELDS.get(t.field)
+        if key is None:
+            rest.append(t)
+            continue
+        if not isinstance(t.dist, Uniform) or t.op != "set" or t.mode != "reset" or t.targets not in (None, (0,)):
+            raise ValueError(f"randomization[{i}] ({t.field!r}): object sizes are drawn per episode from object "
+                             f"variants (object_ranges): a uniform distribution, op 'set', mode 'reset' only; got "
+                             f"{t.dist!r}, op {t.op!r}, mode {t.mode!r}")
+        if key in ranges:
+            raise ValueError(f"randomization[{i}] ({t.field!r}) repeats an object size term")
+        ranges[key] = (t.dist.lo, t.dist.hi)
+    return rest, ranges
+
+
 def _apply_op(op: str, nominal: torch.Tensor, draw: torch.Tensor) -> torch.Tensor:
-    return draw if op == "set" else nominal * draw if op == "scale" else nominal + draw
+    """The new value from a fresh ``draw`` (overwritten: one op at most, none for ``set``)."""
+    return draw if op == "set" else draw.mul_(nominal) if op == "scale" else draw.add_(nominal)
 
 
 def _geom_ids(mjm: mujoco.MjModel, prefix: str) -> list[int]:
@@ -282,27 +377,151 @@ def _geom_ids(mjm: mujoco.MjModel, prefix: str) -> list[int]:
     return out
 
 
-class Randomizer:
-    """Applies a list of :class:`EventTerm` to a push env's mujoco-warp backend, per world (see the module doc).
+class EventRunner:
+    """Fires a list of :class:`EventTerm` per world (the bookkeeping common to every backend): ``values[field]``, the
+    current value per world and target (``[W, T]``, ``[W, T, dim]`` for fields of several components), and
+    ``nominal[field]``, the built model's (``[T]`` / ``[T, dim]``). A backend's subclass says which fields it has
+    (:attr:`BACKEND`, :meth:`_resolve_targets`, :meth:`_nominal`), prepares its model (:meth:`_prepare`) and writes
+    the values into it (:meth:`commit`)."""
 
-    ``values[field]``: the current value per world and target (``[W, T]``, ``obstacle_xy``: ``[W, T, 2]``);
-    ``nominal[field]``: the built model's (``[T]`` / ``[T, 2]``)."""
+    BACKEND = ""
 
-    def __init__(self, env, terms):
-        self.terms = as_terms(terms)
+    def __init__(self, env, terms, num_worlds: int, device):
+        self.terms = as_terms(terms, self.BACKEND)
         self.env = env
-        b = self.backend = env.backend
-        self.num_worlds, self.device = b.num_worlds, b.torch_device
-        mjm = b.mjm
+        self.num_worlds, self.device = num_worlds, device
         used = {t.field for t in self.terms}
         self._targets = self._resolve_targets(env, used)
         for i, t in enumerate(self.terms):
+            if t.field not in self._targets:
+                raise ValueError(f"randomization[{i}] field {t.field!r} is not one of this env's ({self.BACKEND} "
+                                 f"backend): {', '.join(self._targets)}")
             count = self._targets[t.field]
             if count == 0:
                 raise ValueError(f"randomization[{i}] targets {t.field!r}, but this env has none")
             if t.targets is not None and not all(0 <= k < count for k in t.targets):
                 raise ValueError(f"randomization[{i}] ({t.field!r}).targets {t.targets!r} out of range: this env has "
                                  f"{count}")
+        self.nominal = self._nominal()
+        for i, t in enumerate(self.terms):
+            self._check_bounds(i, t)  # before anything on the device changes
+        self._prepare(used)
+        self.values = self._initial_values(used)
+        self._terms_idx = [None if t.targets is None else torch.tensor(t.targets, device=self.device)
+                           for t in self.terms]
+        self._offsets = [None if t.offset is None else torch.tensor(t.offset, device=self.device) for t in self.terms]
+        self.steps = 0
+        self._fire("startup", None)
+        self.commit(None)
+
+    def _resolve_targets(self, env, used) -> dict[str, int]:
+        raise NotImplementedError
+
+    def _nominal(self) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def _prepare(self, used: set[str]) -> None:
+        """Make the model's arrays per world where the terms need it (after every check passed)."""
+
+    def _initial_values(self, used: set[str]) -> dict[str, torch.Tensor]:
+        """``values`` (the nominal ones in every world) and ``payload_offset`` (``[W, M, 3]``, zero)."""
+        if "payload_mass" in used:
+            self.payload_offset = torch.zeros(self.num_worlds, self._targets["payload_mass"], 3, device=self.device)
+        return {f: self.nominal[f].expand(self.num_worlds, *self.nominal[f].shape).clone() for f in used}
+
+    def commit(self, mask: torch.Tensor | None) -> None:
+        raise NotImplementedError
+
+    def extreme(self, t: EventTerm) -> tuple[float, float]:
+        """The least and the largest value ``t`` can give (over its targets' nominal values)."""
+        lo, hi = t.dist.support()
+        nom = self.nominal[t.field]
+        if t.targets is not None:
+            nom = nom[list(t.targets)]
+        nom = nom.reshape(-1).cpu().numpy().astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            if t.op == "set":
+                return lo, hi
+            if t.op == "add":
+                return float(nom.min()) + lo, float(nom.max()) + hi
+            ends = np.concatenate([nom * lo, nom * hi])
+            return float(np.min(ends)), float(np.max(ends))
+
+    def _check_bounds(self, i: int, t: EventTerm) -> None:
+        spec = FIELDS[t.field]
+        if spec.lower is None:
+            return
+        least = self.extreme(t)[0]
+        bad = least <= spec.lower if spec.strict else least < spec.lower
+        if bad or not np.isfinite(least):
+            rel = ">" if spec.strict else ">="
+            hint = " (a Gaussian needs clip=(lo, hi) to bound it)" if isinstance(t.dist, Gaussian) else ""
+            raise ValueError(f"randomization[{i}] ({t.field!r}, op {t.op!r}, {t.dist!r}) can make {t.field} "
+                             f"{least:g}, but it must stay {rel} {spec.lower:g}{hint}")
+
+    # ------------------------------------------------------------------ events
+    def reset(self, mask: torch.Tensor) -> None:
+        """Reset-mode terms for the worlds in ``mask``; rewrites their randomised model entries (after a reset that
+        changed model rows, e.g. object variants)."""
+        self._fire("reset", mask)
+        self.commit(mask)
+
+    def step(self) -> None:
+        """Count an env step; interval terms whose period divides the count fire (all worlds)."""
+        self.steps += 1
+        if self._fire("interval", None):
+            self.commit(None)
+
+    def _fire(self, mode: str, mask: torch.Tensor | None) -> bool:
+        fired = False
+        for i, t in enumerate(self.terms):
+            if t.mode != mode or (mode == "interval" and self.steps % t.interval_steps):
+                continue
+            fired = True
+            idx = self._terms_idx[i]
+            nom = self.nominal[t.field] if idx is None else self.nominal[t.field][idx]
+            cur = self.values[t.field]  # drawn in its dtype (the planar body fields: float64)
+            draw = t.dist.sample((self.num_worlds, *nom.shape), self.env._generator, self.device, cur.dtype)
+            new = _apply_op(t.op, nom, draw)
+            # few ops: every reset of every step runs this (autoreset), for the reset worlds (often none)
+            if idx is None:
+                if mask is None:
+                    cur.copy_(new)
+                else:
+                    torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, cur, out=cur)
+            else:
+                old = cur[:, idx]
+                if mask is not None:
+                    new = torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, old)
+                cur[:, idx] = new.to(cur.dtype)
+            if t.field == "payload_mass":
+                off = self._offsets[i] if self._offsets[i] is not None else torch.zeros(3, device=self.device)
+                po = self.payload_offset if idx is None else self.payload_offset[:, idx]
+                po_new = off.to(po.dtype).expand_as(po)
+                if mask is not None:
+                    po_new = torch.where(mask.view(-1, 1, 1), po_new, po)
+                if idx is None:
+                    self.payload_offset.copy_(po_new)
+                else:
+                    self.payload_offset[:, idx] = po_new
+        return fired
+
+
+class Randomizer(EventRunner):
+    """Applies a list of :class:`EventTerm` to a push env's mujoco-warp backend, per world (see the module doc).
+
+    ``values[field]``: the current value per world and target (``[W, T]``, ``obstacle_xy``: ``[W, T, 2]``);
+    ``nominal[field]``: the built model's (``[T]`` / ``[T, 2]``)."""
+
+    BACKEND = "push"
+
+    def __init__(self, env, terms):
+        self.backend = env.backend
+        super().__init__(env, terms, env.backend.num_worlds, env.backend.torch_device)
+
+    def _prepare(self, used: set[str]) -> None:
+        b = self.backend
+        mjm = b.mjm
         names = set()
         if used & {"object_mass", "mover_mass", "payload_mass"}:
             names |= {"body_mass", "body_subtreemass", "body_inertia", "body_ipos", "body_invweight0", "dof_invweight0"}
@@ -310,21 +529,9 @@ class Randomizer:
             names.add("geom_friction")
         if "obstacle_xy" in used:
             names.add("geom_pos")
-        self.nominal = self._nominal()
-        for i, t in enumerate(self.terms):
-            self._check_bounds(i, t)  # before anything on the device changes
         self.fields = b.batch_model_fields(sorted(names))
         if "floor_friction" in used:
             self._floor_priority(mjm)
-        self.values = {f: self.nominal[f].expand(self.num_worlds, *self.nominal[f].shape).clone() for f in used}
-        if "payload_mass" in used:
-            self.payload_offset = torch.zeros(self.num_worlds, self._targets["payload_mass"], 3, device=self.device)
-        self._terms_idx = [None if t.targets is None else torch.tensor(t.targets, device=self.device)
-                           for t in self.terms]
-        self._offsets = [None if t.offset is None else torch.tensor(t.offset, device=self.device) for t in self.terms]
-        self.steps = 0
-        self._fire("startup", None)
-        self.commit(None)
 
     # ------------------------------------------------------------------ construction
     def _resolve_targets(self, env, used) -> dict[str, int]:
@@ -408,72 +615,6 @@ class Randomizer:
         owner = [k for k, grp in enumerate(groups) for _ in grp]
         return (torch.tensor(geoms, device=self.device, dtype=torch.long),
                 torch.tensor(owner, device=self.device, dtype=torch.long))
-
-    def _check_bounds(self, i: int, t: EventTerm) -> None:
-        spec = FIELDS[t.field]
-        if spec.lower is None:
-            return
-        lo, hi = t.dist.support()
-        nom = self.nominal[t.field].reshape(-1)
-        if t.targets is not None:
-            nom = nom[list(t.targets)]
-        nom = nom.cpu().numpy().astype(np.float64)
-        with np.errstate(invalid="ignore"):
-            if t.op == "set":
-                least = lo
-            elif t.op == "add":
-                least = float(nom.min()) + lo
-            else:
-                least = float(min(np.min(nom * lo), np.min(nom * hi)))
-        bad = least <= spec.lower if spec.strict else least < spec.lower
-        if bad or not np.isfinite(least):
-            rel = ">" if spec.strict else ">="
-            hint = " (a Gaussian needs clip=(lo, hi) to bound it)" if isinstance(t.dist, Gaussian) else ""
-            raise ValueError(f"randomization[{i}] ({t.field!r}, op {t.op!r}, {t.dist!r}) can make {t.field} "
-                             f"{least:g}, but it must stay {rel} {spec.lower:g}{hint}")
-
-    # ------------------------------------------------------------------ events
-    def reset(self, mask: torch.Tensor) -> None:
-        """Reset-mode terms for the worlds in ``mask``; rewrites their randomised model entries (after a reset that
-        changed model rows, e.g. object variants)."""
-        self._fire("reset", mask)
-        self.commit(mask)
-
-    def step(self) -> None:
-        """Count an env step; interval terms whose period divides the count fire (all worlds)."""
-        self.steps += 1
-        if self._fire("interval", None):
-            self.commit(None)
-
-    def _fire(self, mode: str, mask: torch.Tensor | None) -> bool:
-        fired = False
-        for i, t in enumerate(self.terms):
-            if t.mode != mode or (mode == "interval" and self.steps % t.interval_steps):
-                continue
-            fired = True
-            idx = self._terms_idx[i]
-            nom = self.nominal[t.field] if idx is None else self.nominal[t.field][idx]
-            draw = t.dist.sample((self.num_worlds, *nom.shape), self.env._generator, self.device)
-            new = _apply_op(t.op, nom, draw)
-            cur = self.values[t.field]
-            old = cur if idx is None else cur[:, idx]
-            if mask is not None:
-                new = torch.where(mask.view(-1, *([1] * (new.dim() - 1))), new, old)
-            if idx is None:
-                cur.copy_(new)
-            else:
-                cur[:, idx] = new
-            if t.field == "payload_mass":
-                off = self._offsets[i] if self._offsets[i] is not None else torch.zeros(3, device=self.device)
-                po = self.payload_offset if idx is None else self.payload_offset[:, idx]
-                po_new = off.expand_as(po)
-                if mask is not None:
-                    po_new = torch.where(mask.view(-1, 1, 1), po_new, po)
-                if idx is None:
-                    self.payload_offset.copy_(po_new)
-                else:
-                    self.payload_offset[:, idx] = po_new
-        return fired
 
     # ------------------------------------------------------------------ model writes
     def commit(self, mask: torch.Tensor | None) -> None:

@@ -33,10 +33,11 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
+import warp as wp
 
 from magwarp._checks import as_count, check_finite, check_magnitude
 
-__all__ = ["ActuationConfig", "SensorConfig", "Latency", "SensorModel", "as_config"]
+__all__ = ["ActuationConfig", "BackendLatency", "PushSim2Real", "SensorConfig", "Latency", "SensorModel", "as_config"]
 
 
 def as_config(cls, value, name: str):
@@ -244,3 +245,150 @@ class SensorModel:
         self._held = {k: obs[k].clone() for k in self.HELD_KEYS}
         self._drop.zero_()
 
+
+
+@wp.kernel(enable_backward=False)
+def _select_delayed(
+    cycle: int,
+    # State in:
+    delay: wp.array(dtype=wp.int32),
+    prev: wp.array3d(dtype=float),
+    latest: wp.array3d(dtype=float),
+    # State out:
+    cmd: wp.array2d(dtype=wp.vec2),
+    cmd_c: wp.array2d(dtype=float),
+):
+    """The command acting from ``cycle`` on: the previous step's during the world's first ``delay[w]`` cycles, then
+    the latest one (x/y into ``cmd``; a third component, the yaw command, into ``cmd_c``)."""
+    w, m = wp.tid()
+    held = cycle < delay[w]
+    for k in range(prev.shape[2]):
+        v = latest[w, m, k]
+        if held:
+            v = prev[w, m, k]
+        if k < 2:
+            c = cmd[w, m]
+            c[k] = v
+            cmd[w, m] = c
+        else:
+            cmd_c[w, m] = v
+
+
+class BackendLatency:
+    """Action latency on the mujoco-warp backend (the push envs), with the planar simulator's semantics (see
+    :class:`ActuationConfig`): the env hands the step's action to :meth:`set_action` instead of the backend; the
+    backend's command buffers then hold the previous action during each world's first ``delay[w]`` cycles and the new
+    one after: a tiny kernel after each of the step's first ``bound`` cycles, inside the step graph (a cycle hook of
+    :class:`magwarp.physics.MjwBackend`), no host sync. ``delay``: ``[W]`` int32 on the device (drawn at resets from
+    a range). Off (no hook, no copies) unless the config asks for a delay."""
+
+    def __init__(self, config: ActuationConfig | dict | None, backend, num_cycles: int, generator: torch.Generator):
+        self.config = config = as_config(ActuationConfig, config, "actuation")
+        self.backend, self.generator, self.num_cycles = backend, generator, int(num_cycles)
+        fixed, self.bound = config.delays(backend.num_worlds, self.num_cycles)
+        self.enabled = config.enabled and backend.num_movers > 0
+        if not self.enabled:
+            return
+        dev = backend.torch_device
+        width = 3 if backend.control.rotation else 2
+        self.delay = torch.as_tensor(fixed, dtype=torch.int32, device=dev)
+        self.new = torch.zeros(backend.num_worlds, backend.num_movers, width, device=dev)
+        self.prev = torch.zeros_like(self.new)
+        self._hooks_run = 0
+        w = {k: wp.from_torch(t) for k, t in (("delay", self.delay), ("prev", self.prev), ("latest", self.new))}
+        self._arrays = w
+        backend.add_cycle_hook(self._after_cycle)
+
+    def _after_cycle(self) -> None:
+        """Launched after every cycle of the step graph: before cycle ``c`` (1 .. bound) select its command."""
+        c = self._hooks_run % self.num_cycles + 1
+        self._hooks_run += 1
+        if c > self.bound or c >= self.num_cycles:
+            return
+        b, a = self.backend, self._arrays
+        wp.launch(_select_delayed, dim=(b.num_worlds, b.num_movers), device=b.device,
+                  inputs=[c, a["delay"], a["prev"], a["latest"], b.cmd, b.cmd_c])
+
+    def set_action(self, action: torch.Tensor) -> None:
+        """The step's action ``[W, M, d]``: kept as the new command; cycle 0's command selected (torch ops)."""
+        self.new.copy_(action)
+        first = torch.where((self.delay > 0)[:, None, None], self.prev, self.new)
+        self.backend.set_actions(first, check_finite=False)
+
+    def end_step(self) -> None:
+        """After the step: its action becomes the previous one."""
+        self.prev.copy_(self.new)
+
+    def reset(self, mask: torch.Tensor) -> None:
+        """Reset worlds start at rest (previous action zero) and draw new delays (with a range)."""
+        if not self.enabled:
+            return
+        self.prev.masked_fill_(mask[:, None, None], 0.0)
+        if self.config.latency_range is None:
+            return
+        low, high = (int(v) for v in self.config.latency_range)
+        if low == high:
+            return
+        draw = torch.randint(low, high + 1, self.delay.shape, generator=self.generator, device=self.delay.device,
+                             dtype=self.delay.dtype)
+        self.delay.copy_(torch.where(mask, draw, self.delay))
+
+
+class PushSim2Real:
+    """Mixin of the push envs (:class:`magwarp.envs.push.PushEnv`): their ``actuation`` (:class:`BackendLatency`)
+    and ``sensors`` (:class:`SensorModel` on the mover x/y positions and velocities of ``observation``; a dropped
+    reading repeats the whole ``observation`` and ``achieved_goal``) options, as on the trajectory env. ``sensors``
+    replaces ``std_noise`` (not both; its noise draws come in another order, so the same seed gives other noise) and
+    needs the x/y observation layout (not ``learn_mover_c_rotation``)."""
+
+    latency: BackendLatency | None = None
+    sensors: SensorModel | None = None
+
+    def _init_sim2real(self, actuation, sensors) -> None:
+        self.latency = BackendLatency(actuation, self.backend, self.num_cycles, self._generator)
+        if sensors is None:
+            return
+        if self.std_noise:
+            raise ValueError(f"give std_noise or sensors, not both (got std_noise={self.std_noise!r}; it is "
+                             "SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise))")
+        if self.learn_mover_c_rotation:
+            raise ValueError("sensors model x/y positions and velocities; not with learn_mover_c_rotation=True")
+        self.sensors = SensorModel(sensors, self.num_envs, self.num_movers, self.device, self._generator)
+
+    def _sim2real_reset(self, mask: torch.Tensor) -> None:
+        self.latency.reset(mask)
+        if self.sensors is not None:
+            self.sensors.reset(mask)
+
+    def _step_backend(self, action: torch.Tensor) -> None:
+        """Simulate one env step of ``action`` ``[W, M, d]`` (through the latency model when it is on)."""
+        if self.latency.enabled:
+            self.latency.set_action(action)
+            self.backend.step()
+            self.latency.end_step()
+        else:
+            self.backend.step(action, check_finite=False)
+        if self.sensors is not None:
+            self.sensors.new_step()
+
+    def _sense_movers(self, xy: torch.Tensor, vel: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Observed mover x/y positions and velocities ``[W, 2 M]`` each (``std_noise`` without a sensor model)."""
+        n = xy.shape[0]
+        if self.sensors is None:
+            return self._noisy(xy, self.std_noise).reshape(n, -1), self._noisy(vel, self.std_noise).reshape(n, -1)
+        return self.sensors.read(xy, vel)
+
+    def _hold_obs(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return obs if self.sensors is None else self.sensors.hold(obs)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = super().reset(seed=seed, options=options)
+        if self.sensors is not None:
+            self.sensors.commit(obs)
+        return obs, info
+
+    def step(self, action):
+        out = super().step(action)
+        if self.sensors is not None:
+            self.sensors.commit(out[0])
+        return out

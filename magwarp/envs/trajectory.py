@@ -34,6 +34,7 @@ from magwarp._checks import as_count, as_flag, check_finite, warp_device
 from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
+from magwarp.envs.planar_randomization import PlanarRandomizer
 from magwarp.envs.sampling import PoseSampler
 from magwarp.envs.sim2real import ActuationConfig, Latency, SensorConfig, SensorModel
 from magwarp.envs.trajectory_fused import FusedTrajectoryStep, fused_step_blocker
@@ -81,7 +82,10 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
     ``actuation`` (:class:`~magwarp.envs.sim2real.ActuationConfig`: action latency) and ``sensors``
     (:class:`~magwarp.envs.sim2real.SensorConfig`: bias, noise and dropped readings; not together with
     ``std_noise``) are the sim2real models of :mod:`magwarp.envs.sim2real`. The per-world state they draw is in
-    ``env.sim.latency_cycles`` and ``env.sensors.pos_bias`` / ``vel_bias``.
+    ``env.sim.latency_cycles`` and ``env.sensors.pos_bias`` / ``vel_bias``. ``randomization``: a list of
+    :class:`~magwarp.envs.randomization.EventTerm` (or mappings), or a preset's name (``"sim2real"``), over the
+    simulator's per-world mover mass, inertia, payload, impedance gains, limits and collision sizes
+    (:mod:`magwarp.envs.planar_randomization`).
 
     Chosen episodes (e.g. a MagBotSim episode replayed): ``reset(seed=..., options={...})`` with any of
 
@@ -107,6 +111,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
 
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
+    #: domain randomisation (``randomization``: event terms or a preset name, :mod:`magwarp.envs.planar_randomization`)
+    randomizer = None
 
     def __init__(
         self,
@@ -134,6 +140,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         std_noise: float = 0.0,
         actuation: ActuationConfig | dict | None = None,
         sensors: SensorConfig | dict | None = None,
+        randomization: Any = None,
         device: str | None = None,
         seed: int | None = None,
         render_mode: str | None = None,
@@ -240,6 +247,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         )
         self._fused_step = None
         self._graph = graph
+        self.randomizer = PlanarRandomizer(self, randomization) if randomization else None  # before the first reset
         self.reset()
         # The sampled starts must satisfy the per-cycle rule (walls and mover-mover with the safety margin).
         self.sim._raise_on_start_collisions()
@@ -274,6 +282,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.collected_goals.masked_fill_(mask[:, None], 0)
         self.latency.reset(mask)
         self.sensors.reset(mask)
+        if self.randomizer is not None:
+            self.randomizer.reset(mask)
         if self.benchmark_metrics is not None:
             self.benchmark_metrics.episode_reset(mask)
 

@@ -50,7 +50,7 @@ def fused_step_blocker(env) -> str | None:
     """Why ``env`` (a :class:`~magwarp.envs.trajectory.TrajectoryPlanningEnv`) must take the eager torch step now, or
     None when the fused step applies. The fused step covers the default configuration, action latency (fixed or
     drawn at resets), ``learn_jerk``, box or circle shapes, any layout, ``max_episode_steps`` and ``timeout_steps``;
-    the sensor models, benchmark metrics, ``nan_dump``, ``autoreset=False``, simulator cycle hooks and subclasses that
+    the sensor models, domain randomisation terms, benchmark metrics, ``nan_dump``, ``autoreset=False``, simulator cycle hooks and subclasses that
     override a task hook (:data:`REPLACED_HOOKS`) keep the torch step."""
     if not env.fused:
         return "fused=False"
@@ -67,6 +67,8 @@ def fused_step_blocker(env) -> str | None:
         return "sensor model (bias, noise or dropout)"
     if env.sim._hooks or env.sim._pre_hooks:
         return "simulator cycle hooks"
+    if getattr(env, "randomizer", None) is not None:
+        return "domain randomisation terms"
     hook = _overridden_hook(type(env))
     if hook is not None:
         return f"{type(env).__name__} overrides {hook}"

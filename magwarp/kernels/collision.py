@@ -227,6 +227,31 @@ def bin_movers(
 
 
 @wp.func
+def model_row(rows: int, w: int) -> int:
+    """The row of world ``w`` in a model array of ``rows`` rows: its own when the array is per world, else the one
+    shared row (a model array stays shared until domain randomisation makes it per world, as mujoco-warp's do)."""
+    if rows == 1:
+        return 0
+    return w
+
+
+@wp.func
+def world_collision(col: Collision, margins: wp.array(dtype=wp.vec2), w: int) -> Collision:
+    """``col`` with world ``w``'s margins (``margins[w]`` = (mover-mover margin, wall margin); per world so that domain
+    randomisation can change them on the device)."""
+    mw = margins[model_row(margins.shape[0], w)]
+    out = Collision()
+    out.shape = col.shape
+    out.margin = mw[0]
+    out.wall_margin = mw[1]
+    out.tile_size = col.tile_size
+    out.stop_on_collision = col.stop_on_collision
+    out.full_rect = col.full_rect
+    out.extent = col.extent
+    return out
+
+
+@wp.func
 def add_pair(w: int, i: int, j: int, world_pairs: wp.array(dtype=wp.int32), pair_list: wp.array2d(dtype=wp.vec2i)):
     """Count a colliding pair (found by its lower index ``i``) and list it while the world's list has room."""
     k = wp.atomic_add(world_pairs, w, 1)
@@ -244,8 +269,8 @@ def visit_pair(
     hd: wp.vec2,
     pos: wp.array2d(dtype=wp.vec3),
     quat: wp.array2d(dtype=wp.quat),
-    radius: wp.array(dtype=float),
-    half_size: wp.array(dtype=wp.vec2),
+    radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2),
     partner: int,
     world_pairs: wp.array(dtype=wp.int32),
     pair_list: wp.array2d(dtype=wp.vec2i),
@@ -256,8 +281,10 @@ def visit_pair(
         return partner
     q = pos[w, j]
     d = wp.vec2(p[0] - q[0], p[1] - q[1])
-    if not movers_collide_cs(col, d, hd, radius[m], half_size[m], shape_heading(col, quat[w, j]), radius[j],
-                             half_size[j]):
+    wr = model_row(radius.shape[0], w)
+    wh = model_row(half_size.shape[0], w)
+    if not movers_collide_cs(col, d, hd, radius[wr, m], half_size[wh, m], shape_heading(col, quat[w, j]), radius[wr, j],
+                             half_size[wh, j]):
         return partner
     if j > m:
         add_pair(w, m, j, world_pairs, pair_list)
@@ -303,10 +330,11 @@ def clear_world_counters(world_pairs: wp.array(dtype=wp.int32), world_walls: wp.
 @wp.kernel
 def detect_collisions_grid(
     # Model:
-    col: Collision,
+    col_shared: Collision,
     grid: Grid,
-    radius: wp.array(dtype=float),
-    half_size: wp.array(dtype=wp.vec2),
+    radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2),
+    margins: wp.array(dtype=wp.vec2),
     # State in:
     pos: wp.array2d(dtype=wp.vec3),
     quat: wp.array2d(dtype=wp.quat),
@@ -324,6 +352,7 @@ def detect_collisions_grid(
 ):
     """Mover-mover narrow phase over the 3x3 neighbouring cells, then the mover's flags."""
     w, m = wp.tid()
+    col = world_collision(col_shared, margins, w)
     p = pos[w, m]
     hd = shape_heading(col, quat[w, m])
     c = cell_coords(grid, p)
@@ -346,9 +375,10 @@ def detect_collisions_grid(
 @wp.kernel
 def detect_collisions_brute(
     # Model:
-    col: Collision,
-    radius: wp.array(dtype=float),
-    half_size: wp.array(dtype=wp.vec2),
+    col_shared: Collision,
+    radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2),
+    margins: wp.array(dtype=wp.vec2),
     # State in:
     pos: wp.array2d(dtype=wp.vec3),
     quat: wp.array2d(dtype=wp.quat),
@@ -364,6 +394,7 @@ def detect_collisions_brute(
 ):
     """Mover-mover check against every other mover of the world: the fast choice for small worlds."""
     w, m = wp.tid()
+    col = world_collision(col_shared, margins, w)
     p = pos[w, m]
     hd = shape_heading(col, quat[w, m])
     partner = int(-1)
@@ -400,9 +431,10 @@ def footprints_on_tiles(
 def detect_walls(
     # Model:
     tiles: wp.array2d(dtype=wp.int32),
-    col: Collision,
-    radius: wp.array(dtype=float),
-    half_size: wp.array(dtype=wp.vec2),
+    col_shared: Collision,
+    radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2),
+    margins: wp.array(dtype=wp.vec2),
     # State in:
     pos: wp.array2d(dtype=wp.vec3),
     quat: wp.array2d(dtype=wp.quat),
@@ -411,9 +443,11 @@ def detect_walls(
 ):
     """Wall flags of the current poses, without integrating (start-pose validation, queries)."""
     w, m = wp.tid()
+    col = world_collision(col_shared, margins, w)
     p = pos[w, m]
     hit = int(0)
-    if hits_wall_cs(tiles, col, wp.vec2(p[0], p[1]), shape_heading(col, quat[w, m]), radius[m], half_size[m]):
+    if hits_wall_cs(tiles, col, wp.vec2(p[0], p[1]), shape_heading(col, quat[w, m]),
+                    radius[model_row(radius.shape[0], w), m], half_size[model_row(half_size.shape[0], w), m]):
         hit = 1
     wall[w, m] = hit
 

@@ -56,12 +56,12 @@ def planar_acceleration(vel: wp.vec3, acc: wp.vec2, cmd: wp.vec2, lim: Limits) -
 
 
 @wp.func
-def planar_acceleration64(vel: wp.vec2d, acc: wp.vec2d, cmd: wp.vec2, lim: Limits) -> wp.vec2d:
+def planar_acceleration64(vel: wp.vec2d, acc: wp.vec2d, cmd: wp.vec2, lim: Limits, body: Body) -> wp.vec2d:
     """The x/y acceleration for this cycle in float64 (the planar simulator's law: at the speed cap the law divides
     a difference of two speeds near ``v_max`` by ``dt``, which float32 rounds to about 1e-4 m/s^2, and jerk mode
-    would carry that error in its acceleration state)."""
+    would carry that error in its acceleration state), within the mover's own (per-world) limits."""
     c = wp.vec2d(wp.float64(cmd[0]), wp.float64(cmd[1]))
-    return planar_law(vel, acc, c, lim.dt64, lim.v_max64, lim.a_max64, lim.j_max64, lim.jerk_mode)
+    return planar_law(vel, acc, c, lim.dt64, body.v_max, body.a_max, body.j_max, lim.jerk_mode)
 
 
 @wp.func

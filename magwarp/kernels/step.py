@@ -21,7 +21,8 @@ import functools
 
 import warp as wp
 
-from magwarp.kernels.collision import hits_wall_cs, movers_collide_cs, push_to_cell, shape_heading
+from magwarp.kernels.collision import (hits_wall_cs, model_row, movers_collide_cs, push_to_cell, shape_heading,
+                                       world_collision)
 from magwarp.kernels.dynamics import integrate_body, integrate_planar64, planar_acceleration64, sync_planar64
 from magwarp.kernels.impedance import default_force
 from magwarp.kernels.options import MODULE_OPTIONS
@@ -44,6 +45,17 @@ def delayed_command(
     return cmd[w, m]
 
 
+@wp.func
+def body_impedance(imp: Impedance, b: Body) -> Impedance:
+    """The impedance the force model sees for one mover: the mover's (per-world) gains with the shared hold mask."""
+    out = Impedance()
+    out.k_lin = b.k_lin
+    out.k_rot = b.k_rot
+    out.mask_lin = imp.mask_lin
+    out.mask_rot = imp.mask_rot
+    return out
+
+
 @functools.cache
 def make_advance_kernel(force_fn=default_force, latency: bool = False):
     """The per-cycle kernel, the fused per-world kernel and the one-mover cycle function, for ``force_fn``.
@@ -63,14 +75,25 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         The acceleration is carried as state (jerk commands integrate from it, as MuJoCo's integrator actuator,
         ``act``, does in MagBotSim), not re-derived from the velocity change; the x/y law runs in float64
         (:func:`~magwarp.kernels.dynamics.planar_acceleration64`), the other axes in float32. ``xy`` is the float64
-        x/y state, synced with the float32 fields where it was read from memory (:func:`sync_planar64`)."""
-        a64 = planar_acceleration64(wp.vec2d(xy[2], xy[3]), wp.vec2d(xy[4], xy[5]), cmd, lim)
+        x/y state, synced with the float32 fields where it was read from memory (:func:`sync_planar64`).
+
+        Mass: the controller asks for ``m_ctrl a`` (its own, nominal mass), so the mover accelerates by
+        ``a * b.drive_gain`` (``m_ctrl / m``; 1 nominal); the carried acceleration state stays the commanded one. A
+        centre of mass off the mover centre (``b.com``, a payload) adds gravity's torque about the centre, where the
+        levitation compensates the weight ``m g``."""
+        a64 = planar_acceleration64(wp.vec2d(xy[2], xy[3]), wp.vec2d(xy[4], xy[5]), cmd, lim, b)
         a = wp.vec2(wp.float32(a64[0]), wp.float32(a64[1]))
-        drive = wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0)
-        wrench = force_fn(p, b, drive, target_pos, target_quat, imp, lim, aux)
+        a_eff = a64 * b.drive_gain
+        drive = wp.vec3(wp.float32(a_eff[0]) * b.mass, wp.float32(a_eff[1]) * b.mass, 0.0)
+        wrench = force_fn(p, b, drive, target_pos, target_quat, body_impedance(imp, b), lim, aux)
+        if not (b.com == wp.vec3(0.0)):
+            weight = wp.vec3(0.0, 0.0, -b.mass * lim.gravity)
+            wrench.torque = wrench.torque + wp.cross(wp.quat_rotate(p.quat, b.com), weight)
         n = integrate_body(p, wrench, b, lim)
         extra = wp.vec2(wrench.force[0] - drive[0], wrench.force[1] - drive[1]) * b.inv_mass
-        n, xy_new = integrate_planar64(n, xy, a64, extra, lim)
+        n, xy_new = integrate_planar64(n, xy, a_eff, extra, lim)
+        xy_new[4] = a64[0]
+        xy_new[5] = a64[1]
         return n, a, xy_new
 
     @wp.func
@@ -81,9 +104,9 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         imp: Impedance,
         col: Collision,
         tiles: wp.array2d(dtype=wp.int32),
-        body: wp.array(dtype=Body),
-        radius: wp.array(dtype=float),
-        half_size: wp.array(dtype=wp.vec2),
+        body: wp.array2d(dtype=Body),
+        radius: wp.array2d(dtype=float),
+        half_size: wp.array2d(dtype=wp.vec2),
         cmd: wp.array2d(dtype=wp.vec2),
         prev_cmd: wp.array2d(dtype=wp.vec2),
         delay: wp.array(dtype=wp.int32),
@@ -104,8 +127,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         u = cmd[w, m]
         if wp.static(latency):
             u = delayed_command(cmd, prev_cmd, delay, w, m, c)
-        n, a, xy = advance_pose(p, xy0, u, body[m], target_pos[w, m], target_quat[w, m], force_aux[w, m], lim,
-                                imp)
+        n, a, xy = advance_pose(p, xy0, u, body[model_row(body.shape[0], w), m], target_pos[w, m], target_quat[w, m],
+                                force_aux[w, m], lim, imp)
         pos[w, m] = n.pos
         quat[w, m] = n.quat
         vel[w, m] = n.vel
@@ -113,7 +136,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         acc[w, m] = a
         planar[w, m] = xy
         hit = int(0)
-        if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[m], half_size[m]):
+        if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat),
+                        radius[model_row(radius.shape[0], w), m], half_size[model_row(half_size.shape[0], w), m]):
             hit = 1
         wall[w, m] = hit
 
@@ -122,11 +146,12 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         # Model:
         lim: Limits,
         imp: Impedance,
-        col: Collision,
+        col_shared: Collision,
         tiles: wp.array2d(dtype=wp.int32),
-        body: wp.array(dtype=Body),
-        radius: wp.array(dtype=float),
-        half_size: wp.array(dtype=wp.vec2),
+        body: wp.array2d(dtype=Body),
+        radius: wp.array2d(dtype=float),
+        half_size: wp.array2d(dtype=wp.vec2),
+        margins: wp.array(dtype=wp.vec2),
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
         prev_cmd: wp.array2d(dtype=wp.vec2),  # latency only: the previous step's command
@@ -154,6 +179,7 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         world_walls: wp.array(dtype=wp.int32),
     ):
         w, m = wp.tid()
+        col = world_collision(col_shared, margins, w)
         if bin_cells == 0 and m == 0:
             world_pairs[w] = 0
             world_walls[w] = 0
@@ -171,11 +197,12 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         # Model:
         lim: Limits,
         imp: Impedance,
-        col: Collision,
+        col_shared: Collision,
         tiles: wp.array2d(dtype=wp.int32),
-        body: wp.array(dtype=Body),
-        radius: wp.array(dtype=float),
-        half_size: wp.array(dtype=wp.vec2),
+        body: wp.array2d(dtype=Body),
+        radius: wp.array2d(dtype=float),
+        half_size: wp.array2d(dtype=wp.vec2),
+        margins: wp.array(dtype=wp.vec2),
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
         delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
@@ -201,6 +228,9 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
         pair_list: wp.array2d(dtype=wp.vec2i),
     ):
         w = wp.tid()
+        col = world_collision(col_shared, margins, w)
+        wr = model_row(radius.shape[0], w)
+        wh = model_row(half_size.shape[0], w)
         num_movers = pos.shape[1]
         # The per-step accumulators start here (no separate begin_step launch for fused steps).
         halted[w] = 0
@@ -225,8 +255,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False):
                 for j in range(i + 1, num_movers):
                     pj = pos[w, j]
                     d = wp.vec2(pi[0] - pj[0], pi[1] - pj[1])
-                    if movers_collide_cs(col, d, yi, radius[i], half_size[i], shape_heading(col, quat[w, j]), radius[j],
-                                         half_size[j]):
+                    if movers_collide_cs(col, d, yi, radius[wr, i], half_size[wh, i], shape_heading(col, quat[w, j]),
+                                         radius[wr, j], half_size[wh, j]):
                         if pairs < pair_list.shape[1]:
                             pair_list[w, pairs] = wp.vec2i(i, j)
                         pairs += 1
@@ -276,11 +306,12 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
         # Model:
         lim: Limits,
         imp: Impedance,
-        col: Collision,
+        col_shared: Collision,
         tiles: wp.array2d(dtype=wp.int32),
-        body: wp.array(dtype=Body),
-        radius: wp.array(dtype=float),
-        half_size: wp.array(dtype=wp.vec2),
+        body: wp.array2d(dtype=Body),
+        radius: wp.array2d(dtype=float),
+        half_size: wp.array2d(dtype=wp.vec2),
+        margins: wp.array(dtype=wp.vec2),
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
         delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
@@ -306,6 +337,10 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
         pair_list: wp.array2d(dtype=wp.vec2i),
     ):
         w = wp.tid()
+        col = world_collision(col_shared, margins, w)
+        wb = model_row(body.shape[0], w)
+        wr = model_row(radius.shape[0], w)
+        wh = model_row(half_size.shape[0], w)
         P = Rows3()
         V = Rows3()
         Om = Rows3()
@@ -354,8 +389,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
                 if wp.static(latency):
                     if c < held:
                         u = Cp[m]
-                n, a, xy = advance_pose(p, XY[m], u, body[m], TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
-                                        force_aux[w, m], lim, imp)
+                n, a, xy = advance_pose(p, XY[m], u, body[wb, m], TP[m],
+                                        wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]), force_aux[w, m], lim, imp)
                 P[m] = n.pos
                 V[m] = n.vel
                 Om[m] = n.omega
@@ -363,7 +398,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
                 A[m] = a
                 XY[m] = xy
                 hit = int(0)
-                if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[m], half_size[m]):
+                if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[wr, m],
+                                half_size[wh, m]):
                     hit = 1
                 Wl[m] = hit
                 Pr[m] = -1
@@ -378,7 +414,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False):
                     if j > i:
                         d = wp.vec2(P[i, 0] - P[j, 0], P[i, 1] - P[j, 1])
                         yj = shape_heading(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
-                        if movers_collide_cs(col, d, yi, radius[i], half_size[i], yj, radius[j], half_size[j]):
+                        if movers_collide_cs(col, d, yi, radius[wr, i], half_size[wh, i], yj, radius[wr, j],
+                                             half_size[wh, j]):
                             if pairs < pair_list.shape[1]:
                                 pair_list[w, pairs] = wp.vec2i(i, j)
                             pairs += 1

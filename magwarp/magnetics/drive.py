@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import warp as wp
 
+from magwarp.kernels.collision import model_row
 from magwarp.kernels.dynamics import planar_acceleration
 from magwarp.kernels.impedance import default_force
 from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
@@ -61,7 +62,7 @@ def wanted_wrench_kernel(
     # Model:
     lim: Limits,
     imp: Impedance,
-    body: wp.array(dtype=Body),
+    body: wp.array2d(dtype=Body),
     # State in:
     cmd: wp.array2d(dtype=wp.vec2),
     target_pos: wp.array2d(dtype=wp.vec3),
@@ -83,7 +84,7 @@ def wanted_wrench_kernel(
     w, m = wp.tid()
     i = w * pos.shape[1] + m
     p = make_pose(pos[w, m], quat[w, m], vel[w, m], omega[w, m])
-    b = body[m]
+    b = body[model_row(body.shape[0], w), m]
     a = planar_acceleration(p.vel, acc[w, m], cmd[w, m], lim)
     wr = default_force(p, b, wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0), target_pos[w, m], target_quat[w, m], imp,
                        lim, force_aux[w, m])

@@ -1,0 +1,88 @@
+"""Model writes: per-world mover parameters packed into the simulator's :class:`~magwarp.types.Body` rows (domain
+randomisation changes them on the device between steps, with no rebuild)."""
+
+from __future__ import annotations
+
+import warp as wp
+
+from magwarp.kernels.options import MODULE_OPTIONS
+from magwarp.types import Body
+
+wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
+
+
+@wp.func
+def pack_body(m_ctrl: wp.float64, i_ctrl: wp.vec3d, mass: wp.float64, inertia: wp.vec3d, k_lin: wp.vec3d,
+              k_rot: wp.vec3d, com: wp.vec3d, v_max: wp.float64, a_max: wp.float64, j_max: wp.float64) -> Body:
+    """One mover's body row. The controller knows ``m_ctrl`` and ``i_ctrl`` (the configured mover): the x/y drive gain
+    is ``m_ctrl / mass`` and the impedance damping ``2 sqrt(K m_ctrl)``, ``2 sqrt(K I_ctrl)``. Rounded as the
+    simulator's constructor does, so that the configured values pack to the same bits."""
+    b = Body()
+    b.mass = wp.float32(mass)
+    b.inv_mass = wp.float32(wp.float64(1.0) / mass)
+    b.inertia = wp.vec3(wp.float32(inertia[0]), wp.float32(inertia[1]), wp.float32(inertia[2]))
+    kl = wp.vec3(wp.float32(k_lin[0]), wp.float32(k_lin[1]), wp.float32(k_lin[2]))
+    kr = wp.vec3(wp.float32(k_rot[0]), wp.float32(k_rot[1]), wp.float32(k_rot[2]))
+    b.k_lin = kl
+    b.k_rot = kr
+    mc = wp.float32(m_ctrl)
+    b.damp_lin = wp.vec3(2.0 * wp.sqrt(kl[0] * mc), 2.0 * wp.sqrt(kl[1] * mc), 2.0 * wp.sqrt(kl[2] * mc))
+    two = wp.float64(2.0)
+    b.damp_rot = wp.vec3(wp.float32(two * wp.sqrt(wp.float64(kr[0]) * i_ctrl[0])),
+                         wp.float32(two * wp.sqrt(wp.float64(kr[1]) * i_ctrl[1])),
+                         wp.float32(two * wp.sqrt(wp.float64(kr[2]) * i_ctrl[2])))
+    b.drive_gain = m_ctrl / mass
+    b.com = wp.vec3(wp.float32(com[0]), wp.float32(com[1]), wp.float32(com[2]))
+    b.v_max = v_max
+    b.a_max = a_max
+    b.j_max = j_max
+    return b
+
+
+@wp.func
+def with_payload(mass: wp.float64, inertia: wp.vec3d, payload: wp.float64, offset: wp.vec3d):
+    """Mass, principal inertia about the new centre of mass (parallel axis, diagonal terms) and that centre (body
+    frame, from the mover centre) of a body with a point ``payload`` at ``offset``."""
+    total = mass + payload
+    mu = mass * payload / total
+    r2 = wp.dot(offset, offset)
+    shift = wp.vec3d(r2 - offset[0] * offset[0], r2 - offset[1] * offset[1], r2 - offset[2] * offset[2])
+    return total, inertia + mu * shift, offset * (payload / total)
+
+
+@wp.kernel
+def pack_bodies(
+    mask: wp.array(dtype=wp.bool),
+    # Model:
+    m_ctrl: wp.float64,
+    i_ctrl: wp.vec3d,
+    scale_inertia: int,
+    # State in:
+    mass: wp.array2d(dtype=wp.float64),
+    inertia: wp.array2d(dtype=wp.vec3d),
+    payload: wp.array2d(dtype=wp.float64),
+    offset: wp.array2d(dtype=wp.vec3d),
+    k_lin: wp.array2d(dtype=wp.vec3d),
+    k_rot: wp.array2d(dtype=wp.vec3d),
+    v_max: wp.array2d(dtype=wp.float64),
+    a_max: wp.array2d(dtype=wp.float64),
+    j_max: wp.array2d(dtype=wp.float64),
+    # State out:
+    body: wp.array2d(dtype=Body),
+):
+    """Pack the masked worlds' mover parameters into their body rows (one thread per mover): the mover's own mass and
+    inertia (``scale_inertia``: the configured inertia scaled with the mass, uniform density) plus a point payload
+    (:func:`with_payload`; none when it is 0), then :func:`pack_body`."""
+    w, m = wp.tid()
+    if not mask[w]:
+        return
+    mw = mass[w, m]
+    iw = inertia[w, m]
+    if scale_inertia != 0:
+        iw = iw * (mw / m_ctrl)
+    com = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    p = payload[w, m]
+    if p != wp.float64(0.0):
+        mw, iw, com = with_payload(mw, iw, p, offset[w, m])
+    body[w, m] = pack_body(m_ctrl, i_ctrl, mw, iw, k_lin[w, m], k_rot[w, m], com, v_max[w, m], a_max[w, m],
+                           j_max[w, m])

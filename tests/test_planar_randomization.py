@@ -1,0 +1,257 @@
+"""Domain randomisation on the planar simulator (magwarp.envs.planar_randomization) through the trajectory env:
+per-world parameters in the step kernels (defaults pack to the constructor's bits), distributions (moments over many
+worlds), only the targeted worlds change, seeds reproduce, F = m a where mass enters the planar model (the x/y drive,
+the z hold, a payload's gravity torque), per-world limits clip, per-world collision margins, presets."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from magwarp.envs.randomization import PRESETS, EventTerm, Gaussian, LogUniform, Uniform
+from magwarp.envs.trajectory import TrajectoryPlanningEnv
+from magwarp.layout import Layout
+from magwarp.sim import Simulator
+
+from conftest import cuda_available
+
+DT = 1e-3
+MASS = 1.24  # MoverSpec's default
+
+
+def same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Body rows equal bit for bit, field by field (the struct's padding bytes are not compared)."""
+    return all(np.ascontiguousarray(a[f]).tobytes() == np.ascontiguousarray(b[f]).tobytes() for f in a.dtype.names)
+
+
+def make(n=8, terms=None, seed=0, **kw):
+    return TrajectoryPlanningEnv(n, device="cpu", seed=seed, randomization=terms, **kw)
+
+
+def test_default_parameters_pack_to_the_constructors_bits():
+    sim = Simulator(Layout.grid(4, 3), num_movers=3, num_worlds=4, device="cpu", stiffness_lin=(1.0, 1.0, 37.0),
+                    stiffness_rot=(0.3, 0.2, 0.7), v_max=1.7, a_max=9.3, j_max=77.0)
+    before = sim.model.body.numpy().copy()
+    assert before.shape == (1, 3)  # one row shared by all worlds until randomisation asks for more
+    sim.commit_mover_params()
+    after = sim.model.body.numpy()
+    assert after.shape == (4, 3)
+    assert all(np.array_equal(np.repeat(before[f], 4, 0), after[f]) for f in before.dtype.names)
+    assert after["drive_gain"].min() == after["drive_gain"].max() == 1.0
+
+
+def test_terms_draw_from_their_distributions():
+    n = 1200
+    env = make(n, [EventTerm("mover_mass", Uniform(1.0, 1.6)),
+                   EventTerm("stiffness_lin", LogUniform(0.5, 2.0), op="scale"),
+                   EventTerm("a_max", Gaussian(9.0, 0.4, clip=(7.0, 11.0))),
+                   EventTerm("collision_radius", Uniform(-0.01, 0.0), op="add")])
+    body = env.sim.model.body.numpy()
+    k = n * 3
+    mass = body["mass"].reshape(-1).astype(np.float64)
+    assert abs(mass.mean() - 1.3) < 4 * 0.6 / math.sqrt(12 * k)
+    assert abs(mass.var() - 0.36 / 12) < 0.15 * 0.36 / 12
+    assert mass.min() >= 1.0 and mass.max() <= 1.6
+    ratio = np.log(body["k_lin"][..., 2].reshape(-1) / 100.0)  # log of a log-uniform scale: uniform on [-ln2, ln2]
+    assert abs(ratio.mean()) < 4 * (2 * math.log(2)) / math.sqrt(12 * 3 * k)
+    assert abs(ratio.var() - (2 * math.log(2)) ** 2 / 12) < 0.1 * (2 * math.log(2)) ** 2 / 12
+    a = body["a_max"].reshape(-1)
+    assert abs(a.mean() - 9.0) < 4 * 0.4 / math.sqrt(k) and abs(a.std() - 0.4) < 0.05
+    r = env.sim.radii.numpy().reshape(-1) - 0.11
+    assert abs(r.mean() + 0.005) < 4 * 0.01 / math.sqrt(12 * k) and r.min() >= -0.01 - 1e-7 and r.max() <= 1e-7
+    # packed consistently: inverse mass, drive gain m_ctrl / m, damping from the controller's mass
+    np.testing.assert_allclose(body["inv_mass"], 1.0 / body["mass"], rtol=1e-6)
+    np.testing.assert_allclose(body["drive_gain"], MASS / body["mass"], rtol=1e-6)
+    np.testing.assert_allclose(body["damp_lin"], 2 * np.sqrt(body["k_lin"] * MASS), rtol=1e-6)
+
+
+def test_only_the_targeted_worlds_and_movers_change():
+    env = make(6, [EventTerm("mover_mass", Uniform(2.0, 3.0), targets=(1,)),
+                   EventTerm("collision_margin", Uniform(0.0, 0.002)),
+                   EventTerm("v_max", Uniform(1.0, 1.5), mode="startup")])
+    body0, margins0 = env.sim.model.body.numpy().copy(), env.sim.margins.clone()
+    assert np.all(body0["mass"][:, [0, 2]] == np.float32(MASS)) and np.all(body0["mass"][:, 1] >= 2.0)
+    mask = torch.tensor([True, False, False, True, False, False])
+    env.reset(options={"reset_mask": mask})
+    body1 = env.sim.model.body.numpy()
+    keep = ~mask.numpy()
+    assert same(body1[keep], body0[keep])
+    assert torch.equal(env.sim.margins[~mask], margins0[~mask])
+    assert np.all(body1["mass"][mask.numpy(), 1] != body0["mass"][mask.numpy(), 1])
+    assert np.all(body1["mass"][:, [0, 2]] == np.float32(MASS))
+    assert np.array_equal(body1["v_max"], body0["v_max"])  # startup terms never fire again
+
+
+def test_seeds_reproduce():
+    terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
+             EventTerm("payload_mass", Uniform(0.0, 0.3), offset=(0.02, 0.0, 0.01)),
+             EventTerm("stiffness_rot", Uniform(0.7, 1.3), op="scale")]
+    a, b = make(16, terms, seed=3), make(16, terms, seed=3)
+    assert same(a.sim.model.body.numpy(), b.sim.model.body.numpy())
+    assert not np.array_equal(make(16, terms, seed=4).sim.model.body.numpy()["mass"], a.sim.model.body.numpy()["mass"])
+    a.reset(seed=11)
+    b.reset(seed=11)
+    assert same(a.sim.model.body.numpy(), b.sim.model.body.numpy())
+
+
+def _one_cycle(env, cmd):
+    """One control cycle from rest with command ``cmd`` [W, M, 2]."""
+    env.sim.reset()
+    env.sim.step(1, cmd)
+
+
+def test_heavier_mover_accelerates_as_f_equals_m_a():
+    """The controller drives with its own mass: F = m_ctrl a_cmd = m a, so a = a_cmd m_ctrl / m in x/y."""
+    masses = [MASS, 2 * MASS, 0.5 * MASS, 3.1]
+    env = make(4, [EventTerm("mover_mass", Uniform(1.0, 1.0), op="scale", mode="startup")])
+    p = env.sim.mover_params
+    p["mass"].copy_(torch.tensor(masses, dtype=torch.float64)[:, None].expand(4, 3))
+    env.sim.commit_mover_params()
+    cmd = torch.zeros(4, 3, 2)
+    cmd[..., 0] = 4.0
+    _one_cycle(env, cmd)
+    expect = 4.0 * MASS / np.array(masses) * DT
+    np.testing.assert_allclose(env.sim.vel[:, :, 0].numpy(), expect[:, None].repeat(3, 1), rtol=1e-5)
+    assert torch.all(env.sim.acc[..., 0] == 4.0)  # the carried (commanded) acceleration state
+    # z: the hold's force on a displaced target accelerates the true mass, K dz / m (at rest: no damping yet)
+    env.sim.reset()
+    tgt = env.sim.state.target_pos
+    env.sim._t(tgt)[..., 2] += 0.001
+    env.sim.step(1, torch.zeros(4, 3, 2))
+    vz = env.sim.vel[:, 0, 2].numpy()
+    np.testing.assert_allclose(vz, 100.0 * 0.001 / np.array(masses) * DT, rtol=1e-4)
+    # levitation carries the true weight: no sag at rest
+    env.sim.reset()
+    env.sim.step(40, torch.zeros(4, 3, 2))
+    np.testing.assert_allclose(env.sim.pos[..., 2].numpy(), 0.01, atol=1e-6)
+
+
+def test_payload_offset_gravity_torque():
+    """A payload off centre: gravity's torque about the centre (the levitation carries the weight there) over the
+    parallel-axis inertia, in the first cycle from rest."""
+    env = make(2, [EventTerm("payload_mass", Uniform(0.4, 0.4), offset=(0.03, 0.0, 0.0), targets=(0,),
+                             mode="startup")])
+    _one_cycle(env, torch.zeros(2, 3, 2))
+    m, p, r = MASS, 0.4, 0.03
+    total = m + p
+    com_x = p / total * r
+    inertia_y = env.sim.mover.inertia[1] + m * p / total * r * r
+    alpha = com_x * total * 9.81 / inertia_y  # (r x (0, 0, -M g))_y = x M g: the loaded +x side dips
+    np.testing.assert_allclose(env.sim.omega[:, 0, 1].numpy(), alpha * DT, rtol=1e-4)
+    assert torch.all(env.sim.omega[:, 1:] == 0)
+
+
+@pytest.mark.parametrize("jerk", [False, True])
+def test_limits_clip_per_world(jerk):
+    env = make(3, [EventTerm("a_max", Uniform(1.0, 1.0), mode="startup"),
+                   EventTerm("j_max", Uniform(1.0, 1.0), mode="startup"),
+                   EventTerm("v_max", Uniform(1.0, 1.0), mode="startup")], learn_jerk=jerk)
+    p = env.sim.mover_params
+    p["a_max"].copy_(torch.tensor([2.0, 5.0, 8.0], dtype=torch.float64)[:, None].expand(3, 3))
+    p["j_max"].copy_(torch.tensor([20.0, 50.0, 80.0], dtype=torch.float64)[:, None].expand(3, 3))
+    p["v_max"].copy_(torch.tensor([0.02, 0.05, 0.5], dtype=torch.float64)[:, None].expand(3, 3))
+    env.sim.commit_mover_params()
+    cmd = torch.zeros(3, 3, 2)
+    cmd[..., 1] = 1000.0
+    _one_cycle(env, cmd)
+    first = env.sim.acc[:, 0, 1].numpy()
+    np.testing.assert_allclose(first, ([20.0, 50.0, 80.0] if jerk else [2.0, 5.0, 8.0]) * np.array([DT if jerk else 1]),
+                               rtol=1e-5)
+    env.sim.step(200, cmd)
+    speed = env.sim.vel[:, 0, :2].norm(dim=-1).numpy()
+    np.testing.assert_allclose(speed, [0.02, 0.05, 0.5], rtol=1e-5)
+
+
+def test_collision_margin_per_world():
+    env = make(2, [EventTerm("collision_margin", Uniform(0.0, 0.0), mode="startup")], collision_size=0.05)
+    env.sim.margins[1, 0] = 0.02  # world 1: a 2 cm safety margin on each mover
+    start = [[0.12, 0.3], [0.25, 0.3], [0.7, 0.4]]  # 0.13 m apart: free, unless 2 (0.05 + 0.02) > 0.13
+    env.sim.start_pos[..., :2] = torch.tensor(start)
+    env.sim.reset()
+    env.sim.check_collisions()
+    assert env.sim.flags.numpy()[:, :2].tolist() == [[0, 0], [1, 1]]
+
+
+def test_interval_terms_fire_every_n_steps():
+    env = make(2, [EventTerm("a_max", Uniform(5.0, 9.0), mode="interval", interval_steps=3)])
+    seen = []
+    for _ in range(7):
+        seen.append(env.sim.model.body.numpy()["a_max"].copy())
+        env.step(torch.zeros(2, 6))
+    changed = [not np.array_equal(seen[i], seen[i + 1]) for i in range(6)]
+    assert changed == [False, False, True, False, False, True]
+
+
+def test_preset_and_mappings_from_json():
+    env = make(4, "sim2real")
+    assert {t.field for t in env.randomizer.terms} >= {"mover_mass", "payload_mass", "stiffness_lin", "a_max"}
+    env2 = make(4, [{"field": "v_max", "dist": {"uniform": [1.0, 1.5]}}])
+    assert env2.sim.model.body.numpy()["v_max"].max() <= 1.5
+
+
+def test_bad_terms_are_named():
+    with pytest.raises(ValueError, match="'object_mass' is not one of this env's"):
+        make(2, [EventTerm("object_mass", Uniform(0.2, 0.4))])
+    with pytest.raises(ValueError, match="unstable at dt"):
+        make(2, [EventTerm("stiffness_lin", Uniform(1.0, 2e6))])
+    with pytest.raises(ValueError, match="preset 'nope' is unknown"):
+        make(2, "nope")
+    with pytest.raises(ValueError, match="'collision_half_size'.*none"):
+        make(2, [EventTerm("collision_half_size", Uniform(0.05, 0.06))])
+
+
+def test_pack_bodies_matches_numpy(rng):
+    """kernels.params.pack_bodies on random parameters and mask vs a float64 numpy reference."""
+    W, M = 6, 4
+    sim = Simulator(Layout.grid(6, 6), num_movers=M, num_worlds=W, device="cpu")
+    p = sim.mover_params
+    mass = rng.uniform(0.5, 3.0, (W, M))
+    inertia = rng.uniform(1e-3, 5e-3, (W, M, 3))
+    payload = np.where(rng.random((W, M)) < 0.5, 0.0, rng.uniform(0.0, 0.5, (W, M)))
+    offset = rng.uniform(-0.03, 0.03, (W, M, 3))
+    k_lin, k_rot = rng.uniform(1, 200, (W, M, 3)), rng.uniform(0.01, 2, (W, M, 3))
+    for key, value in (("mass", mass), ("inertia", inertia), ("payload", payload), ("payload_offset", offset),
+                       ("k_lin", k_lin), ("k_rot", k_rot)):
+        p[key].copy_(torch.as_tensor(value))
+    mask = torch.as_tensor(rng.random(W) < 0.6)
+    before = sim.model.body.numpy().copy()
+    for scale in (False, True):
+        sim.commit_mover_params(mask, scale_inertia=scale)
+        b = sim.model.body.numpy()
+        m_ctrl, i_ctrl = sim.mover.mass, np.asarray(sim.mover.inertia)
+        own = inertia * (mass / m_ctrl)[..., None] if scale else inertia
+        total = mass + payload
+        mu = (mass * payload / total)[..., None]
+        r2 = (offset ** 2).sum(-1, keepdims=True)
+        ref_inertia = own + mu * (r2 - offset ** 2)
+        ref_com = (payload / total)[..., None] * offset
+        sel = mask.numpy()
+        np.testing.assert_allclose(b["mass"][sel], total[sel], rtol=1e-6)
+        np.testing.assert_allclose(b["inv_mass"][sel], 1 / total[sel], rtol=1e-6)
+        np.testing.assert_allclose(b["inertia"][sel], ref_inertia[sel], rtol=1e-5)
+        np.testing.assert_allclose(b["com"][sel], ref_com[sel], rtol=1e-5, atol=1e-9)
+        np.testing.assert_allclose(b["drive_gain"][sel], m_ctrl / total[sel], rtol=1e-12)
+        np.testing.assert_allclose(b["damp_lin"][sel], 2 * np.sqrt(k_lin[sel] * m_ctrl), rtol=1e-5)
+        np.testing.assert_allclose(b["damp_rot"][sel], 2 * np.sqrt(k_rot[sel] * i_ctrl), rtol=1e-5)
+        assert same(b[~sel], before[~sel])
+
+
+@pytest.mark.skipif(not cuda_available(), reason="needs CUDA (torch's sync debug mode)")
+def test_no_host_sync_on_cuda():
+    """Reset and interval events, and the step that reads them, are device work only."""
+    terms = PRESETS["sim2real"]["planar"] + [EventTerm("j_max", Uniform(50.0, 90.0), mode="interval", interval_steps=1)]
+    env = TrajectoryPlanningEnv(4, device="cuda:0", seed=6, randomization=terms, actuation={"latency_range": [0, 5]})
+    mask = torch.tensor([True, False, True, False], device="cuda:0")
+    before = env.sim.mover_params["mass"].clone()
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        env.randomizer.reset(mask)
+        env.sim.step(40)
+    finally:
+        torch.cuda.set_sync_debug_mode("default")
+    after = env.sim.mover_params["mass"]
+    assert torch.equal(after[~mask], before[~mask]) and torch.all(after[mask] != before[mask])
