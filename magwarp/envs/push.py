@@ -673,8 +673,8 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
         graph's command buffer and the physics graph replayed (``substeps`` physics steps, collision checks and
         metrics per physics step); then observations, rewards, terminations, goal resampling and autoreset run as
         one more graph on CUDA (a torch CUDA graph with the reset's Warp kernels inside), eagerly on the CPU. No
-        host sync; randomness follows the env's seeded generator either way. With ``nan_dump``, a randomizer or
-        benchmark metrics attached the task work runs eagerly (they keep host-side state)."""
+        host sync; randomness follows the env's seeded generator either way. With ``nan_dump``, a randomizer, a sensor
+        model or benchmark metrics attached the task work runs eagerly (they keep host-side state)."""
         if self.nan_dump is not None:  # debugging mode: the base class's step, one host sync per step
             out = super().step(action)
             self._step_count_t += 1
@@ -687,7 +687,7 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
 
     def _task_graph_for_step(self):
         if not self.use_step_graph or self.device.type != "cuda" or self.randomizer is not None \
-                or self.benchmark_metrics is not None:
+                or self.benchmark_metrics is not None or self.sensors is not None:
             return None
         if self._task_graph is None:
             from magwarp.envs.step_graph import TaskGraph
