@@ -59,8 +59,9 @@ class Task:
 # collisions per 1000 goals in the periodic evaluation) after 68 s instead of not within 90 s. Push tasks: a periodic
 # evaluation costs about 2.5 s whatever its size (one episode of ~25 mujoco-warp steps), so 256 worlds every 10 s;
 # SAC+HER's preset (64 updates of 4096 per step of 4096 worlds) learned fastest of the replay ratios tried on
-# Push-Box (periodic evaluation at ~90 s: 16384 worlds x 16 updates of 16384: 0.4%; 8192 x 32 of 8192: 18%; the
-# preset: 79%; with a constant lr: 79%; 128 updates per step: 81%; 2048 worlds: 80%); with --budget 150 it reached
+# Push-Box (periodic evaluation at ~90 s: 16384 worlds x 16 updates of 16384: 0.4%; 4096 x 16 of 16384: 0.3%;
+# 8192 x 32 of 8192: 18%; the preset: 79% (4.5% with 2048 evaluation worlds every 5 s: 60% of the time went to the
+# evaluations); with a constant lr: 72%; 128 updates per step: 79%; 2048 worlds: 80%); with --budget 150 it reached
 # 96.5% (98.1% confirmed), so Push-Box misses 99% in 90 s: about 27 s of each run go to start-up (imports,
 # mujoco-warp models, the step graphs) and the env steps 4096 worlds at ~25 k steps/s (issue #23).
 # Every run stops 15 s of training after its first crossing (--past-target): the policy confirmed holds the target.
