@@ -6,8 +6,8 @@ For each task and seed, one training process (``python -m magwarp.training.ppo``
 and a periodic deterministic evaluation every ``--eval-every`` seconds: its success-vs-wall-clock curve, and the
 first evaluation that reaches the target (the paper's success rate; B0 also fewer than 2.14 collisions per 1000
 goals) is the time to target. Training stops 15 s of training after it (``--past-target 15``), or at the budget. The
-policy it saved is then confirmed the way ``magwarp eval`` evaluates it (``magwarp.evaluate.evaluate``: 100 repeats, deterministic, the
-policy file's evaluation options). A task's Warp / mujoco-warp kernels are compiled once before its seeds (one env
+policy it saved is then confirmed the way ``magwarp eval`` evaluates it (``magwarp.evaluate.evaluate``: 100 repeats,
+deterministic, the policy file's evaluation options). A task's Warp / mujoco-warp kernels are compiled once before its seeds (one env
 step in a separate process, its time reported as ``compile_s``): the seeds load them from the kernel cache, as any
 run after the first on a machine does.
 
@@ -82,7 +82,8 @@ _SMOKE_SAC = ("--num-envs", "8", "--batch-size", "64", "--updates-per-step", "2"
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tasks", default=",".join(TASKS), help=f"comma separated, from {', '.join(TASKS)}")
     p.add_argument("--seeds", default="0,1,2", help="comma separated seeds (default 0,1,2)")
     p.add_argument("--budget", type=float, default=None,
