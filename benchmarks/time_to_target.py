@@ -57,7 +57,8 @@ class Task:
 # benchmarks/gpu_levers.sh; RESULTS.md "Time to target"). B0: 16,384 worlds x 16 steps in 8 minibatches, each update
 # a replayed CUDA graph (the PPO default on CUDA): 1.3-1.6 M env-steps/s against 0.4 M, and the target (99.2%, 1.98
 # collisions per 1000 goals in the periodic evaluation) after 68 s instead of not within 90 s. Push tasks: a periodic
-# evaluation costs about 2.5 s whatever its size (one episode of ~25 mujoco-warp steps), so 256 worlds every 10 s;
+# evaluation costs about 2.5 s whatever its size (one episode of ~25 mujoco-warp steps: 5-s log windows with one ran
+# 6.5 k env-steps/s, without 14.5 k), so 256 worlds every 15 s;
 # SAC+HER's preset (64 updates of 4096 per step of 4096 worlds) learned fastest of the replay ratios tried on
 # Push-Box (periodic evaluation at ~90 s: 16384 worlds x 16 updates of 16384: 0.4%; 4096 x 16 of 16384: 0.3%;
 # 8192 x 32 of 8192: 18%; the preset: 79% (4.5% with 2048 evaluation worlds every 5 s: 60% of the time went to the
@@ -67,7 +68,7 @@ class Task:
 # Every run stops 15 s of training after its first crossing (--past-target): the policy confirmed holds the target.
 _STOP = ("--stop-at-target", "--past-target", "15")
 _B0 = ("--eval-every", "5", "--eval-envs", "2048")  # the PPO preset of trajectory planning: 16384 x 16 in 8
-_PUSH = ("--eval-every", "10", "--eval-envs", "256")
+_PUSH = ("--eval-every", "15", "--eval-envs", "256")
 TASKS: dict[str, Task] = {
     "b0": Task("b0_ppo_starts40", 90.0, 100, (*_B0, *_STOP)),
     "pushbox": Task("pushbox_sac", 90.0, 200, (*_PUSH, *_STOP)),
