@@ -20,7 +20,7 @@ from magwarp.training import distributed as dist
 
 __all__ = ["OBS_KEYS", "make_env", "evaluate", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
            "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything",
-           "parse_env_kwargs", "Timer"]
+           "parse_env_kwargs", "Timer", "PhaseTimer", "configure_adam", "set_lr", "autocast"]
 
 #: order in which a goal-dict observation is flattened (the exported policy's input layout): sorted key order, as
 #: gymnasium's Dict space, SB3 and ``magwarp eval`` flatten it
@@ -172,7 +172,8 @@ class SuccessTracker:
         self.ep_len.masked_fill_(done, 0.0)
 
     def pop(self) -> dict[str, float]:
-        """Host values since the last pop (one sync): success_rate, episodes, mean return/length, collisions."""
+        """Host values since the last pop (one sync): success_rate, episodes, mean return/length, collisions (per
+        episode and per 1000 goals)."""
         keys = list(self.s)
         totals = dist.all_reduce_sum_(torch.stack([self.s[k] for k in keys]))  # every rank's counters (torchrun)
         v = {k: float(t) for k, t in zip(keys, totals.tolist())}
@@ -184,6 +185,8 @@ class SuccessTracker:
             "ep_return": v["return"] / eps if v["episodes"] else float("nan"),
             "ep_length": v["length"] / eps if v["episodes"] else float("nan"),
             "collisions_per_episode": v["collisions"] / eps if v["episodes"] else float("nan"),
+            # per 1000 goals (trajectory planning: goals reached or lost; pushing: episodes), the paper's B0 unit
+            "collisions_per_1k_goals": 1000.0 * v["collisions"] / v["trials"] if v["trials"] > 0 else float("nan"),
         }
 
 
@@ -338,3 +341,84 @@ class Timer:
     @property
     def expired(self) -> bool:
         return self.limit is not None and self.elapsed >= self.limit
+
+
+class PhaseTimer:
+    """Where a training iteration's time goes (``--profile``): ``with phases("env"): ...`` adds the wall time of the
+    block, the device synchronised before and after it (so asynchronous GPU work is charged to the phase that
+    launched it). Disabled (the default), a phase is a no-op context: no synchronisation, nothing recorded."""
+
+    def __init__(self, device, enabled: bool = False):
+        import contextlib
+
+        self.enabled = bool(enabled)
+        self.cuda = torch.device(device).type == "cuda"
+        self.device = torch.device(device)
+        self.seconds: dict[str, float] = {}
+        self.calls: dict[str, int] = {}
+        self._null = contextlib.nullcontext()
+
+    def _sync(self) -> None:
+        if self.cuda:
+            torch.cuda.synchronize(self.device)
+
+    def __call__(self, name: str):
+        return self._Phase(self, name) if self.enabled else self._null
+
+    class _Phase:
+        __slots__ = ("owner", "name", "t")
+
+        def __init__(self, owner: "PhaseTimer", name: str):
+            self.owner, self.name = owner, name
+
+        def __enter__(self):
+            self.owner._sync()
+            self.t = time.perf_counter()
+
+        def __exit__(self, *exc):
+            self.owner._sync()
+            o = self.owner
+            o.seconds[self.name] = o.seconds.get(self.name, 0.0) + time.perf_counter() - self.t
+            o.calls[self.name] = o.calls.get(self.name, 0) + 1
+            return False
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        """Per phase: total seconds, share of the phases' total, calls."""
+        total = sum(self.seconds.values()) or 1.0
+        return {k: {"s": round(v, 4), "share": round(v / total, 4), "calls": self.calls[k]}
+                for k, v in self.seconds.items()}
+
+
+def configure_adam(optimizers, graphed: bool, device) -> None:
+    """Capturable Adam (device step counters, a tensor lr that a captured graph reads) when ``graphed``; plain floats
+    otherwise. Also after loading a state saved the other way (a run may resume graphed or eager)."""
+    device = torch.device(device)
+    for opt in optimizers:
+        for group in opt.param_groups:
+            lr = float(group["lr"])
+            group["capturable"] = graphed
+            group["lr"] = torch.tensor(lr, device=device) if graphed else lr
+        for state in opt.state.values():
+            if "step" in state:
+                state["step"] = state["step"].to(device if graphed else "cpu", torch.float32)
+
+
+def set_lr(optimizers, value: float) -> None:
+    """Set every group's learning rate (a tensor lr in place: a captured graph reads it)."""
+    for opt in optimizers:
+        for group in opt.param_groups:
+            if isinstance(group["lr"], torch.Tensor):
+                group["lr"].fill_(value)
+            else:
+                group["lr"] = value
+
+
+def autocast(device, amp: str):
+    """``torch.autocast`` for ``--amp bf16`` on the device's type; a no-op context for ``--amp off``."""
+    import contextlib
+
+    if amp in (None, "off"):
+        return contextlib.nullcontext()
+    if amp != "bf16":
+        raise ValueError(f"--amp must be 'off' or 'bf16', got {amp!r}")
+    return torch.autocast(torch.device(device).type, dtype=torch.bfloat16)

@@ -5,9 +5,10 @@ evaluation that finds the time to target, and the run's JSON summary (``OUT/run.
 Time to target: every ``--eval-every`` seconds of training, the deterministic policy (what ``policy.pt`` runs) plays
 ``--target-eval-steps`` batched steps on a separate env of ``--eval-envs`` worlds built with the evaluation options
 (``--eval-env-kwargs``, else the training ones). The first evaluation whose success rate reaches ``--target`` (by
-default the paper's figure for the task: :data:`PAPER_TARGETS`) gives the time to target: seconds since the process
-started (start-up and compilation included), training seconds (earlier sessions of a resumed run included) and env
-steps. It is printed and written to ``OUT/run.json`` with every evaluation of the run.
+default the paper's figure for the task: :data:`PAPER_TARGETS`), with fewer collisions per 1000 goals than
+``--target-collisions`` where set (by default B0's 2.14: :data:`PAPER_COLLISIONS`), gives the time to target:
+seconds since the process started (start-up and compilation included), training seconds (earlier sessions of a
+resumed run included) and env steps. It is printed and written to ``OUT/run.json`` with every evaluation of the run.
 """
 
 from __future__ import annotations
@@ -22,20 +23,31 @@ from typing import Any, Callable
 import torch
 
 from magwarp.training import distributed as dist
-from magwarp.training.common import (PROCESS_START, CsvLogger, SuccessTracker, Timer, evaluate, load_checkpoint,
-                                     make_env, obs_dim, parse_env_kwargs, plot_curve, seed_everything)
+from magwarp.training.common import (PROCESS_START, CsvLogger, PhaseTimer, SuccessTracker, Timer, evaluate,
+                                     load_checkpoint, make_env, obs_dim, parse_env_kwargs, plot_curve, seed_everything)
 
-__all__ = ["PAPER_TARGETS", "default_target", "add_run_args", "resolve_run_args", "run_training", "entry_point",
+__all__ = ["PAPER_TARGETS", "PAPER_COLLISIONS", "default_target", "default_target_collisions", "add_run_args",
+           "resolve_run_args", "run_training", "entry_point",
            "open_env", "ProgressBar", "TargetEval", "Session", "finished_line", "write_run_json"]
 
 #: success rates the paper reports for its tasks (Tables 3 and 5): the default ``--target`` of a run on that task
 PAPER_TARGETS = {"TrajectoryPlanningB0": 0.99, "PushBox": 0.99, "PushT": 0.73, "PushWithObstacles": 0.91}
+#: collisions per 1000 goals the paper reports (Table 5, simulation): the default ``--target-collisions``
+PAPER_COLLISIONS = {"TrajectoryPlanningB0": 2.14}
+
+
+def _task(env_id: str) -> str:
+    return env_id.split("/")[-1].split("-v")[0]
 
 
 def default_target(env_id: str) -> float | None:
     """The paper's success rate for ``env_id``'s task (``magwarp/PushBox-v0`` -> 0.99), None for other tasks."""
-    name = env_id.split("/")[-1].split("-v")[0]
-    return PAPER_TARGETS.get(name)
+    return PAPER_TARGETS.get(_task(env_id))
+
+
+def default_target_collisions(env_id: str) -> float | None:
+    """The paper's collisions per 1000 goals for ``env_id``'s task (B0: 2.14), None for other tasks."""
+    return PAPER_COLLISIONS.get(_task(env_id))
 
 
 def add_run_args(p: argparse.ArgumentParser, default_env: str, out_suffix: str) -> None:
@@ -63,14 +75,21 @@ def add_run_args(p: argparse.ArgumentParser, default_env: str, out_suffix: str) 
                    help="success rate (a fraction, e.g. 0.99) whose first crossing in the periodic deterministic "
                         "evaluation is the time to target (default: the paper's figure for the task, e.g. 0.99 for "
                         "B0 and Push-Box, 0.73 Push-T, 0.91 PushWithObstacles; other tasks: none, unless given)")
+    p.add_argument("--target-collisions", type=float, default=None,
+                   help="the target also needs fewer collisions per 1000 goals than this in the periodic evaluation "
+                        "(default: the paper's figure, 2.14 for B0; other tasks: none; 0 or less: none)")
     p.add_argument("--eval-every", type=float, default=None,
                    help="training seconds between the periodic evaluations (default 10 with a target; 0: none)")
     p.add_argument("--eval-envs", type=int, default=None,
-                   help="worlds of the periodic evaluation (default: min(--num-envs, 1024), per rank)")
+                   help="worlds of the periodic evaluation (default: min(--num-envs, 1024); pushing tasks: 256; per "
+                        "rank)")
     p.add_argument("--target-eval-steps", type=int, default=None,
                    help="batched steps of each periodic evaluation (default: one episode of a pushing task, 10 s of "
                         "trajectory planning)")
     p.add_argument("--stop-at-target", action="store_true", help="stop training once the target is reached")
+    p.add_argument("--past-target", type=float, default=0.0,
+                   help="with --stop-at-target: train this many seconds more after the first crossing (a policy "
+                        "that holds the target, not one that touched it once)")
     p.add_argument("--dist-timeout", type=float, default=300.0,
                    help="seconds a torchrun rank waits in a collective before the job fails (a rank that died)")
     p.add_argument("--tensorboard", action="store_true", help="also log to OUT/tb (needs tensorboard)")
@@ -78,6 +97,11 @@ def add_run_args(p: argparse.ArgumentParser, default_env: str, out_suffix: str) 
     p.add_argument("--torch-threads", type=int, default=None,
                    help="torch CPU threads (default on a CPU device: 1, fastest for these small networks)")
     p.add_argument("--deterministic", action="store_true", help="deterministic torch algorithms (tests)")
+    p.add_argument("--matmul-precision", choices=("highest", "high", "medium"), default=None,
+                   help="torch float32 matmul precision on CUDA (default high: TF32)")
+    p.add_argument("--profile", action="store_true",
+                   help="time the phases of an iteration (env, policy, update, buffer, log, eval; the device is "
+                        "synchronised around each, which slows training): printed and written to run.json")
 
 
 def resolve_run_args(args: argparse.Namespace, presets: dict[str, dict], default_env: str,
@@ -108,6 +132,11 @@ def resolve_run_args(args: argparse.Namespace, presets: dict[str, dict], default
         args.target = default_target(args.env_id)
     if args.target is not None and not 0.0 < args.target <= 1.0:
         raise ValueError(f"--target is a success rate in (0, 1], got {args.target!r}")
+    if args.target_collisions is None:
+        args.target_collisions = default_target_collisions(args.env_id)
+    if args.target_collisions is not None and not math.isfinite(args.target_collisions):
+        raise ValueError(f"--target-collisions must be a finite number, got {args.target_collisions!r}")
+    args.matmul_precision = args.matmul_precision or "high"
     if args.eval_every is None:
         args.eval_every = 10.0 if args.target is not None else 0.0
     if args.eval_every < 0:
@@ -157,6 +186,8 @@ def open_env(args: argparse.Namespace):
     seed = dist.rank_seed(args.seed)
     seed_everything(seed, args.deterministic)
     env, base = make_env(args.env_id, args.num_envs, args.device, seed, parse_env_kwargs(args.env_kwargs))
+    if base.device.type == "cuda":
+        torch.set_float32_matmul_precision(getattr(args, "matmul_precision", None) or "high")
     n_obs, n_act = obs_dim(base.single_observation_space), int(base.single_action_space.shape[0])
     action_scale = torch.as_tensor(base.single_action_space.high, device=base.device, dtype=torch.float32)
     if dist.is_main():
@@ -203,6 +234,8 @@ class TargetEval:
 
     def __init__(self, args: argparse.Namespace, device, saved: dict | None = None):
         self.target = args.target
+        limit = getattr(args, "target_collisions", None)  # checkpoints of earlier versions lack it
+        self.max_collisions = float(limit) if limit is not None and limit > 0 else None
         self.every = float(args.eval_every or 0.0)
         self.enabled = self.target is not None and self.every > 0
         saved = saved or {}
@@ -213,7 +246,10 @@ class TargetEval:
         if not self.enabled:
             return
         kwargs = parse_env_kwargs(args.eval_env_kwargs or args.env_kwargs)
-        n = int(args.eval_envs or min(int(args.num_envs), 1024))
+        # pushing tasks: 256 worlds (a mujoco-warp evaluation costs seconds whatever its size: with 2048 worlds every
+        # 10 s it took 60% of a Push-Box run on an H100); trajectory planning: up to 1024, for the collision rate
+        default = 256 if "/Push" in str(args.env_id) else 1024
+        n = int(args.eval_envs or min(int(args.num_envs), default))
         if n < 1:
             raise ValueError(f"--eval-envs must be a positive integer, got {n}")
         self.seed = dist.rank_seed(args.seed) + 20_000
@@ -229,15 +265,26 @@ class TargetEval:
         ev = evaluate(self.env, act, self.steps, seed=self.seed)
         row = {"process_s": round(time.perf_counter() - PROCESS_START, 2), "wall_s": round(timer.total, 2),
                "global_step": int(global_step), "success_rate": ev["success_rate"],
-               "collisions_per_episode": ev["collisions_per_episode"], "episodes": ev["episodes"]}
+               "collisions_per_episode": ev["collisions_per_episode"],
+               "collisions_per_1k_goals": ev["collisions_per_1k_goals"], "episodes": ev["episodes"]}
         self.history.append(row)
-        if self.reached is None and math.isfinite(ev["success_rate"]) and ev["success_rate"] >= self.target:
+        if self.reached is None and self.met(ev):
             self.reached = row
             if dist.is_main():
-                print(f"time to target: success {ev['success_rate']:.4f} >= {self.target} after "
+                also = "" if self.max_collisions is None else \
+                    f", {ev['collisions_per_1k_goals']:.2f} < {self.max_collisions:g} collisions per 1000 goals"
+                print(f"time to target: success {ev['success_rate']:.4f} >= {self.target}{also} after "
                       f"{row['process_s']:.1f} s (process), {row['wall_s']:.1f} s of training, "
                       f"{global_step:,} env steps")
         return ev
+
+    def met(self, ev: dict[str, float]) -> bool:
+        """Whether an evaluation reaches the target: the success rate, and fewer collisions per 1000 goals than
+        ``--target-collisions`` when set."""
+        ok = math.isfinite(ev["success_rate"]) and ev["success_rate"] >= self.target
+        if ok and self.max_collisions is not None:
+            ok = math.isfinite(ev["collisions_per_1k_goals"]) and ev["collisions_per_1k_goals"] < self.max_collisions
+        return ok
 
     @property
     def hit(self) -> bool:
@@ -249,7 +296,7 @@ class TargetEval:
     def summary(self) -> dict[str, Any]:
         """Fields of the run's summary: the target and the time to target (None when not reached)."""
         r = self.reached or {}
-        return {"target": self.target, "time_to_target_s": r.get("process_s"),
+        return {"target": self.target, "target_collisions": self.max_collisions, "time_to_target_s": r.get("process_s"),
                 "time_to_target_train_s": r.get("wall_s"), "time_to_target_step": r.get("global_step")}
 
     def close(self) -> None:
@@ -279,6 +326,7 @@ class Session:
         self.tracker = SuccessTracker(args.num_envs, device)
         self.logger = CsvLogger(args.out, args.tensorboard, resume=bool(args.resume)) if dist.is_main() else None
         self.target = TargetEval(args, device, target_state)
+        self.phases = PhaseTimer(device, getattr(args, "profile", False))
         self.stats: dict[str, float] = {"success_rate": float("nan")}
 
     def start(self, wall_before: float, global_step: int) -> bool:
@@ -302,12 +350,29 @@ class Session:
         args, timer, target = self.args, self.timer, self.target
         now = time.perf_counter()
         stop, log_now, ckpt_now, eval_now = dist.agree(
-            self._spent(global_step), now - self.last_log >= args.log_every,
+            self._spent(global_step) or self._past_target(), now - self.last_log >= args.log_every,
             now - self.last_ckpt >= args.checkpoint_every, target.due(timer))
         if eval_now:
-            target.run(act, timer, global_step)
-            stop = stop or (args.stop_at_target and target.hit)
-        if log_now or stop:
+            with self.phases("eval"):
+                target.run(act, timer, global_step)
+            if not getattr(args, "past_target", 0.0):  # else the next step's agreed check stops (same on all ranks)
+                stop = stop or (args.stop_at_target and target.hit)
+        with self.phases("log"):
+            self._log(global_step, now, head, tail, log_now or stop)
+        if ckpt_now:
+            self.last_ckpt = now
+        return stop, ckpt_now
+
+    def _past_target(self) -> bool:
+        """--stop-at-target: the target was reached --past-target seconds of training ago (or more)."""
+        args, target = self.args, self.target
+        if not (args.stop_at_target and target.hit):
+            return False
+        return self.timer.total >= float(target.reached["wall_s"]) + float(getattr(args, "past_target", 0.0) or 0.0)
+
+    def _log(self, global_step: int, now: float, head: dict, tail: Callable[[], dict], log_now: bool) -> None:
+        args, timer = self.args, self.timer
+        if log_now:
             self.stats = self.tracker.pop()
             sps = (global_step - self.steps_at_log) / max(now - self.last_log, 1e-9)
             row = {"global_step": global_step, **head, "wall_s": round(timer.total, 2), "sps": round(sps),
@@ -317,9 +382,6 @@ class Session:
             self.last_log, self.steps_at_log = now, global_step
             self.bar.log_line(global_step, sps, self.stats)
         self.bar.show(global_step, timer, self.stats["success_rate"])
-        if ckpt_now:
-            self.last_ckpt = now
-        return stop, ckpt_now
 
     def finish(self, env, act: Callable, global_step: int, seed: int, save_all: Callable[[dict], None],
                title: str) -> dict:
@@ -329,6 +391,11 @@ class Session:
         self.bar.close()
         summary = {"success_rate": self.stats["success_rate"], "global_step": global_step,
                    "wall_s": round(self.timer.total, 1), **target.summary()}
+        if self.phases.enabled:
+            summary["profile"] = self.phases.summary()
+            if dist.is_main():
+                print("profile: " + ", ".join(f"{k} {v['s']:.2f} s ({100 * v['share']:.0f}%)"
+                                              for k, v in summary["profile"].items()))
         if args.eval_steps > 0:  # the deterministic policy (what policy.pt runs), from fresh episodes
             ev = evaluate(env, act, args.eval_steps, seed=seed + 10_000)
             summary.update({f"eval_{k}": v for k, v in ev.items()})

@@ -32,7 +32,8 @@ from torch import nn
 
 
 from magwarp.training import distributed as dist
-from magwarp.training.common import OBS_KEYS, RunningMeanStd, flatten_obs, load_checkpoint, save_checkpoint
+from magwarp.training.common import (OBS_KEYS, RunningMeanStd, configure_adam, flatten_obs, load_checkpoint,
+                                     save_checkpoint, set_lr)
 from magwarp.training.loop import Session, add_run_args, entry_point, open_env, resolve_run_args, run_training
 from magwarp.training.policy import mlp, save_policy
 
@@ -254,23 +255,10 @@ class SacLearner:
         self._configure_optimizers()  # the saved run may have been eager, or graphed
 
     def _configure_optimizers(self) -> None:
-        """Capturable Adam (device step counters, a tensor lr the graph reads) when graphed; floats otherwise."""
-        for opt in self.optimizers:
-            for group in opt.param_groups:
-                lr = float(group["lr"])
-                group["capturable"] = self.graphed
-                group["lr"] = torch.tensor(lr, device=self.device) if self.graphed else lr
-            for state in opt.state.values():
-                if "step" in state:
-                    state["step"] = state["step"].to(self.device if self.graphed else "cpu", torch.float32)
+        configure_adam(self.optimizers, self.graphed, self.device)
 
     def set_lr(self, value: float) -> None:
-        for opt in self.optimizers:
-            for group in opt.param_groups:
-                if isinstance(group["lr"], torch.Tensor):
-                    group["lr"].fill_(value)  # in place: the captured graph reads this tensor
-                else:
-                    group["lr"] = value
+        set_lr(self.optimizers, value)
 
     def norm(self, o: dict) -> torch.Tensor:
         return self.obs_rms.normalize(torch.cat([o[k] for k in OBS_KEYS], -1))
@@ -445,17 +433,21 @@ def _train(args: argparse.Namespace) -> dict:
 
     stop = session.start(wall_before, global_step)
     timer, total = session.timer, session.total
+    phase = session.phases
     while not stop:
         with torch.no_grad():
-            if env_steps < warmup and not args.resume:
-                action = torch.rand(N, n_act, device=device) * 2 - 1
-            else:
-                action, _ = actor(norm(obs))
-            next_obs, reward, terminated, truncated, info = env.step(action * action_scale)
-            done = terminated | truncated
-            buffer.add(obs, action, reward, info["final_obs"], terminated, done, info)
-            learner.obs_rms.update(flatten_obs(obs))
-            tracker.update(reward, terminated, truncated, info)
+            with phase("policy"):
+                if env_steps < warmup and not args.resume:
+                    action = torch.rand(N, n_act, device=device) * 2 - 1
+                else:
+                    action, _ = actor(norm(obs))
+            with phase("env"):
+                next_obs, reward, terminated, truncated, info = env.step(action * action_scale)
+            with phase("buffer"):
+                done = terminated | truncated
+                buffer.add(obs, action, reward, info["final_obs"], terminated, done, info)
+                learner.obs_rms.update(flatten_obs(obs))
+                tracker.update(reward, terminated, truncated, info)
             obs = next_obs
         env_steps += 1
         global_step += N * world
@@ -466,7 +458,10 @@ def _train(args: argparse.Namespace) -> dict:
                 (done_frac,) = dist.agree(done_frac)  # rank 0's clock
                 learner.set_lr(args.lr * max(1.0 - done_frac, 0.0))
             U = args.updates_per_step  # one relabelling call for all of this step's minibatches
-            losses = learner.learn(buffer.sample(U * args.batch_size, args.her_ratio, base.compute_reward), U)
+            with phase("buffer"):
+                sample = buffer.sample(U * args.batch_size, args.her_ratio, base.compute_reward)
+            with phase("update"):
+                losses = learner.learn(sample, U)
             updates += U
 
         stop, checkpoint = session.step_done(global_step, act, {"updates": updates}, tail)
