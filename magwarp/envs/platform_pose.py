@@ -126,7 +126,7 @@ class PlatformPoseEnv(MagwarpVecEnv):
         self.success_reward, self.per_step_penalty = float(success_reward), float(per_step_penalty)
         self.collision_penalty = float(collision_penalty)
         self.max_episode_steps = int(max_episode_steps)
-        self.mover = MoverSpec()
+        self.mover = self._mover_spec()
         self.model_spec = model or PlatformModelSpec()
         g = self.geometry
 
@@ -139,11 +139,12 @@ class PlatformPoseEnv(MagwarpVecEnv):
                              f"least {2 * reach:.3f} m wide in x and y is needed)")
         device = warp_device(device).alias
         centre = 0.5 * ext
-        self.xml = generate_platform_mjcf(self.layout, [centre], geometry=g, spec=model, mover=self.mover,
-                                          solver=solver)
+        self.xml = self._generate_xml(centre, solver)
         control = ControlParams(v_max=v_max, a_max=a_max, num_cycles=int(num_cycles), rotation=True, v_max_c=v_max_c,
                                 a_max_c=a_max_c)
-        self.backend = MjwBackend(self.xml, int(num_envs), control=control, nconmax=1, njmax=24, device=device)
+        nconmax, njmax = self._contact_capacity
+        self.backend = MjwBackend(self.xml, int(num_envs), control=control, nconmax=nconmax, njmax=njmax,
+                                  device=device)
         self.joints = PlatformJoints(self.backend.mjm, g, model)
         self.mover_z = float(self.backend.hover_z.mean())
         self.checks = MoverChecks(self.backend, self.layout, self.mover)
@@ -163,8 +164,24 @@ class PlatformPoseEnv(MagwarpVecEnv):
         self.target_pose = torch.zeros(n, 6, device=dev)
         self.target_clipped = torch.zeros(n, dtype=torch.bool, device=dev)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
+        self._init_task()
         self._set_spaces(self._observation_space(), self._action_space())
         self.reset()
+
+    # ------------------------------------------------------------------ model hooks (tasks on the platform override)
+    #: mujoco-warp's contacts and constraint rows per world (the bare platform has no contacts)
+    _contact_capacity = (1, 24)
+
+    def _mover_spec(self) -> MoverSpec:
+        return MoverSpec()
+
+    def _generate_xml(self, centre: np.ndarray, solver: str) -> str:
+        """The model's MJCF: one platform whose model pose is at ``centre``."""
+        return generate_platform_mjcf(self.layout, [centre], geometry=self.geometry, spec=self.model_spec,
+                                      mover=self.mover, solver=solver)
+
+    def _init_task(self) -> None:
+        """Task state allocated before the spaces are set and the first reset (default: none)."""
 
     # ------------------------------------------------------------------ spaces
     def _observation_space(self) -> gym.spaces.Dict:
@@ -242,7 +259,8 @@ class PlatformPoseEnv(MagwarpVecEnv):
         return {"observation": torch.cat(parts, 1), "achieved_goal": achieved.clone(),
                 "desired_goal": pose_to_goal(self.goal_pose)}
 
-    def _evaluate(self, obs):
+    def _failure_info(self) -> dict[str, Any]:
+        """This step's failure flags ``[W]``: wall and mover collisions, limit violations (any, and per limit)."""
         viol = platform_limit_violations(self.platform_pose(), self.mover_z, self.geometry)
         limit = viol["roll"] | viol["pitch"] | viol["height_min"] | viol["height_max"] | viol["non_finite"]
         info: dict[str, Any] = {
@@ -251,6 +269,10 @@ class PlatformPoseEnv(MagwarpVecEnv):
             "limit_violation": limit,
         }
         info.update({f"limit_{k}": v for k, v in viol.items()})
+        return info
+
+    def _evaluate(self, obs):
+        info = self._failure_info()
         pos_err, ang_err = goal_errors(obs["achieved_goal"], obs["desired_goal"])
         reached = (pos_err <= self.position_tolerance) & (ang_err <= self.angle_tolerance)
         failed = self._failed(info, reached.shape)
