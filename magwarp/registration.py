@@ -27,6 +27,9 @@ ENV_CLASSES = {
     "SwarmEnv": "magwarp.swarm.env",
     "PlatformPoseEnv": "magwarp.envs.platform_pose",
     "CoopPushEnv": "magwarp.envs.coop_push",
+    # MagBots (issue 19): pick and place with the 6D platform and with the gripper
+    "PlatformPickPlaceEnv": "magwarp.envs.platform_pick_place",
+    "GripperPickPlaceEnv": "magwarp.envs.gripper_pick_place",
 }
 # Benchmark variants (names only; their layouts live in magwarp.layout.BENCHMARK_LAYOUTS and magwarp.envs.push).
 TRAJECTORY_BENCHMARKS = tuple(f"B{i}" for i in range(10))
@@ -68,6 +71,8 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/SwarmMaterialFlow-v0"] = ("SwarmEnv", {"stations": "auto"})
     ids["magwarp/PlatformPose-v0"] = ("PlatformPoseEnv", {})
     ids["magwarp/CoopPush-v0"] = ("CoopPushEnv", {})
+    ids["magwarp/PlatformPickPlace-v0"] = ("PlatformPickPlaceEnv", {})
+    ids["magwarp/GripperPickPlace-v0"] = ("GripperPickPlaceEnv", {})
     return ids
 
 

@@ -20,13 +20,25 @@ import torch
 from magwarp.magbots.control import track_movers
 from magwarp.magbots.kinematics import platform_ik, wrap_to_pi
 
-__all__ = ["CarrotTracker", "PlatformIKPolicy"]
+__all__ = ["CarrotTracker", "PlatformIKPolicy", "limited_step"]
 
 
 def _delta(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """``a - b`` for poses ``[..., 6]``, the yaw difference wrapped."""
     d = a - b
     return torch.cat([d[..., :5], wrap_to_pi(d[..., 5:])], -1)
+
+
+def limited_step(delta: torch.Tensor, previous: torch.Tensor, max_step: torch.Tensor,
+                 max_change: torch.Tensor | None = None) -> torch.Tensor:
+    """A carrot's next step toward a goal ``delta`` away (per axis): at most ``max_step``; with ``max_change``, at
+    most ``max_change`` longer than the ``previous`` step, and no longer than what still brakes to a stop at the goal
+    with that change per step (``sqrt(2 c |delta|) + c / 2``)."""
+    limit = max_step
+    if max_change is not None:
+        brake = torch.sqrt(2.0 * max_change * delta.abs()) + 0.5 * max_change
+        limit = torch.minimum(torch.minimum(limit, previous.abs() + max_change), brake)
+    return torch.maximum(torch.minimum(delta, limit), -limit)
 
 
 def _six(values, name: str, device) -> torch.Tensor:
@@ -61,15 +73,8 @@ class CarrotTracker:
         fresh = fresh[:, None]
         start = env.target_pose if env.action_mode == "pose" else env.platform_pose()
         self.carrot = torch.where(fresh, start, self.carrot)
-        delta = _delta(goal, self.carrot)
-        limit = self.carrot_step
-        if self.carrot_change is not None:
-            c = self.carrot_change
-            prev = torch.where(fresh, 0.0, self.step).abs()
-            # accelerate by at most c per step, and no faster than what still stops at the goal
-            brake = torch.sqrt(2.0 * c * delta.abs()) + 0.5 * c
-            limit = torch.minimum(torch.minimum(limit, prev + c), brake)
-        step = torch.maximum(torch.minimum(delta, limit), -limit)
+        step = limited_step(_delta(goal, self.carrot), torch.where(fresh, 0.0, self.step), self.carrot_step,
+                            self.carrot_change)
         self.step = step
         previous = self.carrot
         self.carrot = previous + step
