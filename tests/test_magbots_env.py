@@ -146,7 +146,7 @@ def test_benchmark_script_smoke(tmp_path):
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     out = tmp_path / "mb.json"
-    assert mod.main(["--device", "cpu", "--num-envs", "2", "--steps", "2", "--action-modes", "pose",
+    assert mod.main(["--device", "cpu", "--num-envs", "2", "--steps", "2", "--envs", "pose", "--action-modes", "pose",
                      "--no-magbotsim", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())
     assert len(rows) == 1 and rows[0]["num_envs"] == 2 and rows[0]["env_steps_per_s"] > 0

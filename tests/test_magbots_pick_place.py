@@ -245,3 +245,22 @@ def test_pick_place_trajectories_match_mujoco_c():
     # world 0's jaw stops on the object (4 cm wide) instead of closing further; world 1's closed by 3 cm
     assert 0.035 < float(width[:, 0].min()) < genv.object_width + 1e-3
     assert float(width[0, 1] - width[:, 1].min()) > 0.025
+
+
+def test_benchmark_script_times_the_pick_place_envs(tmp_path):
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "magbots.py"
+    spec = importlib.util.spec_from_file_location("bench_magbots", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "mb.json"
+    assert mod.main(["--device", "cpu", "--num-envs", "2", "--steps", "2", "--envs", "pickplace,gripper",
+                     "--no-magbotsim", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [r["env"] for r in rows] == ["magwarp/PlatformPickPlace-v0", "magwarp/GripperPickPlace-v0"]
+    assert all(r["num_envs"] == 2 and r["env_steps_per_s"] > 0 and r["raw_mjw_ms"] > 0 for r in rows)
+    with pytest.raises(SystemExit):
+        mod.main(["--envs", "swarm", "--no-magbotsim"])
