@@ -73,7 +73,8 @@ def _headless(cls):
 def _reference(name: str):
     """(env class, magbots per env, ``step(env, t)``): MagBotSim's example env and the moving set poses it tracks
     (the examples' own motions, or a slow circle and bob where the example has a scripted sequence)."""
-    from magbotsim.envs_without_rl_api.magbots import (gripper_application_example, sixD_platform_application_example_env,
+    from magbotsim.envs_without_rl_api.magbots import (gripper_application_example,
+                                                      sixD_platform_application_example_env,
                                                       sixD_platform_example_env)
 
     if name == "SixDPlatformMagBotExampleEnv":

@@ -39,6 +39,7 @@ import torch
 
 from magwarp._checks import warp_device
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.magbot_task import MagBotTask, check_options
 from magwarp.layout import Layout, MoverSpec
 from magwarp.magbots.control import TrackingGains, track_movers
 from magwarp.magbots.gripper import GripperGeometry, GripperJoints, generate_gripper_mjcf, mover_distance
@@ -59,7 +60,7 @@ def jaw_offset(geometry: GripperGeometry, object_half_width: float) -> float:
     return g.hinge_back + g.finger * math.cos(alpha)
 
 
-class GripperPickPlaceEnv(MagwarpVecEnv):
+class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
     """Batched gripper pick and place; see the module docstring. ``layout`` (default 5 x 5 tiles, a full grid),
     ``geometry`` (the jaw linkage), ``obj`` (the object, a square box standing on the tiles)."""
 
@@ -67,6 +68,7 @@ class GripperPickPlaceEnv(MagwarpVecEnv):
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
     num_movers = 2
+    FAILURE_KEYS = (*MagBotTask.FAILURE_KEYS, "object_lost")
 
     def __init__(
         self,
@@ -96,19 +98,12 @@ class GripperPickPlaceEnv(MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
     ):
-        if action_mode not in _ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {_ACTION_MODES}, got {action_mode!r}")
-        for name, value in (("num_cycles", num_cycles), ("max_episode_steps", max_episode_steps)):
-            if int(value) != value or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name, value in (("goal_tolerance", goal_tolerance), ("release_margin", release_margin),
-                            ("min_distance", min_distance), ("jaw_squeeze", jaw_squeeze)):
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
-        for name, value in (("success_reward", success_reward), ("per_step_penalty", per_step_penalty),
-                            ("collision_penalty", collision_penalty)):
-            if not np.isfinite(value):
-                raise ValueError(f"{name} must be finite, got {value!r}")
+        check_options(action_mode, _ACTION_MODES, counts={"num_cycles": num_cycles,
+                                                          "max_episode_steps": max_episode_steps},
+                      positive={"goal_tolerance": goal_tolerance, "release_margin": release_margin,
+                                "min_distance": min_distance, "jaw_squeeze": jaw_squeeze},
+                      finite={"success_reward": success_reward, "per_step_penalty": per_step_penalty,
+                              "collision_penalty": collision_penalty})
         step = np.asarray(gripper_step, dtype=np.float64)
         if step.shape != (4,) or not np.all(np.isfinite(step) & (step > 0)):
             raise ValueError(f"gripper_step must be four positive numbers (x, y, yaw, width), got {gripper_step!r}")
@@ -336,17 +331,6 @@ class GripperPickPlaceEnv(MagwarpVecEnv):
         near = (achieved[..., :2] - desired[..., :2]).norm(dim=-1) <= self.goal_tolerance
         return near & (achieved[..., 2] >= desired[..., 2] - 0.5)
 
-    def _failed(self, info: dict[str, Any] | None, shape, device=None) -> torch.Tensor:
-        out = torch.zeros(shape, dtype=torch.bool, device=device or self.device)
-        for key in ("mover_collision", "wall_collision", "limit_violation", "object_lost"):
-            if info is not None and key in info:
-                out = out | torch.as_tensor(info[key], device=out.device).bool().reshape(shape)
-        return out
-
-    def _reward(self, reached: torch.Tensor, failed: torch.Tensor) -> torch.Tensor:
-        reward = torch.where(reached, self.success_reward, self.per_step_penalty)
-        return torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
-
     def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
         """Reward for a batch ``(..., 3)``; ``info`` holds the failure flags of the batch shape (or is None)."""
         achieved_goal = torch.as_tensor(achieved_goal)
@@ -356,18 +340,11 @@ class GripperPickPlaceEnv(MagwarpVecEnv):
 
     def _render_frame(self) -> torch.Tensor:
         """Top-down view: tiles, the movers (red after a collision), the object and its goal."""
-        worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 16)
-        if getattr(self, "_renderer", None) is None:
-            from magwarp.render import TopDownRenderer
-
-            count = worlds if np.ndim(worlds) == 0 else len(worlds)
-            w = self.obj.width
-            self._renderer = TopDownRenderer(self.layout, self.mover, worlds=worlds,
-                                             px_per_tile=96 if count == 1 else 48 if count <= 4 else 32,
-                                             object_shapes=[[(0.0, 0.0, w, w)]], device=self.backend.device)
+        w = self.obj.width
+        renderer = self._top_down([[(0.0, 0.0, w, w)]])
         pos, _ = self.mover_state()
         xy, yaw, _ = self.object_state()
         zero = torch.zeros_like(yaw)
-        return self._renderer.draw(pos, None, flags=self.checks.flags_t[:, None].expand(-1, 2),
-                                   object_poses=torch.cat([xy, yaw[:, None]], 1),
-                                   object_goals=torch.cat([self.goal, zero[:, None]], 1))
+        return renderer.draw(pos, None, flags=self.checks.flags_t[:, None].expand(-1, 2),
+                             object_poses=torch.cat([xy, yaw[:, None]], 1),
+                             object_goals=torch.cat([self.goal, zero[:, None]], 1))

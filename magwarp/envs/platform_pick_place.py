@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -356,22 +355,14 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
 
     def _render_frame(self) -> torch.Tensor:
         """Top-down view: tiles, the movers, the platform plate (as the object) and the product's rack spot (goal)."""
-        worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 16)
-        if getattr(self, "_renderer", None) is None:
-            from magwarp.render import TopDownRenderer
-
-            count = worlds if np.ndim(worlds) == 0 else len(worlds)
-            hx, hy, _ = self.model_spec.platform_half_size
-            o = self.scene.product
-            self._renderer = TopDownRenderer(self.layout, self.mover, worlds=worlds,
-                                             px_per_tile=96 if count == 1 else 48 if count <= 4 else 32,
-                                             object_shapes=[[(0.0, 0.0, hx, hy)], [(0.0, 0.0, o.width, o.height)]],
-                                             device=self.backend.device)
+        hx, hy, _ = self.model_spec.platform_half_size
+        o = self.scene.product
+        renderer = self._top_down([[(0.0, 0.0, hx, hy)], [(0.0, 0.0, o.width, o.height)]])
         pos, _ = self.mover_state()
         pose = self.platform_pose()
         p, q = self.product_pose()
         w, z = q[:, 0], q[:, 3]
         yaw = 2 * torch.atan2(z, w)
         objects = torch.stack([pose[:, [0, 1, 5]], torch.stack([p[:, 0], p[:, 1], yaw], 1)], 1)
-        return self._renderer.draw(pos[..., :2], pos[..., 2], flags=self.checks.flags_t[:, None].expand(-1, 2),
-                                   object_poses=objects)
+        return renderer.draw(pos[..., :2], pos[..., 2], flags=self.checks.flags_t[:, None].expand(-1, 2),
+                             object_poses=objects)

@@ -34,6 +34,7 @@ import torch
 
 from magwarp._checks import warp_device
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.magbot_task import MagBotTask, check_options
 from magwarp.layout import Layout, MoverSpec
 from magwarp.magbots.control import TrackingGains, track_movers
 from magwarp.magbots.geometry import PlatformGeometry
@@ -66,7 +67,7 @@ def _yaw(q: torch.Tensor) -> torch.Tensor:
     return torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-class PlatformPoseEnv(MagwarpVecEnv):
+class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
     """Batched 6D-platform pose tracking; see the module docstring. ``layout`` (a :class:`Layout` or 0/1 array,
     default 5 x 5 tiles) must leave room for the platform; ``geometry``/``model`` set the mechanism."""
 
@@ -104,14 +105,9 @@ class PlatformPoseEnv(MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
     ):
-        if action_mode not in _ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {_ACTION_MODES}, got {action_mode!r}")
-        for name, value in (("num_cycles", num_cycles), ("max_episode_steps", max_episode_steps)):
-            if int(value) != value or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name, value in (("position_tolerance", position_tolerance), ("angle_tolerance", angle_tolerance)):
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        check_options(action_mode, _ACTION_MODES, counts={"num_cycles": num_cycles,
+                                                          "max_episode_steps": max_episode_steps},
+                      positive={"position_tolerance": position_tolerance, "angle_tolerance": angle_tolerance})
         if not 0.0 <= sample_margin < 1.0:
             raise ValueError(f"sample_margin must lie in [0, 1), got {sample_margin!r}")
         step = np.asarray(pose_step, dtype=np.float64)
@@ -286,32 +282,14 @@ class PlatformPoseEnv(MagwarpVecEnv):
             info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
         return reward, terminated, truncated, info
 
-    def _failed(self, info: dict[str, Any] | None, shape, device=None) -> torch.Tensor:
-        out = torch.zeros(shape, dtype=torch.bool, device=device or self.device)
-        for key in ("mover_collision", "wall_collision", "limit_violation"):
-            if info is not None and key in info:
-                out = out | torch.as_tensor(info[key], device=out.device).bool().reshape(shape)
-        return out
-
-    def _reward(self, reached: torch.Tensor, failed: torch.Tensor) -> torch.Tensor:
-        reward = torch.where(reached, self.success_reward, self.per_step_penalty)
-        return torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
-
     def _render_frame(self) -> torch.Tensor:
         """Top-down view: tiles, the movers (red after a collision), the platform plate and its goal (x, y, yaw)."""
-        worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 16)
-        if getattr(self, "_renderer", None) is None:
-            from magwarp.render import TopDownRenderer
-
-            count = worlds if np.ndim(worlds) == 0 else len(worlds)
-            hx, hy, _ = self.model_spec.platform_half_size
-            self._renderer = TopDownRenderer(self.layout, self.mover, worlds=worlds,
-                                             px_per_tile=96 if count == 1 else 48 if count <= 4 else 32,
-                                             object_shapes=[[(0.0, 0.0, hx, hy)]], device=self.backend.device)
+        hx, hy, _ = self.model_spec.platform_half_size
+        renderer = self._top_down([[(0.0, 0.0, hx, hy)]])
         pos, _ = self.mover_state()
         pose = self.platform_pose()
-        return self._renderer.draw(pos[..., :2], pos[..., 2], flags=self.checks.flags_t[:, None].expand(-1, 2),
-                                   object_poses=pose[:, [0, 1, 5]], object_goals=self.goal_pose[:, [0, 1, 5]])
+        return renderer.draw(pos[..., :2], pos[..., 2], flags=self.checks.flags_t[:, None].expand(-1, 2),
+                             object_poses=pose[:, [0, 1, 5]], object_goals=self.goal_pose[:, [0, 1, 5]])
 
     def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
         """Reward for a batch ``(..., 7)``; ``info`` holds the failure flags of the batch shape (or is None)."""

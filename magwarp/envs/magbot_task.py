@@ -1,0 +1,60 @@
+"""Shared by the MagBot envs (:mod:`magwarp.envs.platform_pose`, :mod:`magwarp.envs.platform_pick_place`,
+:mod:`magwarp.envs.gripper_pick_place`): option checks, failure flags, the sparse reward and the top-down renderer."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+__all__ = ["MagBotTask", "check_options"]
+
+
+def check_options(action_mode: str, action_modes: Sequence[str], *, counts: dict[str, Any],
+                  positive: dict[str, Any] = {}, finite: dict[str, Any] = {}) -> None:  # noqa: B006 (read only)
+    """Refuse, naming the option: an unknown ``action_mode``, ``counts`` that are not positive integers, ``positive``
+    values that are not positive finite numbers, ``finite`` values that are not finite."""
+    if action_mode not in action_modes:
+        raise ValueError(f"action_mode must be one of {tuple(action_modes)}, got {action_mode!r}")
+    for name, value in counts.items():
+        if int(value) != value or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    for name, value in positive.items():
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive number, got {value!r}")
+    for name, value in finite.items():
+        if not np.isfinite(value):
+            raise ValueError(f"{name} must be finite, got {value!r}")
+
+
+class MagBotTask:
+    """Mixin of a :class:`~magwarp.envs.base.MagwarpVecEnv` MagBot task with ``success_reward``,
+    ``per_step_penalty``, ``collision_penalty``, ``layout``, ``mover`` and ``backend``."""
+
+    #: the ``info`` flags that fail an episode (the reward is then ``collision_penalty``)
+    FAILURE_KEYS: tuple[str, ...] = ("mover_collision", "wall_collision", "limit_violation")
+
+    def _failed(self, info: dict[str, Any] | None, shape, device=None) -> torch.Tensor:
+        out = torch.zeros(shape, dtype=torch.bool, device=device or self.device)
+        for key in self.FAILURE_KEYS:
+            if info is not None and key in info:
+                out = out | torch.as_tensor(info[key], device=out.device).bool().reshape(shape)
+        return out
+
+    def _reward(self, reached: torch.Tensor, failed: torch.Tensor) -> torch.Tensor:
+        reward = torch.where(reached, self.success_reward, self.per_step_penalty)
+        return torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
+
+    def _top_down(self, object_shapes):
+        """The top-down renderer of the worlds :meth:`set_render_worlds` chose (built once, then reused)."""
+        if getattr(self, "_renderer", None) is None:
+            from magwarp.render import TopDownRenderer
+
+            worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 16)
+            count = worlds if np.ndim(worlds) == 0 else len(worlds)
+            self._renderer = TopDownRenderer(self.layout, self.mover, worlds=worlds,
+                                             px_per_tile=96 if count == 1 else 48 if count <= 4 else 32,
+                                             object_shapes=object_shapes, device=self.backend.device)
+        return self._renderer
