@@ -23,7 +23,7 @@ from magwarp.magbots.mjcf import PlatformJoints, PlatformModelSpec
 from magwarp.mjcf import ObjectSpec
 from magwarp.physics import ControlParams, MjwBackend
 
-from magbots_helpers import rollout_vs_mujoco_c  # noqa: E402  (tests/ is on sys.path)
+from magbots_helpers import load_magbots_benchmark, rollout_vs_mujoco_c  # noqa: E402  (tests/ is on sys.path)
 
 wp.config.quiet = True
 
@@ -248,14 +248,9 @@ def test_pick_place_trajectories_match_mujoco_c():
 
 
 def test_benchmark_script_times_the_pick_place_envs(tmp_path):
-    import importlib.util
     import json
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parent.parent / "benchmarks" / "magbots.py"
-    spec = importlib.util.spec_from_file_location("bench_magbots", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_magbots_benchmark()
     out = tmp_path / "mb.json"
     assert mod.main(["--device", "cpu", "--num-envs", "2", "--steps", "2", "--envs", "pickplace,gripper",
                      "--no-magbotsim", "--json", str(out)]) == 0
