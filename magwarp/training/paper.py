@@ -132,4 +132,10 @@ PAPER_RUNS: dict[str, PaperRun] = {
     "b0_ppo_margin": _b0("ppo", {**_B0, "num_cycles": 40, "collision_size": [0.1, 0.1]}, {**_B0, "num_cycles": 40}),
     # the same B0 run with a collision penalty 2.5x the paper's: a cautious policy, for the collision target
     "b0_ppo_cautious": _b0("ppo", {**_B0, "reward_collision": -50.0}, _B0),
+    # MagBots (issue 19; the paper's future work, so no table row): 6-DoF platform poses through pose increments
+    # (the IK maps them to the movers), and two movers pushing a box one cannot move
+    "platform_pose_sac": PaperRun("magwarp/PlatformPose-v0", "sac-her", {"action_mode": "pose"},
+                                  {"action_mode": "pose"}, "no paper row; scripted IK baseline in magwarp eval"),
+    "coop_push_sac": PaperRun("magwarp/CoopPush-v0", "sac-her", {}, {},
+                              "no paper row; scripted line-up-and-push baseline in magwarp eval"),
 }
