@@ -10,7 +10,7 @@ Per env step (``num_cycles`` control cycles of 1 ms, the same action held):
 
 * action, ``action_mode="mover"`` (default): the x/y accelerations of movers A and B (``[4]``, bound ``a_max``);
   ``action_mode="gripper"``: an increment in ``[-1, 1]^4`` of the commanded gripper state (mover A's x, y, the
-  gripper's yaw, the jaw width), scaled by ``gripper_step``, kept inside the jaw's range
+  gripper's yaw, the jaw width), scaled by ``gripper_step``, kept inside the jaw's range and mover A on the tiles
   (``info["target_clipped"]``), mapped to mover targets (:meth:`GripperPickPlaceEnv.mover_targets`) and tracked
   by :func:`magwarp.magbots.control.track_movers`, plus a squeeze of mover B toward A while the commanded width is
   below the measured one (:meth:`GripperPickPlaceEnv.squeeze_accel`: the grip);
@@ -152,8 +152,11 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
         n, dev = self.num_envs, self.device
         self.gripper_step = torch.as_tensor(step, dtype=torch.float32, device=dev)
         self._width_low, self._width_high = lo, hi
-        self._xy_low_t = torch.as_tensor(self.xy_low, dtype=torch.float32, device=dev)
-        self._xy_high_t = torch.as_tensor(self.xy_high, dtype=torch.float32, device=dev)
+        # gripper mode: mover A's commanded position stays a footprint inside the tiles (mover B, further on, is the
+        # policy's to keep there: the wall check fails it)
+        r = self.mover.bounding_radius(self.mover.wall_margin)
+        self._xy_low_t = torch.full((2,), r, dtype=torch.float32, device=dev)
+        self._xy_high_t = torch.as_tensor(ext - r, dtype=torch.float32, device=dev)
         self._ext_t = torch.as_tensor(ext, dtype=torch.float32, device=dev)
         #: goals ``[W, 2]`` and (gripper mode) the commanded gripper states ``[W, 4]`` (x, y, yaw, width)
         self.goal = torch.zeros(n, 2, device=dev)

@@ -247,6 +247,11 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
         margin = 0.5 * g.max_mover_distance + self.mover.bounding_radius(self.mover.wall_margin) + 0.01
         self.start_low = torch.tensor([margin, 0.3, self.start_height], device=dev)
         self.start_high = torch.tensor([ext[0] - margin, ext[1] - 0.3, self.start_height], device=dev)
+        # pose mode: the commanded platform centre may come as close to an edge as a mover's footprint (the rack
+        # and the container lie near the edges; the wall check still fails a mover that leaves the tiles)
+        r = self.mover.bounding_radius(self.mover.wall_margin)
+        self._target_low[:2] = r
+        self._target_high[:2] = torch.as_tensor(ext - r, dtype=self._target_high.dtype, device=dev)
         self.products_placed = torch.zeros(n, dtype=torch.int64, device=dev)
         self.products_dropped = torch.zeros(n, dtype=torch.int64, device=dev)
         self._placed = torch.zeros(n, dtype=torch.bool, device=dev)
