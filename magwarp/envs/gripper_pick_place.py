@@ -39,7 +39,8 @@ import torch
 
 from magwarp._checks import warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.magbot_task import MagBotTask, check_options
+from magwarp._checks import check_finite
+from magwarp.envs.magbot_task import MagBotTask, check_options, option_of
 from magwarp.layout import Layout, MoverSpec
 from magwarp.magbots.control import TrackingGains, track_movers
 from magwarp.magbots.gripper import GripperGeometry, GripperJoints, generate_gripper_mjcf, mover_distance
@@ -101,20 +102,22 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
         check_options(action_mode, _ACTION_MODES, counts={"num_cycles": num_cycles,
                                                           "max_episode_steps": max_episode_steps},
                       positive={"goal_tolerance": goal_tolerance, "release_margin": release_margin,
-                                "min_distance": min_distance, "jaw_squeeze": jaw_squeeze},
+                                "min_distance": min_distance, "jaw_squeeze": jaw_squeeze, "v_max": v_max,
+                                "a_max": a_max},
                       finite={"success_reward": success_reward, "per_step_penalty": per_step_penalty,
                               "collision_penalty": collision_penalty})
+        check_finite(gripper_step=gripper_step, vectors=("gripper_step",))
         step = np.asarray(gripper_step, dtype=np.float64)
         if step.shape != (4,) or not np.all(np.isfinite(step) & (step > 0)):
             raise ValueError(f"gripper_step must be four positive numbers (x, y, yaw, width), got {gripper_step!r}")
         layout = Layout(np.ones((5, 5), dtype=np.int32)) if layout is None else layout
-        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+        self.layout = layout if isinstance(layout, Layout) else Layout(layout)
         self.action_mode = action_mode
-        self.geometry = g = geometry or GripperGeometry()
+        self.geometry = g = option_of(geometry, GripperGeometry, "geometry")
         self.obj = obj or ObjectSpec(shape="square_box", width=0.02, depth=0.03, mass=0.1, friction=(0.5, 0.005, 1e-4))
         if not isinstance(self.obj, ObjectSpec) or self.obj.shape != "square_box":
             raise ValueError(f"obj must be a square_box ObjectSpec, got {self.obj!r}")
-        self.gains = gains or TrackingGains()
+        self.gains = option_of(gains, TrackingGains, "gains")
         self.goal_tolerance, self.release_margin = float(goal_tolerance), float(release_margin)
         self.jaw_squeeze = float(jaw_squeeze)
         self.min_distance = float(min_distance)

@@ -9,24 +9,35 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["MagBotTask", "check_options"]
+from magwarp._checks import as_count, as_finite, check_magnitude
+
+__all__ = ["MagBotTask", "check_options", "option_of"]
+
+
+def option_of(value, cls: type, name: str):
+    """``value`` if it is a ``cls`` (None: ``cls()``, its defaults); anything else is a TypeError naming it."""
+    if value is None:
+        return cls()
+    if not isinstance(value, cls):
+        raise TypeError(f"{name} must be a {cls.__name__} (or None), got {value!r}")
+    return value
 
 
 def check_options(action_mode: str, action_modes: Sequence[str], *, counts: dict[str, Any],
                   positive: dict[str, Any] = {}, finite: dict[str, Any] = {}) -> None:  # noqa: B006 (read only)
     """Refuse, naming the option: an unknown ``action_mode``, ``counts`` that are not positive integers, ``positive``
-    values that are not positive finite numbers, ``finite`` values that are not finite."""
-    if action_mode not in action_modes:
+    values that are not positive finite numbers (at most :data:`magwarp._checks.MAGNITUDE_MAX`), ``finite`` values
+    that are not finite numbers (likewise bounded)."""
+    if not isinstance(action_mode, str) or action_mode not in action_modes:
         raise ValueError(f"action_mode must be one of {tuple(action_modes)}, got {action_mode!r}")
     for name, value in counts.items():
-        if int(value) != value or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        as_count(value, name)
     for name, value in positive.items():
-        if not (np.isfinite(value) and value > 0):
+        if not as_finite(value, name) > 0:
             raise ValueError(f"{name} must be a positive number, got {value!r}")
     for name, value in finite.items():
-        if not np.isfinite(value):
-            raise ValueError(f"{name} must be finite, got {value!r}")
+        as_finite(value, name)
+    check_magnitude(**positive, **finite)
 
 
 class MagBotTask:

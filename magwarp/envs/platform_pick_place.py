@@ -48,6 +48,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from magwarp._checks import as_count, check_finite
+from magwarp.envs.magbot_task import check_options, option_of
 from magwarp.envs.platform_pose import PlatformPoseEnv, pose_to_goal
 from magwarp.layout import Layout
 from magwarp.magbots.mjcf import PlatformModelSpec, generate_platform_mjcf
@@ -201,24 +203,20 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
         if "position_tolerance" in kwargs or "angle_tolerance" in kwargs or "sample_margin" in kwargs:
             raise ValueError("PlatformPickPlace has no pose goals: position_tolerance, angle_tolerance and "
                              "sample_margin are PlatformPose-v0 options")
-        if int(products) != products or products < 1:
-            raise ValueError(f"products must be a positive integer, got {products!r}")
-        for name, value in (("place_reward", place_reward), ("drop_penalty", drop_penalty),
-                            ("start_height", start_height), ("start_yaw", start_yaw)):
-            if not np.isfinite(value):
-                raise ValueError(f"{name} must be finite, got {value!r}")
+        products = as_count(products, "products")
+        check_options("mover", ("mover",), counts={}, positive={"start_height": start_height},
+                      finite={"place_reward": place_reward, "drop_penalty": drop_penalty, "start_yaw": start_yaw})
+        check_finite(product_jitter=product_jitter, vectors=("product_jitter",))
         jitter = np.asarray(product_jitter, dtype=np.float64)
-        if jitter.shape != (3,) or not np.all(np.isfinite(jitter) & (jitter >= 0)):
+        if jitter.shape != (3,) or not np.all(jitter >= 0):
             raise ValueError(f"product_jitter must be three non-negative numbers (x, y, yaw), got {product_jitter!r}")
-        self.scene = scene or PickPlaceScene()
-        if not isinstance(self.scene, PickPlaceScene):
-            raise TypeError(f"scene must be a PickPlaceScene, got {type(self.scene).__name__}")
+        self.scene = option_of(scene, PickPlaceScene, "scene")
         self.products = int(products)
         self.place_reward, self.drop_penalty = float(place_reward), float(drop_penalty)
         self.start_height, self.start_yaw = float(start_height), float(start_yaw)
         self._jitter = jitter
         layout = Layout(np.ones((4, 4), dtype=np.int32)) if layout is None else layout
-        super().__init__(num_envs, layout, model=model or PICK_PLACE_PLATFORM, per_step_penalty=per_step_penalty,
+        super().__init__(num_envs, layout, model=PICK_PLACE_PLATFORM if model is None else model, per_step_penalty=per_step_penalty,
                          collision_penalty=collision_penalty, max_episode_steps=max_episode_steps, **kwargs)
 
     # ------------------------------------------------------------------ model

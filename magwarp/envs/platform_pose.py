@@ -32,9 +32,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import warp_device
+from magwarp._checks import check_finite, warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.magbot_task import MagBotTask, check_options
+from magwarp.envs.magbot_task import MagBotTask, check_options, option_of
 from magwarp.layout import Layout, MoverSpec
 from magwarp.magbots.control import TrackingGains, track_movers
 from magwarp.magbots.geometry import PlatformGeometry
@@ -107,23 +107,27 @@ class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
     ):
         check_options(action_mode, _ACTION_MODES, counts={"num_cycles": num_cycles,
                                                           "max_episode_steps": max_episode_steps},
-                      positive={"position_tolerance": position_tolerance, "angle_tolerance": angle_tolerance})
+                      positive={"position_tolerance": position_tolerance, "angle_tolerance": angle_tolerance,
+                                "v_max": v_max, "a_max": a_max, "v_max_c": v_max_c, "a_max_c": a_max_c},
+                      finite={"sample_margin": sample_margin, "success_reward": success_reward,
+                              "per_step_penalty": per_step_penalty, "collision_penalty": collision_penalty})
         if not 0.0 <= sample_margin < 1.0:
             raise ValueError(f"sample_margin must lie in [0, 1), got {sample_margin!r}")
+        check_finite(pose_step=pose_step, vectors=("pose_step",))
         step = np.asarray(pose_step, dtype=np.float64)
         if step.shape != (6,) or not np.all(np.isfinite(step) & (step > 0)):
             raise ValueError(f"pose_step must be six positive numbers (x, y, z, roll, pitch, yaw), got {pose_step!r}")
         layout = Layout(np.ones((5, 5), dtype=np.int32)) if layout is None else layout
-        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+        self.layout = layout if isinstance(layout, Layout) else Layout(layout)
         self.action_mode = action_mode
-        self.geometry = geometry or PlatformGeometry()
-        self.gains = gains or TrackingGains()
+        self.geometry = option_of(geometry, PlatformGeometry, "geometry")
+        self.gains = option_of(gains, TrackingGains, "gains")
         self.position_tolerance, self.angle_tolerance = float(position_tolerance), float(angle_tolerance)
         self.success_reward, self.per_step_penalty = float(success_reward), float(per_step_penalty)
         self.collision_penalty = float(collision_penalty)
         self.max_episode_steps = int(max_episode_steps)
         self.mover = self._mover_spec()
-        self.model_spec = model or PlatformModelSpec()
+        self.model_spec = option_of(model, PlatformModelSpec, "model")
         g = self.geometry
 
         # Workspace of the platform centre: both movers (at the widest spread, any yaw) stay on the tiles.
