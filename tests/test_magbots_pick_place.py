@@ -119,6 +119,23 @@ def test_platform_placing_and_dropping_count_and_respawn(platform_env):
     assert float((p[1, :2] - env.supply[:2]).norm()) < 0.02 and abs(float(p[1, 2] - env.supply[2])) < 2e-3
 
 
+def test_platform_success_counts_the_products_placed():
+    env = PlatformPickPlaceEnv(1, device="cpu", seed=0, products=2)
+    env.reset(seed=0)
+    c = env.container
+    for k in range(2):
+        q = env.backend.object_qpos[:, 0].clone()
+        q[0, :3] = torch.tensor([c[0] - 0.05 + 0.1 * k, c[1], env.scene.product.depth + 0.001])
+        env.backend.object_qpos[:, 0].copy_(q)
+        obs, reward, term, trunc, info = env.step(torch.zeros(1, 6))
+        assert bool(info["placed"][0]) and int(info["products_placed"][0]) == k + 1
+        assert bool(info["is_success"][0]) == bool(term[0]) == (k == 1)  # the second product ends the episode
+        if k == 0:  # the next product waits on the rack, and the observation says one of two is placed
+            p, _ = env.product_pose()
+            assert float((p[0, :2] - env.supply[:2]).norm()) < 0.02
+            assert float(obs[0, 40]) == pytest.approx(0.5)
+
+
 def test_gripper_baseline_places_most_objects(gripper_env):
     env = gripper_env
     succ, fail, last = _first_episodes(env, 200, seed=1)

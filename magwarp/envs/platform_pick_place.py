@@ -32,7 +32,7 @@ product, ``drop_penalty`` per dropped one, ``collision_penalty`` on a wall or mo
 violation (these terminate the episode), else ``per_step_penalty``. The episode is a success (``is_success``,
 terminated) when ``products`` products are placed; it is truncated after ``max_episode_steps``. ``info`` has
 ``products_placed`` and ``products_dropped`` (this episode, so far), ``placed`` / ``dropped`` (this step), the
-collision and limit flags of :class:`PlatformPoseEnv`, and ``phase_hint`` is not given: the state is the observation.
+collision and limit flags of :class:`PlatformPoseEnv`. The observation's count includes the step's placement.
 
 Starts: the platform level, at ``start_height``, its yaw within ``start_yaw`` of 0, anywhere in the middle of the
 tiles (:attr:`PickPlaceScene.start_low` / ``start_high``); the product on the rack with a small random offset
@@ -326,20 +326,14 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
 
     def _evaluate(self, obs):
         info = self._failure_info()
-        p, _ = self.product_pose()
-        placed = self.in_container(p)
-        dropped = ~placed & ((p[:, 2] < self.scene.placed_height) | ~torch.isfinite(p).all(-1))
-        self._placed.copy_(placed)
-        self._dropped.copy_(dropped)
-        self.products_placed += placed
-        self.products_dropped += dropped
+        placed, dropped = self._placed, self._dropped
         failed = self._failed(info, placed.shape)
         done = self.products_placed >= self.products
         reward = torch.where(placed, self.place_reward, torch.where(dropped, self.drop_penalty,
                                                                      self.per_step_penalty))
         reward = torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
         self.num_steps += 1
-        info.update({"is_success": done & ~failed, "placed": placed, "dropped": dropped,
+        info.update({"is_success": done & ~failed, "placed": placed.clone(), "dropped": dropped.clone(),
                      "products_placed": self.products_placed.clone(),
                      "products_dropped": self.products_dropped.clone()})
         if self.action_mode == "pose":
@@ -348,6 +342,17 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
         if self.benchmark_metrics is not None:
             info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
         return reward, terminated, truncated, info
+
+    def _apply_action(self, action: torch.Tensor) -> None:
+        """Simulate, then count the products that landed in the container or elsewhere (before the observation,
+        so that it shows this step's count)."""
+        super()._apply_action(action)
+        p, _ = self.product_pose()
+        placed = self.in_container(p)
+        self._placed.copy_(placed)
+        self._dropped.copy_(~placed & ((p[:, 2] < self.scene.placed_height) | ~torch.isfinite(p).all(-1)))
+        self.products_placed += self._placed
+        self.products_dropped += self._dropped
 
     def _end_step(self, obs, info) -> None:
         """The next product appears on the rack where one was placed or dropped."""
