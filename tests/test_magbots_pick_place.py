@@ -161,15 +161,27 @@ def test_gripper_reward_needs_release_and_goal(gripper_env):
 
 
 def test_renders_show_the_scene(platform_env, gripper_env):
+    from magwarp.render import mujoco3d
+
+    try:
+        mujoco3d.gl_backend()
+        modes = ("rgb_array", "rgb_array_3d")
+    except mujoco3d.GLUnavailableError:
+        modes = ("rgb_array",)  # no headless OpenGL here: the top-down view only
     for env, zeros in ((platform_env, torch.zeros(4, 6)), (gripper_env, torch.zeros(8, 4))):
-        env.render_mode = "rgb_array"
-        try:
-            env.reset(seed=0)
-            env.step(zeros)
-            img = env.render()
-        finally:
-            env.render_mode = None
-        assert img.dtype == np.uint8 and img.ndim == 3 and np.unique(img.reshape(-1, 3), axis=0).shape[0] > 4
+        env.reset(seed=0)
+        env.step(zeros)
+        for mode in modes:
+            env.render_mode = mode
+            env.set_render_worlds(1)
+            try:
+                img = env.render()
+            finally:
+                env.render_mode = None
+            assert img.dtype == np.uint8 and img.ndim == 3 and np.unique(img.reshape(-1, 3), axis=0).shape[0] > 4
+    # the 3D view draws the gripper's goal as a ghost box at the goal
+    (pos, yaw, half, rgba, kind), = gripper_env.goal_ghosts(0)
+    assert pos[:2] == pytest.approx(gripper_env.goal[0].tolist()) and kind == "box" and rgba[3] < 1
 
 
 def test_magwarp_eval_reports_the_pick_place_tables():

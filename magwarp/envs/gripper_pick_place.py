@@ -65,7 +65,7 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
     """Batched gripper pick and place; see the module docstring. ``layout`` (default 5 x 5 tiles, a full grid),
     ``geometry`` (the jaw linkage), ``obj`` (the object, a square box standing on the tiles)."""
 
-    metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array"]}
+    metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
     num_movers = 2
@@ -344,8 +344,19 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
         reached = self._reached(achieved_goal, desired_goal)
         return self._reward(reached, self._failed(info, reached.shape, reached.device))
 
+
+    def goal_ghosts(self, world: int) -> list[tuple]:
+        """The object at its goal for the 3D view."""
+        from magwarp.render.mujoco3d import GOAL_RGBA
+
+        x, y = (float(v) for v in self.goal[world].tolist())
+        w, d = self.obj.width, self.obj.depth
+        return [((x, y, d * 1.01), 0.0, (w * 1.01, w * 1.01, d * 1.01), GOAL_RGBA, "box")]
+
     def _render_frame(self) -> torch.Tensor:
         """Top-down view: tiles, the movers (red after a collision), the object and its goal."""
+        if self.render_mode == "rgb_array_3d":
+            return self._render_3d()
         w = self.obj.width
         renderer = self._top_down([[(0.0, 0.0, w, w)]])
         pos, _ = self.mover_state()

@@ -1,5 +1,6 @@
 """Shared by the MagBot envs (:mod:`magwarp.envs.platform_pose`, :mod:`magwarp.envs.platform_pick_place`,
-:mod:`magwarp.envs.gripper_pick_place`): option checks, failure flags, the sparse reward and the top-down renderer."""
+:mod:`magwarp.envs.gripper_pick_place`): option checks, failure flags, the sparse reward, the top-down renderer and
+what the 3D renderer reads (``render_mode="rgb_array_3d"``)."""
 
 from __future__ import annotations
 
@@ -57,6 +58,21 @@ class MagBotTask:
     def _reward(self, reached: torch.Tensor, failed: torch.Tensor) -> torch.Tensor:
         reward = torch.where(reached, self.success_reward, self.per_step_penalty)
         return torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
+
+    def render_state(self) -> dict[str, torch.Tensor]:
+        """What the 3D renderer reads: the movers' collision flags ``[W, M]`` of the last step."""
+        return {"flags": self.checks.flags_t[:, None].expand(-1, self.num_movers)}
+
+    def goal_ghosts(self, world: int) -> list[tuple]:
+        """The goal of ``world`` as translucent boxes for the 3D view: ``(pos, yaw, half sizes, rgba, "box")``
+        (default: none)."""
+        return []
+
+    def _render_3d(self):
+        """The worlds :meth:`set_render_worlds` chose, in 3D (:mod:`magwarp.render.mujoco3d`)."""
+        from magwarp.render.mujoco3d import render_worlds
+
+        return render_worlds(self, getattr(self, "_render_worlds", None) or min(self.num_envs, 16))
 
     def _top_down(self, object_shapes):
         """The top-down renderer of the worlds :meth:`set_render_worlds` chose (built once, then reused)."""

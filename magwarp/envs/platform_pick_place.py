@@ -149,29 +149,34 @@ class PickPlaceScene:
             raise ValueError(f"PickPlaceScene: the container (x {cx - hx:.4g} .. {cx + hx:.4g}) is not along the "
                              f"layout's far edge (x 0 .. {ext[0]:.4g})")
 
-    def hooks(self, layout: Layout) -> XmlHooks:
-        """Static geoms of the rack (rails collide, the post is visual) and the container (walls collide)."""
+    def boxes(self, layout: Layout) -> list[tuple[str, tuple, tuple, bool]]:
+        """The static boxes ``(name, centre, half sizes, visual only)``: the rack's rails (they collide) and post
+        (visual), the container's walls (they collide)."""
         x, y = self.supply_xy
         rh = self.rail_height
         hx, hz = self.rail_half
         y_start = -0.05
-        y_end = y + self.product.height + 0.02
-        ry = 0.5 * (y_end - y_start)
-        geoms = [_box(f"rack_rail_{k}", (x + s * self.rail_gap, y_start + ry, rh - hz), (hx, ry, hz),
-                      "0.1 0.1 0.1 1") for k, s in enumerate((-1.0, 1.0))]
-        geoms.append(_box("rack_post", (x, y_start - 0.01, 0.5 * rh), (self.rail_gap + hx, 0.01, 0.5 * rh),
-                          "0.1 0.1 0.1 1", visual=True))
+        ry = 0.5 * (y + self.product.height + 0.02 - y_start)
+        out = [(f"rack_rail_{k}", (x + s * self.rail_gap, y_start + ry, rh - hz), (hx, ry, hz), False)
+               for k, s in enumerate((-1.0, 1.0))]
+        out.append(("rack_post", (x, y_start - 0.01, 0.5 * rh), (self.rail_gap + hx, 0.01, 0.5 * rh), True))
         cx, cy, _ = self.container_centre(layout)
         ix, iy = self.container_half
         near, other = self.container_wall
         t = 0.005
-        geoms += [
-            _box("container_near", (cx, cy - iy - t, 0.5 * near), (ix + 2 * t, t, 0.5 * near), "0.2 0.2 0.25 1"),
-            _box("container_far", (cx, cy + iy + t, 0.5 * other), (ix + 2 * t, t, 0.5 * other), "0.2 0.2 0.25 1"),
-            _box("container_left", (cx - ix - t, cy, 0.5 * other), (t, iy, 0.5 * other), "0.2 0.2 0.25 1"),
-            _box("container_right", (cx + ix + t, cy, 0.5 * other), (t, iy, 0.5 * other), "0.2 0.2 0.25 1"),
+        out += [
+            ("container_near", (cx, cy - iy - t, 0.5 * near), (ix + 2 * t, t, 0.5 * near), False),
+            ("container_far", (cx, cy + iy + t, 0.5 * other), (ix + 2 * t, t, 0.5 * other), False),
+            ("container_left", (cx - ix - t, cy, 0.5 * other), (t, iy, 0.5 * other), False),
+            ("container_right", (cx + ix + t, cy, 0.5 * other), (t, iy, 0.5 * other), False),
         ]
-        return XmlHooks(worldbody="\n".join(geoms))
+        return out
+
+    def hooks(self, layout: Layout) -> XmlHooks:
+        """:meth:`boxes` as static geoms of the world body."""
+        rgba = {"rack": "0.1 0.1 0.1 1", "container": "0.2 0.2 0.25 1"}
+        return XmlHooks(worldbody="\n".join(_box(name, centre, half, rgba[name.split("_")[0]], visual)
+                                            for name, centre, half, visual in self.boxes(layout)))
 
 
 class PlatformPickPlaceEnv(PlatformPoseEnv):
@@ -362,10 +367,16 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
         raise NotImplementedError("PlatformPickPlace has no goal-conditioned reward (its goal is the container)")
 
     def _render_frame(self) -> torch.Tensor:
-        """Top-down view: tiles, the movers, the platform plate (as the object) and the product's rack spot (goal)."""
+        """Top-down view: tiles, the movers, the platform plate and the product (objects), the rack's rails and the
+        container's walls (obstacles)."""
+        if self.render_mode == "rgb_array_3d":
+            return self._render_3d()
         hx, hy, _ = self.model_spec.platform_half_size
         o = self.scene.product
         renderer = self._top_down([[(0.0, 0.0, hx, hy)], [(0.0, 0.0, o.width, o.height)]])
+        if getattr(self, "_scene_rects", None) is None:  # the rails and the container's walls, seen from above
+            self._scene_rects = torch.tensor([[c[0], c[1], h[0], h[1]] for _, c, h, visual in
+                                              self.scene.boxes(self.layout) if not visual])
         pos, _ = self.mover_state()
         pose = self.platform_pose()
         p, q = self.product_pose()
@@ -373,4 +384,4 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
         yaw = 2 * torch.atan2(z, w)
         objects = torch.stack([pose[:, [0, 1, 5]], torch.stack([p[:, 0], p[:, 1], yaw], 1)], 1)
         return renderer.draw(pos[..., :2], pos[..., 2], flags=self.checks.flags_t[:, None].expand(-1, 2),
-                             object_poses=objects)
+                             object_poses=objects, obstacles=self._scene_rects)

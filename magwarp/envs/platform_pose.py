@@ -71,7 +71,7 @@ class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
     """Batched 6D-platform pose tracking; see the module docstring. ``layout`` (a :class:`Layout` or 0/1 array,
     default 5 x 5 tiles) must leave room for the platform; ``geometry``/``model`` set the mechanism."""
 
-    metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array"]}
+    metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
     num_movers = 2
@@ -286,8 +286,19 @@ class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
             info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
         return reward, terminated, truncated, info
 
+
+    def goal_ghosts(self, world: int) -> list[tuple]:
+        """The goal pose's plate (x, y, z, yaw; drawn level) for the 3D view."""
+        from magwarp.render.mujoco3d import GOAL_RGBA
+
+        x, y, z, _, _, yaw = (float(v) for v in self.goal_pose[world].tolist())
+        hx, hy, hz = self.model_spec.platform_half_size
+        return [((x, y, z - hz), yaw, (hx, hy, hz), GOAL_RGBA, "box")]
+
     def _render_frame(self) -> torch.Tensor:
         """Top-down view: tiles, the movers (red after a collision), the platform plate and its goal (x, y, yaw)."""
+        if self.render_mode == "rgb_array_3d":
+            return self._render_3d()
         hx, hy, _ = self.model_spec.platform_half_size
         renderer = self._top_down([[(0.0, 0.0, hx, hy)]])
         pos, _ = self.mover_state()
