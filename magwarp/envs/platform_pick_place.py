@@ -366,6 +366,10 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
     def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
         raise NotImplementedError("PlatformPickPlace has no goal-conditioned reward (its goal is the container)")
 
+    def goal_ghosts(self, world: int) -> list[tuple]:
+        """No ghost in the 3D view: the goal is the container, drawn as it is."""
+        return []
+
     def _render_frame(self) -> torch.Tensor:
         """Top-down view: tiles, the movers, the platform plate and the product (objects), the rack's rails and the
         container's walls (obstacles)."""
