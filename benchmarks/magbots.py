@@ -151,9 +151,15 @@ def main(argv=None) -> int:
             env_id, modes, _ = ENVS[name]
             for mode in (args.action_modes.split(",") if name == "pose" else modes):
                 for n in sizes:
-                    res = magwarp_row(env_id, n, device, args.steps, mode)
-                    rows.append({"engine": "magwarp", "bench": name, "env": env_id, "action_mode": mode,
-                                 "device": device, "num_envs": n, **res})
+                    row = {"engine": "magwarp", "bench": name, "env": env_id, "action_mode": mode, "device": device,
+                           "num_envs": n}
+                    try:
+                        res = magwarp_row(env_id, n, device, args.steps, mode)
+                    except (RuntimeError, MemoryError) as e:  # e.g. out of device memory: keep the other rows
+                        print(f"  {env_id} {mode} {device} num_envs={n}: failed ({e})", flush=True)
+                        rows.append({**row, "error": str(e).splitlines()[0] if str(e) else type(e).__name__})
+                        continue
+                    rows.append({**row, **res})
                     print(f"  {env_id} {mode} {device} num_envs={n}: {res['env_steps_per_s']:.4g} env-steps/s",
                           flush=True)
     refs: dict[str, dict] = {}
@@ -170,12 +176,13 @@ def main(argv=None) -> int:
                          "device": "cpu", "num_envs": 1, **res})
             print(f"  MagBotSim {ref}: {res['env_steps_per_s']:.4g} env-steps/s", flush=True)
     for r in rows:
-        if r["bench"] in refs:
+        if r["bench"] in refs and "magbot_steps_per_s" in r:
             r["x_magbotsim"] = r["magbot_steps_per_s"] / refs[r["bench"]]["magbot_steps_per_s"]
     print_table(rows, ["engine", "env", "action_mode", "device", "num_envs", ("step_ms", "ms/step"),
                        ("raw_mjw_ms", "raw mjw ms"),
                        ("env_steps_per_s", "env-steps/s"), ("magbot_steps_per_s", "MagBot-steps/s"),
-                       ("x_magbotsim", "x MagBotSim (MagBot-steps)")])
+                       ("x_magbotsim", "x MagBotSim (MagBot-steps)"),
+                       *([("error", "error")] if any("error" in r for r in rows) else [])])
     path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
                                      f"magbots_{(args.device or 'cpu').replace(':', '')}.json")
     stamp = provenance(info)

@@ -59,6 +59,11 @@ class MagBotTask:
         reward = torch.where(reached, self.success_reward, self.per_step_penalty)
         return torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
 
+    @property
+    def num_cycles(self) -> int:
+        """Control cycles of 1 ms per env step (the backend's)."""
+        return self.backend.control.num_cycles
+
     def render_state(self) -> dict[str, torch.Tensor]:
         """What the 3D renderer reads: the movers' collision flags ``[W, M]`` of the last step."""
         return {"flags": self.checks.flags_t[:, None].expand(-1, self.num_movers)}
