@@ -326,12 +326,7 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
         err = (obs["achieved_goal"][:, :2] - obs["desired_goal"][:, :2]).norm(dim=-1)
         info.update({"is_success": reached & ~failed, "position_error": err,
                      "released": obs["achieved_goal"][:, 2] > 0.5})
-        if self.action_mode == "gripper":
-            info["target_clipped"] = self.target_clipped.clone()
-        terminated, truncated = reached | failed, self.num_steps >= self.max_episode_steps
-        if self.benchmark_metrics is not None:
-            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
-        return reward, terminated, truncated, info
+        return self._step_result(obs, reward, reached | failed, info)
 
     def _reached(self, achieved: torch.Tensor, desired: torch.Tensor) -> torch.Tensor:
         near = (achieved[..., :2] - desired[..., :2]).norm(dim=-1) <= self.goal_tolerance

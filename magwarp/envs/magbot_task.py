@@ -59,6 +59,16 @@ class MagBotTask:
         reward = torch.where(reached, self.success_reward, self.per_step_penalty)
         return torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
 
+    def _step_result(self, obs, reward: torch.Tensor, terminated: torch.Tensor, info: dict[str, Any]):
+        """``(reward, terminated, truncated, info)`` of a step: truncated after ``max_episode_steps``; the target
+        clip flag of the target action modes (``"pose"``, ``"gripper"``); the benchmark metrics when attached."""
+        if self.action_mode != "mover":
+            info["target_clipped"] = self.target_clipped.clone()
+        truncated = self.num_steps >= self.max_episode_steps
+        if self.benchmark_metrics is not None:
+            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
+        return reward, terminated, truncated, info
+
     @property
     def num_cycles(self) -> int:
         """Control cycles of 1 ms per env step (the backend's)."""

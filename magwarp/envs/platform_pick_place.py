@@ -341,12 +341,7 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
         info.update({"is_success": done & ~failed, "placed": placed.clone(), "dropped": dropped.clone(),
                      "products_placed": self.products_placed.clone(),
                      "products_dropped": self.products_dropped.clone()})
-        if self.action_mode == "pose":
-            info["target_clipped"] = self.target_clipped.clone()
-        terminated, truncated = done | failed, self.num_steps >= self.max_episode_steps
-        if self.benchmark_metrics is not None:
-            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
-        return reward, terminated, truncated, info
+        return self._step_result(obs, reward, done | failed, info)
 
     def _apply_action(self, action: torch.Tensor) -> None:
         """Simulate, then count the products that landed in the container or elsewhere (before the observation,

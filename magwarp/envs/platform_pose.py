@@ -279,12 +279,7 @@ class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
         reward = self._reward(reached, failed)
         self.num_steps += 1
         info.update({"is_success": reached & ~failed, "position_error": pos_err, "angle_error": ang_err})
-        if self.action_mode == "pose":
-            info["target_clipped"] = self.target_clipped.clone()
-        terminated, truncated = reached | failed, self.num_steps >= self.max_episode_steps
-        if self.benchmark_metrics is not None:
-            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
-        return reward, terminated, truncated, info
+        return self._step_result(obs, reward, reached | failed, info)
 
 
     def goal_ghosts(self, world: int) -> list[tuple]:
