@@ -161,6 +161,10 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
         self._xy_low_t = torch.full((2,), r, dtype=torch.float32, device=dev)
         self._xy_high_t = torch.as_tensor(ext - r, dtype=torch.float32, device=dev)
         self._ext_t = torch.as_tensor(ext, dtype=torch.float32, device=dev)
+        # sampling ranges on the device (no host copy in a reset inside a step)
+        self._start_low, self._start_high, self._object_low, self._object_high = (
+            torch.as_tensor(v, dtype=torch.float32, device=dev)
+            for v in (self.xy_low, self.xy_high, self.object_low, self.object_high))
         #: goals ``[W, 2]`` and (gripper mode) the commanded gripper states ``[W, 4]`` (x, y, yaw, width)
         self.goal = torch.zeros(n, 2, device=dev)
         self.target = torch.zeros(n, 4, device=dev)
@@ -222,28 +226,26 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
         axis = torch.stack([torch.cos(state[:, 2]), torch.sin(state[:, 2])], -1)
         return torch.stack([push[:, None] * axis, -push[:, None] * axis], 1)
 
-    def _sample_xy(self, low, high, n: int) -> torch.Tensor:
-        low = torch.as_tensor(low, dtype=torch.float32, device=self.device)
-        high = torch.as_tensor(high, dtype=torch.float32, device=self.device)
+    def _sample_xy(self, low: torch.Tensor, high: torch.Tensor, n: int) -> torch.Tensor:
         return low + (high - low) * self._rand(n, 2)
 
     # ------------------------------------------------------------------ task hooks
     def _reset_envs(self, mask: torch.Tensor) -> None:
         b, n = self.backend, self.num_envs
         start = torch.zeros(n, 4, device=self.device)
-        start[:, :2] = self._sample_xy(self.xy_low, self.xy_high, n)
+        start[:, :2] = self._sample_xy(self._start_low, self._start_high, n)
         start[:, 2] = math.pi * (2 * self._rand(n) - 1)
         start[:, 3] = self._width_high - 0.01
         movers = self.mover_targets(start)
         # the object and the goal: apart, and clear of both movers (a few tries, batched; the last is kept)
-        obj = self._sample_xy(self.object_low, self.object_high, n)
-        goal = self._sample_xy(self.object_low, self.object_high, n)
+        obj = self._sample_xy(self._object_low, self._object_high, n)
+        goal = self._sample_xy(self._object_low, self._object_high, n)
         clear = 2 * self.mover.bounding_radius() + self.obj.width
         for _ in range(16):
             near = ((obj[:, None] - movers).norm(dim=-1) < clear).any(-1)
-            obj = torch.where(near[:, None], self._sample_xy(self.object_low, self.object_high, n), obj)
+            obj = torch.where(near[:, None], self._sample_xy(self._object_low, self._object_high, n), obj)
             close = (goal - obj).norm(dim=-1) < self.min_distance
-            goal = torch.where(close[:, None], self._sample_xy(self.object_low, self.object_high, n), goal)
+            goal = torch.where(close[:, None], self._sample_xy(self._object_low, self._object_high, n), goal)
         q = b.init_qpos_t.clone()
         self.joints.write_qpos(q, start[:, None].to(q.dtype), self.mover_z, check=False)
         oq = torch.zeros(n, 7, dtype=q.dtype, device=self.device)

@@ -244,6 +244,7 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
         ext = np.asarray(self.layout.extent, dtype=float)
         #: the platform's y when it tilts the product into the container
         self.drop_y = float(ext[1] - s.drop_margin)
+        self._jitter_t = torch.as_tensor(self._jitter, dtype=torch.float32, device=dev)
         self.supply = torch.tensor(s.supply_position(), device=dev)
         self.container = torch.tensor(s.container_centre(self.layout), device=dev)
         self._container_half = torch.tensor(s.container_half, device=dev)
@@ -274,8 +275,7 @@ class PlatformPickPlaceEnv(PlatformPoseEnv):
     def _product_start(self, mask: torch.Tensor) -> None:
         """Put a product on the rack (with the jitter) in the worlds of ``mask``, at rest."""
         b, n = self.backend, self.num_envs
-        j = torch.as_tensor(self._jitter, dtype=torch.float32, device=self.device)
-        off = (2 * self._rand(n, 3) - 1) * j
+        off = (2 * self._rand(n, 3) - 1) * self._jitter_t
         yaw = off[:, 2]
         q = torch.cat([self.supply + torch.nn.functional.pad(off[:, :2], (0, 1)),
                        torch.stack([torch.cos(0.5 * yaw), torch.zeros_like(yaw), torch.zeros_like(yaw),
