@@ -5,7 +5,8 @@ All episodes of a repeat run in parallel worlds, and as many repeats as fit in `
 read back once per batch of repeats.
 
 * **Pushing** (Table 1): every world plays one episode (``max_episode_steps``, ending early on a collision); a
-  repeat is ``episodes`` goals.
+  repeat is ``episodes`` goals. The 6D-platform pose task and the MagBot pick-and-place tasks are evaluated the
+  same way (:mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.pick_place`).
 * **Trajectory planning** (Table 2): every world is one long-horizon run of ``steps`` env steps in which reached
   goals are replaced; a collision or a timeout ends the world's episode (its movers' pending goals fail) and a new
   one starts. Makespan: time at which the slowest mover of a world reached ``makespan_goals`` goals.
@@ -25,7 +26,7 @@ window, divided by its goals or episodes) and the mean copper loss per mover (W)
 smoothness proxy.
 
 Process time is the wall-clock time of the batched run (policy and simulation) per goal (trajectory planning,
-swarms) or per episode (pushing, platform). On the CPU the evaluation runs with one torch intra-op thread, for
+swarms) or per episode (pushing, platform, pick and place). On the CPU the evaluation runs with one torch intra-op thread, for
 stable timings on shared machines (the previous setting is restored afterwards).
 """
 
@@ -230,12 +231,16 @@ def _family(env) -> str:
         return "swarm"
     if isinstance(env, PushEnv):
         return "push"
+    from magwarp.envs.gripper_pick_place import GripperPickPlaceEnv
+    from magwarp.envs.platform_pick_place import PlatformPickPlaceEnv
     from magwarp.envs.platform_pose import PlatformPoseEnv
 
+    if isinstance(env, (PlatformPickPlaceEnv, GripperPickPlaceEnv)):
+        return "pick_place"
     if isinstance(env, PlatformPoseEnv):
         return "platform"
-    raise EvalError(f"magwarp eval supports trajectory planning, pushing, platform and swarm envs, not "
-                    f"{type(env).__name__}")
+    raise EvalError(f"magwarp eval supports trajectory planning, pushing, platform, pick-and-place and swarm envs, "
+                    f"not {type(env).__name__}")
 
 
 def _check_device(device) -> str:

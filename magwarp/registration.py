@@ -28,6 +28,9 @@ ENV_CLASSES = {
     "PlatformPoseEnv": "magwarp.envs.platform_pose",
     "CoopPushEnv": "magwarp.envs.coop_push",
     "LevitationEnv": "magwarp.envs.levitation",
+    # MagBots (issue 19): pick and place with the 6D platform and with the gripper
+    "PlatformPickPlaceEnv": "magwarp.envs.platform_pick_place",
+    "GripperPickPlaceEnv": "magwarp.envs.gripper_pick_place",
 }
 # Benchmark variants (names only; their layouts live in magwarp.layout.BENCHMARK_LAYOUTS and magwarp.envs.push).
 TRAJECTORY_BENCHMARKS = tuple(f"B{i}" for i in range(10))
@@ -72,6 +75,8 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/Levitation-v0"] = ("LevitationEnv", {})
     ids["magwarp/LevitationHover-v0"] = ("LevitationEnv", {"task": "hover"})
     ids["magwarp/LevitationWrench-v0"] = ("LevitationEnv", {"action": "wrench"})
+    ids["magwarp/PlatformPickPlace-v0"] = ("PlatformPickPlaceEnv", {})
+    ids["magwarp/GripperPickPlace-v0"] = ("GripperPickPlaceEnv", {})
     return ids
 
 

@@ -79,6 +79,13 @@ def test_env_options_from_the_command_line_or_the_policy_file(capsys, tmp_path):
     rc, out, err = run_cli(capsys, "eval", "TrajectoryPlanningB0", "--policy", str(policy), "--env-kwargs", "{}", *common)
     assert rc == 0 and "env options from" not in out
     assert json.loads(path.read_text())["steps_per_world"] == 250
+    # a run given only training options (--env-kwargs) is evaluated with them
+    save_policy(str(policy), torch.nn.Linear(18, 6), RunningMeanStd(18, "cpu"), torch.full((6,), 10.0), squash="tanh",
+                env_id="magwarp/TrajectoryPlanningB0-v0",
+                metadata={"env_kwargs": '{"num_cycles": 125}', "eval_env_kwargs": None})
+    rc, out, err = run_cli(capsys, "eval", "TrajectoryPlanningB0", "--policy", str(policy), *common)
+    assert rc == 0 and '{"num_cycles": 125}' in out
+    assert json.loads(path.read_text())["steps_per_world"] == 80
 
 
 def test_eval_module_file_and_callable_policies(tmp_path):

@@ -14,6 +14,8 @@ from magwarp.envs.single import SingleEnv
 from magwarp.magbots import platform_fk
 from magwarp.policies.platform import PlatformIKPolicy
 
+from magbots_helpers import load_magbots_benchmark  # noqa: E402  (tests/ is on sys.path)
+
 
 @pytest.fixture(scope="module")
 def env():
@@ -137,16 +139,11 @@ def test_magwarp_eval_reports_the_platform_table():
 
 
 def test_benchmark_script_smoke(tmp_path):
-    import importlib.util
     import json
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parent.parent / "benchmarks" / "magbots.py"
-    spec = importlib.util.spec_from_file_location("bench_magbots", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_magbots_benchmark()
     out = tmp_path / "mb.json"
-    assert mod.main(["--device", "cpu", "--num-envs", "2", "--steps", "2", "--action-modes", "pose",
+    assert mod.main(["--device", "cpu", "--num-envs", "2", "--steps", "2", "--envs", "pose", "--action-modes", "pose",
                      "--no-magbotsim", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())
     assert len(rows) == 1 and rows[0]["num_envs"] == 2 and rows[0]["env_steps_per_s"] > 0

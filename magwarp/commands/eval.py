@@ -103,7 +103,9 @@ def _env_kwargs(args) -> dict:
         from magwarp.training.policy import policy_metadata
 
         try:
-            stored = policy_metadata(path).get("eval_env_kwargs")
+            meta = policy_metadata(path)
+            # the evaluation's options, else those it was trained with (a run given --env-kwargs only)
+            stored = meta.get("eval_env_kwargs") or meta.get("env_kwargs")
         except Exception:  # noqa: BLE001 - not a TorchScript file (torch.save'd module): it carries no options
             return {}
         kwargs = parse_env_kwargs(stored)

@@ -32,8 +32,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import warp_device
+from magwarp._checks import check_finite, warp_device
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.magbot_task import MagBotTask, check_options, option_of
 from magwarp.layout import Layout, MoverSpec
 from magwarp.magbots.control import TrackingGains, track_movers
 from magwarp.magbots.geometry import PlatformGeometry
@@ -66,11 +67,11 @@ def _yaw(q: torch.Tensor) -> torch.Tensor:
     return torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-class PlatformPoseEnv(MagwarpVecEnv):
+class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
     """Batched 6D-platform pose tracking; see the module docstring. ``layout`` (a :class:`Layout` or 0/1 array,
     default 5 x 5 tiles) must leave room for the platform; ``geometry``/``model`` set the mechanism."""
 
-    metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array"]}
+    metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
     num_movers = 2
@@ -104,30 +105,29 @@ class PlatformPoseEnv(MagwarpVecEnv):
         autoreset: bool = True,
         check_inputs: bool = True,
     ):
-        if action_mode not in _ACTION_MODES:
-            raise ValueError(f"action_mode must be one of {_ACTION_MODES}, got {action_mode!r}")
-        for name, value in (("num_cycles", num_cycles), ("max_episode_steps", max_episode_steps)):
-            if int(value) != value or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name, value in (("position_tolerance", position_tolerance), ("angle_tolerance", angle_tolerance)):
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        check_options(action_mode, _ACTION_MODES, counts={"num_cycles": num_cycles,
+                                                          "max_episode_steps": max_episode_steps},
+                      positive={"position_tolerance": position_tolerance, "angle_tolerance": angle_tolerance,
+                                "v_max": v_max, "a_max": a_max, "v_max_c": v_max_c, "a_max_c": a_max_c},
+                      finite={"sample_margin": sample_margin, "success_reward": success_reward,
+                              "per_step_penalty": per_step_penalty, "collision_penalty": collision_penalty})
         if not 0.0 <= sample_margin < 1.0:
             raise ValueError(f"sample_margin must lie in [0, 1), got {sample_margin!r}")
+        check_finite(pose_step=pose_step, vectors=("pose_step",))
         step = np.asarray(pose_step, dtype=np.float64)
         if step.shape != (6,) or not np.all(np.isfinite(step) & (step > 0)):
             raise ValueError(f"pose_step must be six positive numbers (x, y, z, roll, pitch, yaw), got {pose_step!r}")
         layout = Layout(np.ones((5, 5), dtype=np.int32)) if layout is None else layout
-        self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
+        self.layout = layout if isinstance(layout, Layout) else Layout(layout)
         self.action_mode = action_mode
-        self.geometry = geometry or PlatformGeometry()
-        self.gains = gains or TrackingGains()
+        self.geometry = option_of(geometry, PlatformGeometry, "geometry")
+        self.gains = option_of(gains, TrackingGains, "gains")
         self.position_tolerance, self.angle_tolerance = float(position_tolerance), float(angle_tolerance)
         self.success_reward, self.per_step_penalty = float(success_reward), float(per_step_penalty)
         self.collision_penalty = float(collision_penalty)
         self.max_episode_steps = int(max_episode_steps)
-        self.mover = MoverSpec()
-        self.model_spec = model or PlatformModelSpec()
+        self.mover = self._mover_spec()
+        self.model_spec = option_of(model, PlatformModelSpec, "model")
         g = self.geometry
 
         # Workspace of the platform centre: both movers (at the widest spread, any yaw) stay on the tiles.
@@ -139,11 +139,12 @@ class PlatformPoseEnv(MagwarpVecEnv):
                              f"least {2 * reach:.3f} m wide in x and y is needed)")
         device = warp_device(device).alias
         centre = 0.5 * ext
-        self.xml = generate_platform_mjcf(self.layout, [centre], geometry=g, spec=model, mover=self.mover,
-                                          solver=solver)
+        self.xml = self._generate_xml(centre, solver)
         control = ControlParams(v_max=v_max, a_max=a_max, num_cycles=int(num_cycles), rotation=True, v_max_c=v_max_c,
                                 a_max_c=a_max_c)
-        self.backend = MjwBackend(self.xml, int(num_envs), control=control, nconmax=1, njmax=24, device=device)
+        nconmax, njmax = self._contact_capacity
+        self.backend = MjwBackend(self.xml, int(num_envs), control=control, nconmax=nconmax, njmax=njmax,
+                                  device=device)
         self.joints = PlatformJoints(self.backend.mjm, g, model)
         self.mover_z = float(self.backend.hover_z.mean())
         self.checks = MoverChecks(self.backend, self.layout, self.mover)
@@ -163,8 +164,24 @@ class PlatformPoseEnv(MagwarpVecEnv):
         self.target_pose = torch.zeros(n, 6, device=dev)
         self.target_clipped = torch.zeros(n, dtype=torch.bool, device=dev)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
+        self._init_task()
         self._set_spaces(self._observation_space(), self._action_space())
         self.reset()
+
+    # ------------------------------------------------------------------ model hooks (tasks on the platform override)
+    #: mujoco-warp's contacts and constraint rows per world (the bare platform has no contacts)
+    _contact_capacity = (1, 24)
+
+    def _mover_spec(self) -> MoverSpec:
+        return MoverSpec()
+
+    def _generate_xml(self, centre: np.ndarray, solver: str) -> str:
+        """The model's MJCF: one platform whose model pose is at ``centre``."""
+        return generate_platform_mjcf(self.layout, [centre], geometry=self.geometry, spec=self.model_spec,
+                                      mover=self.mover, solver=solver)
+
+    def _init_task(self) -> None:
+        """Task state allocated before the spaces are set and the first reset (default: none)."""
 
     # ------------------------------------------------------------------ spaces
     def _observation_space(self) -> gym.spaces.Dict:
@@ -242,7 +259,8 @@ class PlatformPoseEnv(MagwarpVecEnv):
         return {"observation": torch.cat(parts, 1), "achieved_goal": achieved.clone(),
                 "desired_goal": pose_to_goal(self.goal_pose)}
 
-    def _evaluate(self, obs):
+    def _failure_info(self) -> dict[str, Any]:
+        """This step's failure flags ``[W]``: wall and mover collisions, limit violations (any, and per limit)."""
         viol = platform_limit_violations(self.platform_pose(), self.mover_z, self.geometry)
         limit = viol["roll"] | viol["pitch"] | viol["height_min"] | viol["height_max"] | viol["non_finite"]
         info: dict[str, Any] = {
@@ -251,45 +269,37 @@ class PlatformPoseEnv(MagwarpVecEnv):
             "limit_violation": limit,
         }
         info.update({f"limit_{k}": v for k, v in viol.items()})
+        return info
+
+    def _evaluate(self, obs):
+        info = self._failure_info()
         pos_err, ang_err = goal_errors(obs["achieved_goal"], obs["desired_goal"])
         reached = (pos_err <= self.position_tolerance) & (ang_err <= self.angle_tolerance)
         failed = self._failed(info, reached.shape)
         reward = self._reward(reached, failed)
         self.num_steps += 1
         info.update({"is_success": reached & ~failed, "position_error": pos_err, "angle_error": ang_err})
-        if self.action_mode == "pose":
-            info["target_clipped"] = self.target_clipped.clone()
-        terminated, truncated = reached | failed, self.num_steps >= self.max_episode_steps
-        if self.benchmark_metrics is not None:
-            info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
-        return reward, terminated, truncated, info
+        return self._step_result(obs, reward, reached | failed, info)
 
-    def _failed(self, info: dict[str, Any] | None, shape, device=None) -> torch.Tensor:
-        out = torch.zeros(shape, dtype=torch.bool, device=device or self.device)
-        for key in ("mover_collision", "wall_collision", "limit_violation"):
-            if info is not None and key in info:
-                out = out | torch.as_tensor(info[key], device=out.device).bool().reshape(shape)
-        return out
 
-    def _reward(self, reached: torch.Tensor, failed: torch.Tensor) -> torch.Tensor:
-        reward = torch.where(reached, self.success_reward, self.per_step_penalty)
-        return torch.where(failed, torch.full_like(reward, self.collision_penalty), reward).float()
+    def goal_ghosts(self, world: int) -> list[tuple]:
+        """The goal pose's plate (x, y, z, yaw; drawn level) for the 3D view."""
+        from magwarp.render.mujoco3d import GOAL_RGBA
+
+        x, y, z, _, _, yaw = (float(v) for v in self.goal_pose[world].tolist())
+        hx, hy, hz = self.model_spec.platform_half_size
+        return [((x, y, z - hz), yaw, (hx, hy, hz), GOAL_RGBA, "box")]
 
     def _render_frame(self) -> torch.Tensor:
         """Top-down view: tiles, the movers (red after a collision), the platform plate and its goal (x, y, yaw)."""
-        worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 16)
-        if getattr(self, "_renderer", None) is None:
-            from magwarp.render import TopDownRenderer
-
-            count = worlds if np.ndim(worlds) == 0 else len(worlds)
-            hx, hy, _ = self.model_spec.platform_half_size
-            self._renderer = TopDownRenderer(self.layout, self.mover, worlds=worlds,
-                                             px_per_tile=96 if count == 1 else 48 if count <= 4 else 32,
-                                             object_shapes=[[(0.0, 0.0, hx, hy)]], device=self.backend.device)
+        if self.render_mode == "rgb_array_3d":
+            return self._render_3d()
+        hx, hy, _ = self.model_spec.platform_half_size
+        renderer = self._top_down([[(0.0, 0.0, hx, hy)]])
         pos, _ = self.mover_state()
         pose = self.platform_pose()
-        return self._renderer.draw(pos[..., :2], pos[..., 2], flags=self.checks.flags_t[:, None].expand(-1, 2),
-                                   object_poses=pose[:, [0, 1, 5]], object_goals=self.goal_pose[:, [0, 1, 5]])
+        return renderer.draw(pos[..., :2], pos[..., 2], flags=self.checks.flags_t[:, None].expand(-1, 2),
+                             object_poses=pose[:, [0, 1, 5]], object_goals=self.goal_pose[:, [0, 1, 5]])
 
     def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
         """Reward for a batch ``(..., 7)``; ``info`` holds the failure flags of the batch shape (or is None)."""

@@ -57,7 +57,9 @@ class PlatformModelSpec:
     """Masses and visual sizes of the platform mechanism (the kinematics live in :class:`PlatformGeometry`).
 
     ``hinge_height``: height of the links' rail hinges above the mover centre. ``platform_half_size``: half extents
-    of the platform plate (x, y, z). Masses in kg; MagBotSim's parts total about 0.75 kg.
+    of the platform plate (x, y, z). Masses in kg; MagBotSim's parts total about 0.75 kg. ``plate_friction``:
+    ``None`` keeps the plate visual only (no contacts, the default); a number makes the plate a contact geom (named
+    ``p{i}_plate``, MuJoCo's default contact bits, that sliding friction) that carries objects, e.g. a product.
     """
 
     hinge_height: float = 0.03
@@ -68,10 +70,13 @@ class PlatformModelSpec:
     link_mass: float = 0.02
     lift_mass: float = 0.1
     platform_mass: float = 0.2
+    plate_friction: float | None = None
 
     def __post_init__(self):
         positive_fields(self, ("hinge_height", "base_mass", "rail_mass", "plate_mass", "link_mass", "lift_mass",
                                "platform_mass"))
+        if self.plate_friction is not None:
+            positive_fields(self, ("plate_friction",))
         hs = tuple(float(v) for v in self.platform_half_size)
         if len(hs) != 3 or not all(math.isfinite(v) and v > 0 for v in hs):
             raise MagBotLimitError(f"PlatformModelSpec.platform_half_size must be three positive numbers, got {hs!r}")
@@ -99,6 +104,8 @@ def platform_hooks(i: int, xy: Sequence[float], mover_z: float, geometry: Platfo
     plate = f'<geom type="cylinder" size="0.05 0.004" rgba="0.2 0.2 0.2 1" {gv}/>'
     link_geom = (f'<geom type="capsule" fromto="0 0 0 {_f(L)} 0 0" size="0.006" rgba="0.1 0.6 0.2 1" {gv}/>')
     hx, hy, hzp = s.platform_half_size
+    plate_contact = gv if s.plate_friction is None else (
+        f'name="{p}plate" friction="{_f(s.plate_friction)} 0.005 0.0001" group="1"')
     body = [
         f'<body name="{p}base" pos="{_f(xy[0])} {_f(xy[1])} {_f(mover_z)}" gravcomp="1">',
         _box_inertia(s.base_mass, (0.02, 0.02, 0.02)),
@@ -132,7 +139,7 @@ def platform_hooks(i: int, xy: Sequence[float], mover_z: float, geometry: Platfo
                 _box_inertia(s.platform_mass, (hx, hy, hzp)),
                 f'<joint name="{p}pitch" type="hinge" axis="0 1 0"/><joint name="{p}roll" type="hinge" axis="1 0 0"/>',
                 f'<geom type="box" size="{_f(hx)} {_f(hy)} {_f(hzp)}" pos="0 0 {_f(-hzp)}" '
-                f'rgba="0.15 0.15 0.15 1" {gv}/>',
+                f'rgba="0.15 0.15 0.15 1" {plate_contact}/>',
                 f'<site name="{p}platform_site" size="0.004" rgba="1 0 0 1"/>',
                 "</body></body>",
             ]

@@ -5,7 +5,7 @@ on every ``env.step`` returns ``info["metrics"]`` (per-world counters, no host s
 reduces the accumulators per group of consecutive worlds (e.g. one evaluation repeat each), ``m.reset(mask)`` zeroes
 worlds and ``m.freeze(mask)`` stops counting in worlds whose evaluation episode is over. Definitions:
 :mod:`magwarp.kernels.metrics`, :mod:`magwarp.metrics.trajectory`, :mod:`magwarp.metrics.push`,
-:mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.swarm`.
+:mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.pick_place`, :mod:`magwarp.metrics.swarm`.
 """
 
 from __future__ import annotations
@@ -22,7 +22,15 @@ def Metrics(env, **kwargs):  # noqa: N802 - a factory that reads like the class 
     from magwarp.envs.trajectory import TrajectoryPlanningEnv
 
     base = getattr(env, "unwrapped", env)
+    from magwarp.envs.gripper_pick_place import GripperPickPlaceEnv
+    from magwarp.envs.platform_pick_place import PlatformPickPlaceEnv
     from magwarp.envs.platform_pose import PlatformPoseEnv
+
+    if isinstance(base, (PlatformPickPlaceEnv, GripperPickPlaceEnv)):
+        from magwarp.metrics.pick_place import GripperPickPlaceMetrics, PlatformPickPlaceMetrics
+
+        cls = PlatformPickPlaceMetrics if isinstance(base, PlatformPickPlaceEnv) else GripperPickPlaceMetrics
+        return cls(base, **kwargs)
 
     if isinstance(base, PlatformPoseEnv):
         from magwarp.metrics.platform import PlatformMetrics
@@ -38,5 +46,5 @@ def Metrics(env, **kwargs):  # noqa: N802 - a factory that reads like the class 
         return SwarmTaskMetrics(base, **kwargs)
     if isinstance(base, PushEnv):
         return PushTaskMetrics(base, **kwargs)
-    raise TypeError(f"no benchmark metrics for {type(base).__name__}; expected a trajectory planning, push, platform "
-                    f"or swarm env")
+    raise TypeError(f"no benchmark metrics for {type(base).__name__}; expected a trajectory planning, push, platform, "
+                    f"pick-and-place or swarm env")

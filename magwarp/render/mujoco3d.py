@@ -207,7 +207,7 @@ def _goal_ghosts(env, world: int) -> list[tuple]:
 
 
 def render_world(env, world: int = 0, width: int = 640, height: int = 480) -> np.ndarray:
-    """A 3D image (numpy uint8 ``[height, width, 3]``) of world ``world`` of a push env on mujoco-warp."""
+    """A 3D image (numpy uint8 ``[height, width, 3]``) of world ``world`` of a push or MagBot env on mujoco-warp."""
     env = getattr(env, "unwrapped", env)
     env = getattr(env, "vec", env)  # gymnasium.make's single-env view
     if not hasattr(env, "backend") or not hasattr(env.backend, "qpos_t"):
@@ -230,7 +230,9 @@ def render_world(env, world: int = 0, width: int = 640, height: int = 480) -> np
     # Movers in the top-down renderer's palette (red when the world collided), so both views read alike.
     rgba = {g: COLLISION_RGBA if collided else _palette(k) for k, g in enumerate(r.mover_geoms)}
     rgba.update({g: OBJECT_RGBA for g in r.object_geoms})  # red would read as "collided"
-    return r.draw(qpos, **mocap, extra_boxes=_goal_ghosts(env, world), geom_rgba=rgba)
+    # an env with goals of its own kind (the MagBot envs) draws them through goal_ghosts(world)
+    ghosts = env.goal_ghosts(world) if hasattr(env, "goal_ghosts") else _goal_ghosts(env, world)
+    return r.draw(qpos, **mocap, extra_boxes=ghosts, geom_rgba=rgba)
 
 
 def render_worlds(env, worlds: int | Sequence[int] = 1, width: int | None = None, height: int | None = None,

@@ -63,6 +63,7 @@ _B0 = {"num_cycles": 120, "collision_shape": "box", "collision_size": [0.09, 0.0
 _B0_PUBLISHED = {**_B0, "mover_params": {"size": MOVER_113MM, "mass": 0.63}}
 _B0_FINE = {**_B0_PUBLISHED, "num_cycles": 40}
 _B0_STARTS40 = {**_B0_PUBLISHED, "max_episode_steps": 40}  # training episodes cut after 40 steps (4.8 s)
+_PLATFORM_POSE = {"action_mode": "pose", "num_cycles": 40}
 _B0_PAPER = "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"
 
 
@@ -132,4 +133,10 @@ PAPER_RUNS: dict[str, PaperRun] = {
     "b0_ppo_margin": _b0("ppo", {**_B0, "num_cycles": 40, "collision_size": [0.1, 0.1]}, {**_B0, "num_cycles": 40}),
     # the same B0 run with a collision penalty 2.5x the paper's: a cautious policy, for the collision target
     "b0_ppo_cautious": _b0("ppo", {**_B0, "reward_collision": -50.0}, _B0),
+    # MagBots (issue 19; the paper's future work, so no table row): 6-DoF platform poses through pose increments
+    # (the IK maps them to the movers), and two movers pushing a box one cannot move
+    "platform_pose_sac": PaperRun("magwarp/PlatformPose-v0", "sac-her", _PLATFORM_POSE, _PLATFORM_POSE,
+                                  "no paper row; scripted IK baseline in magwarp eval"),
+    "coop_push_sac": PaperRun("magwarp/CoopPush-v0", "sac-her", {"num_cycles": 40}, {"num_cycles": 40},
+                              "no paper row; scripted line-up-and-push baseline in magwarp eval"),
 }
