@@ -114,6 +114,11 @@ class MagwarpVecEnv(VectorEnv):
         reward, terminated, truncated, info = self._evaluate(obs)
         self._end_step(obs, info)
         reward, terminated = self._guard_nonfinite(obs, reward, terminated, info, action)
+        return self._autoreset(obs, reward, terminated, truncated, info)
+
+    def _autoreset(self, obs, reward, terminated, truncated, info):
+        """The end of :meth:`step`: with ``autoreset``, finished envs start their next episode and show its first
+        observation (the last one goes to ``info["final_obs"]``); returns the step's 5-tuple."""
         if self.autoreset:
             done = terminated | truncated
             info["final_obs"] = obs

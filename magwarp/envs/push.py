@@ -705,13 +705,7 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
         self._end_step(obs, info)
         reward, terminated = self._guard_nonfinite(obs, reward, terminated, info, None)
         info["nonfinite_step"] = torch.where(info["nonfinite"], self._step_count_t, -1)
-        if self.autoreset:
-            done = terminated | truncated
-            info["final_obs"] = obs
-            info["_final_obs"] = done
-            self._reset_envs(done)
-            obs = _where(done, self._get_obs(), obs)
-        return obs, reward, terminated, truncated, info
+        return self._autoreset(obs, reward, terminated, truncated, info)
 
     def _mover_obs(self) -> torch.Tensor:
         b, n = self.backend, self.num_envs
