@@ -41,6 +41,7 @@ import torch
 
 from magwarp.swarm.env import SwarmEnv
 from magwarp.swarm.observations import ray_directions
+from magwarp.swarm.safety import SafetyFilter
 
 __all__ = ["SwarmPlanner", "orca_lines", "solve_lines", "stop_speed"]
 
@@ -142,7 +143,7 @@ class SwarmPlanner:
     def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 2.0,
                  buffer: float = 0.06, yield_share: float = 0.5, shield: float = 0.4, margin: float = 0.005,
                  greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3, relax: float = 0.0,
-                 reachable: bool = False):
+                 reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5, commit_brake: float = 0.95, safe_margin: float = 0.002):
         if env.learn_jerk:
             raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
@@ -156,6 +157,7 @@ class SwarmPlanner:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a number >= 0, got {value!r}")
         self.env = env
+        self.orca = bool(orca)
         self.cruise, self.a_brake, self.horizon = float(cruise), float(a_brake), float(horizon)
         self.yield_share, self.brake_factor = float(yield_share), float(brake_factor)
         self.shield, self.margin, self.greedy = float(shield), float(margin), bool(greedy)
@@ -170,8 +172,28 @@ class SwarmPlanner:
         self.step_time = env.num_cycles * float(sim.model.limits.dt)
         self.separate = max(float(separate), self.step_time)
         dev = env.device
+        self.safety = None
+        if safe:
+            if not 0.0 < commit_brake <= 1.0:
+                raise ValueError(f"commit_brake must be in (0, 1], got {commit_brake!r}")
+            v_max = float(sim.model.limits.v_max)
+            if self.cruise > v_max:
+                raise ValueError(f"cruise ({self.cruise}) must be at most the movers' v_max ({v_max}) with safe=True "
+                                 f"(a speed capped by the simulator would leave the committed path)")
+            self.safety = SafetyFilter(contact=self.contact, wall_reach=self.wall_reach, a_max=self.a_max,
+                                       step=self.step_time, dt=float(sim.model.limits.dt),
+                                       a_brake=commit_brake * self.a_max, margin=safe_margin, v_cap=self.cruise,
+                                       num_rays=env.local.num_rays, device=dev)
+            if env.local.k > 0 and env.local.radius < self.safety.reach_radius:
+                raise ValueError(f"the local view sees {env.local.radius} m but the safety filter needs "
+                                 f"{self.safety.reach_radius:.3f} m (obs_radius) at cruise {self.cruise} m/s")
+            if len(self.safety.axis_rays) < 4:
+                raise ValueError(f"the safety filter needs the 4 axis-aligned wall rays: num_rays must be a multiple "
+                                 f"of 4, got {env.local.num_rays}")
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
+        self.patience = int(patience)
+        self.stuck = torch.zeros(env.num_envs, env.num_movers, dtype=torch.int32, device=dev)
 
     def _neighbour_lines(self, vel: torch.Tensor) -> tuple[list, list, list]:
         """ORCA lines, their slack (for ``relax``) and the braking-shield lines of the ``k`` neighbours."""
@@ -236,10 +258,20 @@ class SwarmPlanner:
         dist = err.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         speed = torch.minimum(torch.full_like(dist, self.cruise), torch.sqrt(2.0 * self.a_brake * dist))
         v_pref = err / dist * speed
+        if self.safety is not None and self.patience > 0:
+            # deadlock breaking: a mover held still away from its goal for ``patience`` steps steps aside to its
+            # right (every mover the same side: two movers head-on pass each other) for ``patience`` steps
+            slow = (vel.norm(dim=-1) < 0.05) & (dist[..., 0] > self.env.config.threshold_pos)
+            self.stuck = torch.where(slow | (self.stuck >= self.patience), self.stuck + 1, 0)
+            self.stuck = torch.where(self.stuck >= 2 * self.patience, 0, self.stuck)
+            right = torch.stack([v_pref[..., 1], -v_pref[..., 0]], -1)
+            v_pref = torch.where((self.stuck >= self.patience)[..., None], right, v_pref)
         # 2. lines: walls, the braking shield, the neighbours' ORCA lines (nearest first)
         orca, slack, shield = self._neighbour_lines(vel) if local.k > 0 else ([], [], [])
         walls, wall_slack = self._wall_lines(vel) if local.num_rays > 0 else ([], [])
-        if self.greedy:
+        if self.orca is False:
+            v = v_pref
+        elif self.greedy:
             # 3. a line that leaves no room with the earlier ones is dropped: the most urgent ones are kept
             v, _ = self._solve(walls + shield + orca, v_pref, vel, skip=True)
         else:
@@ -259,6 +291,10 @@ class SwarmPlanner:
                 v = torch.where((~ok & ok3)[..., None], v3, v)
                 ok = ok | ok3
             v = torch.where(ok[..., None], v, vel * self.brake_factor)
+        if self.safety is not None:
+            # 3''. the safety filter: the safe velocity nearest to the chosen one (provably collision-free)
+            v = self.safety(vel, v, local.rel_pos, local.rel_vel, local.mask,
+                            local.walls if local.num_rays > 0 else None)
         # 4. the acceleration that reaches v within one env step, within the limit
         acc = (v - vel) / self.step_time
         n = acc.norm(dim=-1, keepdim=True)
