@@ -143,7 +143,8 @@ class SwarmPlanner:
     def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 2.0,
                  buffer: float = 0.06, yield_share: float = 0.5, shield: float = 0.4, margin: float = 0.005,
                  greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3, relax: float = 0.0,
-                 reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5, commit_brake: float = 0.95, safe_margin: float = 0.002):
+                 reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5,
+                 commit_brake: float = 0.95, safe_margin: float = 0.002):
         if env.learn_jerk:
             raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
@@ -264,8 +265,8 @@ class SwarmPlanner:
             slow = (vel.norm(dim=-1) < 0.05) & (dist[..., 0] > self.env.config.threshold_pos)
             self.stuck = torch.where(slow | (self.stuck >= self.patience), self.stuck + 1, 0)
             self.stuck = torch.where(self.stuck >= 2 * self.patience, 0, self.stuck)
+            escape = (self.stuck >= self.patience)[..., None]
             right = torch.stack([v_pref[..., 1], -v_pref[..., 0]], -1)
-            v_pref = torch.where((self.stuck >= self.patience)[..., None], right, v_pref)
         # 2. lines: walls, the braking shield, the neighbours' ORCA lines (nearest first)
         orca, slack, shield = self._neighbour_lines(vel) if local.k > 0 else ([], [], [])
         walls, wall_slack = self._wall_lines(vel) if local.num_rays > 0 else ([], [])
@@ -292,6 +293,8 @@ class SwarmPlanner:
                 ok = ok | ok3
             v = torch.where(ok[..., None], v, vel * self.brake_factor)
         if self.safety is not None:
+            if self.patience > 0:  # escaping movers skip the avoidance rule (it held them still): the filter only
+                v = torch.where(escape, right, v)
             # 3''. the safety filter: the safe velocity nearest to the chosen one (provably collision-free)
             v = self.safety(vel, v, local.rel_pos, local.rel_vel, local.mask,
                             local.walls if local.num_rays > 0 else None)

@@ -22,7 +22,8 @@ along ``n``:
     (p - q_i).n + T/2 max(v0.n, 0) + max(v1.n, 0) (T + dt/2 + |v1| / (2 a_brake)) <= (g - contact - margin) / 2
 
 (the left side bounds the held step's projection for the simulator's semi-implicit cycles of ``dt``, and the braking
-segment's). The two movers decide alone, and their new paths stay on their own sides of the same plane: the pair stays
+segment's; a right side below 0 counts as 0: a pair placed closer than ``contact + margin`` may part, not close).
+The two movers decide alone, and their new paths stay on their own sides of the same plane: the pair stays
 ``contact + margin`` apart at every instant, and the new committed paths (the tails of the new paths) keep the
 invariant. *Recursive feasibility*: braking (``v1 = v0 - a_brake T v0^``, or rest) satisfies every such constraint
 (its new path lies inside the old segment, which lies behind ``q_i``), so a safe velocity always exists. Walls: a
@@ -146,7 +147,9 @@ class SafetyFilter:
         centre = rel_pos / rel_pos.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         n = torch.where((gap > 1e-9)[..., None], sep / gap.clamp_min(1e-12)[..., None], centre)
         v0n = _dot(vel[..., None, :], n)
-        base = -_dot(q_i, n) + 0.5 * T * v0n.clamp_min(0.0) - 0.5 * (gap - self.contact - self.margin)
+        # (a pair closer than contact + margin, e.g. placed so: no closer than now, moving apart is allowed)
+        budget = (0.5 * (gap - self.contact - self.margin)).clamp_min(0.0)
+        base = -_dot(q_i, n) + 0.5 * T * v0n.clamp_min(0.0) - budget
         base = torch.where(mask, base, -math.inf)
         # a full neighbour list whose farthest entry is within reach: someone within reach may be unseen
         dist = rel_pos.norm(dim=-1)
@@ -154,7 +157,7 @@ class SafetyFilter:
             if mask.shape[-1] > 0 else torch.zeros(mask.shape[:-1], dtype=torch.bool, device=mask.device)
         if walls is not None and self.axis_rays:
             axes = self.axes.to(vel.device).expand(*vel.shape[:-1], -1, -1)
-            room = walls[..., self.axis_rays] - self.wall_reach - self.margin
+            room = (walls[..., self.axis_rays] - self.wall_reach - self.margin).clamp_min(0.0)
             wbase = 0.5 * T * _dot(vel[..., None, :], axes).clamp_min(0.0) - room
             n = torch.cat([n, axes], -2)
             base = torch.cat([base, wbase], -1)
