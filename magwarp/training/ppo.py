@@ -38,6 +38,8 @@ PRESETS = {
                     gae_lambda=0.95, ent_coef=0.0, hidden="256,256,128", init_log_std=-0.5, desired_kl=0.01),
     "TrajectoryPlanning": dict(num_envs=4096, num_steps=32, gamma=0.99, hidden="256,256,128"),
     "Push": dict(num_envs=4096, num_steps=25, gamma=0.97, hidden="256,256,128"),
+    # swarms train on the flat agent view: num_envs worlds x num_movers agents (64 x 64 = 4096 by default)
+    "Swarm": dict(num_envs=64, num_steps=32, gamma=0.98, hidden="256,256"),
 }
 
 
@@ -93,7 +95,7 @@ def _train(args: argparse.Namespace) -> dict:
     main_rank, world = dist.is_main(), dist.world_size()
     seed, env, base, n_obs, n_act, action_scale = open_env(args)
     device = base.device  # the env's device, with its index (cuda -> cuda:0)
-    N, T = args.num_envs, args.num_steps
+    N, T = env.num_envs, args.num_steps  # sub-envs: the worlds, or every mover of every world (swarms' agent view)
     hidden = [int(h) for h in str(args.hidden).split(",")]
 
     agent = Agent(n_obs, n_act, hidden, args.init_log_std).to(device)
@@ -121,7 +123,7 @@ def _train(args: argparse.Namespace) -> dict:
     b_done = torch.zeros(T, N, device=device)
     b_val = torch.zeros(T, N, device=device)
     disc_return = torch.zeros(N, device=device)
-    session = Session(args, "ppo", device, target_state)
+    session = Session(args, "ppo", device, target_state, num_agents=N)
     tracker = session.tracker
     # One step before the clock starts: kernels compile and the step graph is captured (minutes on a cold cache).
     env.reset(seed=seed)
