@@ -157,19 +157,24 @@ def test_movers_stay_off_the_walls(rng):
     assert inside.min() >= 0.11 + MARGIN - 1e-4, f"{rng}: {inside.min()}"
 
 
-def test_a_crowded_neighbour_list_brakes():
-    """k slots all filled within the reach radius: someone may be unseen, so the mover brakes."""
+def test_a_crowded_neighbour_list_keeps_the_path_in_a_ball():
+    """k slots all filled within the reach radius: someone may be unseen (no nearer than the farthest seen, d_k),
+    so the new path keeps within (d_k - D(v0) - D(v_cap) - contact - margin) / 2 of the mover."""
     f = make_filter()
     k = 3
-    rel = torch.tensor([[[0.0, 0.3], [0.0, -0.3], [-0.3, 0.0]]])
-    vel = torch.tensor([[0.5, 0.0]])
-    v1 = f(vel, torch.tensor([[1.0, 0.0]]), rel, torch.zeros(1, k, 2) - vel[:, None], torch.ones(1, k, dtype=bool))
-    torch.testing.assert_close(v1, f.braking(vel))
-    assert f.reach_radius > 0.3
-    # a free slot: every mover within reach is seen; sliding between the two neighbours is safe
-    v1_free = f(vel, torch.tensor([[1.0, 0.0]]), rel, torch.zeros(1, k, 2) - vel[:, None],
-                torch.tensor([[True, True, False]]))
-    assert float(v1_free[0, 0]) > 0.5
+    rel = torch.tensor([[[0.0, 0.4], [0.0, -0.4], [-0.4, 0.0]]])
+    vel = torch.tensor([[0.3, 0.0]])
+    rel_vel = torch.zeros(1, k, 2) - vel[:, None]
+    v1 = f(vel, torch.tensor([[1.0, 0.0]]), rel, rel_vel, torch.ones(1, k, dtype=bool))
+    assert f.reach_radius > 0.4
+    ball = 0.5 * (0.4 - stop_length(0.3, A_B, T) - stop_length(CRUISE, A_B, T) - CONTACT - MARGIN)
+    reach = float(f.path_reach_of(vel, v1[:, None])[0, 0])
+    assert 0 < reach <= ball + 1e-7 and float(v1[0, 0]) > float(f.braking(vel)[0, 0])  # moves, within the ball
+    traj = simulate(np.zeros((1, 2)), vel.double().numpy(), v1.double().numpy())
+    assert np.linalg.norm(traj, axis=-1).max() <= ball + 1e-6
+    # a free slot: every mover within reach is seen; sliding between the two neighbours is safe and fast
+    v1_free = f(vel, torch.tensor([[1.0, 0.0]]), rel, rel_vel, torch.tensor([[True, True, False]]))
+    assert float(v1_free[0, 0]) > 0.6
 
 
 def test_bad_options_are_refused():

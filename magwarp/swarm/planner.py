@@ -1,5 +1,5 @@
 """A scripted, decentralised planner for the swarm env: ORCA (optimal reciprocal collision avoidance) on the
-local view, with a braking shield for the 40 ms command hold.
+local view, with a braking shield for the 40 ms command hold, then a provably collision-free safety filter.
 
 Each mover looks only at what its observation holds (its goal, the ``k`` nearest movers within the observation
 radius, the wall rays), so a step costs O(k) per mover, on the device, for any swarm size. Per mover:
@@ -27,6 +27,15 @@ radius, the wall rays), so a step costs O(k) per mover, on the device, for any s
    line; else lines relaxed by ``relax`` x their slack; else shield and walls alone; else brake to
    ``brake_factor`` of the velocity); ``reachable`` solves within the velocities one step of ``a_max`` reaches.
    The command is the acceleration that reaches the new velocity within one env step, within ``a_max``.
+
+6. *safety filter* (``safe=True``, the default; :mod:`magwarp.swarm.safety`): the velocity is replaced by the
+   nearest one of a few candidates that keeps every mover's committed braking path apart from every other's by
+   separating planes; braking always qualifies. This makes the planner provably collision-free (between movers,
+   and with the edges of rectangular layouts) whatever the steps above chose; they only steer. ``commit_brake``
+   (x ``a_max``) is the committed braking, ``safe_margin`` (m) the extra distance kept;
+7. *deadlock escape* (``patience`` steps, with the filter): a mover held still away from its goal for ``patience``
+   steps wants to go to its right (every mover the same side, so head-on pairs pass) for ``patience`` steps,
+   skipping steps 2-5 (which held it), the filter still applied.
 
 Quality (``benchmarks/swarm.py`` planner rows, :class:`~magwarp.swarm.SwarmMetrics`): goals reached in the
 window, collided movers per 1000 goals, deadlocked movers at the end, and the share of movers that reached their
@@ -138,13 +147,22 @@ def stop_speed(room: torch.Tensor, closing: torch.Tensor, decel: float, step: fl
 
 class SwarmPlanner:
     """``action = SwarmPlanner(env)()``: x/y accelerations ``[num_envs, num_movers, 2]`` for a :class:`SwarmEnv`
-    (acceleration control). See the module docstring for the rule and its parameters."""
+    (acceleration control). See the module docstring for the rule and its parameters (``orca=False``: no steps
+    2-5, the preferred velocity goes straight to the safety filter). With ``safe=True`` the env's local view must
+    see ``safety.reach_radius`` (0.65 m at the default cruise of 1.5 m/s) and hold the 4 axis rays (checked).
+    Defaults with ``safe=True``: ``cruise=1.5``, ``buffer=0.02``, ``shield=0`` (the filter keeps the movers apart);
+    with ``safe=False``: ``cruise=1.0``, ``buffer=0.06``, ``shield=0.4``."""
 
-    def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 2.0,
-                 buffer: float = 0.06, yield_share: float = 0.5, shield: float = 0.4, margin: float = 0.005,
-                 greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3, relax: float = 0.0,
-                 reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5,
+    def __init__(self, env: SwarmEnv, *, cruise: float | None = None, a_brake: float = 4.0, horizon: float = 2.0,
+                 buffer: float | None = None, yield_share: float = 0.5, shield: float | None = None,
+                 margin: float = 0.005, greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3,
+                 relax: float = 0.0, reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5,
                  commit_brake: float = 0.95, safe_margin: float = 0.002):
+        # defaults by mode: with the safety filter the steering may be bolder (measured on 64 movers at 25%, 2 seeds:
+        # 68 / 81 goals in 4 s against 45 / 64 with the unfiltered planner's settings, none colliding)
+        cruise = (1.5 if safe else 1.0) if cruise is None else cruise
+        buffer = (0.02 if safe else 0.06) if buffer is None else buffer
+        shield = (0.0 if safe else 0.4) if shield is None else shield
         if env.learn_jerk:
             raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
@@ -193,7 +211,9 @@ class SwarmPlanner:
                                  f"of 4, got {env.local.num_rays}")
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
-        self.patience = int(patience)
+        if isinstance(patience, bool) or not isinstance(patience, int) or patience < 0:
+            raise ValueError(f"patience must be an integer >= 0 (steps), got {patience!r}")
+        self.patience = patience
         self.stuck = torch.zeros(env.num_envs, env.num_movers, dtype=torch.int32, device=dev)
 
     def _neighbour_lines(self, vel: torch.Tensor) -> tuple[list, list, list]:

@@ -33,8 +33,10 @@ holes the planner's diagonal ray lines steer, without the guarantee).
 
 **Neighbours.** Paths are at most ``L = (T + dt/2) v + D(v)`` long, so movers farther apart than ``R = contact +
 margin + 2 L`` (``v``: the speed cap) cannot meet within a step; the local view must see at least that far
-(``obs_radius >= R``, checked). A mover whose ``k`` neighbour slots are all taken by movers within ``R`` may miss
-one: it brakes (which keeps its path inside its old segment, safe against everyone by the invariant).
+(``obs_radius >= R``, checked). A mover whose ``k`` neighbour slots are all taken, the farthest at ``d_k <= R``,
+may miss a mover ``j`` (at ``d >= d_k``): its new path then keeps within ``(d_k - D(|v0|) - D(v) - contact -
+margin) / 2`` of it, which lies inside its half towards any such ``j`` (whether ``j`` sees it and keeps its own
+half, or misses it too and keeps its own ball). Braking stays allowed (its path lies in the old segment).
 
 **The choice.** Among candidates ``v_b + a (w - v_b)`` (``v_b``: braking; ``w``: the wanted velocity and turns of it
 by +-45 and +-90 degrees, within one step's reach; ``a`` in 1, 3/4, 1/2, 1/4) and ``v_b`` itself, the safe one
@@ -113,6 +115,7 @@ class SafetyFilter:
         self.path_reach = (self.step + 0.5 * self.dt) * self.v_cap + stop_length(self.v_cap, self.a_brake, self.step)
         #: movers farther apart than this cannot meet within a step (the local view must see this far)
         self.reach_radius = self.contact + self.margin + 2.0 * self.path_reach
+        self.stop_cap = stop_length(self.v_cap, self.a_brake, self.step)  # the longest committed segment
         # the axis-aligned rays of the local view (ray r points at angle 2 pi r / num_rays)
         self.axis_rays = [r for r in range(num_rays) if (4 * r) % num_rays == 0]
         axes = [(math.cos(2 * math.pi * r / num_rays), math.sin(2 * math.pi * r / num_rays)) for r in self.axis_rays]
@@ -129,7 +132,8 @@ class SafetyFilter:
     def constraints(self, vel: torch.Tensor, rel_pos: torch.Tensor, rel_vel: torch.Tensor, mask: torch.Tensor,
                     walls: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Per mover, its constraints ``base + max(v1.n, 0) gain(v1) <= 0``: ``normals`` ``[..., C, 2]``,
-        ``base`` ``[..., C]`` (inactive constraints: ``-inf``), and ``crowded`` ``[...]`` (must brake)."""
+        ``base`` ``[..., C]`` (inactive constraints: ``-inf``), and ``ball`` ``[...]``: the largest
+        :meth:`path_reach_of` its new path may have (``inf`` unless its neighbour list is crowded)."""
         T = self.step
         speed = vel.norm(dim=-1, keepdim=True)
         unit = vel / speed.clamp_min(1e-12)
@@ -151,17 +155,27 @@ class SafetyFilter:
         budget = (0.5 * (gap - self.contact - self.margin)).clamp_min(0.0)
         base = -_dot(q_i, n) + 0.5 * T * v0n.clamp_min(0.0) - budget
         base = torch.where(mask, base, -math.inf)
-        # a full neighbour list whose farthest entry is within reach: someone within reach may be unseen
-        dist = rel_pos.norm(dim=-1)
-        crowded = mask.all(-1) & (dist.masked_fill(~mask, 0.0).amax(-1) <= self.reach_radius) \
-            if mask.shape[-1] > 0 else torch.zeros(mask.shape[:-1], dtype=torch.bool, device=mask.device)
+        # a full neighbour list whose farthest entry (at d_k) is within reach: a mover within reach may be unseen
+        # (no nearer than d_k); the new path then stays within a ball that no unseen mover's half can reach
+        ball = torch.full(vel.shape[:-1], math.inf, device=vel.device)
+        if mask.shape[-1] > 0:
+            d_k = rel_pos.norm(dim=-1).masked_fill(~mask, 0.0).amax(-1)
+            crowded = mask.all(-1) & (d_k <= self.reach_radius)
+            room = 0.5 * (d_k - stop_length(speed[..., 0], self.a_brake, T) - self.stop_cap - self.contact
+                          - self.margin)
+            ball = torch.where(crowded, room, ball)
         if walls is not None and self.axis_rays:
             axes = self.axes.to(vel.device).expand(*vel.shape[:-1], -1, -1)
             room = (walls[..., self.axis_rays] - self.wall_reach - self.margin).clamp_min(0.0)
             wbase = 0.5 * T * _dot(vel[..., None, :], axes).clamp_min(0.0) - room
             n = torch.cat([n, axes], -2)
             base = torch.cat([base, wbase], -1)
-        return n, base, crowded
+        return n, base, ball
+
+    def path_reach_of(self, vel: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
+        """``[..., K]``: how far from the mover the new path (held step, then braking) of each candidate ``[..., K,
+        2]`` may reach: ``T/2 |v0| + |v1| (T + dt/2 + |v1| / (2 a_brake))``."""
+        return 0.5 * self.step * vel.norm(dim=-1, keepdim=True) + cand.norm(dim=-1) * self._gain(cand)
 
     def braking(self, vel: torch.Tensor) -> torch.Tensor:
         """The committed braking's velocity after one step: ``a_brake`` against the velocity, or rest."""
@@ -190,11 +204,10 @@ class SafetyFilter:
     def __call__(self, vel: torch.Tensor, wanted: torch.Tensor, rel_pos: torch.Tensor, rel_vel: torch.Tensor,
                  mask: torch.Tensor, walls: torch.Tensor | None = None) -> torch.Tensor:
         """The safe velocity for the end of the step ``[..., 2]`` closest to ``wanted`` among the candidates
-        (braking where no other is safe, or where the neighbour list is crowded)."""
-        normals, base, crowded = self.constraints(vel, rel_pos, rel_vel, mask, walls)
+        (braking where no other is safe)."""
+        normals, base, ball = self.constraints(vel, rel_pos, rel_vel, mask, walls)
         cand = self.candidates(vel, wanted)
-        bad = self.violation(cand, normals, base) > 0
-        bad[..., 1:] |= crowded[..., None]
+        bad = (self.violation(cand, normals, base) > 0) | (self.path_reach_of(vel, cand) > ball[..., None])
         bad[..., 0] = False  # braking is always safe (recursive feasibility)
         cost = ((cand - wanted[..., None, :]) ** 2).sum(-1).masked_fill(bad, math.inf)
         best = cost.argmin(-1, keepdim=True)
