@@ -1,7 +1,7 @@
 """The swarm planner's safety filter (:mod:`magwarp.swarm.safety`): segment closest points against a brute-force
 search, and the guarantee itself: two movers that decide alone, from any state that keeps the invariant (committed
 braking paths apart), never come closer than the collision distance over the held step and the braking that
-follows (simulated cycle by cycle as the simulator integrates), keep the invariant, and stay off the walls."""
+follows (simulated cycle by cycle as the simulator integrates), keep the invariant, and stay off holes and edges."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from magwarp.swarm.safety import SafetyFilter, segment_closest_points, stop_leng
 T, DT, A_MAX, A_B, CONTACT, MARGIN, CRUISE = 0.04, 0.001, 10.0, 9.5, 0.22, 0.002, 1.0
 
 
-def make_filter(num_rays: int = 0) -> SafetyFilter:
+def make_filter() -> SafetyFilter:
     return SafetyFilter(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
-                        v_cap=CRUISE, num_rays=num_rays)
+                        v_cap=CRUISE)
 
 
 def segment_distance_bruteforce(p1, d1, p2, d2, n: int = 801) -> np.ndarray:
@@ -129,32 +129,45 @@ def test_braking_always_satisfies_the_constraints(rng):
     assert float(f.violation(brake, normals, base).max()) <= 1e-6, str(rng)
 
 
-def test_movers_stay_off_the_walls(rng):
-    """A mover in the box [0, 2] x [0, 1.5] wanting to leave it: the axis rays' constraints keep it inside."""
-    f = make_filter(num_rays=8)
-    n = 500
-    lo, hi = np.array([0.0, 0.0]), np.array([2.0, 1.5])
-    # states that keep the invariant: the committed path inside the box, wall_reach from the edges
-    p = rng.uniform(0.11 + MARGIN, 1.0, (n, 2))
+def box_distance(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Distance of points ``x [..., 2]`` to the boxes ``[lo, hi]`` ``[B, 2]`` -> ``[..., B]``."""
+    c = np.maximum(np.minimum(x[..., None, :], hi), lo)
+    return np.linalg.norm(x[..., None, :] - c, axis=-1)
+
+
+@pytest.mark.parametrize("holes", [False, True])
+def test_movers_stay_off_holes_and_edges(rng, holes):
+    """Movers on a tile layout (with random holes) wanting anywhere: the cells off the tiles near each mover keep
+    its held step and braking wall_reach + margin away from every hole and edge (obstacles: the non-tile cells of a
+    one-cell frame around the layout)."""
+    size, reach = 0.25, 0.11
+    tiles = np.ones((8, 6), dtype=bool)
+    if holes:
+        tiles[rng.integers(0, 8, 4), rng.integers(0, 6, 4)] = False
+    f = SafetyFilter(contact=CONTACT, wall_reach=reach, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
+                     v_cap=CRUISE, tiles=tiles, tile_size=size)
+    framed = np.zeros((10, 8), dtype=bool)
+    framed[1:-1, 1:-1] = tiles
+    cells = np.argwhere(~framed) - 1
+    lo, hi = cells * size, cells * size + size
+    n = 600
+    p = rng.uniform(0.0, [2.0, 1.5], (n, 2))
     v = rng.normal(0, 0.6, (n, 2))
-    end = p + committed_segment(v)
-    ok = ((end >= lo + 0.11 + MARGIN) & (end <= hi - 0.11 - MARGIN)).all(-1)
+    v *= np.minimum(1.0, CRUISE / np.linalg.norm(v, axis=-1, keepdims=True))
+    # states that keep the invariant: the committed segment wall_reach + margin from every obstacle cell
+    s = np.linspace(0, 1, 50)
+    seg = p[:, None, :] + s[None, :, None] * committed_segment(v)[:, None, :]
+    ok = box_distance(seg, lo, hi).min(axis=(1, 2)) >= reach + MARGIN
     p, v = p[ok], v[ok]
-    rays = np.array([[1, 0], [1, 1], [0, 1], [-1, 1], [-1, 0], [-1, -1], [0, -1], [1, -1]]) / \
-        np.array([1, np.sqrt(2), 1, np.sqrt(2), 1, np.sqrt(2), 1, np.sqrt(2)])[:, None]
-    with np.errstate(divide="ignore"):
-        tx = np.where(rays[None, :, 0] > 0, (hi[0] - p[:, None, 0]) / rays[None, :, 0],
-                      np.where(rays[None, :, 0] < 0, (lo[0] - p[:, None, 0]) / rays[None, :, 0], np.inf))
-        ty = np.where(rays[None, :, 1] > 0, (hi[1] - p[:, None, 1]) / rays[None, :, 1],
-                      np.where(rays[None, :, 1] < 0, (lo[1] - p[:, None, 1]) / rays[None, :, 1], np.inf))
-    walls = np.minimum(np.minimum(tx, ty), 1.0)
+    assert len(p) > 100
     want = rng.normal(0, 1.0, v.shape)
     f32 = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
     none = torch.zeros(len(p), 0, 2)
-    v1 = f(f32(v), f32(want), none, none, torch.zeros(len(p), 0, dtype=torch.bool), f32(walls)).double().numpy()
+    v1 = f(f32(v), f32(want), none, none, torch.zeros(len(p), 0, dtype=torch.bool), f32(p)).double().numpy()
+    assert (np.linalg.norm(v1 - want, axis=-1) < 1e-5).mean() > 0.02, str(rng)  # safe wishes pass
     traj = simulate(p, v, v1)
-    inside = np.minimum(traj - lo, hi - traj).min(axis=(1, 2))
-    assert inside.min() >= 0.11 + MARGIN - 1e-4, f"{rng}: {inside.min()}"
+    clear = box_distance(traj, lo, hi).min(axis=(1, 2))
+    assert clear.min() >= reach + MARGIN - 1e-4, f"{rng}: {clear.min()}"
 
 
 def test_a_crowded_neighbour_list_keeps_the_path_in_a_ball():
@@ -178,7 +191,8 @@ def test_a_crowded_neighbour_list_keeps_the_path_in_a_ball():
 
 
 def test_bad_options_are_refused():
-    for bad in (dict(a_brake=11.0), dict(contact=0.0), dict(margin=-1.0), dict(v_cap=float("nan"))):
+    for bad in (dict(a_brake=11.0), dict(contact=0.0), dict(margin=-1.0), dict(v_cap=float("nan")),
+                dict(tile_size=0.0)):
         with pytest.raises(ValueError):
             SafetyFilter(**{**dict(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B,
-                                   margin=MARGIN, v_cap=CRUISE, num_rays=8), **bad})
+                                   margin=MARGIN, v_cap=CRUISE, tiles=np.ones((2, 2))), **bad})

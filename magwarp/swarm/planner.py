@@ -30,8 +30,9 @@ radius, the wall rays), so a step costs O(k) per mover, on the device, for any s
 
 6. *safety filter* (``safe=True``, the default; :mod:`magwarp.swarm.safety`): the velocity is replaced by the
    nearest one of a few candidates that keeps every mover's committed braking path apart from every other's by
-   separating planes; braking always qualifies. This makes the planner provably collision-free (between movers,
-   and with the edges of rectangular layouts) whatever the steps above chose; they only steer. ``commit_brake``
+   separating planes, and off the cells around it that hold no tile; braking always qualifies. This makes the
+   planner provably collision-free (with movers, holes and edges, on any layout) whatever the steps above chose;
+   they only steer. ``commit_brake``
    (x ``a_max``) is the committed braking, ``safe_margin`` (m) the extra distance kept;
 7. *deadlock escape* (``patience`` steps, with the filter): a mover held still away from its goal for ``patience``
    steps wants to go to its right (every mover the same side, so head-on pairs pass) for ``patience`` steps,
@@ -149,7 +150,7 @@ class SwarmPlanner:
     """``action = SwarmPlanner(env)()``: x/y accelerations ``[num_envs, num_movers, 2]`` for a :class:`SwarmEnv`
     (acceleration control). See the module docstring for the rule and its parameters (``orca=False``: no steps
     2-5, the preferred velocity goes straight to the safety filter). With ``safe=True`` the env's local view must
-    see ``safety.reach_radius`` (0.65 m at the default cruise of 1.5 m/s) and hold the 4 axis rays (checked).
+    see ``safety.reach_radius`` (0.65 m at the default cruise of 1.5 m/s; checked).
     Defaults with ``safe=True``: ``cruise=1.5``, ``buffer=0.02``, ``shield=0`` (the filter keeps the movers apart);
     with ``safe=False``: ``cruise=1.0``, ``buffer=0.06``, ``shield=0.4``."""
 
@@ -202,13 +203,10 @@ class SwarmPlanner:
             self.safety = SafetyFilter(contact=self.contact, wall_reach=self.wall_reach, a_max=self.a_max,
                                        step=self.step_time, dt=float(sim.model.limits.dt),
                                        a_brake=commit_brake * self.a_max, margin=safe_margin, v_cap=self.cruise,
-                                       num_rays=env.local.num_rays, device=dev)
+                                       tiles=env.layout.tiles, tile_size=float(env.layout.tile.size), device=dev)
             if env.local.k > 0 and env.local.radius < self.safety.reach_radius:
                 raise ValueError(f"the local view sees {env.local.radius} m but the safety filter needs "
                                  f"{self.safety.reach_radius:.3f} m (obs_radius) at cruise {self.cruise} m/s")
-            if len(self.safety.axis_rays) < 4:
-                raise ValueError(f"the safety filter needs the 4 axis-aligned wall rays: num_rays must be a multiple "
-                                 f"of 4, got {env.local.num_rays}")
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
         if isinstance(patience, bool) or not isinstance(patience, int) or patience < 0:
@@ -316,8 +314,7 @@ class SwarmPlanner:
             if self.patience > 0:  # escaping movers skip the avoidance rule (it held them still): the filter only
                 v = torch.where(escape, right, v)
             # 3''. the safety filter: the safe velocity nearest to the chosen one (provably collision-free)
-            v = self.safety(vel, v, local.rel_pos, local.rel_vel, local.mask,
-                            local.walls if local.num_rays > 0 else None)
+            v = self.safety(vel, v, local.rel_pos, local.rel_vel, local.mask, pos)
         # 4. the acceleration that reaches v within one env step, within the limit
         acc = (v - vel) / self.step_time
         n = acc.norm(dim=-1, keepdim=True)

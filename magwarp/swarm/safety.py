@@ -26,10 +26,10 @@ segment's; a right side below 0 counts as 0: a pair placed closer than ``contact
 The two movers decide alone, and their new paths stay on their own sides of the same plane: the pair stays
 ``contact + margin`` apart at every instant, and the new committed paths (the tails of the new paths) keep the
 invariant. *Recursive feasibility*: braking (``v1 = v0 - a_brake T v0^``, or rest) satisfies every such constraint
-(its new path lies inside the old segment, which lies behind ``q_i``), so a safe velocity always exists. Walls: a
-layout's edges are axis-aligned lines; the axis rays of the local view measure them, and each gives the same kind of
-constraint with the wall at ``wall_reach`` as the other side (exact on rectangular layouts; near the corners of
-holes the planner's diagonal ray lines steer, without the guarantee).
+(its new path lies inside the old segment, which lies behind ``q_i``), so a safe velocity always exists. Walls: every
+cell off the tiles (a hole, or beyond the layout's edge) near the mover is a square obstacle; the closest points of
+the committed segment and the square give the same kind of constraint, with the whole gap less ``wall_reach`` for
+the mover (the square does not move): no path comes within ``wall_reach`` of a hole or an edge, on any layout.
 
 **Neighbours.** Paths are at most ``L = (T + dt/2) v + D(v)`` long, so movers farther apart than ``R = contact +
 margin + 2 L`` (``v``: the speed cap) cannot meet within a step; the local view must see at least that far
@@ -98,7 +98,7 @@ class SafetyFilter:
     FRACTIONS = (1.0, 0.75, 0.5, 0.25)
 
     def __init__(self, *, contact: float, wall_reach: float, a_max: float, step: float, dt: float, a_brake: float,
-                 margin: float, v_cap: float, num_rays: int, device=None):
+                 margin: float, v_cap: float, tiles=None, tile_size: float = 0.24, device=None):
         for name, value in (("contact", contact), ("a_max", a_max), ("step", step), ("a_brake", a_brake),
                             ("v_cap", v_cap)):
             if not (math.isfinite(value) and value > 0):
@@ -116,10 +116,17 @@ class SafetyFilter:
         #: movers farther apart than this cannot meet within a step (the local view must see this far)
         self.reach_radius = self.contact + self.margin + 2.0 * self.path_reach
         self.stop_cap = stop_length(self.v_cap, self.a_brake, self.step)  # the longest committed segment
-        # the axis-aligned rays of the local view (ray r points at angle 2 pi r / num_rays)
-        self.axis_rays = [r for r in range(num_rays) if (4 * r) % num_rays == 0]
-        axes = [(math.cos(2 * math.pi * r / num_rays), math.sin(2 * math.pi * r / num_rays)) for r in self.axis_rays]
-        self.axes = torch.tensor([[round(x), round(y)] for x, y in axes], dtype=torch.float32, device=device)
+        # walls: the cells off the tiles (holes, and beyond the edges) near a mover are square obstacles
+        self.tiles = None
+        if tiles is not None:
+            if not (math.isfinite(tile_size) and tile_size > 0):
+                raise ValueError(f"tile_size must be a positive number, got {tile_size!r}")
+            self.tile_size = float(tile_size)
+            self.tiles = torch.as_tensor(tiles, device=device).bool()
+            # every cell that a path (reach path_reach) can come within wall_reach + margin of
+            c = math.ceil((self.wall_reach + self.margin + self.path_reach) / self.tile_size)
+            r = torch.arange(-c, c + 1, device=device)
+            self.cell_offsets = torch.stack(torch.meshgrid(r, r, indexing="ij"), -1).reshape(-1, 2)
         turns = torch.tensor(self.TURNS, dtype=torch.float32, device=device)
         c, s = turns.cos(), turns.sin()
         self.rot = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # [R, 2, 2]
@@ -129,8 +136,43 @@ class SafetyFilter:
         """``T + dt/2 + |v1| / (2 a_brake)``: the factor of ``max(v1.n, 0)`` in the path bound."""
         return self.step + 0.5 * self.dt + v1.norm(dim=-1) / (2.0 * self.a_brake)
 
+    def wall_constraints(self, pos: torch.Tensor, vel: torch.Tensor, seg: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``normals`` ``[..., C, 2]`` and ``base`` ``[..., C]`` of the cells off the tiles around each mover at
+        ``pos`` (absolute), whose committed segment is ``seg``: the separating plane between the segment and each
+        such square (the closest points of a segment and a box: an endpoint against the box, or a corner against
+        the segment), with the whole ``gap - wall_reach - margin`` for the mover (walls do not move)."""
+        size, (nx, ny) = self.tile_size, self.tiles.shape
+        cell = torch.floor(pos / size).long()[..., None, :] + self.cell_offsets  # [..., C, 2]
+        inside = (cell[..., 0] >= 0) & (cell[..., 0] < nx) & (cell[..., 1] >= 0) & (cell[..., 1] < ny)
+        flat = cell[..., 0].clamp(0, nx - 1) * ny + cell[..., 1].clamp(0, ny - 1)
+        obstacle = ~(inside & self.tiles.reshape(-1)[flat])
+        lo = cell.to(pos.dtype) * size
+        hi = lo + size
+        a = pos[..., None, :].expand_as(lo)
+        d = seg[..., None, :].expand_as(lo)
+        b = a + d
+        corners = torch.stack([lo, torch.stack([hi[..., 0], lo[..., 1]], -1), torch.stack([lo[..., 0], hi[..., 1]], -1),
+                               hi], -2)  # [..., C, 4, 2]
+        t = (_dot(corners - a[..., None, :], d[..., None, :]) / _dot(d, d).clamp_min(1e-12)[..., None]).clamp(0, 1)
+        on_seg = a[..., None, :] + t[..., None] * d[..., None, :]
+        q_seg = torch.cat([a[..., None, :], b[..., None, :], on_seg], -2)  # [..., C, 6, 2]
+        q_box = torch.cat([torch.maximum(torch.minimum(a, hi), lo)[..., None, :],
+                           torch.maximum(torch.minimum(b, hi), lo)[..., None, :], corners], -2)
+        dist = (q_box - q_seg).norm(dim=-1)
+        best = dist.argmin(-1, keepdim=True)
+        pick = lambda x: x.gather(-2, best[..., None].expand(*best.shape, 2)).squeeze(-2)  # noqa: E731
+        q_i, q_o = pick(q_seg), pick(q_box)
+        gap = dist.gather(-1, best).squeeze(-1)
+        centre = 0.5 * (lo + hi) - a
+        n = torch.where((gap > 1e-9)[..., None], (q_o - q_i) / gap.clamp_min(1e-12)[..., None],
+                        centre / centre.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+        budget = (gap - self.wall_reach - self.margin).clamp_min(0.0)
+        base = _dot(a - q_i, n) + 0.5 * self.step * _dot(vel[..., None, :], n).clamp_min(0.0) - budget
+        return n, torch.where(obstacle, base, -math.inf)
+
     def constraints(self, vel: torch.Tensor, rel_pos: torch.Tensor, rel_vel: torch.Tensor, mask: torch.Tensor,
-                    walls: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                    pos: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Per mover, its constraints ``base + max(v1.n, 0) gain(v1) <= 0``: ``normals`` ``[..., C, 2]``,
         ``base`` ``[..., C]`` (inactive constraints: ``-inf``), and ``ball`` ``[...]``: the largest
         :meth:`path_reach_of` its new path may have (``inf`` unless its neighbour list is crowded)."""
@@ -164,11 +206,9 @@ class SafetyFilter:
             room = 0.5 * (d_k - stop_length(speed[..., 0], self.a_brake, T) - self.stop_cap - self.contact
                           - self.margin)
             ball = torch.where(crowded, room, ball)
-        if walls is not None and self.axis_rays:
-            axes = self.axes.to(vel.device).expand(*vel.shape[:-1], -1, -1)
-            room = (walls[..., self.axis_rays] - self.wall_reach - self.margin).clamp_min(0.0)
-            wbase = 0.5 * T * _dot(vel[..., None, :], axes).clamp_min(0.0) - room
-            n = torch.cat([n, axes], -2)
+        if pos is not None and self.tiles is not None:
+            wn, wbase = self.wall_constraints(pos, vel, seg_i)
+            n = torch.cat([n, wn], -2)
             base = torch.cat([base, wbase], -1)
         return n, base, ball
 
@@ -183,9 +223,11 @@ class SafetyFilter:
         return vel * (1.0 - self.a_brake * self.step / speed.clamp_min(1e-12)).clamp_min(0.0)
 
     def candidates(self, vel: torch.Tensor, wanted: torch.Tensor) -> torch.Tensor:
-        """``[..., K, 2]``: braking first, then the wanted velocity and its turns at each fraction of the way from
-        braking (every one within one step's reach of ``vel``)."""
+        """``[..., K, 2]``: braking first, then the wanted velocity (at most ``v_cap`` fast) and its turns at each
+        fraction of the way from braking (every one within one step's reach of ``vel``)."""
         v_b = self.braking(vel)
+        speed = wanted.norm(dim=-1, keepdim=True)  # no faster than v_cap (the reach of paths assumes it)
+        wanted = torch.where(speed > self.v_cap, wanted * (self.v_cap / speed.clamp_min(1e-12)), wanted)
         turned = torch.einsum("rab,...b->...ra", self.rot.to(vel.device), wanted)  # [..., R, 2]
         dv = turned - vel[..., None, :]
         reach = self.a_max * self.step * (1.0 - 1e-5)
@@ -202,10 +244,10 @@ class SafetyFilter:
         return g.amax(-1) if g.shape[-1] else torch.full(cand.shape[:-1], -math.inf, device=cand.device)
 
     def __call__(self, vel: torch.Tensor, wanted: torch.Tensor, rel_pos: torch.Tensor, rel_vel: torch.Tensor,
-                 mask: torch.Tensor, walls: torch.Tensor | None = None) -> torch.Tensor:
+                 mask: torch.Tensor, pos: torch.Tensor | None = None) -> torch.Tensor:
         """The safe velocity for the end of the step ``[..., 2]`` closest to ``wanted`` among the candidates
         (braking where no other is safe)."""
-        normals, base, ball = self.constraints(vel, rel_pos, rel_vel, mask, walls)
+        normals, base, ball = self.constraints(vel, rel_pos, rel_vel, mask, pos)
         cand = self.candidates(vel, wanted)
         bad = (self.violation(cand, normals, base) > 0) | (self.path_reach_of(vel, cand) > ball[..., None])
         bad[..., 0] = False  # braking is always safe (recursive feasibility)
