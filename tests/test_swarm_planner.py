@@ -168,14 +168,13 @@ def test_planner_quality_on_a_small_dense_swarm(seed):
     assert first >= 0.3, (first, r)
 
 
-def test_safe_planner_needs_a_view_that_sees_far_enough():
+def test_safe_planner_options_are_checked():
     env = SwarmEnv(1, num_movers=8, layout=np.ones((6, 6)), device="cpu", seed=0, obs_radius=0.5)
-    with pytest.raises(ValueError, match="obs_radius"):
-        SwarmPlanner(env)
-    SwarmPlanner(env, cruise=0.8)  # a slower cruise needs less: 0.45 m
-    SwarmPlanner(env, safe=False)
+    planner = SwarmPlanner(env)  # its own neighbour search sees the filter's reach radius, whatever the view's
+    assert planner.near.radius == planner.safety.reach_radius > 0.5 and planner.near.k == 16
     with pytest.raises(ValueError, match="v_max"):
         SwarmPlanner(SwarmEnv(1, num_movers=8, layout=np.ones((6, 6)), device="cpu", seed=0), cruise=3.0)
-    for bad in (dict(patience=-1), dict(patience=1.5), dict(commit_brake=0.0), dict(commit_brake=1.5)):
+    for bad in (dict(patience=-1), dict(patience=1.5), dict(commit_brake=0.0), dict(commit_brake=1.5),
+                dict(safe_k=0)):
         with pytest.raises(ValueError):
             SwarmPlanner(env, cruise=0.8, **bad)

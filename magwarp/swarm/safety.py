@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 __all__ = ["SafetyFilter", "segment_closest_points", "stop_length"]
@@ -122,7 +123,7 @@ class SafetyFilter:
             if not (math.isfinite(tile_size) and tile_size > 0):
                 raise ValueError(f"tile_size must be a positive number, got {tile_size!r}")
             self.tile_size = float(tile_size)
-            self.tiles = torch.as_tensor(tiles, device=device).bool()
+            self.tiles = torch.as_tensor(np.array(tiles, dtype=bool), device=device)
             # every cell that a path (reach path_reach) can come within wall_reach + margin of
             c = math.ceil((self.wall_reach + self.margin + self.path_reach) / self.tile_size)
             r = torch.arange(-c, c + 1, device=device)
