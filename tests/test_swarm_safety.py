@@ -172,15 +172,16 @@ def test_movers_stay_off_holes_and_edges(rng, holes):
 
 def test_a_crowded_neighbour_list_keeps_the_path_in_a_ball():
     """k slots all filled within the reach radius: someone may be unseen (no nearer than the farthest seen, d_k),
-    so the new path keeps within (d_k - D(v0) - D(v_cap) - contact - margin) / 2 of the mover."""
+    so the new path keeps within w_min (d_k - D(v0) - D(v_cap) - contact - margin) of the mover."""
     f = make_filter()
     k = 3
-    rel = torch.tensor([[[0.0, 0.4], [0.0, -0.4], [-0.4, 0.0]]])
+    rel = torch.tensor([[[0.0, 0.44], [0.0, -0.44], [-0.44, 0.0]]])
     vel = torch.tensor([[0.3, 0.0]])
     rel_vel = torch.zeros(1, k, 2) - vel[:, None]
     v1 = f(vel, torch.tensor([[1.0, 0.0]]), rel, rel_vel, torch.ones(1, k, dtype=bool))
-    assert f.reach_radius > 0.4
-    ball = 0.5 * (0.4 - stop_length(0.3, A_B, T) - stop_length(CRUISE, A_B, T) - CONTACT - MARGIN)
+    assert f.reach_radius > 0.44
+    w_min = f.SHARE_FLOOR / (CRUISE + 2 * f.SHARE_FLOOR)
+    ball = w_min * (0.44 - stop_length(0.3, A_B, T) - stop_length(CRUISE, A_B, T) - CONTACT - MARGIN)
     reach = float(f.path_reach_of(vel, v1[:, None])[0, 0])
     assert 0 < reach <= ball + 1e-7 and float(v1[0, 0]) > float(f.braking(vel)[0, 0])  # moves, within the ball
     traj = simulate(np.zeros((1, 2)), vel.double().numpy(), v1.double().numpy())

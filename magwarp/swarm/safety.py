@@ -20,10 +20,15 @@ pair of movers are at least ``contact + margin`` apart (``contact``: the simulat
 
 **The step rule.** For a pair ``(i, j)`` the closest points ``q_i``, ``q_j`` of their segments give a separating
 direction ``n`` (from ``q_i`` to ``q_j``) and a gap ``g``; each mover keeps its whole *new* committed path (the held
-step, then braking from the new velocity ``v1``) within ``(g - contact - margin) / 2`` beyond its own closest point
-along ``n``:
+step, then braking from the new velocity ``v1``) within its share ``w_i (g - contact - margin)`` beyond its own
+closest point along ``n``:
 
-    (p - q_i).n + T/2 max(v0.n, 0) + max(v1.n, 0) (T + dt/2 + |v1| / (2 a_brake)) <= (g - contact - margin) / 2
+    (p - q_i).n + T/2 max(v0.n, 0) + max(v1.n, 0) (T + dt/2 + |v1| / (2 a_brake)) <= w_i (g - contact - margin)
+
+with ``w_i = (max(v0_i.n, 0) + f) / (max(v0_i.n, 0) + max(-v0_j.n, 0) + 2 f)`` (``f`` = 0.2 m/s): the pair's slack
+split by how fast each mover heads into it now, which both compute alike (``w_i + w_j = 1``), so that a follower
+may close up on a leader moving away (at 1024 movers, 12 s: 502 goals against 405 with equal halves). A share is
+never below ``w_min = f / (v + 2 f)`` (``v``: the speed cap)
 
 (the left side bounds the held step's projection for the simulator's semi-implicit cycles of ``dt``, and the braking
 segment's; a right side below 0 counts as 0: a pair placed closer than ``contact + margin`` may part, not close).
@@ -37,10 +42,10 @@ the mover (the square does not move): no path comes within ``wall_reach`` of a h
 
 **Neighbours.** Paths are at most ``L = (T + dt/2) v + D(v)`` long, so movers farther apart than ``R = contact +
 margin + 2 L`` (``v``: the speed cap) cannot meet within a step; the local view must see at least that far
-(``obs_radius >= R``, checked). A mover whose ``k`` neighbour slots are all taken, the farthest at ``d_k <= R``,
-may miss a mover ``j`` (at ``d >= d_k``): its new path then keeps within ``(d_k - D(|v0|) - D(v) - contact -
-margin) / 2`` of it, which lies inside its half towards any such ``j`` (whether ``j`` sees it and keeps its own
-half, or misses it too and keeps its own ball). Braking stays allowed (its path lies in the old segment).
+(the planner searches that far). A mover whose ``k`` neighbour slots are all taken, the farthest at ``d_k <= R``,
+may miss a mover ``j`` (at ``d >= d_k``): its new path then keeps within ``w_min (d_k - D(|v0|) - D(v) - contact -
+margin)`` of it, which lies inside its share towards any such ``j`` (whether ``j`` sees it and keeps to its own
+share, or misses it too and keeps to its own ball). Braking stays allowed (its path lies in the old segment).
 
 **The choice.** Among candidates ``v_b + a (w - v_b)`` (``v_b``: braking; ``w``: the wanted velocity and turns of it
 by +-45 and +-90 degrees, within one step's reach; ``a`` in 1, 3/4, 1/2, 1/4) and ``v_b`` itself, the safe one
@@ -100,6 +105,7 @@ class SafetyFilter:
     radius :attr:`reach_radius`)."""
 
     TURNS = (0.0, math.pi / 4, -math.pi / 4, math.pi / 2, -math.pi / 2)
+    SHARE_FLOOR = 0.2  # m/s: a mover at rest still gets a share of a pair's slack
     FRACTIONS = (1.0, 0.75, 0.5, 0.25)
 
     def __init__(self, *, contact: float, wall_reach: float, a_max: float, step: float, dt: float, a_brake: float,
@@ -121,6 +127,7 @@ class SafetyFilter:
         #: movers farther apart than this cannot meet within a step (the local view must see this far)
         self.reach_radius = self.contact + self.margin + 2.0 * self.path_reach
         self.stop_cap = stop_length(self.v_cap, self.a_brake, self.step)  # the longest committed segment
+        self.share_min = self.SHARE_FLOOR / (self.v_cap + 2.0 * self.SHARE_FLOOR)  # the least share of a pair's slack
         # walls: the cells off the tiles (holes, and beyond the edges) near a mover are square obstacles
         self.tiles = None
         if tiles is not None:
@@ -198,8 +205,12 @@ class SafetyFilter:
         centre = rel_pos / rel_pos.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         n = torch.where((gap > 1e-9)[..., None], sep / gap.clamp_min(1e-12)[..., None], centre)
         v0n = _dot(vel[..., None, :], n)
-        # (a pair closer than contact + margin, e.g. placed so: no closer than now, moving apart is allowed)
-        budget = (0.5 * (gap - self.contact - self.margin)).clamp_min(0.0)
+        # the pair's slack, shared in proportion to how fast each heads into it now (both movers compute the same
+        # split: a follower may close up on a leader moving away); a pair closer than contact + margin (e.g. placed
+        # so) gets none: no closer than now, moving apart stays allowed
+        toward_i = v0n.clamp_min(0.0) + self.SHARE_FLOOR
+        toward_j = (-_dot(vel_j, n)).clamp_min(0.0) + self.SHARE_FLOOR
+        budget = (gap - self.contact - self.margin).clamp_min(0.0) * (toward_i / (toward_i + toward_j))
         base = -_dot(q_i, n) + 0.5 * T * v0n.clamp_min(0.0) - budget
         base = torch.where(mask, base, -math.inf)
         # a full neighbour list whose farthest entry (at d_k) is within reach: a mover within reach may be unseen
@@ -208,8 +219,8 @@ class SafetyFilter:
         if mask.shape[-1] > 0:
             d_k = rel_pos.norm(dim=-1).masked_fill(~mask, 0.0).amax(-1)
             crowded = mask.all(-1) & (d_k <= self.reach_radius)
-            room = 0.5 * (d_k - stop_length(speed[..., 0], self.a_brake, T) - self.stop_cap - self.contact
-                          - self.margin)
+            room = self.share_min * (d_k - stop_length(speed[..., 0], self.a_brake, T) - self.stop_cap
+                                     - self.contact - self.margin)
             ball = torch.where(crowded, room, ball)
         if pos is not None and self.tiles is not None:
             wn, wbase = self.wall_constraints(pos, vel, seg_i)
