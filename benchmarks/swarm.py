@@ -1,8 +1,11 @@
 """Large swarms (issue #18): agent-steps/s and memory of the swarm env, beside the bare simulator step of the same
 movers, at 100 to 100k movers in one world and at many worlds of 100 movers.
 
-The scripted ORCA planner (:class:`magwarp.swarm.planner.SwarmPlanner`) also runs 10 s in one world of 256, 1024
-(64 x 64 tiles at 25%: the issue's target setting) and 4096 movers: goals, collisions per 1000 goals, deadlocks.
+The scripted planner (:class:`magwarp.swarm.planner.SwarmPlanner`: ORCA steering, then the provably collision-free
+safety filter of :mod:`magwarp.swarm.safety`) also runs 40 s (1000 steps) in one world of 256, 1024 (64 x 64 tiles at
+25%: the issue's target setting) and 4096 movers, from a reset: goals, collisions per 1000 goals, deadlocks, the
+share of movers that reached their first goal (the goal drawn at reset: the issue's "reaches >= 95% of goals", each
+mover's first goal being its episode) and the planner's step time (planner + env step, one world).
 
 One env step = 40 control cycles (acceleration commands held), per-mover collision stops, local observations (8
 nearest movers within 1 m, 8 wall rays), per-mover rewards, goal streams and respawns. One agent-step = one mover
@@ -13,6 +16,7 @@ collide as in a run), computed on the device.
     python benchmarks/swarm.py                       # CPU (+ cuda:0 when present), full sizes
     python benchmarks/swarm.py --small               # CPU-friendly sizes (smoke check)
     python benchmarks/swarm.py --device cuda:0 --json benchmarks/results/swarm_gpu.json
+    python benchmarks/swarm.py --device cuda:0 --planner-only     # the planner's quality rows alone (256/1024/4096)
 
 Memory: the device memory the env (or simulator) holds after construction and a few steps (CUDA: the change of
 free device memory, which counts Warp's and torch's allocations; CPU: the change of resident set size).
@@ -38,7 +42,7 @@ from common import header_line, machine_info, print_table, provenance, write_jso
 ONE_WORLD = (100, 1_000, 10_000, 100_000)
 PLANNER = (256, 1024, 4096)  # movers of one world for the scripted planner's quality (1024: 64 x 64 tiles at 25%)
 SMALL_PLANNER = (64,)
-PLANNER_STEPS = 250  # 10 s of simulated time
+PLANNER_STEPS = 1000  # 40 s of simulated time
 MANY_WORLDS = (64, 1024, 8192)  # worlds of 100 movers
 SMALL_ONE_WORLD = (100, 1_000)
 SMALL_MANY_WORLDS = (4, 16)
@@ -148,16 +152,23 @@ def bench_env(movers: int, worlds: int, device: str, steps: int) -> dict:
 def bench_planner(movers: int, device: str, steps: int) -> dict:
     """The scripted ORCA planner in one world: goals, collisions per 1000 goals, deadlocks, and its step time."""
     from magwarp.swarm import SwarmEnv
-    from magwarp.swarm.metrics import run_policy
+    from magwarp.swarm.metrics import SwarmMetrics
     from magwarp.swarm.planner import SwarmPlanner
 
     env = SwarmEnv(1, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
     planner = SwarmPlanner(env)
+    metrics = SwarmMetrics(env)
+    env.reset()
     _sync(device)
     t = time.perf_counter()
-    res = run_policy(env, lambda obs: planner(), steps)
+    for _ in range(steps):
+        _, _, _, _, info = env.step(planner())
+        metrics.update(info)
     _sync(device)
-    res["planner_step_ms"] = (time.perf_counter() - t) / steps * 1e3
+    elapsed = time.perf_counter() - t
+    res = metrics.result()
+    res["planner_step_ms"] = elapsed / steps * 1e3
+    res["first_goal_share"] = float((metrics.tracker.t["nth_goal_step"] >= 0).float().mean())
     return {"device": device, "movers": movers, "tiles": int(_layout(movers).num_tiles),
             **{f"planner_{k}" if not k.startswith("planner") else k: v for k, v in res.items()}}
 
@@ -170,7 +181,7 @@ def run(args) -> list[dict]:
         small = args.small or not gpu and not args.full
         one = SMALL_ONE_WORLD if small else ONE_WORLD
         many = SMALL_MANY_WORLDS if small else MANY_WORLDS
-        configs = [(m, 1) for m in one] + [(100, w) for w in many]
+        configs = [] if args.planner_only else [(m, 1) for m in one] + [(100, w) for w in many]
         for movers, worlds in configs:
             steps = args.steps or (20 if gpu else max(1, int(2e4 // (movers * worlds))))
             row = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps,
@@ -198,6 +209,7 @@ def main(argv=None) -> None:
     p.add_argument("--full", action="store_true", help="full sizes on the CPU too (slow)")
     p.add_argument("--steps", type=int, help="timed steps per batch (default: by size)")
     p.add_argument("--no-planner", action="store_true", help="skip the scripted planner's quality rows")
+    p.add_argument("--planner-only", action="store_true", help="only the scripted planner's quality rows")
     p.add_argument("--planner-steps", type=int, help=f"steps of the planner runs (default {PLANNER_STEPS})")
     p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json)")
     args = p.parse_args(argv)
@@ -212,13 +224,15 @@ def main(argv=None) -> None:
     cols = ["device", "worlds", "movers", "agents", ("env_ms", "env ms"), ("sim_ms", "sim ms"),
             ("env_over_sim", "env/sim"), ("agent_steps_per_s", "agent-steps/s"), ("env_mb", "env MB"),
             ("sim_mb", "sim MB"), ("goals_per_step", "goals/step"), ("collided_per_step", "collided/step")]
-    print_table([r for r in rows if "env_ms" in r], cols)
+    if any("env_ms" in r for r in rows):
+        print_table([r for r in rows if "env_ms" in r], cols)
     plan = [r for r in rows if "planner_goals" in r]
     if plan:
         print_table(plan, ["device", "movers", "tiles", ("planner_steps", "steps"), ("planner_goals", "goals"),
                            ("planner_throughput_per_mover", "goals/s/mover"), ("planner_collisions", "collisions"),
                            ("planner_collisions_per_1000_goals", "coll/1000 goals"),
-                           ("planner_deadlocked", "deadlocked"), ("planner_step_ms", "step ms")])
+                           ("planner_deadlocked", "deadlocked"), ("planner_first_goal_share", "first goals"),
+                           ("planner_step_ms", "step ms")])
     default = "gpu" if any(r["device"].startswith("cuda") for r in rows) else "cpu"
     path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", f"swarm_{default}.json")
     print("wrote", write_json(path, rows))

@@ -61,7 +61,7 @@ def test_swarm_planner_beats_straight_seeking():
     results = {}
     for name in ("seek", "planner"):
         env = SwarmEnv(2, num_movers=64, device="cpu", seed=3)
-        planner = SwarmPlanner(env)
+        planner = SwarmPlanner(env, safe=False)  # the steering rules alone (the filter makes collisions 0)
         collisions = goals = 0
         for _ in range(100):
             if name == "planner":
@@ -149,10 +149,10 @@ def test_stop_speed_matches_the_held_then_braked_kinematics(rng):
 
 @pytest.mark.parametrize("seed", [3, 4])
 def test_planner_quality_on_a_small_dense_swarm(seed):
-    """64 movers on 16 x 16 tiles (25% occupancy), 2 worlds, 100 steps (4 s): the planner as shipped keeps moving
-    (no deadlocked mover), reaches goals and collides rarely. Measured with this seed: 62 / 75 goals, 113 / 200
-    collided movers per 1000 goals, 0 deadlocked, 45-48% of the first goals reached; the planner before the braking
-    shield and the greedy program reached 29 / 43 goals at 395-414 per 1000 goals, with 13-16 movers deadlocked."""
+    """64 movers on 16 x 16 tiles (25% occupancy), 2 worlds, 100 steps (4 s): the planner as shipped (with its
+    safety filter) never collides, keeps moving (no deadlocked mover) and reaches goals. Measured with these seeds:
+    76 / 88 goals, 0 collisions, 0 deadlocked, 44-56% of the first goals reached; the planner without the filter
+    (``safe=False``) reached 62 / 75 goals at 113 / 200 collided movers per 1000 goals."""
     env = SwarmEnv(2, num_movers=64, layout=np.ones((16, 16)), device="cpu", seed=seed, check_inputs=False)
     planner = SwarmPlanner(env)
     metrics = SwarmMetrics(env)
@@ -162,7 +162,19 @@ def test_planner_quality_on_a_small_dense_swarm(seed):
         metrics.update(info)
     r = metrics.result()
     first = float((metrics.tracker.t["nth_goal_step"] >= 0).float().mean())  # movers that reached a first goal
+    assert r["collisions"] == 0, r
     assert r["goals"] >= 55, r
-    assert r["collisions_per_1000_goals"] <= 300, r
     assert r["deadlocked"] <= 2, r
-    assert first >= 0.38, (first, r)
+    assert first >= 0.3, (first, r)
+
+
+def test_safe_planner_options_are_checked():
+    env = SwarmEnv(1, num_movers=8, layout=np.ones((6, 6)), device="cpu", seed=0, obs_radius=0.5)
+    planner = SwarmPlanner(env)  # its own neighbour search sees the filter's reach radius, whatever the view's
+    assert planner.near.radius == planner.safety.reach_radius > 0.5 and planner.near.k == 24
+    with pytest.raises(ValueError, match="v_max"):
+        SwarmPlanner(SwarmEnv(1, num_movers=8, layout=np.ones((6, 6)), device="cpu", seed=0), cruise=3.0)
+    for bad in (dict(patience=-1), dict(patience=1.5), dict(commit_brake=0.0), dict(commit_brake=1.5),
+                dict(safe_k=0)):
+        with pytest.raises(ValueError):
+            SwarmPlanner(env, cruise=0.8, **bad)

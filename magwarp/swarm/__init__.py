@@ -6,7 +6,8 @@
   and its distances to the walls in a few directions, O(k) per mover;
 * :class:`SwarmEnv` (:mod:`magwarp.swarm.env`): per-mover goals, rewards and collisions on any layout, and its
   multi-agent views (:mod:`magwarp.swarm.views`);
-* :class:`SwarmPlanner` (:mod:`magwarp.swarm.planner`): a scripted ORCA planner on the local view, O(k) per mover;
+* :class:`SwarmPlanner` (:mod:`magwarp.swarm.planner`): a scripted ORCA planner on the local view, O(k) per mover,
+  made provably collision-free by :class:`SafetyFilter` (:mod:`magwarp.swarm.safety`);
 * :class:`SwarmMetrics` / :func:`run_policy` (:mod:`magwarp.swarm.metrics`): throughput, collisions per 1000 goals,
   deadlocked movers, makespan.
 """
@@ -16,7 +17,7 @@ from __future__ import annotations
 import importlib
 
 __all__ = ["Placer", "PlacementError", "LocalObservations", "SwarmEnv", "SwarmConfig", "FlatSwarmEnv",
-           "SwarmTorchRLEnv", "SwarmParallelEnv", "SwarmPlanner", "SwarmMetrics", "run_policy"]
+           "SwarmTorchRLEnv", "SwarmParallelEnv", "SwarmPlanner", "SafetyFilter", "SwarmMetrics", "run_policy"]
 
 _WHERE = {
     "Placer": "placement",
@@ -28,6 +29,7 @@ _WHERE = {
     "SwarmTorchRLEnv": "views",
     "SwarmParallelEnv": "views",
     "SwarmPlanner": "planner",
+    "SafetyFilter": "safety",
     "SwarmMetrics": "metrics",
     "run_policy": "metrics",
 }

@@ -390,6 +390,13 @@ class SwarmEnv(MagwarpVecEnv):
         self.stopped.masked_fill_(placed, 0)
         self.respawn_pending.copy_(left & want)
 
+    def agent_view(self):
+        """The flat parameter-shared view of this env (:class:`~magwarp.swarm.FlatSwarmEnv`): every mover of every
+        world is one sub-env; what ``magwarp train`` trains on (IPPO: one network, local observations)."""
+        from magwarp.swarm.views import FlatSwarmEnv
+
+        return FlatSwarmEnv(self)
+
     def scripted_policy(self):
         """The scripted ORCA planner (:class:`~magwarp.swarm.SwarmPlanner`) as a policy: ``action = policy(obs)``."""
         from magwarp.swarm.planner import SwarmPlanner

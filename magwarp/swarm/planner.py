@@ -1,5 +1,5 @@
 """A scripted, decentralised planner for the swarm env: ORCA (optimal reciprocal collision avoidance) on the
-local view, with a braking shield for the 40 ms command hold.
+local view, with a braking shield for the 40 ms command hold, then a provably collision-free safety filter.
 
 Each mover looks only at what its observation holds (its goal, the ``k`` nearest movers within the observation
 radius, the wall rays), so a step costs O(k) per mover, on the device, for any swarm size. Per mover:
@@ -28,6 +28,16 @@ radius, the wall rays), so a step costs O(k) per mover, on the device, for any s
    ``brake_factor`` of the velocity); ``reachable`` solves within the velocities one step of ``a_max`` reaches.
    The command is the acceleration that reaches the new velocity within one env step, within ``a_max``.
 
+6. *safety filter* (``safe=True``, the default; :mod:`magwarp.swarm.safety`): the velocity is replaced by the
+   nearest one of a few candidates that keeps every mover's committed braking path apart from every other's by
+   separating planes, and off the cells around it that hold no tile; braking always qualifies. This makes the
+   planner provably collision-free (with movers, holes and edges, on any layout) whatever the steps above chose;
+   they only steer. ``commit_brake``
+   (x ``a_max``) is the committed braking, ``safe_margin`` (m) the extra distance kept;
+7. *deadlock escape* (``patience`` steps, with the filter): a mover held still away from its goal for ``patience``
+   steps wants to go to its right (every mover the same side, so head-on pairs pass) for ``patience`` steps,
+   skipping steps 2-5 (which held it), the filter still applied.
+
 Quality (``benchmarks/swarm.py`` planner rows, :class:`~magwarp.swarm.SwarmMetrics`): goals reached in the
 window, collided movers per 1000 goals, deadlocked movers at the end, and the share of movers that reached their
 first goal (the one drawn at reset) within the window.
@@ -40,7 +50,8 @@ import math
 import torch
 
 from magwarp.swarm.env import SwarmEnv
-from magwarp.swarm.observations import ray_directions
+from magwarp.swarm.observations import LocalObservations, ray_directions
+from magwarp.swarm.safety import SafetyFilter
 
 __all__ = ["SwarmPlanner", "orca_lines", "solve_lines", "stop_speed"]
 
@@ -137,12 +148,23 @@ def stop_speed(room: torch.Tensor, closing: torch.Tensor, decel: float, step: fl
 
 class SwarmPlanner:
     """``action = SwarmPlanner(env)()``: x/y accelerations ``[num_envs, num_movers, 2]`` for a :class:`SwarmEnv`
-    (acceleration control). See the module docstring for the rule and its parameters."""
+    (acceleration control). See the module docstring for the rule and its parameters (``orca=False``: no steps
+    2-5, the preferred velocity goes straight to the safety filter). With ``safe=True`` the filter finds its own
+    ``safe_k`` nearest movers within ``safety.reach_radius`` (0.65 m at the default cruise of 1.5 m/s).
+    Defaults with ``safe=True``: ``cruise=1.5``, ``buffer=0.02``, ``shield=0`` (the filter keeps the movers apart);
+    with ``safe=False``: ``cruise=1.0``, ``buffer=0.06``, ``shield=0.4``."""
 
-    def __init__(self, env: SwarmEnv, *, cruise: float = 1.0, a_brake: float = 4.0, horizon: float = 2.0,
-                 buffer: float = 0.06, yield_share: float = 0.5, shield: float = 0.4, margin: float = 0.005,
-                 greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3, relax: float = 0.0,
-                 reachable: bool = False):
+    def __init__(self, env: SwarmEnv, *, cruise: float | None = None, a_brake: float = 4.0, horizon: float = 2.0,
+                 buffer: float | None = None, yield_share: float = 0.5, shield: float | None = None,
+                 margin: float = 0.005, greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3,
+                 relax: float = 0.0, reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5,
+                 commit_brake: float = 0.95, safe_margin: float = 0.002, safe_k: int = 24):
+        # defaults by mode: with the safety filter the steering may be bolder (measured on 64 movers at 25%, 2 seeds,
+        # before the filter's slack sharing: 68 / 81 goals in 4 s against 45 / 64 with the unfiltered planner's
+        # settings, none colliding)
+        cruise = (1.5 if safe else 1.0) if cruise is None else cruise
+        buffer = (0.02 if safe else 0.06) if buffer is None else buffer
+        shield = (0.0 if safe else 0.4) if shield is None else shield
         if env.learn_jerk:
             raise ValueError("SwarmPlanner commands accelerations: build the env with learn_jerk=False")
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("horizon", horizon)):
@@ -156,6 +178,7 @@ class SwarmPlanner:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a number >= 0, got {value!r}")
         self.env = env
+        self.orca = bool(orca)
         self.cruise, self.a_brake, self.horizon = float(cruise), float(a_brake), float(horizon)
         self.yield_share, self.brake_factor = float(yield_share), float(brake_factor)
         self.shield, self.margin, self.greedy = float(shield), float(margin), bool(greedy)
@@ -170,8 +193,30 @@ class SwarmPlanner:
         self.step_time = env.num_cycles * float(sim.model.limits.dt)
         self.separate = max(float(separate), self.step_time)
         dev = env.device
+        self.safety = None
+        if safe:
+            if not 0.0 < commit_brake <= 1.0:
+                raise ValueError(f"commit_brake must be in (0, 1], got {commit_brake!r}")
+            v_max = float(sim.model.limits.v_max)
+            if self.cruise > v_max:
+                raise ValueError(f"cruise ({self.cruise}) must be at most the movers' v_max ({v_max}) with safe=True "
+                                 f"(a speed capped by the simulator would leave the committed path)")
+            self.safety = SafetyFilter(contact=self.contact, wall_reach=self.wall_reach, a_max=self.a_max,
+                                       step=self.step_time, dt=float(sim.model.limits.dt),
+                                       a_brake=commit_brake * self.a_max, margin=safe_margin, v_cap=self.cruise,
+                                       tiles=env.layout.tiles, tile_size=float(env.layout.tile.size), device=dev)
+            if isinstance(safe_k, bool) or not isinstance(safe_k, int) or safe_k < 1:
+                raise ValueError(f"safe_k must be an integer >= 1, got {safe_k!r}")
+            # the filter's own neighbour search: the safe_k nearest within the reach radius (a list full of movers
+            # within reach restricts the mover to a small ball: 8 slots were full for most movers of a dense crowd)
+            self.near = LocalObservations(env.layout, env.num_envs, env.num_movers, k=safe_k,
+                                          radius=self.safety.reach_radius, num_rays=0, device=sim.device)
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
+        if isinstance(patience, bool) or not isinstance(patience, int) or patience < 0:
+            raise ValueError(f"patience must be an integer >= 0 (steps), got {patience!r}")
+        self.patience = patience
+        self.stuck = torch.zeros(env.num_envs, env.num_movers, dtype=torch.int32, device=dev)
 
     def _neighbour_lines(self, vel: torch.Tensor) -> tuple[list, list, list]:
         """ORCA lines, their slack (for ``relax``) and the braking-shield lines of the ``k`` neighbours."""
@@ -236,10 +281,20 @@ class SwarmPlanner:
         dist = err.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         speed = torch.minimum(torch.full_like(dist, self.cruise), torch.sqrt(2.0 * self.a_brake * dist))
         v_pref = err / dist * speed
+        if self.safety is not None and self.patience > 0:
+            # deadlock breaking: a mover held still away from its goal for ``patience`` steps steps aside to its
+            # right (every mover the same side: two movers head-on pass each other) for ``patience`` steps
+            slow = (vel.norm(dim=-1) < 0.05) & (dist[..., 0] > self.env.config.threshold_pos)
+            self.stuck = torch.where(slow | (self.stuck >= self.patience), self.stuck + 1, 0)
+            self.stuck = torch.where(self.stuck >= 2 * self.patience, 0, self.stuck)
+            escape = (self.stuck >= self.patience)[..., None]
+            right = torch.stack([v_pref[..., 1], -v_pref[..., 0]], -1)
         # 2. lines: walls, the braking shield, the neighbours' ORCA lines (nearest first)
         orca, slack, shield = self._neighbour_lines(vel) if local.k > 0 else ([], [], [])
         walls, wall_slack = self._wall_lines(vel) if local.num_rays > 0 else ([], [])
-        if self.greedy:
+        if self.orca is False:
+            v = v_pref
+        elif self.greedy:
             # 3. a line that leaves no room with the earlier ones is dropped: the most urgent ones are kept
             v, _ = self._solve(walls + shield + orca, v_pref, vel, skip=True)
         else:
@@ -259,6 +314,13 @@ class SwarmPlanner:
                 v = torch.where((~ok & ok3)[..., None], v3, v)
                 ok = ok | ok3
             v = torch.where(ok[..., None], v, vel * self.brake_factor)
+        if self.safety is not None:
+            if self.patience > 0:  # escaping movers skip the avoidance rule (it held them still): the filter only
+                v = torch.where(escape, right, v)
+            # 3''. the safety filter: the safe velocity nearest to the chosen one (provably collision-free)
+            near = self.near
+            near.compute(sim.state.pos, sim.state.vel)
+            v = self.safety(vel, v, near.rel_pos, near.rel_vel, near.mask, pos)
         # 4. the acceleration that reaches v within one env step, within the limit
         acc = (v - vel) / self.step_time
         n = acc.norm(dim=-1, keepdim=True)

@@ -85,8 +85,19 @@ class FlatSwarmEnv(VectorEnv):
         if "final_obs" in info:
             out_info["final_obs"] = info["final_obs"].reshape(n * m, -1)
             out_info["_final_obs"] = (world_term | world_trunc).reshape(-1)
+        else:  # worlds that never end: no final observation is needed (truncated is never set)
+            out_info["final_obs"] = obs.reshape(n * m, -1)
+            out_info["_final_obs"] = torch.zeros(n * m, dtype=torch.bool, device=self.device)
+        # training statistics (magwarp.training's SuccessTracker): goals reached per mover, and the ends that are
+        # only a world's time limit (not a lost goal)
+        out_info["goals_reached"] = info["goal_reached"].reshape(n * m, 1)
+        out_info["time_limit"] = (world_trunc & ~agent_term).reshape(-1)
         return (obs.reshape(n * m, -1), info["agent_reward"].reshape(-1), agent_term.reshape(-1),
                 (world_trunc & ~agent_term).reshape(-1), out_info)
+
+    @property
+    def num_cycles(self) -> int:
+        return self.env.num_cycles
 
     def close_extras(self, **kwargs):
         self.env.close()

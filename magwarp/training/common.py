@@ -61,7 +61,8 @@ def parse_env_kwargs(text: str | None) -> dict[str, Any]:
 
 
 def make_env(env_id: str, num_envs: int, device: str, seed: int, env_kwargs: dict[str, Any] | None = None):
-    """A batched magwarp env (``gymnasium.make_vec``), its unwrapped base, and the flattened observation size."""
+    """A batched magwarp env (``gymnasium.make_vec``) and its unwrapped base; a multi-agent env (one with
+    ``agent_view()``, e.g. a swarm) comes as its flat view, every agent a sub-env (parameter-shared training)."""
     import gymnasium as gym
     import warp as wp
 
@@ -76,6 +77,8 @@ def make_env(env_id: str, num_envs: int, device: str, seed: int, env_kwargs: dic
     env = gym.make_vec(env_id, num_envs=int(num_envs), device=device, seed=int(seed), check_inputs=False,
                        **(env_kwargs or {}))
     base = getattr(env, "unwrapped", env)
+    if hasattr(base, "agent_view"):  # multi-agent envs (swarms): one sub-env per agent, for parameter sharing
+        env = base = base.agent_view()
     return env, base
 
 

@@ -321,9 +321,11 @@ class Session:
     The algorithm calls :meth:`start` once its env has compiled, :meth:`step_done` after every iteration (PPO) or env
     step (SAC), and :meth:`finish` at the end."""
 
-    def __init__(self, args: argparse.Namespace, algo: str, device, target_state: dict | None):
+    def __init__(self, args: argparse.Namespace, algo: str, device, target_state: dict | None,
+                 num_agents: int | None = None):
         self.args, self.algo = args, algo
-        self.tracker = SuccessTracker(args.num_envs, device)
+        # agents per rank: the worlds, or (agent views: swarms) every mover of every world
+        self.tracker = SuccessTracker(num_agents or args.num_envs, device)
         self.logger = CsvLogger(args.out, args.tensorboard, resume=bool(args.resume)) if dist.is_main() else None
         self.target = TargetEval(args, device, target_state)
         self.phases = PhaseTimer(device, getattr(args, "profile", False))

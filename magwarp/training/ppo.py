@@ -50,6 +50,8 @@ PRESETS = {
     # not within 90 s (benchmarks/time_to_target.py)
     "TrajectoryPlanning": dict(num_envs=16384, num_steps=16, num_minibatches=8, gamma=0.99, hidden="256,256,128"),
     "Push": dict(num_envs=4096, num_steps=25, gamma=0.97, hidden="256,256,128"),
+    # swarms train on the flat agent view: num_envs worlds x num_movers agents (64 x 64 = 4096 by default)
+    "Swarm": dict(num_envs=64, num_steps=32, gamma=0.98, hidden="256,256"),
 }
 
 
@@ -163,9 +165,10 @@ class PpoUpdate:
     workspaces), then the step is captured and replayed. ``--compile`` compiles the loss (forward and backward)."""
 
     def __init__(self, agent: Agent, optimizer: torch.optim.Optimizer, args: argparse.Namespace, device,
-                 n_obs: int, n_act: int):
+                 n_obs: int, n_act: int, num_envs: int | None = None):
         self.agent, self.optimizer, self.args, self.device = agent, optimizer, args, torch.device(device)
-        batch = args.num_envs * args.num_steps
+        # the rollout's sub-envs: the worlds, or every mover of every world (a swarm's flat agent view)
+        batch = int(args.num_envs if num_envs is None else num_envs) * args.num_steps
         self.mb = batch // args.num_minibatches
         if self.mb < 1:
             raise ValueError(f"--num-minibatches {args.num_minibatches} exceeds the batch of {batch} samples")
@@ -259,12 +262,12 @@ def _train(args: argparse.Namespace) -> dict:
     main_rank, world = dist.is_main(), dist.world_size()
     seed, env, base, n_obs, n_act, action_scale = open_env(args)
     device = base.device  # the env's device, with its index (cuda -> cuda:0)
-    N, T = args.num_envs, args.num_steps
+    N, T = env.num_envs, args.num_steps  # sub-envs: the worlds, or every mover of every world (swarms' agent view)
     hidden = [int(h) for h in str(args.hidden).split(",")]
 
     agent = Agent(n_obs, n_act, hidden, args.init_log_std, args.squash, args.amp).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.lr, eps=1e-5)
-    update = PpoUpdate(agent, optimizer, args, device, n_obs, n_act)
+    update = PpoUpdate(agent, optimizer, args, device, n_obs, n_act, num_envs=N)
     obs_rms = RunningMeanStd(n_obs, device, clip=10.0)
     ret_rms = RunningMeanStd(1, device)
     global_step, iteration, wall_before, lr, target_state = 0, 0, 0.0, args.lr, None
@@ -289,7 +292,7 @@ def _train(args: argparse.Namespace) -> dict:
     b_done = torch.zeros(T, N, device=device)
     b_val = torch.zeros(T, N, device=device)
     disc_return = torch.zeros(N, device=device)
-    session = Session(args, "ppo", device, target_state)
+    session = Session(args, "ppo", device, target_state, num_agents=N)
     tracker, phase = session.tracker, session.phases
     policy_step = torch.compile(agent.rollout_step) if args.compile == "on" else agent.rollout_step
     # One step before the clock starts: kernels compile and the step graph is captured (minutes on a cold cache).

@@ -1,0 +1,199 @@
+"""The swarm planner's safety filter (:mod:`magwarp.swarm.safety`): segment closest points against a brute-force
+search, and the guarantee itself: two movers that decide alone, from any state that keeps the invariant (committed
+braking paths apart), never come closer than the collision distance over the held step and the braking that
+follows (simulated cycle by cycle as the simulator integrates), keep the invariant, and stay off holes and edges."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from magwarp.swarm.safety import SafetyFilter, segment_closest_points, stop_length
+
+T, DT, A_MAX, A_B, CONTACT, MARGIN, CRUISE = 0.04, 0.001, 10.0, 9.5, 0.22, 0.002, 1.0
+
+
+def make_filter() -> SafetyFilter:
+    return SafetyFilter(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
+                        v_cap=CRUISE)
+
+
+def segment_distance_bruteforce(p1, d1, p2, d2, n: int = 801) -> np.ndarray:
+    s = np.linspace(0.0, 1.0, n)
+    a = p1[:, None, :] + s[None, :, None] * d1[:, None, :]
+    b = p2[:, None, :] + s[None, :, None] * d2[:, None, :]
+    return np.linalg.norm(a[:, :, None] - b[:, None, :], axis=-1).min(axis=(1, 2))
+
+
+def point_segment(q, p, d):
+    t = np.clip(((q - p) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(q - p - t[..., None] * d, axis=-1)
+
+
+def segment_distance(p1, d1, p2, d2) -> np.ndarray:
+    """Exact distance of two 2-D segments: 0 where they cross, else the least endpoint-to-segment distance."""
+    ends = np.minimum(np.minimum(point_segment(p1, p2, d2), point_segment(p1 + d1, p2, d2)),
+                      np.minimum(point_segment(p2, p1, d1), point_segment(p2 + d2, p1, d1)))
+    cross = lambda a, b: a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]  # noqa: E731
+    den = cross(d1, d2)
+    ok = np.abs(den) > 1e-15
+    s = cross(p2 - p1, d2) / np.where(ok, den, 1.0)
+    t = cross(p2 - p1, d1) / np.where(ok, den, 1.0)
+    hit = ok & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+    return np.where(hit, 0.0, ends)
+
+
+def committed_segment(v: np.ndarray) -> np.ndarray:
+    speed = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(speed, 1e-12) * stop_length(speed, A_B, T)
+
+
+def test_segment_closest_points_match_a_brute_force_search(rng):
+    n = 300
+    p1, p2 = rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n, 2))
+    d1, d2 = rng.uniform(-1, 1, (n, 2)), rng.uniform(-1, 1, (n, 2))
+    d1[:20] = 0.0  # points
+    d2[10:30] = 0.0
+    d2[40:60] = 2.0 * d1[40:60]  # parallel
+    s, t = segment_closest_points(*(torch.tensor(x) for x in (p1, d1, p2, d2)))
+    s, t = s.numpy(), t.numpy()
+    assert ((0 <= s) & (s <= 1) & (0 <= t) & (t <= 1)).all(), str(rng)
+    got = np.linalg.norm(p1 + s[:, None] * d1 - p2 - t[:, None] * d2, axis=-1)
+    np.testing.assert_allclose(got, segment_distance(p1, d1, p2, d2), atol=1e-9, err_msg=str(rng))
+    # and no sampled pair of points is closer
+    np.testing.assert_array_less(got, segment_distance_bruteforce(p1, d1, p2, d2, 101) + 1e-9, err_msg=str(rng))
+
+
+def simulate(p: np.ndarray, v: np.ndarray, v1: np.ndarray, steps: int = 12) -> np.ndarray:
+    """Positions ``[B, cycles, 2]`` of movers that hold the acceleration reaching ``v1`` for one step, then brake
+    step by step (``A_B`` against the velocity, or to rest), as the simulator's semi-implicit cycles do."""
+    out = []
+    a = (v1 - v) / T
+    for step in range(steps):
+        if step > 0:
+            speed = np.linalg.norm(v, axis=-1, keepdims=True)
+            a = -v / np.maximum(speed, 1e-12) * np.minimum(A_B, speed / T)
+        for _ in range(round(T / DT)):
+            v = v + a * DT
+            p = p + v * DT
+            out.append(p)
+    return np.stack(out, 1)
+
+
+def pair_states(rng, n: int):
+    """Random pairs (mover i at the origin) whose committed paths keep the invariant."""
+    ang, spd = rng.uniform(0, 2 * np.pi, (2, n)), CRUISE * np.sqrt(rng.uniform(0, 1, (2, n)))
+    v_i = np.stack([np.cos(ang[0]), np.sin(ang[0])], -1) * spd[0, :, None]
+    v_j = np.stack([np.cos(ang[1]), np.sin(ang[1])], -1) * spd[1, :, None]
+    phi = rng.uniform(0, 2 * np.pi, n)
+    p_j = np.stack([np.cos(phi), np.sin(phi)], -1) * rng.uniform(CONTACT, 0.7, (n, 1))
+    gap = segment_distance(np.zeros_like(p_j), committed_segment(v_i), p_j, committed_segment(v_j))
+    keep = gap >= CONTACT + MARGIN + 1e-3
+    return v_i[keep], v_j[keep], p_j[keep]
+
+
+def test_two_movers_deciding_alone_never_collide(rng):
+    f = make_filter()
+    v_i, v_j, p_j = pair_states(rng, 3000)
+    assert len(v_i) > 500
+    # wanted velocities: mostly straight at the other mover, at up to the cruise speed
+    aim = p_j / np.linalg.norm(p_j, axis=-1, keepdims=True)
+    want_i = aim * rng.uniform(0, CRUISE, (len(aim), 1)) + rng.normal(0, 0.3, aim.shape)
+    want_j = -aim * rng.uniform(0, CRUISE, (len(aim), 1)) + rng.normal(0, 0.3, aim.shape)
+    f32 = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
+    mask = torch.ones(len(v_i), 1, dtype=torch.bool)
+    v1_i = f(f32(v_i), f32(want_i), f32(p_j)[:, None], f32(v_j - v_i)[:, None], mask).double().numpy()
+    v1_j = f(f32(v_j), f32(want_j), f32(-p_j)[:, None], f32(v_i - v_j)[:, None], mask).double().numpy()
+    # within one step of the acceleration limit, and not all braking (the filter lets safe wishes through)
+    assert (np.linalg.norm(v1_i - v_i, axis=-1) <= A_MAX * T * (1 + 1e-5)).all()
+    assert (np.linalg.norm(v1_i - want_i, axis=-1) < 1e-6).mean() > 0.05, str(rng)
+    traj_i = simulate(np.zeros_like(p_j), v_i, v1_i)
+    traj_j = simulate(p_j, v_j, v1_j)
+    closest = np.linalg.norm(traj_i - traj_j, axis=-1).min(axis=1)
+    assert closest.min() >= CONTACT + MARGIN - 1e-4, f"{rng}: contact at {closest.min()}"
+    # the invariant holds again after the step (the committed paths from the new states are apart)
+    end = round(T / DT) - 1
+    gap = segment_distance(traj_i[:, end], committed_segment(v1_i), traj_j[:, end], committed_segment(v1_j))
+    assert gap.min() >= CONTACT + MARGIN - 1e-4, f"{rng}: invariant broken ({gap.min()})"
+
+
+def test_braking_always_satisfies_the_constraints(rng):
+    """Recursive feasibility: from any state keeping the invariant, braking meets every pair constraint."""
+    f = make_filter()
+    v_i, v_j, p_j = pair_states(rng, 3000)
+    f32 = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
+    normals, base, _ = f.constraints(f32(v_i), f32(p_j)[:, None], f32(v_j - v_i)[:, None],
+                                     torch.ones(len(v_i), 1, dtype=torch.bool), None)
+    brake = f.braking(f32(v_i))[:, None]
+    assert float(f.violation(brake, normals, base).max()) <= 1e-6, str(rng)
+
+
+def box_distance(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Distance of points ``x [..., 2]`` to the boxes ``[lo, hi]`` ``[B, 2]`` -> ``[..., B]``."""
+    c = np.maximum(np.minimum(x[..., None, :], hi), lo)
+    return np.linalg.norm(x[..., None, :] - c, axis=-1)
+
+
+@pytest.mark.parametrize("holes", [False, True])
+def test_movers_stay_off_holes_and_edges(rng, holes):
+    """Movers on a tile layout (with random holes) wanting anywhere: the cells off the tiles near each mover keep
+    its held step and braking wall_reach + margin away from every hole and edge (obstacles: the non-tile cells of a
+    one-cell frame around the layout)."""
+    size, reach = 0.25, 0.11
+    tiles = np.ones((8, 6), dtype=bool)
+    if holes:
+        tiles[rng.integers(0, 8, 4), rng.integers(0, 6, 4)] = False
+    f = SafetyFilter(contact=CONTACT, wall_reach=reach, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
+                     v_cap=CRUISE, tiles=tiles, tile_size=size)
+    framed = np.zeros((10, 8), dtype=bool)
+    framed[1:-1, 1:-1] = tiles
+    cells = np.argwhere(~framed) - 1
+    lo, hi = cells * size, cells * size + size
+    n = 600
+    p = rng.uniform(0.0, [2.0, 1.5], (n, 2))
+    v = rng.normal(0, 0.6, (n, 2))
+    v *= np.minimum(1.0, CRUISE / np.linalg.norm(v, axis=-1, keepdims=True))
+    # states that keep the invariant: the committed segment wall_reach + margin from every obstacle cell
+    s = np.linspace(0, 1, 50)
+    seg = p[:, None, :] + s[None, :, None] * committed_segment(v)[:, None, :]
+    ok = box_distance(seg, lo, hi).min(axis=(1, 2)) >= reach + MARGIN
+    p, v = p[ok], v[ok]
+    assert len(p) > 100
+    want = rng.normal(0, 1.0, v.shape)
+    f32 = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
+    none = torch.zeros(len(p), 0, 2)
+    v1 = f(f32(v), f32(want), none, none, torch.zeros(len(p), 0, dtype=torch.bool), f32(p)).double().numpy()
+    assert (np.linalg.norm(v1 - want, axis=-1) < 1e-5).mean() > 0.02, str(rng)  # safe wishes pass
+    traj = simulate(p, v, v1)
+    clear = box_distance(traj, lo, hi).min(axis=(1, 2))
+    assert clear.min() >= reach + MARGIN - 1e-4, f"{rng}: {clear.min()}"
+
+
+def test_a_crowded_neighbour_list_keeps_the_path_in_a_ball():
+    """k slots all filled within the reach radius: someone may be unseen (no nearer than the farthest seen, d_k),
+    so the new path keeps within w_min (d_k - D(v0) - D(v_cap) - contact - margin) of the mover."""
+    f = make_filter()
+    k = 3
+    rel = torch.tensor([[[0.0, 0.44], [0.0, -0.44], [-0.44, 0.0]]])
+    vel = torch.tensor([[0.3, 0.0]])
+    rel_vel = torch.zeros(1, k, 2) - vel[:, None]
+    v1 = f(vel, torch.tensor([[1.0, 0.0]]), rel, rel_vel, torch.ones(1, k, dtype=bool))
+    assert f.reach_radius > 0.44
+    w_min = f.SHARE_FLOOR / (CRUISE + 2 * f.SHARE_FLOOR)
+    ball = w_min * (0.44 - stop_length(0.3, A_B, T) - stop_length(CRUISE, A_B, T) - CONTACT - MARGIN)
+    reach = float(f.path_reach_of(vel, v1[:, None])[0, 0])
+    assert 0 < reach <= ball + 1e-7 and float(v1[0, 0]) > float(f.braking(vel)[0, 0])  # moves, within the ball
+    traj = simulate(np.zeros((1, 2)), vel.double().numpy(), v1.double().numpy())
+    assert np.linalg.norm(traj, axis=-1).max() <= ball + 1e-6
+    # a free slot: every mover within reach is seen; sliding between the two neighbours is safe and fast
+    v1_free = f(vel, torch.tensor([[1.0, 0.0]]), rel, rel_vel, torch.tensor([[True, True, False]]))
+    assert float(v1_free[0, 0]) > 0.6
+
+
+def test_bad_options_are_refused():
+    for bad in (dict(a_brake=11.0), dict(contact=0.0), dict(margin=-1.0), dict(v_cap=float("nan")),
+                dict(tile_size=0.0)):
+        with pytest.raises(ValueError):
+            SafetyFilter(**{**dict(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B,
+                                   margin=MARGIN, v_cap=CRUISE, tiles=np.ones((2, 2))), **bad})
