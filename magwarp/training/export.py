@@ -28,9 +28,14 @@ TARGETS = ("onnx", "twincat", "twincat-mlp")
 
 def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn.Module, int]:
     flat = getattr(policy, "flat", policy)
-    dim = obs_dim if obs_dim is not None else getattr(policy, "obs_dim", None)
+    recorded = getattr(policy, "obs_dim", None)
+    dim = obs_dim if obs_dim is not None else recorded
     if dim is None:
         raise ValueError("the policy does not record its observation size: pass obs_dim (--obs-dim)")
+    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or int(dim) < 1:
+        raise ValueError(f"obs_dim (--obs-dim) must be a positive integer, got {dim!r}")
+    if recorded is not None and int(dim) != int(recorded):
+        raise ValueError(f"obs_dim (--obs-dim) is {int(dim)}, but the policy takes observations of size {int(recorded)}")
     return flat, int(dim)
 
 
