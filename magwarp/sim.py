@@ -216,10 +216,12 @@ class Simulator:
     # ------------------------------------------------------------------ construction helpers
     def _build_kernels(self) -> None:
         latency = self._latency_bound is not None
-        self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(self._force_model, latency)
+        # Body rows as built (drive gain 1, no payload, the shared gains) until one can differ: the nominal kernels
+        nominal = self._mover_params is None and self.model.body.shape[0] == 1
+        self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(self._force_model, latency, nominal)
         if self.num_movers <= REGISTER_MAX_MOVERS:
             # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
-            self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency)
+            self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency, nominal)
         self._graphs.clear()
 
     def _start_arrays(self, num_movers, start_xy, start_yaw, start_pose=None) -> np.ndarray:
@@ -441,6 +443,8 @@ class Simulator:
                 rows = np.repeat(arr.numpy(), self.num_worlds, axis=0)
                 setattr(self.model, name, wp.array(rows, dtype=arr.dtype, device=self.device))
                 self._graphs.clear()
+                if name == "body":
+                    self._build_kernels()  # per-world body rows may now differ: the general kernels
 
     @property
     def mover_params(self) -> dict[str, torch.Tensor]:
@@ -475,6 +479,7 @@ class Simulator:
             self._pack_inputs = [arrays[k] for k in ("mass", "inertia", "payload", "payload_offset", "k_lin", "k_rot",
                                                      "v_max", "a_max", "j_max")]
             self._pack_mask_wp = wp.from_torch(self._pack_mask, dtype=wp.bool)
+            self._build_kernels()  # packed rows may differ from the nominal mover: the general kernels
         return self._mover_params
 
     def commit_mover_params(self, mask=None, *, scale_inertia: bool = False) -> None:

@@ -43,6 +43,26 @@ def test_default_parameters_pack_to_the_constructors_bits():
     assert after["drive_gain"].min() == after["drive_gain"].max() == 1.0
 
 
+@pytest.mark.parametrize("num_movers, control", [(3, "acceleration"), (3, "jerk"), (40, "acceleration")],
+                         ids=["registers", "registers-jerk", "many-movers"])
+def test_nominal_kernels_equal_the_general_ones_bit_for_bit(rng, num_movers, control):
+    # The simulator compiles the body rows as built (drive gain 1, no payload, the shared gains) until a row can
+    # differ; committing the configured parameters switches to the general kernels, which must give the same bits.
+    def build():
+        return Simulator(Layout.grid(8, 8), num_movers=num_movers, num_worlds=3, device="cpu", control=control,
+                         stiffness_lin=(1.0, 1.0, 37.0), stiffness_rot=(0.3, 0.2, 0.7), stop_on_collision=False)
+
+    nominal, general = build(), build()
+    general.commit_mover_params()
+    assert nominal._fused_kernel is not general._fused_kernel  # the two compiled variants
+    for _ in range(4):
+        cmd = torch.as_tensor(rng.uniform(-12.0, 12.0, (3, num_movers, 2)), dtype=torch.float32)
+        nominal.step(10, cmd)
+        general.step(10, cmd)
+        for name in ("pos", "quat", "vel", "omega", "acc"):
+            assert torch.equal(getattr(nominal, name), getattr(general, name)), name
+
+
 def test_terms_draw_from_their_distributions():
     n = 1200
     env = make(n, [EventTerm("mover_mass", Uniform(1.0, 1.6)),

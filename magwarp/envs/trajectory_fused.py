@@ -253,7 +253,7 @@ class FusedTrajectoryStep:
             self._env_step.fill_(env._step_count)
         sim = env.sim
         key = (id(sim._fused_kernel), id(sim._advance_kernel), id(sim._delay), id(sim._prev_cmd), id(sim.state),
-               sim._fused)
+               sim._fused, *(id(getattr(sim.model, k)) for k in ("body", "radius", "half_size", "margins")))
         if key != self._graph_key:
             self._graphs = [None, None]
             self._graph_key = key

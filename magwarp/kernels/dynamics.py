@@ -65,6 +65,13 @@ def planar_acceleration64(vel: wp.vec2d, acc: wp.vec2d, cmd: wp.vec2, lim: Limit
 
 
 @wp.func
+def planar_acceleration64(vel: wp.vec2d, acc: wp.vec2d, cmd: wp.vec2, lim: Limits) -> wp.vec2d:
+    """The same within the shared limits (every mover as configured)."""
+    c = wp.vec2d(wp.float64(cmd[0]), wp.float64(cmd[1]))
+    return planar_law(vel, acc, c, lim.dt64, lim.v_max64, lim.a_max64, lim.j_max64, lim.jerk_mode)
+
+
+@wp.func
 def _f32(v: wp.vec2d) -> wp.vec2:
     return wp.vec2(wp.float32(v[0]), wp.float32(v[1]))
 
