@@ -5,7 +5,8 @@
 #   export PYTHONPATH=/tmp/site:$PWD; bash benchmarks/gpu_round.sh STAGE
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
-# swarm_render, graph (#23: the fused B0 step, ceiling), compare (B0 env throughput of an older tree beside this one).
+# swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
+# train_dr and robustness (#24), compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -70,6 +71,30 @@ for stage in "$@"; do
       timeout 300 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_push_step.py 2>&1 | tail -4
       timeout 550 python3 benchmarks/push_physics_dt.py --device cuda:0 --num-envs 4096,65536 \
         --json "$OUT/push_physics_dt_gpu.json" 2>&1 | tail -30 ;;
+    ttt_b0|ttt_pushbox)
+      # #20: time to target, one task, 3 seeds, confirmed by magwarp eval's 100 repeats (each under the 600 s limit)
+      timeout 590 python3 benchmarks/time_to_target.py --tasks "${stage#ttt_}" --json "$OUT/$stage.json" 2>&1 | tail -20 ;;
+    ttt_pusht_a|ttt_pusht_b|ttt_obstacles_a|ttt_obstacles_b)
+      # #20: the 180 s tasks, seeds 0,1 (a) and 2 (b) in separate calls
+      task=${stage#ttt_}; task=${task%_*}; seeds=0,1; [ "${stage##*_}" = b ] && seeds=2
+      timeout 590 python3 benchmarks/time_to_target.py --tasks "$task" --seeds "$seeds" --json "$OUT/$stage.json" \
+        2>&1 | tail -20 ;;
+    planner)
+      # #18: the scripted planner with its safety filter at 256 / 1024 / 4096 movers (1000 steps each)
+      timeout 590 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
+        2>&1 | tail -20 ;;
+    train_dr)
+      # #24: a B0 PPO policy trained with the sim2real randomisation, latency and sensor models (5 minutes)
+      B0='"num_cycles":120,"collision_shape":"box","collision_size":[0.09,0.09],"mover_params":{"size":[0.0565,0.0565,0.006],"mass":0.63}'
+      DR='"randomization":"sim2real","actuation":{"latency_range":[0,5]},"sensors":{"pos_bias_std":0.001,"vel_bias_std":0.01,"pos_noise_std":0.0005,"vel_noise_std":0.005,"dropout_prob":0.02}'
+      timeout 590 python3 -m magwarp.training.ppo --env-id magwarp/TrajectoryPlanningB0-v0 --device cuda:0 \
+        --minutes 5 --no-progress --out "$OUT/b0_ppo_dr" --env-kwargs "{$B0,\"max_episode_steps\":40,$DR}" \
+        --eval-env-kwargs "{$B0,$DR}" 2>&1 | tail -15 ;;
+    robustness)
+      # #24: the shipped B0 policy and the randomisation-trained one, nominal and under randomisation
+      timeout 590 python3 benchmarks/robustness.py --device cuda:0 --episodes 100 --repeats 100 \
+        --policy pretrained:b0_ppo --policy "${DR_POLICY:-$OUT/b0_ppo_dr/policy.pt}" \
+        --conditions nominal,terms,latency,sensors,randomised --json "$OUT/robustness_gpu.json" 2>&1 | tail -20 ;;
     *) echo "unknown stage $stage"; exit 2 ;;
   esac
 done
