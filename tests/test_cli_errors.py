@@ -88,7 +88,7 @@ def files(tmp_path):
     (("export", "{corrupt}", "--onnx", "{tmp}/a.onnx"), ["policy file"]),
     (("export", "{garbage}", "--onnx", "{tmp}/a.onnx"), ["not a torch file"]),
     (("export", str(POLICY), "--onnx", "/etc/hostname/x.onnx"), ["/etc/hostname"]),
-    (("export", str(POLICY), "--onnx", "{tmp}/a.onnx", "--obs-dim", "0"), ["--obs-dim", "positive integer", "0"]),
+    (("export", str(POLICY), "--onnx", "{tmp}/a.onnx", "--obs-dim", "0"), ["--obs-dim", "must be >= 1", "0"]),
     (("export", str(POLICY), "--onnx", "{tmp}/a.onnx", "--obs-dim", "5"), ["--obs-dim", "is 5", "size 18"]),
     (("train", "--resume", "{corrupt}"), ["checkpoint"]),
     (("train", "--resume", "{garbage}"), ["checkpoint"]),

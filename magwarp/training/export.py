@@ -19,6 +19,8 @@ import warnings
 import numpy as np
 import torch
 
+from magwarp._checks import as_count
+
 __all__ = ["TARGETS", "export_onnx", "check_onnx"]
 
 #: export targets: ``onnx`` (the policy's flat path, dynamic batch), ``twincat`` and ``twincat-mlp``
@@ -32,11 +34,10 @@ def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn
     dim = obs_dim if obs_dim is not None else recorded
     if dim is None:
         raise ValueError("the policy does not record its observation size: pass obs_dim (--obs-dim)")
-    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or int(dim) < 1:
-        raise ValueError(f"obs_dim (--obs-dim) must be a positive integer, got {dim!r}")
-    if recorded is not None and int(dim) != int(recorded):
-        raise ValueError(f"obs_dim (--obs-dim) is {int(dim)}, but the policy takes observations of size {int(recorded)}")
-    return flat, int(dim)
+    dim = as_count(dim, "obs_dim (--obs-dim)")
+    if recorded is not None and dim != int(recorded):
+        raise ValueError(f"obs_dim (--obs-dim) is {dim}, but the policy takes observations of size {int(recorded)}")
+    return flat, dim
 
 
 def export_onnx(policy_path: str, out: str, *, opset: int = 17, obs_dim: int | None = None, check: bool = True,
