@@ -197,6 +197,8 @@ class Simulator:
         self._nonfinite = wp.full(self.num_worlds, -1, dtype=wp.int32, device=self.device)
         self._force_model = force_model or default_force
         self._mover_params: dict[str, torch.Tensor] | None = None  # built by mover_params on first use
+        # the body rows as built until make_per_world('body'): the step kernels' nominal variant
+        self._nominal_body = True
         # Action latency (set_latency): off until asked for; the kernels then take these placeholders.
         self._latency_bound: int | None = None
         self._prev_cmd = wp.zeros((1, 1), dtype=wp.vec2, device=self.device)
@@ -216,8 +218,7 @@ class Simulator:
     # ------------------------------------------------------------------ construction helpers
     def _build_kernels(self) -> None:
         latency = self._latency_bound is not None
-        # Body rows as built (drive gain 1, no payload, the shared gains) until one can differ: the nominal kernels
-        nominal = self._mover_params is None and self.model.body.shape[0] == 1
+        nominal = self._nominal_body  # drive gain 1, no payload, the shared gains and limits
         self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(self._force_model, latency, nominal)
         if self.num_movers <= REGISTER_MAX_MOVERS:
             # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
@@ -436,15 +437,18 @@ class Simulator:
         ``"margins"``; default all), copied from the shared one. The model is built with one row shared by all
         worlds (the kernels read row ``w`` of a per-world array, row 0 of a shared one: less memory traffic when
         nothing is randomised); per-world rows can then be rewritten on the device between steps. Drops the recorded
-        step graphs (they hold the old arrays)."""
-        for name in names or ("body", "radius", "half_size", "margins"):
+        step graphs (they hold the old arrays). With ``"body"``, the step kernels switch from their nominal variant to
+        the general one, which reads each row's drive gain, payload, gains and limits."""
+        names = names or ("body", "radius", "half_size", "margins")
+        for name in names:
             arr = getattr(self.model, name)
             if arr.shape[0] != self.num_worlds:
                 rows = np.repeat(arr.numpy(), self.num_worlds, axis=0)
                 setattr(self.model, name, wp.array(rows, dtype=arr.dtype, device=self.device))
                 self._graphs.clear()
-                if name == "body":
-                    self._build_kernels()  # per-world body rows may now differ: the general kernels
+        if "body" in names and self._nominal_body:
+            self._nominal_body = False  # body rows may now differ from the mover as built: the general kernels
+            self._build_kernels()
 
     @property
     def mover_params(self) -> dict[str, torch.Tensor]:
@@ -479,7 +483,6 @@ class Simulator:
             self._pack_inputs = [arrays[k] for k in ("mass", "inertia", "payload", "payload_offset", "k_lin", "k_rot",
                                                      "v_max", "a_max", "j_max")]
             self._pack_mask_wp = wp.from_torch(self._pack_mask, dtype=wp.bool)
-            self._build_kernels()  # packed rows may differ from the nominal mover: the general kernels
         return self._mover_params
 
     def commit_mover_params(self, mask=None, *, scale_inertia: bool = False) -> None:
