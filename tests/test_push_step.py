@@ -13,7 +13,7 @@ import warp as wp
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.push import PushBoxEnv, _yaw_from_quat
 from magwarp.envs.push_obstacles import PushWithObstaclesEnv
-from magwarp.physics.backend import PHYSICS_DT_MAX, PhysicsInputError, physics_substeps
+from magwarp.physics.backend import PHYSICS_DT_MAX, PHYSICS_DT_MIN, PhysicsInputError, physics_substeps
 from magwarp.policies.push import PushHeuristic
 
 # Measured (CPU, scripted Push-Box actions replayed open-loop, 8 worlds, 1 s = 25 env steps): the 2 ms mode stays
@@ -114,9 +114,10 @@ def test_cuda_graph_step_equals_eager_step():
 def test_physics_dt_substeps_and_refusals():
     assert physics_substeps(0.001, 40) == 40 and physics_substeps(0.002, 40) == 20
     assert physics_substeps(0.002, 160) == 80 and physics_substeps(PHYSICS_DT_MAX, 40) == 8
+    assert physics_substeps(PHYSICS_DT_MIN, 40) == 400
     for bad, words in ((0.003, "does not divide"), (0.0015, "does not divide"), (0.0, "positive"), (-0.001, "positive"),
                        (math.nan, "finite"), (math.inf, "finite"), (0.01, "above 0.005"), (True, "number"),
-                       ("0.002", "number"), (None, "number")):
+                       ("0.002", "number"), (None, "number"), (1e-300, "below 0.0001"), (5e-5, "below 0.0001")):
         with pytest.raises(PhysicsInputError, match=words):
             physics_substeps(bad, 40)
     with pytest.raises(ValueError, match="physics_dt=0.004 s does not divide the env step of 50 control cycles"):

@@ -127,8 +127,9 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
     jerk/acceleration integration, velocity cap and impedance hold update every physics step instead of every 1 ms,
     contacts resolve at that step (MuJoCo's contact time constant, 0.02 s, stays above 2 steps, so contact
     stiffness is unchanged), and collisions and the corrective-movement metrics are checked once per physics step.
-    Episode lengths and timeouts count env steps and do not change. ``physics_dt`` must divide the env step and be
-    at most :data:`~magwarp.physics.backend.PHYSICS_DT_MAX` (5 ms); see ``docs/push_physics_dt.md`` for what was
+    Episode lengths and timeouts count env steps and do not change. ``physics_dt`` must divide the env step and lie
+    in [:data:`~magwarp.physics.backend.PHYSICS_DT_MIN`, :data:`~magwarp.physics.backend.PHYSICS_DT_MAX`] (0.1 to
+    5 ms); see ``docs/push_physics_dt.md`` for what was
     measured.
 
     Rendering: ``render_mode="rgb_array"`` draws the worlds of :meth:`set_render_worlds` from above (tiles, movers,

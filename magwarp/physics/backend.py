@@ -27,7 +27,8 @@ from magwarp.physics.control import (
     zero_vec2_masked_kernel,
 )
 
-__all__ = ["CONTROL_CYCLE_S", "PHYSICS_DT_MAX", "ControlParams", "MjwBackend", "PhysicsInputError", "physics_substeps"]
+__all__ = ["CONTROL_CYCLE_S", "PHYSICS_DT_MAX", "PHYSICS_DT_MIN", "ControlParams", "MjwBackend", "PhysicsInputError",
+           "physics_substeps"]
 
 
 class PhysicsInputError(ValueError):
@@ -42,18 +43,26 @@ CONTROL_CYCLE_S = 0.001
 #: half-thickness of the thinnest default object part (T/L/X segments, 0.02 m), so nothing tunnels. 5 ms keeps a
 #: factor of 2 on both.
 PHYSICS_DT_MAX = 0.005
+#: the smallest physics step (s): every physics step is a mujoco-warp step recorded into the step graph, so below
+#: 0.1 ms (10 per 1 ms control cycle, 400 per 40-cycle env step) the graph and its build time grow without a use (the
+#: real system's cycle is 1 ms); values such as 1e-300 would ask for more steps than any count holds
+PHYSICS_DT_MIN = 1e-4
 
 
 def physics_substeps(physics_dt, num_cycles: int) -> int:
     """Physics steps per env step of ``num_cycles`` control cycles of :data:`CONTROL_CYCLE_S` at ``physics_dt`` (s).
 
-    ``physics_dt`` must be a positive finite number, at most :data:`PHYSICS_DT_MAX`, that divides the env step
-    (``num_cycles`` ms) into a whole number of steps; anything else raises :class:`PhysicsInputError` naming it."""
+    ``physics_dt`` must be a finite number in [:data:`PHYSICS_DT_MIN`, :data:`PHYSICS_DT_MAX`] that divides the env
+    step (``num_cycles`` ms) into a whole number of steps; anything else raises :class:`PhysicsInputError` naming it."""
     if isinstance(physics_dt, (bool, np.bool_)) or not isinstance(physics_dt, (int, float, np.integer, np.floating)):
         raise PhysicsInputError(f"physics_dt must be a number of seconds, got {physics_dt!r}")
     dt = float(physics_dt)
     if not np.isfinite(dt) or dt <= 0:
         raise PhysicsInputError(f"physics_dt must be a positive, finite number of seconds, got {physics_dt!r}")
+    if dt < PHYSICS_DT_MIN * (1 - 1e-9):
+        raise PhysicsInputError(
+            f"physics_dt={physics_dt!r} s is below {PHYSICS_DT_MIN} s: each physics step is a mujoco-warp step "
+            "recorded into the step graph (at most 10 per 1 ms control cycle)")
     if dt > PHYSICS_DT_MAX * (1 + 1e-9):
         raise PhysicsInputError(
             f"physics_dt={physics_dt!r} s is above {PHYSICS_DT_MAX} s: MuJoCo would soften the contacts (time constant "
