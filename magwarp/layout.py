@@ -14,6 +14,9 @@ import numpy as np
 
 from magwarp._checks import as_count
 
+#: the most tiles :meth:`Layout.grid` builds (a bigger request is a mistake, not a layout: 2**24 cells, 64 MB)
+GRID_CELLS_MAX = 2**24
+
 __all__ = ["TileSpec", "MoverSpec", "Layout", "LayoutError", "BENCHMARK_LAYOUTS", "benchmark_layout",
            "mover_params_kwargs"]
 
@@ -195,6 +198,9 @@ class Layout:
             nx, ny = as_count(num_tiles_x, "num_tiles_x"), as_count(num_tiles_y, "num_tiles_y")
         except (TypeError, ValueError) as e:
             raise LayoutError(f"grid needs at least 1x1 tiles, got {num_tiles_x!r}x{num_tiles_y!r}: {e}") from None
+        if nx * ny > GRID_CELLS_MAX:
+            raise LayoutError(f"grid of {nx}x{ny} tiles is above {GRID_CELLS_MAX:,} tiles (2**24: a 4096 x 4096 grid, "
+                              "about 1 km on a side with XPlanar tiles), the largest layout magwarp builds")
         return cls(np.ones((nx, ny), dtype=np.int32), tile or TileSpec())
 
     @property

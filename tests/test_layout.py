@@ -25,6 +25,8 @@ def test_grid_geometry():
     np.testing.assert_allclose(centers[-1], (0.84, 0.60))
     with pytest.raises(LayoutError, match="0x3"):
         Layout.grid(0, 3)
+    with pytest.raises(LayoutError, match="100000x100000 tiles is above 16,777,216"):  # not a 37 GiB MemoryError
+        Layout.grid(100000, 100000)
 
 
 def test_custom_tile_size():
