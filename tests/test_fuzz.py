@@ -11,6 +11,7 @@ reused, since mujoco-warp compiles slowly on the CPU) and ``local`` (hundreds of
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 import os
@@ -266,6 +267,8 @@ def _kwarg_names(env_id: str) -> list[str]:
             params = inspect.signature(klass.__init__).parameters
             names |= {n for n, p in params.items() if n not in ("self", "kwargs", "device", "render_mode")
                       and p.kind is not p.VAR_KEYWORD}
+    if getattr(cls, "config_class", None) is not None:  # MagBot envs: the config's fields are keyword options
+        names |= {f.name for f in dataclasses.fields(cls.config_class)}
     assert ENV_CLASSES
     return sorted(names)
 

@@ -17,7 +17,7 @@ import torch
 import warp as wp
 
 from magwarp import reference as ref
-from magwarp.kernels.collision import hits_wall, movers_collide
+from magwarp.kernels.collision import collision_flags, hits_wall, movers_collide
 from magwarp.layout import BENCHMARK_LAYOUTS, Layout, LayoutError, MoverSpec, benchmark_layout
 from magwarp.sim import Simulator
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Collision
@@ -442,3 +442,23 @@ def test_start_validation_agrees_with_reference(shape, rng):
             sim = Simulator(layout, start_xy=xy, start_yaw=y, mover=mover, device="cpu")
             assert int(sim.flags.sum()) == 0 and int(sim.flags_any.sum()) == 0
     assert any(outcomes) and not all(outcomes), f"{rng}: only one outcome in {len(outcomes)} trials"
+
+
+@wp.kernel
+def _collision_flags_kernel(partner: wp.array(dtype=wp.int32), wall: wp.array(dtype=wp.int32),
+                            out: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    out[i] = collision_flags(partner[i], wall[i])
+
+
+def test_collision_flags_match_reference(rng):
+    """The collision bits every path writes: mover bit for a partner (index >= 0, -1 for none), wall bit for a hit."""
+    n = 64
+    partner = rng.integers(-1, 8, n).astype(np.int32)
+    wall = rng.integers(0, 2, n).astype(np.int32)
+    out = wp.zeros(n, dtype=wp.int32, device="cpu")
+    wp.launch(_collision_flags_kernel, dim=n, inputs=[wp.array(partner, device="cpu"), wp.array(wall, device="cpu")],
+              outputs=[out], device="cpu")
+    want = np.where(partner >= 0, COLLIDE_MOVER, 0) | np.where(wall != 0, COLLIDE_WALL, 0)
+    assert np.array_equal(out.numpy(), want), rng
+    assert {0, COLLIDE_MOVER, COLLIDE_WALL, COLLIDE_MOVER | COLLIDE_WALL} <= set(want.tolist()), rng

@@ -31,6 +31,7 @@ Starts: the gripper anywhere in the middle of the tiles with any yaw and its jaw
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
@@ -39,19 +40,15 @@ import torch
 
 from magwarp._checks import warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp._checks import check_finite
-from magwarp.envs.magbot_task import MagBotTask, check_options, option_of
+from magwarp.envs.magbot_task import MagBotConfig, MagBotTask, as_vector, option_of
 from magwarp.layout import Layout, MoverSpec
-from magwarp.magbots.control import TrackingGains, track_movers
+from magwarp.magbots.control import track_movers
 from magwarp.magbots.gripper import GripperGeometry, GripperJoints, generate_gripper_mjcf, mover_distance
 from magwarp.mjcf import ObjectSpec
 from magwarp.physics import ControlParams, MjwBackend
 from magwarp.physics.mover_checks import MoverChecks
 
-__all__ = ["GripperPickPlaceEnv", "jaw_offset"]
-
-_ACTION_MODES = ("mover", "gripper")
-
+__all__ = ["GripperPickPlaceConfig", "GripperPickPlaceEnv", "jaw_offset"]
 
 def jaw_offset(geometry: GripperGeometry, object_half_width: float) -> float:
     """Distance behind mover A (along the gripper's -x) of the jaw's centre when the pads touch an object of half
@@ -61,9 +58,46 @@ def jaw_offset(geometry: GripperGeometry, object_half_width: float) -> float:
     return g.hinge_back + g.finger * math.cos(alpha)
 
 
+def _default_object() -> ObjectSpec:
+    return ObjectSpec(shape="square_box", width=0.02, depth=0.03, mass=0.1, friction=(0.5, 0.005, 1e-4))
+
+
+@dataclass(frozen=True)
+class GripperPickPlaceConfig(MagBotConfig):
+    """The options of :class:`GripperPickPlaceEnv` (see the module docstring): :class:`MagBotConfig`'s and
+    ``geometry`` (the jaw linkage, :class:`~magwarp.magbots.gripper.GripperGeometry`), ``obj`` (the object, a square
+    box standing on the tiles, :class:`~magwarp.mjcf.ObjectSpec`), ``gripper_step`` (the gripper mode's increment
+    scale: x, y in m, yaw in rad, width in m), ``jaw_squeeze`` (m/s^2, :meth:`GripperPickPlaceEnv.squeeze_accel`),
+    ``goal_tolerance``, ``release_margin`` and ``min_distance`` (m). The object must fit the jaw."""
+
+    geometry: GripperGeometry = field(default_factory=GripperGeometry)
+    obj: ObjectSpec = field(default_factory=_default_object)
+    gripper_step: tuple[float, float, float, float] = (0.02, 0.02, 0.1, 0.02)
+    jaw_squeeze: float = 6.0
+    goal_tolerance: float = 0.02
+    release_margin: float = 0.02
+    min_distance: float = 0.15
+
+    ACTION_MODES = ("mover", "gripper")
+    POSITIVE = ("goal_tolerance", "release_margin", "min_distance", "jaw_squeeze", *MagBotConfig.POSITIVE)
+
+    def _check(self) -> None:
+        self._set("gripper_step", as_vector(self.gripper_step, "gripper_step", 4, "(x, y, yaw, width)"))
+        self._set("geometry", option_of(self.geometry, GripperGeometry, "geometry"))
+        self._set("obj", self.obj or _default_object())
+        if not isinstance(self.obj, ObjectSpec) or self.obj.shape != "square_box":
+            raise ValueError(f"obj must be a square_box ObjectSpec, got {self.obj!r}")
+        lo, hi = self.geometry.width_range
+        width = 2 * self.obj.width
+        if not lo < width < hi - self.release_margin:
+            raise ValueError(f"the object (width {width:.4g} m) must fit the jaw: closed {lo:.4g} m, "
+                             f"open {hi:.4g} m, release margin {self.release_margin:.4g} m")
+
+
 class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
-    """Batched gripper pick and place; see the module docstring. ``layout`` (default 5 x 5 tiles, a full grid),
-    ``geometry`` (the jaw linkage), ``obj`` (the object, a square box standing on the tiles)."""
+    """Batched gripper pick and place; see the module docstring. ``layout`` (default 5 x 5 tiles, a full grid);
+    the task's options: ``config`` (a :class:`GripperPickPlaceConfig` or a dict of its fields) and its fields as
+    keyword options on top (``geometry``: the jaw linkage, ``obj``: the object, ``action_mode``, ...)."""
 
     metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
@@ -71,66 +105,31 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
     num_movers = 2
     FAILURE_KEYS = (*MagBotTask.FAILURE_KEYS, "object_lost")
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        layout: Layout | np.ndarray | None = None,
-        *,
-        action_mode: str = "mover",
-        geometry: GripperGeometry | None = None,
-        obj: ObjectSpec | None = None,
-        gains: TrackingGains | None = None,
-        gripper_step: tuple[float, float, float, float] = (0.02, 0.02, 0.1, 0.02),
-        jaw_squeeze: float = 6.0,
-        goal_tolerance: float = 0.02,
-        release_margin: float = 0.02,
-        min_distance: float = 0.15,
-        success_reward: float = 1.0,
-        per_step_penalty: float = -0.01,
-        collision_penalty: float = -10.0,
-        max_episode_steps: int = 200,
-        num_cycles: int = 40,
-        v_max: float = 2.0,
-        a_max: float = 10.0,
-        solver: str = "Newton",
-        device: str | None = None,
-        seed: int | None = None,
-        render_mode: str | None = None,
-        autoreset: bool = True,
-        check_inputs: bool = True,
-    ):
-        check_options(action_mode, _ACTION_MODES, counts={"num_cycles": num_cycles,
-                                                          "max_episode_steps": max_episode_steps},
-                      positive={"goal_tolerance": goal_tolerance, "release_margin": release_margin,
-                                "min_distance": min_distance, "jaw_squeeze": jaw_squeeze, "v_max": v_max,
-                                "a_max": a_max},
-                      finite={"success_reward": success_reward, "per_step_penalty": per_step_penalty,
-                              "collision_penalty": collision_penalty})
-        check_finite(gripper_step=gripper_step, vectors=("gripper_step",))
-        step = np.asarray(gripper_step, dtype=np.float64)
-        if step.shape != (4,) or not np.all(np.isfinite(step) & (step > 0)):
-            raise ValueError(f"gripper_step must be four positive numbers (x, y, yaw, width), got {gripper_step!r}")
+    #: the options (:class:`GripperPickPlaceConfig`; each field is also a keyword option)
+    config_class = GripperPickPlaceConfig
+
+    def __init__(self, num_envs: int = 1, layout: Layout | np.ndarray | None = None, *,
+                 config: GripperPickPlaceConfig | dict | None = None, device: str | None = None,
+                 seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
+                 check_inputs: bool = True, **options):
+        #: the env's options (``config`` with the keyword ``options`` on top)
+        self.config = cfg = self.config_class.build(config, **options)
         layout = Layout(np.ones((5, 5), dtype=np.int32)) if layout is None else layout
         self.layout = layout if isinstance(layout, Layout) else Layout(layout)
-        self.action_mode = action_mode
-        self.geometry = g = option_of(geometry, GripperGeometry, "geometry")
-        self.obj = obj or ObjectSpec(shape="square_box", width=0.02, depth=0.03, mass=0.1, friction=(0.5, 0.005, 1e-4))
-        if not isinstance(self.obj, ObjectSpec) or self.obj.shape != "square_box":
-            raise ValueError(f"obj must be a square_box ObjectSpec, got {self.obj!r}")
-        self.gains = option_of(gains, TrackingGains, "gains")
-        self.goal_tolerance, self.release_margin = float(goal_tolerance), float(release_margin)
-        self.jaw_squeeze = float(jaw_squeeze)
-        self.min_distance = float(min_distance)
-        self.success_reward, self.per_step_penalty = float(success_reward), float(per_step_penalty)
-        self.collision_penalty = float(collision_penalty)
-        self.max_episode_steps = int(max_episode_steps)
+        self.action_mode = cfg.action_mode
+        self.geometry = g = cfg.geometry
+        self.obj = cfg.obj
+        self.gains = cfg.gains
+        self.goal_tolerance, self.release_margin = cfg.goal_tolerance, cfg.release_margin
+        self.jaw_squeeze = cfg.jaw_squeeze
+        self.min_distance = cfg.min_distance
+        self.success_reward, self.per_step_penalty = cfg.success_reward, cfg.per_step_penalty
+        self.collision_penalty = cfg.collision_penalty
+        self.max_episode_steps = cfg.max_episode_steps
         self.mover = MoverSpec()
         lo, hi = g.width_range
-        #: object width, and the jaw widths that hold it (just below its width) and that release it
+        #: object width (the jaw widths that hold it, just below it, and release it: see the config's check)
         self.object_width = 2 * self.obj.width
-        if not lo < self.object_width < hi - self.release_margin:
-            raise ValueError(f"the object (width {self.object_width:.4g} m) must fit the jaw: closed {lo:.4g} m, "
-                             f"open {hi:.4g} m, release margin {self.release_margin:.4g} m")
         self.grip_offset = jaw_offset(g, self.obj.width)
         # where the gripper may be: mover B anywhere around A at the widest spread, both on the tiles
         ext = np.asarray(self.layout.extent, dtype=np.float64)
@@ -143,9 +142,9 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
         self.object_low, self.object_high = np.full(2, margin + 0.15), ext - margin - 0.15
         device = warp_device(device).alias
         centre = 0.5 * ext
-        self.xml = generate_gripper_mjcf(self.layout, [centre], geometry=g, mover=self.mover, solver=solver,
+        self.xml = generate_gripper_mjcf(self.layout, [centre], geometry=g, mover=self.mover, solver=cfg.solver,
                                          objects=[self.obj], object_xy=[centre + np.array([-0.3, 0.0])])
-        control = ControlParams(v_max=v_max, a_max=a_max, num_cycles=int(num_cycles))
+        control = ControlParams(v_max=cfg.v_max, a_max=cfg.a_max, num_cycles=cfg.num_cycles)
         self.backend = MjwBackend(self.xml, int(num_envs), control=control, nconmax=16, njmax=96, device=device)
         self.joints = GripperJoints(self.backend.mjm, g)
         self.mover_z = float(self.backend.hover_z.mean())
@@ -153,7 +152,7 @@ class GripperPickPlaceEnv(MagBotTask, MagwarpVecEnv):
         super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs)
         n, dev = self.num_envs, self.device
-        self.gripper_step = torch.as_tensor(step, dtype=torch.float32, device=dev)
+        self.gripper_step = torch.as_tensor(np.asarray(cfg.gripper_step), dtype=torch.float32, device=dev)
         self._width_low, self._width_high = lo, hi
         # gripper mode: mover A's commanded position stays a footprint inside the tiles (mover B, further on, is the
         # policy's to keep there: the wall check fails it)

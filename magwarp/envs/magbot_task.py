@@ -1,18 +1,21 @@
 """Shared by the MagBot envs (:mod:`magwarp.envs.platform_pose`, :mod:`magwarp.envs.platform_pick_place`,
-:mod:`magwarp.envs.gripper_pick_place`): option checks, failure flags, the sparse reward, the top-down renderer and
-what the 3D renderer reads (``render_mode="rgb_array_3d"``)."""
+:mod:`magwarp.envs.gripper_pick_place`): their typed options (:class:`MagBotConfig`, which each env extends), option
+checks, failure flags, the sparse reward, the top-down renderer and what the 3D renderer reads
+(``render_mode="rgb_array_3d"``)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, as_finite, check_magnitude
+from magwarp._checks import as_count, as_finite, check_finite, check_magnitude
+from magwarp.magbots.control import TrackingGains
 
-__all__ = ["MagBotTask", "check_options", "option_of"]
+__all__ = ["MagBotConfig", "MagBotTask", "as_vector", "check_options", "option_of"]
 
 
 def option_of(value, cls: type, name: str):
@@ -39,6 +42,85 @@ def check_options(action_mode: str, action_modes: Sequence[str], *, counts: dict
     for name, value in finite.items():
         as_finite(value, name)
     check_magnitude(**positive, **finite)
+
+
+def as_vector(value, name: str, length: int, what: str, *, positive: bool = True) -> tuple[float, ...]:
+    """``value`` as a tuple of ``length`` floats, each positive (``positive=False``: non-negative); anything else is
+    an error naming it and saying ``what`` the numbers are (e.g. ``"(x, y, yaw)"``)."""
+    check_finite(**{name: value}, vectors=(name,))
+    arr = np.asarray(value, dtype=np.float64)
+    ok = (arr > 0) if positive else (arr >= 0)
+    if arr.shape != (length,) or not np.all(np.isfinite(arr) & ok):
+        words = {3: "three", 4: "four", 6: "six"}.get(length, str(length))
+        raise ValueError(f"{name} must be {words} {'positive' if positive else 'non-negative'} numbers {what}, "
+                         f"got {value!r}")
+    return tuple(float(v) for v in arr)
+
+
+@dataclass(frozen=True)
+class MagBotConfig:
+    """The options every MagBot env takes; each env extends it with its own (e.g.
+    :class:`~magwarp.envs.gripper_pick_place.GripperPickPlaceConfig`). An env takes its config as ``config=`` and
+    each field as a keyword option of the same name, on top of it (``Env(config=cfg, max_episode_steps=10)``,
+    ``gymnasium.make(id, max_episode_steps=10)``); :meth:`build` merges the two.
+
+    Checked on construction (frozen afterwards): a bad value raises naming the option and the value. Numbers are
+    stored as ``float`` (counts as ``int``), option objects left as None get their defaults.
+
+    ``action_mode``: one of the env's :attr:`ACTION_MODES`; ``gains``: the tracking gains of the target action modes
+    (:class:`~magwarp.magbots.control.TrackingGains`); ``success_reward``, ``per_step_penalty``,
+    ``collision_penalty``: the sparse reward; ``max_episode_steps``: truncation; ``num_cycles``: control cycles of 1
+    ms per env step; ``v_max`` (m/s), ``a_max`` (m/s^2): the movers' x/y limits; ``solver``: MuJoCo's solver."""
+
+    action_mode: str = "mover"
+    gains: TrackingGains = field(default_factory=TrackingGains)
+    success_reward: float = 1.0
+    per_step_penalty: float = -0.01
+    collision_penalty: float = -10.0
+    max_episode_steps: int = 200
+    num_cycles: int = 40
+    v_max: float = 2.0
+    a_max: float = 10.0
+    solver: str = "Newton"
+
+    #: the action modes the env takes
+    ACTION_MODES: ClassVar[tuple[str, ...]] = ("mover",)
+    #: the fields checked (in this order) as positive integers, positive numbers and finite numbers
+    COUNTS: ClassVar[tuple[str, ...]] = ("num_cycles", "max_episode_steps")
+    POSITIVE: ClassVar[tuple[str, ...]] = ("v_max", "a_max")
+    FINITE: ClassVar[tuple[str, ...]] = ("success_reward", "per_step_penalty", "collision_penalty")
+
+    def __post_init__(self):
+        check_options(self.action_mode, self.ACTION_MODES, counts={n: getattr(self, n) for n in self.COUNTS},
+                      positive={n: getattr(self, n) for n in self.POSITIVE},
+                      finite={n: getattr(self, n) for n in self.FINITE})
+        for name in self.COUNTS:
+            self._set(name, int(getattr(self, name)))
+        for name in (*self.POSITIVE, *self.FINITE):
+            self._set(name, float(getattr(self, name)))
+        self._set("gains", option_of(self.gains, TrackingGains, "gains"))
+        self._check()
+
+    def _check(self) -> None:
+        """The env's own checks and conversions (after the shared ones; :meth:`_set` stores a converted value)."""
+
+    def _set(self, name: str, value) -> None:
+        object.__setattr__(self, name, value)
+
+    @classmethod
+    def build(cls, config: MagBotConfig | dict | None = None, /, **options) -> MagBotConfig:
+        """A ``cls`` from ``config`` (a ``cls``, a dict of its fields, e.g. JSON env kwargs, or None: the defaults)
+        with the keyword ``options`` (fields by name) on top. An unknown name is a TypeError naming it."""
+        if config is not None and not isinstance(config, (cls, dict)):
+            raise TypeError(f"config must be a {cls.__name__}, a dict of its fields or None, got {config!r}")
+        known = [f.name for f in fields(cls)]
+        unknown = [k for k in (*(config if isinstance(config, dict) else ()), *options) if k not in known]
+        if unknown:
+            raise TypeError(f"unknown {cls.__name__} option(s) {', '.join(map(repr, unknown))} (the options: "
+                            f"{', '.join(known)})")
+        if isinstance(config, cls):
+            return replace(config, **options) if options else config
+        return cls(**{**(config or {}), **options})
 
 
 class MagBotTask:

@@ -48,14 +48,13 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, check_finite
-from magwarp.envs.magbot_task import check_options, option_of
-from magwarp.envs.platform_pose import PlatformPoseEnv, pose_to_goal
+from magwarp.envs.magbot_task import as_vector, option_of
+from magwarp.envs.platform_pose import PlatformConfig, PlatformPoseEnv, pose_to_goal
 from magwarp.layout import Layout
 from magwarp.magbots.mjcf import PlatformModelSpec, generate_platform_mjcf
 from magwarp.mjcf import ObjectSpec, XmlHooks
 
-__all__ = ["PickPlaceScene", "PlatformPickPlaceEnv"]
+__all__ = ["PickPlaceScene", "PlatformPickPlaceConfig", "PlatformPickPlaceEnv"]
 
 #: the plate of the pick-and-place platform: narrow in x (it passes between the rack's rails), long in y
 PICK_PLACE_PLATFORM = PlatformModelSpec(platform_half_size=(0.04, 0.1, 0.004), plate_friction=0.15)
@@ -179,50 +178,71 @@ class PickPlaceScene:
                                             for name, centre, half, visual in self.boxes(layout)))
 
 
+#: PlatformPose-v0's pose-goal options, refused by name (PlatformPickPlace's goal is the container)
+_POSE_GOAL_OPTIONS = ("position_tolerance", "angle_tolerance", "sample_margin")
+
+
+@dataclass(frozen=True)
+class PlatformPickPlaceConfig(PlatformConfig):
+    """The options of :class:`PlatformPickPlaceEnv` (see the module docstring): those of the 6D-platform envs
+    (:class:`~magwarp.envs.platform_pose.PlatformConfig`: ``action_mode``, ``gains``, ``pose_step``, limits,
+    ``num_cycles``, ...; ``model`` defaults to :data:`PICK_PLACE_PLATFORM`) and ``scene`` (the rack and the
+    container, :class:`PickPlaceScene`), ``products`` (how many to place for a success), ``place_reward``,
+    ``drop_penalty``, ``start_height`` (m), ``start_yaw`` (rad), ``product_jitter`` (x, y in m, yaw in rad)."""
+
+    model: PlatformModelSpec = field(default_factory=lambda: PICK_PLACE_PLATFORM)
+    per_step_penalty: float = -0.001
+    max_episode_steps: int = 300
+    scene: PickPlaceScene = field(default_factory=PickPlaceScene)
+    products: int = 1
+    place_reward: float = 1.0
+    drop_penalty: float = -1.0
+    start_height: float = 0.255
+    start_yaw: float = 0.2
+    product_jitter: tuple[float, float, float] = (0.004, 0.01, 0.05)
+
+    COUNTS = ("products", *PlatformConfig.COUNTS)
+    POSITIVE = ("start_height", *PlatformConfig.POSITIVE)
+    FINITE = ("place_reward", "drop_penalty", "start_yaw", *PlatformConfig.FINITE)
+
+    @classmethod
+    def build(cls, config: PlatformPickPlaceConfig | dict | None = None, /, **options) -> PlatformPickPlaceConfig:
+        """:meth:`MagBotConfig.build <magwarp.envs.magbot_task.MagBotConfig.build>`; PlatformPose-v0's pose-goal
+        options are refused with the reason."""
+        given = [*options, *(config if isinstance(config, dict) else ())]
+        if any(k in given for k in _POSE_GOAL_OPTIONS):
+            raise ValueError("PlatformPickPlace has no pose goals: position_tolerance, angle_tolerance and "
+                             "sample_margin are PlatformPose-v0 options")
+        return super().build(config, **options)
+
+    def _check(self) -> None:
+        self._set("product_jitter", as_vector(self.product_jitter, "product_jitter", 3, "(x, y, yaw)",
+                                              positive=False))
+        self._set("scene", option_of(self.scene, PickPlaceScene, "scene"))
+        if self.model is None:
+            self._set("model", PICK_PLACE_PLATFORM)
+        super()._check()
+
+
 class PlatformPickPlaceEnv(PlatformPoseEnv):
-    """Batched pick and place with a 6D platform; see the module docstring. ``scene`` places the rack and the
-    container (default :class:`PickPlaceScene`), ``products`` is the number to place for a success. Options not
-    listed are :class:`~magwarp.envs.platform_pose.PlatformPoseEnv`'s (``action_mode``, ``gains``, ``pose_step``,
-    limits, ``num_cycles``, ``device``, ...)."""
+    """Batched pick and place with a 6D platform; see the module docstring. The task's options: ``config`` (a
+    :class:`PlatformPickPlaceConfig` or a dict of its fields) and its fields as keyword options on top (``scene``
+    places the rack and the container, ``products`` is the number to place for a success, ``action_mode``,
+    ``gains``, ``pose_step``, limits, ``num_cycles``, ...); ``device``, ``seed``, ``render_mode``, ``autoreset`` and
+    ``check_inputs`` are :class:`~magwarp.envs.platform_pose.PlatformPoseEnv`'s."""
 
     _contact_capacity = (24, 128)
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        layout: Layout | np.ndarray | None = None,
-        *,
-        scene: PickPlaceScene | None = None,
-        model: PlatformModelSpec | None = None,
-        products: int = 1,
-        place_reward: float = 1.0,
-        drop_penalty: float = -1.0,
-        per_step_penalty: float = -0.001,
-        collision_penalty: float = -10.0,
-        max_episode_steps: int = 300,
-        start_height: float = 0.255,
-        start_yaw: float = 0.2,
-        product_jitter: tuple[float, float, float] = (0.004, 0.01, 0.05),
-        **kwargs,
-    ):
-        if "position_tolerance" in kwargs or "angle_tolerance" in kwargs or "sample_margin" in kwargs:
-            raise ValueError("PlatformPickPlace has no pose goals: position_tolerance, angle_tolerance and "
-                             "sample_margin are PlatformPose-v0 options")
-        products = as_count(products, "products")
-        check_options("mover", ("mover",), counts={}, positive={"start_height": start_height},
-                      finite={"place_reward": place_reward, "drop_penalty": drop_penalty, "start_yaw": start_yaw})
-        check_finite(product_jitter=product_jitter, vectors=("product_jitter",))
-        jitter = np.asarray(product_jitter, dtype=np.float64)
-        if jitter.shape != (3,) or not np.all(jitter >= 0):
-            raise ValueError(f"product_jitter must be three non-negative numbers (x, y, yaw), got {product_jitter!r}")
-        self.scene = option_of(scene, PickPlaceScene, "scene")
-        self.products = int(products)
-        self.place_reward, self.drop_penalty = float(place_reward), float(drop_penalty)
-        self.start_height, self.start_yaw = float(start_height), float(start_yaw)
-        self._jitter = jitter
-        layout = Layout(np.ones((4, 4), dtype=np.int32)) if layout is None else layout
-        super().__init__(num_envs, layout, model=PICK_PLACE_PLATFORM if model is None else model, per_step_penalty=per_step_penalty,
-                         collision_penalty=collision_penalty, max_episode_steps=max_episode_steps, **kwargs)
+    #: the options (:class:`PlatformPickPlaceConfig`; each field is also a keyword option)
+    config_class = PlatformPickPlaceConfig
+    _default_tiles = (4, 4)
+
+    def _take_options(self, cfg: PlatformPickPlaceConfig) -> None:
+        self.scene = cfg.scene
+        self.products = cfg.products
+        self.place_reward, self.drop_penalty = cfg.place_reward, cfg.drop_penalty
+        self.start_height, self.start_yaw = cfg.start_height, cfg.start_yaw
+        self._jitter = np.asarray(cfg.product_jitter, dtype=np.float64)
 
     # ------------------------------------------------------------------ model
     def _generate_xml(self, centre: np.ndarray, solver: str) -> str:

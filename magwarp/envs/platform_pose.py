@@ -26,27 +26,25 @@ centre far enough from the layout's edge that both movers stay on the tiles at a
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import check_finite, warp_device
+from magwarp._checks import warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.magbot_task import MagBotTask, check_options, option_of
+from magwarp.envs.magbot_task import MagBotConfig, MagBotTask, as_vector, option_of
 from magwarp.layout import Layout, MoverSpec
-from magwarp.magbots.control import TrackingGains, track_movers
+from magwarp.magbots.control import track_movers
 from magwarp.magbots.geometry import PlatformGeometry
 from magwarp.magbots.kinematics import platform_ik, platform_limit_violations, wrap_to_pi
 from magwarp.magbots.mjcf import PlatformJoints, PlatformModelSpec, generate_platform_mjcf
 from magwarp.physics import ControlParams, MjwBackend
 from magwarp.physics.mover_checks import MoverChecks
 
-__all__ = ["PlatformPoseEnv", "pose_to_goal"]
-
-_ACTION_MODES = ("mover", "pose")
-
+__all__ = ["PlatformConfig", "PlatformPoseConfig", "PlatformPoseEnv", "pose_to_goal"]
 
 def pose_to_goal(pose: torch.Tensor) -> torch.Tensor:
     """``[..., 6]`` (x, y, z, roll, pitch, yaw) -> ``[..., 7]`` (x, y, z, roll, pitch, sin yaw, cos yaw)."""
@@ -67,67 +65,79 @@ def _yaw(q: torch.Tensor) -> torch.Tensor:
     return torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+@dataclass(frozen=True)
+class PlatformConfig(MagBotConfig):
+    """The options of the 6D-platform envs (:class:`PlatformPoseEnv`,
+    :class:`~magwarp.envs.platform_pick_place.PlatformPickPlaceEnv`): :class:`MagBotConfig`'s and ``geometry`` (the
+    linkage, :class:`~magwarp.magbots.geometry.PlatformGeometry`), ``model`` (masses and sizes,
+    :class:`~magwarp.magbots.mjcf.PlatformModelSpec`), ``pose_step`` (the pose mode's increment scale: x, y, z in m,
+    roll, pitch, yaw in rad), ``v_max_c`` (rad/s) and ``a_max_c`` (rad/s^2): the movers' yaw limits."""
+
+    geometry: PlatformGeometry = field(default_factory=PlatformGeometry)
+    model: PlatformModelSpec = field(default_factory=PlatformModelSpec)
+    pose_step: tuple[float, ...] = (0.02, 0.02, 0.01, 0.02, 0.02, 0.1)
+    v_max_c: float = 20.0
+    a_max_c: float = 100.0
+
+    ACTION_MODES = ("mover", "pose")
+    POSITIVE = (*MagBotConfig.POSITIVE, "v_max_c", "a_max_c")
+
+    def _check(self) -> None:
+        self._set("pose_step", as_vector(self.pose_step, "pose_step", 6, "(x, y, z, roll, pitch, yaw)"))
+        self._set("geometry", option_of(self.geometry, PlatformGeometry, "geometry"))
+        self._set("model", option_of(self.model, PlatformModelSpec, "model"))
+
+
+@dataclass(frozen=True)
+class PlatformPoseConfig(PlatformConfig):
+    """The options of :class:`PlatformPoseEnv`: :class:`PlatformConfig`'s and the pose goals' ``position_tolerance``
+    (m), ``angle_tolerance`` (rad) and ``sample_margin`` (in [0, 1): the share of the height and tilt ranges kept
+    clear when starts and goals are drawn)."""
+
+    max_episode_steps: int = 50
+    position_tolerance: float = 0.01
+    angle_tolerance: float = 0.03
+    sample_margin: float = 0.2
+
+    POSITIVE = ("position_tolerance", "angle_tolerance", *PlatformConfig.POSITIVE)
+    FINITE = ("sample_margin", *PlatformConfig.FINITE)
+
+    def _check(self) -> None:
+        if not 0.0 <= self.sample_margin < 1.0:
+            raise ValueError(f"sample_margin must lie in [0, 1), got {self.sample_margin!r}")
+        super()._check()
+
+
 class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
     """Batched 6D-platform pose tracking; see the module docstring. ``layout`` (a :class:`Layout` or 0/1 array,
-    default 5 x 5 tiles) must leave room for the platform; ``geometry``/``model`` set the mechanism."""
+    default 5 x 5 tiles) must leave room for the platform; the task's options: ``config`` (a
+    :class:`PlatformPoseConfig` or a dict of its fields) and its fields as keyword options on top (``geometry`` and
+    ``model`` set the mechanism, ``action_mode``, ...)."""
 
     metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
     #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
     benchmark_metrics = None
     num_movers = 2
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        layout: Layout | np.ndarray | None = None,
-        *,
-        action_mode: str = "mover",
-        geometry: PlatformGeometry | None = None,
-        model: PlatformModelSpec | None = None,
-        gains: TrackingGains | None = None,
-        pose_step: tuple[float, ...] = (0.02, 0.02, 0.01, 0.02, 0.02, 0.1),
-        position_tolerance: float = 0.01,
-        angle_tolerance: float = 0.03,
-        sample_margin: float = 0.2,
-        success_reward: float = 1.0,
-        per_step_penalty: float = -0.01,
-        collision_penalty: float = -10.0,
-        max_episode_steps: int = 50,
-        num_cycles: int = 40,
-        v_max: float = 2.0,
-        a_max: float = 10.0,
-        v_max_c: float = 20.0,
-        a_max_c: float = 100.0,
-        solver: str = "Newton",
-        device: str | None = None,
-        seed: int | None = None,
-        render_mode: str | None = None,
-        autoreset: bool = True,
-        check_inputs: bool = True,
-    ):
-        check_options(action_mode, _ACTION_MODES, counts={"num_cycles": num_cycles,
-                                                          "max_episode_steps": max_episode_steps},
-                      positive={"position_tolerance": position_tolerance, "angle_tolerance": angle_tolerance,
-                                "v_max": v_max, "a_max": a_max, "v_max_c": v_max_c, "a_max_c": a_max_c},
-                      finite={"sample_margin": sample_margin, "success_reward": success_reward,
-                              "per_step_penalty": per_step_penalty, "collision_penalty": collision_penalty})
-        if not 0.0 <= sample_margin < 1.0:
-            raise ValueError(f"sample_margin must lie in [0, 1), got {sample_margin!r}")
-        check_finite(pose_step=pose_step, vectors=("pose_step",))
-        step = np.asarray(pose_step, dtype=np.float64)
-        if step.shape != (6,) or not np.all(np.isfinite(step) & (step > 0)):
-            raise ValueError(f"pose_step must be six positive numbers (x, y, z, roll, pitch, yaw), got {pose_step!r}")
-        layout = Layout(np.ones((5, 5), dtype=np.int32)) if layout is None else layout
+    #: the options (:class:`PlatformPoseConfig`; each field is also a keyword option)
+    config_class = PlatformPoseConfig
+
+    def __init__(self, num_envs: int = 1, layout: Layout | np.ndarray | None = None, *,
+                 config: PlatformPoseConfig | dict | None = None, device: str | None = None, seed: int | None = None,
+                 render_mode: str | None = None, autoreset: bool = True, check_inputs: bool = True, **options):
+        #: the env's options (``config`` with the keyword ``options`` on top)
+        self.config = cfg = self.config_class.build(config, **options)
+        self._take_options(cfg)
+        layout = Layout(np.ones(self._default_tiles, dtype=np.int32)) if layout is None else layout
         self.layout = layout if isinstance(layout, Layout) else Layout(layout)
-        self.action_mode = action_mode
-        self.geometry = option_of(geometry, PlatformGeometry, "geometry")
-        self.gains = option_of(gains, TrackingGains, "gains")
-        self.position_tolerance, self.angle_tolerance = float(position_tolerance), float(angle_tolerance)
-        self.success_reward, self.per_step_penalty = float(success_reward), float(per_step_penalty)
-        self.collision_penalty = float(collision_penalty)
-        self.max_episode_steps = int(max_episode_steps)
+        self.action_mode = cfg.action_mode
+        self.geometry = cfg.geometry
+        self.gains = cfg.gains
+        self.success_reward, self.per_step_penalty = cfg.success_reward, cfg.per_step_penalty
+        self.collision_penalty = cfg.collision_penalty
+        self.max_episode_steps = cfg.max_episode_steps
         self.mover = self._mover_spec()
-        self.model_spec = option_of(model, PlatformModelSpec, "model")
+        self.model_spec = cfg.model
         g = self.geometry
 
         # Workspace of the platform centre: both movers (at the widest spread, any yaw) stay on the tiles.
@@ -139,26 +149,22 @@ class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
                              f"least {2 * reach:.3f} m wide in x and y is needed)")
         device = warp_device(device).alias
         centre = 0.5 * ext
-        self.xml = self._generate_xml(centre, solver)
-        control = ControlParams(v_max=v_max, a_max=a_max, num_cycles=int(num_cycles), rotation=True, v_max_c=v_max_c,
-                                a_max_c=a_max_c)
+        self.xml = self._generate_xml(centre, cfg.solver)
+        control = ControlParams(v_max=cfg.v_max, a_max=cfg.a_max, num_cycles=cfg.num_cycles, rotation=True,
+                                v_max_c=cfg.v_max_c, a_max_c=cfg.a_max_c)
         nconmax, njmax = self._contact_capacity
         self.backend = MjwBackend(self.xml, int(num_envs), control=control, nconmax=nconmax, njmax=njmax,
                                   device=device)
-        self.joints = PlatformJoints(self.backend.mjm, g, model)
+        self.joints = PlatformJoints(self.backend.mjm, g, self.model_spec)
         self.mover_z = float(self.backend.hover_z.mean())
         self.checks = MoverChecks(self.backend, self.layout, self.mover)
         super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs)
         n, dev = self.num_envs, self.device
         lo, hi = g.height_range
-        span = 0.5 * sample_margin * (hi - lo)
-        tilt = (1.0 - sample_margin) * g.max_tilt
-        self._sample_low = torch.tensor([*self.xy_low, self.mover_z + lo + span, -tilt, -tilt, -math.pi], device=dev)
-        self._sample_high = torch.tensor([*self.xy_high, self.mover_z + hi - span, tilt, tilt, math.pi], device=dev)
         self._target_low = torch.tensor([*self.xy_low, self.mover_z + lo, -g.max_tilt, -g.max_tilt], device=dev)
         self._target_high = torch.tensor([*self.xy_high, self.mover_z + hi, g.max_tilt, g.max_tilt], device=dev)
-        self.pose_step = torch.as_tensor(step, dtype=torch.float32, device=dev)
+        self.pose_step = torch.as_tensor(np.asarray(cfg.pose_step), dtype=torch.float32, device=dev)
         #: goal and (pose mode) commanded target poses ``[W, 6]``
         self.goal_pose = torch.zeros(n, 6, device=dev)
         self.target_pose = torch.zeros(n, 6, device=dev)
@@ -172,6 +178,12 @@ class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
     #: mujoco-warp's contacts and constraint rows per world (the bare platform has no contacts)
     _contact_capacity = (1, 24)
 
+    #: the default layout: a full grid of this many tiles
+    _default_tiles = (5, 5)
+
+    def _take_options(self, cfg: PlatformConfig) -> None:
+        """The task's own options as attributes, before the model is built (default: none)."""
+
     def _mover_spec(self) -> MoverSpec:
         return MoverSpec()
 
@@ -181,7 +193,16 @@ class PlatformPoseEnv(MagBotTask, MagwarpVecEnv):
                                       mover=self.mover, solver=solver)
 
     def _init_task(self) -> None:
-        """Task state allocated before the spaces are set and the first reset (default: none)."""
+        """Task state allocated before the spaces are set and the first reset: here the pose goals' tolerances and
+        the range that starts and goals are drawn from (``sample_margin``)."""
+        cfg, g = self.config, self.geometry
+        self.position_tolerance, self.angle_tolerance = cfg.position_tolerance, cfg.angle_tolerance
+        lo, hi = g.height_range
+        span = 0.5 * cfg.sample_margin * (hi - lo)
+        tilt = (1.0 - cfg.sample_margin) * g.max_tilt
+        dev = self.device
+        self._sample_low = torch.tensor([*self.xy_low, self.mover_z + lo + span, -tilt, -tilt, -math.pi], device=dev)
+        self._sample_high = torch.tensor([*self.xy_high, self.mover_z + hi - span, tilt, tilt, math.pi], device=dev)
 
     # ------------------------------------------------------------------ spaces
     def _observation_space(self) -> gym.spaces.Dict:

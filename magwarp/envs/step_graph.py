@@ -26,12 +26,12 @@ from __future__ import annotations
 import contextlib
 import warnings
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 import warp as wp
 
-__all__ = ["TaskGraph", "clone_outputs"]
+__all__ = ["RecordedGraph", "TaskGraph", "clone_outputs", "record_cuda_graph"]
 
 
 def clone_outputs(out: Any) -> Any:
@@ -43,6 +43,53 @@ def clone_outputs(out: Any) -> Any:
     if isinstance(out, (tuple, list)):
         return type(out)(clone_outputs(v) for v in out)
     return out
+
+
+class RecordedGraph(NamedTuple):
+    """What :func:`record_cuda_graph` recorded: the torch graph, ``fn``'s outputs (the graph's static tensors) and
+    Warp's record of the capture (keep it with the graph: it keeps the modules and arrays the graph launches alive)."""
+
+    graph: torch.cuda.CUDAGraph
+    outputs: Any
+    warp_graph: Any
+
+
+def record_cuda_graph(fn: Callable[[], Any], device: torch.device, generators: Sequence[torch.Generator] = (),
+                      recorders: Sequence[Callable[[wp.Stream], contextlib.AbstractContextManager]] = ()
+                      ) -> RecordedGraph:
+    """Record ``fn()`` (torch operations and Warp launches) as one ``torch.cuda.CUDAGraph`` on a side stream of the CUDA
+    device ``device`` (CUDA cannot capture torch's legacy default stream); nothing is executed.
+
+    In order: the ``generators`` are registered with the graph (a RuntimeError if this torch cannot); a new torch
+    stream waits for the current one; inside ``torch.cuda.graph`` (thread-local capture mode) Warp joins the capture
+    (``wp.capture_begin(external=True)``, no module loading: ``fn`` must have run eagerly before), the stream is
+    Warp's current stream (no wait on entry) with each of the ``recorders`` entered on it (``stream -> context
+    manager`` factories of the simulation objects ``fn`` steps, e.g. ``backend.recording``), ``fn()`` runs and Warp's
+    capture is ended (also when ``fn`` raises); then the current stream waits for the side stream. Whatever fails is
+    raised: the caller chooses its fallback."""
+    graph = torch.cuda.CUDAGraph()
+    for gen in generators:
+        if not hasattr(graph, "register_generator_state"):
+            raise RuntimeError(f"torch {torch.__version__} cannot register generators with a CUDA graph")
+        graph.register_generator_state(gen)
+    stream = torch.cuda.Stream(device)
+    stream.wait_stream(torch.cuda.current_stream(device))
+    wdev = wp.device_from_torch(device)
+    with torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
+        wstream = wp.stream_from_torch(stream)
+        wp.capture_begin(device=wdev, stream=wstream, external=True, force_module_load=False)
+        try:
+            with contextlib.ExitStack() as stack:
+                stack.enter_context(wp.ScopedDevice(wdev))
+                stack.enter_context(wp.ScopedStream(wstream, sync_enter=False))  # no wait on a stream outside
+                for rec in recorders:
+                    stack.enter_context(rec(wstream))
+                out = fn()
+        finally:
+            # Warp's record of the capture keeps the modules and arrays it launched with alive
+            warp_graph = wp.capture_end(device=wdev, stream=wstream)
+    torch.cuda.current_stream(device).wait_stream(stream)
+    return RecordedGraph(graph, out, warp_graph)
 
 
 class TaskGraph:
@@ -80,32 +127,11 @@ class TaskGraph:
         return out
 
     def _capture(self) -> None:
-        graph = torch.cuda.CUDAGraph()
         try:
-            for gen in self.generators:
-                if not hasattr(graph, "register_generator_state"):
-                    raise RuntimeError(f"torch {torch.__version__} cannot register generators with a CUDA graph")
-                graph.register_generator_state(gen)
-            stream = torch.cuda.Stream(self.device)
-            stream.wait_stream(torch.cuda.current_stream(self.device))
-            wdev = wp.device_from_torch(self.device)
-            with torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
-                wstream = wp.stream_from_torch(stream)
-                wp.capture_begin(device=wdev, stream=wstream, external=True, force_module_load=False)
-                try:
-                    with contextlib.ExitStack() as stack:
-                        stack.enter_context(wp.ScopedDevice(wdev))
-                        stack.enter_context(wp.ScopedStream(wstream, sync_enter=False))  # no wait on a stream outside
-                        for rec in self.recorders:
-                            stack.enter_context(rec(wstream))
-                        out = self.fn()
-                finally:
-                    # Warp's record of the capture keeps the modules and arrays it launched with alive
-                    self._warp_graph = wp.capture_end(device=wdev, stream=wstream)
-            torch.cuda.current_stream(self.device).wait_stream(stream)
+            recorded = record_cuda_graph(self.fn, self.device, self.generators, self.recorders)
         except Exception as e:  # noqa: BLE001 - any capture failure: report it and run eagerly
             self.failed = True
             warnings.warn(f"the env step could not be recorded as a CUDA graph ({type(e).__name__}: {e}); it runs "
                           "eagerly (same results, more launches)", RuntimeWarning, stacklevel=3)
             return
-        self.graph, self._out = graph, out
+        self.graph, self._out, self._warp_graph = recorded

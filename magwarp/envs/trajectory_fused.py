@@ -29,6 +29,7 @@ import functools
 import torch
 import warp as wp
 
+from magwarp.envs.step_graph import RecordedGraph, record_cuda_graph
 from magwarp.kernels import task as ktask
 
 __all__ = ["FusedTrajectoryStep", "fused_step_blocker"]
@@ -227,19 +228,15 @@ class FusedTrajectoryStep:
         with env.sim._on_stream():
             self._launch_task(out)
 
-    def _capture(self, out: _Outputs):
-        """Record steps 1-5 as one CUDA graph on a side stream (CUDA cannot capture torch's legacy default stream)."""
+    def _capture(self, out: _Outputs) -> RecordedGraph:
+        """Record steps 1-5 as one CUDA graph on a side stream (:func:`~magwarp.envs.step_graph.record_cuda_graph`)."""
         env, sim = self.env, self.env.sim
-        graph = torch.cuda.CUDAGraph()
-        graph.register_generator_state(env.sampler.generator)
-        stream = torch.cuda.Stream(device=env.device)
-        wstream = wp.stream_from_torch(stream)
-        with torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
-            with wp.ScopedStream(wstream, sync_enter=False, sync_exit=False), wp.ScopedCapture(
-                    device=sim.device, stream=wstream, external=True, force_module_load=False):
-                sim._launch_step(env.num_cycles)
-                self._launch_task(out)
-        return graph
+
+        def launches() -> None:
+            sim._launch_step(env.num_cycles)
+            self._launch_task(out)
+
+        return record_cuda_graph(launches, env.device, generators=(env.sampler.generator,))
 
     def _sync_state(self) -> None:
         """Host-side bookkeeping that needs no device sync: new pools after a reseed, the step count after eager
@@ -278,7 +275,7 @@ class FusedTrajectoryStep:
                               "the same kernels eagerly (graph=False)", RuntimeWarning, stacklevel=3)
                 self.graph = self.env._graph = False
         else:
-            self._graphs[self._slot].replay()
+            self._graphs[self._slot].graph.replay()
         self._slot ^= 1
         env._step_count += 1
         self._env_step_host = env._step_count

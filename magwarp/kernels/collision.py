@@ -294,6 +294,18 @@ def visit_pair(
 
 
 @wp.func
+def collision_flags(partner: int, wall: int) -> int:
+    """One mover's collision bits in a cycle: :data:`~magwarp.types.COLLIDE_MOVER` when it has a colliding partner
+    (``partner >= 0``), :data:`~magwarp.types.COLLIDE_WALL` when its footprint left the tiles (``wall != 0``)."""
+    f = int(0)
+    if partner >= 0:
+        f = f | COLLIDE_MOVER
+    if wall != 0:
+        f = f | COLLIDE_WALL
+    return f
+
+
+@wp.func
 def record_collisions(
     w: int,
     m: int,
@@ -307,11 +319,8 @@ def record_collisions(
     halted: wp.array(dtype=wp.int32),
 ):
     """Write one mover's collision outputs; each thread writes only its own mover plus per-world counters."""
-    f = int(0)
-    if partner >= 0:
-        f = f | COLLIDE_MOVER
+    f = collision_flags(partner, wall[w, m])
     if wall[w, m] != 0:
-        f = f | COLLIDE_WALL
         wp.atomic_add(world_walls, w, 1)
     flags[w, m] = f
     flags_any[w, m] = flags_any[w, m] | f

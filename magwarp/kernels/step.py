@@ -21,13 +21,12 @@ import functools
 
 import warp as wp
 
-from magwarp.kernels.collision import (hits_wall_cs, model_row, movers_collide_cs, push_to_cell, shape_heading,
-                                       world_collision)
+from magwarp.kernels.collision import (collision_flags, hits_wall_cs, model_row, movers_collide_cs, push_to_cell,
+                                       shape_heading, world_collision)
 from magwarp.kernels.dynamics import integrate_body, integrate_planar64, planar_acceleration64, sync_planar64
 from magwarp.kernels.impedance import default_force
 from magwarp.kernels.options import MODULE_OPTIONS
-from magwarp.types import (COLLIDE_MOVER, COLLIDE_WALL, Body, Collision, Grid, Impedance, Limits, Planar64, Pose,
-                           make_pose)
+from magwarp.types import Body, Collision, Grid, Impedance, Limits, Planar64, Pose, make_pose
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
@@ -278,11 +277,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
                         if partner[w, j] < 0:
                             partner[w, j] = i
             for m in range(num_movers):
-                f = int(0)
-                if partner[w, m] >= 0:
-                    f = f | COLLIDE_MOVER
+                f = collision_flags(partner[w, m], wall[w, m])
                 if wall[w, m] != 0:
-                    f = f | COLLIDE_WALL
                     walls += 1
                 flags[w, m] = f
                 flags_any[w, m] = flags_any[w, m] | f
@@ -437,11 +433,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
                             if Pr[j] < 0:
                                 Pr[j] = i
             for m in range(M):
-                f = int(0)
-                if Pr[m] >= 0:
-                    f = f | COLLIDE_MOVER
+                f = collision_flags(Pr[m], Wl[m])
                 if Wl[m] != 0:
-                    f = f | COLLIDE_WALL
                     walls += 1
                 F[m] = f
                 Fa[m] = Fa[m] | f
