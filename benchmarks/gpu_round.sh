@@ -35,7 +35,10 @@ for stage in "$@"; do
         --envs magwarp/TrajectoryPlanningB0-v0 --num-envs 4096,65536,1048576 --steps 50 \
         --json "$OUT/env_throughput_gpu.json" 2>&1 | tail -20 ;;
     magbots)
-      timeout 500 python3 benchmarks/magbots.py --json "$OUT/magbots_gpu.json" 2>&1 | tail -30 ;;
+      # cuda:0 only (the CPU rows: benchmarks/results/magbots_cpu.json), MagBotSim's references on the CPU beside them
+      timeout 560 python3 benchmarks/magbots.py --device cuda:0 --envs pose,pickplace,gripper,coop --action-modes pose \
+        --num-envs 4096,16384,65536 --steps 10 --magbotsim-steps 30 --json "$OUT/magbots_gpu.json" 2>&1 \
+        | grep -v "^Module" | tail -30 ;;
     distributed)
       timeout 400 python3 benchmarks/distributed.py --seconds 20 --json "$OUT/distributed_gpu.json" 2>&1 | tail -30 ;;
     sim2real)

@@ -6,7 +6,8 @@ example envs (MuJoCo C, their Python IK and couplings every cycle) stepped in th
     python benchmarks/magbots.py --num-envs 1,4 --steps 5 --magbotsim-steps 5       # smoke check
 
 Envs (``--envs``, default all): ``pose`` = ``magwarp/PlatformPose-v0`` (``--action-modes`` mover, pose),
-``pickplace`` = ``magwarp/PlatformPickPlace-v0``, ``gripper`` = ``magwarp/GripperPickPlace-v0`` (mover actions).
+``pickplace`` = ``magwarp/PlatformPickPlace-v0``, ``gripper`` = ``magwarp/GripperPickPlace-v0`` (mover actions), ``coop`` = ``magwarp/CoopPush-v0`` (no MagBotSim
+counterpart). The JSON is rewritten after every row, so a run cut short keeps what it measured.
 One env step = 40 control cycles of 1 ms. magwarp: :func:`env_throughput.raw_env_row` (actions uniform random in the
 action space from a pre-generated bank on the device, autoreset on and included: random accelerations break the
 mechanisms' limits now and then, so resets happen; ``check_inputs`` off; "raw mjw ms" is the bare mujoco-warp step of
@@ -39,12 +40,15 @@ ENVS = {
     "pose": ("magwarp/PlatformPose-v0", ("mover", "pose"), "SixDPlatformMagBotExampleEnv"),
     "pickplace": ("magwarp/PlatformPickPlace-v0", ("mover",), "SixDPlatformMagBotApplicationExampleEnv"),
     "gripper": ("magwarp/GripperPickPlace-v0", ("mover",), "GripperMagBotApplicationExampleEnv"),
+    # MagBotSim has no cooperative push: its row stands alone (two movers and a heavy box per world)
+    "coop": ("magwarp/CoopPush-v0", (None,), None),
 }
 
 
 def magwarp_row(env_id: str, num_envs: int, device: str, steps: int, action_mode: str) -> dict:
     """The push/trajectory benchmark's row (random actions, autoreset, and the bare mujoco-warp step beside it)."""
-    res = raw_env_row(env_id, num_envs, device, steps, action_mode=action_mode)
+    kwargs = {} if action_mode is None else {"action_mode": action_mode}
+    res = raw_env_row(env_id, num_envs, device, steps, **kwargs)
     res["magbots_per_env"] = 1
     res["magbot_steps_per_s"] = res["env_steps_per_s"]
     return res
@@ -144,6 +148,13 @@ def main(argv=None) -> int:
         p.error(f"unknown --envs {unknown}; choose from {list(ENVS)}")
     info, devices = start_run(args.device)
     rows: list[dict] = []
+    path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
+                                     f"magbots_{(args.device or 'cpu').replace(':', '')}.json")
+    stamp = provenance(info)
+
+    def save():
+        write_json(path, [{**r, **stamp} for r in rows])
+
     for device in devices:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else
                  ([1, 4, 16, 64] if device == "cpu" else [4096, 16384, 65536]))
@@ -151,7 +162,7 @@ def main(argv=None) -> int:
             env_id, modes, _ = ENVS[name]
             for mode in (args.action_modes.split(",") if name == "pose" else modes):
                 for n in sizes:
-                    row = {"engine": "magwarp", "bench": name, "env": env_id, "action_mode": mode, "device": device,
+                    row = {"engine": "magwarp", "bench": name, "env": env_id, "action_mode": mode or "-", "device": device,
                            "num_envs": n}
                     try:
                         res = magwarp_row(env_id, n, device, args.steps, mode)
@@ -160,12 +171,15 @@ def main(argv=None) -> int:
                         rows.append({**row, "error": str(e).splitlines()[0] if str(e) else type(e).__name__})
                         continue
                     rows.append({**row, **res})
+                    save()
                     print(f"  {env_id} {mode} {device} num_envs={n}: {res['env_steps_per_s']:.4g} env-steps/s",
                           flush=True)
     refs: dict[str, dict] = {}
     if not args.no_magbotsim:
         for name in names:
             ref = ENVS[name][2]
+            if ref is None:
+                continue
             try:
                 res = magbotsim_row(ref, args.magbotsim_steps)
             except ImportError as e:
@@ -183,10 +197,7 @@ def main(argv=None) -> int:
                        ("env_steps_per_s", "env-steps/s"), ("magbot_steps_per_s", "MagBot-steps/s"),
                        ("x_magbotsim", "x MagBotSim (MagBot-steps)"),
                        *([("error", "error")] if any("error" in r for r in rows) else [])])
-    path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
-                                     f"magbots_{(args.device or 'cpu').replace(':', '')}.json")
-    stamp = provenance(info)
-    write_json(path, [{**r, **stamp} for r in rows])
+    save()
     print(f"wrote {path}")
     return 0
 
