@@ -82,24 +82,30 @@ for stage in "$@"; do
       task=${stage#ttt_}; task=${task%_*}; seeds=0,1; [ "${stage##*_}" = b ] && seeds=2
       timeout 590 python3 benchmarks/time_to_target.py --tasks "$task" --seeds "$seeds" --json "$OUT/$stage.json" \
         2>&1 | tail -20 ;;
-    magbots_train)
-      # #19: the PlatformPose and CoopPush SAC+HER policies (5 minutes each, side by side on the one GPU), in the
-      # background, while the GPU tests run; then magwarp eval of each beside its scripted baseline
-      python3 -m magwarp.training.suite --runs platform_pose_sac,coop_push_sac --minutes 5 --stop-after 380 --work "$OUT/runs" \
-        > "$OUT/magbots_train.log" 2>&1 &
+    suite)
+      mkdir -p /tmp/runs
+      # Training runs of magwarp/training/paper.py side by side on the one GPU (RUNS=a,b,...; MINUTES, default 5),
+      # with TESTS (pytest files) running meanwhile; then magwarp eval of each run's policy and of the task's scripted
+      # baseline (200 episodes x 10 repeats, the run's eval options). The device returns at most 8 files: the run
+      # folders (checkpoints left out), logs and eval JSONs come back as one $OUT/suite.tgz
+      python3 -m magwarp.training.suite --runs "$RUNS" --minutes "${MINUTES:-5}" \
+        --stop-after "$(python3 -c "print(int(${MINUTES:-5} * 60 + 80))")" --work /tmp/runs > /tmp/runs/suite.log 2>&1 &
       train_pid=$!
-      timeout 300 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings tests/test_graph_step.py \
-        tests/test_push_step.py tests/test_kernels_task.py tests/test_ceiling.py > "$OUT/pytest_graph_gpu.log" 2>&1
-      grep -E "FAIL|ERROR|Fatal|passed|failed" "$OUT/pytest_graph_gpu.log" | tail -8
-      wait $train_pid; tail -12 "$OUT/magbots_train.log"
-      for run in platform_pose_sac:magwarp/PlatformPose-v0:'{"action_mode":"pose","num_cycles":40}' \
-                 coop_push_sac:magwarp/CoopPush-v0:'{"num_cycles":40}'; do
-        IFS=: read -r name env kw <<< "$run"
-        for pol in "$OUT/runs/$name/policy.pt" scripted; do
-          timeout 45 python3 -m magwarp eval "$env" --policy "$pol" --env-kwargs "$kw" --episodes 200 --repeats 10 \
-            --device cuda:0 --json "$OUT/eval_${name}_$(basename "$pol" .pt).json" 2>&1 | tail -4
+      if [ -n "${TESTS:-}" ]; then
+        timeout 400 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings $TESTS \
+          > /tmp/runs/pytest_gpu.log 2>&1
+        grep -E "FAIL|ERROR|Fatal|passed|failed" /tmp/runs/pytest_gpu.log | tail -12
+      fi
+      wait $train_pid; tail -14 /tmp/runs/suite.log
+      for name in ${RUNS//,/ }; do
+        read -r env kw < <(python3 -c "import json; from magwarp.training.paper import PAPER_RUNS as R; \
+r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':')))")
+        for pol in "/tmp/runs/$name/policy.pt" scripted; do
+          timeout 60 python3 -m magwarp eval "$env" --policy "$pol" --env-kwargs "$kw" --episodes 200 --repeats 10 \
+            --device cuda:0 --json "/tmp/runs/$name/eval_$(basename "$pol" .pt).json" 2>&1 | grep -E "Success|Coll|Energy"
         done
-      done ;;
+      done
+      tar czf "$OUT/suite.tgz" -C /tmp --exclude=checkpoint.pt runs ;;
     planner)
       # #18: the scripted planner with its safety filter at 256 / 1024 / 4096 movers (1000 steps each)
       timeout 590 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
