@@ -456,6 +456,7 @@ def test_collision_flags_match_reference(rng):
     n = 64
     partner = rng.integers(-1, 8, n).astype(np.int32)
     wall = rng.integers(0, 2, n).astype(np.int32)
+    partner[:4], wall[:4] = (-1, -1, 3, 0), (0, 1, 0, 1)  # every combination, whatever the draw (P(miss) was ~1e-3)
     out = wp.zeros(n, dtype=wp.int32, device="cpu")
     wp.launch(_collision_flags_kernel, dim=n, inputs=[wp.array(partner, device="cpu"), wp.array(wall, device="cpu")],
               outputs=[out], device="cpu")
