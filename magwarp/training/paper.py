@@ -137,6 +137,10 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # (the IK maps them to the movers), and two movers pushing a box one cannot move
     "platform_pose_sac": PaperRun("magwarp/PlatformPose-v0", "sac-her", _PLATFORM_POSE, _PLATFORM_POSE,
                                   "no paper row; scripted IK baseline in magwarp eval"),
+    # Swarms (issue 18; no paper row): parameter-shared PPO on the flat agent view of 256 worlds x 64 movers, evaluated
+    # zero-shot on larger swarms beside the scripted planner (benchmarks/swarm.py)
+    "swarm_ippo": PaperRun("magwarp/Swarm-v0", "ppo", {"num_movers": 64}, {"num_movers": 64},
+                           "no paper row; scripted planner in magwarp eval", ("--num-envs", "256")),
     "coop_push_sac": PaperRun("magwarp/CoopPush-v0", "sac-her", {"num_cycles": 40}, {"num_cycles": 40},
                               "no paper row; scripted line-up-and-push baseline in magwarp eval"),
 }
