@@ -259,7 +259,10 @@ def test_paper_runs_build_their_envs():
     for name, run in PAPER_RUNS.items():
         for kwargs in (run.train_kwargs, run.eval_kwargs):
             env = gym.make_vec(run.env_id, num_envs=1, device="cpu", **kwargs).unwrapped
-            assert env.num_cycles == kwargs["num_cycles"], name
+            if "num_cycles" in kwargs:
+                assert env.num_cycles == kwargs["num_cycles"], name
+            if "num_movers" in kwargs:
+                assert env.num_movers == kwargs["num_movers"], name
             if "min_coverage" in kwargs:
                 assert env.min_coverage == kwargs["min_coverage"]
             if "obstacle_mode" in kwargs:
