@@ -25,7 +25,7 @@ from magwarp.kernels.pendulum import pendulum_constrain_kernel, pendulum_reactio
 from magwarp.magnetics.drive import AUX_DIM
 from magwarp.types import Body, Impedance, Limits, Pose, Wrench
 
-__all__ = ["PENDULUM_AUX_DIM", "SwingingPayload", "magnetic_pendulum_force"]
+__all__ = ["PENDULUM_AUX_DIM", "SwingingPayload", "magnetic_pendulum_force", "rotate"]
 
 #: force_aux columns of a simulator with coils and a swinging payload: the coils' (:data:`AUX_DIM`), then the rod's
 #: wrench on the mover (6)
@@ -154,7 +154,11 @@ class SwingingPayload:
     def pivot_offset(self) -> torch.Tensor:
         """[W, M, 3] the pivot from the mover centre (m, world frame)."""
         q = self.sim.quat
-        p = torch.tensor(self.pivot, dtype=q.dtype, device=q.device).expand(q.shape[:-1] + (3,))
-        u, w = q[..., :3], q[..., 3:4]
-        t = 2 * torch.cross(u, p, dim=-1)
-        return p + w * t + torch.cross(u, t, dim=-1)
+        return rotate(q, torch.tensor(self.pivot, dtype=q.dtype, device=q.device).expand(q.shape[:-1] + (3,)))
+
+
+def rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """``v`` ``[..., 3]`` rotated by the quaternions ``q`` ``[..., 4]`` (x, y, z, w)."""
+    u, w = q[..., :3], q[..., 3:4]
+    t = 2 * torch.cross(u, v, dim=-1)
+    return v + w * t + torch.cross(u, t, dim=-1)
