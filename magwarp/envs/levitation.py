@@ -182,6 +182,7 @@ class LevitationEnv(MagwarpVecEnv):
         self._xy_allow = torch.full((num_envs,), fail_distance, device=dev)
         self._scale = torch.tensor([self.wrench_scale[0]] * 3 + [self.wrench_scale[1]] * 3, device=dev)
         self._loss = torch.zeros(num_envs, device=dev)
+        self._centre = torch.tensor(self.centre, device=dev)
         terms.setup()  # after the actuator: a payload's cycle hooks run after the coils'
         self.obs_slices: dict[str, slice] = {}
         col = 0
@@ -204,8 +205,8 @@ class LevitationEnv(MagwarpVecEnv):
 
     # ------------------------------------------------------------------ episodes
     def _reset_envs(self, mask: torch.Tensor) -> None:
-        n, dev = self.num_envs, self.device
-        xy = torch.tensor(self.centre, device=dev) + (2 * self._rand(n, 2) - 1) * self.start_range
+        n = self.num_envs
+        xy = self._centre + (2 * self._rand(n, 2) - 1) * self.start_range
         yaw = (2 * self._rand(n) - 1) * math.pi
         xy, gap, ref, allow = self.task_terms.episode(mask, xy, yaw)
         start_pos = self.sim.start_pos

@@ -237,15 +237,16 @@ class TrackTask(Task):
         n, dev = env.num_envs, env.device
         self.base = torch.zeros((n, 6), device=dev)  # x, y, z, yaw, roll, pitch (the reference's order)
         self.amp, self.omega, self.phase = (torch.zeros((n, 6), device=dev) for _ in range(3))
+        o = self.options
+        span = 0.25 * (env.setpoint_gap[1] - env.setpoint_gap[0])
+        self.top = torch.tensor([o.range, o.range, span, o.yaw, o.tilt, o.tilt], device=dev)  # largest amplitudes
 
     def episode(self, mask, xy, yaw):
         env, o = self.env, self.options
         n = env.num_envs
         mid = torch.full((n,), 0.5 * (env.setpoint_gap[0] + env.setpoint_gap[1]), device=env.device)
         base = self._reference(xy, mid, yaw)
-        span = 0.25 * (env.setpoint_gap[1] - env.setpoint_gap[0])
-        top = torch.tensor([o.range, o.range, span, o.yaw, o.tilt, o.tilt], device=env.device)
-        amp = env._rand(n, 6) * top
+        amp = env._rand(n, 6) * self.top
         lo, hi = o.frequency
         omega = 2 * math.pi * (lo + (hi - lo) * env._rand(n, 6))
         phase = 2 * math.pi * env._rand(n, 6)

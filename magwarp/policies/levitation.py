@@ -7,8 +7,9 @@ the mover's; roll and pitch errors read about the world axes would push a mover 
 way), both
 critically damped at the natural frequency ``frequency`` (Hz), the feedback accelerations clipped at ``max_acc``
 (m/s^2 for x/y together and for z, rad/s^2 for the angular: a wanted wrench beyond what the coils under the mover
-can deliver comes out distorted by the commutation's current limits, torques included, and tilts the mover); ``v*``, ``a*`` (and the angular ones) are the
-reference's rates where the observation has them (``task="track"``), else 0. The commutation
+can deliver comes out distorted by the commutation's current limits, torques included, and tilts the mover);
+``v*``, ``a*`` (and the angular ones) are the reference's rates where the observation has them (``task="track"``),
+else 0. The commutation
 (:meth:`magwarp.magnetics.actuator.CoilActuator.commutate`: least copper loss within the current limits, at the
 mover's current pose) turns the wrench into the action's coil currents (or, with ``action="wrench"``, the wrench
 itself is the action). Per task, from the observation:
@@ -51,8 +52,8 @@ def _quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 def _rotation_error(rpy: torch.Tensor, ref_rpy: torch.Tensor) -> torch.Tensor:
     """The rotation vector ``[N, 3]`` (world frame) that turns the reference attitude into the mover's."""
-    q_ref = _quat_from_rpy(ref_rpy) * torch.tensor([-1.0, -1.0, -1.0, 1.0], device=rpy.device)
-    q = _quat_mul(_quat_from_rpy(rpy), q_ref)
+    q_ref = _quat_from_rpy(ref_rpy)
+    q = _quat_mul(_quat_from_rpy(rpy), torch.cat([-q_ref[:, :3], q_ref[:, 3:]], 1))  # times the conjugate
     q = torch.where(q[:, 3:4] < 0, -q, q)  # the short way round
     v = q[:, :3]
     s = torch.linalg.vector_norm(v, dim=1, keepdim=True)
@@ -98,6 +99,8 @@ class LevitationPD:
         self.inertia = torch.tensor(self.env.mover.inertia, dtype=torch.float32, device=dev)
         self.gravity = float(self.env.sim.model.limits.gravity)
         self.slices = self.env.obs_slices
+        swing = getattr(self.env.task_terms, "swing", None)
+        self._pivot = None if swing is None else torch.tensor(swing.pivot, dtype=torch.float32, device=dev)
 
     def _part(self, obs: torch.Tensor, name: str) -> torch.Tensor | None:
         s = self.slices.get(name)
@@ -163,8 +166,7 @@ class LevitationPD:
         e_dot = s_dot / norm - s * (s * s_dot).sum(1, keepdim=True) / norm ** 3
         tension = mass * (length * (e_dot * e_dot).sum(1, keepdim=True) - self.gravity * e[:, 2:3])
         f_rod = tension * e
-        pivot = torch.tensor(swing.pivot, dtype=rpy.dtype, device=rpy.device).expand_as(f_rod)
-        return f_rod, torch.cross(rotate(_quat_from_rpy(rpy), pivot), f_rod, dim=-1)
+        return f_rod, torch.cross(rotate(_quat_from_rpy(rpy), self._pivot.expand_as(f_rod)), f_rod, dim=-1)
 
     def __call__(self, obs: torch.Tensor) -> torch.Tensor:
         env = self.env
