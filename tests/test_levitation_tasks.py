@@ -53,7 +53,7 @@ def test_check_env_and_observation_layout(env_id):
     assert sum(s.stop - s.start for s in slices.values()) == IDS[env_id]
 
 
-def test_liftoff_rises_from_the_lowest_gap():
+def test_liftoff_rises_from_its_support():
     env = _env("liftoff")
     obs, _ = env.reset(seed=1)
     gap = obs[:, 2] - env.bottom
@@ -63,14 +63,52 @@ def test_liftoff_rises_from_the_lowest_gap():
     pos_err, rot_err = env.errors()
     assert pos_err.max() < 5e-5 and rot_err.max() < 1e-3, (pos_err, rot_err)
     assert steps[-1][2]["is_success"].all()
-    # without current it drops out of the fail gap's 1 mm within ~15 ms (sqrt(2 * 1 mm / g) = 14 ms)
-    env.reset(seed=1)
+    # without current it rests on its support: no fall, no failure, no success
     zero = torch.zeros((4, env.actuator.slots))
+    env.reset(seed=1)
+    for _ in range(40):
+        obs, reward, terminated, _, info = env.step(zero)
+    assert not terminated.any() and not info["is_success"].any()
+    np.testing.assert_allclose((obs[:, 2] - env.bottom).numpy(), 0.002, atol=1e-7)
+    assert torch.all(obs[:, 8] == 0)  # vertical velocity
+    # released instead of resting, it drops out of the fail gap's 1 mm within ~15 ms (sqrt(2 * 1 mm / g) = 14 ms)
+    env = _env("liftoff", task_options={"support": False})
+    env.reset(seed=1)
     for k in range(40):
         _, reward, terminated, _, _ = env.step(zero)
         if terminated.all():
             break
     assert terminated.all() and 10 <= k <= 20 and torch.all(reward == env.failure_reward)
+
+
+def test_resting_support_matches_numpy(rng):
+    """One cycle of free fall onto the support, against numpy: centres below it are put on it, downward velocities
+    there dropped; the others fall freely."""
+    from magwarp.layout import Layout
+    from magwarp.magnetics.drive import AUX_DIM, magnetic_force
+    from magwarp.sim import Simulator
+    from magwarp.support import RestingSupport
+
+    W, dt, g = 32, 2.5e-4, 9.81
+    sim = Simulator(Layout.grid(2, 2), 1, W, dt=dt, hold_mask=(0,) * 6, force_model=magnetic_force,
+                    force_aux_dim=AUX_DIM, stop_on_collision=False, device="cpu")
+    support = RestingSupport(sim, 0.008)
+    support.height[: W // 4] = float("-inf")  # no support there
+    z = rng.uniform(0.0079, 0.0081, W).astype(np.float32)
+    vz = rng.uniform(-0.5, 0.5, W).astype(np.float32)
+    sim.pos[:, 0, 2], sim.vel[:, 0, 2] = torch.as_tensor(z), torch.as_tensor(vz)
+    sim.step(1)
+    v1 = vz.astype(np.float64) - g * dt
+    z1 = z + v1 * dt
+    height = support.height.numpy().astype(np.float64)
+    below = z1 < height
+    want_z = np.where(below, height, z1)
+    want_v = np.where(below, np.maximum(v1, 0.0), v1)
+    np.testing.assert_allclose(sim.pos[:, 0, 2].numpy(), want_z, atol=1e-8, err_msg=str(rng))
+    np.testing.assert_allclose(sim.vel[:, 0, 2].numpy(), want_v, atol=1e-6, err_msg=str(rng))
+    assert below.any() and (~below).any(), rng
+    with pytest.raises(ValueError, match="height must be a number"):
+        RestingSupport(sim, float("nan"))
 
 
 def test_track_reference_moves_and_the_baseline_follows_it():
@@ -212,6 +250,8 @@ def test_bad_options_are_refused():
         make(task="liftoff", task_options={"start_gap": 0.0015})
     with pytest.raises(ValueError, match="start_gap must be a finite number"):
         make(task="liftoff", task_options={"start_gap": "low"})
+    with pytest.raises(ValueError, match="support must be True or False, got 'yes'"):
+        make(task="liftoff", task_options={"support": "yes"})
     with pytest.raises(ValueError, match="success_tol"):
         make(success_tol=(0.001, -1.0))
     env = make(task="hover")

@@ -7,9 +7,10 @@ and :meth:`Task.observe` for its extra observation columns. Options are frozen d
 dict of their fields: ``--env-kwargs '{"task_options": {"time": 0.3}}'``), checked when built.
 
 * ``hover``: the start pose. ``setpoint``: a fixed pose near the start (the env's ``setpoint_*`` options).
-* ``liftoff`` (:class:`LiftoffOptions`): the mover starts at rest at the lowest gap (``start_gap``, the bottom of the
-  default wrench table: its support just released, it drops out within about 15 ms unless lifted) and must rise to
-  a hover pose at ``setpoint_gap`` above the same x/y and yaw.
+* ``liftoff`` (:class:`LiftoffOptions`): the mover starts resting at the lowest gap (``start_gap``, the bottom of the
+  default wrench table) on a support that it cannot sink through (``support=False``: released there, it drops out of
+  ``fail_gap`` within about 15 ms unless lifted) and must rise to a hover pose at ``setpoint_gap`` above the same x/y
+  and yaw.
 * ``track`` (:class:`TrackOptions`): a moving 6-DoF reference: per world and axis, ``r(t) = r0 + A (sin(2 pi f t +
   phi) - sin(phi))`` from the start pose (x, y, z about the middle of ``setpoint_gap``, roll, pitch, yaw), amplitudes
   ``A`` uniform up to the options' (z: a quarter of ``setpoint_gap``'s span), ``f`` uniform in ``frequency``, ``phi``
@@ -65,12 +66,17 @@ def check_ranges(ranges: dict) -> None:
 
 @dataclass(frozen=True)
 class LiftoffOptions:
-    """``task="liftoff"``: the gap (m, tile surface to the mover's bottom) the mover starts at, at rest."""
+    """``task="liftoff"``: the gap (m, tile surface to the mover's bottom) the mover starts at, at rest, and whether
+    it rests there on a support (``support``: the mover cannot sink below it, :mod:`magwarp.kernels.support`) or is
+    released there (it falls unless lifted)."""
 
     start_gap: float = 0.002
+    support: bool = True
 
     def __post_init__(self):
         check_ranges({"start_gap": (self.start_gap, 0.0, 0.05, False)})
+        if not isinstance(self.support, bool):
+            raise ValueError(f"support must be True or False, got {self.support!r}")
 
 
 @dataclass(frozen=True)
@@ -218,6 +224,13 @@ class LiftoffTask(Task):
         if not (fail_gap[0] < g < setpoint_gap[0] and g >= table_gap[0] - 1e-12):
             raise ValueError(f"start_gap {g!r} must lie above fail_gap's low end {fail_gap[0]}, below setpoint_gap "
                              f"{setpoint_gap} and within the wrench table's gaps {table_gap} (its look-ups clamp)")
+
+    def setup(self):
+        self.support = None
+        if self.options.support:
+            from magwarp.support import RestingSupport
+
+            self.support = RestingSupport(self.env.sim, self.options.start_gap + self.env.bottom)
 
     def episode(self, mask, xy, yaw):
         env = self.env
