@@ -192,6 +192,8 @@ def test_pendulum_swings_and_the_baseline_holds_the_mover():
     torch.testing.assert_close(steps[-1][0][:, s["swing_rate"]], r[:, 0])
     errs = torch.stack([info["pos_error"] for _, _, info in steps])
     assert errs.max() < 1e-4 and steps[-1][2]["is_success"].all(), errs.max()
+    dump = env.state_arrays([1, 3])  # a bug report carries the bob's state
+    np.testing.assert_array_equal(dump["pendulum_rod"], env.task_terms.swing.rod[[1, 3]].numpy())
     # the rod pushes the mover about: a PD that does not cancel it is pushed off by much more
     blind = LevitationPD(env)
     blind.slices = {k: v for k, v in env.obs_slices.items() if not k.startswith("swing")}

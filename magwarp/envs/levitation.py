@@ -292,6 +292,11 @@ class LevitationEnv(MagwarpVecEnv):
     def state_arrays(self, worlds) -> dict[str, Any]:
         out = super().state_arrays(worlds)
         out.update(self.sim.state_arrays(worlds))
+        idx = torch.as_tensor(worlds, dtype=torch.int64, device=self.device)
+        out["reference"] = self.reference[idx].cpu().numpy()
+        swing = getattr(self.task_terms, "swing", None)
+        if swing is not None:
+            out["pendulum_rod"], out["pendulum_rod_rate"] = (t[idx].cpu().numpy() for t in (swing.rod, swing.rod_rate))
         return out
 
 
