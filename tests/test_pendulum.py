@@ -127,6 +127,30 @@ def test_momentum_and_rod_length_over_many_cycles(rng):
     assert angles.shape == (W, 1, 2) and torch.isfinite(rates).all()
 
 
+@pytest.mark.parametrize("mover_mass", [1.24, 1e4])
+def test_small_swings_have_the_textbook_period(mover_mass):
+    """Pivot at the mover centre, coils carrying the weight: the bob and the (horizontally free) mover swing against
+    each other with omega^2 = (g / L) (1 + m / M); a heavy mover is a fixed pivot, omega^2 = g / L."""
+    from magwarp.layout import MoverSpec
+
+    mass, length, angle = 0.3, 0.08, 0.05
+    sim = Simulator(Layout.grid(2, 2), 1, 1, mover=MoverSpec(mass=mover_mass), dt=DT, hold_mask=(0,) * 6,
+                    force_model=magnetic_pendulum_force, force_aux_dim=PENDULUM_AUX_DIM, stop_on_collision=False,
+                    check_inputs=False, device="cpu")
+    swing = SwingingPayload(sim, mass=mass, length=length, pivot=(0.0, 0.0, 0.0))
+    sim.force_aux[:, 0, 2] = (mover_mass + mass) * G
+    swing.reset(torch.ones(1, dtype=torch.bool), torch.tensor([angle]), torch.tensor([0.3]))
+    period = 2 * np.pi / np.sqrt(G / length * (1 + mass / mover_mass)) * (1 + angle ** 2 / 16)
+    xs = []
+    for _ in range(int(1.6 * period / DT / 4)):
+        sim.step(4)
+        xs.append(float(swing.rod[0, 0, 0] * np.cos(0.3) + swing.rod[0, 0, 1] * np.sin(0.3)))
+    xs = np.array(xs)
+    crossings = np.flatnonzero(np.diff(np.sign(xs)) != 0)  # half periods apart
+    t = (crossings + xs[crossings] / (xs[crossings] - xs[crossings + 1])) * 4 * DT  # linear interpolation
+    np.testing.assert_allclose(t[2] - t[0], period, rtol=2e-3)  # one full period
+
+
 def test_swing_angles_and_rates(rng):
     _, swing = _sim(3)
     d = torch.tensor([[0.02, -0.01, -0.07], [0.0, 0.0, -0.08], [-0.03, 0.02, -0.06]])
