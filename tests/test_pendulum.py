@@ -130,7 +130,8 @@ def test_momentum_and_rod_length_over_many_cycles(rng):
 @pytest.mark.parametrize("mover_mass", [1.24, 1e4])
 def test_small_swings_have_the_textbook_period(mover_mass):
     """Pivot at the mover centre, coils carrying the weight: the bob and the (horizontally free) mover swing against
-    each other with omega^2 = (g / L) (1 + m / M); a heavy mover is a fixed pivot, omega^2 = g / L."""
+    each other with omega^2 = (g / L) (1 + m / M) (a heavy mover is a fixed pivot, omega^2 = g / L), and the centre
+    of mass of mover plus bob stays put."""
     from magwarp.layout import MoverSpec
 
     mass, length, angle = 0.3, 0.08, 0.05
@@ -141,7 +142,10 @@ def test_small_swings_have_the_textbook_period(mover_mass):
     sim.force_aux[:, 0, 2] = (mover_mass + mass) * G
     swing.reset(torch.ones(1, dtype=torch.bool), torch.tensor([angle]), torch.tensor([0.3]))
     period = 2 * np.pi / np.sqrt(G / length * (1 + mass / mover_mass)) * (1 + angle ** 2 / 16)
-    xs = []
+    def centre_of_mass():
+        return ((mover_mass * sim.pos[0, 0] + mass * swing.bob_position()[0, 0]) / (mover_mass + mass)).numpy()
+
+    com0, xs = centre_of_mass(), []
     for _ in range(int(1.6 * period / DT / 4)):
         sim.step(4)
         xs.append(float(swing.rod[0, 0, 0] * np.cos(0.3) + swing.rod[0, 0, 1] * np.sin(0.3)))
@@ -149,6 +153,8 @@ def test_small_swings_have_the_textbook_period(mover_mass):
     crossings = np.flatnonzero(np.diff(np.sign(xs)) != 0)  # half periods apart
     t = (crossings + xs[crossings] / (xs[crossings] - xs[crossings + 1])) * 4 * DT  # linear interpolation
     np.testing.assert_allclose(t[2] - t[0], period, rtol=2e-3)  # one full period
+    # no net force on mover plus bob: their centre of mass stays put (the rod carries the bob's weight)
+    np.testing.assert_allclose(centre_of_mass(), com0, rtol=0, atol=2e-6)
 
 
 def test_swing_angles_and_rates(rng):
