@@ -159,10 +159,7 @@ class LevitationEnv(MagwarpVecEnv):
         self.task_terms = make_task(self, task, task_options)
         self.task_options = self.task_terms.options
         terms = self.task_terms
-        if task == "liftoff":
-            terms.check(fail_gap, setpoint_gap, (magnetics.table or WrenchTableSpec()).gap)
-        elif task == "move":
-            terms.check(0.5 * min(layout.shape) * layout.tile.size)
+        terms.check(layout, (magnetics.table or WrenchTableSpec()).gap)
         start = np.array([[[*self.centre, self.mover.hover_z, 0.0, 0.0, 0.0]]] * num_envs)
         sim_kwargs = {"force_model": magnetic_force, "force_aux_dim": AUX_DIM, **terms.sim_kwargs()}
         self.sim = Simulator(layout, 1, num_envs, mover=self.mover, start_pose=start, dt=dt, hold_mask=(0,) * 6,

@@ -165,6 +165,9 @@ class Task:
     def __init__(self, env, options=None):
         self.env, self.options = env, options
 
+    def check(self, layout, table_gap: tuple[float, float]) -> None:
+        """Refuse options that do not fit the env (its layout, gaps, episode length, the wrench table's gaps)."""
+
     def sim_kwargs(self) -> dict:
         """What the task needs from the simulator (a force model and its ``force_aux`` width)."""
         return {}
@@ -219,8 +222,8 @@ class LiftoffTask(Task):
     name = "liftoff"
     options_type = LiftoffOptions
 
-    def check(self, fail_gap, setpoint_gap, table_gap) -> None:
-        g = self.options.start_gap
+    def check(self, layout, table_gap):
+        g, fail_gap, setpoint_gap = self.options.start_gap, self.env.fail_gap, self.env.setpoint_gap
         if not (fail_gap[0] < g < setpoint_gap[0] and g >= table_gap[0] - 1e-12):
             raise ValueError(f"start_gap {g!r} must lie above fail_gap's low end {fail_gap[0]}, below setpoint_gap "
                              f"{setpoint_gap} and within the wrench table's gaps {table_gap} (its look-ups clamp)")
@@ -288,7 +291,8 @@ class MoveTask(Task):
     options_type = MoveOptions
     extra_obs = (("time_left", 1),)
 
-    def check(self, layout_half: float) -> None:
+    def check(self, layout, table_gap):
+        layout_half = 0.5 * min(layout.shape) * layout.tile.size
         half_mover = 0.5 * max(self.env.mover.size[:2])
         reach = 0.5 * self.options.distance[1] + self.env.start_range + half_mover
         if reach > layout_half:
