@@ -190,10 +190,10 @@ class Task:
         env = self.env
         return torch.full((env.num_envs,), env.fail_distance, device=env.device) + extra
 
-    def _reference(self, xy, gap, yaw, roll=None, pitch=None) -> torch.Tensor:
-        zero = torch.zeros_like(yaw)
-        return torch.cat([xy, (gap + self.env.bottom)[:, None], yaw[:, None], (zero if roll is None else roll)[:, None],
-                          (zero if pitch is None else pitch)[:, None]], 1)
+    def _reference(self, xy, gap, yaw) -> torch.Tensor:
+        """A level reference pose ``[N, 6]`` (x, y, z, yaw, roll, pitch) at ``gap`` above the tiles."""
+        zero = torch.zeros_like(yaw)[:, None]
+        return torch.cat([xy, (gap + self.env.bottom)[:, None], yaw[:, None], zero, zero], 1)
 
     def advance(self) -> None:
         """After every step: the reference at the step's end."""
