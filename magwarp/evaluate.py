@@ -6,7 +6,9 @@ read back once per batch of repeats.
 
 * **Pushing** (Table 1): every world plays one episode (``max_episode_steps``, ending early on a collision); a
   repeat is ``episodes`` goals. The 6D-platform pose task and the MagBot pick-and-place tasks are evaluated the
-  same way (:mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.pick_place`).
+  same way (:mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.pick_place`), and so are the levitation envs
+  (``magwarp/Levitation-v0`` and its variants, :mod:`magwarp.metrics.levitation`: success, tracking error, copper
+  energy per episode and per success).
 * **Trajectory planning** (Table 2): every world is one long-horizon run of ``steps`` env steps in which reached
   goals are replaced; a collision or a timeout ends the world's episode (its movers' pending goals fail) and a new
   one starts. Makespan: time at which the slowest mover of a world reached ``makespan_goals`` goals.
@@ -239,8 +241,12 @@ def _family(env) -> str:
         return "pick_place"
     if isinstance(env, PlatformPoseEnv):
         return "platform"
-    raise EvalError(f"magwarp eval supports trajectory planning, pushing, platform, pick-and-place and swarm envs, "
-                    f"not {type(env).__name__}")
+    from magwarp.envs.levitation import LevitationEnv
+
+    if isinstance(env, LevitationEnv):
+        return "levitation"
+    raise EvalError(f"magwarp eval supports trajectory planning, pushing, platform, pick-and-place, swarm and "
+                    f"levitation envs, not {type(env).__name__}")
 
 
 def _check_device(device) -> str:

@@ -75,6 +75,11 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/Levitation-v0"] = ("LevitationEnv", {})
     ids["magwarp/LevitationHover-v0"] = ("LevitationEnv", {"task": "hover"})
     ids["magwarp/LevitationWrench-v0"] = ("LevitationEnv", {"action": "wrench"})
+    ids["magwarp/LevitationLiftoff-v0"] = ("LevitationEnv", {"task": "liftoff"})
+    ids["magwarp/LevitationTrack-v0"] = ("LevitationEnv", {"task": "track"})
+    ids["magwarp/LevitationMove-v0"] = ("LevitationEnv", {"task": "move", "max_episode_steps": 600})
+    ids["magwarp/LevitationPayload-v0"] = ("LevitationEnv", {"task": "payload"})
+    ids["magwarp/LevitationPendulum-v0"] = ("LevitationEnv", {"task": "pendulum"})
     ids["magwarp/PlatformPickPlace-v0"] = ("PlatformPickPlaceEnv", {})
     ids["magwarp/GripperPickPlace-v0"] = ("GripperPickPlaceEnv", {})
     return ids

@@ -22,6 +22,11 @@ window's end (slow and away from their goal for 25 steps), and the makespan (the
 A policy file or callable gets the [worlds, movers, D] observation and returns [worlds, movers, 2] accelerations.
 With --device cpu, torch uses one intra-op thread (small tensors: more threads only make timings unstable).
 
+LEVITATION (magwarp/Levitation-v0 and its Hover, Wrench, Liftoff, Track, Move, Payload, Pendulum variants;
+``scripted`` is the PD baseline through the commutation): success (within the env's ``success_tol`` at the episode's
+end), failures, the tracking error (mean position error over the episode's steps), the final errors and the copper
+energy per episode and per success (J; for the Move variant: energy per move at that arrival accuracy).
+
 SEVERAL GPUS: ``--nproc-per-node N`` runs N processes through torchrun (one per GPU, ``cuda:LOCAL_RANK``; CPU
 processes with ``--device cpu``): the repeats are shared out in batches of at most ceil(repeats / N), and rank 0
 prints the one table (the same as one process with ``--max-worlds`` = episodes x ceil(repeats / N)).

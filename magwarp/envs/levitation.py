@@ -1,5 +1,9 @@
-"""Low-level control of one levitating mover by its coil currents: ``magwarp/Levitation-v0`` (and
-``magwarp/LevitationHover-v0``: ``task="hover"``; ``magwarp/LevitationWrench-v0``: ``action="wrench"``).
+"""Low-level control of one levitating mover by its coil currents: ``magwarp/Levitation-v0`` and its variants.
+
+Ids: ``magwarp/Levitation-v0`` (``task="setpoint"``), ``magwarp/LevitationHover-v0`` (``task="hover"``),
+``magwarp/LevitationWrench-v0`` (``action="wrench"``), ``magwarp/LevitationLiftoff-v0`` (``task="liftoff"``),
+``magwarp/LevitationTrack-v0`` (``task="track"``), ``magwarp/LevitationMove-v0`` (``task="move"``),
+``magwarp/LevitationPayload-v0`` (``task="payload"``), ``magwarp/LevitationPendulum-v0`` (``task="pendulum"``).
 
 The mover is a free 6-DoF rigid body (no impedance hold, no planar drive) under gravity and the magnetic wrench of
 the coils under it (:class:`~magwarp.magnetics.actuator.CoilActuator`: the wrench-table model, Gamma(q) updated
@@ -12,23 +16,28 @@ every control cycle), at a 250 µs control cycle; one env step holds the action 
   Beyond +-1 a current stays at its limit (the amplifier saturates; :attr:`saturated`). Slots without a coil are
   ignored. ``action="wrench"``: a wanted wrench (force / ``wrench_scale[0]`` N, torque / ``wrench_scale[1]`` N m,
   each in [-1, 1]) that the commutation turns into least-loss currents every cycle.
-* **Observation** (``[19]``, SI): position (3), roll/pitch/yaw (3), velocity (3), angular velocity (3), the
-  setpoint's position (3) and yaw (1), and the position error (3).
-* **Task** (``task``): ``"hover"`` holds the start pose; ``"setpoint"`` (default) reaches a setpoint up to
-  ``setpoint_range`` (m) away in x/y, at a gap in ``setpoint_gap`` and a yaw up to ``setpoint_yaw`` (rad) from the
-  start. Starts: a random x/y within ``start_range`` of the layout's centre, any yaw, level, at rest, at the
-  mover's hover gap.
-* **Reward** per step: ``-(|p - p*| / pos_scale + |rotation error| / rot_scale) - loss_weight * P`` with ``P`` the
-  copper loss (W, the mean over the step's cycles); ``failure_reward`` when the mover fails.
+* **Observation** (SI): position (3), roll/pitch/yaw (3), velocity (3), angular velocity (3), the reference's
+  position (3) and yaw (1), and the position error (3): 19 columns, then the task's own (:attr:`obs_slices` names
+  every part; :mod:`magwarp.envs.levitation_tasks`).
+* **Task** (``task``, options in ``task_options``: :mod:`magwarp.envs.levitation_tasks`): ``"hover"`` holds the start
+  pose; ``"setpoint"`` (default) reaches a setpoint up to ``setpoint_range`` (m) away in x/y, at a gap in
+  ``setpoint_gap`` and a yaw up to ``setpoint_yaw`` (rad) from the start; ``"liftoff"`` rises from the lowest gap to
+  a hover gap; ``"track"`` follows a moving 6-DoF reference; ``"move"`` reaches a distant goal by a deadline on
+  little copper energy; ``"payload"`` hovers with a rigid payload off the centre; ``"pendulum"`` hovers with a
+  swinging one. Starts: a random x/y within ``start_range`` of the layout's centre, any yaw, level, at rest.
+* **Reward** per step: ``-w (|p - p*| / pos_scale + |rotation error| / rot_scale) - loss_weight * P`` with ``P`` the
+  copper loss (W, the mean over the step's cycles) and ``w`` 1 (``"move"``: 0 before its deadline);
+  ``failure_reward`` when the mover fails.
 * **Ends**: terminated when the gap leaves ``fail_gap`` (m; the default ``magnetics``' table covers 2-6 mm), a
-  tilt exceeds ``fail_tilt`` (rad) or the x/y error exceeds ``fail_distance`` (m); truncated after
-  ``max_episode_steps``.
+  tilt exceeds ``fail_tilt`` (rad) or the x/y error exceeds ``fail_distance`` (m; ``"move"``: plus the move's
+  length); truncated after ``max_episode_steps``.
 * ``info``: ``copper_loss`` (W, ``[N]``), ``pos_error`` (m), ``rot_error`` (rad), ``saturated`` (coils at their
-  limit); :attr:`energy` (J, since construction) as a torch view.
+  limit), ``is_success`` (not failed and within ``success_tol``: (m, rad)); :attr:`energy` (J, since construction)
+  as a torch view. ``magwarp eval`` reads them (:mod:`magwarp.metrics.levitation`).
 
 The wrench table takes the mover level (its roll and pitch are not looked up): keep tilts small (about 1% of the
 peak column per 2 mrad, :mod:`magwarp.magnetics.table`). The scripted baseline is
-:class:`magwarp.policies.levitation.LevitationPD` (a PD law through the commutation).
+:class:`magwarp.policies.levitation.LevitationPD` (a PD law through the commutation; :meth:`scripted_policy`).
 """
 
 from __future__ import annotations
@@ -42,9 +51,13 @@ import torch
 
 from magwarp._checks import as_count
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.levitation_tasks import check_ranges, make_task, pair, wrap
 from magwarp.layout import Layout, MoverSpec
 
 __all__ = ["LevitationEnv"]
+
+#: the observation's common columns (name, width); the task's follow
+OBS_PARTS = (("pos", 3), ("rpy", 3), ("vel", 3), ("omega", 3), ("reference", 4), ("pos_error", 3))
 
 
 def _rpy(q: torch.Tensor) -> torch.Tensor:
@@ -56,21 +69,6 @@ def _rpy(q: torch.Tensor) -> torch.Tensor:
     return torch.stack([roll, pitch, yaw], -1)
 
 
-def _pair(name: str, value, minimum: float = 0.0) -> tuple[float, float]:
-    """Two finite numbers ``(low, high)``, ``minimum <= low < high``, or a ValueError naming ``name``."""
-    try:
-        lo, hi = (float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be two numbers (low, high), got {value!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and minimum <= lo < hi):
-        raise ValueError(f"{name} must be two finite numbers with {minimum} <= low < high, got {value!r}")
-    return lo, hi
-
-
-def _wrap(a: torch.Tensor) -> torch.Tensor:
-    return torch.remainder(a + math.pi, 2 * math.pi) - math.pi
-
-
 class LevitationEnv(MagwarpVecEnv):
     """Batched low-level levitation control (see the module docstring)."""
 
@@ -79,6 +77,7 @@ class LevitationEnv(MagwarpVecEnv):
         num_envs: int = 1,
         *,
         task: str = "setpoint",
+        task_options=None,
         action: str = "currents",
         tiles: tuple[int, int] = (2, 2),
         dt: float = 2.5e-4,
@@ -95,6 +94,7 @@ class LevitationEnv(MagwarpVecEnv):
         fail_gap: tuple[float, float] = (0.001, 0.007),
         fail_tilt: float = 0.05,
         fail_distance: float = 0.05,
+        success_tol: tuple[float, float] = (1e-3, 0.01),
         wrench_scale: tuple[float, float] = (40.0, 2.0),
         magnetics=None,
         device: str | None = None,
@@ -106,29 +106,25 @@ class LevitationEnv(MagwarpVecEnv):
     ):
         from magwarp.magnetics.actuator import CoilActuator
         from magwarp.magnetics.drive import AUX_DIM, MagneticModel, magnetic_force
+        from magwarp.magnetics.table import WrenchTableSpec
         from magwarp.sim import Simulator
 
         num_envs = as_count(num_envs, "num_envs")
-        if task not in ("hover", "setpoint"):
-            raise ValueError(f"task must be 'hover' or 'setpoint', got {task!r}")
         if action not in ("currents", "wrench"):
             raise ValueError(f"action must be 'currents' or 'wrench', got {action!r}")
         # (low, high, low included): what keeps every reward, observation and pose finite and an episode possible
-        ranges = {"dt": (dt, 0.0, 0.01, False), "pos_scale": (pos_scale, 1e-6, 1e3, True),
-                  "rot_scale": (rot_scale, 1e-6, 1e3, True), "fail_tilt": (fail_tilt, 0.0, math.pi, False),
-                  "fail_distance": (fail_distance, 0.0, 1.0, False), "start_range": (start_range, 0.0, 1.0, True),
-                  "setpoint_range": (setpoint_range, 0.0, 1.0, True),
-                  "setpoint_yaw": (setpoint_yaw, 0.0, math.pi, True),
-                  "loss_weight": (loss_weight, 0.0, 1e3, True), "failure_reward": (failure_reward, -1e6, 1e6, True)}
-        for name, (value, low, high, closed) in ranges.items():
-            ok = isinstance(value, (int, float)) and math.isfinite(value) and value <= high
-            if not ok or value < low or (value == low and not closed):
-                raise ValueError(f"{name} must be a finite number in {'[' if closed else '('}{low}, {high}], got "
-                                 f"{value!r}")
-        setpoint_gap, fail_gap = _pair("setpoint_gap", setpoint_gap), _pair("fail_gap", fail_gap)
+        check_ranges({"dt": (dt, 0.0, 0.01, False), "pos_scale": (pos_scale, 1e-6, 1e3, True),
+                      "rot_scale": (rot_scale, 1e-6, 1e3, True), "fail_tilt": (fail_tilt, 0.0, math.pi, False),
+                      "fail_distance": (fail_distance, 0.0, 1.0, False), "start_range": (start_range, 0.0, 1.0, True),
+                      "setpoint_range": (setpoint_range, 0.0, 1.0, True),
+                      "setpoint_yaw": (setpoint_yaw, 0.0, math.pi, True),
+                      "loss_weight": (loss_weight, 0.0, 1e3, True),
+                      "failure_reward": (failure_reward, -1e6, 1e6, True)})
+        setpoint_gap, fail_gap = pair("setpoint_gap", setpoint_gap), pair("fail_gap", fail_gap)
         if not fail_gap[0] < setpoint_gap[0] <= setpoint_gap[1] < fail_gap[1] <= 0.05:
             raise ValueError(f"setpoint_gap {setpoint_gap} must lie inside fail_gap {fail_gap}, which must end at "
                              f"most 0.05 m above the tiles")
+        success_tol = _tolerance(success_tol)
         try:
             scales = tuple(float(v) for v in wrench_scale)
         except (TypeError, ValueError):
@@ -145,60 +141,82 @@ class LevitationEnv(MagwarpVecEnv):
         magnetics = magnetics if magnetics is not None else MagneticModel()  # its table covers 2-6 mm
         if not isinstance(magnetics, MagneticModel):
             raise TypeError(f"magnetics must be a MagneticModel, got {type(magnetics).__name__}")
-        self.task, self.action_mode = task, action
+        self.action_mode = action
         self.num_cycles = as_count(num_cycles, "num_cycles")
         self.max_episode_steps = as_count(max_episode_steps, "max_episode_steps")
         self.start_range, self.setpoint_range, self.setpoint_yaw = start_range, setpoint_range, setpoint_yaw
-        self.setpoint_gap, self.fail_gap = setpoint_gap, fail_gap
+        self.setpoint_gap, self.fail_gap, self.success_tol = setpoint_gap, fail_gap, success_tol
         self.pos_scale, self.rot_scale, self.loss_weight = pos_scale, rot_scale, loss_weight
         self.failure_reward, self.fail_tilt, self.fail_distance = failure_reward, fail_tilt, fail_distance
         self.wrench_scale = wrench_scale
+        self.dt = float(dt)
+        self.step_dt = self.num_cycles * self.dt
         layout = Layout.grid(*tiles)
         self.mover = MoverSpec()
+        self.bottom = 0.5 * self.mover.size[2]
         self.centre = (0.5 * layout.shape[0] * layout.tile.size, 0.5 * layout.shape[1] * layout.tile.size)
+        self.task = task
+        self.task_terms = make_task(self, task, task_options)
+        self.task_options = self.task_terms.options
+        terms = self.task_terms
+        terms.check(layout, (magnetics.table or WrenchTableSpec()).gap)
         start = np.array([[[*self.centre, self.mover.hover_z, 0.0, 0.0, 0.0]]] * num_envs)
+        sim_kwargs = {"force_model": magnetic_force, "force_aux_dim": AUX_DIM, **terms.sim_kwargs()}
         self.sim = Simulator(layout, 1, num_envs, mover=self.mover, start_pose=start, dt=dt, hold_mask=(0,) * 6,
-                             force_model=magnetic_force, force_aux_dim=AUX_DIM, stop_on_collision=False,
-                             check_inputs=False, device=device)
+                             stop_on_collision=False, check_inputs=False, device=device, **sim_kwargs)
         super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs, nan_dump=nan_dump)
         self.actuator = CoilActuator(self.sim, magnetics.params, magnetics.table, mode=action,
                                      options=magnetics.options, use_cache=magnetics.use_cache)
         self.layout = layout
-        self.bottom = 0.5 * self.mover.size[2]
         self.current_limit = float(self.actuator.model.params.coils.coil.current_limit)
-        slots = self.actuator.slots
-        n_act = slots if action == "currents" else 6
-        self._set_spaces(gym.spaces.Box(-np.inf, np.inf, (19,), np.float32),
-                         gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32))
         dev = self.device
-        self.setpoint = torch.zeros((num_envs, 4), device=dev)  # x, y, z, yaw
+        self.reference = torch.zeros((num_envs, 6), device=dev)  # x, y, z, yaw, roll, pitch
+        self.setpoint = self.reference[:, :4]  # x, y, z, yaw (a view)
+        self.reference_vel = torch.zeros((num_envs, 6), device=dev)  # the same order, per second
+        self.reference_acc = torch.zeros((num_envs, 6), device=dev)
         self.steps = torch.zeros(num_envs, dtype=torch.int64, device=dev)
+        self._xy_allow = torch.full((num_envs,), fail_distance, device=dev)
         self._scale = torch.tensor([self.wrench_scale[0]] * 3 + [self.wrench_scale[1]] * 3, device=dev)
         self._loss = torch.zeros(num_envs, device=dev)
-        self.dt = float(dt)
+        self._centre = torch.tensor(self.centre, device=dev)
+        terms.setup()  # after the actuator: a payload's cycle hooks run after the coils'
+        self.obs_slices: dict[str, slice] = {}
+        col = 0
+        for name, width in (*OBS_PARTS, *terms.extra_obs):
+            self.obs_slices[name] = slice(col, col + width)
+            col += width
+        n_act = self.actuator.slots if action == "currents" else 6
+        self._set_spaces(gym.spaces.Box(-np.inf, np.inf, (col,), np.float32),
+                         gym.spaces.Box(-1.0, 1.0, (n_act,), np.float32))
+
+    #: benchmark metric tracker (:func:`magwarp.metrics.Metrics` attaches one); adds ``info["metrics"]``
+    benchmark_metrics = None
+    num_movers = 1
+
+    def scripted_policy(self):
+        """The scripted baseline (:class:`magwarp.policies.levitation.LevitationPD`), as ``magwarp eval`` uses it."""
+        from magwarp.policies.levitation import LevitationPD
+
+        return LevitationPD(self)
 
     # ------------------------------------------------------------------ episodes
     def _reset_envs(self, mask: torch.Tensor) -> None:
-        n, dev = self.num_envs, self.device
-        xy = torch.tensor(self.centre, device=dev) + (2 * self._rand(n, 2) - 1) * self.start_range
+        n = self.num_envs
+        xy = self._centre + (2 * self._rand(n, 2) - 1) * self.start_range
         yaw = (2 * self._rand(n) - 1) * math.pi
+        xy, gap, ref, allow = self.task_terms.episode(mask, xy, yaw)
         start_pos = self.sim.start_pos
-        new_pos = torch.cat([xy, torch.full((n, 1), self.mover.hover_z, device=dev)], 1)[:, None]
+        new_pos = torch.cat([xy, (gap + self.bottom)[:, None]], 1)[:, None]
         start_pos.copy_(torch.where(mask[:, None, None], new_pos, start_pos))
         quat = torch.stack([torch.zeros_like(yaw), torch.zeros_like(yaw), torch.sin(0.5 * yaw),
                             torch.cos(0.5 * yaw)], -1)[:, None]
         self.sim.start_quat.copy_(torch.where(mask[:, None, None], quat, self.sim.start_quat))
         self.sim.reset(mask)
-        if self.task == "hover":
-            sp = torch.cat([new_pos[:, 0], yaw[:, None]], 1)
-        else:
-            d = (2 * self._rand(n, 2) - 1) * self.setpoint_range
-            gap = self.setpoint_gap[0] + (self.setpoint_gap[1] - self.setpoint_gap[0]) * self._rand(n)
-            dyaw = (2 * self._rand(n) - 1) * self.setpoint_yaw
-            sp = torch.cat([xy + d, (gap + self.bottom)[:, None], _wrap(yaw + dyaw)[:, None]], 1)
-        self.setpoint.copy_(torch.where(mask[:, None], sp, self.setpoint))
+        self.reference.copy_(torch.where(mask[:, None], ref, self.reference))
+        self._xy_allow.copy_(torch.where(mask, allow, self._xy_allow))
         self.steps.masked_fill_(mask, 0)
+        self.task_terms.advance()  # a moving reference at t = 0 (its rates)
         zero = torch.zeros_like(self.actuator.currents)
         self.actuator.currents.copy_(torch.where(mask[:, None, None], zero, self.actuator.currents))
         self.actuator.refresh()  # the slots' coils at the new poses
@@ -212,8 +230,9 @@ class LevitationEnv(MagwarpVecEnv):
         before = self.actuator.energy[:, 0].clone()
         self.sim.step(self.num_cycles)
         # the mean copper loss over the step's cycles (W): the energy it spent over its duration
-        self._loss.copy_((self.actuator.energy[:, 0] - before) / (self.num_cycles * self.dt))
+        self._loss.copy_((self.actuator.energy[:, 0] - before) / self.step_dt)
         self.steps += 1
+        self.task_terms.advance()
 
     def _state(self) -> tuple[torch.Tensor, ...]:
         pos = self.sim.pos[:, 0]
@@ -222,13 +241,15 @@ class LevitationEnv(MagwarpVecEnv):
 
     def _get_obs(self) -> torch.Tensor:
         pos, rpy, vel, omega = self._state()
-        return torch.cat([pos, rpy, vel, omega, self.setpoint, pos - self.setpoint[:, :3]], 1)
+        parts = [pos, rpy, vel, omega, self.setpoint, pos - self.reference[:, :3], *self.task_terms.observe()]
+        return torch.cat(parts, 1)
 
     def errors(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Position error (m) and rotation error (rad: tilt and yaw error together) ``[N]`` each."""
+        """Position error (m) and rotation error (rad: roll, pitch and yaw errors together) ``[N]`` each."""
         pos, rpy, _, _ = self._state()
-        pos_err = torch.linalg.vector_norm(pos - self.setpoint[:, :3], dim=1)
-        rot = torch.stack([rpy[:, 0], rpy[:, 1], _wrap(rpy[:, 2] - self.setpoint[:, 3])], 1)
+        ref = self.reference
+        pos_err = torch.linalg.vector_norm(pos - ref[:, :3], dim=1)
+        rot = torch.stack([rpy[:, 0] - ref[:, 4], rpy[:, 1] - ref[:, 5], wrap(rpy[:, 2] - ref[:, 3])], 1)
         return pos_err, torch.linalg.vector_norm(rot, dim=1)
 
     def _evaluate(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
@@ -236,14 +257,18 @@ class LevitationEnv(MagwarpVecEnv):
         pos_err, rot_err = self.errors()
         loss = self._loss
         gap = pos[:, 2] - self.bottom
-        xy_err = torch.linalg.vector_norm(pos[:, :2] - self.setpoint[:, :2], dim=1)
+        xy_err = torch.linalg.vector_norm(pos[:, :2] - self.reference[:, :2], dim=1)
         failed = ((gap < self.fail_gap[0]) | (gap > self.fail_gap[1]) | (rpy[:, :2].abs().amax(1) > self.fail_tilt)
-                  | (xy_err > self.fail_distance))
-        reward = -(pos_err / self.pos_scale + rot_err / self.rot_scale) - self.loss_weight * loss
+                  | (xy_err > self._xy_allow))
+        weight = self.task_terms.tracking_weight()
+        reward = -weight * (pos_err / self.pos_scale + rot_err / self.rot_scale) - self.loss_weight * loss
         reward = torch.where(failed, torch.full_like(reward, self.failure_reward), reward)
         truncated = (self.steps >= self.max_episode_steps) & ~failed
+        success = ~failed & (pos_err <= self.success_tol[0]) & (rot_err <= self.success_tol[1])
         info = {"copper_loss": loss, "pos_error": pos_err, "rot_error": rot_err, "failed": failed,
-                "saturated": self.actuator.saturated[:, 0].sum(1)}
+                "is_success": success, "saturated": self.actuator.saturated[:, 0].sum(1)}
+        if self.benchmark_metrics is not None:
+            info["metrics"] = self.benchmark_metrics.on_step(obs, info, failed, truncated)
         return reward, failed, truncated, info
 
     # ------------------------------------------------------------------ views
@@ -264,4 +289,20 @@ class LevitationEnv(MagwarpVecEnv):
     def state_arrays(self, worlds) -> dict[str, Any]:
         out = super().state_arrays(worlds)
         out.update(self.sim.state_arrays(worlds))
+        idx = torch.as_tensor(worlds, dtype=torch.int64, device=self.device)
+        out["reference"] = self.reference[idx].cpu().numpy()
+        swing = getattr(self.task_terms, "swing", None)
+        if swing is not None:
+            out["pendulum_rod"], out["pendulum_rod_rate"] = (t[idx].cpu().numpy() for t in (swing.rod, swing.rod_rate))
         return out
+
+
+def _tolerance(value) -> tuple[float, float]:
+    """``success_tol``: two positive finite numbers (m, rad)."""
+    try:
+        pos, rot = (float(v) for v in value)
+    except (TypeError, ValueError):
+        pos = rot = float("nan")
+    if not all(math.isfinite(v) and 0 < v <= 1.0 for v in (pos, rot)):
+        raise ValueError(f"success_tol must be two numbers in (0, 1] (m, rad), got {value!r}")
+    return pos, rot

@@ -5,7 +5,8 @@ on every ``env.step`` returns ``info["metrics"]`` (per-world counters, no host s
 reduces the accumulators per group of consecutive worlds (e.g. one evaluation repeat each), ``m.reset(mask)`` zeroes
 worlds and ``m.freeze(mask)`` stops counting in worlds whose evaluation episode is over. Definitions:
 :mod:`magwarp.kernels.metrics`, :mod:`magwarp.metrics.trajectory`, :mod:`magwarp.metrics.push`,
-:mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.pick_place`, :mod:`magwarp.metrics.swarm`.
+:mod:`magwarp.metrics.platform`, :mod:`magwarp.metrics.pick_place`, :mod:`magwarp.metrics.swarm`,
+:mod:`magwarp.metrics.levitation`.
 """
 
 from __future__ import annotations
@@ -36,6 +37,12 @@ def Metrics(env, **kwargs):  # noqa: N802 - a factory that reads like the class 
         from magwarp.metrics.platform import PlatformMetrics
 
         return PlatformMetrics(base, **kwargs)
+    from magwarp.envs.levitation import LevitationEnv
+
+    if isinstance(base, LevitationEnv):
+        from magwarp.metrics.levitation import LevitationMetrics
+
+        return LevitationMetrics(base, **kwargs)
     if isinstance(base, TrajectoryPlanningEnv):
         return TrajectoryMetrics(base, **kwargs)
     from magwarp.swarm.env import SwarmEnv
@@ -47,4 +54,4 @@ def Metrics(env, **kwargs):  # noqa: N802 - a factory that reads like the class 
     if isinstance(base, PushEnv):
         return PushTaskMetrics(base, **kwargs)
     raise TypeError(f"no benchmark metrics for {type(base).__name__}; expected a trajectory planning, push, platform, "
-                    f"pick-and-place or swarm env")
+                    f"pick-and-place, swarm or levitation env")
