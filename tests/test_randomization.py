@@ -259,6 +259,8 @@ def test_object_ranges_keep_the_randomised_mover_mass():
     (lambda: EventTerm("obstacle_xy", Uniform(0.9, 1.1), op="scale"), "'scale' is not allowed"),
     (lambda: EventTerm("payload_mass", Uniform(0.1, 0.2), op="scale"), "'scale' is not allowed"),
     (lambda: EventTerm("mover_mass", Uniform(0.1, 0.2), offset=(0, 0, 0.01)), "payload_mass"),
+    (lambda: EventTerm("mover_mass", Uniform(0.1, 0.2), known=True), "payload_mass' only"),
+    (lambda: EventTerm("payload_mass", Uniform(0.1, 0.2), known="yes"), "'yes'"),
     (lambda: EventTerm("object_mass", {"beta": [1, 2]}), "beta"),
     (lambda: EventTerm("object_mass", {"type": "uniform", "low": 1, "hi": 2}), "low"),
 ])
@@ -274,6 +276,7 @@ def test_bad_terms_name_the_value(term, match):
     (EventTerm("object_friction", Uniform(-0.1, 0.1)), "must stay >= 0"),
     (EventTerm("mover_mass", Uniform(1.0, 2.0), targets=(3,)), r"targets \(3,\) out of range"),
     (EventTerm("obstacle_xy", Uniform(0, 0.1), op="add"), "has none"),
+    (EventTerm("payload_mass", Uniform(0, 0.1), known=True), "known=True"),
     ({"field": "object_mass", "dist": Uniform(0.1, 0.2), "when": "reset"}, "when"),
 ])
 def test_bad_terms_for_the_env_name_the_value(dyn, term, match):

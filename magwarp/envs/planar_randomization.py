@@ -16,7 +16,11 @@ Fields, one draw per target (movers; the margins: one per world), ``dim`` compon
   centre): adds to the mass as above, moves the centre of mass by ``offset p / (m + p)`` (gravity then has a torque
   about the centre, where the levitation carries the weight; the impedance hold resists the tilt) and adds
   ``mu (|r|^2 - r_i^2)`` to the principal moments (parallel axis, ``mu = m p / (m + p)``; products of inertia
-  dropped).
+  dropped). ``known=True``: the controller is configured for the payload (XPlanar's payload parametrisation, as
+  in the XBot's ``PayloadWeight`` setting): its mass becomes ``m_ctrl + p``, so the x/y motion follows the commands
+  (F = (m_ctrl + p) a_cmd = (m + p) a with the nominal mover) and the z damping is ``2 sqrt(K (m_ctrl + p))``; the
+  centre of mass, the inertia and the weight change as without it. Without it (the default) the payload is
+  unknown to the controller, which then lags its commands like a heavier mover.
 * ``stiffness_lin`` / ``stiffness_rot`` (3 each: x, y, z / roll, pitch, yaw): the impedance gains on the held axes;
   the damping follows, ``2 sqrt(K m_ctrl)`` / ``2 sqrt(K I_ctrl)`` (critical for the nominal mover). Their largest
   value must be stable at the cycle time for the lightest mover the terms allow (the simulator's own bound).
@@ -82,6 +86,7 @@ class PlanarRandomizer(EventRunner):
         if any(f in BODY_KEYS for f in used):
             views = {field: sim.mover_params[key] for field, key in BODY_KEYS.items()}
             self.payload_offset = sim.mover_params["payload_offset"]
+            self.payload_known = sim.mover_params["payload_known"]
         views.update({"collision_radius": sim.radii, "collision_half_size": sim.half_sizes,
                       "collision_margin": sim.margins[:, :1], "wall_margin": sim.margins[:, 1:]})
         return {f: views[f] for f in used}

@@ -201,7 +201,9 @@ class EventTerm:
     """One randomisation: ``field`` <- ``op``(nominal, draw from ``dist``) when ``mode`` says.
 
     ``targets``: indices of the field's targets (movers, objects, obstacles) to change (default: all).
-    ``offset``: ``payload_mass`` only, where the payload sits (see the module doc)."""
+    ``offset``: ``payload_mass`` only, where the payload sits (see the module doc).
+    ``known``: ``payload_mass`` only, the controller is configured for the payload it draws (planar simulator only:
+    see :mod:`magwarp.envs.planar_randomization`)."""
 
     field: str
     dist: Any
@@ -210,6 +212,7 @@ class EventTerm:
     interval_steps: int | None = None
     targets: tuple[int, ...] | None = None
     offset: tuple[float, float, float] | None = None
+    known: bool = False
 
     def __post_init__(self):
         if self.field not in FIELDS:
@@ -244,6 +247,10 @@ class EventTerm:
             if len(off) != 3:
                 raise ValueError(f"EventTerm('payload_mass').offset must be (x, y, z) in m, got {self.offset!r}")
             object.__setattr__(self, "offset", tuple(_finite(v, "EventTerm('payload_mass').offset") for v in off))
+        if not isinstance(self.known, (bool, np.bool_)):
+            raise ValueError(f"EventTerm({self.field!r}).known must be True or False, got {self.known!r}")
+        if self.known and self.field != "payload_mass":
+            raise ValueError(f"EventTerm({self.field!r}).known is for 'payload_mass' only")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -283,17 +290,34 @@ FIELDS = {
 }
 
 #: Named sets of terms (``randomization="sim2real"``, e.g. from ``--env-kwargs``), per backend: ``"planar"`` (the
-#: trajectory-planning env's simulator) or ``"push"`` (the mujoco-warp push envs). Ranges: mover mass +-20 % (a
-#: payload of up to 0.3 kg on top of the mover: off the vertical axis it would tilt the planar simulator's mover
-#: against the RL envs' weak attitude hold, K = 0.1 N m/rad, by tenths of a radian), impedance stiffness +-30 %,
-#: acceleration and speed limits -10 % .. 0 (a drive that delivers a little less than asked); on the push envs object
-#: mass and friction, mover mass and a payload. All drawn at every reset of a world. (Collision sizes are left out:
-#: starts are sampled with the built sizes, see :mod:`magwarp.envs.planar_randomization`.)
+#: trajectory-planning env's simulator) or ``"push"`` (the mujoco-warp push envs). All drawn at every reset of a world.
+#: Where the planar ranges come from (XPlanar-like; assumptions where no datasheet figure is at hand):
+#:
+#: * ``mover_mass`` x 0.8 .. 1.25 (log-uniform): the true mass against the one the controller is configured for, i.e. a
+#:   gain error of +-20 % on the delivered x/y acceleration (an unconfigured part of the payload, the drive's force
+#:   constant over the air gap and temperature). An assumption, on the generous side: XPlanar's drive closes its
+#:   position loop around the setpoints the PLC sends, so a mismatch shows as a transient tracking error, not as a
+#:   lasting gain error.
+#: * ``payload_mass`` 0 .. 0.3 kg on the top surface (6 mm above the centre), ``known``: the payload a real cell
+#:   configures (XPlanar's payload parametrisation; Planar Motor's XBot takes ``PayloadWeight`` and its centre of
+#:   gravity the same way), so the controller's feedforward includes it and x/y follows the commands; it still moves
+#:   the centre of mass, the inertia and the weight the levitation carries. An *unknown* 0.3 kg on the 0.63 kg B0
+#:   mover would make it deliver 68 % of every commanded acceleration for the whole episode, which a closed-loop
+#:   planar drive does not do (it was the preset until #24's audit; ``known=False`` still models it).
+#: * ``stiffness_lin`` / ``stiffness_rot`` x 0.7 .. 1.3: the z/attitude hold is the simulator's impedance law, not
+#:   XPlanar's controller; +-30 % covers that model error.
+#: * ``a_max`` / ``v_max`` x 0.9 .. 1.0: a drive that delivers a little less than the datasheet's 10 m/s^2, 2 m/s.
+#:
+#: On the push envs: object mass (0.2 .. 0.4 kg) and friction (0.6 +- 0.1, clipped), mover mass as above and a
+#: payload of up to 0.3 kg (unknown to their controller, which drives every world with the built mass: on the
+#: 1.24 kg push mover at most a 19 % lag). Collision sizes are left out: they are safety margins the user sets, not
+#: physical tolerances (and starts are sampled with the built sizes, see :mod:`magwarp.envs.planar_randomization`).
+#: Latency and sensor models are env options, not terms (``benchmarks/robustness.py`` says which values it uses).
 PRESETS: dict[str, dict[str, list[dict]]] = {
     "sim2real": {
         "planar": [
             {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
-            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.0, 0.0, 0.006]},
+            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.0, 0.0, 0.006], "known": True},
             {"field": "stiffness_lin", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
             {"field": "stiffness_rot", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
             {"field": "a_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale"},
@@ -385,6 +409,8 @@ class EventRunner:
     the values into it (:meth:`commit`)."""
 
     BACKEND = ""
+    #: ``[W, M]``, the payload the controller is configured for (``EventTerm.known``), where the backend has one
+    payload_known: torch.Tensor | None = None
 
     def __init__(self, env, terms, num_worlds: int, device):
         self.terms = as_terms(terms, self.BACKEND)
@@ -504,6 +530,15 @@ class EventRunner:
                     self.payload_offset.copy_(po_new)
                 else:
                     self.payload_offset[:, idx] = po_new
+                if self.payload_known is not None:  # the controller's configured payload: the draw or none
+                    pk = self.payload_known if idx is None else self.payload_known[:, idx]
+                    pk_new = new.to(pk.dtype) if t.known else torch.zeros_like(pk)
+                    if mask is not None:
+                        pk_new = torch.where(mask.view(-1, 1), pk_new, pk)
+                    if idx is None:
+                        self.payload_known.copy_(pk_new)
+                    else:
+                        self.payload_known[:, idx] = pk_new
         return fired
 
 
@@ -536,6 +571,11 @@ class Randomizer(EventRunner):
     # ------------------------------------------------------------------ construction
     def _resolve_targets(self, env, used) -> dict[str, int]:
         b, mjm = self.backend, self.backend.mjm
+        known = [i for i, t in enumerate(self.terms) if t.known]
+        if known:
+            raise ValueError(f"randomization[{known[0]}] ('payload_mass', known=True): the push envs' controller "
+                             "drives every world with the built mover mass; a known payload is for the planar "
+                             "simulator (the trajectory env)")
         if "object_mass" in used and getattr(env, "variants", None) is not None:
             raise ValueError("randomization of 'object_mass' with a varying object_ranges: its object variants set "
                              "the object's mass rows at every reset; use object_ranges' 'mass' range instead")
