@@ -86,7 +86,7 @@ for stage in "$@"; do
     train_dr)
       # #24: a B0 PPO policy trained with the sim2real randomisation, latency and sensor models (5 minutes)
       B0='"num_cycles":120,"collision_shape":"box","collision_size":[0.09,0.09],"mover_params":{"size":[0.0565,0.0565,0.006],"mass":0.63}'
-      DR='"randomization":"sim2real","actuation":{"latency_range":[0,5]},"sensors":{"pos_bias_std":0.001,"vel_bias_std":0.01,"pos_noise_std":0.0005,"vel_noise_std":0.005,"dropout_prob":0.02}'
+      DR='"randomization":"sim2real","actuation":{"latency_range":[0,5]},"sensors":{"pos_bias_std":0.001,"vel_bias_std":0.01,"pos_noise_std":0.0005,"vel_noise_std":0.005}'
       timeout 590 python3 -m magwarp.training.ppo --env-id magwarp/TrajectoryPlanningB0-v0 --device cuda:0 \
         --minutes 5 --no-progress --out "$OUT/b0_ppo_dr" --env-kwargs "{$B0,\"max_episode_steps\":40,$DR}" \
         --eval-env-kwargs "{$B0,$DR}" 2>&1 | tail -15 ;;
