@@ -38,7 +38,8 @@ Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its 
 
 * object sizes: ``object_width``, ``object_height``, ``object_depth``, ``object_segment_width``, ``object_radius``
   (uniform, op ``set``, mode ``reset``): the env's ``object_ranges`` as terms (:func:`object_ranges_from_terms`),
-  drawn per episode from ``object_variants`` pre-compiled variants, with the same draws for the same seed.
+  drawn per episode from ``object_variants`` pre-compiled variants, with the same draws for the same seed; with
+  them, an ``object_mass`` term of that form is the ranges' ``"mass"``.
 
 Where today's options are not re-expressed as terms: ``PushWithObstaclesEnv``'s obstacle modes (``random``,
 ``curriculum``) place the walls with rules (clear of the start, of each other), not as independent draws per wall:
@@ -370,17 +371,22 @@ def object_ranges_from_terms(terms: list[EventTerm]) -> tuple[list[EventTerm], d
     is ``object_ranges={"width": (lo, hi)}``, with the same draws for the same seed. Sizes change the object's
     geometry, which mujoco-warp's collision, the coverage tables and the start sampling read, so they come from
     ``object_variants`` pre-compiled variants (a pool, not a continuous draw per world): other distributions,
-    operations or modes are refused, naming the term."""
+    operations or modes are refused, naming the term. With size terms, an ``object_mass`` term of that form is the
+    variants' ``"mass"`` range too (``object_ranges={"width": .., "mass": ..}``, the same draws); without them it stays
+    a continuous per-world draw (:class:`Randomizer`; other draws than ``object_ranges={"mass": ..}``)."""
     rest, ranges = [], {}
+    sizes = any(t.field in OBJECT_SIZE_FIELDS for t in terms)
     for i, t in enumerate(terms):
         key = OBJECT_SIZE_FIELDS.get(t.field)
+        if key is None and sizes and t.field == "object_mass":
+            key = "mass"
         if key is None:
             rest.append(t)
             continue
         if not isinstance(t.dist, Uniform) or t.op != "set" or t.mode != "reset" or t.targets not in (None, (0,)):
-            raise ValueError(f"randomization[{i}] ({t.field!r}): object sizes are drawn per episode from object "
-                             f"variants (object_ranges): a uniform distribution, op 'set', mode 'reset' only; got "
-                             f"{t.dist!r}, op {t.op!r}, mode {t.mode!r}")
+            raise ValueError(f"randomization[{i}] ({t.field!r}): object sizes (and, with them, the object's mass) are "
+                             f"drawn per episode from object variants (object_ranges): a uniform distribution, op "
+                             f"'set', mode 'reset' only; got {t.dist!r}, op {t.op!r}, mode {t.mode!r}")
         if key in ranges:
             raise ValueError(f"randomization[{i}] ({t.field!r}) repeats an object size term")
         ranges[key] = (t.dist.lo, t.dist.hi)
