@@ -39,7 +39,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from magwarp._checks import stiffness_limit
 from magwarp.envs.randomization import EventRunner, EventTerm
 
 __all__ = ["PlanarRandomizer"]
@@ -108,23 +107,11 @@ class PlanarRandomizer(EventRunner):
 
     def _check_stiffness(self, i: int, t: EventTerm) -> None:
         sim = self.sim
-        dt = float(sim.model.limits.dt)
         rot = t.field == "stiffness_rot"
-        hold = [sim.model.impedance.mask_rot if rot else sim.model.impedance.mask_lin][0]
-        if not any(float(v) for v in hold):
-            return
-        if rot:
-            inertia = [self.extreme(u)[0] for u in self.terms if u.field == "mover_inertia"]
-            least = min(inertia) if inertia else float(np.min(np.asarray(sim.mover.inertia)))
-        else:
-            mass = [self.extreme(u)[0] for u in self.terms if u.field == "mover_mass"]
-            least = min(mass) if mass else float(sim.mover.mass)
-            least = min(least, float(self.nominal["mover_mass"].min()))
-        top, limit = self.extreme(t)[1], stiffness_limit(least, dt)
-        if not top < limit:
-            raise ValueError(f"randomization[{i}] ({t.field!r}) can make the stiffness {top:g}, unstable at dt = "
-                             f"{dt:g} s for a mover of {least:.4g} {'kg m^2' if rot else 'kg'} (the stable limit is "
-                             f"{limit:.4g}, K < M (0.828 / dt)^2)")
+        held = sim.model.impedance.mask_rot if rot else sim.model.impedance.mask_lin
+        if any(float(v) for v in held):
+            self.check_stiffness_stable(i, t, float(sim.model.limits.dt), float(sim.mover.mass),
+                                        float(np.min(np.asarray(sim.mover.inertia))))
 
     # ------------------------------------------------------------------ model writes
     def commit(self, mask: torch.Tensor | None) -> None:

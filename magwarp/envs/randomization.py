@@ -36,6 +36,15 @@ Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its 
   ``obstacle_boxes`` (observations, checks and rendering read them). Not with obstacle modes that move the walls per
   episode (``PushWithObstaclesEnv`` ``random``, ``curriculum`` or a mix).
 
+* ``mover_inertia`` (per mover, 3 principal moments, kg m^2): the mover body's ``body_inertia`` (instead of the
+  nominal scaled with ``mover_mass``); the impedance law's damping keeps the built inertia.
+* the control law's ``stiffness_lin`` (3; the law holds z only, so the z component acts, x/y are driven),
+  ``stiffness_rot`` (3: roll, pitch, yaw), ``v_max``, ``a_max``, ``j_max`` (per mover): the law's gains and x/y
+  limits per world (:meth:`~magwarp.physics.MjwBackend.batch_control`); the damping follows ``2 sqrt(K m)`` with the
+  built mass and inertia. The largest stiffness must be stable at ``physics_dt`` for the lightest mover.
+* ``collision_radius`` (circles), ``collision_half_size`` (2: boxes), ``collision_margin`` and ``wall_margin`` (one
+  per world): the per-cycle geometric checks' sizes (:meth:`~magwarp.physics.mover_checks.MoverChecks.per_world`);
+  starts are still sampled with the built sizes.
 * object sizes: ``object_width``, ``object_height``, ``object_depth``, ``object_segment_width``, ``object_radius``
   (uniform, op ``set``, mode ``reset``): the env's ``object_ranges`` as terms (:func:`object_ranges_from_terms`),
   drawn per episode from ``object_variants`` pre-compiled variants, with the same draws for the same seed; with
@@ -67,6 +76,8 @@ import mujoco
 import numpy as np
 import torch
 import warp as wp
+
+from magwarp._checks import stiffness_limit
 
 __all__ = ["FIELDS", "PRESETS", "EventRunner", "EventTerm", "Gaussian", "LogUniform", "Randomizer", "Uniform", "as_terms",
            "object_ranges_from_terms"]
@@ -277,7 +288,7 @@ FIELDS = {
     "object_depth": FieldSpec(1, 0.0, True, OPS),
     "object_segment_width": FieldSpec(1, 0.0, True, OPS),
     "object_radius": FieldSpec(1, 0.0, True, OPS),
-    # the planar simulator's (magwarp.envs.planar_randomization)
+    # the planar simulator's (magwarp.envs.planar_randomization) and the push backend's control law and checks
     "mover_inertia": FieldSpec(3, 0.0, True, OPS),
     "stiffness_lin": FieldSpec(3, 0.0, False, OPS),
     "stiffness_rot": FieldSpec(3, 0.0, False, OPS),
@@ -359,6 +370,11 @@ def as_terms(terms, backend: str | None = None) -> list[EventTerm]:
             raise ValueError(f"randomization[{i}] must be an EventTerm or a mapping, got {t!r}")
     return out
 
+
+#: the push control law's per-world fields (:meth:`magwarp.physics.MjwBackend.batch_control`) and the per-cycle
+#: collision check's (:meth:`magwarp.physics.mover_checks.MoverChecks.per_world`)
+CONTROL_FIELDS = ("stiffness_lin", "stiffness_rot", "v_max", "a_max", "j_max")
+COLLISION_FIELDS = ("collision_radius", "collision_half_size", "collision_margin", "wall_margin")
 
 #: object size fields -> ``object_ranges`` keys
 OBJECT_SIZE_FIELDS = {"object_width": "width", "object_height": "height", "object_depth": "depth",
@@ -491,6 +507,20 @@ class EventRunner:
             raise ValueError(f"randomization[{i}] ({t.field!r}, op {t.op!r}, {t.dist!r}) can make {t.field} "
                              f"{least:g}, but it must stay {rel} {spec.lower:g}{hint}")
 
+    def check_stiffness_stable(self, i: int, t: EventTerm, dt: float, mass: float, inertia: float) -> None:
+        """Refuse a stiffness term whose largest value is unstable at ``dt`` for the lightest mover the terms allow
+        (``mass`` / ``inertia``: the built mover's, the least principal moment for ``stiffness_rot``)."""
+        rot = t.field == "stiffness_rot"
+        field = "mover_inertia" if rot else "mover_mass"
+        drawn = [self.extreme(u)[0] for u in self.terms if u.field == field]
+        least = min([float(self.nominal[field].min()) if field in self.nominal else np.inf,
+                     inertia if rot else mass, *drawn])
+        top, limit = self.extreme(t)[1], stiffness_limit(least, dt)
+        if not top < limit:
+            raise ValueError(f"randomization[{i}] ({t.field!r}) can make the stiffness {top:g}, unstable at dt = "
+                             f"{dt:g} s for a mover of {least:.4g} {'kg m^2' if rot else 'kg'} (the stable limit is "
+                             f"{limit:.4g}, K < M (0.828 / dt)^2)")
+
     # ------------------------------------------------------------------ events
     def reset(self, mask: torch.Tensor) -> None:
         """Reset-mode terms for the worlds in ``mask``; rewrites their randomised model entries (after a reset that
@@ -570,9 +600,18 @@ class Randomizer(EventRunner):
             names.add("geom_friction")
         if "obstacle_xy" in used:
             names.add("geom_pos")
+        if "mover_inertia" in used:
+            names |= {"body_mass", "body_subtreemass", "body_inertia", "body_ipos", "body_invweight0", "dof_invweight0"}
         self.fields = b.batch_model_fields(sorted(names))
         if "floor_friction" in used:
             self._floor_priority(mjm)
+        self.control = b.batch_control() if used & set(CONTROL_FIELDS) else None
+        self.collision = self.env.checks.per_world() if used & set(COLLISION_FIELDS) else None
+        for i, t in enumerate(self.terms):
+            if t.field in ("stiffness_lin", "stiffness_rot"):
+                mass = float(self._body_nominal["mover"]["mass"].min()) if b.num_movers else np.inf
+                inertia = float(self._body_nominal["mover"]["inertia"].min()) if b.num_movers else np.inf
+                self.check_stiffness_stable(i, t, b.dt, mass, inertia)
 
     # ------------------------------------------------------------------ construction
     def _resolve_targets(self, env, used) -> dict[str, int]:
@@ -595,9 +634,17 @@ class Randomizer(EventRunner):
         for g in self.obstacle_geoms:
             if mjm.body_weldid[mjm.geom_bodyid[g]] != 0:
                 raise ValueError(f"obstacle geom {g} is not attached to the world body; obstacle_xy moves static geoms")
-        return {"object_mass": b.num_objects, "mover_mass": b.num_movers, "payload_mass": b.num_movers,
-                "object_friction": b.num_objects, "floor_friction": int(bool(self.floor_geoms)),
-                "obstacle_xy": len(self.obstacle_geoms)}
+        m = b.num_movers
+        checks = getattr(env, "checks", None)
+        circle = checks is not None and env.mover.collision_shape == "circle"
+        box = checks is not None and not circle
+        out = {"object_mass": b.num_objects, "mover_mass": m, "payload_mass": m, "mover_inertia": m,
+               "object_friction": b.num_objects, "floor_friction": int(bool(self.floor_geoms)),
+               "obstacle_xy": len(self.obstacle_geoms), "collision_radius": m if circle else 0,
+               "collision_half_size": m if box else 0, "collision_margin": int(checks is not None),
+               "wall_margin": int(checks is not None)}
+        out.update({f: m for f in CONTROL_FIELDS})
+        return out
 
     def _floor_priority(self, mjm) -> None:
         """Give the floor contact priority over the object, with the object's contact parameters as nominal."""
@@ -653,6 +700,15 @@ class Randomizer(EventRunner):
             "floor_friction": self._owner_index([self.floor_geoms]),
         }
         out["obstacle_xy"] = t(mjm.geom_pos[self.obstacle_geoms, :2].reshape(-1, 2))
+        out["mover_inertia"] = t(mjm.body_inertia[b.mover_body].reshape(-1, 3))
+        c, m = b.control, b.num_movers
+        out.update({"stiffness_lin": t(np.tile(c.k_lin, (m, 1))), "stiffness_rot": t(np.tile(c.k_rot, (m, 1))),
+                    "v_max": t(np.full(m, c.v_max)), "a_max": t(np.full(m, c.a_max)), "j_max": t(np.full(m, c.j_max))})
+        mover = getattr(self.env, "mover", None)
+        if mover is not None:
+            out.update({"collision_radius": t(np.full(m, mover.collision_radius)),
+                        "collision_half_size": t(np.tile(mover.collision_half_size, (m, 1))),
+                        "collision_margin": t([mover.margin]), "wall_margin": t([mover.wall_margin])})
         self._obstacle_index = torch.as_tensor(self.obstacle_geoms, device=dev, dtype=torch.long)
         return out
 
@@ -668,10 +724,26 @@ class Randomizer(EventRunner):
         v = self.values
         if "object_mass" in v:
             self._commit_bodies("object", v["object_mass"], None, None, mask)
-        if "mover_mass" in v or "payload_mass" in v:
+        if "mover_mass" in v or "payload_mass" in v or "mover_inertia" in v:
             mass = v.get("mover_mass", self.nominal["mover_mass"].expand(self.num_worlds, -1))
             pay = v.get("payload_mass")
-            self._commit_bodies("mover", mass, pay, self.payload_offset if pay is not None else None, mask)
+            self._commit_bodies("mover", mass, pay, self.payload_offset if pay is not None else None, mask,
+                                own_inertia=v.get("mover_inertia"))
+        if self.control is not None:
+            gains, limits = self.control["gains"], self.control["limits"]
+            for col, (field, k) in enumerate((("stiffness_lin", 2), ("stiffness_rot", 0), ("stiffness_rot", 1),
+                                              ("stiffness_rot", 2))):
+                if field in v:
+                    _put(gains, (slice(None), slice(None), col), v[field][..., k], mask)
+            for col, field in enumerate(("v_max", "a_max", "j_max")):
+                if field in v:
+                    _put(limits, (slice(None), slice(None), col), v[field], mask)
+        if self.collision is not None:
+            for field, key, index in (("collision_radius", "radius", ()), ("collision_half_size", "half_size", ()),
+                                      ("collision_margin", "margins", (0,)), ("wall_margin", "margins", (1,))):
+                if field in v:
+                    value = v[field][:, 0] if index else v[field]
+                    _put(self.collision[key], (slice(None), *index), value, mask)
         for name in ("object_friction", "floor_friction"):
             if name in v:
                 geoms, owner = self._geom_owner[name]
@@ -686,11 +758,11 @@ class Randomizer(EventRunner):
             if boxes is not None and boxes.shape[1] == len(self.obstacle_geoms):
                 _put(boxes, (slice(None), slice(None), slice(0, 2)), v["obstacle_xy"], mask)
 
-    def _commit_bodies(self, group: str, mass, payload, offset, mask) -> None:
+    def _commit_bodies(self, group: str, mass, payload, offset, mask, own_inertia=None) -> None:
         n, f = self._body_nominal[group], self.fields
         bi = n["bodies"]
-        s = mass / n["mass"]  # uniform-density scale of the body itself
-        inertia = s[..., None] * n["inertia"]
+        s = mass / n["mass"]  # uniform-density scale of the body itself (unless its inertia is randomised too)
+        inertia = s[..., None] * n["inertia"] if own_inertia is None else own_inertia
         ipos = n["ipos"].expand(mass.shape[0], -1, -1)
         total = mass
         if payload is not None:
