@@ -70,6 +70,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--vf-coef", type=float, default=1.0)
     p.add_argument("--max-grad-norm", type=float, default=1.0)
     p.add_argument("--hidden", default=None, help="hidden layer sizes, comma separated")
+    p.add_argument("--activation", choices=tuple(ACTIVATIONS), default=None,
+                   help="hidden activation (default elu); relu or tanh keep the policy inside the operator list of "
+                   "Beckhoff's real-time MLP runtime (magwarp export --target twincat-mlp refuses Elu)")
     p.add_argument("--init-log-std", type=float, default=None)
     p.add_argument("--no-norm-reward", action="store_true", help="do not scale rewards by the return's running std")
     p.add_argument("--squash", choices=("clip", "tanh"), default=None,
@@ -88,7 +91,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 def resolve_args(args: argparse.Namespace) -> argparse.Namespace:
     """Fill unset options: from the checkpoint when resuming, then the task preset, then the defaults."""
     args = resolve_run_args(args, PRESETS, DEFAULT_ENV, "ppo")
-    for name, default in (("squash", "clip"), ("cuda_graph", "auto"), ("compile", "off"), ("amp", "off")):
+    for name, default in (("squash", "clip"), ("cuda_graph", "auto"), ("compile", "off"), ("amp", "off"),
+                          ("activation", "elu")):
         if getattr(args, name, None) is None:  # checkpoints of earlier versions lack the option
             setattr(args, name, default)
     for name in ("num_envs", "num_steps", "num_minibatches", "update_epochs"):
@@ -98,6 +102,8 @@ def resolve_args(args: argparse.Namespace) -> argparse.Namespace:
 
 
 _LOG2 = math.log(2.0)
+#: ``--activation``: the hidden layers' nonlinearity
+ACTIVATIONS = {"elu": nn.ELU, "relu": nn.ReLU, "tanh": nn.Tanh}
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
@@ -117,12 +123,15 @@ class Agent(nn.Module):
     in [-1, 1] (clip, or tanh); ``amp``: bf16 autocast of the networks (outputs in float32)."""
 
     def __init__(self, n_obs: int, n_act: int, hidden: list[int], init_log_std: float, squash: str = "clip",
-                 amp: str = "off"):
+                 amp: str = "off", activation: str = "elu"):
         super().__init__()
         if squash not in ("clip", "tanh"):
             raise ValueError(f"squash must be 'clip' or 'tanh', got {squash!r}")
-        self.actor_mean = mlp(n_obs, hidden, n_act)
-        self.critic = mlp(n_obs, hidden, 1)
+        if activation not in ACTIVATIONS:
+            raise ValueError(f"activation must be one of {', '.join(ACTIVATIONS)}, got {activation!r}")
+        act = ACTIVATIONS[activation]
+        self.actor_mean = mlp(n_obs, hidden, n_act, act)
+        self.critic = mlp(n_obs, hidden, 1, act)
         self.log_std = nn.Parameter(torch.full((n_act,), float(init_log_std)))
         nn.init.orthogonal_(self.actor_mean[-1].weight, 0.01)
         nn.init.zeros_(self.actor_mean[-1].bias)
@@ -265,7 +274,7 @@ def _train(args: argparse.Namespace) -> dict:
     N, T = env.num_envs, args.num_steps  # sub-envs: the worlds, or every mover of every world (swarms' agent view)
     hidden = [int(h) for h in str(args.hidden).split(",")]
 
-    agent = Agent(n_obs, n_act, hidden, args.init_log_std, args.squash, args.amp).to(device)
+    agent = Agent(n_obs, n_act, hidden, args.init_log_std, args.squash, args.amp, args.activation).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.lr, eps=1e-5)
     update = PpoUpdate(agent, optimizer, args, device, n_obs, n_act, num_envs=N)
     obs_rms = RunningMeanStd(n_obs, device, clip=10.0)
