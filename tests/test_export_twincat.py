@@ -258,9 +258,9 @@ def test_ppo_relu_policy_fits_twincat_mlp(tmp_path):
     from magwarp.training import ppo
 
     run = tmp_path / "run"
-    ppo.train(ppo.parse_args(["--env-id", "magwarp/TrajectoryPlanning-v0", "--env-kwargs",
-                              '{"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]], "num_movers": 1}', "--device", "cpu", "--num-envs", "16",
-                              "--num-steps", "8", "--hidden", "16,16", "--activation", "relu", "--total-steps", "256",
-                              "--no-progress", "--eval-steps", "4", "--out", str(run)]))
+    kwargs = '{"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]], "num_movers": 1}'
+    ppo.train(ppo.parse_args(["--env-id", "magwarp/TrajectoryPlanning-v0", "--env-kwargs", kwargs, "--device", "cpu",
+                              "--num-envs", "16", "--num-steps", "8", "--hidden", "16,16", "--activation", "relu",
+                              "--total-steps", "256", "--no-progress", "--eval-steps", "4", "--out", str(run)]))
     info = export_onnx(str(run / "policy.pt"), str(tmp_path / "p.onnx"), target="twincat-mlp")
     assert "Relu" in info["operators"] and set(info["operators"]) <= MLP_OPS

@@ -357,8 +357,8 @@ class MjwBackend:
             dim=(self.num_worlds, self.num_movers),
             inputs=[
                 self._qadr, self._dadr, self._mass, self._inertia, self._hover_z, self._gains, self._limits,
-                self.dt, int(c.jerk), self._yaw_drive, self.data.qpos, self.data.qvel, self.cmd, self.cmd_c, self.acc, self.acc_c,
-                self.yaw_track,
+                self.dt, int(c.jerk), self._yaw_drive, self.data.qpos, self.data.qvel, self.cmd, self.cmd_c, self.acc,
+                self.acc_c, self.yaw_track,
             ],
             outputs=[self.data.qfrc_applied],
             device=self.device,
