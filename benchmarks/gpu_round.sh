@@ -94,7 +94,7 @@ for stage in "$@"; do
       # #24: the shipped B0 policy and the randomisation-trained one, nominal and under randomisation
       timeout 590 python3 benchmarks/robustness.py --device cuda:0 --episodes 100 --repeats 100 \
         --policy pretrained:b0_ppo --policy "${DR_POLICY:-$OUT/b0_ppo_dr/policy.pt}" \
-        --conditions nominal,terms,latency,sensors,randomised --json "$OUT/robustness_gpu.json" 2>&1 | tail -20 ;;
+        --conditions nominal,terms,latency,sensors,randomised,dropout --json "$OUT/robustness_gpu.json" 2>&1 | tail -20 ;;
     *) echo "unknown stage $stage"; exit 2 ;;
   esac
 done

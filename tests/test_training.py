@@ -118,6 +118,34 @@ def test_policy_file_contract_and_resume(tmp_path):
     assert (tmp_path / "progress.csv").read_text() == csv_before
 
 
+def test_init_policy_warm_starts_the_actor_and_normaliser(tmp_path):
+    """--init-policy: the agent's deterministic action is the policy file's (actor and normaliser loaded), a run
+    starts from it, and a file that does not fit the run is refused naming the difference."""
+    ppo = _example("train_ppo")
+    ppo.train(_ppo_args(tmp_path / "a", "--total-steps", "2048"))
+    path = str(tmp_path / "a" / "policy.pt")
+    policy = torch.jit.load(path, map_location="cpu")
+    scale = torch.full((2,), 10.0)
+    from magwarp.training.common import RunningMeanStd
+
+    agent, obs_rms = ppo.Agent(6, 2, [64, 64], -0.5), RunningMeanStd(6, "cpu")
+    ppo.init_from_policy(path, agent, obs_rms, scale, "clip")
+    x = torch.randn(32, 6) * torch.tensor([0.2, 0.2, 0.2, 0.2, 1.0, 1.0])
+    with torch.no_grad():
+        ours = agent.to_action(agent.actor_mean(obs_rms.normalize(x))) * scale
+        torch.testing.assert_close(ours, policy(x), rtol=1e-5, atol=1e-5)
+    assert float(obs_rms.count) == ppo.INIT_POLICY_COUNT
+    for bad, match in (((ppo.Agent(6, 2, [32, 32], -0.5), "clip"), "--hidden"),
+                       ((ppo.Agent(6, 2, [64, 64], -0.5, activation="relu"), "clip"), "--activation"),
+                       ((ppo.Agent(6, 2, [64, 64], -0.5, squash="tanh"), "tanh"), "--squash")):
+        with pytest.raises(ValueError, match=match):
+            ppo.init_from_policy(path, bad[0], RunningMeanStd(6, "cpu"), scale, bad[1])
+    with pytest.raises(ValueError, match="action scale"):
+        ppo.init_from_policy(path, ppo.Agent(6, 2, [64, 64], -0.5), RunningMeanStd(6, "cpu"), scale * 2, "clip")
+    summary = ppo.train(_ppo_args(tmp_path / "b", "--total-steps", "1024", "--init-policy", path))
+    assert summary["global_step"] >= 1024
+
+
 def test_budget_is_required(tmp_path):
     ppo = _example("train_ppo")
     args = ppo.parse_args(["--env-id", TINY_ENV, "--out", str(tmp_path)])

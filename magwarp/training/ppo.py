@@ -6,6 +6,7 @@ value of the episode's last observation (``info["final_obs"]``, since the env re
 
     python -m magwarp.training.ppo --env-id magwarp/TrajectoryPlanningB0-v0 --device cuda --minutes 15 --out runs/b0_ppo
     python -m magwarp.training.ppo --resume runs/b0_ppo --minutes 5          # continue the same run
+    python -m magwarp.training.ppo --init-policy pretrained:b0_ppo ...      # fine-tune a policy file (new critic)
     magwarp train magwarp/TrajectoryPlanningB0-v0 --algo ppo --minutes 15     # the same, through the CLI
     torchrun --standalone --nproc-per-node 4 -m magwarp.training.ppo --env-id ...   # 4 GPUs (--num-envs per GPU)
 
@@ -70,6 +71,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--vf-coef", type=float, default=1.0)
     p.add_argument("--max-grad-norm", type=float, default=1.0)
     p.add_argument("--hidden", default=None, help="hidden layer sizes, comma separated")
+    p.add_argument("--init-policy", default=None,
+                   help="warm start: the actor and observation normaliser of a policy file (e.g. pretrained:b0_ppo, "
+                   "to fine-tune it under domain randomisation); same --hidden, --activation, --squash and action "
+                   "scale; the critic starts fresh")
     p.add_argument("--activation", choices=tuple(ACTIVATIONS), default=None,
                    help="hidden activation (default elu); relu or tanh keep the policy inside the operator list of "
                    "Beckhoff's real-time MLP runtime (magwarp export --target twincat-mlp refuses Elu)")
@@ -267,6 +272,45 @@ def train(args: argparse.Namespace) -> dict:
     return run_training(args, resolve_args, _train)
 
 
+#: how many observations the normaliser loaded by ``--init-policy`` counts as (its running statistics then move slowly
+#: towards the new env's: a few hundred iterations of 16,384 worlds)
+INIT_POLICY_COUNT = 1e6
+
+
+def init_from_policy(path: str, agent: Agent, obs_rms: RunningMeanStd, action_scale: torch.Tensor, squash: str) -> None:
+    """Load a policy file's actor network and observation normaliser into ``agent`` and ``obs_rms`` (a warm start;
+    the critic and the log std stay as built). Refused, naming the difference, unless the file's network has the
+    same layers, activation, squash, observation size and action scale."""
+    from magwarp.training.policy import load_policy
+    from magwarp.training.pretrained import resolve_policy
+
+    flat = load_policy(resolve_policy(path)).flat
+    theirs, ours = flat.net.state_dict(), agent.actor_mean.state_dict()
+    shapes = {k: tuple(v.shape) for k, v in theirs.items()}
+    want = {k: tuple(v.shape) for k, v in ours.items()}
+    acts = [getattr(m, "original_name", type(m).__name__) for m in flat.net.children()]
+    own_acts = [type(m).__name__ for m in agent.actor_mean.children()]
+    problems = []
+    if shapes != want:
+        problems.append(f"its network's layers {sorted(set(shapes.values()))} are not this run's "
+                        f"{sorted(set(want.values()))} (--hidden)")
+    elif acts != own_acts:
+        problems.append(f"its layers {acts} are not this run's {own_acts} (--activation)")
+    if bool(flat.use_tanh) != (squash == "tanh"):
+        problems.append(f"it squashes with {'tanh' if flat.use_tanh else 'clip'}, this run with {squash} (--squash)")
+    if flat.obs_mean.numel() != obs_rms.mean.numel():
+        problems.append(f"it takes {flat.obs_mean.numel()} observations, this env gives {obs_rms.mean.numel()}")
+    elif not torch.allclose(flat.action_scale.cpu(), action_scale.detach().cpu().to(torch.float32)):
+        problems.append(f"its action scale {flat.action_scale.tolist()} is not this env's {action_scale.tolist()}")
+    if problems:
+        raise ValueError(f"--init-policy {path}: " + "; ".join(problems))
+    agent.actor_mean.load_state_dict(theirs)
+    dev = obs_rms.mean.device
+    obs_rms.mean.copy_(flat.obs_mean.to(dev, torch.float64))
+    obs_rms.var.copy_((flat.obs_std.to(dev, torch.float64).square() - 1e-8).clamp(min=0.0))
+    obs_rms.count.fill_(INIT_POLICY_COUNT)
+
+
 def _train(args: argparse.Namespace) -> dict:
     main_rank, world = dist.is_main(), dist.world_size()
     seed, env, base, n_obs, n_act, action_scale = open_env(args)
@@ -291,6 +335,10 @@ def _train(args: argparse.Namespace) -> dict:
         target_state = ckpt.get("target")
         if main_rank:
             print(f"resumed from {args.resume} at step {global_step:,} (iteration {iteration})")
+    elif getattr(args, "init_policy", None):
+        init_from_policy(args.init_policy, agent, obs_rms, action_scale, args.squash)
+        if main_rank:
+            print(f"actor and observation normaliser from {args.init_policy}")
     dist.broadcast_([*agent.parameters(), *agent.buffers()])  # every rank starts from rank 0's weights
 
     # Rollout storage, on the device.
