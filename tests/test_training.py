@@ -142,8 +142,27 @@ def test_init_policy_warm_starts_the_actor_and_normaliser(tmp_path):
             ppo.init_from_policy(path, bad[0], RunningMeanStd(6, "cpu"), scale, bad[1])
     with pytest.raises(ValueError, match="action scale"):
         ppo.init_from_policy(path, ppo.Agent(6, 2, [64, 64], -0.5), RunningMeanStd(6, "cpu"), scale * 2, "clip")
-    summary = ppo.train(_ppo_args(tmp_path / "b", "--total-steps", "1024", "--init-policy", path))
-    assert summary["global_step"] >= 1024
+    # with --critic-warmup, the first iterations train the critic only: the actor (and its std) stays the file's
+    summary = ppo.train(_ppo_args(tmp_path / "b", "--total-steps", "2048", "--init-policy", path, "--critic-warmup", "5"))
+    assert summary["global_step"] >= 2048
+    ckpt = torch.load(str(tmp_path / "b" / "checkpoint.pt"), map_location="cpu", weights_only=False)
+    for k, v in policy.flat.net.state_dict().items():  # (the normaliser keeps learning the env's statistics)
+        assert torch.equal(ckpt["agent"][f"actor_mean.{k}"], v), k
+    assert torch.equal(ckpt["agent"]["log_std"], torch.full((2,), -0.5))
+    fresh = ppo.Agent(6, 2, [64, 64], -0.5)
+    critic = {k: v for k, v in ckpt["agent"].items() if k.startswith("critic")}
+    assert all(critic[k].shape == v.shape for k, v in fresh.state_dict().items() if k.startswith("critic"))
+    assert ckpt["lr"] == 3e-4  # the adaptive learning rate waited
+    # when the actor starts, its Adam state starts from zero (steps counted from then; the critic's from the start)
+    ppo.train(_ppo_args(tmp_path / "d", "--total-steps", "3072", "--init-policy", path, "--critic-warmup", "1"))
+    ckpt = torch.load(str(tmp_path / "d" / "checkpoint.pt"), map_location="cpu", weights_only=False)
+    names = [k for k, _ in ppo.Agent(6, 2, [64, 64], -0.5).named_parameters()]
+    steps = {n: float(ckpt["optimizer"]["state"][i]["step"]) for i, n in enumerate(names)}
+    per_iteration = steps["critic.0.weight"] / 3
+    assert per_iteration >= 1 and steps["actor_mean.0.weight"] == steps["log_std"] == 2 * per_iteration
+    ppo.train(_ppo_args(tmp_path / "c", "--total-steps", "2048", "--init-policy", path))
+    ckpt = torch.load(str(tmp_path / "c" / "checkpoint.pt"), map_location="cpu", weights_only=False)
+    assert not torch.equal(ckpt["agent"]["actor_mean.0.weight"], policy.flat.net.state_dict()["0.weight"])
 
 
 def test_budget_is_required(tmp_path):
