@@ -143,7 +143,8 @@ def test_init_policy_warm_starts_the_actor_and_normaliser(tmp_path):
     with pytest.raises(ValueError, match="action scale"):
         ppo.init_from_policy(path, ppo.Agent(6, 2, [64, 64], -0.5), RunningMeanStd(6, "cpu"), scale * 2, "clip")
     # with --critic-warmup, the first iterations train the critic only: the actor (and its std) stays the file's
-    summary = ppo.train(_ppo_args(tmp_path / "b", "--total-steps", "2048", "--init-policy", path, "--critic-warmup", "5"))
+    summary = ppo.train(_ppo_args(tmp_path / "b", "--total-steps", "2048", "--init-policy", path,
+                                  "--critic-warmup", "5"))
     assert summary["global_step"] >= 2048
     ckpt = torch.load(str(tmp_path / "b" / "checkpoint.pt"), map_location="cpu", weights_only=False)
     for k, v in policy.flat.net.state_dict().items():  # (the normaliser keeps learning the env's statistics)
