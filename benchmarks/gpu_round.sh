@@ -103,8 +103,9 @@ for stage in "$@"; do
       # #24: the shipped B0 policy and the randomisation-trained ones (each that exists), nominal and randomised
       FT=(); [ -f "$OUT/b0_ppo_dr_ft/policy.pt" ] && FT=(--policy "$OUT/b0_ppo_dr_ft/policy.pt")
       timeout 590 python3 benchmarks/robustness.py --device cuda:0 --episodes 100 --repeats 100 \
-        --policy pretrained:b0_ppo --policy "${DR_POLICY:-$OUT/b0_ppo_dr/policy.pt}" "${FT[@]}" \
-        --conditions nominal,terms,latency,sensors,randomised,dropout --json "$OUT/robustness_gpu.json" 2>&1 | tail -20 ;;
+        --policy pretrained:b0_ppo --policy "${DR_POLICY:-$OUT/b0_ppo_dr/policy.pt}" ${FT[@]+"${FT[@]}"} \
+        --conditions nominal,terms,latency,sensors,randomised,dropout --json "$OUT/robustness_gpu.json" 2>&1 \
+        | tail -20 ;;
     *) echo "unknown stage $stage"; exit 2 ;;
   esac
 done

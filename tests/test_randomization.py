@@ -276,7 +276,6 @@ def test_bad_terms_name_the_value(term, match):
     (EventTerm("object_friction", Uniform(-0.1, 0.1)), "must stay >= 0"),
     (EventTerm("mover_mass", Uniform(1.0, 2.0), targets=(3,)), r"targets \(3,\) out of range"),
     (EventTerm("obstacle_xy", Uniform(0, 0.1), op="add"), "has none"),
-    (EventTerm("payload_mass", Uniform(0, 0.1), known=True), "known=True"),
     ({"field": "object_mass", "dist": Uniform(0.1, 0.2), "when": "reset"}, "when"),
 ])
 def test_bad_terms_for_the_env_name_the_value(dyn, term, match):
@@ -378,3 +377,25 @@ def test_control_and_collision_fields_act_per_world(rng):
     for f, v in r.values.items():
         assert torch.equal(v[~mask], before[f][~mask]), f
         assert not torch.equal(v[mask], before[f][mask]), f
+
+
+def test_known_payload_keeps_commanded_motion(rng):
+    """A payload the controller is configured for (known=True): the law's mass is mover + payload in the reset
+    worlds, so F = (m + p) a_cmd accelerates the loaded mover by a_cmd; an unknown one lags, 1.24 a_cmd / (m + p)."""
+    p = 0.3
+    for known in (True, False):
+        env = PushBoxEnv(4, device="cpu", seed=_seed(rng),
+                         randomization=[EventTerm("payload_mass", Uniform(p, p), known=known)])
+        b, r = env.backend, env.randomizer
+        env.reset(seed=_seed(rng))
+        mask = torch.tensor([True, False, True, False])
+        r.payload_known.zero_()
+        r.values["payload_mass"].zero_()
+        r.commit(None)
+        r.reset(mask)
+        law = r.control["mass"][:, 0] if known else torch.full((4,), 1.24)
+        torch.testing.assert_close(law, torch.where(mask, 1.24 + p * known, 1.24), rtol=1e-6, atol=0)
+        a_cmd = torch.tensor(rng.uniform(-3, 3, (4, 2)), dtype=torch.float32)
+        env.step(a_cmd)
+        gain = torch.where(mask, 1.0 if known else 1.24 / (1.24 + p), 1.0)
+        torch.testing.assert_close(b.mover_qacc[:, 0, :2], a_cmd * gain[:, None], rtol=2e-4, atol=1e-5)

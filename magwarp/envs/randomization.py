@@ -24,7 +24,10 @@ Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its 
   (x, y, z in the mover's body frame, from its nominal centre of mass; default at it) added to the mover body: the
   mass, the centre of mass (``body_ipos``), and the inertia by the parallel-axis theorem about the new centre of mass
   (the diagonal terms in the body's principal frame; the products of inertia ``-mu r_i r_j`` of an offset off the
-  principal axes are dropped), with the same caveats as ``mover_mass``.
+  principal axes are dropped), with the same caveats as ``mover_mass``. ``known=True``: the controller is
+  configured for the payload (XPlanar's payload parametrisation): the law's mass becomes mover + payload per world
+  (:meth:`~magwarp.physics.MjwBackend.batch_control`), so x/y follows the commands and the z damping is
+  ``2 sqrt(K_z (m + p))``.
 * ``object_friction`` (per object) and ``floor_friction`` (one per world): the sliding coefficient of the object's
   geoms, of the colliding tile geoms. The object's geoms have contact priority 1 (MuJoCo then takes their friction
   for every contact of the object), so with a ``floor_friction`` term the tiles get priority 2 (set once, for all
@@ -214,8 +217,8 @@ class EventTerm:
 
     ``targets``: indices of the field's targets (movers, objects, obstacles) to change (default: all).
     ``offset``: ``payload_mass`` only, where the payload sits (see the module doc).
-    ``known``: ``payload_mass`` only, the controller is configured for the payload it draws (planar simulator only:
-    see :mod:`magwarp.envs.planar_randomization`)."""
+    ``known``: ``payload_mass`` only, the controller is configured for the payload it draws: its drive force is
+    (mover + payload) x commanded acceleration, so x/y follows the commands (XPlanar's payload parametrisation)."""
 
     field: str
     dist: Any
@@ -320,10 +323,10 @@ FIELDS = {
 #:   XPlanar's controller; +-30 % covers that model error.
 #: * ``a_max`` / ``v_max`` x 0.9 .. 1.0: a drive that delivers a little less than the datasheet's 10 m/s^2, 2 m/s.
 #:
-#: On the push envs: object mass (0.2 .. 0.4 kg) and friction (0.6 +- 0.1, clipped), mover mass as above and a
-#: payload of up to 0.3 kg (unknown to their controller, which drives every world with the built mass: on the
-#: 1.24 kg push mover at most a 19 % lag). Collision sizes are left out: they are safety margins the user sets, not
-#: physical tolerances (and starts are sampled with the built sizes, see :mod:`magwarp.envs.planar_randomization`).
+#: On the push envs: object mass (0.2 .. 0.4 kg) and friction (0.6 +- 0.1, clipped), mover mass and a known payload of
+#: up to 0.3 kg (off centre, 2 cm in x and 1 cm up) as above. Collision sizes are left out: they are safety margins the
+#: user sets, not physical tolerances (and starts are sampled with the built sizes, see
+#: :mod:`magwarp.envs.planar_randomization`).
 #: Latency and sensor models are env options, not terms (``benchmarks/robustness.py`` says which values it uses).
 PRESETS: dict[str, dict[str, list[dict]]] = {
     "sim2real": {
@@ -339,7 +342,7 @@ PRESETS: dict[str, dict[str, list[dict]]] = {
             {"field": "object_mass", "dist": {"uniform": [0.2, 0.4]}},
             {"field": "object_friction", "dist": {"gaussian": [0.6, 0.1], "clip": [0.3, 0.9]}},
             {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
-            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.02, 0.0, 0.01]},
+            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.02, 0.0, 0.01], "known": True},
         ],
     },
 }
@@ -475,6 +478,7 @@ class EventRunner:
         """``values`` (the nominal ones in every world) and ``payload_offset`` (``[W, M, 3]``, zero)."""
         if "payload_mass" in used:
             self.payload_offset = torch.zeros(self.num_worlds, self._targets["payload_mass"], 3, device=self.device)
+            self.payload_known = torch.zeros(self.num_worlds, self._targets["payload_mass"], device=self.device)
         return {f: self.nominal[f].expand(self.num_worlds, *self.nominal[f].shape).clone() for f in used}
 
     def commit(self, mask: torch.Tensor | None) -> None:
@@ -605,7 +609,10 @@ class Randomizer(EventRunner):
         self.fields = b.batch_model_fields(sorted(names))
         if "floor_friction" in used:
             self._floor_priority(mjm)
-        self.control = b.batch_control() if used & set(CONTROL_FIELDS) else None
+        self._known = any(t.known for t in self.terms)
+        self.control = b.batch_control() if used & set(CONTROL_FIELDS) or self._known else None
+        if self.control is not None:
+            self._law_mass = self.control["mass"][0].clone()  # the built mover's (the law's nominal)
         self.collision = self.env.checks.per_world() if used & set(COLLISION_FIELDS) else None
         for i, t in enumerate(self.terms):
             if t.field in ("stiffness_lin", "stiffness_rot"):
@@ -616,11 +623,6 @@ class Randomizer(EventRunner):
     # ------------------------------------------------------------------ construction
     def _resolve_targets(self, env, used) -> dict[str, int]:
         b, mjm = self.backend, self.backend.mjm
-        known = [i for i, t in enumerate(self.terms) if t.known]
-        if known:
-            raise ValueError(f"randomization[{known[0]}] ('payload_mass', known=True): the push envs' controller "
-                             "drives every world with the built mover mass; a known payload is for the planar "
-                             "simulator (the trajectory env)")
         if "object_mass" in used and getattr(env, "variants", None) is not None:
             raise ValueError("randomization of 'object_mass' with a varying object_ranges: its object variants set "
                              "the object's mass rows at every reset; use object_ranges' 'mass' range instead")
@@ -729,6 +731,8 @@ class Randomizer(EventRunner):
             pay = v.get("payload_mass")
             self._commit_bodies("mover", mass, pay, self.payload_offset if pay is not None else None, mask,
                                 own_inertia=v.get("mover_inertia"))
+        if self._known:
+            _put(self.control["mass"], (slice(None),), self._law_mass + self.payload_known, mask)
         if self.control is not None:
             gains, limits = self.control["gains"], self.control["limits"]
             for col, (field, k) in enumerate((("stiffness_lin", 2), ("stiffness_rot", 0), ("stiffness_rot", 1),

@@ -25,9 +25,10 @@ The control law per mover and control cycle (dt = model timestep) is
   The torque is ``I_zz a_c`` about the vertical: MagBotSim's actuator uses the mass as gain, so its "acceleration"
   is not one; ours is.
 
-The gains (``K_z``, ``K_r``) and the x/y limits are per mover, in one row shared by all worlds until domain
-randomisation makes them per world (:meth:`magwarp.physics.MjwBackend.batch_control`); the law's mass and inertia
-(drive force and damping) are the built mover's, whatever mass the model's body has.
+The law's mass (drive force and z damping), the gains (``K_z``, ``K_r``) and the x/y limits are per mover, in one row
+shared by all worlds until domain randomisation makes them per world (:meth:`magwarp.physics.MjwBackend.batch_control`):
+the mass is the built mover's (plus a payload the controller is configured for), whatever mass the model's body has;
+the inertia (rotational damping) is the built mover's.
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ def mover_control_kernel(
     # Model:
     qadr: wp.array[int],
     dadr: wp.array[int],
-    mass: wp.array[float],
+    mass: wp.array2d[float],  # the law's mass per mover (drive force, z damping); shared row or one per world
     inertia: wp.array[wp.vec3],
     hover_z: wp.array[float],
     gains: wp.array2d[wp.vec4],  # (k_lin_z, k_rot) per mover; one shared row or one per world (randomisation)
@@ -106,7 +107,7 @@ def mover_control_kernel(
     w, k = wp.tid()
     qa = qadr[k]
     da = dadr[k]
-    m = mass[k]
+    m = mass[model_row(mass.shape[0], w), k]
     g = gains[model_row(gains.shape[0], w), k]
     lw = limits[model_row(limits.shape[0], w), k]
     k_lin_z = g[0]
