@@ -6,7 +6,7 @@
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
-# train_dr and robustness (#24), compare (B0 env throughput of an older tree beside this one).
+# train_dr, train_dr_ft and robustness (#24), compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -113,15 +113,26 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
     train_dr)
       # #24: a B0 PPO policy trained with the sim2real randomisation, latency and sensor models (5 minutes)
       B0='"num_cycles":120,"collision_shape":"box","collision_size":[0.09,0.09],"mover_params":{"size":[0.0565,0.0565,0.006],"mass":0.63}'
-      DR='"randomization":"sim2real","actuation":{"latency_range":[0,5]},"sensors":{"pos_bias_std":0.001,"vel_bias_std":0.01,"pos_noise_std":0.0005,"vel_noise_std":0.005,"dropout_prob":0.02}'
+      DR='"randomization":"sim2real","actuation":{"latency_range":[0,5]},"sensors":{"pos_bias_std":0.001,"vel_bias_std":0.01,"pos_noise_std":0.0005,"vel_noise_std":0.005}'
       timeout 590 python3 -m magwarp.training.ppo --env-id magwarp/TrajectoryPlanningB0-v0 --device cuda:0 \
         --minutes 5 --no-progress --out "$OUT/b0_ppo_dr" --env-kwargs "{$B0,\"max_episode_steps\":40,$DR}" \
         --eval-env-kwargs "{$B0,$DR}" 2>&1 | tail -15 ;;
+    train_dr_ft)
+      # #24, alternative: the shipped B0 policy fine-tuned under the same randomisation (5 minutes): a fresh critic
+      # trained alone for 10 iterations, then PPO at a fine-tuning learning rate (3e-4 undid the policy on the CPU)
+      B0='"num_cycles":120,"collision_shape":"box","collision_size":[0.09,0.09],"mover_params":{"size":[0.0565,0.0565,0.006],"mass":0.63}'
+      DR='"randomization":"sim2real","actuation":{"latency_range":[0,5]},"sensors":{"pos_bias_std":0.001,"vel_bias_std":0.01,"pos_noise_std":0.0005,"vel_noise_std":0.005}'
+      timeout 590 python3 -m magwarp.training.ppo --env-id magwarp/TrajectoryPlanningB0-v0 --device cuda:0 \
+        --minutes 5 --no-progress --out "$OUT/b0_ppo_dr_ft" --init-policy pretrained:b0_ppo --init-log-std -2.5 \
+        --critic-warmup 10 --lr 1e-5 --env-kwargs "{$B0,\"max_episode_steps\":40,$DR}" \
+        --eval-env-kwargs "{$B0,$DR}" 2>&1 | tail -15 ;;
     robustness)
-      # #24: the shipped B0 policy and the randomisation-trained one, nominal and under randomisation
+      # #24: the shipped B0 policy and the randomisation-trained ones (each that exists), nominal and randomised
+      FT=(); [ -f "$OUT/b0_ppo_dr_ft/policy.pt" ] && FT=(--policy "$OUT/b0_ppo_dr_ft/policy.pt")
       timeout 590 python3 benchmarks/robustness.py --device cuda:0 --episodes 100 --repeats 100 \
-        --policy pretrained:b0_ppo --policy "${DR_POLICY:-$OUT/b0_ppo_dr/policy.pt}" \
-        --conditions nominal,terms,latency,sensors,randomised --json "$OUT/robustness_gpu.json" 2>&1 | tail -20 ;;
+        --policy pretrained:b0_ppo --policy "${DR_POLICY:-$OUT/b0_ppo_dr/policy.pt}" ${FT[@]+"${FT[@]}"} \
+        --conditions nominal,terms,latency,sensors,randomised,dropout --json "$OUT/robustness_gpu.json" 2>&1 \
+        | tail -20 ;;
     *) echo "unknown stage $stage"; exit 2 ;;
   esac
 done

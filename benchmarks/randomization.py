@@ -32,6 +32,13 @@ from magwarp.envs.randomization import PRESETS  # noqa: E402
 PUSH_TERMS = PRESETS["sim2real"]["push"] + [
     {"field": "floor_friction", "dist": {"uniform": [-0.2, 0.2]}, "op": "add", "mode": "interval",
      "interval_steps": 10},
+    {"field": "mover_inertia", "dist": {"uniform": [0.9, 1.1]}, "op": "scale"},
+    {"field": "stiffness_lin", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
+    {"field": "stiffness_rot", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
+    {"field": "a_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale"},
+    {"field": "v_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale"},
+    {"field": "collision_radius", "dist": {"uniform": [-0.005, 0.0]}, "op": "add"},
+    {"field": "wall_margin", "dist": {"uniform": [0.0, 0.002]}, "op": "add"},
 ]
 PLANAR_TERMS = PRESETS["sim2real"]["planar"] + [
     {"field": "mover_inertia", "dist": {"uniform": [0.9, 1.1]}, "op": "scale"},

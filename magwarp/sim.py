@@ -455,12 +455,14 @@ class Simulator:
         """Per-world mover parameters, ``[W, M]`` or ``[W, M, 3]`` float64 tensors on the device, which
         :meth:`commit_mover_params` packs into the model's :class:`~magwarp.types.Body` rows: ``mass`` (kg, the
         mover's own), ``inertia`` (its principal moments, kg m^2), ``payload`` (kg, a point mass) at
-        ``payload_offset`` (m, body frame from the mover centre), ``k_lin`` / ``k_rot`` (impedance stiffness),
-        ``v_max`` / ``a_max`` / ``j_max`` (x/y limits). Built on first use with the configured values (no payload).
+        ``payload_offset`` (m, body frame from the mover centre), ``payload_known`` (kg, the payload the controller
+        is configured for), ``k_lin`` / ``k_rot`` (impedance stiffness), ``v_max`` / ``a_max`` / ``j_max`` (x/y
+        limits). Built on first use with the configured values (no payload).
 
-        The controller keeps the configured mass and inertia (``mover.mass``, ``mover.inertia``): its x/y drive force
-        is ``mover.mass * a``, so a mover of true mass ``m`` (payload included) accelerates by ``mover.mass / m * a``;
-        its impedance damping is ``2 sqrt(K M)`` with the configured ``M`` (critical for the nominal mover); the
+        The controller keeps the configured mass and inertia (``mover.mass``, ``mover.inertia``) plus the payload it
+        knows of, ``m_c = mover.mass + payload_known``: its x/y drive force is ``m_c * a``, so a mover of true mass
+        ``m`` (payload included) accelerates by ``m_c / m * a`` (a known payload leaves the x/y motion as commanded);
+        its impedance damping is ``2 sqrt(K m_c)`` and ``2 sqrt(K I)`` with the configured ``I``; the
         levitation carries the true weight at the mover centre, so a payload off the vertical axis tilts the mover
         against the impedance hold (see :func:`magwarp.kernels.step.make_advance_kernel`)."""
         if self._mover_params is None:
@@ -473,15 +475,15 @@ class Simulator:
 
             p = self._mover_params = {
                 "mass": full(self.mover.mass), "inertia": full(list(self.mover.inertia), 3), "payload": full(0.0),
-                "payload_offset": full([0.0] * 3, 3), "k_lin": full(list(imp.k_lin), 3),
+                "payload_offset": full([0.0] * 3, 3), "payload_known": full(0.0), "k_lin": full(list(imp.k_lin), 3),
                 "k_rot": full(list(imp.k_rot), 3), "v_max": full(lim.v_max64), "a_max": full(lim.a_max64),
                 "j_max": full(lim.j_max64),
             }
             self._pack_mask = torch.ones(W, dtype=torch.bool, device=dev)
             vec = ("inertia", "payload_offset", "k_lin", "k_rot")
             arrays = {k: wp.from_torch(t, dtype=wp.vec3d if k in vec else wp.float64) for k, t in p.items()}
-            self._pack_inputs = [arrays[k] for k in ("mass", "inertia", "payload", "payload_offset", "k_lin", "k_rot",
-                                                     "v_max", "a_max", "j_max")]
+            self._pack_inputs = [arrays[k] for k in ("mass", "inertia", "payload", "payload_offset", "payload_known",
+                                                     "k_lin", "k_rot", "v_max", "a_max", "j_max")]
             self._pack_mask_wp = wp.from_torch(self._pack_mask, dtype=wp.bool)
         return self._mover_params
 

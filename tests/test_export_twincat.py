@@ -250,3 +250,17 @@ def test_twincat_command(tmp_path, capsys):
     assert main(["export", bad, "--onnx", str(tmp_path / "b.onnx"), "--target", "twincat"]) == 2
     err = capsys.readouterr().err
     assert "records no env id" in err and len(err.strip().splitlines()) == 1
+
+
+def test_ppo_relu_policy_fits_twincat_mlp(tmp_path):
+    """``--activation relu`` trains a PPO policy that the Gemm-and-activations target accepts (the default Elu is
+    refused): a tiny run, exported, its graph within Beckhoff's MLP list."""
+    from magwarp.training import ppo
+
+    run = tmp_path / "run"
+    kwargs = '{"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]], "num_movers": 1}'
+    ppo.train(ppo.parse_args(["--env-id", "magwarp/TrajectoryPlanning-v0", "--env-kwargs", kwargs, "--device", "cpu",
+                              "--num-envs", "16", "--num-steps", "8", "--hidden", "16,16", "--activation", "relu",
+                              "--total-steps", "256", "--no-progress", "--eval-steps", "4", "--out", str(run)]))
+    info = export_onnx(str(run / "policy.pt"), str(tmp_path / "p.onnx"), target="twincat-mlp")
+    assert "Relu" in info["operators"] and set(info["operators"]) <= MLP_OPS

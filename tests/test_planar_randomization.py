@@ -149,6 +149,31 @@ def test_heavier_mover_accelerates_as_f_equals_m_a():
     np.testing.assert_allclose(env.sim.pos[..., 2].numpy(), 0.01, atol=1e-6)
 
 
+def test_known_payload_keeps_commanded_motion_unknown_lags():
+    """A payload the controller is configured for (known=True): F = (m_ctrl + p) a_cmd = (m + p) a, the x/y motion is
+    as commanded; an unknown one lags, a = a_cmd m_ctrl / (m + p). Only the payload's worlds (reset mask) change."""
+    p = 0.31
+    for known, gain in ((True, 1.0), (False, MASS / (MASS + p))):
+        env = make(4, [EventTerm("payload_mass", Uniform(p, p), known=known)])
+        env.reset(seed=1)
+        mask = torch.tensor([True, False, True, False])
+        params = env.sim.mover_params
+        params["payload"].zero_()
+        params["payload_known"].zero_()
+        env.sim.commit_mover_params()
+        env.randomizer.reset(mask)
+        np.testing.assert_array_equal(params["payload_known"][:, 0].numpy(), [p * known, 0, p * known, 0])
+        cmd = torch.zeros(4, 3, 2)
+        cmd[..., 1] = 5.0
+        _one_cycle(env, cmd)
+        expect = np.where(mask.numpy(), 5.0 * gain * DT, 5.0 * DT)
+        np.testing.assert_allclose(env.sim.vel[:, :, 1].numpy(), expect[:, None].repeat(3, 1), rtol=1e-5)
+        body = env.sim.model.body.numpy()
+        m_c = MASS + p * known
+        np.testing.assert_allclose(body["damp_lin"][0, :, 2], 2 * np.sqrt(100.0 * m_c), rtol=1e-6)
+        np.testing.assert_allclose(body["mass"][0], MASS + p, rtol=1e-6)
+
+
 def test_payload_offset_gravity_torque():
     """A payload off centre: gravity's torque about the centre (the levitation carries the weight there) over the
     parallel-axis inertia, in the first cycle from rest."""
@@ -232,9 +257,10 @@ def test_pack_bodies_matches_numpy(rng):
     inertia = rng.uniform(1e-3, 5e-3, (W, M, 3))
     payload = np.where(rng.random((W, M)) < 0.5, 0.0, rng.uniform(0.0, 0.5, (W, M)))
     offset = rng.uniform(-0.03, 0.03, (W, M, 3))
+    known = np.where(rng.random((W, M)) < 0.5, 0.0, rng.uniform(0.0, 0.5, (W, M)))
     k_lin, k_rot = rng.uniform(1, 200, (W, M, 3)), rng.uniform(0.01, 2, (W, M, 3))
     for key, value in (("mass", mass), ("inertia", inertia), ("payload", payload), ("payload_offset", offset),
-                       ("k_lin", k_lin), ("k_rot", k_rot)):
+                       ("payload_known", known), ("k_lin", k_lin), ("k_rot", k_rot)):
         p[key].copy_(torch.as_tensor(value))
     mask = torch.as_tensor(rng.random(W) < 0.6)
     before = sim.model.body.numpy().copy()
@@ -253,8 +279,9 @@ def test_pack_bodies_matches_numpy(rng):
         np.testing.assert_allclose(b["inv_mass"][sel], 1 / total[sel], rtol=1e-6)
         np.testing.assert_allclose(b["inertia"][sel], ref_inertia[sel], rtol=1e-5)
         np.testing.assert_allclose(b["com"][sel], ref_com[sel], rtol=1e-5, atol=1e-9)
-        np.testing.assert_allclose(b["drive_gain"][sel], m_ctrl / total[sel], rtol=1e-12)
-        np.testing.assert_allclose(b["damp_lin"][sel], 2 * np.sqrt(k_lin[sel] * m_ctrl), rtol=1e-5)
+        m_c = m_ctrl + known  # the controller's mass: configured plus the payload it knows of
+        np.testing.assert_allclose(b["drive_gain"][sel], m_c[sel] / total[sel], rtol=1e-12)
+        np.testing.assert_allclose(b["damp_lin"][sel], 2 * np.sqrt(k_lin[sel] * m_c[sel][..., None]), rtol=1e-5)
         np.testing.assert_allclose(b["damp_rot"][sel], 2 * np.sqrt(k_rot[sel] * i_ctrl), rtol=1e-5)
         assert same(b[~sel], before[~sel])
 

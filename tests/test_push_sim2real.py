@@ -90,6 +90,16 @@ def test_object_size_terms_are_object_ranges():
     assert [s.width for s in a.variants.specs] == [s.width for s in b.variants.specs]
     assert torch.equal(a.object_variant, b.object_variant)
     assert a.object.height == 0.05 and a.randomizer is None
+    # with size terms, the object's mass term is object_ranges' "mass" (the same variants and draws)
+    terms_m = terms + [EventTerm("object_mass", Uniform(0.2, 0.4))]
+    c = PushBoxEnv(8, device="cpu", seed=3, object_variants=4, randomization=terms_m)
+    d = PushBoxEnv(8, device="cpu", seed=3, object_variants=4,
+                   object_ranges={"width": (0.04, 0.06), "height": (0.05, 0.05), "mass": (0.2, 0.4)})
+    assert [s.mass for s in c.variants.specs] == [s.mass for s in d.variants.specs]
+    assert len({s.mass for s in c.variants.specs}) == 4 and c.randomizer is None
+    assert torch.equal(c.object_variant, d.object_variant)
+    with pytest.raises(ValueError, match="object_mass.*uniform.*'set'.*'reset'"):
+        PushBoxEnv(2, device="cpu", randomization=terms + [EventTerm("object_mass", Uniform(0.2, 0.4), mode="startup")])
     with pytest.raises(ValueError, match="object_width.*uniform.*'set'.*'reset'"):
         PushBoxEnv(2, device="cpu", randomization=[EventTerm("object_width", Uniform(0.9, 1.1), op="scale")])
     with pytest.raises(ValueError, match="not both object_ranges="):

@@ -259,6 +259,8 @@ def test_object_ranges_keep_the_randomised_mover_mass():
     (lambda: EventTerm("obstacle_xy", Uniform(0.9, 1.1), op="scale"), "'scale' is not allowed"),
     (lambda: EventTerm("payload_mass", Uniform(0.1, 0.2), op="scale"), "'scale' is not allowed"),
     (lambda: EventTerm("mover_mass", Uniform(0.1, 0.2), offset=(0, 0, 0.01)), "payload_mass"),
+    (lambda: EventTerm("mover_mass", Uniform(0.1, 0.2), known=True), "payload_mass' only"),
+    (lambda: EventTerm("payload_mass", Uniform(0.1, 0.2), known="yes"), "'yes'"),
     (lambda: EventTerm("object_mass", {"beta": [1, 2]}), "beta"),
     (lambda: EventTerm("object_mass", {"type": "uniform", "low": 1, "hi": 2}), "low"),
 ])
@@ -328,3 +330,72 @@ def test_no_host_sync_on_cuda():
         torch.cuda.set_sync_debug_mode("default")
     assert torch.equal(r.values["object_mass"][~mask], before[~mask])
     assert torch.all(r.values["object_mass"][mask] != before[mask])
+
+
+def test_control_and_collision_fields_act_per_world(rng):
+    """The push backend's law and checks read each world's gains, limits, collision sizes and margins: an a_max term
+    clips each world's x/y acceleration to its own value, a mover_inertia term sets each world's body inertia (the
+    law's damping keeps the built one), collision margins flag only the worlds whose margin covers the gap, and the
+    stiffness terms land in the law's gains; worlds outside a reset mask keep theirs."""
+    terms = [EventTerm("a_max", Uniform(1.0, 4.0)), EventTerm("mover_inertia", Uniform(0.8, 1.2), op="scale"),
+             EventTerm("stiffness_lin", Uniform(0.5, 1.5), op="scale"),
+             EventTerm("stiffness_rot", Uniform(0.5, 1.5), op="scale"),
+             EventTerm("collision_half_size", Uniform(0.07, 0.09)), EventTerm("wall_margin", Uniform(0.0, 0.3))]
+    env = PushBoxEnv(6, device="cpu", seed=_seed(rng), randomization=terms, collision_shape="box")
+    b, r = env.backend, env.randomizer
+    env.reset(seed=_seed(rng))
+    a_max = r.values["a_max"][:, 0]
+    assert torch.all((a_max >= 1.0) & (a_max <= 4.0)) and a_max.unique().numel() == 6
+    cmd = torch.zeros(6, 1, 2)
+    cmd[..., 0] = 10.0  # above every world's limit: each clips to its own
+    b.step(cmd)
+    torch.testing.assert_close(b.acc_t[:, 0, 0], a_max, rtol=1e-6, atol=0)
+    inertia = r.fields["body_inertia"][:, int(b.mover_body[0])]
+    torch.testing.assert_close(inertia, r.values["mover_inertia"][:, 0])
+    gains = r.control["gains"][:, 0]
+    torch.testing.assert_close(gains[:, 0], r.values["stiffness_lin"][:, 0, 2])
+    torch.testing.assert_close(gains[:, 1:], r.values["stiffness_rot"][:, 0])
+    torch.testing.assert_close(r.collision["half_size"][:, 0], r.values["collision_half_size"][:, 0])
+    # a wall margin flags a world exactly when its footprint plus margin crosses the edge: the mover at rest near
+    # the grid's edge, distance d to it, flags the worlds with half + margin > d
+    env.reset(seed=_seed(rng))
+    half = r.values["collision_half_size"][:, 0, 0]
+    margin = r.values["wall_margin"][:, 0]
+    q = b.qpos_t[:, int(b.mover_qadr[0]):]
+    d = 0.2
+    q[:, 0], q[:, 1], q[:, 3:7] = d, 0.48, torch.tensor([1.0, 0.0, 0.0, 0.0])
+    b.qvel_t.zero_()
+    env.checks.clear()
+    b.step(torch.zeros(6, 1, 2))
+    expect = (half + margin) > d
+    assert 0 < int(expect.sum()) < 6, (half + margin)
+    assert torch.equal(env.checks.wall_collision, expect)
+    # a reset of some worlds redraws only theirs
+    before = {f: v.clone() for f, v in r.values.items()}
+    mask = torch.tensor([True, False, True, False, False, True])
+    r.reset(mask)
+    for f, v in r.values.items():
+        assert torch.equal(v[~mask], before[f][~mask]), f
+        assert not torch.equal(v[mask], before[f][mask]), f
+
+
+def test_known_payload_keeps_commanded_motion(rng):
+    """A payload the controller is configured for (known=True): the law's mass is mover + payload in the reset
+    worlds, so F = (m + p) a_cmd accelerates the loaded mover by a_cmd; an unknown one lags, 1.24 a_cmd / (m + p)."""
+    p = 0.3
+    for known in (True, False):
+        env = PushBoxEnv(4, device="cpu", seed=_seed(rng),
+                         randomization=[EventTerm("payload_mass", Uniform(p, p), known=known)])
+        b, r = env.backend, env.randomizer
+        env.reset(seed=_seed(rng))
+        mask = torch.tensor([True, False, True, False])
+        r.payload_known.zero_()
+        r.values["payload_mass"].zero_()
+        r.commit(None)
+        r.reset(mask)
+        law = r.control["mass"][:, 0] if known else torch.full((4,), 1.24)
+        torch.testing.assert_close(law, torch.where(mask, 1.24 + p * known, 1.24), rtol=1e-6, atol=0)
+        a_cmd = torch.tensor(rng.uniform(-3, 3, (4, 2)), dtype=torch.float32)
+        env.step(a_cmd)
+        gain = torch.where(mask, 1.0 if known else 1.24 / (1.24 + p), 1.0)
+        torch.testing.assert_close(b.mover_qacc[:, 0, :2], a_cmd * gain[:, None], rtol=2e-4, atol=1e-5)

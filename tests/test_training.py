@@ -118,6 +118,54 @@ def test_policy_file_contract_and_resume(tmp_path):
     assert (tmp_path / "progress.csv").read_text() == csv_before
 
 
+def test_init_policy_warm_starts_the_actor_and_normaliser(tmp_path):
+    """--init-policy: the agent's deterministic action is the policy file's (actor and normaliser loaded), a run
+    starts from it, and a file that does not fit the run is refused naming the difference."""
+    ppo = _example("train_ppo")
+    ppo.train(_ppo_args(tmp_path / "a", "--total-steps", "2048"))
+    path = str(tmp_path / "a" / "policy.pt")
+    policy = torch.jit.load(path, map_location="cpu")
+    scale = torch.full((2,), 10.0)
+    from magwarp.training.common import RunningMeanStd
+
+    agent, obs_rms = ppo.Agent(6, 2, [64, 64], -0.5), RunningMeanStd(6, "cpu")
+    ppo.init_from_policy(path, agent, obs_rms, scale, "clip")
+    x = torch.randn(32, 6) * torch.tensor([0.2, 0.2, 0.2, 0.2, 1.0, 1.0])
+    with torch.no_grad():
+        ours = agent.to_action(agent.actor_mean(obs_rms.normalize(x))) * scale
+        torch.testing.assert_close(ours, policy(x), rtol=1e-5, atol=1e-5)
+    assert float(obs_rms.count) == ppo.INIT_POLICY_COUNT
+    for bad, match in (((ppo.Agent(6, 2, [32, 32], -0.5), "clip"), "--hidden"),
+                       ((ppo.Agent(6, 2, [64, 64], -0.5, activation="relu"), "clip"), "--activation"),
+                       ((ppo.Agent(6, 2, [64, 64], -0.5, squash="tanh"), "tanh"), "--squash")):
+        with pytest.raises(ValueError, match=match):
+            ppo.init_from_policy(path, bad[0], RunningMeanStd(6, "cpu"), scale, bad[1])
+    with pytest.raises(ValueError, match="action scale"):
+        ppo.init_from_policy(path, ppo.Agent(6, 2, [64, 64], -0.5), RunningMeanStd(6, "cpu"), scale * 2, "clip")
+    # with --critic-warmup, the first iterations train the critic only: the actor (and its std) stays the file's
+    summary = ppo.train(_ppo_args(tmp_path / "b", "--total-steps", "2048", "--init-policy", path,
+                                  "--critic-warmup", "5"))
+    assert summary["global_step"] >= 2048
+    ckpt = torch.load(str(tmp_path / "b" / "checkpoint.pt"), map_location="cpu", weights_only=False)
+    for k, v in policy.flat.net.state_dict().items():  # (the normaliser keeps learning the env's statistics)
+        assert torch.equal(ckpt["agent"][f"actor_mean.{k}"], v), k
+    assert torch.equal(ckpt["agent"]["log_std"], torch.full((2,), -0.5))
+    fresh = ppo.Agent(6, 2, [64, 64], -0.5)
+    critic = {k: v for k, v in ckpt["agent"].items() if k.startswith("critic")}
+    assert all(critic[k].shape == v.shape for k, v in fresh.state_dict().items() if k.startswith("critic"))
+    assert ckpt["lr"] == 3e-4  # the adaptive learning rate waited
+    # when the actor starts, its Adam state starts from zero (steps counted from then; the critic's from the start)
+    ppo.train(_ppo_args(tmp_path / "d", "--total-steps", "3072", "--init-policy", path, "--critic-warmup", "1"))
+    ckpt = torch.load(str(tmp_path / "d" / "checkpoint.pt"), map_location="cpu", weights_only=False)
+    names = [k for k, _ in ppo.Agent(6, 2, [64, 64], -0.5).named_parameters()]
+    steps = {n: float(ckpt["optimizer"]["state"][i]["step"]) for i, n in enumerate(names)}
+    per_iteration = steps["critic.0.weight"] / 3
+    assert per_iteration >= 1 and steps["actor_mean.0.weight"] == steps["log_std"] == 2 * per_iteration
+    ppo.train(_ppo_args(tmp_path / "c", "--total-steps", "2048", "--init-policy", path))
+    ckpt = torch.load(str(tmp_path / "c" / "checkpoint.pt"), map_location="cpu", weights_only=False)
+    assert not torch.equal(ckpt["agent"]["actor_mean.0.weight"], policy.flat.net.state_dict()["0.weight"])
+
+
 def test_budget_is_required(tmp_path):
     ppo = _example("train_ppo")
     args = ppo.parse_args(["--env-id", TINY_ENV, "--out", str(tmp_path)])

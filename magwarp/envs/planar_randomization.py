@@ -16,7 +16,11 @@ Fields, one draw per target (movers; the margins: one per world), ``dim`` compon
   centre): adds to the mass as above, moves the centre of mass by ``offset p / (m + p)`` (gravity then has a torque
   about the centre, where the levitation carries the weight; the impedance hold resists the tilt) and adds
   ``mu (|r|^2 - r_i^2)`` to the principal moments (parallel axis, ``mu = m p / (m + p)``; products of inertia
-  dropped).
+  dropped). ``known=True``: the controller is configured for the payload (XPlanar's payload parametrisation, as
+  in the XBot's ``PayloadWeight`` setting): its mass becomes ``m_ctrl + p``, so the x/y motion follows the commands
+  (F = (m_ctrl + p) a_cmd = (m + p) a with the nominal mover) and the z damping is ``2 sqrt(K (m_ctrl + p))``; the
+  centre of mass, the inertia and the weight change as without it. Without it (the default) the payload is
+  unknown to the controller, which then lags its commands like a heavier mover.
 * ``stiffness_lin`` / ``stiffness_rot`` (3 each: x, y, z / roll, pitch, yaw): the impedance gains on the held axes;
   the damping follows, ``2 sqrt(K m_ctrl)`` / ``2 sqrt(K I_ctrl)`` (critical for the nominal mover). Their largest
   value must be stable at the cycle time for the lightest mover the terms allow (the simulator's own bound).
@@ -35,7 +39,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from magwarp._checks import stiffness_limit
 from magwarp.envs.randomization import EventRunner, EventTerm
 
 __all__ = ["PlanarRandomizer"]
@@ -82,6 +85,7 @@ class PlanarRandomizer(EventRunner):
         if any(f in BODY_KEYS for f in used):
             views = {field: sim.mover_params[key] for field, key in BODY_KEYS.items()}
             self.payload_offset = sim.mover_params["payload_offset"]
+            self.payload_known = sim.mover_params["payload_known"]
         views.update({"collision_radius": sim.radii, "collision_half_size": sim.half_sizes,
                       "collision_margin": sim.margins[:, :1], "wall_margin": sim.margins[:, 1:]})
         return {f: views[f] for f in used}
@@ -103,23 +107,11 @@ class PlanarRandomizer(EventRunner):
 
     def _check_stiffness(self, i: int, t: EventTerm) -> None:
         sim = self.sim
-        dt = float(sim.model.limits.dt)
         rot = t.field == "stiffness_rot"
-        hold = [sim.model.impedance.mask_rot if rot else sim.model.impedance.mask_lin][0]
-        if not any(float(v) for v in hold):
-            return
-        if rot:
-            inertia = [self.extreme(u)[0] for u in self.terms if u.field == "mover_inertia"]
-            least = min(inertia) if inertia else float(np.min(np.asarray(sim.mover.inertia)))
-        else:
-            mass = [self.extreme(u)[0] for u in self.terms if u.field == "mover_mass"]
-            least = min(mass) if mass else float(sim.mover.mass)
-            least = min(least, float(self.nominal["mover_mass"].min()))
-        top, limit = self.extreme(t)[1], stiffness_limit(least, dt)
-        if not top < limit:
-            raise ValueError(f"randomization[{i}] ({t.field!r}) can make the stiffness {top:g}, unstable at dt = "
-                             f"{dt:g} s for a mover of {least:.4g} {'kg m^2' if rot else 'kg'} (the stable limit is "
-                             f"{limit:.4g}, K < M (0.828 / dt)^2)")
+        held = sim.model.impedance.mask_rot if rot else sim.model.impedance.mask_lin
+        if any(float(v) for v in held):
+            self.check_stiffness_stable(i, t, float(sim.model.limits.dt), float(sim.mover.mass),
+                                        float(np.min(np.asarray(sim.mover.inertia))))
 
     # ------------------------------------------------------------------ model writes
     def commit(self, mask: torch.Tensor | None) -> None:

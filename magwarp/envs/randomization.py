@@ -24,7 +24,10 @@ Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its 
   (x, y, z in the mover's body frame, from its nominal centre of mass; default at it) added to the mover body: the
   mass, the centre of mass (``body_ipos``), and the inertia by the parallel-axis theorem about the new centre of mass
   (the diagonal terms in the body's principal frame; the products of inertia ``-mu r_i r_j`` of an offset off the
-  principal axes are dropped), with the same caveats as ``mover_mass``.
+  principal axes are dropped), with the same caveats as ``mover_mass``. ``known=True``: the controller is
+  configured for the payload (XPlanar's payload parametrisation): the law's mass becomes mover + payload per world
+  (:meth:`~magwarp.physics.MjwBackend.batch_control`), so x/y follows the commands and the z damping is
+  ``2 sqrt(K_z (m + p))``.
 * ``object_friction`` (per object) and ``floor_friction`` (one per world): the sliding coefficient of the object's
   geoms, of the colliding tile geoms. The object's geoms have contact priority 1 (MuJoCo then takes their friction
   for every contact of the object), so with a ``floor_friction`` term the tiles get priority 2 (set once, for all
@@ -36,9 +39,19 @@ Fields of the mujoco-warp push envs (:class:`magwarp.envs.push.PushEnv` and its 
   ``obstacle_boxes`` (observations, checks and rendering read them). Not with obstacle modes that move the walls per
   episode (``PushWithObstaclesEnv`` ``random``, ``curriculum`` or a mix).
 
+* ``mover_inertia`` (per mover, 3 principal moments, kg m^2): the mover body's ``body_inertia`` (instead of the
+  nominal scaled with ``mover_mass``); the impedance law's damping keeps the built inertia.
+* the control law's ``stiffness_lin`` (3; the law holds z only, so the z component acts, x/y are driven),
+  ``stiffness_rot`` (3: roll, pitch, yaw), ``v_max``, ``a_max``, ``j_max`` (per mover): the law's gains and x/y
+  limits per world (:meth:`~magwarp.physics.MjwBackend.batch_control`); the damping follows ``2 sqrt(K m)`` with the
+  built mass and inertia. The largest stiffness must be stable at ``physics_dt`` for the lightest mover.
+* ``collision_radius`` (circles), ``collision_half_size`` (2: boxes), ``collision_margin`` and ``wall_margin`` (one
+  per world): the per-cycle geometric checks' sizes (:meth:`~magwarp.physics.mover_checks.MoverChecks.per_world`);
+  starts are still sampled with the built sizes.
 * object sizes: ``object_width``, ``object_height``, ``object_depth``, ``object_segment_width``, ``object_radius``
   (uniform, op ``set``, mode ``reset``): the env's ``object_ranges`` as terms (:func:`object_ranges_from_terms`),
-  drawn per episode from ``object_variants`` pre-compiled variants, with the same draws for the same seed.
+  drawn per episode from ``object_variants`` pre-compiled variants, with the same draws for the same seed; with
+  them, an ``object_mass`` term of that form is the ranges' ``"mass"``.
 
 Where today's options are not re-expressed as terms: ``PushWithObstaclesEnv``'s obstacle modes (``random``,
 ``curriculum``) place the walls with rules (clear of the start, of each other), not as independent draws per wall:
@@ -66,6 +79,8 @@ import mujoco
 import numpy as np
 import torch
 import warp as wp
+
+from magwarp._checks import stiffness_limit
 
 __all__ = ["FIELDS", "PRESETS", "EventRunner", "EventTerm", "Gaussian", "LogUniform", "Randomizer", "Uniform", "as_terms",
            "object_ranges_from_terms"]
@@ -201,7 +216,9 @@ class EventTerm:
     """One randomisation: ``field`` <- ``op``(nominal, draw from ``dist``) when ``mode`` says.
 
     ``targets``: indices of the field's targets (movers, objects, obstacles) to change (default: all).
-    ``offset``: ``payload_mass`` only, where the payload sits (see the module doc)."""
+    ``offset``: ``payload_mass`` only, where the payload sits (see the module doc).
+    ``known``: ``payload_mass`` only, the controller is configured for the payload it draws: its drive force is
+    (mover + payload) x commanded acceleration, so x/y follows the commands (XPlanar's payload parametrisation)."""
 
     field: str
     dist: Any
@@ -210,6 +227,7 @@ class EventTerm:
     interval_steps: int | None = None
     targets: tuple[int, ...] | None = None
     offset: tuple[float, float, float] | None = None
+    known: bool = False
 
     def __post_init__(self):
         if self.field not in FIELDS:
@@ -244,6 +262,10 @@ class EventTerm:
             if len(off) != 3:
                 raise ValueError(f"EventTerm('payload_mass').offset must be (x, y, z) in m, got {self.offset!r}")
             object.__setattr__(self, "offset", tuple(_finite(v, "EventTerm('payload_mass').offset") for v in off))
+        if not isinstance(self.known, (bool, np.bool_)):
+            raise ValueError(f"EventTerm({self.field!r}).known must be True or False, got {self.known!r}")
+        if self.known and self.field != "payload_mass":
+            raise ValueError(f"EventTerm({self.field!r}).known is for 'payload_mass' only")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -269,7 +291,7 @@ FIELDS = {
     "object_depth": FieldSpec(1, 0.0, True, OPS),
     "object_segment_width": FieldSpec(1, 0.0, True, OPS),
     "object_radius": FieldSpec(1, 0.0, True, OPS),
-    # the planar simulator's (magwarp.envs.planar_randomization)
+    # the planar simulator's (magwarp.envs.planar_randomization) and the push backend's control law and checks
     "mover_inertia": FieldSpec(3, 0.0, True, OPS),
     "stiffness_lin": FieldSpec(3, 0.0, False, OPS),
     "stiffness_rot": FieldSpec(3, 0.0, False, OPS),
@@ -283,17 +305,34 @@ FIELDS = {
 }
 
 #: Named sets of terms (``randomization="sim2real"``, e.g. from ``--env-kwargs``), per backend: ``"planar"`` (the
-#: trajectory-planning env's simulator) or ``"push"`` (the mujoco-warp push envs). Ranges: mover mass +-20 % (a
-#: payload of up to 0.3 kg on top of the mover: off the vertical axis it would tilt the planar simulator's mover
-#: against the RL envs' weak attitude hold, K = 0.1 N m/rad, by tenths of a radian), impedance stiffness +-30 %,
-#: acceleration and speed limits -10 % .. 0 (a drive that delivers a little less than asked); on the push envs object
-#: mass and friction, mover mass and a payload. All drawn at every reset of a world. (Collision sizes are left out:
-#: starts are sampled with the built sizes, see :mod:`magwarp.envs.planar_randomization`.)
+#: trajectory-planning env's simulator) or ``"push"`` (the mujoco-warp push envs). All drawn at every reset of a world.
+#: Where the planar ranges come from (XPlanar-like; assumptions where no datasheet figure is at hand):
+#:
+#: * ``mover_mass`` x 0.8 .. 1.25 (log-uniform): the true mass against the one the controller is configured for, i.e. a
+#:   gain error of +-20 % on the delivered x/y acceleration (an unconfigured part of the payload, the drive's force
+#:   constant over the air gap and temperature). An assumption, on the generous side: XPlanar's drive closes its
+#:   position loop around the setpoints the PLC sends, so a mismatch shows as a transient tracking error, not as a
+#:   lasting gain error.
+#: * ``payload_mass`` 0 .. 0.3 kg on the top surface (6 mm above the centre), ``known``: the payload a real cell
+#:   configures (XPlanar's payload parametrisation; Planar Motor's XBot takes ``PayloadWeight`` and its centre of
+#:   gravity the same way), so the controller's feedforward includes it and x/y follows the commands; it still moves
+#:   the centre of mass, the inertia and the weight the levitation carries. An *unknown* 0.3 kg on the 0.63 kg B0
+#:   mover would make it deliver 68 % of every commanded acceleration for the whole episode, which a closed-loop
+#:   planar drive does not do (it was the preset until #24's audit; ``known=False`` still models it).
+#: * ``stiffness_lin`` / ``stiffness_rot`` x 0.7 .. 1.3: the z/attitude hold is the simulator's impedance law, not
+#:   XPlanar's controller; +-30 % covers that model error.
+#: * ``a_max`` / ``v_max`` x 0.9 .. 1.0: a drive that delivers a little less than the datasheet's 10 m/s^2, 2 m/s.
+#:
+#: On the push envs: object mass (0.2 .. 0.4 kg) and friction (0.6 +- 0.1, clipped), mover mass and a known payload of
+#: up to 0.3 kg (off centre, 2 cm in x and 1 cm up) as above. Collision sizes are left out: they are safety margins the
+#: user sets, not physical tolerances (and starts are sampled with the built sizes, see
+#: :mod:`magwarp.envs.planar_randomization`).
+#: Latency and sensor models are env options, not terms (``benchmarks/robustness.py`` says which values it uses).
 PRESETS: dict[str, dict[str, list[dict]]] = {
     "sim2real": {
         "planar": [
             {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
-            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.0, 0.0, 0.006]},
+            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.0, 0.0, 0.006], "known": True},
             {"field": "stiffness_lin", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
             {"field": "stiffness_rot", "dist": {"uniform": [0.7, 1.3]}, "op": "scale"},
             {"field": "a_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale"},
@@ -303,7 +342,7 @@ PRESETS: dict[str, dict[str, list[dict]]] = {
             {"field": "object_mass", "dist": {"uniform": [0.2, 0.4]}},
             {"field": "object_friction", "dist": {"gaussian": [0.6, 0.1], "clip": [0.3, 0.9]}},
             {"field": "mover_mass", "dist": {"log_uniform": [0.8, 1.25]}, "op": "scale"},
-            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.02, 0.0, 0.01]},
+            {"field": "payload_mass", "dist": {"uniform": [0.0, 0.3]}, "offset": [0.02, 0.0, 0.01], "known": True},
         ],
     },
 }
@@ -335,6 +374,11 @@ def as_terms(terms, backend: str | None = None) -> list[EventTerm]:
     return out
 
 
+#: the push control law's per-world fields (:meth:`magwarp.physics.MjwBackend.batch_control`) and the per-cycle
+#: collision check's (:meth:`magwarp.physics.mover_checks.MoverChecks.per_world`)
+CONTROL_FIELDS = ("stiffness_lin", "stiffness_rot", "v_max", "a_max", "j_max")
+COLLISION_FIELDS = ("collision_radius", "collision_half_size", "collision_margin", "wall_margin")
+
 #: object size fields -> ``object_ranges`` keys
 OBJECT_SIZE_FIELDS = {"object_width": "width", "object_height": "height", "object_depth": "depth",
                       "object_segment_width": "segment_width", "object_radius": "radius"}
@@ -346,17 +390,22 @@ def object_ranges_from_terms(terms: list[EventTerm]) -> tuple[list[EventTerm], d
     is ``object_ranges={"width": (lo, hi)}``, with the same draws for the same seed. Sizes change the object's
     geometry, which mujoco-warp's collision, the coverage tables and the start sampling read, so they come from
     ``object_variants`` pre-compiled variants (a pool, not a continuous draw per world): other distributions,
-    operations or modes are refused, naming the term."""
+    operations or modes are refused, naming the term. With size terms, an ``object_mass`` term of that form is the
+    variants' ``"mass"`` range too (``object_ranges={"width": .., "mass": ..}``, the same draws); without them it stays
+    a continuous per-world draw (:class:`Randomizer`; other draws than ``object_ranges={"mass": ..}``)."""
     rest, ranges = [], {}
+    sizes = any(t.field in OBJECT_SIZE_FIELDS for t in terms)
     for i, t in enumerate(terms):
         key = OBJECT_SIZE_FIELDS.get(t.field)
+        if key is None and sizes and t.field == "object_mass":
+            key = "mass"
         if key is None:
             rest.append(t)
             continue
         if not isinstance(t.dist, Uniform) or t.op != "set" or t.mode != "reset" or t.targets not in (None, (0,)):
-            raise ValueError(f"randomization[{i}] ({t.field!r}): object sizes are drawn per episode from object "
-                             f"variants (object_ranges): a uniform distribution, op 'set', mode 'reset' only; got "
-                             f"{t.dist!r}, op {t.op!r}, mode {t.mode!r}")
+            raise ValueError(f"randomization[{i}] ({t.field!r}): object sizes (and, with them, the object's mass) are "
+                             f"drawn per episode from object variants (object_ranges): a uniform distribution, op "
+                             f"'set', mode 'reset' only; got {t.dist!r}, op {t.op!r}, mode {t.mode!r}")
         if key in ranges:
             raise ValueError(f"randomization[{i}] ({t.field!r}) repeats an object size term")
         ranges[key] = (t.dist.lo, t.dist.hi)
@@ -385,6 +434,8 @@ class EventRunner:
     the values into it (:meth:`commit`)."""
 
     BACKEND = ""
+    #: ``[W, M]``, the payload the controller is configured for (``EventTerm.known``), where the backend has one
+    payload_known: torch.Tensor | None = None
 
     def __init__(self, env, terms, num_worlds: int, device):
         self.terms = as_terms(terms, self.BACKEND)
@@ -427,6 +478,7 @@ class EventRunner:
         """``values`` (the nominal ones in every world) and ``payload_offset`` (``[W, M, 3]``, zero)."""
         if "payload_mass" in used:
             self.payload_offset = torch.zeros(self.num_worlds, self._targets["payload_mass"], 3, device=self.device)
+            self.payload_known = torch.zeros(self.num_worlds, self._targets["payload_mass"], device=self.device)
         return {f: self.nominal[f].expand(self.num_worlds, *self.nominal[f].shape).clone() for f in used}
 
     def commit(self, mask: torch.Tensor | None) -> None:
@@ -458,6 +510,20 @@ class EventRunner:
             hint = " (a Gaussian needs clip=(lo, hi) to bound it)" if isinstance(t.dist, Gaussian) else ""
             raise ValueError(f"randomization[{i}] ({t.field!r}, op {t.op!r}, {t.dist!r}) can make {t.field} "
                              f"{least:g}, but it must stay {rel} {spec.lower:g}{hint}")
+
+    def check_stiffness_stable(self, i: int, t: EventTerm, dt: float, mass: float, inertia: float) -> None:
+        """Refuse a stiffness term whose largest value is unstable at ``dt`` for the lightest mover the terms allow
+        (``mass`` / ``inertia``: the built mover's, the least principal moment for ``stiffness_rot``)."""
+        rot = t.field == "stiffness_rot"
+        field = "mover_inertia" if rot else "mover_mass"
+        drawn = [self.extreme(u)[0] for u in self.terms if u.field == field]
+        least = min([float(self.nominal[field].min()) if field in self.nominal else np.inf,
+                     inertia if rot else mass, *drawn])
+        top, limit = self.extreme(t)[1], stiffness_limit(least, dt)
+        if not top < limit:
+            raise ValueError(f"randomization[{i}] ({t.field!r}) can make the stiffness {top:g}, unstable at dt = "
+                             f"{dt:g} s for a mover of {least:.4g} {'kg m^2' if rot else 'kg'} (the stable limit is "
+                             f"{limit:.4g}, K < M (0.828 / dt)^2)")
 
     # ------------------------------------------------------------------ events
     def reset(self, mask: torch.Tensor) -> None:
@@ -504,6 +570,15 @@ class EventRunner:
                     self.payload_offset.copy_(po_new)
                 else:
                     self.payload_offset[:, idx] = po_new
+                if self.payload_known is not None:  # the controller's configured payload: the draw or none
+                    pk = self.payload_known if idx is None else self.payload_known[:, idx]
+                    pk_new = new.to(pk.dtype) if t.known else torch.zeros_like(pk)
+                    if mask is not None:
+                        pk_new = torch.where(mask.view(-1, 1), pk_new, pk)
+                    if idx is None:
+                        self.payload_known.copy_(pk_new)
+                    else:
+                        self.payload_known[:, idx] = pk_new
         return fired
 
 
@@ -529,9 +604,21 @@ class Randomizer(EventRunner):
             names.add("geom_friction")
         if "obstacle_xy" in used:
             names.add("geom_pos")
+        if "mover_inertia" in used:
+            names |= {"body_mass", "body_subtreemass", "body_inertia", "body_ipos", "body_invweight0", "dof_invweight0"}
         self.fields = b.batch_model_fields(sorted(names))
         if "floor_friction" in used:
             self._floor_priority(mjm)
+        self._known = any(t.known for t in self.terms)
+        self.control = b.batch_control() if used & set(CONTROL_FIELDS) or self._known else None
+        if self.control is not None:
+            self._law_mass = self.control["mass"][0].clone()  # the built mover's (the law's nominal)
+        self.collision = self.env.checks.per_world() if used & set(COLLISION_FIELDS) else None
+        for i, t in enumerate(self.terms):
+            if t.field in ("stiffness_lin", "stiffness_rot"):
+                mass = float(self._body_nominal["mover"]["mass"].min()) if b.num_movers else np.inf
+                inertia = float(self._body_nominal["mover"]["inertia"].min()) if b.num_movers else np.inf
+                self.check_stiffness_stable(i, t, b.dt, mass, inertia)
 
     # ------------------------------------------------------------------ construction
     def _resolve_targets(self, env, used) -> dict[str, int]:
@@ -549,9 +636,17 @@ class Randomizer(EventRunner):
         for g in self.obstacle_geoms:
             if mjm.body_weldid[mjm.geom_bodyid[g]] != 0:
                 raise ValueError(f"obstacle geom {g} is not attached to the world body; obstacle_xy moves static geoms")
-        return {"object_mass": b.num_objects, "mover_mass": b.num_movers, "payload_mass": b.num_movers,
-                "object_friction": b.num_objects, "floor_friction": int(bool(self.floor_geoms)),
-                "obstacle_xy": len(self.obstacle_geoms)}
+        m = b.num_movers
+        checks = getattr(env, "checks", None)
+        circle = checks is not None and env.mover.collision_shape == "circle"
+        box = checks is not None and not circle
+        out = {"object_mass": b.num_objects, "mover_mass": m, "payload_mass": m, "mover_inertia": m,
+               "object_friction": b.num_objects, "floor_friction": int(bool(self.floor_geoms)),
+               "obstacle_xy": len(self.obstacle_geoms), "collision_radius": m if circle else 0,
+               "collision_half_size": m if box else 0, "collision_margin": int(checks is not None),
+               "wall_margin": int(checks is not None)}
+        out.update({f: m for f in CONTROL_FIELDS})
+        return out
 
     def _floor_priority(self, mjm) -> None:
         """Give the floor contact priority over the object, with the object's contact parameters as nominal."""
@@ -607,6 +702,15 @@ class Randomizer(EventRunner):
             "floor_friction": self._owner_index([self.floor_geoms]),
         }
         out["obstacle_xy"] = t(mjm.geom_pos[self.obstacle_geoms, :2].reshape(-1, 2))
+        out["mover_inertia"] = t(mjm.body_inertia[b.mover_body].reshape(-1, 3))
+        c, m = b.control, b.num_movers
+        out.update({"stiffness_lin": t(np.tile(c.k_lin, (m, 1))), "stiffness_rot": t(np.tile(c.k_rot, (m, 1))),
+                    "v_max": t(np.full(m, c.v_max)), "a_max": t(np.full(m, c.a_max)), "j_max": t(np.full(m, c.j_max))})
+        mover = getattr(self.env, "mover", None)
+        if mover is not None:
+            out.update({"collision_radius": t(np.full(m, mover.collision_radius)),
+                        "collision_half_size": t(np.tile(mover.collision_half_size, (m, 1))),
+                        "collision_margin": t([mover.margin]), "wall_margin": t([mover.wall_margin])})
         self._obstacle_index = torch.as_tensor(self.obstacle_geoms, device=dev, dtype=torch.long)
         return out
 
@@ -622,10 +726,28 @@ class Randomizer(EventRunner):
         v = self.values
         if "object_mass" in v:
             self._commit_bodies("object", v["object_mass"], None, None, mask)
-        if "mover_mass" in v or "payload_mass" in v:
+        if "mover_mass" in v or "payload_mass" in v or "mover_inertia" in v:
             mass = v.get("mover_mass", self.nominal["mover_mass"].expand(self.num_worlds, -1))
             pay = v.get("payload_mass")
-            self._commit_bodies("mover", mass, pay, self.payload_offset if pay is not None else None, mask)
+            self._commit_bodies("mover", mass, pay, self.payload_offset if pay is not None else None, mask,
+                                own_inertia=v.get("mover_inertia"))
+        if self._known:
+            _put(self.control["mass"], (slice(None),), self._law_mass + self.payload_known, mask)
+        if self.control is not None:
+            gains, limits = self.control["gains"], self.control["limits"]
+            for col, (field, k) in enumerate((("stiffness_lin", 2), ("stiffness_rot", 0), ("stiffness_rot", 1),
+                                              ("stiffness_rot", 2))):
+                if field in v:
+                    _put(gains, (slice(None), slice(None), col), v[field][..., k], mask)
+            for col, field in enumerate(("v_max", "a_max", "j_max")):
+                if field in v:
+                    _put(limits, (slice(None), slice(None), col), v[field], mask)
+        if self.collision is not None:
+            for field, key, index in (("collision_radius", "radius", ()), ("collision_half_size", "half_size", ()),
+                                      ("collision_margin", "margins", (0,)), ("wall_margin", "margins", (1,))):
+                if field in v:
+                    value = v[field][:, 0] if index else v[field]
+                    _put(self.collision[key], (slice(None), *index), value, mask)
         for name in ("object_friction", "floor_friction"):
             if name in v:
                 geoms, owner = self._geom_owner[name]
@@ -640,11 +762,11 @@ class Randomizer(EventRunner):
             if boxes is not None and boxes.shape[1] == len(self.obstacle_geoms):
                 _put(boxes, (slice(None), slice(None), slice(0, 2)), v["obstacle_xy"], mask)
 
-    def _commit_bodies(self, group: str, mass, payload, offset, mask) -> None:
+    def _commit_bodies(self, group: str, mass, payload, offset, mask, own_inertia=None) -> None:
         n, f = self._body_nominal[group], self.fields
         bi = n["bodies"]
-        s = mass / n["mass"]  # uniform-density scale of the body itself
-        inertia = s[..., None] * n["inertia"]
+        s = mass / n["mass"]  # uniform-density scale of the body itself (unless its inertia is randomised too)
+        inertia = s[..., None] * n["inertia"] if own_inertia is None else own_inertia
         ipos = n["ipos"].expand(mass.shape[0], -1, -1)
         total = mass
         if payload is not None:

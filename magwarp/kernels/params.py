@@ -62,6 +62,7 @@ def pack_bodies(
     inertia: wp.array2d(dtype=wp.vec3d),
     payload: wp.array2d(dtype=wp.float64),
     offset: wp.array2d(dtype=wp.vec3d),
+    payload_known: wp.array2d(dtype=wp.float64),
     k_lin: wp.array2d(dtype=wp.vec3d),
     k_rot: wp.array2d(dtype=wp.vec3d),
     v_max: wp.array2d(dtype=wp.float64),
@@ -72,7 +73,8 @@ def pack_bodies(
 ):
     """Pack the masked worlds' mover parameters into their body rows (one thread per mover): the mover's own mass and
     inertia (``scale_inertia``: the configured inertia scaled with the mass, uniform density) plus a point payload
-    (:func:`with_payload`; none when it is 0), then :func:`pack_body`."""
+    (:func:`with_payload`; none when it is 0), then :func:`pack_body` with the controller's mass ``m_ctrl +
+    payload_known`` (the payload its feedforward is configured for: XPlanar's payload parametrisation)."""
     w, m = wp.tid()
     if not mask[w]:
         return
@@ -84,5 +86,5 @@ def pack_bodies(
     p = payload[w, m]
     if p != wp.float64(0.0):
         mw, iw, com = with_payload(mw, iw, p, offset[w, m])
-    body[w, m] = pack_body(m_ctrl, i_ctrl, mw, iw, k_lin[w, m], k_rot[w, m], com, v_max[w, m], a_max[w, m],
-                           j_max[w, m])
+    body[w, m] = pack_body(m_ctrl + payload_known[w, m], i_ctrl, mw, iw, k_lin[w, m], k_rot[w, m], com, v_max[w, m],
+                           a_max[w, m], j_max[w, m])

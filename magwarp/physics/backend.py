@@ -222,9 +222,11 @@ class MjwBackend:
             W, M = self.num_worlds, self.num_movers
             self._qadr = wp.array(self.mover_qadr, dtype=int)
             self._dadr = wp.array(self.mover_dadr, dtype=int)
-            self._mass = wp.array(mass, dtype=float)
+            self._mass = wp.array(mass.reshape(1, -1) if M else np.zeros((1, 1)), dtype=float)
             self._inertia = wp.array(inertia, dtype=wp.vec3)
             self._hover_z = wp.array(hz, dtype=float)
+            self._gains = wp.array(np.tile([c.k_lin[2], *c.k_rot], (1, max(M, 1), 1)), dtype=wp.vec4)
+            self._limits = wp.array(np.tile([c.v_max, c.a_max, c.j_max], (1, max(M, 1), 1)), dtype=wp.vec3)
             self.cmd = wp.zeros((W, max(M, 1)), dtype=wp.vec2)
             self.acc = wp.zeros((W, max(M, 1)), dtype=wp.vec2)
             self.cmd_c = wp.zeros((W, max(M, 1)), dtype=float)  # yaw commands (control.rotation)
@@ -303,6 +305,21 @@ class MjwBackend:
         self._reset_graph = None
         return out
 
+    def batch_control(self) -> dict[str, torch.Tensor]:
+        """Give each world its own row of the control law's mass, gains and limits (one row shared by all worlds until
+        then): ``{"mass": [W, M] (kg: the drive force is mass x commanded acceleration, the z damping 2 sqrt(K_z
+        mass)), "gains": [W, M, 4] (K_z, K_roll, K_pitch, K_yaw), "limits": [W, M, 3] (v_max, a_max, j_max)}``
+        float32 torch views; write the rows of the worlds to change between steps. Drops the recorded graphs."""
+        for name in ("_mass", "_gains", "_limits"):
+            old = getattr(self, name)
+            if old.shape[0] != self.num_worlds:
+                rows = np.repeat(old.numpy(), self.num_worlds, axis=0)
+                setattr(self, name, wp.array(rows, dtype=old.dtype, device=self.device))
+        self._step_graph = None
+        self._reset_graph = None
+        return {"mass": wp.to_torch(self._mass), "gains": wp.to_torch(self._gains),
+                "limits": wp.to_torch(self._limits)}
+
     # ------------------------------------------------------------------ hooks
     def add_cycle_hook(self, fn: Callable[[], None]) -> None:
         """Register ``fn()`` (which launches Warp kernels) to run after every ``mujoco_warp.step`` inside the step graph.
@@ -341,10 +358,9 @@ class MjwBackend:
             mover_control_kernel,
             dim=(self.num_worlds, self.num_movers),
             inputs=[
-                self._qadr, self._dadr, self._mass, self._inertia, self._hover_z,
-                float(c.k_lin[2]), wp.vec3(*c.k_rot), self.dt, float(c.v_max), float(c.a_max), float(c.j_max),
-                int(c.jerk), self._yaw_drive, self.data.qpos, self.data.qvel, self.cmd, self.cmd_c, self.acc, self.acc_c,
-                self.yaw_track,
+                self._qadr, self._dadr, self._mass, self._inertia, self._hover_z, self._gains, self._limits,
+                self.dt, int(c.jerk), self._yaw_drive, self.data.qpos, self.data.qvel, self.cmd, self.cmd_c, self.acc,
+                self.acc_c, self.yaw_track,
             ],
             outputs=[self.data.qfrc_applied],
             device=self.device,

@@ -24,12 +24,18 @@ The control law per mover and control cycle (dt = model timestep) is
   distance ``v_c^2 / (2 a_max_c) + 0.05`` (MagBotSim's rule, on the accumulated yaw, so crossing +-pi is no jump).
   The torque is ``I_zz a_c`` about the vertical: MagBotSim's actuator uses the mass as gain, so its "acceleration"
   is not one; ours is.
+
+The law's mass (drive force and z damping), the gains (``K_z``, ``K_r``) and the x/y limits are per mover, in one row
+shared by all worlds until domain randomisation makes them per world (:meth:`magwarp.physics.MjwBackend.batch_control`):
+the mass is the built mover's (plus a payload the controller is configured for), whatever mass the model's body has;
+the inertia (rotational damping) is the built mover's.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
+from magwarp.kernels.collision import model_row
 from magwarp.kernels.dynamics import planar_acceleration
 from magwarp.kernels.impedance import rotation_error
 from magwarp.types import Limits
@@ -78,15 +84,12 @@ def mover_control_kernel(
     # Model:
     qadr: wp.array[int],
     dadr: wp.array[int],
-    mass: wp.array[float],
+    mass: wp.array2d[float],  # the law's mass per mover (drive force, z damping); shared row or one per world
     inertia: wp.array[wp.vec3],
     hover_z: wp.array[float],
-    k_lin_z: float,
-    k_rot: wp.vec3,
+    gains: wp.array2d[wp.vec4],  # (k_lin_z, k_rot) per mover; one shared row or one per world (randomisation)
+    limits: wp.array2d[wp.vec3],  # (v_max, a_max, j_max) per mover; likewise
     dt: float,
-    v_max: float,
-    a_max: float,
-    j_max: float,
     jerk_mode: int,
     yaw_drive: YawDrive,
     # State in:
@@ -104,14 +107,18 @@ def mover_control_kernel(
     w, k = wp.tid()
     qa = qadr[k]
     da = dadr[k]
-    m = mass[k]
+    m = mass[model_row(mass.shape[0], w), k]
+    g = gains[model_row(gains.shape[0], w), k]
+    lw = limits[model_row(limits.shape[0], w), k]
+    k_lin_z = g[0]
+    k_rot = wp.vec3(g[1], g[2], g[3])
 
     # x/y: limited acceleration, applied as m * a (semi-implicit Euler then matches MagBotSim's actuators).
     lim = Limits()
     lim.dt = dt
-    lim.v_max = v_max
-    lim.a_max = a_max
-    lim.j_max = j_max
+    lim.v_max = lw[0]
+    lim.a_max = lw[1]
+    lim.j_max = lw[2]
     lim.jerk_mode = jerk_mode
     a = planar_acceleration(wp.vec3(qvel[w, da], qvel[w, da + 1], 0.0), acc[w, k], cmd[w, k], lim)
     acc[w, k] = a
