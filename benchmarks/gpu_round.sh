@@ -6,7 +6,8 @@
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
-# train_dr, train_dr_ft and robustness (#24), compare (B0 env throughput of an older tree beside this one).
+# suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24),
+# compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -102,7 +103,8 @@ for stage in "$@"; do
 r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':')))")
         for pol in "/tmp/runs/$name/policy.pt" scripted; do
           timeout 60 python3 -m magwarp eval "$env" --policy "$pol" --env-kwargs "$kw" --episodes 200 --repeats 10 \
-            --device cuda:0 --json "/tmp/runs/$name/eval_$(basename "$pol" .pt).json" 2>&1 | grep -E "Success|Coll|Energy"
+            --device cuda:0 --json "/tmp/runs/$name/eval_$(basename "$pol" .pt).json" 2>&1 \
+            | grep -E "Success|Coll|Energy"
         done
       done
       tar czf "$OUT/suite.tgz" -C /tmp --exclude=checkpoint.pt runs ;;
@@ -110,29 +112,16 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # #18: the scripted planner with its safety filter at 256 / 1024 / 4096 movers (1000 steps each)
       timeout 590 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
         2>&1 | tail -20 ;;
-    train_dr)
-      # #24: a B0 PPO policy trained with the sim2real randomisation, latency and sensor models (5 minutes)
-      B0='"num_cycles":120,"collision_shape":"box","collision_size":[0.09,0.09],"mover_params":{"size":[0.0565,0.0565,0.006],"mass":0.63}'
-      DR='"randomization":"sim2real","actuation":{"latency_range":[0,5]},"sensors":{"pos_bias_std":0.001,"vel_bias_std":0.01,"pos_noise_std":0.0005,"vel_noise_std":0.005}'
-      timeout 590 python3 -m magwarp.training.ppo --env-id magwarp/TrajectoryPlanningB0-v0 --device cuda:0 \
-        --minutes 5 --no-progress --out "$OUT/b0_ppo_dr" --env-kwargs "{$B0,\"max_episode_steps\":40,$DR}" \
-        --eval-env-kwargs "{$B0,$DR}" 2>&1 | tail -15 ;;
-    train_dr_ft)
-      # #24, alternative: the shipped B0 policy fine-tuned under the same randomisation (5 minutes): a fresh critic
-      # trained alone for 10 iterations, then PPO at a fine-tuning learning rate (3e-4 undid the policy on the CPU)
-      B0='"num_cycles":120,"collision_shape":"box","collision_size":[0.09,0.09],"mover_params":{"size":[0.0565,0.0565,0.006],"mass":0.63}'
-      DR='"randomization":"sim2real","actuation":{"latency_range":[0,5]},"sensors":{"pos_bias_std":0.001,"vel_bias_std":0.01,"pos_noise_std":0.0005,"vel_noise_std":0.005}'
-      timeout 590 python3 -m magwarp.training.ppo --env-id magwarp/TrajectoryPlanningB0-v0 --device cuda:0 \
-        --minutes 5 --no-progress --out "$OUT/b0_ppo_dr_ft" --init-policy pretrained:b0_ppo --init-log-std -2.5 \
-        --critic-warmup 10 --lr 1e-5 --env-kwargs "{$B0,\"max_episode_steps\":40,$DR}" \
-        --eval-env-kwargs "{$B0,$DR}" 2>&1 | tail -15 ;;
     robustness)
-      # #24: the shipped B0 policy and the randomisation-trained ones (each that exists), nominal and randomised
-      FT=(); [ -f "$OUT/b0_ppo_dr_ft/policy.pt" ] && FT=(--policy "$OUT/b0_ppo_dr_ft/policy.pt")
-      timeout 590 python3 benchmarks/robustness.py --device cuda:0 --episodes 100 --repeats 100 \
-        --policy pretrained:b0_ppo --policy "${DR_POLICY:-$OUT/b0_ppo_dr/policy.pt}" ${FT[@]+"${FT[@]}"} \
-        --conditions nominal,terms,latency,sensors,randomised,dropout --json "$OUT/robustness_gpu.json" 2>&1 \
-        | tail -20 ;;
+      # #24: the shipped B0 policy and the randomisation-trained ones (paper.py runs b0_ppo_dr and b0_ppo_dr_ft,
+      # trained by the suite stage into /tmp/runs: RUNS=b0_ppo_dr,b0_ppo_dr_ft), nominal and under each condition
+      POL=(--policy pretrained:b0_ppo)
+      for r in b0_ppo_dr b0_ppo_dr_ft; do
+        [ -f "/tmp/runs/$r/policy.pt" ] && POL+=(--policy "/tmp/runs/$r/policy.pt")
+      done
+      timeout 590 python3 benchmarks/robustness.py --device cuda:0 --episodes 100 --repeats "${REPEATS:-100}" \
+        "${POL[@]}" --conditions nominal,terms,latency,sensors,randomised,dropout --json "$OUT/robustness_gpu.json" \
+        2>&1 | tail -20 ;;
     *) echo "unknown stage $stage"; exit 2 ;;
   esac
 done

@@ -25,19 +25,14 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from common import finish, start_run  # noqa: E402
 
+from magwarp.training.paper import SIM2REAL  # noqa: E402
+
 ENV_ID = "magwarp/TrajectoryPlanningB0-v0"
-#: The randomised condition (and ``train_dr``'s options in gpu_round.sh): the planar "sim2real" preset (its ranges and
-#: where they come from: :data:`magwarp.envs.randomization.PRESETS`), an action latency of 0..5 control cycles of
-#: 1 ms per world (the PLC task's output to the drive over EtherCAT: a few cycles), and sensor errors larger than a
-#: planar motor's position feedback (tens of micrometres): a bias of std 1 mm and 10 mm/s per episode, white noise of
-#: 0.5 mm and 5 mm/s per reading. No dropped readings: XPlanar reports the mover positions every 1 ms cycle, so a lost
-#: frame leaves the PLC a reading 1 ms old, while the env's dropout repeats the reading of the previous env step
-#: (120 ms on B0); the ``dropout`` condition (2 % of the readings) shows that stress on its own.
-RANDOMIZED = {
-    "randomization": "sim2real",
-    "actuation": {"latency_range": [0, 5]},
-    "sensors": {"pos_bias_std": 0.001, "vel_bias_std": 0.01, "pos_noise_std": 0.0005, "vel_noise_std": 0.005},
-}
+#: The randomised condition: the planar "sim2real" preset (its ranges and where they come from:
+#: :data:`magwarp.envs.randomization.PRESETS`), an action latency of 0..5 control cycles and sensor bias and noise,
+#: as the randomisation-trained runs of :mod:`magwarp.training.paper` (``b0_ppo_dr``, ``b0_ppo_dr_ft``) see it
+#: (:data:`magwarp.training.paper.SIM2REAL`, which says where each figure comes from).
+RANDOMIZED = SIM2REAL
 DROPOUT = {"sensors": {"dropout_prob": 0.02}}
 SIM2REAL_KEYS = ("randomization", "actuation", "sensors", "std_noise")
 #: evaluation conditions (``--conditions``): the options added to the policy's nominal ones

@@ -64,6 +64,15 @@ _B0_PUBLISHED = {**_B0, "mover_params": {"size": MOVER_113MM, "mass": 0.63}}
 _B0_FINE = {**_B0_PUBLISHED, "num_cycles": 40}
 _B0_STARTS40 = {**_B0_PUBLISHED, "max_episode_steps": 40}  # training episodes cut after 40 steps (4.8 s)
 _PLATFORM_POSE = {"action_mode": "pose", "num_cycles": 40}
+#: Issue 24's sim2real conditions (``benchmarks/robustness.py``'s "randomised"): the planar "sim2real" preset (its
+#: ranges and where they come from: :data:`magwarp.envs.randomization.PRESETS`), an action latency of 0..5 control cycles of
+#: 1 ms per world (the PLC task's output to the drive over EtherCAT: a few cycles), and sensor errors larger than a
+#: planar motor's position feedback (tens of micrometres): a bias of std 1 mm and 10 mm/s per episode, white noise of
+#: 0.5 mm and 5 mm/s per reading. No dropped readings: XPlanar reports the mover positions every 1 ms cycle, so a lost
+#: frame leaves the PLC a reading 1 ms old, while the env's dropout repeats the reading of the previous env step
+#: (120 ms on B0); robustness.py's ``dropout`` condition shows that stress on its own.
+SIM2REAL = {"randomization": "sim2real", "actuation": {"latency_range": [0, 5]},
+             "sensors": {"pos_bias_std": 0.001, "vel_bias_std": 0.01, "pos_noise_std": 0.0005, "vel_noise_std": 0.005}}
 _B0_PAPER = "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"
 
 
@@ -137,6 +146,12 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # (the IK maps them to the movers), and two movers pushing a box one cannot move
     "platform_pose_sac": PaperRun("magwarp/PlatformPose-v0", "sac-her", _PLATFORM_POSE, _PLATFORM_POSE,
                                   "no paper row; scripted IK baseline in magwarp eval"),
+    # B0 under the "sim2real" randomisation, action latency (0-5 cycles) and sensor models (issue 24): from scratch,
+    # and the shipped policy fine-tuned (a fresh critic trained alone for 10 iterations, then a fine-tuning rate)
+    "b0_ppo_dr": _b0("ppo", {**_B0_STARTS40, **SIM2REAL}, {**_B0_PUBLISHED, **SIM2REAL}),
+    "b0_ppo_dr_ft": _b0("ppo", {**_B0_STARTS40, **SIM2REAL}, {**_B0_PUBLISHED, **SIM2REAL},
+                        ("--init-policy", "pretrained:b0_ppo", "--init-log-std", "-2.5", "--critic-warmup", "10",
+                         "--lr", "1e-5")),
     # Swarms (issue 18; no paper row): parameter-shared PPO on the flat agent view of 256 worlds x 64 movers, evaluated
     # zero-shot on larger swarms beside the scripted planner (benchmarks/swarm.py)
     "swarm_ippo": PaperRun("magwarp/Swarm-v0", "ppo", {"num_movers": 64}, {"num_movers": 64},
