@@ -65,8 +65,8 @@ _B0_FINE = {**_B0_PUBLISHED, "num_cycles": 40}
 _B0_STARTS40 = {**_B0_PUBLISHED, "max_episode_steps": 40}  # training episodes cut after 40 steps (4.8 s)
 _PLATFORM_POSE = {"action_mode": "pose", "num_cycles": 40}
 #: Issue 24's sim2real conditions (``benchmarks/robustness.py``'s "randomised"): the planar "sim2real" preset (its
-#: ranges and where they come from: :data:`magwarp.envs.randomization.PRESETS`), an action latency of 0..5 control cycles of
-#: 1 ms per world (the PLC task's output to the drive over EtherCAT: a few cycles), and sensor errors larger than a
+#: ranges and where they come from: :data:`magwarp.envs.randomization.PRESETS`), an action latency of 0..5 control
+#: cycles of 1 ms per world (the PLC task's output to the drive over EtherCAT: a few cycles), and sensor errors larger than a
 #: planar motor's position feedback (tens of micrometres): a bias of std 1 mm and 10 mm/s per episode, white noise of
 #: 0.5 mm and 5 mm/s per reading. No dropped readings: XPlanar reports the mover positions every 1 ms cycle, so a lost
 #: frame leaves the PLC a reading 1 ms old, while the env's dropout repeats the reading of the previous env step
