@@ -66,11 +66,11 @@ _B0_STARTS40 = {**_B0_PUBLISHED, "max_episode_steps": 40}  # training episodes c
 _PLATFORM_POSE = {"action_mode": "pose", "num_cycles": 40}
 #: Issue 24's sim2real conditions (``benchmarks/robustness.py``'s "randomised"): the planar "sim2real" preset (its
 #: ranges and where they come from: :data:`magwarp.envs.randomization.PRESETS`), an action latency of 0..5 control
-#: cycles of 1 ms per world (the PLC task's output to the drive over EtherCAT: a few cycles), and sensor errors larger than a
-#: planar motor's position feedback (tens of micrometres): a bias of std 1 mm and 10 mm/s per episode, white noise of
-#: 0.5 mm and 5 mm/s per reading. No dropped readings: XPlanar reports the mover positions every 1 ms cycle, so a lost
-#: frame leaves the PLC a reading 1 ms old, while the env's dropout repeats the reading of the previous env step
-#: (120 ms on B0); robustness.py's ``dropout`` condition shows that stress on its own.
+#: cycles of 1 ms per world (the PLC task's output to the drive over EtherCAT: a few cycles), and sensor errors
+#: larger than a planar motor's position feedback (tens of micrometres): a bias of std 1 mm and 10 mm/s per episode,
+#: white noise of 0.5 mm and 5 mm/s per reading. No dropped readings: XPlanar reports the mover positions every 1 ms
+#: cycle, so a lost frame leaves the PLC a reading 1 ms old, while the env's dropout repeats the reading of the
+#: previous env step (120 ms on B0); robustness.py's ``dropout`` condition shows that stress on its own.
 SIM2REAL = {"randomization": "sim2real", "actuation": {"latency_range": [0, 5]},
              "sensors": {"pos_bias_std": 0.001, "vel_bias_std": 0.01, "pos_noise_std": 0.0005, "vel_noise_std": 0.005}}
 _B0_PAPER = "99.3% success, 2.14 collisions per 1000 goals (Table 5, simulation; SAC+HER)"
