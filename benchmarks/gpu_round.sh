@@ -84,11 +84,11 @@ for stage in "$@"; do
       timeout 590 python3 benchmarks/time_to_target.py --tasks "$task" --seeds "$seeds" --json "$OUT/$stage.json" \
         2>&1 | tail -20 ;;
     suite)
-      mkdir -p /tmp/runs
       # Training runs of magwarp/training/paper.py side by side on the one GPU (RUNS=a,b,...; MINUTES, default 5),
-      # with TESTS (pytest files) running meanwhile; then magwarp eval of each run's policy and of the task's scripted
-      # baseline (200 episodes x 10 repeats, the run's eval options). The device returns at most 8 files: the run
-      # folders (checkpoints left out), logs and eval JSONs come back as one $OUT/suite.tgz
+      # with TESTS (pytest files) running meanwhile, into /tmp/runs (kept while the machine stays warm: suite_eval and
+      # robustness read it). The device returns at most 8 files: the run folders (checkpoints left out) and logs come
+      # back as one $OUT/suite.tgz
+      mkdir -p /tmp/runs
       python3 -m magwarp.training.suite --runs "$RUNS" --minutes "${MINUTES:-5}" \
         --stop-after "$(python3 -c "print(int(${MINUTES:-5} * 60 + 80))")" --work /tmp/runs > /tmp/runs/suite.log 2>&1 &
       train_pid=$!
@@ -98,15 +98,21 @@ for stage in "$@"; do
         grep -E "FAIL|ERROR|Fatal|passed|failed" /tmp/runs/pytest_gpu.log | tail -12
       fi
       wait $train_pid; tail -14 /tmp/runs/suite.log
+      tar czf "$OUT/suite.tgz" -C /tmp --exclude=checkpoint.pt runs ;;
+    suite_eval)
+      # magwarp eval of each run of RUNS left in /tmp/runs by the suite stage, and of the task's scripted baseline
+      # (200 episodes x 10 repeats, the run's eval options), all side by side; JSON into the run folders and the tarball
       for name in ${RUNS//,/ }; do
         read -r env kw < <(python3 -c "import json; from magwarp.training.paper import PAPER_RUNS as R; \
 r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':')))")
         for pol in "/tmp/runs/$name/policy.pt" scripted; do
-          timeout 60 python3 -m magwarp eval "$env" --policy "$pol" --env-kwargs "$kw" --episodes 200 --repeats 10 \
-            --device cuda:0 --json "/tmp/runs/$name/eval_$(basename "$pol" .pt).json" 2>&1 \
-            | grep -E "Success|Coll|Energy"
+          timeout 300 python3 -m magwarp eval "$env" --policy "$pol" --env-kwargs "$kw" --episodes 200 \
+            --repeats 10 --device cuda:0 --json "/tmp/runs/$name/eval_$(basename "$pol" .pt).json" \
+            > "/tmp/runs/$name/eval_$(basename "$pol" .pt).log" 2>&1 &
         done
       done
+      wait
+      for f in /tmp/runs/*/eval_*.log; do echo "--- $f"; grep -E "Success|Coll|Energy|Error|error" "$f" | head -5; done
       tar czf "$OUT/suite.tgz" -C /tmp --exclude=checkpoint.pt runs ;;
     planner)
       # #18: the scripted planner with its safety filter at 256 / 1024 / 4096 movers (1000 steps each)
