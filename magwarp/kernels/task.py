@@ -9,6 +9,10 @@
 * :func:`trajectory_obs` — the returned observation: the next episode's first one where a world finished, else the
   final one; it also advances the device env-step counter.
 
+Sensor models (:class:`SensorParams`): both kernels read the mover positions and velocities as
+:class:`magwarp.envs.sim2real.SensorModel` does (bias, then white noise drawn by torch), and :func:`trajectory_step`
+repeats the held reading of a world whose reading is dropped; goal checks and the NaN guard see the reading.
+
 The random numbers are drawn before the kernels, with the env's torch generator, in the same calls and order as the
 eager step (:mod:`magwarp.envs.trajectory_fused`): the kernels only select among them, so that both paths give the
 same numbers for the same seed. Floating-point contraction is off in this module (``fuse_fp``): ``lo + u * span`` must
@@ -37,6 +41,18 @@ class TrajectoryTask:
     timeout_steps: int  # truncate when more steps than this passed since the last goal; -1: never
     max_episode_steps: int  # truncate after this many steps; -1: never
     draw_latency: int  # 1: resets take the pre-drawn per-world action delay
+
+
+@wp.struct
+class SensorParams:
+    """:class:`magwarp.envs.sim2real.SensorModel`'s reading: ``x + bias`` (where set), then ``+ std * noise`` (where
+    the std is not 0), with the noise drawn by torch; a dropped world repeats its held reading."""
+
+    pos_bias: int  # 1: add the per-world position bias
+    vel_bias: int  # 1: add the per-world velocity bias
+    pos_std: float  # white noise std on positions (0: none drawn)
+    vel_std: float  # white noise std on velocities (0: none drawn)
+    dropout: int  # 1: worlds flagged in ``drop`` repeat their held observation and achieved goal
 
 
 @wp.struct
@@ -98,6 +114,20 @@ def write_obs(
 
 
 @wp.func
+def sense(
+    x: wp.vec2, use_bias: int, bias: wp.array2d(dtype=wp.vec2), std: float, noise: wp.array2d(dtype=wp.vec2), w: int,
+    m: int,
+):
+    """One sensed x/y reading (``SensorModel._sense``: the bias added first, then the scaled noise, in float32)."""
+    y = wp.vec2(x[0], x[1])
+    if use_bias == 1:
+        y = y + bias[w, m]
+    if std != 0.0:
+        y = y + std * noise[w, m]
+    return y
+
+
+@wp.func
 def finite2(v: wp.vec2):
     return wp.isfinite(v[0]) and wp.isfinite(v[1])
 
@@ -124,6 +154,15 @@ def trajectory_step(
     reset_u: wp.array3d(dtype=wp.vec2),
     reset_fallback: wp.array2d(dtype=wp.int64),
     delay_draw: wp.array(dtype=wp.int32),
+    # Sensors (this reading's noise, the biases, the dropped worlds and the readings they repeat):
+    sensor: SensorParams,
+    pos_bias: wp.array2d(dtype=wp.vec2),
+    vel_bias: wp.array2d(dtype=wp.vec2),
+    pos_noise: wp.array2d(dtype=wp.vec2),
+    vel_noise: wp.array2d(dtype=wp.vec2),
+    drop: wp.array(dtype=wp.bool),
+    held_obs: wp.array2d(dtype=float),
+    held_achieved: wp.array2d(dtype=float),
     # State in/out:
     goals: wp.array2d(dtype=wp.vec2),
     num_steps: wp.array(dtype=wp.int64),
@@ -152,20 +191,31 @@ def trajectory_step(
 ):
     w = wp.tid()
     num_movers = pos.shape[1]
-    # The observation the reward is computed for; collisions over the step.
+    # The observation the reward is computed for (sensed; a dropped reading repeats the held one).
+    for m in range(num_movers):
+        v = sense(wp.vec2(vel[w, m][0], vel[w, m][1]), sensor.vel_bias, vel_bias, sensor.vel_std, vel_noise, w, m)
+        p = sense(wp.vec2(pos[w, m][0], pos[w, m][1]), sensor.pos_bias, pos_bias, sensor.pos_std, pos_noise, w, m)
+        write_obs(w, m, num_movers, task.learn_jerk, v, acc[w, m], p, goals[w, m], final_obs, final_achieved,
+                  final_desired)
+    if sensor.dropout == 1:
+        if drop[w]:
+            for k in range(final_obs.shape[1]):
+                final_obs[w, k] = held_obs[w, k]
+            for k in range(final_achieved.shape[1]):
+                final_achieved[w, k] = held_achieved[w, k]
+    # Collisions over the step, goals reached, the NaN guard's check (all on what the observation shows).
     ok = bool(sim_nonfinite[w] < 0)
     hit_mover = bool(False)
     hit_wall = bool(False)
     reached = int(0)
     for m in range(num_movers):
-        v = wp.vec2(vel[w, m][0], vel[w, m][1])
-        p = wp.vec2(pos[w, m][0], pos[w, m][1])
+        v = wp.vec2(final_obs[w, 2 * m], final_obs[w, 2 * m + 1])
+        p = wp.vec2(final_achieved[w, 2 * m], final_achieved[w, 2 * m + 1])
         g = goals[w, m]
-        a = acc[w, m]
-        write_obs(w, m, num_movers, task.learn_jerk, v, a, p, g, final_obs, final_achieved, final_desired)
         ok = ok and finite2(v) and finite2(p) and finite2(g)
         if task.learn_jerk == 1:
-            ok = ok and finite2(a)
+            j = 2 * (num_movers + m)
+            ok = ok and finite2(wp.vec2(final_obs[w, j], final_obs[w, j + 1]))
         f = flags_any[w, m]
         hit_mover = hit_mover or (f & COLLIDE_MOVER) != 0
         hit_wall = hit_wall or (f & COLLIDE_WALL) != 0
@@ -239,6 +289,11 @@ def trajectory_obs(
     vel: wp.array2d(dtype=wp.vec3),
     acc: wp.array2d(dtype=wp.vec2),
     goals: wp.array2d(dtype=wp.vec2),
+    sensor: SensorParams,  # the next episode's first reading: the new biases, this reading's noise
+    pos_bias: wp.array2d(dtype=wp.vec2),
+    vel_bias: wp.array2d(dtype=wp.vec2),
+    pos_noise: wp.array2d(dtype=wp.vec2),
+    vel_noise: wp.array2d(dtype=wp.vec2),
     done: wp.array(dtype=wp.bool),
     final_obs: wp.array2d(dtype=float),
     final_achieved: wp.array2d(dtype=float),
@@ -263,5 +318,6 @@ def trajectory_obs(
         return
     num_movers = pos.shape[1]
     for m in range(num_movers):
-        write_obs(w, m, num_movers, learn_jerk, wp.vec2(vel[w, m][0], vel[w, m][1]), acc[w, m],
-                  wp.vec2(pos[w, m][0], pos[w, m][1]), goals[w, m], obs, achieved, desired)
+        v = sense(wp.vec2(vel[w, m][0], vel[w, m][1]), sensor.vel_bias, vel_bias, sensor.vel_std, vel_noise, w, m)
+        p = sense(wp.vec2(pos[w, m][0], pos[w, m][1]), sensor.pos_bias, pos_bias, sensor.pos_std, pos_noise, w, m)
+        write_obs(w, m, num_movers, learn_jerk, v, acc[w, m], p, goals[w, m], obs, achieved, desired)
