@@ -217,11 +217,26 @@ class SensorModel:
         if p > 0:
             self._drop.copy_(torch.rand(self._drop.shape, generator=self.generator, device=self._drop.device) < p)
 
+    # The draws of new_step, read and reset into given buffers, in their order, for the trajectory env's fused step
+    # (which applies them in its kernels: magwarp.kernels.task.SensorParams).
+    def draw_drop(self, u: torch.Tensor) -> None:
+        """:meth:`new_step`'s uniform draw per world into ``u`` (``[num_envs]`` float32; none without dropout)."""
+        if self.config.dropout_prob > 0:
+            torch.rand(u.shape, generator=self.generator, out=u)
+
     def draw_noise(self, vel: torch.Tensor, pos: torch.Tensor) -> None:
-        """Draw the white noise of one reading into ``vel`` and ``pos`` (``[num_envs, num_movers * 2]`` float32), as
-        :meth:`read` draws it (velocities first; none where the std is 0): the fused step applies it in a kernel."""
+        """The white noise of one reading into ``vel`` and ``pos`` (``[num_envs, num_movers * 2]`` float32), as
+        :meth:`read` draws it (velocities first; none where the std is 0)."""
         for out, std in ((vel, self.config.vel_noise_std), (pos, self.config.pos_noise_std)):
             if std != 0.0:
+                torch.randn(out.shape, generator=self.generator, out=out)
+
+    def draw_biases(self, vel: torch.Tensor, pos: torch.Tensor) -> None:
+        """:meth:`reset`'s standard normal draws into ``vel`` and ``pos`` (``[num_envs, num_movers, 2]``; velocities
+        first; none for a set bias)."""
+        for out, bias, std in ((vel, self.vel_bias, self.config.vel_bias_std),
+                               (pos, self.pos_bias, self.config.pos_bias_std)):
+            if bias is not None and std != 0:
                 torch.randn(out.shape, generator=self.generator, out=out)
 
     def _sense(self, x: torch.Tensor, bias: torch.Tensor | None, std: float) -> torch.Tensor:

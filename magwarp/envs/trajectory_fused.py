@@ -183,30 +183,39 @@ class FusedTrajectoryStep:
         self._init_sensors(n, m)
 
     def _init_sensors(self, n: int, m: int) -> None:
-        """The sensor model's parameters and Warp views (its biases, dropped-reading flags and held readings are
-        updated in place by the model), and the noise buffers of the step's two readings."""
-        sensors, dev = self.env.sensors, self.env.device
+        """The sensor model on the device (:class:`magwarp.kernels.task.SensorParams`: its biases, dropped-reading
+        flags and held readings are the model's own tensors, updated in place) and the buffers of its draws."""
+        sensors, dev, wdev = self.env.sensors, self.env.device, self.env.sim.device
         cfg = sensors.config
-        p = ktask.SensorParams()
-        p.pos_bias, p.vel_bias = int(sensors.pos_bias is not None), int(sensors.vel_bias is not None)
-        p.pos_std, p.vel_std = float(cfg.pos_noise_std), float(cfg.vel_noise_std)
-        p.dropout = int(cfg.dropout_prob > 0)
-        self._sensor = p
         w = wp.from_torch
 
         def vec2(t: torch.Tensor | None):
-            return w(t.view(n, m, 2), dtype=wp.vec2) if t is not None else wp.empty((0, 0), dtype=wp.vec2,
-                                                                                      device=self.env.sim.device)
+            return w(t.reshape(n, m, 2), dtype=wp.vec2) if t is not None else wp.empty((0, 0), dtype=wp.vec2,
+                                                                                         device=wdev)
+
+        def mean(name: str, bias: torch.Tensor | None) -> torch.Tensor | None:
+            return None if bias is None else torch.broadcast_to(sensors._mean[name], bias.shape).contiguous()
 
         self._noise = [(torch.zeros(n, 2 * m, device=dev), torch.zeros(n, 2 * m, device=dev)) for _ in range(2)]
+        self._bias_draw = (torch.zeros(n, m, 2, device=dev), torch.zeros(n, m, 2, device=dev))  # vel, pos
+        self._drop_u = torch.zeros(n, device=dev)
+        self._means = (mean("vel", sensors.vel_bias), mean("pos", sensors.pos_bias))
+        p = ktask.SensorParams()
+        p.pos_bias_on, p.vel_bias_on = int(sensors.pos_bias is not None), int(sensors.vel_bias is not None)
+        p.pos_std, p.vel_std = float(cfg.pos_noise_std), float(cfg.vel_noise_std)
+        p.pos_bias_std = float(cfg.pos_bias_std) if sensors.pos_bias is not None else 0.0
+        p.vel_bias_std = float(cfg.vel_bias_std) if sensors.vel_bias is not None else 0.0
+        p.dropout, p.drop_prob = int(cfg.dropout_prob > 0), float(cfg.dropout_prob)
+        p.pos_bias, p.vel_bias = vec2(sensors.pos_bias), vec2(sensors.vel_bias)
+        p.vel_mean, p.pos_mean = vec2(self._means[0]), vec2(self._means[1])
+        p.vel_bias_draw, p.pos_bias_draw = vec2(self._bias_draw[0]), vec2(self._bias_draw[1])
+        p.drop_u, p.drop = w(self._drop_u), w(sensors._drop)
         held = sensors._held if p.dropout else None
-        none2d = wp.empty((0, 0), dtype=float, device=self.env.sim.device)
-        self._sensor_wp = {
-            "bias": [vec2(sensors.pos_bias), vec2(sensors.vel_bias)],
-            "noise": [[vec2(pos), vec2(vel)] for vel, pos in self._noise],
-            "drop": w(sensors._drop),
-            "held": [w(held["observation"]), w(held["achieved_goal"])] if held is not None else [none2d, none2d],
-        }
+        none2d = wp.empty((0, 0), dtype=float, device=wdev)
+        p.held_obs = w(held["observation"]) if held is not None else none2d
+        p.held_achieved = w(held["achieved_goal"]) if held is not None else none2d
+        self._sensor = p
+        self._noise_wp = [(vec2(pos), vec2(vel)) for vel, pos in self._noise]
 
     # ------------------------------------------------------------------ launches
     def _sim_arrays(self):
@@ -236,33 +245,31 @@ class FusedTrajectoryStep:
         env = self.env
         sim, sensors = env.sim, env.sensors
         st, delay = self._sim_arrays()
-        a, sw = self._wp, self._sensor_wp
-        sensors.new_step()
+        a = self._wp
+        sensors.draw_drop(self._drop_u)
         sensors.draw_noise(*self._noise[0])
         self._draw()
+        sensors.draw_biases(*self._bias_draw)
         m = sim.model
         wp.launch(
             ktask.trajectory_step, dim=env.num_envs, device=sim.device,
             inputs=[self._task, self._sampler, m.tiles, m.collision, a["goal_pool"], a["start_pool"], st.pos, st.vel,
                     st.acc, st.flags_any, sim._nonfinite, a["env_step"], a["step_u"], a["step_fallback"],
-                    a["start_index"], a["reset_u"], a["reset_fallback"], a["delay_draw"], self._sensor, *sw["bias"],
-                    *sw["noise"][0], sw["drop"], *sw["held"], a["goals"], a["num_steps"], a["last_goal_step"],
-                    a["collected"], sim._init_pos, sim._init_quat, sim._reset_mask, delay],
+                    a["start_index"], a["reset_u"], a["reset_fallback"], a["delay_draw"], self._sensor,
+                    *self._noise_wp[0], a["goals"], a["num_steps"], a["last_goal_step"], a["collected"], sim._init_pos, sim._init_quat, sim._reset_mask, delay],
             outputs=out.step_outputs,
         )
-        # the finished worlds' new sensor biases and reset-mode randomisation (torch ops on the device mask)
-        sensors.reset(out.done)
+        # the finished worlds' reset-mode randomisation (torch ops on the device mask)
         if env.randomizer is not None:
             env.randomizer.reset_in_step(out.done)
         sensors.draw_noise(*self._noise[1])
         sim._launch_reset()
         wp.launch(
             ktask.trajectory_obs, dim=env.num_envs, device=sim.device,
-            inputs=[self._task.learn_jerk, st.pos, st.vel, st.acc, a["goals"], self._sensor, *sw["bias"],
-                    *sw["noise"][1], out.step_outputs[-1], *out.step_outputs[:3], a["env_step"]],
+            inputs=[self._task.learn_jerk, st.pos, st.vel, st.acc, a["goals"], self._sensor, *self._noise_wp[1],
+                    out.step_outputs[-1], *out.step_outputs[:3], a["env_step"]],
             outputs=out.obs_wp,
         )
-        sensors.commit(out.obs)  # what a dropped reading repeats next
 
     def _launch_eager(self, out: _Outputs) -> None:
         env = self.env
