@@ -13,8 +13,9 @@ step: that is the cost shown. The planar payload (the preset's) sits on the move
 torque tilts the mover, and its attitude dynamics (which a level mover skips) run every cycle, a physics cost of about
 3x on the CPU. The trajectory env runs its fused step in every setting (interval terms fire on the host before the
 step; the table's "step path" column says which step ran); "physics ms" is the simulator's step alone (the body
-terms switch its kernels to the general variant, which reads each world's parameters). Timing as in env_throughput.py (random actions from a bank, autoreset on, ``check_inputs`` off). Target:
-``full`` costs at most 10 % at 65,536 envs on the GPU.
+terms switch its kernels to the general variant, which reads each world's parameters). Timing as in
+env_throughput.py (random actions from a bank, autoreset on, ``check_inputs`` off). Target: ``full`` costs at most
+10 % at 65,536 envs on the GPU.
 """
 
 from __future__ import annotations

@@ -101,7 +101,8 @@ def test_trajectory_step_and_obs_match_numpy(rng):
               inputs=[task, s, m.tiles, m.collision, arr(goal_pool, wp.vec2), arr(start_pool, wp.vec2), a["pos"],
                       a["vel"], a["acc"], arr(flags), arr(sim_bad), a["env_step"], arr(u1, wp.vec2), arr(i1),
                       arr(si), arr(u2, wp.vec2), arr(i2), arr(lat), sp, arr(noise[0, 0], wp.vec2),
-                      arr(noise[0, 1], wp.vec2), a["goals"], a["num_steps"], a["last"], a["collected"], a["init_pos"], init_quat, mask, delay], outputs=outs)
+                      arr(noise[0, 1], wp.vec2), a["goals"], a["num_steps"], a["last"], a["collected"], a["init_pos"],
+                      init_quat, mask, delay], outputs=outs)
     obs = [wp.zeros((W, D), dtype=float, device="cpu"), wp.zeros((W, 2 * M), dtype=float, device="cpu"),
            wp.zeros((W, 2 * M), dtype=float, device="cpu")]
     wp.launch(ktask.trajectory_obs, dim=W, device="cpu",

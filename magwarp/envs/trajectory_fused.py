@@ -256,7 +256,8 @@ class FusedTrajectoryStep:
             inputs=[self._task, self._sampler, m.tiles, m.collision, a["goal_pool"], a["start_pool"], st.pos, st.vel,
                     st.acc, st.flags_any, sim._nonfinite, a["env_step"], a["step_u"], a["step_fallback"],
                     a["start_index"], a["reset_u"], a["reset_fallback"], a["delay_draw"], self._sensor,
-                    *self._noise_wp[0], a["goals"], a["num_steps"], a["last_goal_step"], a["collected"], sim._init_pos, sim._init_quat, sim._reset_mask, delay],
+                    *self._noise_wp[0], a["goals"], a["num_steps"], a["last_goal_step"], a["collected"], sim._init_pos,
+                    sim._init_quat, sim._reset_mask, delay],
             outputs=out.step_outputs,
         )
         # the finished worlds' reset-mode randomisation (torch ops on the device mask)
