@@ -126,8 +126,9 @@ def test_fused_step_matches_eager_with_goals_reached():
     assert counts["goals"] > 20 and counts["resets"] > 0, counts
 
 
-def test_fused_step_reseed_and_partial_reset_midway():
-    eager, fused = twin_envs("cpu")
+@pytest.mark.parametrize("name", ["default", "randomised_sensors"])
+def test_fused_step_reseed_and_partial_reset_midway(name):
+    eager, fused = twin_envs("cpu", **CONFIGS[name])
     run_twins(eager, fused, 20, seed=1)
     mask = torch.zeros(eager.num_envs, dtype=torch.bool)
     mask[::3] = True
@@ -140,8 +141,9 @@ def test_fused_step_reseed_and_partial_reset_midway():
     run_twins(eager, fused, 20, seed=77)  # reset(seed=77) redraws the pools: the fused step copies them in
 
 
-def test_fused_step_nan_guard_matches_eager():
-    eager, fused = twin_envs("cpu")
+@pytest.mark.parametrize("name", ["default", "randomised_sensors"])
+def test_fused_step_nan_guard_matches_eager(name):
+    eager, fused = twin_envs("cpu", **CONFIGS[name])
     run_twins(eager, fused, 5, seed=2)
     gen = torch.Generator().manual_seed(4)
     for t, (world, field) in enumerate([(3, "vel"), (7, "pos"), (3, "vel")]):
