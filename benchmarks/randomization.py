@@ -2,7 +2,7 @@
 sensor model on, against none, per env and num_envs, on CPU and CUDA.
 
     python benchmarks/randomization.py                                    # cpu (+cuda:0 when present), default sizes
-    python benchmarks/randomization.py --device cuda:0 --num-envs 4096,65536 --json randomization_gpu.json
+    python benchmarks/randomization.py --device cuda:0 --num-envs 4096,16384,65536 --json randomization_gpu.json
 
 Envs: the trajectory-planning env (B0, the planar simulator: :mod:`magwarp.envs.planar_randomization`) and Push-Box
 (mujoco-warp: :mod:`magwarp.envs.randomization`). Settings: ``off`` (no terms), ``terms`` (every event term of the env's
@@ -11,8 +11,11 @@ backend, drawn at every reset, one of them also every 10 steps), ``full`` (the t
 every step (for the worlds that finished, often none), so the reset terms' draws and model writes are paid at every
 step: that is the cost shown. The planar payload (the preset's) sits on the mover's vertical axis: off it, gravity's
 torque tilts the mover, and its attitude dynamics (which a level mover skips) run every cycle, a physics cost of about
-3x on the CPU. Timing as in env_throughput.py (random actions from a bank, autoreset on, ``check_inputs`` off). Target:
-``full`` costs at most 10 % at 65,536 envs on the GPU.
+3x on the CPU. The trajectory env runs its fused step in every setting (interval terms fire on the host before the
+step; the table's "step path" column says which step ran); "physics ms" is the simulator's step alone (the body
+terms switch its kernels to the general variant, which reads each world's parameters). Timing as in
+env_throughput.py (random actions from a bank, autoreset on, ``check_inputs`` off). Target: ``full`` costs at most
+10 % at 65,536 envs on the GPU.
 """
 
 from __future__ import annotations
@@ -70,7 +73,7 @@ def main(argv=None) -> int:
     rows: list[dict] = []
     for device in devices:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else
-                 ([64, 256] if device == "cpu" else [4096, 65536]))
+                 ([64, 256] if device == "cpu" else [4096, 16384, 65536]))
         for env_id in [args.env] if args.env else list(ENVS):
             for n in sizes:
                 base = None
@@ -80,10 +83,11 @@ def main(argv=None) -> int:
                     cost = 100.0 * (res["step_ms"] / base["step_ms"] - 1.0)
                     rows.append({"env": env_id, "device": device, "num_envs": n, "randomization": name,
                                  "cost_pct": cost, **res})
+                    path = f", step path: {res['path']}" if "path" in res else ""
                     print(f"  {device} {env_id} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s "
-                          f"({cost:+.1f} %)", flush=True)
+                          f"({cost:+.1f} %{path})", flush=True)
     columns = ["env", "device", "num_envs", "randomization", ("step_ms", "ms/step"), ("env_steps_per_s", "env-steps/s"),
-               ("cost_pct", "cost % vs off")]
+               ("cost_pct", "cost % vs off"), ("sim_ms", "physics ms"), ("path", "step path")]
     return finish(rows, columns, info, args.json)
 
 

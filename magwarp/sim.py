@@ -487,19 +487,20 @@ class Simulator:
             self._pack_mask_wp = wp.from_torch(self._pack_mask, dtype=wp.bool)
         return self._mover_params
 
-    def commit_mover_params(self, mask=None, *, scale_inertia: bool = False) -> None:
+    def commit_mover_params(self, mask=None, *, scale_inertia: bool = False, current_stream: bool = False) -> None:
         """Pack :attr:`mover_params` into the model's body rows of the worlds in ``mask`` (``[W]`` bool tensor on the
         device; all if None): one kernel launch, no host sync, no rebuild; the next step uses them.
         ``scale_inertia``: use the configured inertia scaled with each mover's mass (uniform density) instead of
         ``mover_params["inertia"]``. Values are not checked here (the randomiser checks its distributions'
-        supports): keep masses, inertias and limits positive and the stiffness stable (see the class doc)."""
+        supports): keep masses, inertias and limits positive and the stiffness stable (see the class doc).
+        ``current_stream``: launch on Warp's current stream, not the simulator's (inside a captured env step)."""
         self.mover_params  # noqa: B018 - builds the tensors and the launch inputs
         if mask is None:
             self._pack_mask.fill_(True)
         else:
             self._pack_mask.copy_(mask)
         inertia = self.mover.inertia
-        with self._on_stream():
+        with contextlib.nullcontext() if current_stream else self._on_stream():
             wp.launch(kparams.pack_bodies, dim=(self.num_worlds, self.num_movers), device=self.device,
                       inputs=[self._pack_mask_wp, float(self.mover.mass), wp.vec3d(*[float(v) for v in inertia]),
                               int(bool(scale_inertia)), *self._pack_inputs, self.model.body])

@@ -15,10 +15,36 @@ from magwarp.envs.trajectory import TrajectoryPlanningEnv
 
 HOLE = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]])
 
+#: every kind of randomisation term: the preset (reset mode, body fields, a known payload), startup, targets, an
+#: unknown off-axis payload, collision sizes, and an interval term
+TERMS = ["sim2real",
+         {"field": "mover_inertia", "dist": {"uniform": [0.9, 1.1]}, "op": "scale", "mode": "startup"},
+         {"field": "j_max", "dist": {"uniform": [0.9, 1.0]}, "op": "scale", "mode": "interval", "interval_steps": 7},
+         {"field": "collision_radius", "dist": {"gaussian": [-0.003, 0.002], "clip": [-0.006, 0.0]}, "op": "add",
+          "targets": [0, 2]},
+         {"field": "collision_margin", "dist": {"uniform": [0.0, 0.004]}}]
+SENSORS = {"pos_bias": [0.001, -0.002], "pos_bias_std": 0.001, "vel_bias_std": 0.01, "pos_noise_std": 0.0005,
+           "vel_noise_std": 0.005, "dropout_prob": 0.2}
+
+
+def full_randomisation(terms: list, **sensors) -> dict:
+    preset = [t for t in terms if isinstance(t, str)]
+    rest = [t for t in terms if not isinstance(t, str)]
+    from magwarp.envs.randomization import PRESETS
+
+    terms = [*(u for name in preset for u in PRESETS[name]["planar"]), *rest]
+    return dict(randomization=terms, actuation={"latency_range": [0, 5]}, sensors={**SENSORS, **sensors})
+
+
 CONFIGS = {
     "default": {},
     "jerk_episode_cut_latency": dict(learn_jerk=True, max_episode_steps=9, actuation={"latency_range": [1, 7]}),
     "box_hole_no_timeout": dict(layout=HOLE, num_movers=2, collision_shape="box", timeout_steps=None),
+    "randomised_sensors": full_randomisation(TERMS),
+    "jerk_randomised_box_sensors": dict(learn_jerk=True, collision_shape="box", max_episode_steps=12,
+                                        **full_randomisation(["sim2real"], pos_bias=0.0, vel_bias=[0.01, 0.0],
+                                                             vel_bias_std=0.0, pos_noise_std=0.0)),
+    "std_noise": dict(std_noise=1e-3),
 }
 
 
@@ -66,9 +92,23 @@ def run_twins(eager, fused, steps: int, seed: int, policy=None) -> dict[str, int
         obs_e = out_e[0]
         counts["resets"] += int(out_e[4]["_final_obs"].sum())
         counts["goals"] += int(out_e[4]["goals_reached"].sum())
-    assert_same((eager.goals, eager.num_steps, eager.last_goal_step, eager.collected_goals, eager.sim.pos),
-                (fused.goals, fused.num_steps, fused.last_goal_step, fused.collected_goals, fused.sim.pos), "state")
+    assert_same(twin_state(eager), twin_state(fused), "state")
     return counts
+
+
+def twin_state(env) -> dict:
+    """The state both steps must leave alike: task counters, poses, and the drawn delays, biases and model rows."""
+    sim, sensors = env.sim, env.sensors
+    out = {"goals": env.goals, "num_steps": env.num_steps, "last_goal_step": env.last_goal_step,
+           "collected": env.collected_goals, "pos": sim.pos, "radii": sim.radii, "margins": sim.margins}
+    if sim.latency_cycles is not None:
+        out["delay"] = sim.latency_cycles
+    out.update({k: v for k, v in (("pos_bias", sensors.pos_bias), ("vel_bias", sensors.vel_bias)) if v is not None})
+    if env.randomizer is not None:
+        out.update(env.randomizer.values)
+    if sim._mover_params is not None:  # what the body rows are packed from
+        out.update({f"param_{k}": v for k, v in sim._mover_params.items()})
+    return out
 
 
 @pytest.mark.parametrize("name", list(CONFIGS))
@@ -86,8 +126,9 @@ def test_fused_step_matches_eager_with_goals_reached():
     assert counts["goals"] > 20 and counts["resets"] > 0, counts
 
 
-def test_fused_step_reseed_and_partial_reset_midway():
-    eager, fused = twin_envs("cpu")
+@pytest.mark.parametrize("name", ["default", "randomised_sensors"])
+def test_fused_step_reseed_and_partial_reset_midway(name):
+    eager, fused = twin_envs("cpu", **CONFIGS[name])
     run_twins(eager, fused, 20, seed=1)
     mask = torch.zeros(eager.num_envs, dtype=torch.bool)
     mask[::3] = True
@@ -100,8 +141,9 @@ def test_fused_step_reseed_and_partial_reset_midway():
     run_twins(eager, fused, 20, seed=77)  # reset(seed=77) redraws the pools: the fused step copies them in
 
 
-def test_fused_step_nan_guard_matches_eager():
-    eager, fused = twin_envs("cpu")
+@pytest.mark.parametrize("name", ["default", "randomised_sensors"])
+def test_fused_step_nan_guard_matches_eager(name):
+    eager, fused = twin_envs("cpu", **CONFIGS[name])
     run_twins(eager, fused, 5, seed=2)
     gen = torch.Generator().manual_seed(4)
     for t, (world, field) in enumerate([(3, "vel"), (7, "pos"), (3, "vel")]):
@@ -136,9 +178,9 @@ def test_fused_step_refuses_bad_actions_before_any_change():
 def test_step_path_choice():
     env = TrajectoryPlanningEnv(4, device="cpu")
     assert env.step_path == "fused"
-    assert TrajectoryPlanningEnv(4, device="cpu", std_noise=1e-5).step_path.startswith("eager (sensor")
-    assert TrajectoryPlanningEnv(4, device="cpu", sensors=SensorConfig(dropout_prob=0.1)).step_path.startswith(
-        "eager (sensor")
+    assert TrajectoryPlanningEnv(4, device="cpu", std_noise=1e-5).step_path == "fused"
+    assert TrajectoryPlanningEnv(4, device="cpu", sensors=SensorConfig(dropout_prob=0.1)).step_path == "fused"
+    assert TrajectoryPlanningEnv(4, device="cpu", **full_randomisation(TERMS)).step_path == "fused"
     assert TrajectoryPlanningEnv(4, device="cpu", autoreset=False).step_path == "eager (autoreset=False)"
     from magwarp.metrics import Metrics
 

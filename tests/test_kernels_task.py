@@ -51,6 +51,25 @@ def test_trajectory_step_and_obs_match_numpy(rng):
     init_pos = rng.uniform(0, 1, (W, M, 3)).astype(f32)
     env_step = np.array([17])
     D = 2 * M * (1 + learn_jerk)
+    # sensor models: each part on or off at random
+    sp = ktask.SensorParams()
+    sp.pos_bias_on, sp.vel_bias_on, sp.dropout = (int(v) for v in rng.integers(0, 2, 3))
+    sp.pos_std, sp.vel_std, sp.pos_bias_std, sp.vel_bias_std = (float(v) for v in rng.choice([0.0, 0.01], 4))
+    sp.drop_prob = 0.3
+    pos_bias, vel_bias, pos_mean, vel_mean = rng.normal(0, 0.01, (4, W, M, 2)).astype(f32)
+    bias_draw = rng.normal(0, 1, (2, W, M, 2)).astype(f32)  # [pos, vel]
+    noise = rng.normal(0, 1, (2, 2, W, M, 2)).astype(f32)  # [reading][pos, vel]
+    drop_u = rng.uniform(size=W).astype(f32)
+    held_obs, held_ach = rng.normal(0, 1, (W, D)).astype(f32), rng.uniform(0, 1, (W, 2 * M)).astype(f32)
+    held_ach[5] = goals[5].reshape(-1)  # a dropped reading at its goals: reached on the held reading
+    drop_u[5] = 0.0
+    sensor_arrays = {k: wp.array(v, dtype=wp.vec2, device="cpu") for k, v in [
+        ("pos_bias", pos_bias), ("vel_bias", vel_bias), ("pos_mean", pos_mean), ("vel_mean", vel_mean),
+        ("pos_bias_draw", bias_draw[0]), ("vel_bias_draw", bias_draw[1])]}
+    sensor_arrays.update(drop_u=wp.array(drop_u, device="cpu"), drop=wp.array(drop_u < 0.5, device="cpu"),
+                         held_obs=wp.array(held_obs, device="cpu"), held_achieved=wp.array(held_ach, device="cpu"))
+    for k, v in sensor_arrays.items():
+        setattr(sp, k, v)
 
     a = {k: wp.array(v, device="cpu", dtype=dt) for k, v, dt in [
         ("goals", goals, wp.vec2), ("num_steps", num_steps, wp.int64), ("last", last, wp.int64),
@@ -69,15 +88,26 @@ def test_trajectory_step_and_obs_match_numpy(rng):
     def arr(x, dt=None):
         return wp.array(x, device="cpu") if dt is None else wp.array(x, dtype=dt, device="cpu")
 
+    def sensed(x, bias, use_bias, std, nz):  # SensorModel._sense, in float32
+        x = x + bias if use_bias else x
+        return (x + f32(std) * nz if std else x).reshape(W, -1)
+
+    def reading(k, pb, vb):
+        v = sensed(vel[..., :2], vb, sp.vel_bias_on, sp.vel_std, noise[k, 1])
+        p = sensed(pos[..., :2], pb, sp.pos_bias_on, sp.pos_std, noise[k, 0])
+        return np.concatenate([v] + ([acc.reshape(W, -1)] if learn_jerk else []), 1), p
+
     wp.launch(ktask.trajectory_step, dim=W, device="cpu",
               inputs=[task, s, m.tiles, m.collision, arr(goal_pool, wp.vec2), arr(start_pool, wp.vec2), a["pos"],
                       a["vel"], a["acc"], arr(flags), arr(sim_bad), a["env_step"], arr(u1, wp.vec2), arr(i1),
-                      arr(si), arr(u2, wp.vec2), arr(i2), arr(lat), a["goals"], a["num_steps"], a["last"],
-                      a["collected"], a["init_pos"], init_quat, mask, delay], outputs=outs)
+                      arr(si), arr(u2, wp.vec2), arr(i2), arr(lat), sp, arr(noise[0, 0], wp.vec2),
+                      arr(noise[0, 1], wp.vec2), a["goals"], a["num_steps"], a["last"], a["collected"], a["init_pos"],
+                      init_quat, mask, delay], outputs=outs)
     obs = [wp.zeros((W, D), dtype=float, device="cpu"), wp.zeros((W, 2 * M), dtype=float, device="cpu"),
            wp.zeros((W, 2 * M), dtype=float, device="cpu")]
     wp.launch(ktask.trajectory_obs, dim=W, device="cpu",
-              inputs=[learn_jerk, a["pos"], a["vel"], a["acc"], a["goals"], outs[-1], *outs[:3], a["env_step"]],
+              inputs=[learn_jerk, a["pos"], a["vel"], a["acc"], a["goals"], sp, arr(noise[1, 0], wp.vec2),
+                      arr(noise[1, 1], wp.vec2), outs[-1], *outs[:3], a["env_step"]],
               outputs=obs)
     (f_obs, f_ach, f_des, reward, term, trunc, mc, wc, since, coll_out, reached, tl, bad, bad_step,
      done) = (o.numpy() for o in outs)
@@ -90,11 +120,15 @@ def test_trajectory_step_and_obs_match_numpy(rng):
         chosen = np.take_along_axis(cand, first[..., None, None].repeat(2, -1), 2)[:, :, 0]
         return np.where(ok.any(-1)[..., None], chosen, goal_pool[idx])
 
-    ref_obs = np.concatenate([vel[..., :2].reshape(W, -1)] + ([acc.reshape(W, -1)] if learn_jerk else []), 1)
+    ref_obs, ref_ach = reading(0, pos_bias, vel_bias)
+    drop = drop_u < f32(0.3)
+    if sp.dropout:
+        ref_obs = np.where(drop[:, None], held_obs, ref_obs)
+        ref_ach = np.where(drop[:, None], held_ach, ref_ach)
     np.testing.assert_array_equal(f_obs, ref_obs)
-    np.testing.assert_array_equal(f_ach, pos[..., :2].reshape(W, -1))
+    np.testing.assert_array_equal(f_ach, ref_ach)
     np.testing.assert_array_equal(f_des, goals.reshape(W, -1))
-    d = pos[..., :2] - goals
+    d = ref_ach.reshape(W, M, 2) - goals
     at = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]) <= f32(0.1)
     np.testing.assert_array_equal(reached, at)
     np.testing.assert_array_equal(mc, (flags & 1).any(1))
@@ -102,7 +136,7 @@ def test_trajectory_step_and_obs_match_numpy(rng):
     col = mc | wc
     n_at = at.sum(1)
     ref_r = np.where(col, -20.0, np.where(n_at > 0, 20.0 * n_at, -1.0)).astype(f32)
-    finite = np.isfinite(ref_obs).all(1) & np.isfinite(pos[..., :2]).all((1, 2)) & (sim_bad < 0)
+    finite = np.isfinite(ref_obs).all(1) & np.isfinite(ref_ach).all(1) & (sim_bad < 0)
     np.testing.assert_array_equal(bad, ~finite)
     np.testing.assert_array_equal(reward, np.where(finite, ref_r, 0.0))
     np.testing.assert_array_equal(since, num_steps - last)
@@ -130,8 +164,23 @@ def test_trajectory_step_and_obs_match_numpy(rng):
     np.testing.assert_array_equal(mask.numpy(), done.astype(np.int32))
     np.testing.assert_array_equal(delay.numpy(), np.where(done, lat, 0))
     # the returned observation: the next episode's first where finished, the final one elsewhere
-    ref_next = np.concatenate([vel[..., :2].reshape(W, -1)] + ([acc.reshape(W, -1)] if learn_jerk else []), 1)
+    # new biases where finished (mean + std * draw); the next reading uses them
+    new_pb = np.where(done[:, None, None] & bool(sp.pos_bias_std), pos_mean + f32(sp.pos_bias_std) * bias_draw[0],
+                      pos_bias)
+    new_vb = np.where(done[:, None, None] & bool(sp.vel_bias_std), vel_mean + f32(sp.vel_bias_std) * bias_draw[1],
+                      vel_bias)
+    np.testing.assert_array_equal(sensor_arrays["pos_bias"].numpy(), new_pb)
+    np.testing.assert_array_equal(sensor_arrays["vel_bias"].numpy(), new_vb)
+    ref_next, ref_next_ach = reading(1, new_pb, new_vb)
     np.testing.assert_array_equal(obs[0].numpy(), np.where(done[:, None], ref_next, f_obs))
+    np.testing.assert_array_equal(obs[1].numpy(), np.where(done[:, None], ref_next_ach, f_ach))
+    if sp.dropout:  # the returned reading is held, the next one fresh
+        np.testing.assert_array_equal(sensor_arrays["held_obs"].numpy(), obs[0].numpy())
+        np.testing.assert_array_equal(sensor_arrays["held_achieved"].numpy(), obs[1].numpy())
+        assert not sensor_arrays["drop"].numpy().any()
+    else:  # untouched
+        np.testing.assert_array_equal(sensor_arrays["held_obs"].numpy(), held_obs)
+        np.testing.assert_array_equal(sensor_arrays["drop"].numpy(), drop_u < 0.5)
     np.testing.assert_array_equal(obs[2].numpy(), np.where(done[:, None], new_goals.reshape(W, -1), f_des))
     assert a["env_step"].numpy()[0] == 18
     assert done.any() and (~done).any() and at.any()

@@ -114,9 +114,16 @@ class PlanarRandomizer(EventRunner):
                                         float(np.min(np.asarray(sim.mover.inertia))))
 
     # ------------------------------------------------------------------ model writes
-    def commit(self, mask: torch.Tensor | None) -> None:
+    def commit(self, mask: torch.Tensor | None, current_stream: bool = False) -> None:
         """Pack the body fields of the worlds in ``mask`` (all if None): one kernel (the terms wrote the simulator's
-        parameter tensors and its collision sizes directly)."""
+        parameter tensors and its collision sizes directly); ``current_stream``: on Warp's current stream."""
         used = self.values
         if any(f in used for f in BODY_KEYS):
-            self.sim.commit_mover_params(mask, scale_inertia="mover_mass" in used and "mover_inertia" not in used)
+            self.sim.commit_mover_params(mask, scale_inertia="mover_mass" in used and "mover_inertia" not in used,
+                                         current_stream=current_stream)
+
+    def reset_in_step(self, mask: torch.Tensor) -> None:
+        """:meth:`reset` inside an env step (the fused step, possibly being captured as a CUDA graph): the same draws
+        and writes, the pack kernel on Warp's current stream. ``mask``: a device tensor (no host sync)."""
+        self._fire("reset", mask)
+        self.commit(mask, current_stream=True)

@@ -181,6 +181,10 @@ class SensorModel:
         shape = (num_envs, num_movers, 2)
         self.pos_bias = self._bias_tensor(config.pos_bias, config.pos_bias_std, "pos_bias", shape, device)
         self.vel_bias = self._bias_tensor(config.vel_bias, config.vel_bias_std, "vel_bias", shape, device)
+        # the bias means on the device (reset draws around them: no host copy inside a step)
+        self._mean = {name: torch.as_tensor(np.asarray(mean, dtype=np.float32), device=device)
+                      for name, mean in (("pos", config.pos_bias), ("vel", config.vel_bias))}
+        # Updated in place (the fused step of the trajectory env reads them through Warp views).
         self._drop = torch.zeros(num_envs, dtype=torch.bool, device=device)
         self._held: dict[str, torch.Tensor] | None = None
 
@@ -199,11 +203,10 @@ class SensorModel:
 
     def reset(self, mask: torch.Tensor) -> None:
         """New biases for the worlds in ``mask``; their next reading is not dropped."""
-        for bias, mean, std in ((self.vel_bias, self.config.vel_bias, self.config.vel_bias_std),
-                                (self.pos_bias, self.config.pos_bias, self.config.pos_bias_std)):
+        for bias, mean, std in ((self.vel_bias, self._mean["vel"], self.config.vel_bias_std),
+                                (self.pos_bias, self._mean["pos"], self.config.pos_bias_std)):
             if bias is None or std == 0:  # a set bias stays
                 continue
-            mean = torch.as_tensor(np.asarray(mean, dtype=np.float32), device=bias.device)
             draw = mean + std * torch.randn(bias.shape, generator=self.generator, device=bias.device)
             bias.copy_(torch.where(mask[:, None, None], draw, bias))
         self._drop &= ~mask
@@ -212,7 +215,29 @@ class SensorModel:
         """Draw which worlds drop this step's reading."""
         p = self.config.dropout_prob
         if p > 0:
-            self._drop = torch.rand(self._drop.shape, generator=self.generator, device=self._drop.device) < p
+            self._drop.copy_(torch.rand(self._drop.shape, generator=self.generator, device=self._drop.device) < p)
+
+    # The draws of new_step, read and reset into given buffers, in their order, for the trajectory env's fused step
+    # (which applies them in its kernels: magwarp.kernels.task.SensorParams).
+    def draw_drop(self, u: torch.Tensor) -> None:
+        """:meth:`new_step`'s uniform draw per world into ``u`` (``[num_envs]`` float32; none without dropout)."""
+        if self.config.dropout_prob > 0:
+            torch.rand(u.shape, generator=self.generator, out=u)
+
+    def draw_noise(self, vel: torch.Tensor, pos: torch.Tensor) -> None:
+        """The white noise of one reading into ``vel`` and ``pos`` (``[num_envs, num_movers * 2]`` float32), as
+        :meth:`read` draws it (velocities first; none where the std is 0)."""
+        for out, std in ((vel, self.config.vel_noise_std), (pos, self.config.pos_noise_std)):
+            if std != 0.0:
+                torch.randn(out.shape, generator=self.generator, out=out)
+
+    def draw_biases(self, vel: torch.Tensor, pos: torch.Tensor) -> None:
+        """:meth:`reset`'s standard normal draws into ``vel`` and ``pos`` (``[num_envs, num_movers, 2]``; velocities
+        first; none for a set bias)."""
+        for out, bias, std in ((vel, self.vel_bias, self.config.vel_bias_std),
+                               (pos, self.pos_bias, self.config.pos_bias_std)):
+            if bias is not None and std != 0:
+                torch.randn(out.shape, generator=self.generator, out=out)
 
     def _sense(self, x: torch.Tensor, bias: torch.Tensor | None, std: float) -> torch.Tensor:
         n = x.shape[0]
@@ -242,7 +267,11 @@ class SensorModel:
         the next step."""
         if self.config.dropout_prob == 0:
             return
-        self._held = {k: obs[k].clone() for k in self.HELD_KEYS}
+        if self._held is None:
+            self._held = {k: obs[k].clone() for k in self.HELD_KEYS}
+        else:  # in place: the buffers stay the same tensors
+            for k in self.HELD_KEYS:
+                self._held[k].copy_(obs[k])
         self._drop.zero_()
 
 

@@ -101,10 +101,10 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
     The step (:mod:`magwarp.envs.trajectory_fused`): with ``fused=True`` (default) the task logic after the physics
     (observations, reward, terminations, goal resampling, NaN guard, autoreset) runs as two Warp kernels around the
     simulator's, and on CUDA with ``graph=True`` (default) the whole step is one captured CUDA graph, replayed with no
-    host sync. Its results are the same as the torch step's (``fused=False``) for the same seed and actions. The
-    sensor models (``sensors``, ``std_noise``), benchmark metrics, ``nan_dump`` and ``autoreset=False`` take the torch
-    step; :attr:`step_path` says which one runs. On the fused path the returned tensors are the env's buffers: valid
-    through the next step, overwritten by the one after it (clone what you keep longer).
+    host sync. Its results are the same as the torch step's (``fused=False``) for the same seed and actions, with the
+    sensor models, action latency and randomisation terms on. Benchmark metrics, ``nan_dump`` and ``autoreset=False``
+    take the torch step; :attr:`step_path` says which one runs. On the fused path the returned tensors are the env's
+    buffers: valid through the next step, overwritten by the one after it (clone what you keep longer).
     """
 
     EPISODE_OPTIONS = {"start_xy": ("M", 2), "start_yaw": ("M",), "goals": ("M", 2)}

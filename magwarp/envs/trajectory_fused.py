@@ -5,12 +5,20 @@ One step (after the host-side input check and the copy of the action into the si
 
 1. the simulator's step kernels (``num_cycles`` cycles, NaN guard);
 2. the random numbers of the step, drawn with the env's torch generator in the same calls, shapes and order as the
-   eager step draws them (goals for reached goals; a start configuration, goals and, with a latency range, a delay
-   for every world), so that both paths give the same episodes for the same seed;
-3. :func:`magwarp.kernels.task.trajectory_step` (one thread per world): the final observation, reward, flags, info,
-   goal counters, resampled goals, and the next episode's starts and goals for the worlds that finished;
-4. the simulator's reset kernels for those worlds;
-5. :func:`magwarp.kernels.task.trajectory_obs`: the returned observation.
+   eager step draws them (dropped readings and the reading's white noise; goals for reached goals; a start
+   configuration, goals and, with a latency range, a delay for every world), so that both paths give the same
+   episodes for the same seed;
+3. :func:`magwarp.kernels.task.trajectory_step` (one thread per world): the final (sensed) observation, reward,
+   flags, info, goal counters, resampled goals, and the next episode's starts and goals for the worlds that finished;
+4. for those worlds (the kernel's ``done`` flags as the mask, on the device): the sensor model's new biases and the
+   reset-mode randomisation terms (:meth:`~magwarp.envs.planar_randomization.PlanarRandomizer.reset_in_step`:
+   draws for every world, applied with ``torch.where``, one pack kernel), as the torch step's ``_reset_envs`` draws
+   them; the noise of the next reading; the simulator's reset kernels;
+5. :func:`magwarp.kernels.task.trajectory_obs`: the returned observation; the sensor model keeps it (what a dropped
+   reading repeats).
+
+Interval-mode randomisation terms fire on the host before the step (the simulator's step callbacks, as in the torch
+step), then the graph is replayed: their draws come first, as in the torch step.
 
 On CUDA (``graph=True``) steps 1-5 are one CUDA graph recorded with ``torch.cuda.graph`` (the env's generator is
 registered with it, so every replay draws new numbers), replayed with no host sync and no Python beyond the replay.
@@ -50,9 +58,11 @@ def _overridden_hook(cls) -> str | None:
 def fused_step_blocker(env) -> str | None:
     """Why ``env`` (a :class:`~magwarp.envs.trajectory.TrajectoryPlanningEnv`) must take the eager torch step now, or
     None when the fused step applies. The fused step covers the default configuration, action latency (fixed or
-    drawn at resets), ``learn_jerk``, box or circle shapes, any layout, ``max_episode_steps`` and ``timeout_steps``;
-    the sensor models, domain randomisation terms, benchmark metrics, ``nan_dump``, ``autoreset=False``, simulator cycle hooks and subclasses that
-    override a task hook (:data:`REPLACED_HOOKS`) keep the torch step."""
+    drawn at resets), the sensor models (bias, white noise, dropped readings; ``std_noise``), domain randomisation
+    terms of every mode (startup; reset: inside the step; interval: on the host before the step, as the simulator's
+    step callbacks run), ``learn_jerk``, box or circle shapes, any layout, ``max_episode_steps`` and
+    ``timeout_steps``; benchmark metrics, ``nan_dump``, ``autoreset=False``, simulator cycle hooks and subclasses
+    that override a task hook (:data:`REPLACED_HOOKS`) keep the torch step."""
     if not env.fused:
         return "fused=False"
     if not env.autoreset:
@@ -61,15 +71,8 @@ def fused_step_blocker(env) -> str | None:
         return "nan_dump"
     if env.benchmark_metrics is not None:
         return "benchmark metrics"
-    sensors = env.sensors
-    cfg = sensors.config
-    if sensors.pos_bias is not None or sensors.vel_bias is not None or cfg.pos_noise_std or cfg.vel_noise_std or \
-            cfg.dropout_prob:
-        return "sensor model (bias, noise or dropout)"
     if env.sim._hooks or env.sim._pre_hooks:
         return "simulator cycle hooks"
-    if getattr(env, "randomizer", None) is not None:
-        return "domain randomisation terms"
     hook = _overridden_hook(type(env))
     if hook is not None:
         return f"{type(env).__name__} overrides {hook}"
@@ -177,6 +180,42 @@ class FusedTrajectoryStep:
         s.half = wp.vec2(*sampler.half.tolist())
         s.offset = sampler.offset
         self._sampler = s
+        self._init_sensors(n, m)
+
+    def _init_sensors(self, n: int, m: int) -> None:
+        """The sensor model on the device (:class:`magwarp.kernels.task.SensorParams`: its biases, dropped-reading
+        flags and held readings are the model's own tensors, updated in place) and the buffers of its draws."""
+        sensors, dev, wdev = self.env.sensors, self.env.device, self.env.sim.device
+        cfg = sensors.config
+        w = wp.from_torch
+
+        def vec2(t: torch.Tensor | None):
+            return w(t.reshape(n, m, 2), dtype=wp.vec2) if t is not None else wp.empty((0, 0), dtype=wp.vec2,
+                                                                                         device=wdev)
+
+        def mean(name: str, bias: torch.Tensor | None) -> torch.Tensor | None:
+            return None if bias is None else torch.broadcast_to(sensors._mean[name], bias.shape).contiguous()
+
+        self._noise = [(torch.zeros(n, 2 * m, device=dev), torch.zeros(n, 2 * m, device=dev)) for _ in range(2)]
+        self._bias_draw = (torch.zeros(n, m, 2, device=dev), torch.zeros(n, m, 2, device=dev))  # vel, pos
+        self._drop_u = torch.zeros(n, device=dev)
+        self._means = (mean("vel", sensors.vel_bias), mean("pos", sensors.pos_bias))
+        p = ktask.SensorParams()
+        p.pos_bias_on, p.vel_bias_on = int(sensors.pos_bias is not None), int(sensors.vel_bias is not None)
+        p.pos_std, p.vel_std = float(cfg.pos_noise_std), float(cfg.vel_noise_std)
+        p.pos_bias_std = float(cfg.pos_bias_std) if sensors.pos_bias is not None else 0.0
+        p.vel_bias_std = float(cfg.vel_bias_std) if sensors.vel_bias is not None else 0.0
+        p.dropout, p.drop_prob = int(cfg.dropout_prob > 0), float(cfg.dropout_prob)
+        p.pos_bias, p.vel_bias = vec2(sensors.pos_bias), vec2(sensors.vel_bias)
+        p.vel_mean, p.pos_mean = vec2(self._means[0]), vec2(self._means[1])
+        p.vel_bias_draw, p.pos_bias_draw = vec2(self._bias_draw[0]), vec2(self._bias_draw[1])
+        p.drop_u, p.drop = w(self._drop_u), w(sensors._drop)
+        held = sensors._held if p.dropout else None
+        none2d = wp.empty((0, 0), dtype=float, device=wdev)
+        p.held_obs = w(held["observation"]) if held is not None else none2d
+        p.held_achieved = w(held["achieved_goal"]) if held is not None else none2d
+        self._sensor = p
+        self._noise_wp = [(vec2(pos), vec2(vel)) for vel, pos in self._noise]
 
     # ------------------------------------------------------------------ launches
     def _sim_arrays(self):
@@ -199,26 +238,37 @@ class FusedTrajectoryStep:
             torch.randint(*self._delay_range, (n,), generator=g, out=self._delay_draw)
 
     def _launch_task(self, out: _Outputs) -> None:
-        """Steps 2-5 (draws, task kernels, reset) on the current streams."""
+        """Steps 2-5 (draws, task kernels, resets) on the current streams. The draws come in the torch step's order:
+        dropped readings and the reading's noise (``_apply_action``, ``_get_obs``), reached goals (``_end_step``),
+        then the autoreset's (``_reset_envs``: start, goals, delay, sensor biases, reset-mode terms) and the noise of
+        the next episode's first reading."""
         env = self.env
-        sim = env.sim
+        sim, sensors = env.sim, env.sensors
         st, delay = self._sim_arrays()
         a = self._wp
+        sensors.draw_drop(self._drop_u)
+        sensors.draw_noise(*self._noise[0])
         self._draw()
+        sensors.draw_biases(*self._bias_draw)
         m = sim.model
         wp.launch(
             ktask.trajectory_step, dim=env.num_envs, device=sim.device,
             inputs=[self._task, self._sampler, m.tiles, m.collision, a["goal_pool"], a["start_pool"], st.pos, st.vel,
                     st.acc, st.flags_any, sim._nonfinite, a["env_step"], a["step_u"], a["step_fallback"],
-                    a["start_index"], a["reset_u"], a["reset_fallback"], a["delay_draw"], a["goals"], a["num_steps"],
-                    a["last_goal_step"], a["collected"], sim._init_pos, sim._init_quat, sim._reset_mask, delay],
+                    a["start_index"], a["reset_u"], a["reset_fallback"], a["delay_draw"], self._sensor,
+                    *self._noise_wp[0], a["goals"], a["num_steps"], a["last_goal_step"], a["collected"], sim._init_pos,
+                    sim._init_quat, sim._reset_mask, delay],
             outputs=out.step_outputs,
         )
+        # the finished worlds' reset-mode randomisation (torch ops on the device mask)
+        if env.randomizer is not None:
+            env.randomizer.reset_in_step(out.done)
+        sensors.draw_noise(*self._noise[1])
         sim._launch_reset()
         wp.launch(
             ktask.trajectory_obs, dim=env.num_envs, device=sim.device,
-            inputs=[self._task.learn_jerk, st.pos, st.vel, st.acc, a["goals"], out.step_outputs[-1],
-                    *out.step_outputs[:3], a["env_step"]],
+            inputs=[self._task.learn_jerk, st.pos, st.vel, st.acc, a["goals"], self._sensor, *self._noise_wp[1],
+                    out.step_outputs[-1], *out.step_outputs[:3], a["env_step"]],
             outputs=out.obs_wp,
         )
 
@@ -275,6 +325,8 @@ class FusedTrajectoryStep:
                               "the same kernels eagerly (graph=False)", RuntimeWarning, stacklevel=3)
                 self.graph = self.env._graph = False
         else:
+            for callback in env.sim._step_callbacks:  # as sim.step runs them (interval randomisation terms)
+                callback()
             self._graphs[self._slot].graph.replay()
         self._slot ^= 1
         env._step_count += 1

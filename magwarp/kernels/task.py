@@ -9,6 +9,10 @@
 * :func:`trajectory_obs` — the returned observation: the next episode's first one where a world finished, else the
   final one; it also advances the device env-step counter.
 
+Sensor models (:class:`SensorParams`): both kernels read the mover positions and velocities as
+:class:`magwarp.envs.sim2real.SensorModel` does (bias, then white noise drawn by torch), and :func:`trajectory_step`
+repeats the held reading of a world whose reading is dropped; goal checks and the NaN guard see the reading.
+
 The random numbers are drawn before the kernels, with the env's torch generator, in the same calls and order as the
 eager step (:mod:`magwarp.envs.trajectory_fused`): the kernels only select among them, so that both paths give the
 same numbers for the same seed. Floating-point contraction is off in this module (``fuse_fp``): ``lo + u * span`` must
@@ -37,6 +41,33 @@ class TrajectoryTask:
     timeout_steps: int  # truncate when more steps than this passed since the last goal; -1: never
     max_episode_steps: int  # truncate after this many steps; -1: never
     draw_latency: int  # 1: resets take the pre-drawn per-world action delay
+
+
+@wp.struct
+class SensorParams:
+    """:class:`magwarp.envs.sim2real.SensorModel` on the device: a reading is ``x + bias`` (where set), then ``+ std *
+    noise`` (where the std is not 0; the noise drawn by torch); a world whose pre-drawn uniform is below
+    ``drop_prob`` repeats its held reading; a finished world draws new biases ``mean + bias_std * draw``."""
+
+    pos_bias_on: int  # 1: add the per-world position bias
+    vel_bias_on: int  # 1: add the per-world velocity bias
+    pos_std: float  # white noise std on positions (0: none drawn)
+    vel_std: float  # white noise std on velocities (0: none drawn)
+    pos_bias_std: float  # 0: a set bias (none drawn at resets)
+    vel_bias_std: float
+    dropout: int  # 1: dropped readings (``drop_u < drop_prob``) repeat the held observation and achieved goal
+    drop_prob: float
+    # State in/out (the model's own tensors, [W, M] x/y; the held readings [W, D] and [W, 2 M]):
+    pos_bias: wp.array2d(dtype=wp.vec2)
+    vel_bias: wp.array2d(dtype=wp.vec2)
+    pos_mean: wp.array2d(dtype=wp.vec2)
+    vel_mean: wp.array2d(dtype=wp.vec2)
+    pos_bias_draw: wp.array2d(dtype=wp.vec2)  # standard normal draws for the finished worlds' new biases
+    vel_bias_draw: wp.array2d(dtype=wp.vec2)
+    drop_u: wp.array(dtype=float)  # this step's uniform draw per world
+    drop: wp.array(dtype=wp.bool)
+    held_obs: wp.array2d(dtype=float)
+    held_achieved: wp.array2d(dtype=float)
 
 
 @wp.struct
@@ -98,6 +129,36 @@ def write_obs(
 
 
 @wp.func
+def sense(s: SensorParams, vel: wp.vec2, pos: wp.vec2, vel_noise: wp.array2d(dtype=wp.vec2),
+          pos_noise: wp.array2d(dtype=wp.vec2), w: int, m: int):
+    """Mover ``m``'s sensed (velocity, position) as ``(vx, vy, px, py)`` (``SensorModel._sense``: the bias added
+    first, then the scaled noise, in float32)."""
+    v = wp.vec2(vel[0], vel[1])
+    p = wp.vec2(pos[0], pos[1])
+    if s.vel_bias_on == 1:
+        v = v + s.vel_bias[w, m]
+    if s.vel_std != 0.0:
+        v = v + s.vel_std * vel_noise[w, m]
+    if s.pos_bias_on == 1:
+        p = p + s.pos_bias[w, m]
+    if s.pos_std != 0.0:
+        p = p + s.pos_std * pos_noise[w, m]
+    return wp.vec4(v[0], v[1], p[0], p[1])
+
+
+@wp.func
+def redraw_biases(s: SensorParams, w: int, num_movers: int):
+    """A reset world's new biases (``SensorModel.reset``: ``mean + std * draw``) and a fresh next reading."""
+    for m in range(num_movers):
+        if s.vel_bias_std != 0.0:
+            s.vel_bias[w, m] = s.vel_mean[w, m] + s.vel_bias_std * s.vel_bias_draw[w, m]
+        if s.pos_bias_std != 0.0:
+            s.pos_bias[w, m] = s.pos_mean[w, m] + s.pos_bias_std * s.pos_bias_draw[w, m]
+    if s.dropout == 1:
+        s.drop[w] = False
+
+
+@wp.func
 def finite2(v: wp.vec2):
     return wp.isfinite(v[0]) and wp.isfinite(v[1])
 
@@ -124,6 +185,10 @@ def trajectory_step(
     reset_u: wp.array3d(dtype=wp.vec2),
     reset_fallback: wp.array2d(dtype=wp.int64),
     delay_draw: wp.array(dtype=wp.int32),
+    # Sensors (the model, its drawn biases and dropped readings; this reading's noise):
+    sensor: SensorParams,
+    pos_noise: wp.array2d(dtype=wp.vec2),
+    vel_noise: wp.array2d(dtype=wp.vec2),
     # State in/out:
     goals: wp.array2d(dtype=wp.vec2),
     num_steps: wp.array(dtype=wp.int64),
@@ -152,20 +217,33 @@ def trajectory_step(
 ):
     w = wp.tid()
     num_movers = pos.shape[1]
-    # The observation the reward is computed for; collisions over the step.
+    # The observation the reward is computed for (sensed; a dropped reading repeats the held one).
+    for m in range(num_movers):
+        sv = sense(sensor, wp.vec2(vel[w, m][0], vel[w, m][1]), wp.vec2(pos[w, m][0], pos[w, m][1]), vel_noise,
+                  pos_noise, w, m)
+        write_obs(w, m, num_movers, task.learn_jerk, wp.vec2(sv[0], sv[1]), acc[w, m], wp.vec2(sv[2], sv[3]),
+                  goals[w, m], final_obs, final_achieved, final_desired)
+    if sensor.dropout == 1:
+        dropped = sensor.drop_u[w] < sensor.drop_prob
+        sensor.drop[w] = dropped
+        if dropped:
+            for k in range(final_obs.shape[1]):
+                final_obs[w, k] = sensor.held_obs[w, k]
+            for k in range(final_achieved.shape[1]):
+                final_achieved[w, k] = sensor.held_achieved[w, k]
+    # Collisions over the step, goals reached, the NaN guard's check (all on what the observation shows).
     ok = bool(sim_nonfinite[w] < 0)
     hit_mover = bool(False)
     hit_wall = bool(False)
     reached = int(0)
     for m in range(num_movers):
-        v = wp.vec2(vel[w, m][0], vel[w, m][1])
-        p = wp.vec2(pos[w, m][0], pos[w, m][1])
+        v = wp.vec2(final_obs[w, 2 * m], final_obs[w, 2 * m + 1])
+        p = wp.vec2(final_achieved[w, 2 * m], final_achieved[w, 2 * m + 1])
         g = goals[w, m]
-        a = acc[w, m]
-        write_obs(w, m, num_movers, task.learn_jerk, v, a, p, g, final_obs, final_achieved, final_desired)
         ok = ok and finite2(v) and finite2(p) and finite2(g)
         if task.learn_jerk == 1:
-            ok = ok and finite2(a)
+            j = 2 * (num_movers + m)
+            ok = ok and finite2(wp.vec2(final_obs[w, j], final_obs[w, j + 1]))
         f = flags_any[w, m]
         hit_mover = hit_mover or (f & COLLIDE_MOVER) != 0
         hit_wall = hit_wall or (f & COLLIDE_WALL) != 0
@@ -228,6 +306,7 @@ def trajectory_step(
         last_goal_step[w] = wp.int64(0)
         if task.draw_latency == 1:
             delay[w] = delay_draw[w]
+        redraw_biases(sensor, w, num_movers)
 
 
 @wp.kernel
@@ -239,6 +318,9 @@ def trajectory_obs(
     vel: wp.array2d(dtype=wp.vec3),
     acc: wp.array2d(dtype=wp.vec2),
     goals: wp.array2d(dtype=wp.vec2),
+    sensor: SensorParams,  # the next episode's first reading: the new biases, this reading's noise
+    pos_noise: wp.array2d(dtype=wp.vec2),
+    vel_noise: wp.array2d(dtype=wp.vec2),
     done: wp.array(dtype=wp.bool),
     final_obs: wp.array2d(dtype=float),
     final_achieved: wp.array2d(dtype=float),
@@ -254,14 +336,22 @@ def trajectory_obs(
     w = wp.tid()
     if w == 0:
         env_step[0] = env_step[0] + wp.int64(1)
-    if not done[w]:
+    num_movers = pos.shape[1]
+    if done[w]:
+        for m in range(num_movers):
+            sv = sense(sensor, wp.vec2(vel[w, m][0], vel[w, m][1]), wp.vec2(pos[w, m][0], pos[w, m][1]), vel_noise,
+                      pos_noise, w, m)
+            write_obs(w, m, num_movers, learn_jerk, wp.vec2(sv[0], sv[1]), acc[w, m], wp.vec2(sv[2], sv[3]),
+                      goals[w, m], obs, achieved, desired)
+    else:
         for k in range(obs.shape[1]):
             obs[w, k] = final_obs[w, k]
         for k in range(achieved.shape[1]):
             achieved[w, k] = final_achieved[w, k]
             desired[w, k] = final_desired[w, k]
-        return
-    num_movers = pos.shape[1]
-    for m in range(num_movers):
-        write_obs(w, m, num_movers, learn_jerk, wp.vec2(vel[w, m][0], vel[w, m][1]), acc[w, m],
-                  wp.vec2(pos[w, m][0], pos[w, m][1]), goals[w, m], obs, achieved, desired)
+    if sensor.dropout == 1:  # SensorModel.commit: what a dropped reading repeats; the next reading is fresh
+        for k in range(obs.shape[1]):
+            sensor.held_obs[w, k] = obs[w, k]
+        for k in range(achieved.shape[1]):
+            sensor.held_achieved[w, k] = achieved[w, k]
+        sensor.drop[w] = False
