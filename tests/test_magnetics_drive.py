@@ -88,3 +88,28 @@ def test_force_model_by_name_or_object(cache):
     assert make().magnetic_drive is None
     with pytest.raises(ValueError, match="'magnetc'"):
         make("magnetc")
+
+
+def test_drive_with_blocks_of_threads_matches_one_thread(cache, rng):
+    """The drive's one launch per cycle with several threads per mover (the GPU's shape, run by Warp's CPU blocks)
+    moves the movers as one thread per mover does, with the same currents (to rounding) and flags."""
+    import warp as wp
+
+    saved = wp.config.enable_cpu_blocks
+    wp.config.enable_cpu_blocks = True
+    try:
+        cmd = rng.uniform(-8.0, 8.0, (2, 1, 2))
+        out = []
+        for block_dim in (1, 8):
+            sim = make(magnetic_force, AUX_DIM)
+            drive = MagneticDrive(sim, params(limit=2.0), SPEC)
+            drive.commutation.block_dim = block_dim
+            p, v = run(sim, cmd, 10)
+            out.append((p, v, drive.currents.numpy().copy(), drive.flags.numpy().copy()))
+    finally:
+        wp.config.enable_cpu_blocks = saved
+    (p1, v1, c1, f1), (p8, v8, c8, f8) = out
+    np.testing.assert_allclose(p8, p1, atol=1e-7, err_msg=str(rng))
+    np.testing.assert_allclose(v8, v1, atol=1e-6, err_msg=str(rng))
+    np.testing.assert_allclose(c8, c1, rtol=1e-6, atol=1e-6, err_msg=str(rng))
+    assert np.array_equal(f8, f1) and np.abs(c1).max() > 1.0, rng

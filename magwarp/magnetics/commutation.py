@@ -387,6 +387,7 @@ class Commutation:
                  resistance: np.ndarray | None = None, limit: np.ndarray | None = None, block_dim: int | None = None):
         self.options = options or CommutationOptions()
         self.device = wp.get_device(device)
+        self.coilset = coilset
         if block_dim is None:
             block_dim = GPU_BLOCK_DIM if self.device.is_cuda else 1
         if int(block_dim) != block_dim or not 1 <= block_dim <= MAX_BLOCK_DIM:

@@ -28,9 +28,46 @@ from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.geometry import MagneticsError
 from magwarp.magnetics.table import TableModel, WrenchTable, quat_yaw, slot_column
 
-__all__ = ["ControlCycle", "cycle_kernel"]
+__all__ = ["ControlCycle", "cycle_kernel", "cycle_mover"]
 
 commutate_block = COMMUTATE[vec6f]
+
+
+@wp.func
+def cycle_mover(
+    m: int,
+    lane: int,
+    t: WrenchTable,
+    slot_layer: wp.array(dtype=wp.int32),
+    slot_offset: wp.array(dtype=wp.vec2i),
+    resistance: wp.array(dtype=wp.float64),
+    limit: wp.array(dtype=wp.float64),
+    max_iter: int,
+    reg: wp.float64,
+    pos: wp.vec3d,
+    quat: wp.quatd,
+    wanted: vec6d,
+    coil_ids: wp.array2d(dtype=wp.int32),
+    gamma: wp.array2d(dtype=vec6f),
+    currents: wp.array2d(dtype=wp.float64),
+    saturated: wp.array2d(dtype=wp.int32),
+):
+    """Mover ``m``'s cycle by its block (this thread: ``lane``): the look-up of its slots, then the commutation.
+    Returns the delivered wrench, the copper loss, the flags and the coil count (the same on every thread)."""
+    x = float(pos[0])
+    y = float(pos[1])
+    z = float(pos[2])
+    yaw = quat_yaw(quat)
+    a = mat66d()
+    for j in range(lane, gamma.shape[1], wp.block_dim()):
+        k, col = slot_column(t, slot_layer, slot_offset, j, x, y, z, yaw)
+        coil_ids[m, j] = k
+        gamma[m, j] = col
+        saturated[m, j] = 0
+        if k >= 0:
+            a = add_coil(a, as_vec6d(col), resistance[k])
+    return commutate_block(m, lane, resistance, limit, max_iter, reg, gamma, coil_ids, wanted, a, currents,
+                           saturated)
 
 
 @wp.kernel
@@ -60,20 +97,8 @@ def cycle_kernel(
 ):
     """One block per mover: the look-up of its slots, then least-loss currents within the limits."""
     m, lane = wp.tid()
-    x = float(pos[m][0])
-    y = float(pos[m][1])
-    z = float(pos[m][2])
-    yaw = quat_yaw(quat[m])
-    a = mat66d()
-    for j in range(lane, gamma.shape[1], wp.block_dim()):
-        k, col = slot_column(t, slot_layer, slot_offset, j, x, y, z, yaw)
-        coil_ids[m, j] = k
-        gamma[m, j] = col
-        saturated[m, j] = 0
-        if k >= 0:
-            a = add_coil(a, as_vec6d(col), resistance[k])
-    out, p, flag, n = commutate_block(m, lane, resistance, limit, max_iter, reg, gamma, coil_ids, wanted[m], a,
-                                      currents, saturated)
+    out, p, flag, n = cycle_mover(m, lane, t, slot_layer, slot_offset, resistance, limit, max_iter, reg, pos[m],
+                                  quat[m], wanted[m], coil_ids, gamma, currents, saturated)
     if lane == 0:
         count[m] = n
         delivered[m] = out
