@@ -17,6 +17,16 @@ direction is nearly out of reach), ``regularization`` times the identity is adde
 flagged. Outputs per mover: currents (in the active slots' order), the delivered wrench ``Gamma i``, the residual
 ``w - Gamma i``, the copper loss (W), saturated coils (per slot) and flags (:data:`FLAG_REGULARISED`,
 :data:`FLAG_NOT_CONVERGED`, :data:`FLAG_NO_COILS`, :data:`FLAG_OVERFLOW`).
+
+Execution: one block of ``block_dim`` threads per mover (:data:`GPU_BLOCK_DIM` = 32 on a GPU, 1 on a CPU); each
+thread takes every ``block_dim``-th slot, and the per-slot sums (the 6 x 6 matrix, the step length, the fixed coils'
+wrench, the delivered wrench and the loss) are reduced over the block with ``wp.tile_sum``; every thread then solves
+the same 6 x 6 system (float64 throughout). The free coils' currents are carried as one 6-vector ``Y`` (a free
+coil's current is ``g . Y / R``), so a step is two passes over the slots (the step length; the coils it fixes and
+the rebuilt matrix, lower triangle only) and no per-coil current is stored between steps. With one thread per mover
+(the previous kernel: three passes per step reading and writing every slot's current, the columns read back in
+``[mover][slot]`` order) a saturating mover's chain of dependent memory reads set the GPU time (1.55 ms for 1000
+movers on an H100). :mod:`~magwarp.magnetics.cycle` fuses the wrench-table look-up into the same launch.
 """
 
 from dataclasses import dataclass
