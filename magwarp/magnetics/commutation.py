@@ -185,6 +185,19 @@ def block_min(a: wp.float64, lane: int) -> wp.float64:
     return out
 
 
+@wp.func
+def step_reach(g: vec6d, y: vec6d, big_y: vec6d, r_inv: wp.float64, lim: wp.float64):
+    """A free coil (column ``g``, 1 / resistance ``r_inv``, limit ``lim``) on a step from the currents of ``big_y``
+    toward those of ``y``: its current at the step's end, and the share of the step at which it reaches its limit
+    (2 where it never does)."""
+    t = wp.dot(g, y) * r_inv
+    reach = wp.float64(2.0)
+    if wp.abs(t) > lim:
+        now = wp.dot(g, big_y) * r_inv
+        reach = (wp.sign(t) * lim - now) / (t - now)
+    return t, reach
+
+
 def make_commutation_func(col_type):
     """The commutation of one mover by a block of threads (a ``@wp.func``; thread ``lane`` of ``wp.block_dim()``
     takes the slots ``lane, lane + block_dim, ...``) for columns of ``col_type`` (``vec6d`` or ``vec6f``; the
@@ -242,12 +255,8 @@ def make_commutation_func(col_type):
                 k = coil_ids[m, j]
                 if k >= 0:
                     if saturated[m, j] == 0:
-                        g = column(gamma, m, j)
-                        r_inv = ONE / resistance[k]
-                        t = wp.dot(g, y) * r_inv
-                        if wp.abs(t) > limit[k]:
-                            now = wp.dot(g, big_y) * r_inv
-                            alpha = wp.min(alpha, (wp.sign(t) * limit[k] - now) / (t - now))
+                        t, reach = step_reach(column(gamma, m, j), y, big_y, ONE / resistance[k], limit[k])
+                        alpha = wp.min(alpha, reach)
             alpha = block_min(alpha, lane)
             if alpha >= ONE:
                 big_y = y
@@ -263,12 +272,8 @@ def make_commutation_func(col_type):
                         if saturated[m, j] == 0:
                             g = column(gamma, m, j)
                             r_inv = ONE / resistance[k]
-                            t = wp.dot(g, y) * r_inv
-                            fix = bool(False)
-                            if wp.abs(t) > limit[k]:
-                                now = wp.dot(g, big_y) * r_inv
-                                fix = (wp.sign(t) * limit[k] - now) / (t - now) <= hit
-                            if fix:
+                            t, reach = step_reach(g, y, big_y, r_inv, limit[k])
+                            if reach <= hit:
                                 i = wp.sign(t) * limit[k]
                                 currents[m, j] = i
                                 saturated[m, j] = 1
