@@ -104,10 +104,12 @@ def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int, 
     out = {}
     for name, fn in calls:
         out[f"{name}_ms"] = time_call(fn, repeats, warmup=1, sync=sync)[2]
-    if hasattr(model, "columns"):  # the one-launch cycle gives the two launches' answer
+    if hasattr(model, "columns"):  # the one-launch cycle gives the two launches' answer, and one thread per mover's
         calls[3][1]()
-        out["fused_max_current_diff_a"] = float(np.abs(f_res.currents.numpy() - res.currents.numpy()).max())
-        out["fused_same_flags"] = bool(np.array_equal(f_res.flags.numpy(), res.flags.numpy()))
+        one = Commutation(com.coilset, com.options, dev, block_dim=1).solve(gamma, ids, count, w_in)
+        for key, r in (("fused", res), ("one_thread", one)):
+            out[f"{key}_max_current_diff_a"] = float(np.abs(f_res.currents.numpy() - r.currents.numpy()).max())
+            out[f"{key}_same_flags"] = bool(np.array_equal(f_res.flags.numpy(), r.flags.numpy()))
     flags = res.flags.numpy()
     out.update(active_coils_mean=float(count.numpy().mean()), saturated_movers=int((res.saturated.numpy() != 0)
                .any(axis=1).sum()), flagged_movers=int((flags != 0).sum()),
@@ -149,7 +151,9 @@ def speed_rows(args, device: str, params, spec) -> list[dict]:
         if "fused_cycle_ms" in res:
             row["fused_cycle_per_s"] = n / (res["fused_cycle_ms"] * 1e-3)
             fused = (f"  fused cycle {res['fused_cycle_ms']:.3f} ms (block_dim {com.block_dim}; max current diff "
-                     f"{res['fused_max_current_diff_a']:.1e} A, same flags {res['fused_same_flags']})")
+                     f"{res['fused_max_current_diff_a']:.1e} A, same flags {res['fused_same_flags']}; against one "
+                     f"thread per mover {res['one_thread_max_current_diff_a']:.1e} A, same flags "
+                     f"{res['one_thread_same_flags']})")
             for b in (args.block_dims if gpu else ()):
                 fused += f", block_dim {b}: {res[f'fused_cycle_b{b}_ms']:.3f} ms"
         if name == "fast":
