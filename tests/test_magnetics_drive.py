@@ -113,3 +113,26 @@ def test_drive_with_blocks_of_threads_matches_one_thread(cache, rng):
     np.testing.assert_allclose(v8, v1, atol=1e-6, err_msg=str(rng))
     np.testing.assert_allclose(c8, c1, rtol=1e-6, atol=1e-6, err_msg=str(rng))
     assert np.array_equal(f8, f1) and np.abs(c1).max() > 1.0, rng
+
+
+def test_actuator_wrench_mode_cycle_matches_commutate(cache, rng):
+    """``CoilActuator(mode="wrench")`` runs its cycle in one launch (look-up, commutation, store): the currents it
+    applies are those of :meth:`CoilActuator.commutate` (the two launches) at the cycle's start, within the limits,
+    and the realised wrench is their Gamma i."""
+    from magwarp.magnetics.actuator import CoilActuator
+
+    sim = make(magnetic_force, AUX_DIM)
+    act = CoilActuator(sim, params(limit=2.5), SPEC, mode="wrench")
+    wrench = np.zeros((2, 1, 6))
+    wrench[..., :2] = rng.uniform(-15.0, 15.0, (2, 1, 2))
+    wrench[..., 2] = 1.24 * 9.81
+    wrench = torch.as_tensor(wrench, dtype=torch.float32)
+    want = act.commutate(wrench).numpy()
+    act.wanted.copy_(wrench)
+    sim.step(1)
+    got = act.applied_currents.numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, err_msg=str(rng))
+    assert np.all(np.abs(got) <= 2.5 + 1e-12) and np.abs(got).max() > 1.0
+    gamma = act._gamma.numpy().astype(np.float64).reshape(2, 1, act.slots, 6)
+    np.testing.assert_allclose(act.wrench.numpy(), np.einsum("wmsk,wms->wmk", gamma, got), rtol=1e-5, atol=1e-5)
+    assert np.all(act.loss.numpy() > 1.0)

@@ -15,7 +15,7 @@ integrator; gravity is the integrator's), the copper loss (W) into ``[..., 6]``;
 
 ``mode="wrench"``: the input is a wanted wrench per mover (:attr:`wanted`, ``[W, M, 6]``, force N and torque N m
 about the mover's centre, world frame) that the commutation (:mod:`~magwarp.magnetics.commutation`) turns into
-currents every cycle. :meth:`commutate` runs the same commutation once, outside the step, at the current state.
+currents every cycle (one launch per cycle: look-up, commutation and store, :func:`wrench_cycle_kernel`). :meth:`commutate` runs the same commutation once, outside the step, at the current state.
 """
 
 from __future__ import annotations
@@ -24,10 +24,11 @@ import torch
 import warp as wp
 
 from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
-from magwarp.magnetics.drive import AUX_DIM, store_wrench_kernel
+from magwarp.magnetics.cycle import cycle_mover
+from magwarp.magnetics.drive import AUX_DIM, store_wrench, store_wrench_kernel
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
-from magwarp.magnetics.table import TableModel, WrenchTableSpec
+from magwarp.magnetics.table import TableModel, WrenchTable, WrenchTableSpec
 
 __all__ = ["CoilActuator"]
 
@@ -104,6 +105,58 @@ def apply_currents_kernel(
     loss[m] = p
 
 
+@wp.kernel
+def wrench_cycle_kernel(
+    # Model:
+    t: WrenchTable,
+    slot_layer: wp.array(dtype=wp.int32),
+    slot_offset: wp.array(dtype=wp.vec2i),
+    resistance: wp.array(dtype=wp.float64),
+    limit: wp.array(dtype=wp.float64),
+    max_iter: int,
+    reg: wp.float64,
+    dt: float,
+    # State in:
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    wanted: wp.array(dtype=vec6f),
+    # State out:
+    coil_ids: wp.array2d(dtype=wp.int32),
+    gamma: wp.array2d(dtype=vec6f),
+    count: wp.array(dtype=wp.int32),
+    currents: wp.array2d(dtype=wp.float64),
+    saturated: wp.array2d(dtype=wp.int32),
+    delivered: wp.array(dtype=vec6d),
+    residual: wp.array(dtype=vec6d),
+    loss: wp.array(dtype=wp.float64),
+    flags: wp.array(dtype=wp.int32),
+    force_aux: wp.array3d(dtype=float),
+    energy: wp.array2d(dtype=wp.float64),
+):
+    """``mode="wrench"``, one launch per cycle, one block of threads per mover (flat index ``w * movers + m``): the
+    look-up and the commutation of the wanted wrench (:func:`~magwarp.magnetics.cycle.cycle_mover`), then the
+    realised wrench, loss and flags into ``force_aux`` and the energy."""
+    i, lane = wp.tid()
+    w = i / pos.shape[1]
+    m = i % pos.shape[1]
+    p = pos[w, m]
+    q = quat[w, m]
+    pos_d = wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
+    quat_d = wp.normalize(wp.quatd(wp.float64(q[0]), wp.float64(q[1]), wp.float64(q[2]), wp.float64(q[3])))
+    wf = wanted[i]
+    want = vec6d(wp.float64(wf[0]), wp.float64(wf[1]), wp.float64(wf[2]), wp.float64(wf[3]), wp.float64(wf[4]),
+                 wp.float64(wf[5]))
+    out, loss_w, flag, n = cycle_mover(i, lane, t, slot_layer, slot_offset, resistance, limit, max_iter, reg, pos_d,
+                                       quat_d, want, coil_ids, gamma, currents, saturated)
+    if lane == 0:
+        count[i] = n
+        delivered[i] = out
+        residual[i] = want - out
+        loss[i] = loss_w
+        flags[i] = flag
+        store_wrench(w, m, dt, out, loss_w, flag, force_aux, energy)
+
+
 class CoilActuator:
     """Drive ``sim`` (built with ``force_model=magnetic_force``, ``force_aux_dim >= AUX_DIM``) by coil currents
     (``mode="currents"``) or by wanted wrenches through the commutation (``mode="wrench"``); see the module
@@ -149,14 +202,20 @@ class CoilActuator:
         self.commutation.solve(self._gamma, self._ids, self._count, self._wanted_d, self._res)
 
     def _before_cycle(self, sim) -> None:
+        if self.mode == "wrench":  # one launch: look-up, commutation, store
+            t, c, r, s = self.model, self.commutation, self._res, sim.state
+            wp.launch_tiled(wrench_cycle_kernel, dim=[self._wanted.shape[0]], block_dim=c.block_dim,
+                            device=sim.device,
+                            inputs=[t.table, t.slot_layer, t.slot_offset, c.resistance, c.limit,
+                                    int(c.options.max_iter), wp.float64(c.options.regularization), self._dt, s.pos,
+                                    s.quat, self._wanted],
+                            outputs=[self._ids, self._gamma, self._count, r.currents, r.saturated, r.delivered,
+                                     r.residual, r.loss, r.flags, s.force_aux, self._energy])
+            return
         self._columns()
-        if self.mode == "wrench":
-            self._solve_wanted()
-        else:
-            wp.launch(apply_currents_kernel, dim=self._command.shape[0], device=sim.device,
-                      inputs=[self.commutation.resistance, self.commutation.limit, self._gamma, self._ids,
-                              self._command],
-                      outputs=[self._res.currents, self._res.saturated, self._res.delivered, self._res.loss])
+        wp.launch(apply_currents_kernel, dim=self._command.shape[0], device=sim.device,
+                  inputs=[self.commutation.resistance, self.commutation.limit, self._gamma, self._ids, self._command],
+                  outputs=[self._res.currents, self._res.saturated, self._res.delivered, self._res.loss])
         wp.launch(store_wrench_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device,
                   inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
                   outputs=[sim.state.force_aux, self._energy])
