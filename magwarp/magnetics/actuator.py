@@ -24,11 +24,11 @@ import torch
 import warp as wp
 
 from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
-from magwarp.magnetics.cycle import cycle_mover
+from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_mover, cycle_outputs, cycle_params
 from magwarp.magnetics.drive import AUX_DIM, store_wrench, store_wrench_kernel
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
-from magwarp.magnetics.table import TableModel, WrenchTable, WrenchTableSpec
+from magwarp.magnetics.table import TableModel, WrenchTableSpec
 
 __all__ = ["CoilActuator"]
 
@@ -108,28 +108,14 @@ def apply_currents_kernel(
 @wp.kernel
 def wrench_cycle_kernel(
     # Model:
-    t: WrenchTable,
-    slot_layer: wp.array(dtype=wp.int32),
-    slot_offset: wp.array(dtype=wp.vec2i),
-    resistance: wp.array(dtype=wp.float64),
-    limit: wp.array(dtype=wp.float64),
-    max_iter: int,
-    reg: wp.float64,
+    c: CycleParams,
     dt: float,
     # State in:
     pos: wp.array2d(dtype=wp.vec3),
     quat: wp.array2d(dtype=wp.quat),
     wanted: wp.array(dtype=vec6f),
     # State out:
-    coil_ids: wp.array2d(dtype=wp.int32),
-    gamma: wp.array2d(dtype=vec6f),
-    count: wp.array(dtype=wp.int32),
-    currents: wp.array2d(dtype=wp.float64),
-    saturated: wp.array2d(dtype=wp.int32),
-    delivered: wp.array(dtype=vec6d),
-    residual: wp.array(dtype=vec6d),
-    loss: wp.array(dtype=wp.float64),
-    flags: wp.array(dtype=wp.int32),
+    o: CycleOutputs,
     force_aux: wp.array3d(dtype=float),
     energy: wp.array2d(dtype=wp.float64),
 ):
@@ -146,14 +132,8 @@ def wrench_cycle_kernel(
     wf = wanted[i]
     want = vec6d(wp.float64(wf[0]), wp.float64(wf[1]), wp.float64(wf[2]), wp.float64(wf[3]), wp.float64(wf[4]),
                  wp.float64(wf[5]))
-    out, loss_w, flag, n = cycle_mover(i, lane, t, slot_layer, slot_offset, resistance, limit, max_iter, reg, pos_d,
-                                       quat_d, want, coil_ids, gamma, currents, saturated)
+    out, loss_w, flag = cycle_mover(i, lane, c, pos_d, quat_d, want, o)
     if lane == 0:
-        count[i] = n
-        delivered[i] = out
-        residual[i] = want - out
-        loss[i] = loss_w
-        flags[i] = flag
         store_wrench(w, m, dt, out, loss_w, flag, force_aux, energy)
 
 
@@ -188,6 +168,8 @@ class CoilActuator:
         self._res = CommutationResult.zeros(n, slots, dev)
         self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
         self._dt = float(sim.model.limits.dt)
+        self._cycle = cycle_params(self.model, self.commutation)
+        self._outputs = cycle_outputs(self._ids, self._gamma, self._count, self._res)
         sim.add_cycle_hook(self._before_cycle, before=True)
 
     def _columns(self) -> None:
@@ -203,14 +185,10 @@ class CoilActuator:
 
     def _before_cycle(self, sim) -> None:
         if self.mode == "wrench":  # one launch: look-up, commutation, store
-            t, c, r, s = self.model, self.commutation, self._res, sim.state
-            wp.launch_tiled(wrench_cycle_kernel, dim=[self._wanted.shape[0]], block_dim=c.block_dim,
-                            device=sim.device,
-                            inputs=[t.table, t.slot_layer, t.slot_offset, c.resistance, c.limit,
-                                    int(c.options.max_iter), wp.float64(c.options.regularization), self._dt, s.pos,
-                                    s.quat, self._wanted],
-                            outputs=[self._ids, self._gamma, self._count, r.currents, r.saturated, r.delivered,
-                                     r.residual, r.loss, r.flags, s.force_aux, self._energy])
+            wp.launch_tiled(wrench_cycle_kernel, dim=[self._wanted.shape[0]], block_dim=self.commutation.block_dim,
+                            device=sim.device, inputs=[self._cycle, self._dt, sim.state.pos, sim.state.quat,
+                                                       self._wanted],
+                            outputs=[self._outputs, sim.state.force_aux, self._energy])
             return
         self._columns()
         wp.launch(apply_currents_kernel, dim=self._command.shape[0], device=sim.device,

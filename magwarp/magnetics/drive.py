@@ -32,9 +32,9 @@ from magwarp.kernels.collision import model_row
 from magwarp.kernels.dynamics import planar_acceleration
 from magwarp.kernels.impedance import default_force
 from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
-from magwarp.magnetics.cycle import cycle_mover
+from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_mover, cycle_outputs, cycle_params
 from magwarp.magnetics.exact import vec6d
-from magwarp.magnetics.table import TableModel, WrenchTable, WrenchTableSpec
+from magwarp.magnetics.table import TableModel, WrenchTableSpec
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
 from magwarp.types import Body, Impedance, Limits, Pose, Wrench, make_pose
 
@@ -108,13 +108,7 @@ def drive_cycle_kernel(
     lim: Limits,
     imp: Impedance,
     body: wp.array2d(dtype=Body),
-    t: WrenchTable,
-    slot_layer: wp.array(dtype=wp.int32),
-    slot_offset: wp.array(dtype=wp.vec2i),
-    resistance: wp.array(dtype=wp.float64),
-    limit: wp.array(dtype=wp.float64),
-    max_iter: int,
-    reg: wp.float64,
+    c: CycleParams,
     dt: float,
     # State in:
     cmd: wp.array2d(dtype=wp.vec2),
@@ -126,15 +120,7 @@ def drive_cycle_kernel(
     omega: wp.array2d(dtype=wp.vec3),
     acc: wp.array2d(dtype=wp.vec2),
     # State out:
-    coil_ids: wp.array2d(dtype=wp.int32),
-    gamma: wp.array2d(dtype=vec6f),
-    count: wp.array(dtype=wp.int32),
-    currents: wp.array2d(dtype=wp.float64),
-    saturated: wp.array2d(dtype=wp.int32),
-    delivered: wp.array(dtype=vec6d),
-    residual: wp.array(dtype=vec6d),
-    loss: wp.array(dtype=wp.float64),
-    flags: wp.array(dtype=wp.int32),
+    o: CycleOutputs,
     force_aux: wp.array3d(dtype=float),
     energy: wp.array2d(dtype=wp.float64),
 ):
@@ -147,14 +133,8 @@ def drive_cycle_kernel(
     # Every thread of the block reads force_aux here, before the block's first sum; only thread 0 writes it, after.
     pos_d, quat_d, wanted = wanted_wrench(w, m, lim, imp, body, cmd, target_pos, target_quat, force_aux, pos, quat,
                                           vel, omega, acc)
-    out, p, flag, n = cycle_mover(i, lane, t, slot_layer, slot_offset, resistance, limit, max_iter, reg, pos_d,
-                                  quat_d, wanted, coil_ids, gamma, currents, saturated)
+    out, p, flag = cycle_mover(i, lane, c, pos_d, quat_d, wanted, o)
     if lane == 0:
-        count[i] = n
-        delivered[i] = out
-        residual[i] = wanted - out
-        loss[i] = p
-        flags[i] = flag
         store_wrench(w, m, dt, out, p, flag, force_aux, energy)
 
 
@@ -199,18 +179,17 @@ class MagneticDrive:
         self._res = CommutationResult.zeros(n, slots, dev)
         self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
         self._dt = float(sim.model.limits.dt)
+        self._cycle = cycle_params(self.model, self.commutation)
+        self._outputs = cycle_outputs(self._ids, self._gamma, self._count, self._res)
         sim.add_cycle_hook(self._before_cycle, before=True)
 
     def _before_cycle(self, sim) -> None:
-        m, s, t, c = sim.model, sim.state, self.model, self.commutation
-        r = self._res
-        wp.launch_tiled(drive_cycle_kernel, dim=[sim.num_worlds * sim.num_movers], block_dim=c.block_dim,
+        m, s = sim.model, sim.state
+        wp.launch_tiled(drive_cycle_kernel, dim=[sim.num_worlds * sim.num_movers], block_dim=self.commutation.block_dim,
                         device=sim.device,
-                        inputs=[m.limits, m.impedance, m.body, t.table, t.slot_layer, t.slot_offset, c.resistance,
-                                c.limit, int(c.options.max_iter), wp.float64(c.options.regularization), self._dt,
-                                s.cmd, s.target_pos, s.target_quat, s.pos, s.quat, s.vel, s.omega, s.acc],
-                        outputs=[self._ids, self._gamma, self._count, r.currents, r.saturated, r.delivered,
-                                 r.residual, r.loss, r.flags, s.force_aux, self._energy])
+                        inputs=[m.limits, m.impedance, m.body, self._cycle, self._dt, s.cmd, s.target_pos,
+                                s.target_quat, s.pos, s.quat, s.vel, s.omega, s.acc],
+                        outputs=[self._outputs, s.force_aux, self._energy])
 
     def _view(self, arr, shape):
         return self.sim._t(arr.reshape(shape))
