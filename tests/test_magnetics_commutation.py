@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 import warp as wp
 
+from magnetics_helpers import cpu_blocks  # noqa: F401  (a fixture; tests/ is on sys.path)
+
 from magwarp.layout import Layout
 from magwarp.magnetics import reference as ref
 from magwarp.magnetics.commutation import (FLAG_NO_COILS, FLAG_NOT_CONVERGED, FLAG_OVERFLOW, FLAG_REGULARISED,
@@ -150,15 +152,6 @@ def test_bad_inputs_raise(rng):
     with pytest.raises(MagneticsError, match="agree"):
         com.solve(g, wp.zeros((2, 3), dtype=wp.int32, device="cpu"), wp.zeros(2, dtype=wp.int32, device="cpu"),
                   wp.zeros(2, dtype=vec6d, device="cpu"))
-
-
-@pytest.fixture
-def cpu_blocks():
-    """Let Warp's CPU run blocks of several threads (cooperative fibers), as a GPU does."""
-    saved = wp.config.enable_cpu_blocks
-    wp.config.enable_cpu_blocks = True
-    yield
-    wp.config.enable_cpu_blocks = saved
 
 
 def test_block_of_threads_matches_one_thread(rng, cpu_blocks):

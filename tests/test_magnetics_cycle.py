@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 import warp as wp
 
+from magnetics_helpers import cpu_blocks  # noqa: F401  (a fixture; tests/ is on sys.path)
+
 from magwarp.layout import Layout
 from magwarp.magnetics import reference as ref
 from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED, Commutation, CommutationResult
@@ -29,14 +31,6 @@ def model(tmp_path_factory):
     mp.setenv("MAGWARP_CACHE_DIR", str(tmp_path_factory.mktemp("magnetics_cache")))
     yield TableModel(Layout.grid(3, 2), PARAMS, SPEC, device="cpu")
     mp.undo()
-
-
-@pytest.fixture
-def cpu_blocks():
-    saved = wp.config.enable_cpu_blocks
-    wp.config.enable_cpu_blocks = True
-    yield
-    wp.config.enable_cpu_blocks = saved
 
 
 @pytest.mark.parametrize("block_dim", [1, 8])

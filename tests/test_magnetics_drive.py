@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 import torch
 
+from magnetics_helpers import cpu_blocks  # noqa: F401  (a fixture; tests/ is on sys.path)
+
 from magwarp.layout import Layout
 from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED
 from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, MagneticModel, magnetic_force
@@ -90,24 +92,17 @@ def test_force_model_by_name_or_object(cache):
         make("magnetc")
 
 
-def test_drive_with_blocks_of_threads_matches_one_thread(cache, rng):
+def test_drive_with_blocks_of_threads_matches_one_thread(cache, rng, cpu_blocks):
     """The drive's one launch per cycle with several threads per mover (the GPU's shape, run by Warp's CPU blocks)
     moves the movers as one thread per mover does, with the same currents (to rounding) and flags."""
-    import warp as wp
-
-    saved = wp.config.enable_cpu_blocks
-    wp.config.enable_cpu_blocks = True
-    try:
-        cmd = rng.uniform(-8.0, 8.0, (2, 1, 2))
-        out = []
-        for block_dim in (1, 8):
-            sim = make(magnetic_force, AUX_DIM)
-            drive = MagneticDrive(sim, params(limit=2.0), SPEC)
-            drive.commutation.block_dim = block_dim
-            p, v = run(sim, cmd, 10)
-            out.append((p, v, drive.currents.numpy().copy(), drive.flags.numpy().copy()))
-    finally:
-        wp.config.enable_cpu_blocks = saved
+    cmd = rng.uniform(-8.0, 8.0, (2, 1, 2))
+    out = []
+    for block_dim in (1, 8):
+        sim = make(magnetic_force, AUX_DIM)
+        drive = MagneticDrive(sim, params(limit=2.0), SPEC)
+        drive.commutation.block_dim = block_dim
+        p, v = run(sim, cmd, 10)
+        out.append((p, v, drive.currents.numpy().copy(), drive.flags.numpy().copy()))
     (p1, v1, c1, f1), (p8, v8, c8, f8) = out
     np.testing.assert_allclose(p8, p1, atol=1e-7, err_msg=str(rng))
     np.testing.assert_allclose(v8, v1, atol=1e-6, err_msg=str(rng))

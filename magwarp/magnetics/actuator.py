@@ -15,7 +15,8 @@ integrator; gravity is the integrator's), the copper loss (W) into ``[..., 6]``;
 
 ``mode="wrench"``: the input is a wanted wrench per mover (:attr:`wanted`, ``[W, M, 6]``, force N and torque N m
 about the mover's centre, world frame) that the commutation (:mod:`~magwarp.magnetics.commutation`) turns into
-currents every cycle (one launch per cycle: look-up, commutation and store, :func:`wrench_cycle_kernel`). :meth:`commutate` runs the same commutation once, outside the step, at the current state.
+currents every cycle (one launch per cycle: look-up, commutation and store, :func:`wrench_cycle_kernel`).
+:meth:`commutate` runs the same commutation once, outside the step, at the current state.
 """
 
 from __future__ import annotations
