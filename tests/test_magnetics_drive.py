@@ -131,3 +131,19 @@ def test_actuator_wrench_mode_cycle_matches_commutate(cache, rng):
     gamma = act._gamma.numpy().astype(np.float64).reshape(2, 1, act.slots, 6)
     np.testing.assert_allclose(act.wrench.numpy(), np.einsum("wmsk,wms->wmk", gamma, got), rtol=1e-5, atol=1e-5)
     assert np.all(act.loss.numpy() > 1.0)
+
+
+def test_trajectory_env_with_the_drive_takes_the_fused_step(cache):
+    """The magnetic drive's hook is one device launch: the B0 env keeps its fused step (on CUDA one graph) with
+    ``force_model`` magnetic, and gives the torch step's results bit for bit."""
+    from test_graph_step import run_twins
+
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    kw = {"num_envs": 6, "layout": "B0", "device": "cpu", "seed": 5,
+          "force_model": MagneticModel(params(limit=3.0), SPEC)}
+    eager, fused = TrajectoryPlanningEnv(fused=False, **kw), TrajectoryPlanningEnv(**kw)
+    assert fused.step_path == "fused" and eager.step_path.startswith("eager")
+    run_twins(eager, fused, 8, seed=1)
+    assert np.all(fused.sim.magnetic_drive.energy.numpy() > 0.0)
+    np.testing.assert_array_equal(fused.sim.magnetic_drive.energy.numpy(), eager.sim.magnetic_drive.energy.numpy())

@@ -51,7 +51,9 @@ def fused_step_blocker(env) -> str | None:
     None when the fused step applies. The fused step covers the default configuration, action latency (fixed or
     drawn at resets), ``learn_jerk``, box or circle shapes, any layout, ``max_episode_steps`` and ``timeout_steps``;
     the sensor models, domain randomisation terms, benchmark metrics, ``nan_dump``, ``autoreset=False``, simulator cycle hooks and subclasses that
-    override a task hook (:data:`REPLACED_HOOKS`) keep the torch step."""
+    override a task hook (:data:`REPLACED_HOOKS`) keep the torch step; a pre-cycle hook marked ``fused_step_safe``
+    (device launches only, no host work: the magnetic drive's) runs inside the fused step (and its graph) as in the
+    torch step."""
     if not env.fused:
         return "fused=False"
     if not env.autoreset:
@@ -65,7 +67,7 @@ def fused_step_blocker(env) -> str | None:
     if sensors.pos_bias is not None or sensors.vel_bias is not None or cfg.pos_noise_std or cfg.vel_noise_std or \
             cfg.dropout_prob:
         return "sensor model (bias, noise or dropout)"
-    if env.sim._hooks or env.sim._pre_hooks:
+    if env.sim._hooks or not all(getattr(h, "fused_step_safe", False) for h in env.sim._pre_hooks):
         return "simulator cycle hooks"
     if getattr(env, "randomizer", None) is not None:
         return "domain randomisation terms"

@@ -19,7 +19,9 @@ model; when coils saturate, the wrench falls short (the mover accelerates less, 
 :attr:`MagneticDrive.currents` and :attr:`MagneticDrive.coil_ids` are the active coils' currents (A) and ids.
 The hook is one launch per cycle (:func:`drive_cycle_kernel`: the wanted wrench, the look-up, the commutation and
 the store, one block of threads per mover, :mod:`~magwarp.magnetics.cycle`), captured in the step graph; it still
-forces the simulator's per-cycle launch path (as any cycle hook does): each cycle is this launch and the step's.
+forces the simulator's per-cycle launch path (as any cycle hook does): each cycle is this launch, the step kernel's
+and the collision check's. The trajectory env keeps its fused step (one CUDA graph per env step) with the drive:
+the hook is marked ``fused_step_safe``.
 """
 
 from __future__ import annotations
@@ -190,6 +192,10 @@ class MagneticDrive:
                         inputs=[m.limits, m.impedance, m.body, self._cycle, self._dt, s.cmd, s.target_pos,
                                 s.target_quat, s.pos, s.quat, s.vel, s.omega, s.acc],
                         outputs=[self._outputs, s.force_aux, self._energy])
+
+    # One launch, no host work: the trajectory env's fused step (and its CUDA graph) may run it
+    # (magwarp.envs.trajectory_fused.fused_step_blocker).
+    _before_cycle.fused_step_safe = True
 
     def _view(self, arr, shape):
         return self.sim._t(arr.reshape(shape))
