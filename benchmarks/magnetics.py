@@ -6,7 +6,9 @@ Per device and mover count (movers at random poses over an 8 x 8-tile layout, 3-
   :mod:`magwarp.magnetics.table`) at ``--sizes``, the field-table quadrature model (``fast``) at ``--fast-sizes``,
   the exact model at ``--exact-sizes``; then w = Gamma i (not for ``table``: the commutation delivers it);
 * ``commutation``: least-loss currents for a hover-and-accelerate wrench per mover, given Gamma;
-* ``cycle``: both (one control cycle: for ``table``, the issue's <= 2 ms at 1M movers on the GPU).
+* ``cycle``: both (one control cycle: for ``table``, the issue's <= 2 ms at 1M movers on the GPU); ``fused_cycle``
+  (``table`` only): the same cycle in one launch, one block of threads per mover (:mod:`magwarp.magnetics.cycle`,
+  what the simulator's magnetic drive runs), with its largest current difference from the two launches.
 * ``sim``: one 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with
   ``force_model="magnetic"`` (:class:`magwarp.magnetics.drive.MagneticDrive`), and the drive's share of the ideal
   speed; ``env``: the same for the ``magwarp/TrajectoryPlanningB0-v0`` env's env-steps/s (the issue's >= 25%);
@@ -52,9 +54,10 @@ def wanted_wrench(rng, n: int, mass: float = 1.24) -> np.ndarray:
     return np.c_[mass * acc, np.full(n, mass * 9.81), rng.uniform(-0.02, 0.02, (n, 3))]
 
 
-def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int) -> dict:
-    """Seconds per call of the Gamma evaluation, the commutation and both, for all movers at once: the table model's
-    coils + columns (one launch), or another model's active coils, Gamma and w = Gamma i."""
+def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int, block_dims=()) -> dict:
+    """Milliseconds per call of the Gamma evaluation, the commutation and both, for all movers at once: the table
+    model's coils + columns (one launch), or another model's active coils, Gamma and w = Gamma i; for the table
+    model also the one-launch cycle, with the commutation's threads per mover and each of ``block_dims``."""
     from magwarp.magnetics.exact import vec6d
 
     dev = model.device
@@ -83,10 +86,32 @@ def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int) 
         gamma_eval()
         commutate()
 
+    calls = [("gamma", gamma_eval), ("commutation", commutate), ("cycle", cycle)]
+    if hasattr(model, "columns"):  # the same cycle in one launch (magwarp.magnetics.cycle)
+        from magwarp.magnetics.commutation import CommutationResult
+        from magwarp.magnetics.cycle import ControlCycle
+
+        from magwarp.magnetics.commutation import Commutation
+
+        f_res = CommutationResult.zeros(*ids.shape, dev)
+        f_ids, f_gamma, f_count = wp.empty_like(ids), wp.empty_like(gamma), wp.empty_like(count)
+        for b in [None, *block_dims]:
+            c = com if b is None else Commutation(com.coilset, com.options, dev, block_dim=b)
+            fused = ControlCycle(model, c)
+            calls.append(("fused_cycle" if b is None else f"fused_cycle_b{b}",
+                          lambda f=fused: f.run(pos, quat, w_in, f_ids, f_gamma, f_count, f_res)))
     sync = lambda: wp.synchronize_device(dev)  # noqa: E731
     out = {}
-    for name, fn in (("gamma", gamma_eval), ("commutation", commutate), ("cycle", cycle)):
+    for name, fn in calls:
         out[f"{name}_ms"] = time_call(fn, repeats, warmup=1, sync=sync)[2]
+    if hasattr(model, "columns"):  # the one-launch cycle gives the two launches' answer, and one thread per mover's
+        calls[3][1]()
+        # one thread per mover on the CPU: the block sums against a plain loop (on a CPU: the same kernel)
+        cpu = [wp.clone(a, device="cpu") for a in (gamma, ids, count, w_in)]
+        one = Commutation(com.coilset, com.options, "cpu", block_dim=1).solve(*cpu)
+        for key, r in (("fused", res), ("one_thread", one)):
+            out[f"{key}_max_current_diff_a"] = float(np.abs(f_res.currents.numpy() - r.currents.numpy()).max())
+            out[f"{key}_same_flags"] = bool(np.array_equal(f_res.flags.numpy(), r.flags.numpy()))
     flags = res.flags.numpy()
     out.update(active_coils_mean=float(count.numpy().mean()), saturated_movers=int((res.saturated.numpy() != 0)
                .any(axis=1).sum()), flagged_movers=int((flags != 0).sum()),
@@ -119,17 +144,27 @@ def speed_rows(args, device: str, params, spec) -> list[dict]:
     plan += [("exact", exact, n) for n in (args.exact_sizes if gpu else args.cpu_exact_sizes)]
     for name, model, n in plan:
         poses = random_poses(rng, n, args.tiles, bottom)
-        res = time_model(model, com, poses, wanted_wrench(rng, n), args.repeats)
+        res = time_model(model, com, poses, wanted_wrench(rng, n), args.repeats,
+                         args.block_dims if gpu and name == "table" else ())
         row = {"device": device, "model": name, "movers": n, **res,
                "gamma_per_s": n / (res["gamma_ms"] * 1e-3), "commutation_per_s": n / (res["commutation_ms"] * 1e-3),
                "cycle_per_s": n / (res["cycle_ms"] * 1e-3)}
+        fused = ""
+        if "fused_cycle_ms" in res:
+            row["fused_cycle_per_s"] = n / (res["fused_cycle_ms"] * 1e-3)
+            fused = (f"  fused cycle {res['fused_cycle_ms']:.3f} ms (block_dim {com.block_dim}; max current diff "
+                     f"{res['fused_max_current_diff_a']:.1e} A, same flags {res['fused_same_flags']}; against one "
+                     f"thread per mover on the CPU {res['one_thread_max_current_diff_a']:.1e} A, same flags "
+                     f"{res['one_thread_same_flags']})")
+            for b in (args.block_dims if gpu else ()):
+                fused += f", block_dim {b}: {res[f'fused_cycle_b{b}_ms']:.3f} ms"
         if name == "fast":
             row.update(table_mb=fast.table_bytes / 1e6, table_build_s=build_s)
         if name == "table":
             row.update(table_mb=table.table_bytes / 1e6, table_build_s=table_build_s)
         rows.append(row)
         print(f"  {device:7s} {name:5s} movers={n:>8}  gamma {res['gamma_ms']:.3f} ms  commutation "
-              f"{res['commutation_ms']:.3f} ms  cycle {res['cycle_ms']:.3f} ms", flush=True)
+              f"{res['commutation_ms']:.3f} ms  cycle {res['cycle_ms']:.3f} ms{fused}", flush=True)
     return rows
 
 
@@ -372,6 +407,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="cpu or cuda:0 (default: cpu, and cuda:0 when present)")
     parser.add_argument("--sizes", type=sizes, default=sizes("1000,100000,1000000"), help="GPU movers, table model")
+    parser.add_argument("--block-dims", type=sizes, default=sizes(""),
+                        help="GPU: more threads per mover (1 to 36) to time the one-launch cycle with, beside the "
+                             "default 32 (below 32: partial warps, not yet run on a GPU)")
     parser.add_argument("--cpu-sizes", type=sizes, default=sizes("100,1000"), help="CPU movers, table model")
     parser.add_argument("--fast-sizes", type=sizes, default=sizes("1000,100000"), help="GPU movers, fast model")
     parser.add_argument("--cpu-fast-sizes", type=sizes, default=sizes("100"), help="CPU movers, fast model")
@@ -432,7 +470,8 @@ def main(argv=None) -> int:
             + [{"kind": "options", **options, "table_spec": repr(args.table_spec)}])
     finish([r for r in rows if r["kind"] != "options"],
            ["kind", "device", "model", "movers", "worlds", "num_envs", ("gamma_ms", "Gamma ms"),
-            ("commutation_ms", "commutation ms"), ("cycle_ms", "cycle ms"), ("active_coils_mean", "coils/mover"),
+            ("commutation_ms", "commutation ms"), ("cycle_ms", "cycle ms"),
+            ("fused_cycle_ms", "fused cycle ms"), ("active_coils_mean", "coils/mover"),
             ("ideal_step_ms", "ideal ms/step"), ("magnetic_step_ms", "magnetic ms/step"),
             ("magnetic_share_of_ideal_speed", "magnetic/ideal speed"), ("max_tilt_rad", "tilt"),
             ("force_error_share", "force err/peak"), ("torque_error_share", "torque err/peak"),

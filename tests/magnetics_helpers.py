@@ -26,3 +26,15 @@ def magnetics_cache(tmp_path_factory):
     mp.setenv("MAGWARP_CACHE_DIR", str(tmp_path_factory.mktemp("magnetics_cache")))
     yield
     mp.undo()
+
+
+@pytest.fixture
+def cpu_blocks():
+    """Let Warp's CPU run blocks of several threads (cooperative fibers), as a GPU does (import it into a test
+    module to use it)."""
+    import warp as wp
+
+    saved = wp.config.enable_cpu_blocks
+    wp.config.enable_cpu_blocks = True
+    yield
+    wp.config.enable_cpu_blocks = saved

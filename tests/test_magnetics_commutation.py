@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 import warp as wp
 
+from magnetics_helpers import cpu_blocks  # noqa: F401  (a fixture; tests/ is on sys.path)
+
 from magwarp.layout import Layout
 from magwarp.magnetics import reference as ref
 from magwarp.magnetics.commutation import (FLAG_NO_COILS, FLAG_NOT_CONVERGED, FLAG_OVERFLOW, FLAG_REGULARISED,
@@ -150,3 +152,31 @@ def test_bad_inputs_raise(rng):
     with pytest.raises(MagneticsError, match="agree"):
         com.solve(g, wp.zeros((2, 3), dtype=wp.int32, device="cpu"), wp.zeros(2, dtype=wp.int32, device="cpu"),
                   wp.zeros(2, dtype=vec6d, device="cpu"))
+
+
+def test_block_of_threads_matches_one_thread(rng, cpu_blocks):
+    """A mover's slots split over a block of threads (the GPU's shape; sums reduced over the block): the same
+    currents, saturations and flags as one thread per mover, and the reference's."""
+    coils = FakeCoils(rng)
+    gamma, ids = random_problem(rng, 24)
+    wrench = rng.normal(size=(24, 6)) * np.array([4.0, 4.0, 8.0, 0.2, 0.2, 0.2])
+    com = {b: Commutation(coils, device="cpu", block_dim=b) for b in (1, 5)}
+    args = [wp.array(gamma, dtype=vec6d, device="cpu"), wp.array(ids, dtype=wp.int32, device="cpu"),
+            wp.array((ids >= 0).sum(1).astype(np.int32), dtype=wp.int32, device="cpu"),
+            wp.array(wrench, dtype=vec6d, device="cpu")]
+    out = {b: c.solve(*args) for b, c in com.items()}
+    one, five = out[1], out[5]
+    # Sums in another order: rounding, carried through the active-set steps.
+    np.testing.assert_allclose(five.currents.numpy(), one.currents.numpy(), rtol=1e-8, atol=1e-9, err_msg=str(rng))
+    np.testing.assert_allclose(five.delivered.numpy(), one.delivered.numpy(), rtol=1e-8, atol=1e-8, err_msg=str(rng))
+    np.testing.assert_allclose(five.loss.numpy(), one.loss.numpy(), rtol=1e-8, err_msg=str(rng))
+    assert np.array_equal(five.saturated.numpy(), one.saturated.numpy()), rng
+    assert np.array_equal(five.flags.numpy(), one.flags.numpy()), rng
+    assert one.saturated.numpy().any() and not one.saturated.numpy().all(), rng
+    for m in range(24):
+        act = ids[m] >= 0
+        k = ids[m][act]
+        cur, *_ = ref.commutate(gamma[m][act].T, coils.resistance[k], coils.current_limit[k], wrench[m])
+        np.testing.assert_allclose(five.currents.numpy()[m][act], cur, rtol=1e-9, atol=1e-6, err_msg=f"{rng} {m}")
+    with pytest.raises(MagneticsError, match="block_dim"):
+        Commutation(coils, device="cpu", block_dim=0)

@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 import torch
 
+from magnetics_helpers import cpu_blocks  # noqa: F401  (a fixture; tests/ is on sys.path)
+
 from magwarp.layout import Layout
 from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED
 from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, MagneticModel, magnetic_force
@@ -88,3 +90,60 @@ def test_force_model_by_name_or_object(cache):
     assert make().magnetic_drive is None
     with pytest.raises(ValueError, match="'magnetc'"):
         make("magnetc")
+
+
+def test_drive_with_blocks_of_threads_matches_one_thread(cache, rng, cpu_blocks):
+    """The drive's one launch per cycle with several threads per mover (the GPU's shape, run by Warp's CPU blocks)
+    moves the movers as one thread per mover does, with the same currents (to rounding) and flags."""
+    cmd = rng.uniform(-8.0, 8.0, (2, 1, 2))
+    out = []
+    for block_dim in (1, 8):
+        sim = make(magnetic_force, AUX_DIM)
+        drive = MagneticDrive(sim, params(limit=2.0), SPEC)
+        drive.commutation.block_dim = block_dim
+        p, v = run(sim, cmd, 10)
+        out.append((p, v, drive.currents.numpy().copy(), drive.flags.numpy().copy()))
+    (p1, v1, c1, f1), (p8, v8, c8, f8) = out
+    np.testing.assert_allclose(p8, p1, atol=1e-7, err_msg=str(rng))
+    np.testing.assert_allclose(v8, v1, atol=1e-6, err_msg=str(rng))
+    np.testing.assert_allclose(c8, c1, rtol=1e-6, atol=1e-6, err_msg=str(rng))
+    assert np.array_equal(f8, f1) and np.abs(c1).max() > 1.0, rng
+
+
+def test_actuator_wrench_mode_cycle_matches_commutate(cache, rng):
+    """``CoilActuator(mode="wrench")`` runs its cycle in one launch (look-up, commutation, store): the currents it
+    applies are those of :meth:`CoilActuator.commutate` (the two launches) at the cycle's start, within the limits,
+    and the realised wrench is their Gamma i."""
+    from magwarp.magnetics.actuator import CoilActuator
+
+    sim = make(magnetic_force, AUX_DIM)
+    act = CoilActuator(sim, params(limit=2.5), SPEC, mode="wrench")
+    wrench = np.zeros((2, 1, 6))
+    wrench[..., :2] = rng.uniform(-15.0, 15.0, (2, 1, 2))
+    wrench[..., 2] = 1.24 * 9.81
+    wrench = torch.as_tensor(wrench, dtype=torch.float32)
+    want = act.commutate(wrench).numpy()
+    act.wanted.copy_(wrench)
+    sim.step(1)
+    got = act.applied_currents.numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, err_msg=str(rng))
+    assert np.all(np.abs(got) <= 2.5 + 1e-12) and np.abs(got).max() > 1.0
+    gamma = act._gamma.numpy().astype(np.float64).reshape(2, 1, act.slots, 6)
+    np.testing.assert_allclose(act.wrench.numpy(), np.einsum("wmsk,wms->wmk", gamma, got), rtol=1e-5, atol=1e-5)
+    assert np.all(act.loss.numpy() > 1.0)
+
+
+def test_trajectory_env_with_the_drive_takes_the_fused_step(cache):
+    """The magnetic drive's hook is one device launch: the B0 env keeps its fused step (on CUDA one graph) with
+    ``force_model`` magnetic, and gives the torch step's results bit for bit."""
+    from test_graph_step import run_twins
+
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    kw = {"num_envs": 6, "layout": "B0", "device": "cpu", "seed": 5,
+          "force_model": MagneticModel(params(limit=3.0), SPEC)}
+    eager, fused = TrajectoryPlanningEnv(fused=False, **kw), TrajectoryPlanningEnv(**kw)
+    assert fused.step_path == "fused" and eager.step_path.startswith("eager")
+    run_twins(eager, fused, 8, seed=1)
+    assert np.all(fused.sim.magnetic_drive.energy.numpy() > 0.0)
+    np.testing.assert_array_equal(fused.sim.magnetic_drive.energy.numpy(), eager.sim.magnetic_drive.energy.numpy())

@@ -61,8 +61,10 @@ def fused_step_blocker(env) -> str | None:
     drawn at resets), the sensor models (bias, white noise, dropped readings; ``std_noise``), domain randomisation
     terms of every mode (startup; reset: inside the step; interval: on the host before the step, as the simulator's
     step callbacks run), ``learn_jerk``, box or circle shapes, any layout, ``max_episode_steps`` and
-    ``timeout_steps``; benchmark metrics, ``nan_dump``, ``autoreset=False``, simulator cycle hooks and subclasses
-    that override a task hook (:data:`REPLACED_HOOKS`) keep the torch step."""
+    ``timeout_steps``; a pre-cycle hook marked ``fused_step_safe`` (device launches only, no host work: the magnetic
+    drive's) runs inside the fused step (and its graph) as in the torch step. Benchmark metrics, ``nan_dump``,
+    ``autoreset=False``, other simulator cycle hooks and subclasses that override a task hook
+    (:data:`REPLACED_HOOKS`) keep the torch step."""
     if not env.fused:
         return "fused=False"
     if not env.autoreset:
@@ -71,7 +73,7 @@ def fused_step_blocker(env) -> str | None:
         return "nan_dump"
     if env.benchmark_metrics is not None:
         return "benchmark metrics"
-    if env.sim._hooks or env.sim._pre_hooks:
+    if env.sim._hooks or not all(getattr(h, "fused_step_safe", False) for h in env.sim._pre_hooks):
         return "simulator cycle hooks"
     hook = _overridden_hook(type(env))
     if hook is not None:

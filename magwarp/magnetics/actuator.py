@@ -15,7 +15,8 @@ integrator; gravity is the integrator's), the copper loss (W) into ``[..., 6]``;
 
 ``mode="wrench"``: the input is a wanted wrench per mover (:attr:`wanted`, ``[W, M, 6]``, force N and torque N m
 about the mover's centre, world frame) that the commutation (:mod:`~magwarp.magnetics.commutation`) turns into
-currents every cycle. :meth:`commutate` runs the same commutation once, outside the step, at the current state.
+currents every cycle (one launch per cycle: look-up, commutation and store, :func:`wrench_cycle_kernel`).
+:meth:`commutate` runs the same commutation once, outside the step, at the current state.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ import torch
 import warp as wp
 
 from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
-from magwarp.magnetics.drive import AUX_DIM, store_wrench_kernel
+from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_mover, cycle_outputs, cycle_params
+from magwarp.magnetics.drive import AUX_DIM, store_wrench, store_wrench_kernel
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
 from magwarp.magnetics.table import TableModel, WrenchTableSpec
@@ -104,6 +106,38 @@ def apply_currents_kernel(
     loss[m] = p
 
 
+@wp.kernel
+def wrench_cycle_kernel(
+    # Model:
+    c: CycleParams,
+    dt: float,
+    # State in:
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    wanted: wp.array(dtype=vec6f),
+    # State out:
+    o: CycleOutputs,
+    force_aux: wp.array3d(dtype=float),
+    energy: wp.array2d(dtype=wp.float64),
+):
+    """``mode="wrench"``, one launch per cycle, one block of threads per mover (flat index ``w * movers + m``): the
+    look-up and the commutation of the wanted wrench (:func:`~magwarp.magnetics.cycle.cycle_mover`), then the
+    realised wrench, loss and flags into ``force_aux`` and the energy."""
+    i, lane = wp.tid()
+    w = i / pos.shape[1]
+    m = i % pos.shape[1]
+    p = pos[w, m]
+    q = quat[w, m]
+    pos_d = wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
+    quat_d = wp.normalize(wp.quatd(wp.float64(q[0]), wp.float64(q[1]), wp.float64(q[2]), wp.float64(q[3])))
+    wf = wanted[i]
+    want = vec6d(wp.float64(wf[0]), wp.float64(wf[1]), wp.float64(wf[2]), wp.float64(wf[3]), wp.float64(wf[4]),
+                 wp.float64(wf[5]))
+    out, loss_w, flag = cycle_mover(i, lane, c, pos_d, quat_d, want, o)
+    if lane == 0:
+        store_wrench(w, m, dt, out, loss_w, flag, force_aux, energy)
+
+
 class CoilActuator:
     """Drive ``sim`` (built with ``force_model=magnetic_force``, ``force_aux_dim >= AUX_DIM``) by coil currents
     (``mode="currents"``) or by wanted wrenches through the commutation (``mode="wrench"``); see the module
@@ -135,6 +169,8 @@ class CoilActuator:
         self._res = CommutationResult.zeros(n, slots, dev)
         self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
         self._dt = float(sim.model.limits.dt)
+        self._cycle = cycle_params(self.model, self.commutation)
+        self._outputs = cycle_outputs(self._ids, self._gamma, self._count, self._res)
         sim.add_cycle_hook(self._before_cycle, before=True)
 
     def _columns(self) -> None:
@@ -149,14 +185,16 @@ class CoilActuator:
         self.commutation.solve(self._gamma, self._ids, self._count, self._wanted_d, self._res)
 
     def _before_cycle(self, sim) -> None:
+        if self.mode == "wrench":  # one launch: look-up, commutation, store
+            wp.launch_tiled(wrench_cycle_kernel, dim=[self._wanted.shape[0]], block_dim=self.commutation.block_dim,
+                            device=sim.device, inputs=[self._cycle, self._dt, sim.state.pos, sim.state.quat,
+                                                       self._wanted],
+                            outputs=[self._outputs, sim.state.force_aux, self._energy])
+            return
         self._columns()
-        if self.mode == "wrench":
-            self._solve_wanted()
-        else:
-            wp.launch(apply_currents_kernel, dim=self._command.shape[0], device=sim.device,
-                      inputs=[self.commutation.resistance, self.commutation.limit, self._gamma, self._ids,
-                              self._command],
-                      outputs=[self._res.currents, self._res.saturated, self._res.delivered, self._res.loss])
+        wp.launch(apply_currents_kernel, dim=self._command.shape[0], device=sim.device,
+                  inputs=[self.commutation.resistance, self.commutation.limit, self._gamma, self._ids, self._command],
+                  outputs=[self._res.currents, self._res.saturated, self._res.delivered, self._res.loss])
         wp.launch(store_wrench_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device,
                   inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
                   outputs=[sim.state.force_aux, self._energy])

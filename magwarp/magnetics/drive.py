@@ -17,7 +17,11 @@ model; when coils saturate, the wrench falls short (the mover accelerates less, 
 ``force_aux[w, m, 6]`` is the copper loss (W) and ``[7]`` the commutation flags
 (:mod:`~magwarp.magnetics.commutation`); :attr:`MagneticDrive.energy` accumulates the loss over time (J);
 :attr:`MagneticDrive.currents` and :attr:`MagneticDrive.coil_ids` are the active coils' currents (A) and ids.
-The hook forces the simulator's per-cycle launch path (as any cycle hook does).
+The hook is one launch per cycle (:func:`drive_cycle_kernel`: the wanted wrench, the look-up, the commutation and
+the store, one block of threads per mover, :mod:`~magwarp.magnetics.cycle`), captured in the step graph; it still
+forces the simulator's per-cycle launch path (as any cycle hook does): each cycle is this launch, the step kernel's
+and the collision check's. The trajectory env keeps its fused step (one CUDA graph per env step) with the drive:
+the hook is marked ``fused_step_safe``.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from magwarp.kernels.collision import model_row
 from magwarp.kernels.dynamics import planar_acceleration
 from magwarp.kernels.impedance import default_force
 from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
+from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_mover, cycle_outputs, cycle_params
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.table import TableModel, WrenchTableSpec
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
@@ -57,13 +62,13 @@ def magnetic_force(
     return w
 
 
-@wp.kernel
-def wanted_wrench_kernel(
-    # Model:
+@wp.func
+def wanted_wrench(
+    w: int,
+    m: int,
     lim: Limits,
     imp: Impedance,
     body: wp.array2d(dtype=Body),
-    # State in:
     cmd: wp.array2d(dtype=wp.vec2),
     target_pos: wp.array2d(dtype=wp.vec3),
     target_quat: wp.array2d(dtype=wp.quat),
@@ -73,27 +78,66 @@ def wanted_wrench_kernel(
     vel: wp.array2d(dtype=wp.vec3),
     omega: wp.array2d(dtype=wp.vec3),
     acc: wp.array2d(dtype=wp.vec2),
-    # State out:
-    pos_d: wp.array(dtype=wp.vec3d),
-    quat_d: wp.array(dtype=wp.quatd),
-    wanted: wp.array(dtype=vec6d),
-    count: wp.array(dtype=wp.int32),
 ):
-    """The ideal model's wrench at the cycle's start (what the step kernel would apply), the pose in float64, and
-    the coil counts zeroed for the table model's launch."""
-    w, m = wp.tid()
-    i = w * pos.shape[1] + m
+    """The ideal model's wrench on mover (w, m) at the cycle's start (what the step kernel would apply), and its pose
+    in float64 (the quaternion normalised)."""
     p = make_pose(pos[w, m], quat[w, m], vel[w, m], omega[w, m])
     b = body[model_row(body.shape[0], w), m]
     a = planar_acceleration(p.vel, acc[w, m], cmd[w, m], lim)
     wr = default_force(p, b, wp.vec3(a[0] * b.mass, a[1] * b.mass, 0.0), target_pos[w, m], target_quat[w, m], imp,
                        lim, force_aux[w, m])
-    pos_d[i] = wp.vec3d(wp.float64(p.pos[0]), wp.float64(p.pos[1]), wp.float64(p.pos[2]))
+    pos_d = wp.vec3d(wp.float64(p.pos[0]), wp.float64(p.pos[1]), wp.float64(p.pos[2]))
     q = wp.quatd(wp.float64(p.quat[0]), wp.float64(p.quat[1]), wp.float64(p.quat[2]), wp.float64(p.quat[3]))
-    quat_d[i] = wp.normalize(q)
-    wanted[i] = vec6d(wp.float64(wr.force[0]), wp.float64(wr.force[1]), wp.float64(wr.force[2]),
-                      wp.float64(wr.torque[0]), wp.float64(wr.torque[1]), wp.float64(wr.torque[2]))
-    count[i] = 0
+    wanted = vec6d(wp.float64(wr.force[0]), wp.float64(wr.force[1]), wp.float64(wr.force[2]),
+                   wp.float64(wr.torque[0]), wp.float64(wr.torque[1]), wp.float64(wr.torque[2]))
+    return pos_d, wp.normalize(q), wanted
+
+
+@wp.func
+def store_wrench(w: int, m: int, dt: float, delivered: vec6d, loss: wp.float64, flags: int,
+                 force_aux: wp.array3d(dtype=float), energy: wp.array2d(dtype=wp.float64)):
+    """The realised wrench, loss and flags into ``force_aux[w, m]``; the loss integrated into the energy."""
+    for k in range(6):
+        force_aux[w, m, k] = float(delivered[k])
+    force_aux[w, m, 6] = float(loss)
+    force_aux[w, m, 7] = float(flags)
+    energy[w, m] = energy[w, m] + loss * wp.float64(dt)
+
+
+@wp.kernel
+def drive_cycle_kernel(
+    # Model:
+    lim: Limits,
+    imp: Impedance,
+    body: wp.array2d(dtype=Body),
+    c: CycleParams,
+    dt: float,
+    # State in:
+    cmd: wp.array2d(dtype=wp.vec2),
+    target_pos: wp.array2d(dtype=wp.vec3),
+    target_quat: wp.array2d(dtype=wp.quat),
+    pos: wp.array2d(dtype=wp.vec3),
+    quat: wp.array2d(dtype=wp.quat),
+    vel: wp.array2d(dtype=wp.vec3),
+    omega: wp.array2d(dtype=wp.vec3),
+    acc: wp.array2d(dtype=wp.vec2),
+    # State out:
+    o: CycleOutputs,
+    force_aux: wp.array3d(dtype=float),
+    energy: wp.array2d(dtype=wp.float64),
+):
+    """The drive's whole cycle, one block of threads per mover (flat index ``w * movers + m``): the wanted wrench,
+    the look-up and the commutation (:func:`~magwarp.magnetics.cycle.cycle_mover`), the realised wrench, loss and
+    flags into ``force_aux`` and the energy."""
+    i, lane = wp.tid()
+    w = i / pos.shape[1]
+    m = i % pos.shape[1]
+    # Every thread of the block reads force_aux here, before the block's first sum; only thread 0 writes it, after.
+    pos_d, quat_d, wanted = wanted_wrench(w, m, lim, imp, body, cmd, target_pos, target_quat, force_aux, pos, quat,
+                                          vel, omega, acc)
+    out, p, flag = cycle_mover(i, lane, c, pos_d, quat_d, wanted, o)
+    if lane == 0:
+        store_wrench(w, m, dt, out, p, flag, force_aux, energy)
 
 
 @wp.kernel
@@ -111,12 +155,7 @@ def store_wrench_kernel(
     """The realised wrench, loss and flags into ``force_aux``; the loss integrated into the energy."""
     w, m = wp.tid()
     i = w * force_aux.shape[1] + m
-    d = delivered[i]
-    for k in range(6):
-        force_aux[w, m, k] = float(d[k])
-    force_aux[w, m, 6] = float(loss[i])
-    force_aux[w, m, 7] = float(flags[i])
-    energy[w, m] = energy[w, m] + loss[i] * wp.float64(dt)
+    store_wrench(w, m, dt, delivered[i], loss[i], flags[i], force_aux, energy)
 
 
 class MagneticDrive:
@@ -136,28 +175,27 @@ class MagneticDrive:
         self.commutation = Commutation(self.model.coilset, options, device=dev)
         w_, m_ = sim.num_worlds, sim.num_movers
         n, slots = w_ * m_, self.model.max_active
-        self._pos = wp.zeros(n, dtype=wp.vec3d, device=dev)
-        self._quat = wp.zeros(n, dtype=wp.quatd, device=dev)
-        self._wanted = wp.zeros(n, dtype=vec6d, device=dev)
         self._ids = wp.full((n, slots), -1, dtype=wp.int32, device=dev)
         self._count = wp.zeros(n, dtype=wp.int32, device=dev)
         self._gamma = wp.zeros((n, slots), dtype=vec6f, device=dev)
         self._res = CommutationResult.zeros(n, slots, dev)
         self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
         self._dt = float(sim.model.limits.dt)
+        self._cycle = cycle_params(self.model, self.commutation)
+        self._outputs = cycle_outputs(self._ids, self._gamma, self._count, self._res)
         sim.add_cycle_hook(self._before_cycle, before=True)
 
     def _before_cycle(self, sim) -> None:
-        m, s, dev = sim.model, sim.state, sim.device
-        dims = (sim.num_worlds, sim.num_movers)
-        wp.launch(wanted_wrench_kernel, dim=dims, device=dev,
-                  inputs=[m.limits, m.impedance, m.body, s.cmd, s.target_pos, s.target_quat, s.force_aux, s.pos,
-                          s.quat, s.vel, s.omega, s.acc], outputs=[self._pos, self._quat, self._wanted, self._count])
-        self.model.columns(self._pos, self._quat, self._ids, self._gamma, self._count, zero_count=False)
-        self.commutation.solve(self._gamma, self._ids, self._count, self._wanted, self._res)
-        wp.launch(store_wrench_kernel, dim=dims, device=dev,
-                  inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
-                  outputs=[s.force_aux, self._energy])
+        m, s = sim.model, sim.state
+        wp.launch_tiled(drive_cycle_kernel, dim=[sim.num_worlds * sim.num_movers], block_dim=self.commutation.block_dim,
+                        device=sim.device,
+                        inputs=[m.limits, m.impedance, m.body, self._cycle, self._dt, s.cmd, s.target_pos,
+                                s.target_quat, s.pos, s.quat, s.vel, s.omega, s.acc],
+                        outputs=[self._outputs, s.force_aux, self._energy])
+
+    # One launch, no host work: the trajectory env's fused step (and its CUDA graph) may run it
+    # (magwarp.envs.trajectory_fused.fused_step_blocker).
+    _before_cycle.fused_step_safe = True
 
     def _view(self, arr, shape):
         return self.sim._t(arr.reshape(shape))

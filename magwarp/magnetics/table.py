@@ -218,6 +218,37 @@ def quat_yaw(q: wp.quatd) -> float:
     return wp.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
+@wp.func
+def slot_column(
+    t: WrenchTable, slot_layer: wp.array(dtype=wp.int32), slot_offset: wp.array(dtype=wp.vec2i), s: int, x: float,
+    y: float, z: float, yaw: float,
+):
+    """Window slot ``s`` of a mover at (x, y, z, yaw): its coil (-1 beyond the footprint, a hole or the layout) and
+    its interpolated column (zeros for -1)."""
+    l = slot_layer[s]
+    off = slot_offset[s]
+    h = t.half[l]
+    p = t.pitch[l]
+    reach_x = h[0] + t.footprint
+    reach_y = h[1] + t.footprint
+    ix = int(wp.ceil((x - reach_x) / p[0] - 0.5)) + off[0]
+    iy = int(wp.ceil((y - reach_y) / p[1] - 0.5)) + off[1]
+    k = int(-1)
+    col = vec6f()
+    if ix >= 0 and iy >= 0 and ix < t.coil_grid.shape[1] and iy < t.coil_grid.shape[2]:
+        k = t.coil_grid[l, ix, iy]
+        if k >= 0:
+            dx = x - (float(ix) + 0.5) * p[0]
+            dy = y - (float(iy) + 0.5) * p[1]
+            ex = wp.max(wp.abs(dx) - h[0], 0.0)
+            ey = wp.max(wp.abs(dy) - h[1], 0.0)
+            if ex * ex + ey * ey < t.footprint * t.footprint:
+                col = table_column(t, l, dx, dy, z, yaw)
+            else:
+                k = -1
+    return k, col
+
+
 @wp.kernel
 def table_columns_kernel(
     # Model:
@@ -235,32 +266,10 @@ def table_columns_kernel(
     """One thread per (mover, window slot): the slot's coil (id -1 beyond the footprint, a hole or the layout) and
     its interpolated column (zeros for id -1); ``count`` (zeroed before) gets the mover's coils."""
     m, s = wp.tid()
-    l = slot_layer[s]
-    off = slot_offset[s]
-    x = float(pos[m][0])
-    y = float(pos[m][1])
-    h = t.half[l]
-    p = t.pitch[l]
-    reach_x = h[0] + t.footprint
-    reach_y = h[1] + t.footprint
-    ix = int(wp.ceil((x - reach_x) / p[0] - 0.5)) + off[0]
-    iy = int(wp.ceil((y - reach_y) / p[1] - 0.5)) + off[1]
-    k = int(-1)
-    col = vec6f()
-    if ix >= 0 and iy >= 0 and ix < t.coil_grid.shape[1] and iy < t.coil_grid.shape[2]:
-        k = t.coil_grid[l, ix, iy]
-        if k >= 0:
-            cx = (float(ix) + 0.5) * p[0]
-            cy = (float(iy) + 0.5) * p[1]
-            dx = x - cx
-            dy = y - cy
-            ex = wp.max(wp.abs(dx) - h[0], 0.0)
-            ey = wp.max(wp.abs(dy) - h[1], 0.0)
-            if ex * ex + ey * ey < t.footprint * t.footprint:
-                col = table_column(t, l, dx, dy, float(pos[m][2]), quat_yaw(quat[m]))
-                wp.atomic_add(count, m, 1)
-            else:
-                k = -1
+    k, col = slot_column(t, slot_layer, slot_offset, s, float(pos[m][0]), float(pos[m][1]), float(pos[m][2]),
+                         quat_yaw(quat[m]))
+    if k >= 0:
+        wp.atomic_add(count, m, 1)
     coil_ids[m, s] = k
     gamma[m, s] = col
 

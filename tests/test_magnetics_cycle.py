@@ -1,0 +1,88 @@
+"""The fused control cycle (wrench-table look-up + commutation in one launch) against the two launches it replaces
+and the float64 references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from magnetics_helpers import cpu_blocks  # noqa: F401  (a fixture; tests/ is on sys.path)
+
+from magwarp.layout import Layout
+from magwarp.magnetics import reference as ref
+from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED, Commutation, CommutationResult
+from magwarp.magnetics.commutation import vec6f as ModelCol
+from magwarp.magnetics.cycle import ControlCycle
+from magwarp.magnetics.exact import vec6d
+from magwarp.magnetics.fast import FieldTableSpec
+from magwarp.magnetics.geometry import MagneticParams, MagneticsError, Quadrature
+from magwarp.magnetics.table import TableModel, WrenchTableSpec
+
+# The coarse table of tests/test_magnetics_table.py (seconds to build on a CPU).
+PARAMS = MagneticParams(quadrature=Quadrature(order=2, max_interval=0.01), active_radius=0.2)
+SPEC = WrenchTableSpec(step=0.003, yaw_steps=24, z_step=0.001, gap=(0.003, 0.005),
+                       field=FieldTableSpec(step=0.002, z_step=0.001, margin=0.08))
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    mp = pytest.MonkeyPatch()
+    mp.setenv("MAGWARP_CACHE_DIR", str(tmp_path_factory.mktemp("magnetics_cache")))
+    yield TableModel(Layout.grid(3, 2), PARAMS, SPEC, device="cpu")
+    mp.undo()
+
+
+@pytest.mark.parametrize("block_dim", [1, 8])
+def test_cycle_matches_lookup_then_commutation(model, rng, cpu_blocks, block_dim):
+    """One launch gives the look-up's ids, columns and counts and the commutation's currents, saturations, flags,
+    wrench and loss (hover plus accelerations up to 12 m/s^2: some movers saturate); the currents match the
+    float64 reference on the same columns and never exceed the limits."""
+    n = 24
+    poses = np.c_[rng.uniform(0.05, 0.67, n), rng.uniform(0.05, 0.43, n), rng.uniform(0.003, 0.005, n) + 0.006,
+                  np.zeros((n, 2)), rng.uniform(-4.0, 4.0, n)]
+    acc = rng.uniform(-12.0, 12.0, (n, 2))
+    wanted = np.c_[1.24 * acc, np.full(n, 1.24 * 9.81), rng.uniform(-0.05, 0.05, (n, 3))]
+    pos, quat = model.as_arrays(poses)
+    w = wp.array(wanted, dtype=vec6d, device="cpu")
+    com = Commutation(model.coilset, device="cpu", block_dim=block_dim)
+    ids, gamma, count = model.columns(pos, quat)
+    two = com.solve(gamma, ids, count, w)
+    slots = model.max_active
+    f_ids, f_gamma = wp.empty((n, slots), dtype=wp.int32), wp.empty((n, slots), dtype=ModelCol)
+    f_count = wp.zeros(n, dtype=wp.int32)
+    one = ControlCycle(model, com).run(pos, quat, w, f_ids, f_gamma, f_count,
+                                       CommutationResult.zeros(n, slots, "cpu"))
+    assert np.array_equal(f_ids.numpy(), ids.numpy()) and np.array_equal(f_count.numpy(), count.numpy())
+    np.testing.assert_array_equal(f_gamma.numpy(), gamma.numpy())
+    for key in ("currents", "delivered", "loss"):  # the same sums (block_dim 8: in another order than one thread's)
+        np.testing.assert_allclose(getattr(one, key).numpy(), getattr(two, key).numpy(), rtol=1e-10, atol=1e-10,
+                                   err_msg=f"{rng} {key}")
+    for key in ("saturated", "flags"):
+        assert np.array_equal(getattr(one, key).numpy(), getattr(two, key).numpy()), (rng, key)
+    sat = one.saturated.numpy().any(1)
+    assert sat.any() and not sat.all(), rng
+    cur, g, i = one.currents.numpy(), f_gamma.numpy().astype(np.float64), ids.numpy()
+    limit = model.coilset.current_limit
+    for m in range(n):
+        act = i[m] >= 0
+        want, delivered, s, regd, conv = ref.commutate(g[m][act].T, model.coilset.resistance[i[m][act]],
+                                                    limit[i[m][act]], wanted[m])
+        # many coils at their limit: many steps, each carrying the last one's rounding
+        np.testing.assert_allclose(cur[m][act], want, rtol=1e-8, atol=1e-8, err_msg=f"{rng} {m}")
+        assert np.abs(cur[m][act]).max() <= limit[i[m][act]].max()
+        assert bool(one.flags.numpy()[m] & FLAG_NOT_CONVERGED) == (not conv)
+        if conv and not regd:  # feasible (and well-conditioned): delivered exactly
+            np.testing.assert_allclose(one.delivered.numpy()[m], wanted[m], atol=1e-9, err_msg=f"{rng} {m}")
+
+
+def test_cycle_refuses_wrong_shapes(model):
+    com = Commutation(model.coilset, device="cpu")
+    pos, quat = model.as_arrays(np.array([[0.3, 0.2, 0.01, 0.0, 0.0, 0.0]]))
+    slots = model.max_active
+    with pytest.raises(MagneticsError, match="coil_ids"):
+        ControlCycle(model, com).run(pos, quat, wp.zeros(1, dtype=vec6d), wp.empty((1, slots + 1), dtype=wp.int32),
+                                     wp.empty((1, slots), dtype=ModelCol), wp.zeros(1, dtype=wp.int32),
+                                     CommutationResult.zeros(1, slots, "cpu"))
+    with pytest.raises(MagneticsError, match="TableModel"):
+        ControlCycle(object(), com)
