@@ -139,4 +139,16 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                   "no paper row; scripted IK baseline in magwarp eval"),
     "coop_push_sac": PaperRun("magwarp/CoopPush-v0", "sac-her", {"num_cycles": 40}, {"num_cycles": 40},
                               "no paper row; scripted line-up-and-push baseline in magwarp eval"),
+    # coop_push_sac stayed at 0% (5 minutes, H100): random actions never move a box that needs two movers, so every
+    # hindsight goal is "leave it where it is". Here the scripted baseline acts in every world for the first episode
+    # and in a quarter of the worlds throughout (magwarp.training.demos): the buffer holds pushes to goals. Same task,
+    # same evaluation (the policy acts alone)
+    "coop_push_sac_demos": PaperRun("magwarp/CoopPush-v0", "sac-her", {"num_cycles": 40}, {"num_cycles": 40},
+                                    "no paper row; scripted line-up-and-push baseline in magwarp eval",
+                                    ("--demo-episodes", "1", "--demo-share", "0.25")),
+    # the same demonstrations, and the actor also clones them where its critic rates them above its own action
+    # (Q-filtered behaviour cloning, as DDPG + HER with demonstrations in Nair et al. 2018)
+    "coop_push_sac_demos_bc": PaperRun("magwarp/CoopPush-v0", "sac-her", {"num_cycles": 40}, {"num_cycles": 40},
+                                       "no paper row; scripted line-up-and-push baseline in magwarp eval",
+                                       ("--demo-episodes", "1", "--demo-share", "0.25", "--demo-bc", "1.0")),
 }
