@@ -4,7 +4,9 @@ The replay buffer lives on the env's device as ``[time, env]`` rings. HER uses t
 storage: a sampled transition of env ``e`` at time ``t`` gets, with probability ``--her-ratio``, the goal achieved at a
 uniformly drawn later step of the same episode, and its reward is recomputed in one batched call of the env's
 ``compute_reward(achieved_goal, desired_goal, info)`` (collision flags stored with each transition stay in ``info``).
-Episode ends are tracked per env without scanning the buffer, so sampling is O(batch).
+Episode ends are tracked per env without scanning the buffer, so sampling is O(batch). ``--demo-episodes`` and
+``--demo-share`` mix the env's scripted baseline into the collection (:mod:`magwarp.training.demos`), for tasks whose
+success random exploration never shows (CoopPush).
 
     python -m magwarp.training.sac_her --env-id magwarp/PushBox-v0 --device cuda --minutes 15 --out runs/pushbox_sac
     python -m magwarp.training.sac_her --resume runs/pushbox_sac --minutes 5
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import math
 import os
 import sys
 
@@ -34,6 +37,7 @@ from torch import nn
 from magwarp.training import distributed as dist
 from magwarp.training.common import (OBS_KEYS, RunningMeanStd, configure_adam, flatten_obs, load_checkpoint,
                                      save_checkpoint, set_lr)
+from magwarp.training.demos import ScriptedDemos
 from magwarp.training.loop import Session, add_run_args, entry_point, open_env, resolve_run_args, run_training
 from magwarp.training.policy import mlp, save_policy
 
@@ -48,7 +52,8 @@ DEFAULT_ENV = "magwarp/PushBox-v0"
 PRESETS = {
     "default": dict(num_envs=4096, buffer_steps=1000, batch_size=4096, updates_per_step=64, learning_starts=10,
                     gamma=0.95, tau=0.01, lr=5e-4, lr_schedule="linear", init_alpha=0.1, her_ratio=0.8,
-                    hidden="256,256,256", policy_delay=1),
+                    hidden="256,256,256", policy_delay=1, demo_episodes=0, demo_share=0.0,
+                    demo_bc=0.0),
     "TrajectoryPlanning": dict(gamma=0.99, her_ratio=0.5),
 }
 
@@ -69,6 +74,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--her-ratio", type=float, default=None, help="fraction of sampled goals relabelled (future)")
     p.add_argument("--hidden", default=None, help="hidden layer sizes, comma separated")
     p.add_argument("--policy-delay", type=int, default=None, help="actor update every N critic updates")
+    p.add_argument("--demo-episodes", type=int, default=None,
+                   help="act with the env's scripted baseline for this many episodes per world at the start of the "
+                        "session: the replay buffer starts with its transitions (magwarp.training.demos)")
+    p.add_argument("--demo-share", type=float, default=None,
+                   help="share of the worlds, in [0, 1), that act with the scripted baseline for the whole session "
+                        "(demonstrations in every minibatch; the success statistics count the other worlds)")
+    p.add_argument("--demo-bc", type=float, default=None,
+                   help="weight of a Q-filtered behaviour-cloning term on the demonstrations in the actor loss "
+                        "(0: none; needs --demo-episodes or --demo-share)")
     p.add_argument("--cuda-graph", choices=("auto", "on", "off"), default="auto",
                    help="replay each update as a captured CUDA graph (auto: on CUDA devices, off under torchrun)")
     return p.parse_args(argv)
@@ -79,6 +93,10 @@ def resolve_args(args: argparse.Namespace) -> argparse.Namespace:
     for name in ("updates_per_step", "policy_delay", "batch_size", "num_envs"):
         if int(getattr(args, name)) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, got {getattr(args, name)!r}")
+    if not (math.isfinite(args.demo_bc) and args.demo_bc >= 0):
+        raise ValueError(f"--demo-bc must be a finite weight >= 0, got {args.demo_bc!r}")
+    if args.demo_bc > 0 and not (args.demo_episodes or args.demo_share):
+        raise ValueError(f"--demo-bc {args.demo_bc} clones demonstrations: give --demo-episodes or --demo-share too")
     if args.updates_per_step % args.policy_delay:
         raise ValueError(f"--updates-per-step ({args.updates_per_step}) must be a multiple of --policy-delay "
                          f"({args.policy_delay}): an update unit is policy_delay critic updates and one actor update")
@@ -91,10 +109,12 @@ class HerReplayBuffer:
 
     Every slot remembers its episode id (a per-env counter); ``ep_end[e, id % (capacity + 1)]`` holds the global
     step of that episode's last transition (a large number while it runs). At most ``capacity`` episodes of one env
-    touch the window, so ``capacity + 1`` id slots never alias.
+    touch the window, so ``capacity + 1`` id slots never alias. With ``track_demos`` every slot also records whether
+    a scripted baseline chose its action (:mod:`magwarp.training.demos`): samples then carry ``demo`` (1.0 or 0.0).
     """
 
-    def __init__(self, capacity: int, num_envs: int, dims: dict[str, int], flag_keys: list[str], device):
+    def __init__(self, capacity: int, num_envs: int, dims: dict[str, int], flag_keys: list[str], device,
+                 track_demos: bool = False):
         T, N, dev = int(capacity), int(num_envs), device
         self.T, self.N, self.device, self.flag_keys = T, N, dev, list(flag_keys)
         self.data = {k: torch.zeros(T, N, d, device=dev) for k, d in dims.items()}
@@ -102,6 +122,7 @@ class HerReplayBuffer:
         self.terminated = torch.zeros(T, N, dtype=torch.bool, device=dev)
         self.flags = {k: torch.zeros(T, N, dtype=torch.bool, device=dev) for k in self.flag_keys}
         self.ep_id = torch.zeros(T, N, dtype=torch.int64, device=dev)
+        self.demo = torch.zeros(T, N, dtype=torch.bool, device=dev) if track_demos else None
         self.cur_id = torch.zeros(N, dtype=torch.int64, device=dev)
         self.ep_end = torch.full((N, T + 1), 2**62, dtype=torch.int64, device=dev)
         self.g = 0  # global step count (host int: no sync)
@@ -111,8 +132,13 @@ class HerReplayBuffer:
         return min(self.g, self.T)
 
     @torch.no_grad()
-    def add(self, obs: dict, action, reward, next_obs: dict, terminated, done, info: dict) -> None:
+    def add(self, obs: dict, action, reward, next_obs: dict, terminated, done, info: dict, demo=None) -> None:
+        """One batched step; ``demo`` ``[N]`` (bool): the worlds whose action the scripted baseline chose."""
         i = self.g % self.T
+        if self.demo is not None:
+            if demo is None:
+                raise ValueError("this buffer tracks demonstrations: pass demo=[num_envs] bool to add()")
+            self.demo[i] = demo
         for k in OBS_KEYS:
             self.data[k][i] = obs[k]
             self.data["next_" + k][i] = next_obs[k]
@@ -153,6 +179,8 @@ class HerReplayBuffer:
         new_reward = compute_reward(out["next_achieved_goal"], goal, flags).to(reward.dtype)
         out["reward"] = torch.where(relabel, new_reward, reward)
         out["terminated"] = terminated
+        if self.demo is not None:
+            out["demo"] = self.demo[i, e].float()
         return out
 
 
@@ -288,10 +316,13 @@ class SacLearner:
             torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), self.args.tau)
         return q_loss.detach(), x
 
-    def _actor_step(self, x: torch.Tensor) -> torch.Tensor:
+    def _actor_step(self, x: torch.Tensor, mb: dict[str, torch.Tensor]) -> torch.Tensor:
         self.critic.requires_grad_(False)  # the policy loss differentiates through Q into the actor only
         a, logp = self.actor(x)
-        pi_loss = (self.log_alpha.exp().detach() * logp - torch.min(*self.critic(x, a))).mean()
+        q_pi = torch.min(*self.critic(x, a))
+        pi_loss = (self.log_alpha.exp().detach() * logp - q_pi).mean()
+        if self.args.demo_bc > 0:
+            pi_loss = pi_loss + self.args.demo_bc * self._bc_loss(x, mb, q_pi.detach())
         self.actor_opt.zero_grad(set_to_none=False)
         pi_loss.backward()
         dist.average_gradients(self.actor.parameters())
@@ -304,11 +335,25 @@ class SacLearner:
         self.alpha_opt.step()
         return pi_loss.detach()
 
+    def _bc_loss(self, x: torch.Tensor, mb: dict[str, torch.Tensor], q_pi: torch.Tensor) -> torch.Tensor:
+        """Behaviour cloning on the minibatch's demonstrations, Q-filtered (Nair et al. 2018, "Overcoming Exploration
+        in Reinforcement Learning with Demonstrations", for DDPG + HER): the squared distance of the deterministic
+        action to the demonstrated one, where the critic rates the demonstrated action above the policy's sample,
+        summed over actions and averaged over the minibatch's demonstrations."""
+        if "demo" not in mb:
+            raise ValueError("--demo-bc needs demonstrations in the replay buffer (--demo-episodes or --demo-share)")
+        with torch.no_grad():
+            keep = mb["demo"] * (torch.min(*self.critic(x, mb["action"])) > q_pi).float()
+        mean_action = self.actor(x, deterministic=True)[0]
+        err = (mean_action - mb["action"]).square().sum(-1)
+        return (keep * err).sum() / mb["demo"].sum().clamp_min(1.0)
+
     def _update_unit(self) -> dict[str, torch.Tensor]:
         """``policy_delay`` critic updates on consecutive minibatches, then one actor and temperature update."""
         for _ in range(self.args.policy_delay):
-            q_loss, x = self._critic_step(self._next_minibatch())
-        return {"loss_q": q_loss, "loss_pi": self._actor_step(x)}
+            mb = self._next_minibatch()
+            q_loss, x = self._critic_step(mb)
+        return {"loss_q": q_loss, "loss_pi": self._actor_step(x, mb)}
 
     def _capture(self) -> None:
         """Record one update unit as a CUDA graph (PyTorch's whole-network capture recipe): eager warm-up units on a
@@ -399,9 +444,11 @@ def _train(args: argparse.Namespace) -> dict:
     for k in OBS_KEYS:
         dims[k] = dims["next_" + k] = int(space[k].shape[0])
     dims["action"] = n_act
-    buffer = HerReplayBuffer(args.buffer_steps, N, dims, flag_keys, device)
+    demos = ScriptedDemos(base, action_scale, args.demo_episodes, args.demo_share)
+    rows = demos.learner_rows  # the learner's worlds (all without a demo share): what the statistics count
+    buffer = HerReplayBuffer(args.buffer_steps, N, dims, flag_keys, device, track_demos=demos.enabled)
 
-    session = Session(args, "sac-her", device, target_state)
+    session = Session(args, "sac-her", device, target_state, num_agents=N - demos.worlds)
     tracker = session.tracker
 
     def act(o):  # the deterministic policy (what policy.pt runs)
@@ -427,6 +474,8 @@ def _train(args: argparse.Namespace) -> dict:
     warmup = min(args.learning_starts, 5) if args.resume else args.learning_starts
     def tail() -> dict:  # the log row's end (read only when a row is written)
         row = {"alpha": float(learner.log_alpha.detach().exp()), **{k: float(v) for k, v in losses.items()}}
+        if demos.enabled:
+            row["demo_share"] = demos.share_at(env_steps)
         if getattr(base, "curriculum_level", None) is not None:  # PushWithObstacles' wall curriculum: mean level
             row["curriculum_level"] = float(base.curriculum_level.float().mean())
         return row
@@ -441,13 +490,16 @@ def _train(args: argparse.Namespace) -> dict:
                     action = torch.rand(N, n_act, device=device) * 2 - 1
                 else:
                     action, _ = actor(norm(obs))
+                if demos.enabled:
+                    action = demos(obs, action, env_steps)
             with phase("env"):
                 next_obs, reward, terminated, truncated, info = env.step(action * action_scale)
             with phase("buffer"):
                 done = terminated | truncated
-                buffer.add(obs, action, reward, info["final_obs"], terminated, done, info)
+                buffer.add(obs, action, reward, info["final_obs"], terminated, done, info,
+                           demos.acting(env_steps) if demos.enabled else None)
                 learner.obs_rms.update(flatten_obs(obs))
-                tracker.update(reward, terminated, truncated, info)
+                tracker.update(rows(reward), rows(terminated), rows(truncated), {k: rows(v) for k, v in info.items()})
             obs = next_obs
         env_steps += 1
         global_step += N * world
