@@ -17,9 +17,9 @@ from magwarp.swarm.planner import SwarmPlanner
 from magwarp.swarm.traffic import TURN_SPEED, LaneField, lanes_fit
 
 
-def reference_field(p, g, *, tiles, pitch, tile, cruise, a_brake, a_turn, final, tol, gain):
-    """One mover's preferred velocity, the lanes listed explicitly: lanes along x at y = (k + 1/2) pitch heading +x
-    for even k and -x for odd k; lanes along y likewise."""
+def reference_route(p, g, *, tiles, pitch, tile, cruise, a_brake, a_turn, final, tol, gain):
+    """One mover's x-first route: its preferred velocity and its corner, the lanes listed explicitly (lanes along x
+    at y = (k + 1/2) pitch heading +x for even k and -x for odd k; lanes along y likewise)."""
     step = pitch * tile
     rows = [((k + 0.5) * step, 1.0 if k % 2 == 0 else -1.0) for k in range(tiles[1] // pitch)]
     cols = [((k + 0.5) * step, 1.0 if k % 2 == 0 else -1.0) for k in range(tiles[0] // pitch)]
@@ -43,7 +43,17 @@ def reference_field(p, g, *, tiles, pitch, tile, cruise, a_brake, a_turn, final,
     between = min(xv, g[0]) - tol <= p[0] <= max(xv, g[0]) + tol
     if dist <= final or (abs(d[1]) <= final and between):
         v = d / dist * min(math.sqrt(2 * a_brake * dist), cruise)
-    return v
+    return v, np.array([xv, p[1]])
+
+
+def reference_field(p, g, *, tiles, **kw):
+    """The route whose corner lies farther out from the middle (max-norm in units of the half sizes); the y-first
+    route is the x-first one with x and y swapped."""
+    v_x, c_x = reference_route(p, g, tiles=tiles, **kw)
+    v_y, c_y = reference_route(p[::-1], g[::-1], tiles=tiles[::-1], **kw)
+    v_y, c_y = v_y[::-1], c_y[::-1]
+    half = np.array(tiles) * kw["tile"] / 2
+    return v_x if np.abs(c_x / half - 1).max() >= np.abs(c_y / half - 1).max() else v_y
 
 
 @pytest.mark.parametrize("pitch", [2, 3, 5])

@@ -8,13 +8,17 @@ along x at ``y = (k + 1/2) pitch`` head +x for even ``k`` and -x for odd ``k``; 
 Movers on one lane all head the same way (no head-on meetings), lanes of opposite directions are ``pitch`` apart,
 and flows meet only at right angles where lanes cross.
 
-A mover's preferred velocity, from its position ``p`` and goal ``g`` alone (no state, so a mover pushed off its
-route by the avoidance rules picks it up again):
+A mover's route has two legs, along x then along y or along y then along x: of the two, the one whose corner
+lies farther out from the middle of the layout (``outer=True``; the middle is where the routes of random goals cross
+most: 1024 movers on 64 x 64 tiles reached 95% of their first goals in 40 s with this choice, 90% along x first
+always). Its preferred velocity, from the mover's position ``p`` and goal ``g`` alone (no state, so a mover pushed
+off its route by the avoidance rules picks it up again; a route re-chosen on the way still heads for the goal),
+here for the route along x first (along y first: the same with x and y swapped):
 
 * *final approach* (``|g - p| <= final``, or within ``final`` of the goal's row and between the goal's column lane
   and the goal): straight at the goal, slowing so that it stops there (``sqrt(2 a_brake d)``);
 * *along y* (within ``turn_tol`` of ``x_v``, the lane along y that heads towards ``g_y`` nearest to ``g_x``): along
-  that lane towards the goal's row, slowing for the turn (``sqrt(2 a_turn d) + 0.3`` m/s), pulled onto the lane;
+  that lane towards the goal's row, slowing as it nears it (``sqrt(2 a_turn d) + 0.3`` m/s), pulled onto the lane;
 * *along x* (else): along the nearest lane that heads towards ``x_v`` (merging onto it, pulled by ``gain`` /s),
   slowing for the turn onto ``x_v``.
 
@@ -57,10 +61,10 @@ class LaneField:
     """Preferred velocities on the one-way lanes of the module docstring: ``LaneField(layout, cruise)(pos, goal)``
     with ``pos``, ``goal`` ``[..., 2]`` (m). ``pitch``: tiles between neighbouring lanes (>= 1); ``a_brake``,
     ``a_turn`` (m/s^2): slowing for the goal and for turns; ``final``, ``turn_tol`` (m); ``gain`` (1/s): the pull
-    onto a lane."""
+    onto a lane; ``outer``: choose the route by its corner (else always along x first)."""
 
     def __init__(self, layout: Layout, cruise: float, *, pitch: int = 3, a_brake: float = 4.0, a_turn: float = 6.0,
-                 final: float = 0.5, turn_tol: float = 0.15, gain: float = 4.0):
+                 final: float = 0.5, turn_tol: float = 0.15, gain: float = 4.0, outer: bool = True):
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("a_turn", a_turn), ("final", final),
                             ("turn_tol", turn_tol), ("gain", gain)):
             if not (math.isfinite(value) and value > 0):
@@ -73,25 +77,20 @@ class LaneField:
         self.lanes_x, self.lanes_y = (int(n) // int(pitch) for n in np.asarray(layout.tiles).shape)
         self.cruise, self.a_brake, self.a_turn = float(cruise), float(a_brake), float(a_turn)
         self.final, self.turn_tol, self.gain = float(final), float(turn_tol), float(gain)
+        self.outer = bool(outer)
+        self.centre = tuple(0.5 * n * float(layout.tile.size) for n in np.asarray(layout.tiles).shape)
 
-    def column(self, goal: torch.Tensor, sign_y: torch.Tensor) -> torch.Tensor:
-        """``x_v``: the x of the lane along y heading ``sign_y`` nearest to each goal."""
-        return _nearest_lane(goal[..., 0], sign_y, self.pitch, self.lanes_x)
-
-    def row(self, y: torch.Tensor, sign_x: torch.Tensor) -> torch.Tensor:
-        """The y of the lane along x heading ``sign_x`` nearest to ``y``."""
-        return _nearest_lane(y, sign_x, self.pitch, self.lanes_y)
-
-    def _slow(self, d: torch.Tensor) -> torch.Tensor:
-        return (torch.sqrt(2.0 * self.a_turn * d.abs()) + TURN_SPEED).clamp_max(self.cruise)
-
-    def __call__(self, pos: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    def _route(self, pos: torch.Tensor, goal: torch.Tensor, lanes_x: int, lanes_y: int
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The x-first route (along a lane along x, then along ``x_v``): the preferred velocity and the route's
+        corner ``(x_v, p_y)``. The y-first route is this one on swapped coordinates (the lane pattern is symmetric
+        under the swap)."""
         d = goal - pos
         sy = torch.where(d[..., 1] >= 0, 1.0, -1.0)
-        xv = self.column(goal, sy)
+        xv = _nearest_lane(goal[..., 0], sy, self.pitch, lanes_x)  # the lane along y heading to g_y nearest to g_x
         ex = xv - pos[..., 0]
         sx = torch.where(ex >= 0, 1.0, -1.0)
-        yh = self.row(pos[..., 1], sx)
+        yh = _nearest_lane(pos[..., 1], sx, self.pitch, lanes_y)  # the lane along x heading to x_v nearest to p_y
         cruise = self.cruise
         along_x = torch.stack([sx * self._slow(ex), (self.gain * (yh - pos[..., 1])).clamp(-cruise, cruise)], -1)
         along_y = torch.stack([(self.gain * ex).clamp(-cruise, cruise), sy * self._slow(d[..., 1])], -1)
@@ -105,4 +104,19 @@ class LaneField:
         px, gx = pos[..., 0], goal[..., 0]
         between = (px >= torch.minimum(xv, gx) - self.turn_tol) & (px <= torch.maximum(xv, gx) + self.turn_tol)
         final = (dist[..., 0] <= self.final) | ((d[..., 1].abs() <= self.final) & between)
-        return torch.where(final[..., None], direct, v)
+        return torch.where(final[..., None], direct, v), torch.stack([xv, pos[..., 1]], -1)
+
+    def _slow(self, d: torch.Tensor) -> torch.Tensor:
+        return (torch.sqrt(2.0 * self.a_turn * d.abs()) + TURN_SPEED).clamp_max(self.cruise)
+
+    def __call__(self, pos: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        v_x, corner_x = self._route(pos, goal, self.lanes_x, self.lanes_y)
+        if not self.outer:
+            return v_x
+        v_y, corner_y = self._route(pos.flip(-1), goal.flip(-1), self.lanes_y, self.lanes_x)
+        # the route whose corner lies farther out from the middle of the layout (max-norm, in tiles of the layout's
+        # half sizes): routes keep off the middle, where every route would cross
+        centre = pos.new_tensor(self.centre)
+        out_x = ((corner_x - centre) / centre).abs().amax(-1)
+        out_y = ((corner_y.flip(-1) - centre) / centre).abs().amax(-1)
+        return torch.where((out_x >= out_y)[..., None], v_x, v_y.flip(-1))
