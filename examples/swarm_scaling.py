@@ -1,7 +1,8 @@
 """A scalability study on the swarm env: throughput per mover (goals per second) and collisions per 1000 goals
-against the number of movers, at a fixed density (movers per tile), for the scripted planner (ORCA steering and
-its provably collision-free safety filter) and, with ``--policy``, a trained shared policy (``magwarp train
-magwarp/Swarm-v0``: one network for every mover, on local observations, so it runs zero-shot at any size).
+against the number of movers, at a fixed density (movers per tile), for the scripted planner (one-way lanes on
+layouts of 32 tiles a side or more, ORCA steering and its provably collision-free safety filter) and, with
+``--policy``, a trained shared policy (``magwarp train magwarp/Swarm-v0``: one network for every mover, on local
+observations, so it runs zero-shot at any size).
 
 Each size runs one world of a full square grid for ``--seconds`` of simulated time from a fresh reset (the same
 worlds for both); the plot (PNG) and the printed table are what a scalability study reports.
@@ -22,8 +23,8 @@ from magwarp.layout import Layout
 from magwarp.swarm import SwarmEnv, SwarmPlanner, run_policy
 
 
-def study(movers: list[int], occupancy: float, seconds: float, device: str | None, policy: str | None = None
-          ) -> list[dict]:
+def study(movers: list[int], occupancy: float, seconds: float, device: str | None, policy: str | None = None,
+          traffic: str = "auto") -> list[dict]:
     rows = []
     net = None
     if policy is not None:
@@ -34,7 +35,7 @@ def study(movers: list[int], occupancy: float, seconds: float, device: str | Non
         side = int(math.ceil(math.sqrt(m / occupancy)))
         env = SwarmEnv(1, num_movers=m, layout=Layout.grid(side, side), device=device, seed=0, check_inputs=False)
         steps = max(1, int(round(seconds / (env.num_cycles * 1e-3))))
-        controllers = [("planner", SwarmPlanner(env))]
+        controllers = [("planner", SwarmPlanner(env, traffic=traffic))]
         if policy is not None:
             net = net or load_policy(policy, env.device)
             controllers.append(("policy", net))
@@ -84,8 +85,10 @@ def main(argv=None) -> None:
     p.add_argument("--device", default=None)
     p.add_argument("--png", default="swarm_scaling.png")
     p.add_argument("--policy", default=None, help="a trained policy.pt (or run folder) to compare with the planner")
+    p.add_argument("--traffic", default="auto", choices=("auto", "lanes", "free"),
+                   help="the planner's traffic rule (auto: one-way lanes on layouts of 32 tiles a side or more)")
     args = p.parse_args(argv)
-    rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy)
+    rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy, args.traffic)
     plot(rows, args.png)
 
 

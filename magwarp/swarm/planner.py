@@ -5,7 +5,10 @@ Each mover looks only at what its observation holds (its goal, the ``k`` nearest
 radius, the wall rays), so a step costs O(k) per mover, on the device, for any swarm size. Per mover:
 
 1. *preferred velocity*: towards the goal at ``cruise`` speed, slowing so that it can stop on the goal
-   (``sqrt(2 a_brake d)``);
+   (``sqrt(2 a_brake d)``); with ``traffic="lanes"`` (``"auto"``, the default: on layouts without holes at least
+   :data:`AUTO_LANES_TILES` tiles a side) along a Manhattan grid of one-way lanes every ``lane_pitch`` tiles instead
+   (:class:`~magwarp.swarm.traffic.LaneField`: no head-on meetings, flows cross at right angles; 1024 movers on
+   64 x 64 tiles reached 87% of their first goals in 40 s against 56% straight at the goals, and 96.5% in 80 s);
 2. *reciprocal avoidance*: every neighbour gives one half-plane of allowed velocities, the ORCA line of van den
    Berg et al. (2011) for a time horizon ``horizon`` and the safe distance (both collision shapes' reach, the safety
    margin and a ``buffer``). The command is an acceleration held for the whole env step, so the velocity changes
@@ -52,8 +55,14 @@ import torch
 from magwarp.swarm.env import SwarmEnv
 from magwarp.swarm.observations import LocalObservations, ray_directions
 from magwarp.swarm.safety import SafetyFilter
+from magwarp.swarm.traffic import LaneField, lanes_fit
 
-__all__ = ["SwarmPlanner", "orca_lines", "solve_lines", "stop_speed"]
+__all__ = ["SwarmPlanner", "TRAFFIC", "orca_lines", "solve_lines", "stop_speed"]
+
+TRAFFIC = ("auto", "lanes", "free")
+#: ``traffic="auto"`` takes the lanes on layouts without holes at least this many tiles a side (on smaller ones the
+#: crowd does not pack and straight paths are shorter: 64 movers on 16 x 16 tiles reached fewer goals in 4 s on lanes)
+AUTO_LANES_TILES = 32
 
 
 def _det(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -158,7 +167,8 @@ class SwarmPlanner:
                  buffer: float | None = None, yield_share: float = 0.5, shield: float | None = None,
                  margin: float = 0.005, greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3,
                  relax: float = 0.0, reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5,
-                 commit_brake: float = 0.95, safe_margin: float = 0.002, safe_k: int = 24):
+                 commit_brake: float = 0.95, safe_margin: float = 0.002, safe_k: int = 24, traffic: str = "auto",
+                 lane_pitch: int = 3):
         # defaults by mode: with the safety filter the steering may be bolder (measured on 64 movers at 25%, 2 seeds,
         # before the filter's slack sharing: 68 / 81 goals in 4 s against 45 / 64 with the unfiltered planner's
         # settings, none colliding)
@@ -217,6 +227,15 @@ class SwarmPlanner:
             raise ValueError(f"patience must be an integer >= 0 (steps), got {patience!r}")
         self.patience = patience
         self.stuck = torch.zeros(env.num_envs, env.num_movers, dtype=torch.int32, device=dev)
+        if traffic not in TRAFFIC:
+            raise ValueError(f"traffic must be one of {TRAFFIC}, got {traffic!r}")
+        if traffic == "auto":
+            fits = lanes_fit(env.layout, lane_pitch) and min(env.layout.shape) >= AUTO_LANES_TILES
+            traffic = "lanes" if fits else "free"
+        #: the traffic rule in use ("lanes": :class:`~magwarp.swarm.traffic.LaneField`; "free": straight at the goal)
+        self.traffic = traffic
+        self.lanes = LaneField(env.layout, self.cruise, pitch=lane_pitch, a_brake=self.a_brake) \
+            if traffic == "lanes" else None
 
     def _neighbour_lines(self, vel: torch.Tensor) -> tuple[list, list, list]:
         """ORCA lines, their slack (for ``relax``) and the braking-shield lines of the ``k`` neighbours."""
@@ -281,6 +300,8 @@ class SwarmPlanner:
         dist = err.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         speed = torch.minimum(torch.full_like(dist, self.cruise), torch.sqrt(2.0 * self.a_brake * dist))
         v_pref = err / dist * speed
+        if self.lanes is not None:  # traffic rules: along the one-way lanes
+            v_pref = self.lanes(pos, env.goals)
         if self.safety is not None and self.patience > 0:
             # deadlock breaking: a mover held still away from its goal for ``patience`` steps steps aside to its
             # right (every mover the same side: two movers head-on pass each other) for ``patience`` steps
