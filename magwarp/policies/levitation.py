@@ -38,8 +38,11 @@ class LevitationPD:
         pos, rpy, vel, omega, sp = obs[:, 0:3], obs[:, 3:6], obs[:, 6:9], obs[:, 9:12], obs[:, 12:16]
         force = self.mass * (self.kp * (sp[:, :3] - pos) - self.kd * vel)
         force[:, 2] += self.mass * self.gravity
-        err = torch.stack([rpy[:, 0], rpy[:, 1], torch.remainder(rpy[:, 2] - sp[:, 3] + math.pi, 2 * math.pi)
-                           - math.pi], 1)
+        # the small-angle rotation error in the world frame (omega and the torque are world-frame): roll and pitch
+        # are about the mover's own x and y axes, turned by its yaw
+        c, s = torch.cos(rpy[:, 2]), torch.sin(rpy[:, 2])
+        err = torch.stack([c * rpy[:, 0] - s * rpy[:, 1], s * rpy[:, 0] + c * rpy[:, 1],
+                           torch.remainder(rpy[:, 2] - sp[:, 3] + math.pi, 2 * math.pi) - math.pi], 1)
         torque = self.inertia * (-self.kp * err - self.kd * omega)
         return torch.cat([force, torque], 1)
 

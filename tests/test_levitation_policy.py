@@ -1,0 +1,91 @@
+"""The levitation baseline and benchmark: the PD law holds movers at any yaw (its tilt error is turned into the world
+frame), and benchmarks/levitation_policy.py compares a policy file with it on the same worlds (a tiny CPU run)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from magnetics_helpers import coarse_model, magnetics_cache  # noqa: F401  (tests/ is on sys.path; a fixture)
+
+from magwarp.envs.levitation import LevitationEnv
+from magwarp.policies.levitation import LevitationPD
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+
+import levitation_policy as bench  # noqa: E402
+
+MAG = coarse_model()
+
+
+def test_pd_baseline_holds_movers_at_every_yaw():
+    # 16 worlds of random yaw: before the fix, those with |yaw| > ~pi/2 tipped over (roll and pitch were corrected
+    # about the world's axes, so about the wrong ones once the mover had turned)
+    env = LevitationEnv(16, magnetics=MAG, device="cpu", seed=0, autoreset=False)
+    policy = LevitationPD(env)
+    obs, _ = env.reset(seed=0)
+    assert (obs[:, 5].abs() > 2.0).sum() >= 3  # several movers face the other way
+    failed = torch.zeros(16, dtype=torch.bool)
+    for _ in range(150):
+        obs, _, terminated, _, _ = env.step(policy(obs))
+        failed |= terminated
+    pos_err, rot_err = env.errors()
+    assert not failed.any() and pos_err.max() < 1e-4 and rot_err.max() < 5e-3, (failed, pos_err, rot_err)
+
+
+@pytest.fixture
+def coarse_default(monkeypatch):
+    """``LevitationEnv()`` builds the coarse model of these tests by default (the benchmark makes envs by id)."""
+    from magwarp.magnetics import drive
+
+    coarse = dataclasses.make_dataclass("CoarseModel", [("table", object, dataclasses.field(default=MAG.table))],
+                                        bases=(drive.MagneticModel,), frozen=True)
+    monkeypatch.setattr(drive, "MagneticModel", coarse)
+
+
+def _zero_policy(path: Path) -> None:
+    """A policy file as magwarp train writes it for LevitationWrench-v0, whose action is always zero."""
+    from magwarp.training.common import RunningMeanStd
+    from magwarp.training.policy import mlp, save_policy
+
+    net = mlp(19, [8], 6)
+    for p in net.parameters():
+        torch.nn.init.zeros_(p)
+    save_policy(str(path), net, RunningMeanStd(19, "cpu"), torch.ones(6), squash="clip",
+                env_id="magwarp/LevitationWrench-v0", metadata={"algo": "ppo", "env_kwargs": '{"max_episode_steps": 40}'})
+
+
+def test_benchmark_compares_a_policy_with_the_baseline(coarse_default, tmp_path, capsys):
+    _zero_policy(tmp_path / "policy.pt")
+    out = tmp_path / "lev.json"
+    assert bench.main(["--policy", str(tmp_path), "--envs", "3", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    rows = json.loads(out.read_text())
+    assert [(r["controller"], r["action"]) for r in rows] == [
+        ("PD baseline", "currents"), ("PD baseline", "wrench"), (f"policy {tmp_path.name}", "wrench")]
+    pd_currents, pd_wrench, zero = rows
+    for r in rows:  # the policy's env: its id and options, one 40-step episode
+        assert r["steps"] == 40 and r["worlds"] == 3 and r["env_id"] == "magwarp/LevitationWrench-v0"
+        assert r["date_utc"] and r["versions"]["torch"] and r["command"].startswith("python")
+    for r in (pd_currents, pd_wrench):  # the PD hovers: no failure, tens to hundreds of watts, tracking under 1 cm
+        assert r["failed"] == 0 and 10 < r["loss_w"] < 1000 and 0 < r["pos_rms_mm"] < 10, r
+        assert r["energy_j"] == pytest.approx(r["loss_w"] * 40 * 1e-3, rel=1e-3)
+    # zero wrench: every mover falls within a few ms, spending nothing
+    assert zero["failed"] == 1.0 and zero["success"] == 0.0 and zero["energy_j"] == 0.0
+    assert "VERDICT: policy beats baseline on energy at equal (or better) tracking error: NO" in text
+    assert all(r["verdict"] is False for r in rows)
+
+
+def test_verdict_needs_less_energy_and_no_worse_tracking():
+    base = {"energy_j": 10.0, "failed": 0.0, "success": 1.0, "pos_rms_mm": 2.0, "rot_rms_mrad": 10.0}
+    assert bench.verdict({**base, "energy_j": 9.0, "pos_rms_mm": 1.9}, base, "rms", 0.0)[0]
+    ok, why = bench.verdict({**base, "energy_j": 9.0, "pos_rms_mm": 2.1}, base, "rms", 0.0)
+    assert not ok and "position rms error" in why
+    assert bench.verdict({**base, "energy_j": 9.0, "pos_rms_mm": 2.1}, base, "rms", 0.1)[0]
+    assert not bench.verdict({**base, "energy_j": 10.5}, base, "rms", 0.0)[0]
+    assert not bench.verdict({**base, "energy_j": 9.0, "failed": 0.1}, base, "rms", 0.0)[0]
