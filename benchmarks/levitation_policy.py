@@ -10,7 +10,8 @@ no autoreset. The env is the policy's own (``env_id`` and ``env_kwargs`` stored 
 train``; ``--env-id`` / ``--env-kwargs`` override them; reward options do not change what is measured). The
 baseline is :class:`magwarp.policies.levitation.LevitationPD` (a PD law through the least-loss commutation), run in
 both action modes (``currents``: the commutation gets the PD's whole wrench; ``wrench``: the env's action clips the
-wrench at ``wrench_scale``) with the rest of the env's options as the policy's.
+wrench at ``wrench_scale``) with the rest of the env's options as the policy's. For a policy of
+``magwarp/LevitationResidual-v0`` (a correction to the PD's action) the baseline is the same env's zero action.
 
 Per controller: ``failed`` (share of worlds terminated: gap, tilt or distance out of bounds), ``success`` (not
 failed and, at the end, position error <= ``--success-pos`` and rotation error <= ``--success-rot``), tracking
@@ -144,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     import magwarp  # noqa: F401  (registers the ids)
+    from magwarp.envs.levitation_residual import LevitationResidualEnv
     from magwarp.evaluate import load_policy
     from magwarp.policies.levitation import LevitationPD
     from magwarp.training.policy import policy_metadata
@@ -166,10 +168,16 @@ def main(argv: list[str] | None = None) -> int:
     probe = make()
     steps = args.steps or probe.max_episode_steps
     mode = probe.action_mode
+    def baseline(env):
+        if isinstance(env, LevitationResidualEnv):  # the residual env's zero action is the PD baseline
+            zero = torch.zeros((env.num_envs, *env.single_action_space.shape), device=env.device)
+            return lambda obs: zero
+        return LevitationPD(env)
+
     rows = []
     for action in ("currents", "wrench"):
         env = probe if action == mode else make(action)
-        row = episode(env, LevitationPD(env), args.seed, steps, args.success_pos, args.success_rot)
+        row = episode(env, baseline(env), args.seed, steps, args.success_pos, args.success_rot)
         rows.append({"controller": "PD baseline", "action": action, **row})
     if path:
         policy = load_policy(path, probe, trusted=False)

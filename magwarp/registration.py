@@ -28,6 +28,7 @@ ENV_CLASSES = {
     "PlatformPoseEnv": "magwarp.envs.platform_pose",
     "CoopPushEnv": "magwarp.envs.coop_push",
     "LevitationEnv": "magwarp.envs.levitation",
+    "LevitationResidualEnv": "magwarp.envs.levitation_residual",
     # MagBots (issue 19): pick and place with the 6D platform and with the gripper
     "PlatformPickPlaceEnv": "magwarp.envs.platform_pick_place",
     "GripperPickPlaceEnv": "magwarp.envs.gripper_pick_place",
@@ -75,6 +76,7 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/Levitation-v0"] = ("LevitationEnv", {})
     ids["magwarp/LevitationHover-v0"] = ("LevitationEnv", {"task": "hover"})
     ids["magwarp/LevitationWrench-v0"] = ("LevitationEnv", {"action": "wrench"})
+    ids["magwarp/LevitationResidual-v0"] = ("LevitationResidualEnv", {})
     ids["magwarp/PlatformPickPlace-v0"] = ("PlatformPickPlaceEnv", {})
     ids["magwarp/GripperPickPlace-v0"] = ("GripperPickPlaceEnv", {})
     return ids

@@ -89,3 +89,43 @@ def test_verdict_needs_less_energy_and_no_worse_tracking():
     assert bench.verdict({**base, "energy_j": 9.0, "pos_rms_mm": 2.1}, base, "rms", 0.1)[0]
     assert not bench.verdict({**base, "energy_j": 10.5}, base, "rms", 0.0)[0]
     assert not bench.verdict({**base, "energy_j": 9.0, "failed": 0.1}, base, "rms", 0.0)[0]
+
+
+@pytest.mark.parametrize("action", ["wrench", "currents"])
+def test_residual_env_with_zero_action_is_the_baseline(action):
+    from magwarp.envs.levitation_residual import LevitationResidualEnv
+
+    plain = LevitationEnv(3, magnetics=MAG, action=action, device="cpu", seed=2, max_episode_steps=20)
+    residual = LevitationResidualEnv(3, magnetics=MAG, action=action, device="cpu", seed=2, max_episode_steps=20)
+    pd = LevitationPD(plain)
+    obs, _ = plain.reset(seed=5)
+    obs_r, _ = residual.reset(seed=5)
+    zero = torch.zeros((3, *residual.single_action_space.shape))
+    for _ in range(25):  # through an autoreset
+        obs, reward, *_ = plain.step(pd(obs))
+        obs_r, reward_r, *_ = residual.step(zero)
+        torch.testing.assert_close(obs_r, obs)
+        torch.testing.assert_close(reward_r, reward)
+    # a correction moves the mover: +1 on the vertical force lifts it above the baseline's path
+    lift = zero.clone()
+    if action == "wrench":
+        lift[:, 2] = 1.0
+        for _ in range(5):
+            obs, *_ = plain.step(pd(obs))
+            obs_r, *_ = residual.step(lift)
+        assert torch.all(obs_r[:, 2] > obs[:, 2] + 1e-5)
+    with pytest.raises(ValueError, match="residual_scale"):
+        LevitationResidualEnv(1, magnetics=MAG, device="cpu", residual_scale=0.0)
+
+
+def test_ppo_preset_of_the_levitation_family():
+    from magwarp.training import ppo
+
+    for env_id in ("magwarp/Levitation-v0", "magwarp/LevitationWrench-v0", "magwarp/LevitationResidual-v0"):
+        args = ppo.resolve_args(ppo.parse_args(["--env-id", env_id, "--device", "cpu", "--minutes", "1"]))
+        assert (args.num_envs, args.num_steps, args.gamma, args.hidden, args.init_log_std) == (
+            4096, 32, 0.99, "256,256", -2.0)
+        assert args.lr == ppo.PRESETS["default"]["lr"]  # the rest from the default row
+    args = ppo.resolve_args(ppo.parse_args(["--env-id", "magwarp/LevitationResidual-v0", "--device", "cpu",
+                                            "--minutes", "1", "--num-envs", "64", "--init-log-std", "-1"]))
+    assert args.num_envs == 64 and args.init_log_std == -1.0  # the command line wins

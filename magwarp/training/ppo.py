@@ -52,6 +52,11 @@ PRESETS = {
     "Push": dict(num_envs=4096, num_steps=25, gamma=0.97, hidden="256,256,128"),
     # swarms train on the flat agent view: num_envs worlds x num_movers agents (64 x 64 = 4096 by default)
     "Swarm": dict(num_envs=64, num_steps=32, gamma=0.98, hidden="256,256"),
+    # levitation (1 kHz steps, 500-step episodes): gamma 0.99 looks 0.1 s ahead (the PD's transient takes ~50 ms);
+    # a small initial std, because a free 6-DoF mover 4 mm above the tiles falls or tips within ~25 ms of a bad
+    # wrench (the residual env's correction is further scaled by its residual_scale)
+    "Levitation": dict(num_envs=4096, num_steps=32, num_minibatches=4, gamma=0.99, hidden="256,256",
+                       init_log_std=-2.0),
 }
 
 
