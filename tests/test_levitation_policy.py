@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -57,28 +58,43 @@ def _zero_policy(path: Path) -> None:
     for p in net.parameters():
         torch.nn.init.zeros_(p)
     save_policy(str(path), net, RunningMeanStd(19, "cpu"), torch.ones(6), squash="clip",
-                env_id="magwarp/LevitationWrench-v0", metadata={"algo": "ppo", "env_kwargs": '{"max_episode_steps": 40}'})
+                env_id="magwarp/LevitationWrench-v0",
+                metadata={"algo": "ppo", "env_kwargs": '{"max_episode_steps": 40}'})
 
 
 def test_benchmark_compares_a_policy_with_the_baseline(coarse_default, tmp_path, capsys):
     _zero_policy(tmp_path / "policy.pt")
     out = tmp_path / "lev.json"
-    assert bench.main(["--policy", str(tmp_path), "--envs", "3", "--json", str(out)]) == 0
+    assert bench.main(["--policy", str(tmp_path), "--envs", "3", "--pd-frequencies", "10", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     rows = json.loads(out.read_text())
-    assert [(r["controller"], r["action"]) for r in rows] == [
-        ("PD baseline", "currents"), ("PD baseline", "wrench"), (f"policy {tmp_path.name}", "wrench")]
-    pd_currents, pd_wrench, zero = rows
+    assert [(r["controller"], r["action"], r["frequency_hz"]) for r in rows] == [
+        ("PD 10 Hz", "wrench", 10.0), ("PD 15 Hz", "wrench", 15.0), ("PD 15 Hz", "currents", 15.0),
+        (f"policy {tmp_path.name}", "wrench", None)]
+    *pds, zero = rows
     for r in rows:  # the policy's env: its id and options, one 40-step episode
         assert r["steps"] == 40 and r["worlds"] == 3 and r["env_id"] == "magwarp/LevitationWrench-v0"
         assert r["date_utc"] and r["versions"]["torch"] and r["command"].startswith("python")
-    for r in (pd_currents, pd_wrench):  # the PD hovers: no failure, tens to hundreds of watts, tracking under 1 cm
-        assert r["failed"] == 0 and 10 < r["loss_w"] < 1000 and 0 < r["pos_rms_mm"] < 10, r
-        assert r["energy_j"] == pytest.approx(r["loss_w"] * 40 * 1e-3, rel=1e-3)
-    # zero wrench: every mover falls within a few ms, spending nothing
-    assert zero["failed"] == 1.0 and zero["success"] == 0.0 and zero["energy_j"] == 0.0
+    # zero wrench: every mover falls within a few ms, so no world is flown by everyone: nothing to compare
+    assert zero["failed"] == 1.0 and zero["success"] == 0.0 and zero["compared"] == 0
+    for r in pds:  # the PD hovers without failing
+        assert r["failed"] == 0 and r["compared"] == 0 and math.isnan(r["energy_j"])
     assert "VERDICT: policy beats baseline on energy at equal (or better) tracking error: NO" in text
     assert all(r["verdict"] is False for r in rows)
+
+
+def test_benchmark_baseline_alone_measures_energy_and_tracking(coarse_default, tmp_path, capsys):
+    out = tmp_path / "pd.json"
+    assert bench.main(["--envs", "3", "--steps", "40", "--pd-frequencies", "8", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [(r["controller"], r["action"]) for r in rows] == [("PD 8 Hz", "currents"), ("PD 15 Hz", "currents"),
+                                                             ("PD 15 Hz", "wrench")]
+    for r in rows:  # the PD hovers: no failure, tens to hundreds of watts, tracking under 1 cm
+        assert r["failed"] == 0 and r["compared"] == 3 and 10 < r["loss_w"] < 1000 and 0 < r["pos_rms_mm"] < 10, r
+        assert r["energy_j"] == pytest.approx(r["loss_w"] * 40 * 1e-3, rel=1e-9)
+    slow, fast = rows[0], rows[1]  # a softer PD spends less and tracks worse in the same worlds
+    assert slow["energy_j"] < fast["energy_j"] and slow["pos_rms_mm"] > fast["pos_rms_mm"]
+    assert "VERDICT" not in capsys.readouterr().out
 
 
 def test_verdict_needs_less_energy_and_no_worse_tracking():
@@ -89,6 +105,23 @@ def test_verdict_needs_less_energy_and_no_worse_tracking():
     assert bench.verdict({**base, "energy_j": 9.0, "pos_rms_mm": 2.1}, base, "rms", 0.1)[0]
     assert not bench.verdict({**base, "energy_j": 10.5}, base, "rms", 0.0)[0]
     assert not bench.verdict({**base, "energy_j": 9.0, "failed": 0.1}, base, "rms", 0.0)[0]
+
+
+def test_sweep_verdict_interpolates_the_retuned_pd():
+    def pd(hz, pos, energy, rot=10.0):
+        return {"frequency_hz": hz, "pos_rms_mm": pos, "energy_j": energy, "rot_rms_mrad": rot, "failed": 0.0}
+
+    sweep = [pd(8, 2.0, 30.0), pd(15, 1.5, 40.0), pd(20, 1.4, 46.0)]
+    shipped = sweep[1]
+    policy = {"pos_rms_mm": 1.75, "energy_j": 34.0, "rot_rms_mrad": 10.0, "failed": 0.0}  # the PD: 35 J there
+    ok, why = bench.sweep_verdict(policy, sweep, shipped, "rms")
+    assert ok and "35 J" in why and "between the 15 and 8 Hz" in why
+    assert not bench.sweep_verdict({**policy, "energy_j": 35.5}, sweep, shipped, "rms")[0]
+    assert not bench.sweep_verdict({**policy, "rot_rms_mrad": 11.0}, sweep, shipped, "rms")[0]
+    assert not bench.sweep_verdict({**policy, "failed": 0.1}, sweep, shipped, "rms")[0]
+    # beyond the sweep: better tracking than every PD and less energy than the best-tracking one; worse: never
+    assert bench.sweep_verdict({**policy, "pos_rms_mm": 1.3, "energy_j": 45.0}, sweep, shipped, "rms")[0]
+    assert not bench.sweep_verdict({**policy, "pos_rms_mm": 2.5, "energy_j": 1.0}, sweep, shipped, "rms")[0]
 
 
 @pytest.mark.parametrize("action", ["wrench", "currents"])
