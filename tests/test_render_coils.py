@@ -172,3 +172,15 @@ def test_view_command_writes_coil_videos_and_refuses_ideal_envs(capsys, tmp_path
                    "-o", path])
     _, err = capsys.readouterr()
     assert rc != 0 and "no magnetic model" in err and "force_model" in err
+
+
+def test_colour_bar_shows_the_map_from_minus_to_plus_the_limit():
+    coilset = CoilSet.build(Layout.grid(1, 1))
+    r = CoilCurrentRenderer(coilset, px_per_tile=96, current_limit=5.0, device="cpu")
+    strip = r.colorbar()
+    assert strip.dtype == np.uint8 and strip.shape[1] == r.width and strip.shape[0] > 40
+    bar = strip[6 + 6, 6:r.width - 6].astype(np.float64)  # the bar's middle row, left to right
+    np.testing.assert_allclose(bar, _expected(np.linspace(-1.0, 1.0, len(bar))), atol=0.0)
+    assert bar[0, 2] > bar[0, 0] + 100 and bar[-1, 0] > bar[-1, 2] + 100  # blue at -5 A, red at +5 A
+    with pytest.raises(ValueError, match="at least 40 pixels"):
+        r.colorbar(10)

@@ -268,8 +268,7 @@ class CoilCurrentRenderer:
     def colorbar(self, width: int | None = None) -> np.ndarray:
         """A ``uint8 [h, width, 3]`` strip for under the frame: the colour map from ``-current_limit`` to
         ``+current_limit`` (A, its pixels in the kernel's exact colours) with ticks, and the panels' names."""
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
+        from magwarp.render.legend import strip_canvas, strip_pixels
 
         width = self.width if width is None else int(width)
         if width < 40:
@@ -277,14 +276,7 @@ class CoilCurrentRenderer:
         bar_h, text_h, pad = 12, 14, 6
         names = self.layer_names()
         height = pad + bar_h + text_h + text_h * len(names) + pad
-        dpi = 100
-        fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
-        fig.patch.set_facecolor(np.asarray(colors.BACKGROUND) / 255.0)
-        canvas = FigureCanvasAgg(fig)
-        ax = fig.add_axes((0, 0, 1, 1))
-        ax.set_xlim(0, width)
-        ax.set_ylim(height, 0)
-        ax.axis("off")
+        canvas, ax = strip_canvas(width, height)
         x0, x1 = pad, width - pad
         lim = self.current_limit
         y_text = pad + bar_h + text_h / 2
@@ -296,8 +288,7 @@ class CoilCurrentRenderer:
         for k, name in enumerate(names):
             ax.text(x0, y_text + text_h * (k + 1), f"panel {k + 1} (left to right): {name}", color="white",
                     fontsize=8, va="center", ha="left")
-        canvas.draw()
-        strip = np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[:height, :width, :3])
+        strip = strip_pixels(canvas, height, width)
         shares = np.linspace(-1.0, 1.0, x1 - x0)
         strip[pad:pad + bar_h, x0:x1] = np.floor(colors.current_rgb(shares) + 0.5).astype(np.uint8)[None]
         return strip
