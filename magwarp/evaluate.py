@@ -126,8 +126,7 @@ class ModulePolicy:
 
 
 def scripted_policy(env) -> Callable:
-    """The built-in baseline: the env's own ``scripted_policy()``, the push heuristic for pushing tasks, or the PD
-    law through the commutation for the levitation envs."""
+    """The built-in baseline: the env's own ``scripted_policy()``, or the push heuristic for pushing tasks."""
     if hasattr(env, "scripted_policy"):
         return env.scripted_policy()
     from magwarp.envs.push import PushEnv
@@ -136,12 +135,6 @@ def scripted_policy(env) -> Callable:
         from magwarp.policies.push import PushHeuristic
 
         return PushHeuristic(env)
-    from magwarp.envs.levitation import LevitationEnv
-
-    if isinstance(env, LevitationEnv):
-        from magwarp.policies.levitation import LevitationPD
-
-        return LevitationPD(env)
     raise EvalError(f"no scripted policy for {type(env).__name__}")
 
 
