@@ -24,13 +24,16 @@ per episode (``energy_j``, J) and mean copper loss (``loss_w``, W).
 
 Verdict (``--tracking``: ``rms`` (default), ``settled`` or ``final``): the policy beats the baseline when either
 
-* against the shipped PD: it spends less energy, fails no more often, succeeds at least as often, and its position
-  and rotation errors are at most the PD's times ``1 + --tolerance`` (default 0: equal or better); or
-* at equal tracking error: it spends less energy than the PD retuned to the policy's position error (the sweep's
-  energy and rotation error interpolated linearly in its position error; a policy that tracks better than every PD
-  row is compared with the best-tracking one, one that tracks worse than every row is not beaten), with no worse
-  rotation error than that retuned PD, and fails no more often than the shipped PD.
+* against the shipped PD: it spends less energy (by at least ``--margin``, default 1%), fails no more often,
+  succeeds at least as often, and its position and rotation errors are at most the PD's times ``1 + --tolerance``
+  (default 0: equal or better); or
+* at equal tracking error: it spends less energy (by ``--margin``) than the PD retuned to the policy's position
+  error (the sweep's energy and rotation error interpolated linearly in its position error; a policy that tracks
+  better than every PD row is compared with the best-tracking one, one that tracks worse than every row is not
+  beaten), with no worse rotation error than that retuned PD, and fails no more often than the shipped PD.
 
+The margin keeps noise out of the verdict: a PD nudged along its own energy-vs-error curve moves a few tenths of a
+percent, and the curve is convex, so the interpolated chord lies a little above it.
 The last line printed says which (``VERDICT: ...``); the JSON rows carry ``verdict``, ``verdict_shipped`` and
 ``verdict_retuned``.
 """
@@ -115,12 +118,13 @@ def summarise(w: dict, common, success_pos: float, success_rot: float) -> dict:
             "loss_w": energy / (w["steps"] * w["step_s"]), "steps_per_s": n * w["steps"] / w["seconds"]}
 
 
-def verdict(policy: dict, baseline: dict, tracking: str, tolerance: float) -> tuple[bool, str]:
-    """Whether ``policy`` beats ``baseline`` on energy at equal (or better) tracking error, and why."""
+def verdict(policy: dict, baseline: dict, tracking: str, tolerance: float, margin: float = 0.0) -> tuple[bool, str]:
+    """Whether ``policy`` beats ``baseline`` on energy (by at least the share ``margin``) at equal (or better)
+    tracking error, and why."""
     pos_key, rot_key = TRACKING[tracking]
     tol = 1.0 + tolerance
     checks = {
-        "less energy": policy["energy_j"] < baseline["energy_j"],
+        f"less energy (by {margin:.0%} or more)": policy["energy_j"] < baseline["energy_j"] * (1.0 - margin),
         "no more failures": policy["failed"] <= baseline["failed"],
         "at least as many successes": policy["success"] >= baseline["success"],
         f"position {tracking} error": policy[pos_key] <= baseline[pos_key] * tol,
@@ -134,11 +138,13 @@ def verdict(policy: dict, baseline: dict, tracking: str, tolerance: float) -> tu
     return not failed, why + ("" if not failed else f"; not met: {', '.join(failed)}")
 
 
-def sweep_verdict(policy: dict, sweep: list[dict], shipped: dict, tracking: str) -> tuple[bool, str]:
+def sweep_verdict(policy: dict, sweep: list[dict], shipped: dict, tracking: str,
+                  margin: float = 0.0) -> tuple[bool, str]:
     """Whether ``policy`` spends less energy than the PD retuned to its tracking error: the PD's energy and rotation
     error interpolated (linearly, in its position error) along its frequency sweep at the policy's position error.
     Outside the sweep's range: beaten only when the policy tracks better than every PD row and spends less than
-    the best-tracking one. The policy must also fail no more often than the shipped PD."""
+    the best-tracking one. The policy must also fail no more often than the shipped PD, and spend at least the
+    share ``margin`` less (the energy-vs-error curve is convex, so its chords lie a little above it)."""
     pos_key, rot_key = TRACKING[tracking]
     pts = sorted((r[pos_key], r["energy_j"], r[rot_key], r["frequency_hz"]) for r in sweep
                  if math.isfinite(r[pos_key]))
@@ -157,7 +163,8 @@ def sweep_verdict(policy: dict, sweep: list[dict], shipped: dict, tracking: str)
         t = 0.0 if x1 == x0 else (x - x0) / (x1 - x0)
         energy, rot = e0 + t * (e1 - e0), r0 + t * (r1 - r0)
         where = f"between the {f0:g} and {f1:g} Hz PDs"
-    checks = {"less energy": policy["energy_j"] < energy, f"rotation {tracking} error": policy[rot_key] <= rot,
+    checks = {f"less energy (by {margin:.0%} or more)": policy["energy_j"] < energy * (1.0 - margin),
+              f"rotation {tracking} error": policy[rot_key] <= rot,
               "no more failures than the shipped PD": policy["failed"] <= shipped["failed"]}
     failed = [k for k, ok in checks.items() if not ok]
     why = (f"energy {policy['energy_j']:.4g} J vs {energy:.4g} J for a PD with the same position {tracking} error "
@@ -180,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tracking", choices=sorted(TRACKING), default="rms", help="the tracking error of the verdict")
     p.add_argument("--tolerance", type=float, default=0.0,
                    help="the policy's tracking error may exceed the baseline's by this share (default 0: equal)")
+    p.add_argument("--margin", type=float, default=0.01,
+                   help="the policy must spend at least this share less energy (default 0.01: 1%%; smaller "
+                        "differences are what a PD perturbed along its own energy-vs-error curve gives)")
     p.add_argument("--pd-frequencies", default="8,10,12,15,20",
                    help=f"natural frequencies (Hz) of the PD sweep in the policy's action mode (the shipped baseline: "
                         f"{SHIPPED_HZ:g} Hz, always run)")
@@ -195,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--envs must be >= 1 and --steps >= 2, got {args.envs} and {args.steps}")
     if not (args.tolerance >= 0 and math.isfinite(args.tolerance)):
         p.error(f"--tolerance must be a finite number >= 0, got {args.tolerance}")
+    if not 0 <= args.margin < 1:
+        p.error(f"--margin must be a share in [0, 1), got {args.margin}")
 
     info, _ = common.start_run(args.device)
     import gymnasium as gym
@@ -257,14 +269,14 @@ def main(argv: list[str] | None = None) -> int:
         pol = rows[-1]
         sweep = [r for r in rows if r["action"] == mode and r["frequency_hz"] is not None]
         shipped = next(r for r in sweep if r["frequency_hz"] == SHIPPED_HZ)
-        direct = verdict(pol, shipped, args.tracking, args.tolerance)
-        retuned = sweep_verdict(pol, sweep, shipped, args.tracking)
+        direct = verdict(pol, shipped, args.tracking, args.tolerance, args.margin)
+        retuned = sweep_verdict(pol, sweep, shipped, args.tracking, args.margin)
         print(f"against the shipped PD ({SHIPPED_HZ:g} Hz, {mode} action): "
               f"{'beats it' if direct[0] else 'does not beat it'}: {direct[1]}")
         print(f"against the PD retuned to the policy's tracking error ({mode} action, frequencies "
               f"{', '.join(f'{f:g}' for f in freqs)} Hz): {'beats it' if retuned[0] else 'does not beat it'}: "
               f"{retuned[1]}")
-        info_row = verdict(pol, rows[-2], args.tracking, args.tolerance)
+        info_row = verdict(pol, rows[-2], args.tracking, args.tolerance, args.margin)
         print(f"(for information, against the shipped PD in the {other_mode} action: "
               f"{'beats it' if info_row[0] else 'does not beat it'}: {info_row[1]})")
         beats = direct[0] or retuned[0]
@@ -272,7 +284,8 @@ def main(argv: list[str] | None = None) -> int:
             r.update(verdict=beats, verdict_shipped=direct[0], verdict_retuned=retuned[0])
         how = "against the shipped PD" if direct[0] else "against the retuned PD" if retuned[0] else "neither way"
         print(f"VERDICT: policy beats baseline on energy at equal (or better) tracking error: "
-              f"{'YES' if beats else 'NO'} ({how}; {args.tracking} error, tolerance {args.tolerance:g})")
+              f"{'YES' if beats else 'NO'} ({how}; {args.tracking} error, tolerance {args.tolerance:g}, energy "
+              f"margin {args.margin:g})")
     if args.json:
         stamp = common.provenance(info)
         common.write_json(args.json, [{**r, **stamp} for r in rows])

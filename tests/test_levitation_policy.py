@@ -162,3 +162,14 @@ def test_ppo_preset_of_the_levitation_family():
     args = ppo.resolve_args(ppo.parse_args(["--env-id", "magwarp/LevitationResidual-v0", "--device", "cpu",
                                             "--minutes", "1", "--num-envs", "64", "--init-log-std", "-1"]))
     assert args.num_envs == 64 and args.init_log_std == -1.0  # the command line wins
+
+
+def test_verdicts_ask_for_a_margin_of_energy():
+    base = {"energy_j": 10.0, "failed": 0.0, "success": 1.0, "pos_rms_mm": 2.0, "rot_rms_mrad": 10.0,
+            "frequency_hz": 15.0}
+    slightly = {**base, "energy_j": 9.95}
+    assert bench.verdict(slightly, base, "rms", 0.0)[0] and not bench.verdict(slightly, base, "rms", 0.0, 0.01)[0]
+    assert bench.verdict({**base, "energy_j": 9.8}, base, "rms", 0.0, 0.01)[0]
+    sweep = [{**base, "frequency_hz": 8.0, "pos_rms_mm": 3.0, "energy_j": 8.0}, base]
+    assert not bench.sweep_verdict({**slightly, "pos_rms_mm": 2.0}, sweep, base, "rms", 0.01)[0]
+    assert bench.sweep_verdict({**slightly, "pos_rms_mm": 2.0}, sweep, base, "rms", 0.0)[0]
