@@ -151,16 +151,20 @@ def test_residual_env_with_zero_action_is_the_baseline(action):
         LevitationResidualEnv(1, magnetics=MAG, device="cpu", residual_scale=0.0)
 
 
-def test_ppo_preset_of_the_levitation_family():
+def test_ppo_presets_of_the_levitation_family():
     from magwarp.training import ppo
 
-    for env_id in ("magwarp/Levitation-v0", "magwarp/LevitationWrench-v0", "magwarp/LevitationResidual-v0"):
-        args = ppo.resolve_args(ppo.parse_args(["--env-id", env_id, "--device", "cpu", "--minutes", "1"]))
+    def resolved(env_id, *extra):
+        return ppo.resolve_args(ppo.parse_args(["--env-id", env_id, "--device", "cpu", "--minutes", "1", *extra]))
+
+    for env_id in ("magwarp/Levitation-v0", "magwarp/LevitationWrench-v0", "magwarp/LevitationHover-v0"):
+        args = resolved(env_id)
         assert (args.num_envs, args.num_steps, args.gamma, args.hidden, args.init_log_std) == (
             4096, 32, 0.99, "256,256", -2.0)
         assert args.lr == ppo.PRESETS["default"]["lr"]  # the rest from the default row
-    args = ppo.resolve_args(ppo.parse_args(["--env-id", "magwarp/LevitationResidual-v0", "--device", "cpu",
-                                            "--minutes", "1", "--num-envs", "64", "--init-log-std", "-1"]))
+    args = resolved("magwarp/LevitationResidual-v0")  # its own row, before the family's
+    assert (args.num_envs, args.init_log_std, args.lr, args.desired_kl) == (4096, -3.0, 5e-5, 0.005)
+    args = resolved("magwarp/LevitationResidual-v0", "--num-envs", "64", "--init-log-std", "-1")
     assert args.num_envs == 64 and args.init_log_std == -1.0  # the command line wins
 
 

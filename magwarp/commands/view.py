@@ -6,7 +6,7 @@
     magwarp view magwarp/PushBox-v0 --worlds 4 --viewer usd -o push.usda   # object, goal, obstacles too
     magwarp view magwarp/Swarm-v0 --num-movers 10000                 # one big world, top-down, live
     magwarp view magwarp/Swarm-v0 --num-movers 10000 --window 12,12,6 --steps 250 -o swarm.mp4
-    magwarp view magwarp/Levitation-v0 --viewer coils --policy pd -o coils.mp4    # coil currents, top-down
+    magwarp view magwarp/Levitation-v0 --viewer coils -o coils.mp4     # coil currents (the PD baseline flies)
 
 TOP-DOWN (--viewer topdown, the default for swarm envs): one big world drawn by the swarm renderer (movers coloured
 by state; a --window of it zoomed) in a window where a display exists, else written to -o (default
