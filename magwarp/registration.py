@@ -28,6 +28,7 @@ ENV_CLASSES = {
     "PlatformPoseEnv": "magwarp.envs.platform_pose",
     "CoopPushEnv": "magwarp.envs.coop_push",
     "LevitationEnv": "magwarp.envs.levitation",
+    "LevitationResidualEnv": "magwarp.envs.levitation_residual",
     # MagBots (issue 19): pick and place with the 6D platform and with the gripper
     "PlatformPickPlaceEnv": "magwarp.envs.platform_pick_place",
     "GripperPickPlaceEnv": "magwarp.envs.gripper_pick_place",
@@ -80,6 +81,7 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/LevitationMove-v0"] = ("LevitationEnv", {"task": "move", "max_episode_steps": 600})
     ids["magwarp/LevitationPayload-v0"] = ("LevitationEnv", {"task": "payload"})
     ids["magwarp/LevitationPendulum-v0"] = ("LevitationEnv", {"task": "pendulum"})
+    ids["magwarp/LevitationResidual-v0"] = ("LevitationResidualEnv", {})
     ids["magwarp/PlatformPickPlace-v0"] = ("PlatformPickPlaceEnv", {})
     ids["magwarp/GripperPickPlace-v0"] = ("GripperPickPlaceEnv", {})
     return ids

@@ -150,7 +150,15 @@ def make_env(args, render_mode: str | None = "rgb_array"):
 def env_policy(env, name: str):
     """A function obs -> actions for a vector env: the env's scripted planner, random or zero actions
     (``None``: the planner where the env has one, else random)."""
-    factory = getattr(env.unwrapped if hasattr(env, "unwrapped") else env, "scripted_policy", None)
+    base = env.unwrapped if hasattr(env, "unwrapped") else env
+    factory = getattr(base, "scripted_policy", None)
+    if factory is None:
+        from magwarp.envs.levitation import LevitationEnv
+
+        if isinstance(base, LevitationEnv):  # its baseline lives in magwarp.policies (a PD law)
+            from magwarp.policies.levitation import LevitationPD
+
+            factory = lambda: LevitationPD(base)  # noqa: E731
     if name is None:
         name = "scripted" if factory is not None else "random"
     if name == "scripted":

@@ -6,10 +6,16 @@
     magwarp view magwarp/PushBox-v0 --worlds 4 --viewer usd -o push.usda   # object, goal, obstacles too
     magwarp view magwarp/Swarm-v0 --num-movers 10000                 # one big world, top-down, live
     magwarp view magwarp/Swarm-v0 --num-movers 10000 --window 12,12,6 --steps 250 -o swarm.mp4
+    magwarp view magwarp/Levitation-v0 --viewer coils -o coils.mp4     # coil currents (the PD baseline flies)
 
 TOP-DOWN (--viewer topdown, the default for swarm envs): one big world drawn by the swarm renderer (movers coloured
 by state; a --window of it zoomed) in a window where a display exists, else written to -o (default
 magwarp_view.mp4; .gif too). --live window / video forces one.
+
+COILS (--viewer coils): the coil currents of an env with the magnetic model (magwarp/Levitation-v0 and its
+variants, or any env built with force_model="magnetic" through --env-kwargs) from above, one panel per coil layer,
+coloured by current with a colour bar, the movers outlined on top (magwarp.render.coils); to a window or a video as
+for topdown.
 
 The browser viewer binds to 127.0.0.1 unless --host says otherwise.
 """
@@ -24,7 +30,7 @@ from magwarp.commands import CommandError, UsageError
 from magwarp.commands.render import add_common_scene_args, check_scene_args, env_policy, make_env, make_synthetic, shown_worlds
 
 HELP = "live 3D viewer through Newton: GL window, browser (viser), USD file, Rerun"
-VIEWERS = ("gl", "viser", "usd", "rerun", "null", "topdown")
+VIEWERS = ("gl", "viser", "usd", "rerun", "null", "topdown", "coils")
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -48,8 +54,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _topdown(args) -> int:
-    """One world (or --show of them) top-down through the swarm renderer, live in a window or to a video."""
+def _topdown(args, coils: bool = False) -> int:
+    """One world (or --show of them) top-down through the swarm renderer (``coils``: the env's coil currents), live
+    in a window or to a video."""
     from tqdm import tqdm
 
     from magwarp.commands.render import parse_window
@@ -57,13 +64,21 @@ def _topdown(args) -> int:
     from magwarp.render.live import LiveView
 
     if args.synthetic:
-        raise UsageError("--viewer topdown shows an env (e.g. magwarp/Swarm-v0), not --synthetic")
+        raise UsageError(f"--viewer {args.viewer} shows an env (e.g. magwarp/Swarm-v0), not --synthetic")
     window = parse_window(args.window)
     env = make_env(args, render_mode="rgb_array")
     base = env.unwrapped if hasattr(env, "unwrapped") else env
     if hasattr(base, "set_render_worlds"):
         base.set_render_worlds(shown_worlds(args))
-    if hasattr(base, "set_render_view"):
+    render = env.render
+    if coils:
+        if window is not None:
+            raise UsageError("--window applies to --viewer topdown, not coils")
+        if getattr(base, "coil_source", lambda: None)() is None:
+            raise UsageError(f"env {args.env_id!r} has no magnetic model, so no coil currents: use a "
+                             f"magwarp/Levitation-v0 env or --env-kwargs '{{\"force_model\": \"magnetic\"}}'")
+        render = base.render_coils
+    elif hasattr(base, "set_render_view"):
         try:
             base.set_render_view(window=window, max_image_px=args.max_px)
         except ValueError as e:
@@ -86,7 +101,7 @@ def _topdown(args) -> int:
         for _ in tqdm(range(args.steps), desc="view", unit="step", disable=None, leave=False):
             t0 = time.perf_counter()
             obs = env.step(policy(obs))[0]
-            live.show(as_frame(env.render()))
+            live.show(as_frame(render()))
             if not live.running:
                 break
             if args.realtime:
@@ -111,11 +126,11 @@ def run(args) -> int:
         args.env_kwargs = json.dumps({**options, "num_movers": args.num_movers})
     if args.viewer is None:
         args.viewer = "topdown" if args.env_id and "swarm" in args.env_id.lower() else "gl"
-    if args.viewer == "topdown":
+    if args.viewer in ("topdown", "coils"):
         if args.steps is None:  # a file gets a short clip; a window runs until closed (or 10 000 steps)
             args.steps = 10_000 if args.live == "window" else 100
         check_scene_args(args)
-        return _topdown(args)
+        return _topdown(args, coils=args.viewer == "coils")
     if args.window is not None:
         raise UsageError("--window applies to --viewer topdown")
     if args.steps is None:  # files get a short clip; live viewers run until closed (or 10 000 steps)

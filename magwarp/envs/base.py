@@ -130,7 +130,8 @@ class MagwarpVecEnv(VectorEnv):
 
     def render(self):
         """``None`` without a render mode; with ``"rgb_array"``, a top-down ``uint8 [H, W, 3]`` numpy image of the
-        worlds chosen by :meth:`set_render_worlds` (default: up to 16 worlds as a mosaic)."""
+        worlds chosen by :meth:`set_render_worlds` (default: up to 16 worlds as a mosaic); the levitation envs, which
+        have no mover-level view, show their coil currents (:meth:`render_coils`)."""
         if self.render_mode is None:
             return None
         from magwarp.render import to_numpy_image
@@ -141,9 +142,42 @@ class MagwarpVecEnv(VectorEnv):
         """Choose the worlds ``render()`` draws: a count (worlds ``0..n-1``) or a list of indices."""
         self._render_worlds = worlds
         self._renderer = None
+        self._coil_renderer = None
 
     def _render_frame(self) -> torch.Tensor:
+        # envs without a top-down view of their own (the levitation envs) show their coil currents when they have them
+        if self.coil_source() is not None:
+            return self.render_coils()
         raise NotImplementedError(f"{type(self).__name__} does not implement rendering")
+
+    # ------------------------------------------------------------------ coil currents (magnetic model)
+    def coil_source(self):
+        """The magnetic model that drives the movers: the env's coil actuator (levitation envs) or its simulator's
+        magnetic drive (``force_model="magnetic"``); None with the ideal model."""
+        actuator = getattr(self, "actuator", None)
+        if actuator is not None and hasattr(actuator, "coil_ids"):
+            return actuator
+        return getattr(getattr(self, "sim", None), "magnetic_drive", None)
+
+    def render_coils(self) -> np.ndarray:
+        """The coil currents of the last control cycle seen from above (:mod:`magwarp.render.coils`: one row of
+        coil-layer panels per world of :meth:`set_render_worlds`, default up to 4; the movers' outlines on top; the
+        colour bar below), as a numpy ``uint8 [H, W, 3]`` image. Needs a magnetic model: a ValueError otherwise
+        (the ideal model has no coils)."""
+        source = self.coil_source()
+        if source is None:
+            raise ValueError(f"{type(self).__name__} has no magnetic model, so no coil currents to draw: build it "
+                             f"with force_model='magnetic' (or use a magwarp/Levitation-v0 env)")
+        from magwarp.render.coils import CoilCurrentRenderer, drive_currents
+        from magwarp.render.legend import with_legend
+
+        if getattr(self, "_coil_renderer", None) is None or self._coil_renderer[0] is not source:
+            worlds = getattr(self, "_render_worlds", None) or min(self.num_envs, 4)
+            r = CoilCurrentRenderer(source.model.coilset, self.sim.mover, worlds=worlds, device=self.sim.device)
+            self._coil_renderer = (source, r, r.colorbar())
+        _, r, strip = self._coil_renderer
+        currents, _ = drive_currents(source)
+        return with_legend(r.draw(currents, self.sim.pos, self.sim.quat), strip)
 
     def compute_reward(self, achieved_goal, desired_goal, info) -> torch.Tensor:
         """Batched reward for hindsight relabelling; tasks with goals override it."""

@@ -53,6 +53,30 @@ OBJECT_GOAL_ALPHA = 0.45
 COLLIDED_ZONE_ALPHA = 0.45  # safety zone of a collided mover, in COLLISION red
 
 
+# Coil currents (the coil-current view, magwarp.render.coils): a diverging map over current / limit in [-1, 1]
+# (ColorBrewer RdBu, 5 classes, reversed: negative blue, zero near white, positive red), linear between anchors.
+CURRENT_ANCHORS = (
+    (33, 102, 172),  # -1: -limit
+    (146, 197, 222),  # -0.5
+    (247, 247, 247),  # 0: no current
+    (244, 165, 130),  # +0.5
+    (178, 24, 43),  # +1: +limit
+)
+COIL_EDGE = (150, 150, 158)  # thin line around every coil
+MOVER_OUTLINE = (20, 22, 26)  # the mover's footprint (and heading tick) over the coils
+
+
+def current_rgb(share) -> np.ndarray:
+    """RGB bytes (float32 ``[..., 3]``, 0..255) of coil currents given as shares of the limit (values beyond +-1 get
+    the end colours): the numpy twin of the coil-current kernel's map."""
+    x = np.clip(np.asarray(share, dtype=np.float64), -1.0, 1.0)
+    anchors = np.asarray(CURRENT_ANCHORS, dtype=np.float64)
+    t = (x + 1.0) * 0.5 * (len(anchors) - 1)
+    k = np.minimum(np.floor(t).astype(np.int64), len(anchors) - 2)
+    f = (t - k)[..., None]
+    return ((1.0 - f) * anchors[k] + f * anchors[k + 1]).astype(np.float32)
+
+
 def mover_color(index: int) -> tuple[int, int, int]:
     """The colour of mover ``index`` (cycles through :data:`MOVER_PALETTE`)."""
     return MOVER_PALETTE[index % len(MOVER_PALETTE)]

@@ -69,12 +69,34 @@ def _swatch(ax, kind: str, x: float, y: float, s: float, c) -> None:
         ax.add_patch(Rectangle((x, y - h), s, s, fc=c["obstacle"], ec="black", lw=1))
 
 
-def legend_strip(width: int, *, objects: bool = False, obstacles: bool = False, states=None) -> np.ndarray:
-    """A ``uint8 [h, width, 3]`` colour key, wrapped onto as many rows as ``width`` needs. ``states``: names of
-    :data:`colors.STATE_NAMES` when movers are coloured by state (big swarms)."""
+STRIP_DPI = 100
+
+
+def strip_canvas(width: int, height: int):
+    """``(canvas, ax)``: an off-screen matplotlib canvas of ``width x height`` pixels on the renderer's background,
+    its axes in pixels (y down, no frame); ``canvas.draw()`` then ``strip_pixels(canvas, height, width)``."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    fig = Figure(figsize=(width / STRIP_DPI, height / STRIP_DPI), dpi=STRIP_DPI)
+    fig.patch.set_facecolor(np.asarray(colors.BACKGROUND) / 255.0)
+    canvas = FigureCanvasAgg(fig)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.set_xlim(0, width)
+    ax.set_ylim(height, 0)
+    ax.axis("off")
+    return canvas, ax
+
+
+def strip_pixels(canvas, height: int, width: int) -> np.ndarray:
+    """The drawn canvas as a contiguous ``uint8 [height, width, 3]`` array."""
+    canvas.draw()
+    return np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[:height, :width, :3])
+
+
+def legend_strip(width: int, *, objects: bool = False, obstacles: bool = False, states=None) -> np.ndarray:
+    """A ``uint8 [h, width, 3]`` colour key, wrapped onto as many rows as ``width`` needs. ``states``: names of
+    :data:`colors.STATE_NAMES` when movers are coloured by state (big swarms)."""
     swatch, gap = 12, 10
     # Flow the items into rows (approximate text widths: ~0.6 em per character); short labels on narrow frames.
     long_items = _items(objects, obstacles, states)
@@ -89,23 +111,15 @@ def legend_strip(width: int, *, objects: bool = False, obstacles: bool = False, 
         rows[-1].append((item, x))
         x += w
     height = ROW_PX * len(rows) + 4
-    dpi = 100
-    fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
-    fig.patch.set_facecolor(np.asarray(colors.BACKGROUND) / 255.0)
-    canvas = FigureCanvasAgg(fig)
-    ax = fig.add_axes((0, 0, 1, 1))
-    ax.set_xlim(0, width)
-    ax.set_ylim(height, 0)
+    canvas, ax = strip_canvas(width, height)
     ax.set_aspect("equal")
-    ax.axis("off")
     for r, row in enumerate(rows):
         y = 2 + ROW_PX * r + ROW_PX / 2
         for (label, kind, c), x in row:
             _swatch(ax, kind, x, y, swatch, c)
-            ax.text(x + swatch + 4, y, label, color="white", fontsize=FONT_PX * 72 / dpi, va="center", ha="left")
-    canvas.draw()
-    image = np.asarray(canvas.buffer_rgba())[:, :, :3]
-    return np.ascontiguousarray(image[:height, :width])
+            ax.text(x + swatch + 4, y, label, color="white", fontsize=FONT_PX * 72 / STRIP_DPI, va="center",
+                    ha="left")
+    return strip_pixels(canvas, height, width)
 
 
 def with_legend(frame, strip: np.ndarray) -> np.ndarray:
