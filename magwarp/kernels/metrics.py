@@ -17,7 +17,7 @@ stops counting a world once its episode is over).
 
 import warp as wp
 
-from magwarp.kernels.collision import free_joint_xy_yaw, hits_wall, movers_collide
+from magwarp.kernels.collision import free_joint_xy_yaw, hits_wall, model_row, movers_collide, world_collision
 from magwarp.types import Collision
 
 wp.set_module_options({"enable_backward": False})
@@ -139,11 +139,12 @@ def trajectory_world_kernel(
 def push_world_kernel(
     # Model:
     tiles: wp.array2d[wp.int32],
-    col: Collision,
+    col_shared: Collision,
     qadr: wp.array[int],
     dadr: wp.array[int],
-    radius: wp.array[float],
-    half: wp.array[wp.vec2],
+    radius: wp.array2d[float],  # [1 or W, M]: the env's collision sizes (per world once randomised)
+    half: wp.array2d[wp.vec2],
+    margins: wp.array[wp.vec2],  # [1 or W]: (mover-mover margin, wall margin)
     dt: float,
     num_contact_pairs: int,
     # State in:
@@ -172,17 +173,20 @@ def push_world_kernel(
     if active[w] == 0:
         return
     elapsed[w] += 1
+    col = world_collision(col_shared, margins, w)
+    rr = model_row(radius.shape[0], w)
+    hr = model_row(half.shape[0], w)
     num_movers = qadr.shape[0]
     walls = int(0)
     pairs = int(0)
     effort = float(0.0)
     for k in range(num_movers):
         p, yaw = free_joint_xy_yaw(qpos, w, qadr[k])
-        if hits_wall(tiles, col, p, yaw, radius[k], half[k]):
+        if hits_wall(tiles, col, p, yaw, radius[rr, k], half[hr, k]):
             walls += 1
         for j in range(k + 1, num_movers):
             pj, yawj = free_joint_xy_yaw(qpos, w, qadr[j])
-            if movers_collide(col, pj - p, yaw, radius[k], half[k], yawj, radius[j], half[j]):
+            if movers_collide(col, pj - p, yaw, radius[rr, k], half[hr, k], yawj, radius[rr, j], half[hr, j]):
                 pairs += 1
         a = acc[w, k]
         v = wp.vec2(qvel[w, dadr[k]], qvel[w, dadr[k] + 1])

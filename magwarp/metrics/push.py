@@ -57,10 +57,15 @@ class PushTaskMetrics(Tracker):
             flags = ContactFlags(b, {"mover": ["mover_geom_"], "object": ["object_0_geom_"], "obstacle": ["obstacle_geom_"]},
                                  [("mover", "obstacle"), ("object", "obstacle")])
             self._contacts, self.num_pairs = flags.flags, 2
-        checks = env.checks  # the env's collision geometry (shape, margins, tiles)
-        self._geometry = [checks._tiles, checks._col, b._qadr, b._dadr, checks._radius, checks._half]
+        self._checks = env.checks  # the env's collision geometry (shape, margins, tiles)
         b.add_cycle_hook(self._launch)
         env.benchmark_metrics = self
+
+    @property
+    def _geometry(self) -> list:
+        """The env's collision geometry, read at every launch (randomisation may give each world its own sizes)."""
+        c, b = self._checks, self.backend
+        return [c._tiles, c._col, b._qadr, b._dadr, c._radius, c._half, c._margins]
 
     def _launch(self) -> None:
         a, b = self.state.arrays, self.backend
