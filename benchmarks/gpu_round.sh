@@ -27,6 +27,11 @@ for stage in "$@"; do
         --json "$OUT/collision_queries_gpu.json" 2>&1 | tail -40 ;;
     magnetics)
       timeout 500 python3 benchmarks/magnetics.py --json "$OUT/magnetics_gpu.json" 2>&1 | tail -45 ;;
+    magnetics_speed)
+      # #17: the control cycle at 1e3/1e5/1e6 movers and the B0 magnetic/ideal ratio only (no accuracy, magpylib or
+      # current-limit sweep: those rows are in magnetics_table_gpu.json)
+      timeout 400 python3 benchmarks/magnetics.py --device cuda:0 --accuracy-poses 0 --magpylib-movers 0 --limits '' \
+        --json "$OUT/magnetics_cycle_gpu.json" 2>&1 | grep -v "^Module" | tail -30 ;;
     swarm)
       timeout 500 python3 benchmarks/swarm.py --device cuda:0 --json "$OUT/swarm_gpu.json" 2>&1 | tail -40 ;;
     perf)
@@ -114,6 +119,21 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       wait
       for f in /tmp/runs/*/eval_*.log; do echo "--- $f"; grep -E "Success|Coll|Energy|Error|error" "$f" | head -5; done
       tar czf "$OUT/suite.tgz" -C /tmp --exclude=checkpoint.pt runs ;;
+    night_eval)
+      # Not timed, so side by side: suite_eval of RUNS, the robustness table (REPEATS, default 10), the levitation
+      # policy against its PD (when lev_residual was trained) and the swarm planner at 256/1024/4096 movers
+      bash "$0" suite_eval > "$OUT/suite_eval.log" 2>&1 &
+      REPEATS=${REPEATS:-10} bash "$0" robustness > "$OUT/robustness.log" 2>&1 &
+      if [ -f /tmp/runs/lev_residual/policy.pt ]; then
+        timeout 500 python3 benchmarks/levitation_policy.py --policy /tmp/runs/lev_residual/policy.pt --device cuda:0 \
+          --envs 4096 --json "$OUT/levitation_policy_gpu.json" > "$OUT/levitation_policy.log" 2>&1 &
+      fi
+      timeout 560 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
+        > "$OUT/planner.log" 2>&1 &
+      wait
+      for f in suite_eval robustness levitation_policy planner; do
+        [ -f "$OUT/$f.log" ] && { echo "--- $f"; tail -25 "$OUT/$f.log"; }
+      done ;;
     planner)
       # #18: the scripted planner with its safety filter at 256 / 1024 / 4096 movers (1000 steps each)
       timeout 590 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \

@@ -158,6 +158,10 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # zero-shot on larger swarms beside the scripted planner (benchmarks/swarm.py)
     "swarm_ippo": PaperRun("magwarp/Swarm-v0", "ppo", {"num_movers": 64}, {"num_movers": 64},
                            "no paper row; scripted planner in magwarp eval", ("--num-envs", "256")),
+    # Levitation (issue 17; no paper row): a residual on the PD + commutation baseline (a zero action is the PD),
+    # compared with the PD on energy at equal tracking error by benchmarks/levitation_policy.py
+    "lev_residual": PaperRun("magwarp/LevitationResidual-v0", "ppo", {"failure_reward": -1000.0},
+                             {"failure_reward": -1000.0}, "no paper row; the PD baseline", ("--eval-steps", "0")),
     "coop_push_sac": PaperRun("magwarp/CoopPush-v0", "sac-her", {"num_cycles": 40}, {"num_cycles": 40},
                               "no paper row; scripted line-up-and-push baseline in magwarp eval"),
     # coop_push_sac stayed at 0% (5 minutes, H100): random actions never move a box that needs two movers, so every
