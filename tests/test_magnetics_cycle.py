@@ -49,8 +49,9 @@ def test_cycle_matches_lookup_then_commutation(model, rng, cpu_blocks, block_dim
     ids, gamma, count = model.columns(pos, quat)
     two = com.solve(gamma, ids, count, w)
     slots = model.max_active
-    f_ids, f_gamma = wp.empty((n, slots), dtype=wp.int32), wp.empty((n, slots), dtype=ModelCol)
-    f_count = wp.zeros(n, dtype=wp.int32)
+    f_ids = wp.empty((n, slots), dtype=wp.int32, device="cpu")  # the model's device (not the default: a GPU there)
+    f_gamma = wp.empty((n, slots), dtype=ModelCol, device="cpu")
+    f_count = wp.zeros(n, dtype=wp.int32, device="cpu")
     one = ControlCycle(model, com).run(pos, quat, w, f_ids, f_gamma, f_count,
                                        CommutationResult.zeros(n, slots, "cpu"))
     assert np.array_equal(f_ids.numpy(), ids.numpy()) and np.array_equal(f_count.numpy(), count.numpy())
@@ -80,9 +81,17 @@ def test_cycle_refuses_wrong_shapes(model):
     com = Commutation(model.coilset, device="cpu")
     pos, quat = model.as_arrays(np.array([[0.3, 0.2, 0.01, 0.0, 0.0, 0.0]]))
     slots = model.max_active
+
+    def arrays(ids_slots=slots, count_device="cpu"):
+        return (wp.zeros(1, dtype=vec6d, device="cpu"), wp.empty((1, ids_slots), dtype=wp.int32, device="cpu"),
+                wp.empty((1, slots), dtype=ModelCol, device="cpu"), wp.zeros(1, dtype=wp.int32, device=count_device),
+                CommutationResult.zeros(1, slots, "cpu"))
+
     with pytest.raises(MagneticsError, match="coil_ids"):
-        ControlCycle(model, com).run(pos, quat, wp.zeros(1, dtype=vec6d), wp.empty((1, slots + 1), dtype=wp.int32),
-                                     wp.empty((1, slots), dtype=ModelCol), wp.zeros(1, dtype=wp.int32),
-                                     CommutationResult.zeros(1, slots, "cpu"))
+        ControlCycle(model, com).run(pos, quat, *arrays(ids_slots=slots + 1))
+    if wp.is_cuda_available():  # an array on another device is refused before the launch (it crashed the process)
+        with pytest.raises(MagneticsError, match="count is on cuda:0, the model on cpu"):
+            ControlCycle(model, com).run(pos, quat, *arrays(count_device="cuda:0"))
+
     with pytest.raises(MagneticsError, match="TableModel"):
         ControlCycle(object(), com)

@@ -149,6 +149,11 @@ class ControlCycle:
         for name, (got, want) in shapes.items():
             if tuple(got) != want:
                 raise MagneticsError(f"ControlCycle.run: {name} has shape {tuple(got)}, expected {want}")
+        arrays = {"pos": pos, "quat": quat, "wanted": wanted, "coil_ids": coil_ids, "gamma": gamma, "count": count,
+                  "currents": out.currents}
+        for name, a in arrays.items():  # a kernel on one device reading another's memory crashes the process
+            if a.device != self.model.device:
+                raise MagneticsError(f"ControlCycle.run: {name} is on {a.device}, the model on {self.model.device}")
         wp.launch_tiled(cycle_kernel, dim=[n], block_dim=self.commutation.block_dim, device=self.model.device,
                         inputs=[self.params, pos, quat, wanted],
                         outputs=[cycle_outputs(coil_ids, gamma, count, out)])
