@@ -95,3 +95,29 @@ def test_cycle_refuses_wrong_shapes(model):
 
     with pytest.raises(MagneticsError, match="TableModel"):
         ControlCycle(object(), com)
+
+
+def test_gpu_cycle_matches_one_cpu_thread(model, devices, rng):
+    """On a GPU (when there is one): the one-launch cycle (32 threads per mover, warp sums) gives the currents,
+    saturations and flags of one CPU thread per mover on the GPU's own columns (movers that saturate included)."""
+    if len(devices) < 2:
+        pytest.skip("no CUDA device")
+    gpu = TableModel(Layout.grid(3, 2), PARAMS, SPEC, device=devices[1])  # the same cached table
+    n = 256
+    poses = np.c_[rng.uniform(0.05, 0.67, n), rng.uniform(0.05, 0.43, n), rng.uniform(0.003, 0.005, n) + 0.006,
+                  np.zeros((n, 2)), rng.uniform(-4.0, 4.0, n)]
+    wanted = np.c_[1.24 * rng.uniform(-12.0, 12.0, (n, 2)), np.full(n, 1.24 * 9.81), rng.uniform(-0.05, 0.05, (n, 3))]
+    pos, quat = gpu.as_arrays(poses)
+    com = Commutation(gpu.coilset, device=gpu.device)
+    slots = gpu.max_active
+    ids, gamma = wp.empty((n, slots), dtype=wp.int32, device=gpu.device), wp.empty((n, slots), dtype=ModelCol,
+                                                                                    device=gpu.device)
+    count = wp.zeros(n, dtype=wp.int32, device=gpu.device)
+    w = wp.array(wanted, dtype=vec6d, device=gpu.device)
+    res = ControlCycle(gpu, com).run(pos, quat, w, ids, gamma, count, CommutationResult.zeros(n, slots, gpu.device))
+    one = Commutation(model.coilset, device="cpu", block_dim=1).solve(
+        *[wp.clone(a, device="cpu") for a in (gamma, ids, count, w)])
+    np.testing.assert_allclose(res.currents.numpy(), one.currents.numpy(), rtol=1e-8, atol=1e-8, err_msg=str(rng))
+    assert np.array_equal(res.saturated.numpy(), one.saturated.numpy()), rng
+    assert np.array_equal(res.flags.numpy(), one.flags.numpy()), rng
+    assert res.saturated.numpy().any(), rng
