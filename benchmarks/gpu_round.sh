@@ -135,7 +135,7 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         [ -f "$OUT/$f.log" ] && { echo "--- $f"; tail -25 "$OUT/$f.log"; }
       done ;;
     planner)
-      # #18: the scripted planner with its safety filter at 256 / 1024 / 4096 movers (1000 steps each)
+      # #18: the scripted planner (lanes, safety filter) at 256 / 1024 / 4096 movers (2000 steps each: goal share in 40 s)
       timeout 590 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
         2>&1 | tail -20 ;;
     robustness)

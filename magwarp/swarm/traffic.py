@@ -10,8 +10,8 @@ and flows meet only at right angles where lanes cross.
 
 A mover's route has two legs, along x then along y or along y then along x: of the two, the one whose corner
 lies farther out from the middle of the layout (``outer=True``; the middle is where the routes of random goals cross
-most: 1024 movers on 64 x 64 tiles reached 95% of their first goals in 40 s with this choice, 90% along x first
-always). Its preferred velocity, from the mover's position ``p`` and goal ``g`` alone (no state, so a mover pushed
+most: 1024 movers on 64 x 64 tiles, lanes every 4 tiles, reached 95.1% / 94.8% of their first goals in 40 s with
+this choice, seeds 0 / 1; with lanes every 3 tiles 95.1% / 93.6%, and 90% along x first always). Its preferred velocity, from the mover's position ``p`` and goal ``g`` alone (no state, so a mover pushed
 off its route by the avoidance rules picks it up again; a route re-chosen on the way still heads for the goal),
 here for the route along x first (along y first: the same with x and y swapped):
 
@@ -63,7 +63,7 @@ class LaneField:
     ``a_turn`` (m/s^2): slowing for the goal and for turns; ``final``, ``turn_tol`` (m); ``gain`` (1/s): the pull
     onto a lane; ``outer``: choose the route by its corner (else always along x first)."""
 
-    def __init__(self, layout: Layout, cruise: float, *, pitch: int = 3, a_brake: float = 4.0, a_turn: float = 6.0,
+    def __init__(self, layout: Layout, cruise: float, *, pitch: int = 4, a_brake: float = 4.0, a_turn: float = 6.0,
                  final: float = 0.5, turn_tol: float = 0.15, gain: float = 4.0, outer: bool = True):
         for name, value in (("cruise", cruise), ("a_brake", a_brake), ("a_turn", a_turn), ("final", final),
                             ("turn_tol", turn_tol), ("gain", gain)):
