@@ -8,11 +8,13 @@ fresh seeds, deterministic policy) with each policy on the run's evaluation opti
 where they differ) and reports the success rate and the object progress: how much nearer its goal the object ends
 than it started (m, mean over worlds; an episode cut by a collision counts where it ended). Rows for reference:
 ``zero`` (no action: the object stays, progress 0), ``untrained`` (a fresh actor's deterministic policy) and
-``scripted`` (the line-up-and-push baseline).
+``scripted`` (the line-up-and-push baseline); ``--clone-steps``: networks fitted to the baseline's transitions alone
+(plain behaviour cloning: how much of it that many demonstrations give).
 
     python benchmarks/coop_push_learning.py --smoke                                   # CPU, a few minutes
     python benchmarks/coop_push_learning.py --device cpu --minutes 8 --num-envs 16 \\
         --args "--batch-size 256 --updates-per-step 8 --hidden 128,128" --json coop_learning_cpu.json
+    python benchmarks/coop_push_learning.py --device cpu --runs "" --num-envs 16 --clone-steps 300,1500
     python benchmarks/coop_push_learning.py --device cuda:0 --minutes 5 --json coop_learning_gpu.json
 
 Writes JSON (``--json``) with device, date, versions and command; prints a table.
@@ -80,6 +82,40 @@ def _scripted(base):
     return scripted_policy(base)
 
 
+def cloned(env_id: str, env_kwargs: dict, device: str, num_envs: int, steps: int, updates: int = 6000, seed: int = 0):
+    """Plain behaviour cloning of the scripted baseline: an MLP (256, 256; tanh output) fitted by squared error to
+    ``num_envs x steps`` of its transitions (observations normalised), as a policy factory for :func:`object_progress`.
+    How much of the baseline a network recovers from that many demonstrations."""
+    from magwarp.training import make_env
+    from magwarp.training.common import RunningMeanStd, flatten_obs
+    from magwarp.training.policy import mlp
+
+    torch.manual_seed(seed)
+    env, base = make_env(env_id, num_envs, device, seed, env_kwargs)
+    teacher, scale = _scripted(base), torch.as_tensor(base.single_action_space.high, device=base.device)
+    obs, _ = env.reset(seed=seed)
+    xs, acts = [], []
+    with torch.no_grad():
+        for _ in range(steps):
+            a = teacher(obs)
+            xs.append(flatten_obs(obs))
+            acts.append((a / scale).clamp(-1, 1))
+            obs, *_ = env.step(a)
+    env.close()
+    x, a = torch.cat(xs), torch.cat(acts)
+    rms = RunningMeanStd(x.shape[1], base.device, clip=5.0)
+    rms.update(x)
+    net = mlp(x.shape[1], [256, 256], a.shape[1], act=torch.nn.ReLU).to(base.device)
+    opt = torch.optim.Adam(net.parameters(), 1e-3)
+    for _ in range(updates):
+        idx = torch.randint(len(x), (256,), device=base.device)
+        loss = (torch.tanh(net(rms.normalize(x[idx]))) - a[idx]).square().sum(-1).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return lambda base: (lambda o: torch.tanh(net(rms.normalize(flatten_obs(o)))).detach() * scale)
+
+
 def train(name: str, minutes: float | None, total_steps: int | None, device: str, num_envs: int, extra: list[str],
           out: str) -> dict:
     """Train paper run ``name`` (its env options, its script options, then ``extra``); returns the summary."""
@@ -104,6 +140,8 @@ def main(argv=None) -> int:
     p.add_argument("--args", default="", help="extra training options for every run")
     p.add_argument("--work", default=None, help="folder of the run folders (default: a temporary one)")
     p.add_argument("--smoke", action="store_true", help="CPU check: 8 worlds, tiny networks, 600 env steps per run")
+    p.add_argument("--clone-steps", default="",
+                   help="also clone the baseline from this many batched steps of it (comma separated: one row each)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     info, devices = start_run(args.device)
@@ -122,7 +160,8 @@ def main(argv=None) -> int:
     if unknown:
         raise SystemExit(f"unknown runs {unknown}; choose from {list(PAPER_RUNS)}")
     work = args.work or tempfile.mkdtemp(prefix="coop_learning_")
-    ref = PAPER_RUNS[names[0]]
+    first = names[0] if names else DEFAULT_RUNS[0]  # no run named: the reference rows (and clones) only
+    ref = PAPER_RUNS[first]
     rows = []
 
     def measure(label: str, policy, env_kwargs: dict, **more) -> None:
@@ -134,8 +173,11 @@ def main(argv=None) -> int:
     measure("zero", _zero, ref.eval_kwargs)
     measure("scripted", _scripted, ref.eval_kwargs)
     untrained = os.path.join(work, "untrained")  # one env step, no update: the initial actor's policy.pt
-    train(names[0], None, num_envs, device, num_envs, [*extra, "--learning-starts", "10"], untrained)
+    train(first, None, num_envs, device, num_envs, [*extra, "--learning-starts", "10"], untrained)
     measure("untrained", _trained(os.path.join(untrained, "policy.pt")), ref.eval_kwargs)
+    for steps in [int(v) for v in args.clone_steps.split(",") if v.strip()]:
+        measure(f"cloned ({steps * (args.num_envs or 16)} transitions)",
+                cloned(ref.env_id, ref.train_kwargs, device, args.num_envs or 16, steps), ref.eval_kwargs)
     for name in names:
         out = os.path.join(work, name)
         summary = train(name, args.minutes, total, device, num_envs, extra, out)
