@@ -78,11 +78,18 @@ def _f(x) -> str:
     return format(float(x), ".10g")
 
 
-def _positive(owner: str, name: str, value) -> float:
+def _positive(owner: str, name: str, value, maximum: float = np.inf) -> float:
     value = float(value)
     if not np.isfinite(value) or value <= 0:
         raise LayoutError(f"{owner}.{name} must be a positive finite number, got {value!r}")
+    if value > maximum:
+        raise LayoutError(f"{owner}.{name} must be at most {maximum:g}, got {value!r}")
     return value
+
+
+#: Bounds of a pushable object: half-sizes (m) and mass (kg). A planar motor's objects are centimetres to a metre;
+#: beyond these the float32 physics (inertia ~ m d^2) overflows (a fuzz draw: object_depth=1.18e21 gave NaN).
+OBJECT_SIZE_MAX, OBJECT_MASS_MAX = 10.0, 1e4
 
 
 @dataclass(frozen=True)
@@ -110,7 +117,8 @@ class ObjectSpec:
             raise LayoutError(f"ObjectSpec.shape {self.shape!r} is unknown; choose one of {OBJECT_SHAPES} (or T, L, X)")
         object.__setattr__(self, "shape", _SHAPE_ALIASES[key])
         for name in ("width", "height", "depth", "segment_width", "radius", "mass"):
-            object.__setattr__(self, name, _positive("ObjectSpec", name, getattr(self, name)))
+            bound = OBJECT_MASS_MAX if name == "mass" else OBJECT_SIZE_MAX
+            object.__setattr__(self, name, _positive("ObjectSpec", name, getattr(self, name), bound))
         fr = tuple(float(v) for v in self.friction)
         if len(fr) != 3 or not all(np.isfinite(v) and v >= 0 for v in fr):
             raise LayoutError(f"ObjectSpec.friction must be three non-negative numbers, got {self.friction!r}")

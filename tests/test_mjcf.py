@@ -1,7 +1,10 @@
 """MJCF generation: loads in MuJoCo for holes and every object shape, contact filtering, hooks, linear cost."""
 
+import re
+
 import mujoco
 import numpy as np
+
 import pytest
 
 from magwarp.layout import Layout, LayoutError, MoverSpec, benchmark_layout
@@ -143,3 +146,11 @@ def test_generation_is_linear_in_movers():
     assert xml.count("<freejoint") == 1000 and "<exclude" not in xml and "<contact>" not in xml
     m = mujoco.MjModel.from_xml_string(xml)
     assert m.nbody == 1001 and m.nexclude == 0
+
+
+@pytest.mark.parametrize("field, value", [("depth", 1.18e21), ("width", 11.0), ("mass", 2e4)])
+def test_object_sizes_and_mass_are_bounded(field, value):
+    """An object past a planar motor's scale is refused with its name and value (object_depth=1.18e21 overflowed the
+    float32 physics into NaN observations)."""
+    with pytest.raises(LayoutError, match=rf"ObjectSpec\.{field} must be at most .*{re.escape(repr(value))}"):
+        ObjectSpec(**{field: value})
