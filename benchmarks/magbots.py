@@ -6,8 +6,8 @@ example envs (MuJoCo C, their Python IK and couplings every cycle) stepped in th
     python benchmarks/magbots.py --num-envs 1,4 --steps 5 --magbotsim-steps 5       # smoke check
 
 Envs (``--envs``, default all): ``pose`` = ``magwarp/PlatformPose-v0`` (``--action-modes`` mover, pose),
-``pickplace`` = ``magwarp/PlatformPickPlace-v0``, ``gripper`` = ``magwarp/GripperPickPlace-v0`` (mover actions), ``coop`` = ``magwarp/CoopPush-v0`` (no MagBotSim
-counterpart). The JSON is rewritten after every row, so a run cut short keeps what it measured.
+``pickplace`` = ``magwarp/PlatformPickPlace-v0``, ``gripper`` = ``magwarp/GripperPickPlace-v0`` (mover actions),
+``coop`` = ``magwarp/CoopPush-v0`` (no MagBotSim counterpart). The JSON is rewritten after every row, so a run cut short keeps what it measured.
 One env step = 40 control cycles of 1 ms. magwarp: :func:`env_throughput.raw_env_row` (actions uniform random in the
 action space from a pre-generated bank on the device, autoreset on and included: random accelerations break the
 mechanisms' limits now and then, so resets happen; ``check_inputs`` off; "raw mjw ms" is the bare mujoco-warp step of
@@ -162,8 +162,8 @@ def main(argv=None) -> int:
             env_id, modes, _ = ENVS[name]
             for mode in (args.action_modes.split(",") if name == "pose" else modes):
                 for n in sizes:
-                    row = {"engine": "magwarp", "bench": name, "env": env_id, "action_mode": mode or "-", "device": device,
-                           "num_envs": n}
+                    row = {"engine": "magwarp", "bench": name, "env": env_id, "action_mode": mode or "-",
+                           "device": device, "num_envs": n}
                     try:
                         res = magwarp_row(env_id, n, device, args.steps, mode)
                     except (RuntimeError, MemoryError) as e:  # e.g. out of device memory: keep the other rows
