@@ -7,7 +7,8 @@ example envs (MuJoCo C, their Python IK and couplings every cycle) stepped in th
 
 Envs (``--envs``, default all): ``pose`` = ``magwarp/PlatformPose-v0`` (``--action-modes`` mover, pose),
 ``pickplace`` = ``magwarp/PlatformPickPlace-v0``, ``gripper`` = ``magwarp/GripperPickPlace-v0`` (mover actions),
-``coop`` = ``magwarp/CoopPush-v0`` (no MagBotSim counterpart). The JSON is rewritten after every row, so a run cut short keeps what it measured.
+``coop`` = ``magwarp/CoopPush-v0`` (no MagBotSim counterpart). The JSON is rewritten after every row, so a run cut
+short keeps what it measured.
 One env step = 40 control cycles of 1 ms. magwarp: :func:`env_throughput.raw_env_row` (actions uniform random in the
 action space from a pre-generated bank on the device, autoreset on and included: random accelerations break the
 mechanisms' limits now and then, so resets happen; ``check_inputs`` off; "raw mjw ms" is the bare mujoco-warp step of
