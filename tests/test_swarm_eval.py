@@ -30,7 +30,7 @@ def test_tracker_matches_a_plain_recount(rng, stations):
     for t in range(T):
         action = planner()
         # random pushes (collisions) and holds (stuck movers), more holds at the end
-        push = torch.from_numpy(rng.random((W, M)) < 0.1)
+        push = torch.from_numpy(rng.random((W, M)) < 0.3)  # 0.1 let one seed in ~50 end without a collision
         hold = torch.from_numpy(rng.random((W, M)) < (0.9 if t > 20 else 0.1))
         action = torch.where(push[..., None], torch.from_numpy(rng.uniform(-10, 10, (W, M, 2))).float(), action)
         action = torch.where(hold[..., None], -env.sim.vel[..., :2] / STEP_S, action)
