@@ -47,13 +47,17 @@ def reference_route(p, g, *, tiles, pitch, tile, cruise, a_brake, a_turn, final,
 
 
 def reference_field(p, g, *, tiles, **kw):
-    """The route whose corner lies farther out from the middle (max-norm in units of the half sizes); the y-first
-    route is the x-first one with x and y swapped."""
+    """The route whose corner lies farther out from the middle (max-norm in units of the half sizes), as a pair of
+    velocities: that route's twice, or both routes' where the corners tie; the y-first route is the x-first one with x
+    and y swapped."""
     v_x, c_x = reference_route(p, g, tiles=tiles, **kw)
     v_y, c_y = reference_route(p[::-1], g[::-1], tiles=tiles[::-1], **kw)
     v_y, c_y = v_y[::-1], c_y[::-1]
     half = np.array(tiles) * kw["tile"] / 2
-    return v_x if np.abs(c_x / half - 1).max() >= np.abs(c_y / half - 1).max() else v_y
+    score_x, score_y = np.abs(c_x / half - 1).max(), np.abs(c_y / half - 1).max()
+    if abs(score_x - score_y) < 1e-9:  # a tie (lane positions are multiples of the tile: exact ties happen): either
+        return v_x, v_y
+    return (v_x, v_x) if score_x > score_y else (v_y, v_y)
 
 
 @pytest.mark.parametrize("pitch", [2, 3, 5])
@@ -68,8 +72,10 @@ def test_lane_field_matches_a_per_mover_reference(rng, pitch):
     goal = rng.uniform(0.1, 1.0, (n, 2)) * (size - 0.2)
     goal[: n // 5] = pos[: n // 5] + rng.normal(0, 0.3, (n // 5, 2))  # near goals: the final approach
     v = field(torch.tensor(pos), torch.tensor(goal)).numpy()
-    ref = np.stack([reference_field(p, g, tiles=tiles, pitch=pitch, tile=0.24, cruise=1.5, a_brake=4.0, a_turn=a_turn,
-                                    final=0.5, tol=0.15, gain=4.0) for p, g in zip(pos, goal)])
+    refs = np.array([reference_field(p, g, tiles=tiles, pitch=pitch, tile=0.24, cruise=1.5, a_brake=4.0,
+                                     a_turn=a_turn, final=0.5, tol=0.15, gain=4.0) for p, g in zip(pos, goal)])
+    # where the two routes' corners tie (a CI seed: 3 of 500 movers), the field may take either route
+    ref = np.where((np.abs(v - refs[:, 0]).max(-1) <= np.abs(v - refs[:, 1]).max(-1))[:, None], refs[:, 0], refs[:, 1])
     np.testing.assert_allclose(v, ref, atol=1e-9, err_msg=str(rng))
     assert (np.linalg.norm(v, axis=-1) <= 1.5 + 1e-9).all()
 
