@@ -49,6 +49,7 @@ def test_contract_matches_the_env_stepped_alone(rng):
     seen = {"time_out": 0, "terminated": 0, "both": 0}
     for _ in range(30):
         action = torch.as_tensor(rng.uniform(-1.5, 1.5, (n, 6)), dtype=torch.float32)
+        action[: n // 2] *= 0.02  # gentle worlds run into the time-outs (a CI seed crashed every world first)
         obs, reward, dones, extras = env.step(action)
         t_obs, t_reward, term, trunc, info = twin.step(action * 10.0)
         torch.testing.assert_close(obs["policy"], flatten_obs(t_obs), rtol=0, atol=0)
