@@ -24,8 +24,8 @@ from __future__ import annotations
 import torch
 import warp as wp
 
-from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
-from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_mover, cycle_outputs, cycle_params
+from magwarp.magnetics.commutation import Commutation, CommutationOptions, vec6f
+from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_buffers, cycle_mover
 from magwarp.magnetics.drive import AUX_DIM, store_wrench, store_wrench_kernel
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
@@ -160,17 +160,13 @@ class CoilActuator:
         self.slots = slots
         self._pos = wp.zeros(n, dtype=wp.vec3d, device=dev)
         self._quat = wp.zeros(n, dtype=wp.quatd, device=dev)
-        self._ids = wp.full((n, slots), -1, dtype=wp.int32, device=dev)
-        self._count = wp.zeros(n, dtype=wp.int32, device=dev)
-        self._gamma = wp.zeros((n, slots), dtype=vec6f, device=dev)
         self._command = wp.zeros((n, slots), dtype=float, device=dev)
         self._wanted = wp.zeros(n, dtype=vec6f, device=dev)
         self._wanted_d = wp.zeros(n, dtype=vec6d, device=dev)
-        self._res = CommutationResult.zeros(n, slots, dev)
         self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
         self._dt = float(sim.model.limits.dt)
-        self._cycle = cycle_params(self.model, self.commutation)
-        self._outputs = cycle_outputs(self._ids, self._gamma, self._count, self._res)
+        self._ids, self._count, self._gamma, self._res, self._cycle, self._outputs = cycle_buffers(
+            self.model, self.commutation, n)
         sim.add_cycle_hook(self._before_cycle, before=True)
 
     def _columns(self) -> None:

@@ -130,6 +130,18 @@ def cycle_outputs(coil_ids: wp.array, gamma: wp.array, count: wp.array, res: Com
     return o
 
 
+
+def cycle_buffers(model: TableModel, commutation: Commutation, n: int):
+    """The arrays of ``n`` movers' control cycles, zeroed (coil ids -1): ``(coil_ids, count, gamma, result)`` (as
+    :meth:`TableModel.columns` and :meth:`Commutation.solve` fill them), with the one-launch cycle's
+    :class:`CycleParams` and :class:`CycleOutputs` over them."""
+    dev, slots = model.device, model.max_active
+    ids = wp.full((n, slots), -1, dtype=wp.int32, device=dev)
+    count = wp.zeros(n, dtype=wp.int32, device=dev)
+    gamma = wp.zeros((n, slots), dtype=vec6f, device=dev)
+    res = CommutationResult.zeros(n, slots, dev)
+    return ids, count, gamma, res, cycle_params(model, commutation), cycle_outputs(ids, gamma, count, res)
+
 class ControlCycle:
     """The wrench-table look-up of ``model`` (:class:`~magwarp.magnetics.table.TableModel`) and the commutation of
     ``commutation`` (its resistances, limits, options and threads per mover) in one launch."""

@@ -33,8 +33,8 @@ import warp as wp
 from magwarp.kernels.collision import model_row
 from magwarp.kernels.dynamics import planar_acceleration
 from magwarp.kernels.impedance import default_force
-from magwarp.magnetics.commutation import Commutation, CommutationOptions, CommutationResult, vec6f
-from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_mover, cycle_outputs, cycle_params
+from magwarp.magnetics.commutation import Commutation, CommutationOptions
+from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_buffers, cycle_mover
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.table import TableModel, WrenchTableSpec
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
@@ -174,15 +174,11 @@ class MagneticDrive:
         self.model = TableModel(sim.layout, params, spec, device=dev, use_cache=use_cache)
         self.commutation = Commutation(self.model.coilset, options, device=dev)
         w_, m_ = sim.num_worlds, sim.num_movers
-        n, slots = w_ * m_, self.model.max_active
-        self._ids = wp.full((n, slots), -1, dtype=wp.int32, device=dev)
-        self._count = wp.zeros(n, dtype=wp.int32, device=dev)
-        self._gamma = wp.zeros((n, slots), dtype=vec6f, device=dev)
-        self._res = CommutationResult.zeros(n, slots, dev)
+        n = w_ * m_
         self._energy = wp.zeros((w_, m_), dtype=wp.float64, device=dev)
         self._dt = float(sim.model.limits.dt)
-        self._cycle = cycle_params(self.model, self.commutation)
-        self._outputs = cycle_outputs(self._ids, self._gamma, self._count, self._res)
+        self._ids, self._count, self._gamma, self._res, self._cycle, self._outputs = cycle_buffers(
+            self.model, self.commutation, n)
         sim.add_cycle_hook(self._before_cycle, before=True)
 
     def _before_cycle(self, sim) -> None:
