@@ -3,6 +3,8 @@ and the float64 references."""
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 import pytest
 import warp as wp
@@ -82,16 +84,21 @@ def test_cycle_refuses_wrong_shapes(model):
     pos, quat = model.as_arrays(np.array([[0.3, 0.2, 0.01, 0.0, 0.0, 0.0]]))
     slots = model.max_active
 
-    def arrays(ids_slots=slots, count_device="cpu"):
+    def arrays(ids_slots=slots):
         return (wp.zeros(1, dtype=vec6d, device="cpu"), wp.empty((1, ids_slots), dtype=wp.int32, device="cpu"),
-                wp.empty((1, slots), dtype=ModelCol, device="cpu"), wp.zeros(1, dtype=wp.int32, device=count_device),
+                wp.empty((1, slots), dtype=ModelCol, device="cpu"), wp.zeros(1, dtype=wp.int32, device="cpu"),
                 CommutationResult.zeros(1, slots, "cpu"))
 
     with pytest.raises(MagneticsError, match="coil_ids"):
         ControlCycle(model, com).run(pos, quat, *arrays(ids_slots=slots + 1))
-    if wp.is_cuda_available():  # an array on another device is refused before the launch (it crashed the process)
-        with pytest.raises(MagneticsError, match="count is on cuda:0, the model on cpu"):
-            ControlCycle(model, com).run(pos, quat, *arrays(count_device="cuda:0"))
+    # an array on another device is refused before the launch (it crashed the process)
+    wanted, ids, gamma, count, res = arrays()
+    if wp.is_cuda_available():
+        count = wp.zeros(1, dtype=wp.int32, device="cuda:0")
+    else:  # a stand-in of the right shape that says it lives on cuda:0
+        count = types.SimpleNamespace(shape=count.shape, device="cuda:0")
+    with pytest.raises(MagneticsError, match="count is on cuda:0, the model on cpu"):
+        ControlCycle(model, com).run(pos, quat, wanted, ids, gamma, count, res)
 
     with pytest.raises(MagneticsError, match="TableModel"):
         ControlCycle(object(), com)
