@@ -222,6 +222,19 @@ class LevitationEnv(MagwarpVecEnv):
         self.actuator.refresh()  # the slots' coils at the new poses
 
     # ------------------------------------------------------------------ stepping
+    #: The largest action share accepted (of the current limit or of ``wrench_scale``): beyond it a wanted wrench
+    #: overflows float32 on its way through the commutation (1e38 shares of 40 N), so the step refuses it.
+    MAX_ACTION_SHARE = 1.0e6
+
+    def _check_action(self, action) -> torch.Tensor:
+        stored = super()._check_action(action)
+        if self.check_inputs and not bool((stored.abs() <= self.MAX_ACTION_SHARE).all()):
+            bad = torch.nonzero(stored.abs() > self.MAX_ACTION_SHARE)[0].tolist()
+            raise ValueError(f"action share at index {bad} is {stored[tuple(bad)].item()!r}: beyond "
+                             f"+-{self.MAX_ACTION_SHARE:g} of the action range (shares of the {self.action_mode} "
+                             f"scale), which overflows the simulation's float32")
+        return stored
+
     def _apply_action(self, action: torch.Tensor) -> None:
         if self.action_mode == "currents":
             self.actuator.currents.copy_((action * self.current_limit)[:, None, :])
