@@ -56,6 +56,7 @@ from magwarp.envs.base import MagwarpVecEnv
 from magwarp.kernels.swarm import stop_collided
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
+from magwarp.swarm.fused import FusedSwarmStep, fused_applies
 from magwarp.swarm.observations import LocalObservations
 from magwarp.swarm.placement import Placer
 
@@ -76,7 +77,10 @@ class SwarmConfig:
     ``respawn_clearance``: extra room (m) a respawned mover keeps from the others and the walls (it appears next to
     moving movers: at the bare exclusion distance it would often be hit at once).
     ``stations``: the material-flow variant: ``"auto"`` (``num_stations`` pick-ups and drop-offs placed on the
-    layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams)."""
+    layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams).
+    ``fused``: run each step's control cycles and collision stops as one launch (:mod:`magwarp.swarm.fused`; the
+    per-cycle path's results): None (default) where it applies (the respawn rule, up to 1024 movers per world), True
+    to insist (an error where it does not apply), False for the per-cycle path."""
 
     num_movers: int = 64
     layout: Any = None
@@ -108,6 +112,7 @@ class SwarmConfig:
     reset_rounds: int = 32
     stations: Any = None
     num_stations: int = 4
+    fused: bool | None = None
 
     def __post_init__(self):
         m = self.num_movers
@@ -131,6 +136,12 @@ class SwarmConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.fused not in (None, True, False):
+            raise ValueError(f"fused must be None, True or False, got {self.fused!r}")
+        if self.fused:
+            why = fused_applies(int(self.num_movers), self.on_collision)
+            if why is not None:
+                raise ValueError(f"fused=True does not apply: {why}")
         m = self.max_episode_steps
         if m is not None and (isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1):
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {m!r}")
@@ -202,8 +213,13 @@ class SwarmEnv(MagwarpVecEnv):
                                        max_range=cfg.ray_range, device=wdev)
         self._stopped = wp.zeros((n, m), dtype=wp.int32, device=wdev)
         self.stopped = wp.to_torch(self._stopped)
+        self.fused_step = None
         if respawn:
             self.sim.add_cycle_hook(self._stop_hook)
+            if cfg.fused is not False and fused_applies(m, cfg.on_collision) is None:
+                # one launch per step; steps aside for the per-cycle path (this hook) while other hooks are attached
+                self.fused_step = FusedSwarmStep(self.sim, self._stopped, self._stop_hook)
+                self.sim.set_motion(self.fused_step)
         dev = self.device
         self.goals = torch.zeros(n, m, 2, device=dev)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
