@@ -98,14 +98,28 @@ def test_fused_steps_aside_for_other_cycle_hooks(rng):
     assert calls  # the hook ran: the per-cycle path was taken by both envs
 
 
+def test_tiled_kernel_arithmetic_on_the_cpu(rng):
+    """The CUDA shape (one block per world, state in registers, tiles) runs on the CPU with blocks one thread wide:
+    with one mover per world it must match the per-cycle path too (motion, wall stops, jerk, latency)."""
+    delays = torch.as_tensor(rng.integers(0, 12, 6), dtype=torch.int32)
+
+    def setup(env):
+        env.sim.set_latency(delays, bound=12)
+        if env.fused_step is not None:
+            env.fused_step.tiled = True
+            env.sim._graphs.clear()
+
+    assert _run_both(rng, 6, 1, 8, scale=400.0, setup=setup, layout=np.ones((2, 2)), learn_jerk=True) > 0
+
+
 def test_fused_default_and_options():
     env = SwarmEnv(2, num_movers=8, device="cpu", seed=0)
     assert env.fused_step is not None and env.sim._motion is env.fused_step  # on by default for the respawn rule
     assert SwarmEnv(2, num_movers=8, device="cpu", seed=0, on_collision="end").fused_step is None
     with pytest.raises(ValueError, match="on_collision='end'"):
         SwarmConfig(num_movers=8, on_collision="end", fused=True)
-    with pytest.raises(ValueError, match="1024 movers"):
-        SwarmConfig(num_movers=2000, fused=True)
+    with pytest.raises(ValueError, match="256 movers"):
+        SwarmConfig(num_movers=257, fused=True)
     with pytest.raises(ValueError, match="fused must be None, True or False"):
         SwarmConfig(num_movers=8, fused="yes")
     assert np.isclose(env.fused_step.travel(env.sim, 40), 40 * 1e-3 * 2.0 * fused_mod.TRAVEL_SLACK)

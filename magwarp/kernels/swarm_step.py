@@ -44,7 +44,7 @@ from magwarp.types import SHAPE_CIRCLE, Body, Collision, Impedance, Limits, Plan
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 MAX_CANDIDATES = 16  # candidate slots per mover; more: the mover checks every other one
-MAX_BLOCK = 1024  # CUDA threads per block: the most movers per world the tiled kernel holds
+MAX_BLOCK = 256  # the most movers per world the tiled kernel holds (a block of 256 threads leaves each 255 registers)
 CANDIDATE_SLACK = 1.0e-3  # m: room for float32 rounding in the candidate distance test
 
 Candidates = wp.types.vector(length=MAX_CANDIDATES, dtype=wp.int32)

@@ -79,7 +79,7 @@ class SwarmConfig:
     ``stations``: the material-flow variant: ``"auto"`` (``num_stations`` pick-ups and drop-offs placed on the
     layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams).
     ``fused``: run each step's control cycles and collision stops as one launch (:mod:`magwarp.swarm.fused`; the
-    per-cycle path's results): None (default) where it applies (the respawn rule, up to 1024 movers per world), True
+    per-cycle path's results): None (default) where it applies (the respawn rule, up to 256 movers per world), True
     to insist (an error where it does not apply), False for the per-cycle path."""
 
     num_movers: int = 64

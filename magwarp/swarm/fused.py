@@ -52,6 +52,9 @@ class FusedSwarmStep:
         self.stopped = stopped
         self.stop_hook = stop_hook
         W, M, dev = sim.num_worlds, sim.num_movers, sim.device
+        # the launch shape: a block per world on CUDA; one thread per world on the CPU, where a tile block is one
+        # thread wide (the tiled kernel runs there only for worlds of one mover: a test of its arithmetic)
+        self.tiled = dev.is_cuda
         if not dev.is_cuda:  # scratch of the one-thread-per-world shape
             self._start = wp.zeros((W, M), dtype=wp.vec2, device=dev)
             self._cand = wp.zeros((W, M, kss.MAX_CANDIDATES), dtype=wp.int32, device=dev)
@@ -76,10 +79,13 @@ class FusedSwarmStep:
                 m.radius, m.half_size, m.margins, sim._delay, s.target_pos, s.target_quat, s.force_aux, s.cmd,
                 sim._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
                 s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list, self.stopped]
-        if dev.is_cuda:
+        if self.tiled:
+            if not dev.is_cuda and sim.num_movers != 1:
+                raise ValueError(f"the tiled swarm step runs on the CPU only for worlds of one mover (a tile block is "
+                                 f"one thread wide there), got {sim.num_movers} movers")
             block = _block_dim(sim.num_movers)
             kernel = kss.make_tiled_kernel(sim._force_model, latency, sim._nominal_body, block)
-            wp.launch_tiled(kernel, dim=sim.num_worlds, inputs=args, block_dim=block, device=dev)
+            wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=args, block_dim=block, device=dev)
         else:
             kernel = kss.make_world_kernel(sim._force_model, latency, sim._nominal_body)
             wp.launch(kernel, dim=sim.num_worlds, inputs=[*args, self._start, self._cand, self._count], device=dev)
