@@ -31,6 +31,7 @@ path does.
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import warp as wp
 
@@ -87,6 +88,61 @@ def moved_far(p: wp.vec3, start: wp.vec2, travel: float) -> int:
     return 0
 
 
+@wp.func
+def find_candidates(
+    starts: Any, m: int, num_movers: int, col: Collision, radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, travel: float,
+):
+    """Mover ``m``'s candidates in ascending order (``starts[j]``: the step-start x/y of mover ``j``, from a tile or an
+    array row) and their count (more than ``MAX_CANDIDATES``: the list is incomplete)."""
+    cand = Candidates()
+    count = int(0)
+    start = starts[m]
+    for j in range(num_movers):
+        if j != m:
+            if is_candidate(col, start - starts[j], radius[wr, m], half_size[wh, m], radius[wr, j], half_size[wh, j],
+                            travel):
+                if count < MAX_CANDIDATES:
+                    cand[count] = j
+                count += 1
+    return cand, count
+
+
+@wp.func
+def lowest_partner(
+    movers: Any, cand: Any, count: int, every: bool, m: int, num_movers: int, col: Collision,
+    radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, record: bool, w: int,
+    world_pairs: wp.array(dtype=wp.int32), pair_list: wp.array2d(dtype=wp.vec2i),
+) -> int:
+    """The lowest index colliding with mover ``m`` this cycle, -1 if none (``movers[j]``: x, y and heading (cos, sin)
+    of mover ``j``, from a tile or an array row): among its ``count`` candidates ``cand``, or among every mover
+    (``every``). ``record``: list the pairs (from their lower index) and count them, as the last cycle does."""
+    q = movers[m]
+    p = wp.vec2(q[0], q[1])
+    hd = wp.vec2(q[2], q[3])
+    partner = int(-1)
+    num = count
+    if every:
+        num = num_movers
+    for k in range(num):
+        j = k
+        if not every:
+            j = cand[k]
+        if j != m:
+            o = movers[j]
+            d = wp.vec2(p[0] - o[0], p[1] - o[1])
+            if movers_collide_cs(col, d, hd, radius[wr, m], half_size[wh, m], wp.vec2(o[2], o[3]), radius[wr, j],
+                                 half_size[wh, j]):
+                if partner < 0:  # in ascending order: the first hit is the lowest index
+                    partner = j
+                if record:
+                    if j > m:
+                        add_pair(w, m, j, world_pairs, pair_list)
+                else:
+                    break
+    return partner
+
+
 @functools.cache
 def _mover_cycle(force_fn, latency: bool, nominal: bool):
     """One mover's cycle from values (the advance of :func:`~magwarp.kernels.step.make_advance_kernel`'s
@@ -116,6 +172,7 @@ def make_tiled_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
     movers per world; lanes past the last mover mirror it (same work, no writes) so that every lane reaches every
     tile operation."""
     mover_cycle = _mover_cycle(force_fn, latency, nominal)
+    BLOCK = int(block_dim)
 
     @wp.kernel(module="unique", enable_backward=False, module_options={**MODULE_OPTIONS, "block_dim": block_dim})
     def swarm_step_tiled(
@@ -187,15 +244,12 @@ def make_tiled_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
             cycles[w] = num_cycles
         # Candidate lists from the step-start positions.
         start = wp.vec2(P[0], P[1])
-        t0 = wp.tile(start, preserve_type=True)
-        cand = Candidates()
-        count = int(0)
-        for j in range(M):
-            if j != m:
-                if is_candidate(col, start - t0[j], r, h, radius[wr, j], half_size[wh, j], travel):
-                    if count < MAX_CANDIDATES:
-                        cand[count] = j
-                    count += 1
+        # Shared tiles (one entry per lane), filled by every lane at once (tile_assign synchronises the block before
+        # and after writing); each lane then reads any entry.
+        starts = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
+        movers = wp.tile_zeros(shape=BLOCK, dtype=wp.vec4, storage="shared")
+        wp.tile_assign(starts, wp.tile(start, preserve_type=True))
+        cand, count = find_candidates(starts, m, M, col, radius, half_size, wr, wh, travel)
         F = int(0)
         Fa = int(0)
         Wl = int(0)
@@ -216,28 +270,15 @@ def make_tiled_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
             XY = xy
             Wl = hit
             hd = shape_heading(col, Q)
-            # The world's positions and headings of this cycle, and whether any mover left its travel budget.
-            tp = wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True)
+            # Whether any mover left its travel budget, then the world's positions and headings of this cycle. The
+            # order matters: tile_assign writes without a barrier first, and the reduction's result (a shared tile
+            # written with a barrier before, from the second cycle on) holds every lane there until all have read
+            # the last cycle's entries.
             far = wp.tile_max(wp.tile(moved_far(P, start, travel)))
+            wp.tile_assign(movers, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
             every = far[0] != 0 or count > MAX_CANDIDATES
-            Pr = int(-1)
-            num = count
-            if every:
-                num = M
-            for k in range(num):
-                j = k
-                if not every:
-                    j = cand[k]
-                if j != m:
-                    q = tp[j]
-                    d = wp.vec2(P[0] - q[0], P[1] - q[1])
-                    if movers_collide_cs(col, d, hd, r, h, wp.vec2(q[2], q[3]), radius[wr, j], half_size[wh, j]):
-                        if Pr < 0:  # candidates are in ascending order: the first hit is the lowest index
-                            Pr = j
-                        if c == last and j > m and live:
-                            add_pair(w, m, j, world_pairs, pair_list)
-                        if c != last:
-                            break
+            Pr = lowest_partner(movers, cand, count, every, m, M, col, radius, half_size, wr, wh, c == last and live, w,
+                                world_pairs, pair_list)
             F = collision_flags(Pr, Wl)
             Fa = Fa | F
             S, V, A, U = stop_after(F, S, V, A, U)
@@ -267,8 +308,8 @@ def make_tiled_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
 @functools.cache
 def make_world_kernel(force_fn, latency: bool, nominal: bool):
     """The CPU shape: one thread per world (``dim=num_worlds``), the same arithmetic as :func:`make_tiled_kernel` with
-    the state in memory; ``start`` ``[W, M]`` vec2, ``cand`` ``[W, M, MAX_CANDIDATES]`` and ``count`` ``[W, M]`` are
-    scratch."""
+    the state in memory and the same candidate and partner functions; ``start`` (vec2), ``snap`` (vec4), ``cand``
+    (:data:`Candidates`) and ``count`` (int32), all ``[W, M]``, are scratch."""
     mover_cycle = _mover_cycle(force_fn, latency, nominal)
 
     @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
@@ -309,8 +350,9 @@ def make_world_kernel(force_fn, latency: bool, nominal: bool):
         pair_list: wp.array2d(dtype=wp.vec2i),
         stopped: wp.array2d(dtype=wp.int32),
         # Scratch:
-        start: wp.array2d(dtype=wp.vec2),
-        cand: wp.array3d(dtype=wp.int32),
+        start: wp.array2d(dtype=wp.vec2),  # the step-start x/y
+        snap: wp.array2d(dtype=wp.vec4),  # this cycle's x, y and heading (cos, sin)
+        cand: wp.array2d(dtype=Candidates),
         count: wp.array2d(dtype=wp.int32),
     ):
         w = wp.tid()
@@ -327,15 +369,9 @@ def make_world_kernel(force_fn, latency: bool, nominal: bool):
             start[w, m] = wp.vec2(pos[w, m][0], pos[w, m][1])
             flags_any[w, m] = 0
         for m in range(M):
-            num = int(0)
-            for j in range(M):
-                if j != m:
-                    if is_candidate(col, start[w, m] - start[w, j], radius[wr, m], half_size[wh, m], radius[wr, j],
-                                    half_size[wh, j], travel):
-                        if num < MAX_CANDIDATES:
-                            cand[w, m, num] = j
-                        num += 1
-            count[w, m] = num
+            cm, nm = find_candidates(start[w], m, M, col, radius, half_size, wr, wh, travel)
+            cand[w, m] = cm
+            count[w, m] = nm
         last = num_cycles - 1
         for c in range(num_cycles):
             far = int(0)
@@ -354,30 +390,13 @@ def make_world_kernel(force_fn, latency: bool, nominal: bool):
                 acc[w, m] = a
                 planar[w, m] = xy
                 wall[w, m] = hit
+                hd = shape_heading(col, n.quat)
+                snap[w, m] = wp.vec4(n.pos[0], n.pos[1], hd[0], hd[1])
                 far = wp.max(far, moved_far(n.pos, start[w, m], travel))
             for m in range(M):
-                p = pos[w, m]
-                hd = shape_heading(col, quat[w, m])
                 every = far != 0 or count[w, m] > MAX_CANDIDATES
-                pr = int(-1)
-                num = count[w, m]
-                if every:
-                    num = M
-                for k in range(num):
-                    j = k
-                    if not every:
-                        j = cand[w, m, k]
-                    if j != m:
-                        q = pos[w, j]
-                        d = wp.vec2(p[0] - q[0], p[1] - q[1])
-                        if movers_collide_cs(col, d, hd, radius[wr, m], half_size[wh, m],
-                                             shape_heading(col, quat[w, j]), radius[wr, j], half_size[wh, j]):
-                            if pr < 0:
-                                pr = j
-                            if c == last and j > m:
-                                add_pair(w, m, j, world_pairs, pair_list)
-                            if c != last:
-                                break
+                pr = lowest_partner(snap[w], cand[w, m], count[w, m], every, m, M, col, radius, half_size, wr, wh,
+                                    c == last, w, world_pairs, pair_list)
                 f = collision_flags(pr, wall[w, m])
                 flags[w, m] = f
                 flags_any[w, m] = flags_any[w, m] | f

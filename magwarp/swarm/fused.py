@@ -56,9 +56,8 @@ class FusedSwarmStep:
         # thread wide (the tiled kernel runs there only for worlds of one mover: a test of its arithmetic)
         self.tiled = dev.is_cuda
         if not dev.is_cuda:  # scratch of the one-thread-per-world shape
-            self._start = wp.zeros((W, M), dtype=wp.vec2, device=dev)
-            self._cand = wp.zeros((W, M, kss.MAX_CANDIDATES), dtype=wp.int32, device=dev)
-            self._count = wp.zeros((W, M), dtype=wp.int32, device=dev)
+            self._scratch = [wp.zeros((W, M), dtype=dtype, device=dev)
+                             for dtype in (wp.vec2, wp.vec4, kss.Candidates, wp.int32)]
 
     def applies(self, sim) -> bool:
         """False while other cycle hooks must run between cycles (then the per-cycle path runs)."""
@@ -88,5 +87,5 @@ class FusedSwarmStep:
             wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=args, block_dim=block, device=dev)
         else:
             kernel = kss.make_world_kernel(sim._force_model, latency, sim._nominal_body)
-            wp.launch(kernel, dim=sim.num_worlds, inputs=[*args, self._start, self._cand, self._count], device=dev)
+            wp.launch(kernel, dim=sim.num_worlds, inputs=[*args, *self._scratch], device=dev)
         return True
