@@ -17,12 +17,12 @@ model: every cycle each mover checks that it is still within ``travel`` of its s
 of the world is not, every mover of that world checks every other. A mover with more than ``MAX_CANDIDATES``
 candidates checks every other mover too.
 
-Two launch shapes with the same arithmetic:
+Two launch shapes of one kernel (:func:`make_step_kernel`) with the same arithmetic:
 
-* :func:`make_tiled_kernel` (CUDA): one world per thread block, one thread per mover, its state in registers for the
-  whole step; each cycle the world's positions and headings are exchanged through shared memory (a Warp tile);
-* :func:`make_world_kernel` (CPU, where a tile block is one thread wide): one thread per world, looping over its
-  movers, the state in memory.
+* tiled (CUDA): one world per thread block, one thread per mover, its state in registers for the whole step; each
+  cycle the world's positions and headings are exchanged through shared memory (Warp tiles);
+* per world (CPU, where a tile block is one thread wide): one thread per world, looping over its movers, the state in
+  memory.
 
 Only the respawn rule (``stop_on_collision`` off) is fused: MagBotSim's rule stops a whole world, which the per-cycle
 path does.
@@ -167,15 +167,20 @@ def _mover_cycle(force_fn, latency: bool, nominal: bool):
 
 
 @functools.cache
-def make_tiled_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
-    """The CUDA shape: ``wp.launch_tiled(kernel, dim=num_worlds, block_dim=block_dim)`` with ``block_dim`` >= the
-    movers per world; lanes past the last mover mirror it (same work, no writes) so that every lane reaches every
-    tile operation."""
+def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
+    """The fused swarm step for ``force_fn``. ``block_dim`` > 0: the CUDA shape,
+    ``wp.launch_tiled(kernel, dim=num_worlds, block_dim=block_dim)`` with ``block_dim`` >= the movers per world; lanes
+    past the last mover mirror it (same work, no writes) so that every lane reaches every tile operation.
+    ``block_dim`` 0: the CPU shape, one thread per world (``dim=num_worlds``), the state in memory, the same
+    candidate and partner functions; ``start_xy`` (vec2), ``snap`` (vec4), ``cand_list`` (:data:`Candidates`) and
+    ``cand_count`` (int32), all ``[W, M]``, are its scratch."""
     mover_cycle = _mover_cycle(force_fn, latency, nominal)
-    BLOCK = int(block_dim)
+    TILED = int(block_dim) > 0
+    BLOCK = max(int(block_dim), 1)
+    options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
 
-    @wp.kernel(module="unique", enable_backward=False, module_options={**MODULE_OPTIONS, "block_dim": block_dim})
-    def swarm_step_tiled(
+    @wp.kernel(module="unique", enable_backward=False, module_options=options)
+    def swarm_step(
         num_cycles: int,
         travel: float,  # m: the candidate lists' travel budget
         # Model:
@@ -211,207 +216,160 @@ def make_tiled_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
         cycles: wp.array(dtype=wp.int32),
         pair_list: wp.array2d(dtype=wp.vec2i),
         stopped: wp.array2d(dtype=wp.int32),
+        # Scratch of the per-world shape (placeholders for the tiled one):
+        start_xy: wp.array2d(dtype=wp.vec2),  # the step-start x/y
+        snap: wp.array2d(dtype=wp.vec4),  # this cycle's x, y and heading (cos, sin)
+        cand_list: wp.array2d(dtype=Candidates),
+        cand_count: wp.array2d(dtype=wp.int32),
     ):
-        w, lane = wp.tid()
-        M = pos.shape[1]
-        live = lane < M
-        m = wp.min(lane, M - 1)
-        col = world_collision(col_shared, margins, w)
-        wr = model_row(radius.shape[0], w)
-        wh = model_row(half_size.shape[0], w)
-        b = body[model_row(body.shape[0], w), m]
-        r = radius[wr, m]
-        h = half_size[wh, m]
-        P = pos[w, m]
-        Q = quat[w, m]
-        V = vel[w, m]
-        Om = omega[w, m]
-        A = acc[w, m]
-        XY = planar[w, m]
-        U = cmd[w, m]
-        S = stopped[w, m]
-        TP = target_pos[w, m]
-        TQ = target_quat[w, m]
-        held = int(0)
-        Up = wp.vec2(0.0)
-        if wp.static(latency):
-            held = delay[w]
-            Up = prev_cmd[w, m]
-        if live and lane == 0:  # per-step accumulators (ordered before the adds below by the tiles' barriers)
+        if wp.static(TILED):
+            w, lane = wp.tid()
+            M = pos.shape[1]
+            live = lane < M
+            m = wp.min(lane, M - 1)
+            col = world_collision(col_shared, margins, w)
+            wr = model_row(radius.shape[0], w)
+            wh = model_row(half_size.shape[0], w)
+            b = body[model_row(body.shape[0], w), m]
+            r = radius[wr, m]
+            h = half_size[wh, m]
+            P = pos[w, m]
+            Q = quat[w, m]
+            V = vel[w, m]
+            Om = omega[w, m]
+            A = acc[w, m]
+            XY = planar[w, m]
+            U = cmd[w, m]
+            S = stopped[w, m]
+            TP = target_pos[w, m]
+            TQ = target_quat[w, m]
+            held = int(0)
+            Up = wp.vec2(0.0)
+            if wp.static(latency):
+                held = delay[w]
+                Up = prev_cmd[w, m]
+            if live and lane == 0:  # per-step accumulators (ordered before the adds below by the tiles' barriers)
+                world_pairs[w] = 0
+                world_walls[w] = 0
+                halted[w] = 0
+                cycles[w] = num_cycles
+            # Candidate lists from the step-start positions.
+            start = wp.vec2(P[0], P[1])
+            # Shared tiles (one entry per lane), filled by every lane at once (tile_assign synchronises the block before
+            # and after writing); each lane then reads any entry.
+            starts = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
+            movers = wp.tile_zeros(shape=BLOCK, dtype=wp.vec4, storage="shared")
+            wp.tile_assign(starts, wp.tile(start, preserve_type=True))
+            cand, count = find_candidates(starts, m, M, col, radius, half_size, wr, wh, travel)
+            F = int(0)
+            Fa = int(0)
+            Wl = int(0)
+            Pr = int(-1)
+            last = num_cycles - 1
+            for c in range(num_cycles):
+                u = U
+                if wp.static(latency):
+                    if c < held:
+                        u = Up
+                n, a, xy, hit = mover_cycle(P, Q, V, Om, A, XY, u, b, TP, TQ, force_aux[w, m], lim, imp, col, tiles, r,
+                                            h)
+                P = n.pos
+                Q = n.quat
+                V = n.vel
+                Om = n.omega
+                A = a
+                XY = xy
+                Wl = hit
+                hd = shape_heading(col, Q)
+                # Whether any mover left its travel budget, then the world's positions and headings of this cycle. The
+                # order matters: tile_assign writes without a barrier first, and the reduction's result (a shared tile
+                # written with a barrier before, from the second cycle on) holds every lane there until all have read
+                # the last cycle's entries.
+                far = wp.tile_max(wp.tile(moved_far(P, start, travel)))
+                wp.tile_assign(movers, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
+                every = far[0] != 0 or count > MAX_CANDIDATES
+                Pr = lowest_partner(movers, cand, count, every, m, M, col, radius, half_size, wr, wh,
+                                    c == last and live, w, world_pairs, pair_list)
+                F = collision_flags(Pr, Wl)
+                Fa = Fa | F
+                S, V, A, U = stop_after(F, S, V, A, U)
+            if live:
+                if Wl != 0:
+                    wp.atomic_add(world_walls, w, 1)
+                if Fa != 0:
+                    halted[w] = 1
+                pos[w, m] = P
+                quat[w, m] = Q
+                vel[w, m] = V
+                omega[w, m] = Om
+                acc[w, m] = A
+                planar[w, m] = XY
+                cmd[w, m] = U
+                wall[w, m] = Wl
+                flags[w, m] = F
+                flags_any[w, m] = Fa
+                partner[w, m] = Pr
+                stopped[w, m] = S
+                if wp.static(latency):  # the next step's previous command
+                    prev_cmd[w, m] = U
+        else:
+            w = wp.tid()
+            M = pos.shape[1]
+            col = world_collision(col_shared, margins, w)
+            wr = model_row(radius.shape[0], w)
+            wh = model_row(half_size.shape[0], w)
+            wb = model_row(body.shape[0], w)
             world_pairs[w] = 0
             world_walls[w] = 0
             halted[w] = 0
             cycles[w] = num_cycles
-        # Candidate lists from the step-start positions.
-        start = wp.vec2(P[0], P[1])
-        # Shared tiles (one entry per lane), filled by every lane at once (tile_assign synchronises the block before
-        # and after writing); each lane then reads any entry.
-        starts = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
-        movers = wp.tile_zeros(shape=BLOCK, dtype=wp.vec4, storage="shared")
-        wp.tile_assign(starts, wp.tile(start, preserve_type=True))
-        cand, count = find_candidates(starts, m, M, col, radius, half_size, wr, wh, travel)
-        F = int(0)
-        Fa = int(0)
-        Wl = int(0)
-        Pr = int(-1)
-        last = num_cycles - 1
-        for c in range(num_cycles):
-            u = U
-            if wp.static(latency):
-                if c < held:
-                    u = Up
-            n, a, xy, hit = mover_cycle(P, Q, V, Om, A, XY, u, b, TP, TQ, force_aux[w, m], lim, imp, col, tiles, r,
-                                        h)
-            P = n.pos
-            Q = n.quat
-            V = n.vel
-            Om = n.omega
-            A = a
-            XY = xy
-            Wl = hit
-            hd = shape_heading(col, Q)
-            # Whether any mover left its travel budget, then the world's positions and headings of this cycle. The
-            # order matters: tile_assign writes without a barrier first, and the reduction's result (a shared tile
-            # written with a barrier before, from the second cycle on) holds every lane there until all have read
-            # the last cycle's entries.
-            far = wp.tile_max(wp.tile(moved_far(P, start, travel)))
-            wp.tile_assign(movers, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
-            every = far[0] != 0 or count > MAX_CANDIDATES
-            Pr = lowest_partner(movers, cand, count, every, m, M, col, radius, half_size, wr, wh, c == last and live, w,
-                                world_pairs, pair_list)
-            F = collision_flags(Pr, Wl)
-            Fa = Fa | F
-            S, V, A, U = stop_after(F, S, V, A, U)
-        if live:
-            if Wl != 0:
-                wp.atomic_add(world_walls, w, 1)
-            if Fa != 0:
-                halted[w] = 1
-            pos[w, m] = P
-            quat[w, m] = Q
-            vel[w, m] = V
-            omega[w, m] = Om
-            acc[w, m] = A
-            planar[w, m] = XY
-            cmd[w, m] = U
-            wall[w, m] = Wl
-            flags[w, m] = F
-            flags_any[w, m] = Fa
-            partner[w, m] = Pr
-            stopped[w, m] = S
-            if wp.static(latency):  # the next step's previous command
-                prev_cmd[w, m] = U
-
-    return swarm_step_tiled
-
-
-@functools.cache
-def make_world_kernel(force_fn, latency: bool, nominal: bool):
-    """The CPU shape: one thread per world (``dim=num_worlds``), the same arithmetic as :func:`make_tiled_kernel` with
-    the state in memory and the same candidate and partner functions; ``start`` (vec2), ``snap`` (vec4), ``cand``
-    (:data:`Candidates`) and ``count`` (int32), all ``[W, M]``, are scratch."""
-    mover_cycle = _mover_cycle(force_fn, latency, nominal)
-
-    @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
-    def swarm_step_worlds(
-        num_cycles: int,
-        travel: float,  # m: the candidate lists' travel budget
-        # Model:
-        lim: Limits,
-        imp: Impedance,
-        col_shared: Collision,
-        tiles: wp.array2d(dtype=wp.int32),
-        body: wp.array2d(dtype=Body),
-        radius: wp.array2d(dtype=float),
-        half_size: wp.array2d(dtype=wp.vec2),
-        margins: wp.array(dtype=wp.vec2),
-        # State in:
-        delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
-        target_pos: wp.array2d(dtype=wp.vec3),
-        target_quat: wp.array2d(dtype=wp.quat),
-        force_aux: wp.array3d(dtype=float),
-        # State out:
-        cmd: wp.array2d(dtype=wp.vec2),
-        prev_cmd: wp.array2d(dtype=wp.vec2),  # latency only: the previous step's command, then this step's
-        pos: wp.array2d(dtype=wp.vec3),
-        quat: wp.array2d(dtype=wp.quat),
-        vel: wp.array2d(dtype=wp.vec3),
-        omega: wp.array2d(dtype=wp.vec3),
-        acc: wp.array2d(dtype=wp.vec2),
-        planar: wp.array2d(dtype=Planar64),
-        wall: wp.array2d(dtype=wp.int32),
-        flags: wp.array2d(dtype=wp.int32),
-        flags_any: wp.array2d(dtype=wp.int32),
-        partner: wp.array2d(dtype=wp.int32),
-        world_pairs: wp.array(dtype=wp.int32),
-        world_walls: wp.array(dtype=wp.int32),
-        halted: wp.array(dtype=wp.int32),
-        cycles: wp.array(dtype=wp.int32),
-        pair_list: wp.array2d(dtype=wp.vec2i),
-        stopped: wp.array2d(dtype=wp.int32),
-        # Scratch:
-        start: wp.array2d(dtype=wp.vec2),  # the step-start x/y
-        snap: wp.array2d(dtype=wp.vec4),  # this cycle's x, y and heading (cos, sin)
-        cand: wp.array2d(dtype=Candidates),
-        count: wp.array2d(dtype=wp.int32),
-    ):
-        w = wp.tid()
-        M = pos.shape[1]
-        col = world_collision(col_shared, margins, w)
-        wr = model_row(radius.shape[0], w)
-        wh = model_row(half_size.shape[0], w)
-        wb = model_row(body.shape[0], w)
-        world_pairs[w] = 0
-        world_walls[w] = 0
-        halted[w] = 0
-        cycles[w] = num_cycles
-        for m in range(M):
-            start[w, m] = wp.vec2(pos[w, m][0], pos[w, m][1])
-            flags_any[w, m] = 0
-        for m in range(M):
-            cm, nm = find_candidates(start[w], m, M, col, radius, half_size, wr, wh, travel)
-            cand[w, m] = cm
-            count[w, m] = nm
-        last = num_cycles - 1
-        for c in range(num_cycles):
-            far = int(0)
             for m in range(M):
-                u = cmd[w, m]
-                if wp.static(latency):
-                    if c < delay[w]:
-                        u = prev_cmd[w, m]
-                n, a, xy, hit = mover_cycle(pos[w, m], quat[w, m], vel[w, m], omega[w, m], acc[w, m], planar[w, m],
-                                            u, body[wb, m], target_pos[w, m], target_quat[w, m], force_aux[w, m],
-                                            lim, imp, col, tiles, radius[wr, m], half_size[wh, m])
-                pos[w, m] = n.pos
-                quat[w, m] = n.quat
-                vel[w, m] = n.vel
-                omega[w, m] = n.omega
-                acc[w, m] = a
-                planar[w, m] = xy
-                wall[w, m] = hit
-                hd = shape_heading(col, n.quat)
-                snap[w, m] = wp.vec4(n.pos[0], n.pos[1], hd[0], hd[1])
-                far = wp.max(far, moved_far(n.pos, start[w, m], travel))
+                start_xy[w, m] = wp.vec2(pos[w, m][0], pos[w, m][1])
+                flags_any[w, m] = 0
             for m in range(M):
-                every = far != 0 or count[w, m] > MAX_CANDIDATES
-                pr = lowest_partner(snap[w], cand[w, m], count[w, m], every, m, M, col, radius, half_size, wr, wh,
-                                    c == last, w, world_pairs, pair_list)
-                f = collision_flags(pr, wall[w, m])
-                flags[w, m] = f
-                flags_any[w, m] = flags_any[w, m] | f
-                partner[w, m] = pr
-                s, v, a, u = stop_after(f, stopped[w, m], vel[w, m], acc[w, m], cmd[w, m])
-                stopped[w, m] = s
-                vel[w, m] = v
-                acc[w, m] = a
-                cmd[w, m] = u
-        for m in range(M):
-            if wall[w, m] != 0:
-                world_walls[w] = world_walls[w] + 1
-            if flags_any[w, m] != 0:
-                halted[w] = 1
-            if wp.static(latency):  # the next step's previous command
-                prev_cmd[w, m] = cmd[w, m]
+                cm, nm = find_candidates(start_xy[w], m, M, col, radius, half_size, wr, wh, travel)
+                cand_list[w, m] = cm
+                cand_count[w, m] = nm
+            last = num_cycles - 1
+            for c in range(num_cycles):
+                far = int(0)
+                for m in range(M):
+                    u = cmd[w, m]
+                    if wp.static(latency):
+                        if c < delay[w]:
+                            u = prev_cmd[w, m]
+                    n, a, xy, hit = mover_cycle(pos[w, m], quat[w, m], vel[w, m], omega[w, m], acc[w, m], planar[w, m],
+                                                u, body[wb, m], target_pos[w, m], target_quat[w, m], force_aux[w, m],
+                                                lim, imp, col, tiles, radius[wr, m], half_size[wh, m])
+                    pos[w, m] = n.pos
+                    quat[w, m] = n.quat
+                    vel[w, m] = n.vel
+                    omega[w, m] = n.omega
+                    acc[w, m] = a
+                    planar[w, m] = xy
+                    wall[w, m] = hit
+                    hd = shape_heading(col, n.quat)
+                    snap[w, m] = wp.vec4(n.pos[0], n.pos[1], hd[0], hd[1])
+                    far = wp.max(far, moved_far(n.pos, start_xy[w, m], travel))
+                for m in range(M):
+                    every = far != 0 or cand_count[w, m] > MAX_CANDIDATES
+                    pr = lowest_partner(snap[w], cand_list[w, m], cand_count[w, m], every, m, M, col, radius,
+                                        half_size, wr, wh, c == last, w, world_pairs, pair_list)
+                    f = collision_flags(pr, wall[w, m])
+                    flags[w, m] = f
+                    flags_any[w, m] = flags_any[w, m] | f
+                    partner[w, m] = pr
+                    s, v, a, u = stop_after(f, stopped[w, m], vel[w, m], acc[w, m], cmd[w, m])
+                    stopped[w, m] = s
+                    vel[w, m] = v
+                    acc[w, m] = a
+                    cmd[w, m] = u
+            for m in range(M):
+                if wall[w, m] != 0:
+                    world_walls[w] = world_walls[w] + 1
+                if flags_any[w, m] != 0:
+                    halted[w] = 1
+                if wp.static(latency):  # the next step's previous command
+                    prev_cmd[w, m] = cmd[w, m]
 
-    return swarm_step_worlds
+    return swarm_step

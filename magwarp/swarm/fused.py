@@ -55,9 +55,9 @@ class FusedSwarmStep:
         # the launch shape: a block per world on CUDA; one thread per world on the CPU, where a tile block is one
         # thread wide (the tiled kernel runs there only for worlds of one mover: a test of its arithmetic)
         self.tiled = dev.is_cuda
-        if not dev.is_cuda:  # scratch of the one-thread-per-world shape
-            self._scratch = [wp.zeros((W, M), dtype=dtype, device=dev)
-                             for dtype in (wp.vec2, wp.vec4, kss.Candidates, wp.int32)]
+        shape = (1, 1) if dev.is_cuda else (W, M)  # scratch of the one-thread-per-world shape (CUDA: placeholders)
+        self._scratch = [wp.zeros(shape, dtype=dtype, device=dev) for dtype in (wp.vec2, wp.vec4, kss.Candidates,
+                                                                                 wp.int32)]
 
     def applies(self, sim) -> bool:
         """False while other cycle hooks must run between cycles (then the per-cycle path runs)."""
@@ -83,9 +83,9 @@ class FusedSwarmStep:
                 raise ValueError(f"the tiled swarm step runs on the CPU only for worlds of one mover (a tile block is "
                                  f"one thread wide there), got {sim.num_movers} movers")
             block = _block_dim(sim.num_movers)
-            kernel = kss.make_tiled_kernel(sim._force_model, latency, sim._nominal_body, block)
-            wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=args, block_dim=block, device=dev)
+            kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block)
+            wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=[*args, *self._scratch], block_dim=block, device=dev)
         else:
-            kernel = kss.make_world_kernel(sim._force_model, latency, sim._nominal_body)
+            kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, 0)
             wp.launch(kernel, dim=sim.num_worlds, inputs=[*args, *self._scratch], device=dev)
         return True
