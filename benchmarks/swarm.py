@@ -304,8 +304,8 @@ def run_fused_sweep(args) -> list[dict]:
     """Old vs fused env step at many worlds of 64-256 movers, after a bit-for-bit comparison per mover count."""
     device = args.device or ("cuda:0" if wp.is_cuda_available() else "cpu")
     small = args.small or not device.startswith("cuda")
-    movers_list = SMALL_FUSED_MOVERS if small else FUSED_MOVERS
-    worlds_list = SMALL_FUSED_WORLDS if small else FUSED_WORLDS
+    movers_list = args.fused_movers or (SMALL_FUSED_MOVERS if small else FUSED_MOVERS)
+    worlds_list = args.fused_worlds or (SMALL_FUSED_WORLDS if small else FUSED_WORLDS)
     bandwidth = copy_bandwidth(device)
     print(f"  {device}: copy bandwidth {bandwidth / 1e9:.0f} GB/s", flush=True)
     rows = []
@@ -375,6 +375,10 @@ def main(argv=None) -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="planner worlds' seeds (one run each)")
     p.add_argument("--fused-sweep", action="store_true", help="old vs fused env step at many worlds of 64-256 movers "
                    "(the training regime), with the memory-bandwidth floor")
+    p.add_argument("--fused-movers", type=int, nargs="+", help=f"--fused-sweep's movers per world (default "
+                   f"{FUSED_MOVERS}; CPU/--small {SMALL_FUSED_MOVERS})")
+    p.add_argument("--fused-worlds", type=int, nargs="+", help=f"--fused-sweep's world counts (default {FUSED_WORLDS}; "
+                   f"CPU/--small {SMALL_FUSED_WORLDS})")
     p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json, "
                    "swarm_fused_<cpu|gpu>.json with --fused-sweep)")
     args = p.parse_args(argv)

@@ -255,8 +255,8 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
                 cycles[w] = num_cycles
             # Candidate lists from the step-start positions.
             start = wp.vec2(P[0], P[1])
-            # Shared tiles (one entry per lane), filled by every lane at once (tile_assign synchronises the block before
-            # and after writing); each lane then reads any entry.
+            # Shared tiles (one entry per lane), each lane writing its own entry (tile_assign synchronises the block
+            # after writing); each lane then reads any entry.
             starts = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
             movers = wp.tile_zeros(shape=BLOCK, dtype=wp.vec4, storage="shared")
             wp.tile_assign(starts, wp.tile(start, preserve_type=True))
