@@ -269,7 +269,30 @@ def compare_fused(movers: int, worlds: int, device: str, steps: int = COMPARE_ST
             "compare_flags_differing": flag_diff}
 
 
-def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float) -> dict:
+def kernel_breakdown(step, steps: int = 5, top: int = 12) -> list[dict]:
+    """CUDA time per env step of the ``top`` costliest kernels and copies (torch's profiler, which sees Warp's
+    kernels too, graph replays included): where the env step's time goes."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CUDA]) as prof:
+        for _ in range(steps):
+            step()
+        torch.cuda.synchronize()
+    events = []
+    for evt in prof.key_averages():
+        us = getattr(evt, "device_time_total", None)
+        us = getattr(evt, "cuda_time_total", 0.0) if us is None else us
+        if us > 0:
+            events.append({"name": evt.key[:120], "ms_per_step": us / 1e3 / steps, "calls_per_step": evt.count / steps})
+    events.sort(key=lambda e: -e["ms_per_step"])
+    total = sum(e["ms_per_step"] for e in events)
+    for e in events:
+        e["share"] = e["ms_per_step"] / total if total > 0 else 0.0
+    return events[:top]
+
+
+def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float,
+                    breakdown: bool = False) -> dict:
     from magwarp.swarm import SwarmEnv
 
     row: dict = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps}
@@ -286,6 +309,11 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
         row[f"{key}_motion_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
         if fused:  # where the rest of the env step goes: the local observations (grid k-nearest, rays, copies)
             row["obs_ms"], _ = _time(env._get_obs, device, steps)
+            if breakdown and device.startswith("cuda"):
+                try:
+                    row["fused_kernels"] = kernel_breakdown(step)
+                except Exception as exc:  # noqa: BLE001 - a profiler missing on the machine must not end the sweep
+                    row["fused_kernels"] = [{"error": repr(exc)}]
         row["floor_bytes_per_agent_step"] = floor_bytes(env)
         del env
     agents = movers * worlds
@@ -316,7 +344,7 @@ def run_fused_sweep(args) -> list[dict]:
               f"{check['compare_flags_differing']} differing)", flush=True)
         for worlds in worlds_list:
             steps = args.steps or (20 if device.startswith("cuda") else 3)
-            row = bench_fused_row(movers, worlds, device, steps, bandwidth)
+            row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1])
             row.update(check)
             rows.append(row)
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
@@ -391,6 +419,11 @@ def main(argv=None) -> None:
         stamp = provenance(info)
         for r in rows:
             r.update(stamp)
+        for r in rows:
+            for e in r.get("fused_kernels", []):
+                if "error" not in e:
+                    print(f"    {r['worlds']} x {r['movers']}: {e['ms_per_step']:.3f} ms/step ({e['share']:.0%}) "
+                          f"x{e['calls_per_step']:.0f} {e['name']}")
         print_table(rows, ["device", "worlds", "movers", "agents", ("old_env_ms", "old ms"),
                            ("fused_env_ms", "fused ms"), ("speedup", "speedup"),
                            ("old_agent_steps_per_s", "old agent-steps/s"),
