@@ -37,6 +37,10 @@ every mover was placed (one host synchronisation) and raises :class:`~magwarp.sw
 density asked and the density possible otherwise; resets inside ``step`` (autoreset) run a fixed number of rounds
 without synchronising, and a mover left unplaced there waits as a pending respawn.
 
+With the respawn rule and up to 256 movers per world (the training regime), the step's control cycles and collision
+stops run as one launch (``fused``, :mod:`magwarp.swarm.fused`: one thread block per world on CUDA), with the
+per-cycle path's results bit for bit; larger worlds, MagBotSim's rule and further cycle hooks run per cycle.
+
 Every option is a field of :class:`SwarmConfig`; the constructor takes a config and/or the same names as keywords.
 """
 
