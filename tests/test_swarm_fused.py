@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+import warp as wp
 
 import magwarp.swarm.fused as fused_mod
 from magwarp.swarm import SwarmConfig, SwarmEnv
@@ -98,10 +99,13 @@ def test_fused_steps_aside_for_other_cycle_hooks(rng):
     assert calls  # the hook ran: the per-cycle path was taken by both envs
 
 
-def test_tiled_kernel_arithmetic_on_the_cpu(rng):
-    """The CUDA shape (one block per world, state in registers, tiles) runs on the CPU with blocks one thread wide:
-    with one mover per world it must match the per-cycle path too (motion, wall stops, jerk, latency)."""
-    delays = torch.as_tensor(rng.integers(0, 12, 6), dtype=torch.int32)
+@pytest.mark.parametrize("movers, shape, jerk", [(40, "circle", False), (36, "box", True)])
+def test_tiled_kernel_with_cooperative_cpu_blocks(rng, monkeypatch, movers, shape, jerk):
+    """The CUDA shape itself (a block per world, one lane per mover, lanes past the last mover mirroring it, positions
+    exchanged through shared tiles each cycle, the travel reduction) on Warp's cooperative CPU blocks: the same results
+    as the per-cycle path, collisions, jerk control and action latency included."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    delays = torch.as_tensor(rng.integers(0, 12, 2), dtype=torch.int32)
 
     def setup(env):
         env.sim.set_latency(delays, bound=12)
@@ -109,7 +113,8 @@ def test_tiled_kernel_arithmetic_on_the_cpu(rng):
             env.fused_step.tiled = True
             env.sim._graphs.clear()
 
-    assert _run_both(rng, 6, 1, 8, scale=400.0, setup=setup, layout=np.ones((2, 2)), learn_jerk=True) > 0
+    assert _run_both(rng, 2, movers, 5, scale=300.0 if jerk else 12.0, setup=setup, occupancy=0.45,
+                     collision_shape=shape, learn_jerk=jerk) > 0
 
 
 def test_fused_default_and_options():

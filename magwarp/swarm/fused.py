@@ -53,7 +53,7 @@ class FusedSwarmStep:
         self.stop_hook = stop_hook
         W, M, dev = sim.num_worlds, sim.num_movers, sim.device
         # the launch shape: a block per world on CUDA; one thread per world on the CPU, where a tile block is one
-        # thread wide (the tiled kernel runs there only for worlds of one mover: a test of its arithmetic)
+        # thread wide unless warp.config.enable_cpu_blocks (cooperative fibers: the tests run the tiled shape there)
         self.tiled = dev.is_cuda
         shape = (1, 1) if dev.is_cuda else (W, M)  # scratch of the one-thread-per-world shape (CUDA: placeholders)
         self._scratch = [wp.zeros(shape, dtype=dtype, device=dev) for dtype in (wp.vec2, wp.vec4, kss.Candidates,
@@ -79,9 +79,9 @@ class FusedSwarmStep:
                 sim._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
                 s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list, self.stopped]
         if self.tiled:
-            if not dev.is_cuda and sim.num_movers != 1:
-                raise ValueError(f"the tiled swarm step runs on the CPU only for worlds of one mover (a tile block is "
-                                 f"one thread wide there), got {sim.num_movers} movers")
+            if not dev.is_cuda and sim.num_movers != 1 and not wp.config.enable_cpu_blocks:
+                raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks (Warp's "
+                                 f"cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} movers")
             block = _block_dim(sim.num_movers)
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block)
             wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=[*args, *self._scratch], block_dim=block, device=dev)
