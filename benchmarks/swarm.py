@@ -26,6 +26,17 @@ collide as in a run), computed on the device.
     python benchmarks/swarm.py --device cuda:0 --json benchmarks/results/swarm_gpu.json
     python benchmarks/swarm.py --device cuda:0 --planner-only     # the planner's quality rows alone (256/1024/4096)
     python benchmarks/swarm.py --device cpu --planner-only --planner-movers 1024 --json /tmp/planner_cpu.json
+    python benchmarks/swarm.py --device cuda:0 --fused-sweep --json benchmarks/results/swarm_fused_gpu.json
+    python benchmarks/swarm.py --device cpu --fused-sweep --small       # the same rows at CPU sizes (smoke check)
+
+``--fused-sweep``: the training regime (many worlds of 64, 100 and 256 movers, 1024 to 16384 worlds): agent-steps/s
+of the env with the per-cycle step (``fused=False``: three or four launches per cycle, then the stop hook) and with
+the fused step (``fused=True``, :mod:`magwarp.swarm.fused`: one launch per env step), and the fused motion alone
+(``sim.step``: the 40 cycles and the stops). Each row also gives its ratio to the memory-bandwidth floor: the
+agent-steps/s the device would reach if an env step only moved, once, the bytes it cannot avoid per mover (the
+simulator state read and written once, the action read, the observation written), at the device-to-device copy
+bandwidth measured by the script (a large torch copy). Before timing, the fused and per-cycle envs step the same
+worlds with the same actions and every state and output field is compared (``match``: bit for bit; ``max_pos_diff``).
 
 Memory: the device memory the env (or simulator) holds after construction and a few steps (CUDA: the change of
 free device memory, which counts Warp's and torch's allocations; CPU: the change of resident set size).
@@ -198,6 +209,150 @@ def bench_planner(movers: int, device: str, steps: int, horizon: int = PLANNER_H
             **{f"planner_{k}" if not k.startswith("planner") else k: v for k, v in res.items()}}
 
 
+FUSED_MOVERS = (64, 100, 256)
+FUSED_WORLDS = (1024, 4096, 16384)
+SMALL_FUSED_MOVERS = (64, 100)
+SMALL_FUSED_WORLDS = (2, 8)
+COMPARE_STEPS = 6
+
+
+def copy_bandwidth(device: str) -> float:
+    """Device memory bandwidth (bytes/s) as a large copy achieves it (read + write counted)."""
+    n = (1 << 28) if device.startswith("cuda") else (1 << 24)
+    src = torch.ones(n, dtype=torch.float32, device=device)
+    dst = torch.empty_like(src)
+    for _ in range(3):
+        dst.copy_(src)
+    _sync(device)
+    reps = 20
+    t = time.perf_counter()
+    for _ in range(reps):
+        dst.copy_(src)
+    _sync(device)
+    return 2.0 * src.numel() * 4 * reps / (time.perf_counter() - t)
+
+
+def floor_bytes(env) -> int:
+    """Bytes per agent-step an env step cannot avoid: the per-mover simulator state read and written once, the
+    action read, the observation written."""
+    sim = env.sim
+    per = 0
+    for arr in vars(sim.state).values():
+        if isinstance(arr, wp.array) and arr.shape[:2] == (sim.num_worlds, sim.num_movers):
+            per += arr.size * wp.types.type_size_in_bytes(arr.dtype) // (sim.num_worlds * sim.num_movers)
+    obs = int(np.prod(env.single_observation_space.shape[1:])) * 4
+    return 2 * per + 2 * 4 + obs
+
+
+def compare_fused(movers: int, worlds: int, device: str, steps: int = COMPARE_STEPS) -> dict:
+    """Step a per-cycle and a fused env on the same worlds with the same actions; compare every field."""
+    from magwarp.swarm import SwarmEnv
+
+    envs = [SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False,
+                     fused=f) for f in (False, True)]
+    match, max_diff, flagged, flag_diff = True, 0.0, 0, 0
+    names = ("pos", "quat", "vel", "omega", "acc", "cmd", "flags", "flags_any", "partner", "world_pairs",
+             "world_walls", "halted", "cycles")
+    for _ in range(steps):
+        action = seek_goals(envs[0])
+        outs = [env.step(action.clone()) for env in envs]
+        for name in names:
+            a, b = getattr(envs[0].sim, name), getattr(envs[1].sim, name)
+            match &= bool(torch.equal(a, b))
+        match &= bool(torch.equal(envs[0].stopped, envs[1].stopped))
+        match &= bool(torch.equal(outs[0][0], outs[1][0])) and bool(torch.equal(outs[0][1], outs[1][1]))
+        max_diff = max(max_diff, float((envs[0].sim.pos - envs[1].sim.pos).abs().max()))
+        flagged += int((envs[0].sim.flags_any != 0).sum())
+        flag_diff += int((envs[0].sim.flags_any != envs[1].sim.flags_any).sum())
+    del envs
+    return {"match": match, "max_pos_diff": max_diff, "compare_steps": steps, "compare_flagged": flagged,
+            "compare_flags_differing": flag_diff}
+
+
+def kernel_breakdown(step, steps: int = 5, top: int = 12) -> list[dict]:
+    """CUDA time per env step of the ``top`` costliest kernels and copies (torch's profiler, which sees Warp's
+    kernels too, graph replays included): where the env step's time goes."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CUDA]) as prof:
+        for _ in range(steps):
+            step()
+        torch.cuda.synchronize()
+    events = []
+    for evt in prof.key_averages():
+        us = getattr(evt, "device_time_total", None)
+        us = getattr(evt, "cuda_time_total", 0.0) if us is None else us
+        if us > 0:
+            events.append({"name": evt.key[:120], "ms_per_step": us / 1e3 / steps, "calls_per_step": evt.count / steps})
+    events.sort(key=lambda e: -e["ms_per_step"])
+    total = sum(e["ms_per_step"] for e in events)
+    for e in events:
+        e["share"] = e["ms_per_step"] / total if total > 0 else 0.0
+    return events[:top]
+
+
+def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float,
+                    breakdown: bool = False) -> dict:
+    from magwarp.swarm import SwarmEnv
+
+    row: dict = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps}
+    for fused in (False, True):
+        gc.collect()
+        env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False,
+                       fused=fused)
+        key = "fused" if fused else "old"
+
+        def step():
+            env.step(seek_goals(env))
+
+        row[f"{key}_env_ms"], row[f"{key}_env_std_ms"] = _time(step, device, steps)
+        row[f"{key}_motion_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
+        if fused:  # where the rest of the env step goes: the local observations (grid k-nearest, rays, copies)
+            row["obs_ms"], _ = _time(env._get_obs, device, steps)
+            if breakdown and device.startswith("cuda"):
+                try:
+                    row["fused_kernels"] = kernel_breakdown(step)
+                except Exception as exc:  # noqa: BLE001 - a profiler missing on the machine must not end the sweep
+                    row["fused_kernels"] = [{"error": repr(exc)}]
+        row["floor_bytes_per_agent_step"] = floor_bytes(env)
+        del env
+    agents = movers * worlds
+    for key in ("old", "fused"):
+        row[f"{key}_agent_steps_per_s"] = agents / (row[f"{key}_env_ms"] * 1e-3)
+        row[f"{key}_motion_agent_steps_per_s"] = agents / (row[f"{key}_motion_ms"] * 1e-3)
+    row["speedup"] = row["old_env_ms"] / row["fused_env_ms"]
+    row["bandwidth_gb_s"] = bandwidth / 1e9
+    row["floor_agent_steps_per_s"] = bandwidth / row["floor_bytes_per_agent_step"]
+    row["fused_of_floor"] = row["fused_agent_steps_per_s"] / row["floor_agent_steps_per_s"]
+    row["fused_motion_of_floor"] = row["fused_motion_agent_steps_per_s"] / row["floor_agent_steps_per_s"]
+    return row
+
+
+def run_fused_sweep(args) -> list[dict]:
+    """Old vs fused env step at many worlds of 64-256 movers, after a bit-for-bit comparison per mover count."""
+    device = args.device or ("cuda:0" if wp.is_cuda_available() else "cpu")
+    small = args.small or not device.startswith("cuda")
+    movers_list = args.fused_movers or (SMALL_FUSED_MOVERS if small else FUSED_MOVERS)
+    worlds_list = args.fused_worlds or (SMALL_FUSED_WORLDS if small else FUSED_WORLDS)
+    bandwidth = copy_bandwidth(device)
+    print(f"  {device}: copy bandwidth {bandwidth / 1e9:.0f} GB/s", flush=True)
+    rows = []
+    for movers in movers_list:
+        check = compare_fused(movers, min(worlds_list[0], 256), device)
+        print(f"  {device} {movers} movers: fused matches per-cycle: {check['match']} "
+              f"(max |dpos| {check['max_pos_diff']:.3g} m, {check['compare_flagged']} collision flags, "
+              f"{check['compare_flags_differing']} differing)", flush=True)
+        for worlds in worlds_list:
+            steps = args.steps or (20 if device.startswith("cuda") else 3)
+            row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1])
+            row.update(check)
+            rows.append(row)
+            print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
+                  f"ms ({row['fused_agent_steps_per_s']:.3g} agent-steps/s, {row['fused_of_floor']:.2f} of the "
+                  f"floor)", flush=True)
+    return rows
+
+
 def run(args) -> list[dict]:
     devices = [args.device] if args.device else (["cpu", "cuda:0"] if wp.is_cuda_available() else ["cpu"])
     rows = []
@@ -246,12 +401,41 @@ def main(argv=None) -> None:
                    f"and without --planner-only {SMALL_PLANNER})")
     p.add_argument("--traffic", default="auto", choices=("auto", "lanes", "free"), help="the planner's traffic rule")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="planner worlds' seeds (one run each)")
-    p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json)")
+    p.add_argument("--fused-sweep", action="store_true", help="old vs fused env step at many worlds of 64-256 movers "
+                   "(the training regime), with the memory-bandwidth floor")
+    p.add_argument("--fused-movers", type=int, nargs="+", help=f"--fused-sweep's movers per world (default "
+                   f"{FUSED_MOVERS}; CPU/--small {SMALL_FUSED_MOVERS})")
+    p.add_argument("--fused-worlds", type=int, nargs="+", help=f"--fused-sweep's world counts (default {FUSED_WORLDS}; "
+                   f"CPU/--small {SMALL_FUSED_WORLDS})")
+    p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json, "
+                   "swarm_fused_<cpu|gpu>.json with --fused-sweep)")
     args = p.parse_args(argv)
     wp.config.quiet = True
     wp.init()
     info = machine_info(args.device or ("cuda:0" if wp.is_cuda_available() else "cpu"))
     print(header_line(info))
+    if args.fused_sweep:
+        rows = run_fused_sweep(args)
+        stamp = provenance(info)
+        for r in rows:
+            r.update(stamp)
+        for r in rows:
+            for e in r.get("fused_kernels", []):
+                if "error" not in e:
+                    print(f"    {r['worlds']} x {r['movers']}: {e['ms_per_step']:.3f} ms/step ({e['share']:.0%}) "
+                          f"x{e['calls_per_step']:.0f} {e['name']}")
+        print_table(rows, ["device", "worlds", "movers", "agents", ("old_env_ms", "old ms"),
+                           ("fused_env_ms", "fused ms"), ("speedup", "speedup"),
+                           ("old_agent_steps_per_s", "old agent-steps/s"),
+                           ("fused_agent_steps_per_s", "fused agent-steps/s"),
+                           ("fused_motion_agent_steps_per_s", "fused motion agent-steps/s"),
+                           ("floor_agent_steps_per_s", "floor agent-steps/s"), ("fused_of_floor", "fused/floor"),
+                           ("match", "match")])
+        default = "gpu" if any(r["device"].startswith("cuda") for r in rows) else "cpu"
+        path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
+                                         f"swarm_fused_{default}.json")
+        print("wrote", write_json(path, rows))
+        return
     rows = run(args)
     stamp = provenance(info)
     for r in rows:

@@ -172,6 +172,7 @@ class Simulator:
         self._hooks: list[Callable[[Simulator], None]] = []
         self._pre_hooks: list[Callable[[Simulator], None]] = []
         self._step_callbacks: list[Callable[[], None]] = []
+        self._motion: Callable[[Simulator, int], bool] | None = None
         self._graphs: dict[int, wp.Graph] = {}
         # On CUDA, Warp launches on torch's current stream so that kernels and torch ops on the state are ordered
         # without any host synchronisation.
@@ -810,7 +811,17 @@ class Simulator:
             wp.launch(kguard.flag_nonfinite, dim=(self.num_worlds, self.num_movers), device=self.device,
                       inputs=[self._steps, s.pos, s.quat, s.vel, s.omega, self._nonfinite])
 
+    def set_motion(self, motion: Callable[["Simulator", int], bool] | None) -> None:
+        """Let ``motion(sim, n)`` launch the motion of a whole step of ``n`` cycles in place of the built-in kernels
+        (e.g. the swarm env's fused step, :mod:`magwarp.swarm.fused`): it returns True where it did, False to let the
+        built-in launch shapes run. It runs inside the step graph, before the NaN guard, on the simulator's stream,
+        and must only launch device work. None: the built-in kernels only."""
+        self._motion = motion
+        self._graphs.clear()
+
     def _launch_motion(self, n: int) -> None:
+        if self._motion is not None and self._motion(self, n):
+            return
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
         if self._fused:  # the fused kernels clear their per-step accumulators themselves

@@ -37,6 +37,10 @@ every mover was placed (one host synchronisation) and raises :class:`~magwarp.sw
 density asked and the density possible otherwise; resets inside ``step`` (autoreset) run a fixed number of rounds
 without synchronising, and a mover left unplaced there waits as a pending respawn.
 
+With the respawn rule and up to 256 movers per world (the training regime), the step's control cycles and collision
+stops run as one launch (``fused``, :mod:`magwarp.swarm.fused`: one thread block per world on CUDA), with the
+per-cycle path's results bit for bit; larger worlds, MagBotSim's rule and further cycle hooks run per cycle.
+
 Every option is a field of :class:`SwarmConfig`; the constructor takes a config and/or the same names as keywords.
 """
 
@@ -56,6 +60,7 @@ from magwarp.envs.base import MagwarpVecEnv
 from magwarp.kernels.swarm import stop_collided
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
+from magwarp.swarm.fused import FusedSwarmStep, fused_applies
 from magwarp.swarm.observations import LocalObservations
 from magwarp.swarm.placement import Placer
 
@@ -76,7 +81,10 @@ class SwarmConfig:
     ``respawn_clearance``: extra room (m) a respawned mover keeps from the others and the walls (it appears next to
     moving movers: at the bare exclusion distance it would often be hit at once).
     ``stations``: the material-flow variant: ``"auto"`` (``num_stations`` pick-ups and drop-offs placed on the
-    layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams)."""
+    layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams).
+    ``fused``: run each step's control cycles and collision stops as one launch (:mod:`magwarp.swarm.fused`; the
+    per-cycle path's results): None (default) where it applies (the respawn rule, up to 256 movers per world), True
+    to insist (an error where it does not apply), False for the per-cycle path."""
 
     num_movers: int = 64
     layout: Any = None
@@ -108,6 +116,7 @@ class SwarmConfig:
     reset_rounds: int = 32
     stations: Any = None
     num_stations: int = 4
+    fused: bool | None = None
 
     def __post_init__(self):
         m = self.num_movers
@@ -131,6 +140,12 @@ class SwarmConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.fused not in (None, True, False):
+            raise ValueError(f"fused must be None, True or False, got {self.fused!r}")
+        if self.fused:
+            why = fused_applies(int(self.num_movers), self.on_collision)
+            if why is not None:
+                raise ValueError(f"fused=True does not apply: {why}")
         m = self.max_episode_steps
         if m is not None and (isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1):
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {m!r}")
@@ -202,8 +217,13 @@ class SwarmEnv(MagwarpVecEnv):
                                        max_range=cfg.ray_range, device=wdev)
         self._stopped = wp.zeros((n, m), dtype=wp.int32, device=wdev)
         self.stopped = wp.to_torch(self._stopped)
+        self.fused_step = None
         if respawn:
             self.sim.add_cycle_hook(self._stop_hook)
+            if cfg.fused is not False and fused_applies(m, cfg.on_collision) is None:
+                # one launch per step; steps aside for the per-cycle path (this hook) while other hooks are attached
+                self.fused_step = FusedSwarmStep(self.sim, self._stopped, self._stop_hook)
+                self.sim.set_motion(self.fused_step)
         dev = self.device
         self.goals = torch.zeros(n, m, 2, device=dev)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)

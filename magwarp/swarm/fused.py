@@ -1,0 +1,91 @@
+"""The swarm env's fused step: all control cycles of an env step, with the per-mover collision stops, in one launch.
+
+:class:`FusedSwarmStep` is a simulator motion (:meth:`magwarp.sim.Simulator.set_motion`) for the respawn rule: on
+CUDA one thread block per world with its movers' state in registers and their positions exchanged through shared
+memory each cycle, on the CPU one thread per world (:mod:`magwarp.kernels.swarm_step`). Results match the per-cycle
+path (the step kernels, then the stop hook after every cycle) bit for bit: same movers flagged in the same cycle,
+same stops, same state.
+
+It steps aside (the per-cycle path runs, the stop hook included) while the simulator has other cycle hooks (metrics,
+a magnetic drive), which must run between cycles.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import warp as wp
+
+from magwarp.kernels import swarm_step as kss
+
+__all__ = ["FusedSwarmStep", "fused_applies", "MAX_FUSED_MOVERS"]
+
+MAX_FUSED_MOVERS = kss.MAX_BLOCK
+TRAVEL_SLACK = 1.01  # the travel budget's room over the speed cap's distance (rounding; the guard covers the rest)
+
+
+def fused_applies(num_movers: int, on_collision: str) -> str | None:
+    """None where the fused swarm step applies, else why not (for the error of an explicit ``fused=True``)."""
+    if on_collision != "respawn":
+        return f"on_collision={on_collision!r} stops whole worlds, which the per-cycle path does"
+    if num_movers > MAX_FUSED_MOVERS:
+        return f"num_movers={num_movers} exceeds the {MAX_FUSED_MOVERS} movers one thread block holds"
+    return None
+
+
+def _block_dim(num_movers: int) -> int:
+    """Threads per block: the movers rounded up to whole warps."""
+    return max(32, -(-int(num_movers) // 32) * 32)
+
+
+class FusedSwarmStep:
+    """The fused motion of a swarm simulator whose movers stop where they collide. ``stopped``: the env's ``[W, M]``
+    int32 stop marks (read and written by the step); ``stop_hook``: the env's per-cycle stop hook, the only cycle hook
+    the fused step replaces."""
+
+    def __init__(self, sim, stopped: wp.array, stop_hook: Callable):
+        if sim.model.collision.stop_on_collision != 0:
+            raise ValueError("the fused swarm step needs stop_on_collision=False (movers stop, worlds go on)")
+        if sim.num_movers > MAX_FUSED_MOVERS:
+            raise ValueError(f"the fused swarm step holds at most {MAX_FUSED_MOVERS} movers per world, got "
+                             f"{sim.num_movers}")
+        self.stopped = stopped
+        self.stop_hook = stop_hook
+        W, M, dev = sim.num_worlds, sim.num_movers, sim.device
+        # the launch shape: a block per world on CUDA; one thread per world on the CPU, where a tile block is one
+        # thread wide unless warp.config.enable_cpu_blocks (cooperative fibers: the tests run the tiled shape there)
+        self.tiled = dev.is_cuda
+        shape = (1, 1) if dev.is_cuda else (W, M)  # scratch of the one-thread-per-world shape (CUDA: placeholders)
+        self._scratch = [wp.zeros(shape, dtype=dtype, device=dev) for dtype in (wp.vec2, wp.vec4, kss.Candidates,
+                                                                                 wp.int32)]
+
+    def applies(self, sim) -> bool:
+        """False while other cycle hooks must run between cycles (then the per-cycle path runs)."""
+        return not sim._pre_hooks and all(h == self.stop_hook for h in sim._hooks)
+
+    def travel(self, sim, num_cycles: int) -> float:
+        """The candidate lists' travel budget (m): the distance at the shared speed cap over the step, with some room
+        (a mover past it, e.g. with a per-world cap above the shared one, makes its world check every pair)."""
+        lim = sim.model.limits
+        return float(num_cycles * lim.dt64 * lim.v_max64 * TRAVEL_SLACK)
+
+    def __call__(self, sim, num_cycles: int) -> bool:
+        if not self.applies(sim):
+            return False
+        m, s, dev = sim.model, sim.state, sim.device
+        latency = sim._latency_bound is not None
+        args = [num_cycles, self.travel(sim, num_cycles), m.limits, m.impedance, m.collision, m.tiles, m.body,
+                m.radius, m.half_size, m.margins, sim._delay, s.target_pos, s.target_quat, s.force_aux, s.cmd,
+                sim._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
+                s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list, self.stopped]
+        if self.tiled:
+            if not dev.is_cuda and sim.num_movers != 1 and not wp.config.enable_cpu_blocks:
+                raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks (Warp's "
+                                 f"cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} movers")
+            block = _block_dim(sim.num_movers)
+            kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block)
+            wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=[*args, *self._scratch], block_dim=block, device=dev)
+        else:
+            kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, 0)
+            wp.launch(kernel, dim=sim.num_worlds, inputs=[*args, *self._scratch], device=dev)
+        return True

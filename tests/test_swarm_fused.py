@@ -1,0 +1,130 @@
+"""The swarm env's fused step (magwarp.swarm.fused, magwarp.kernels.swarm_step) against the per-cycle path (the step
+kernels with the grid or brute-force narrow phase, then the stop hook after every cycle) on random worlds: the same
+movers flagged in the same cycle, the same stops, the same state, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import warp as wp
+
+import magwarp.swarm.fused as fused_mod
+from magwarp.swarm import SwarmConfig, SwarmEnv
+
+FIELDS = ("pos", "quat", "vel", "omega", "acc", "cmd", "flags", "flags_any", "partner", "world_pairs", "world_walls",
+          "halted", "cycles")
+
+
+def _env(fused: bool, worlds: int, movers: int, seed: int, **options) -> SwarmEnv:
+    return SwarmEnv(worlds, num_movers=movers, device="cpu", seed=seed, fused=fused, check_inputs=False, **options)
+
+
+def _pairs(sim) -> set:
+    """The last cycle's colliding pairs as a set (the per-cycle path lists them in atomic order)."""
+    out = set()
+    for w in range(sim.num_worlds):
+        n = min(int(sim.world_pairs[w]), sim.max_pairs)
+        out |= {(w, int(i), int(j)) for i, j in sim.pair_list[w, :n].tolist()}
+    return out
+
+
+def _run_both(rng, worlds: int, movers: int, steps: int, scale: float = 12.0, setup=None, **options):
+    """Step a per-cycle env and a fused env with the same random actions; assert every output and state field equal
+    after every step. Returns the total count of collision flags seen (so a test can insist on collisions)."""
+    seed = int(rng.integers(1 << 30))
+    envs = [_env(False, worlds, movers, seed, **options), _env(True, worlds, movers, seed, **options)]
+    assert envs[0].fused_step is None and envs[1].fused_step is not None
+    if setup is not None:
+        for env in envs:
+            setup(env)
+    flagged = 0
+    for k in range(steps):
+        action = torch.as_tensor(rng.uniform(-scale, scale, (worlds, movers, 2)), dtype=torch.float32)
+        outs = [env.step(action.clone()) for env in envs]
+        (obs0, r0, te0, tr0, info0), (obs1, r1, te1, tr1, info1) = outs
+        for name in FIELDS:
+            a, b = getattr(envs[0].sim, name), getattr(envs[1].sim, name)
+            assert torch.equal(a, b), f"step {k}: sim.{name} differs at {torch.nonzero(a != b)[:4].tolist()}"
+        assert torch.equal(envs[0].stopped, envs[1].stopped), f"step {k}: stopped differs"
+        for name in ("wall", "planar"):
+            a, b = (getattr(env.sim.state, name).numpy() for env in envs)
+            assert np.array_equal(a, b), f"step {k}: state.{name} differs"
+        assert _pairs(envs[0].sim) == _pairs(envs[1].sim), f"step {k}: pair lists differ"
+        assert torch.equal(obs0, obs1) and torch.equal(r0, r1), f"step {k}: observation or reward differs"
+        for key in ("agent_reward", "mover_collision", "wall_collision", "agent_terminated", "goal_reached"):
+            assert torch.equal(info0[key], info1[key]), f"step {k}: info[{key!r}] differs"
+        flagged += int((envs[0].sim.flags_any != 0).sum())
+    return flagged
+
+
+@pytest.mark.parametrize("movers, shape", [(20, "circle"), (48, "circle"), (40, "box")])
+def test_fused_matches_per_cycle(rng, movers, shape):
+    """Small worlds (brute-force narrow phase) and grid worlds, circles and boxes, at a density where movers collide,
+    stop and respawn during the run."""
+    flagged = _run_both(rng, 3, movers, 6, occupancy=0.45, collision_shape=shape,
+                        safety_margin=float(rng.uniform(0.0, 0.01)))
+    assert flagged > 0  # the comparison covered collisions
+
+
+def test_fused_matches_with_jerk_control_and_latency(rng):
+    """Jerk commands and per-world action latency (the previous command during a world's first cycles; stopped
+    movers zero the command that becomes the next previous one)."""
+    delays = torch.as_tensor(rng.integers(0, 12, 3), dtype=torch.int32)
+
+    def setup(env):
+        env.sim.set_latency(delays, bound=12)
+
+    assert _run_both(rng, 3, 36, 5, scale=300.0, setup=setup, occupancy=0.45, learn_jerk=True) > 0
+
+
+def test_fused_candidate_overflow_and_travel_guard(rng, monkeypatch):
+    """Both fallbacks of the candidate lists stay exact: movers with more candidates than the list holds (a high speed
+    cap widens every list), and a travel budget of zero (every mover that moves leaves it: each cycle its world
+    checks every pair)."""
+    assert _run_both(rng, 2, 40, 4, occupancy=0.45, v_max=10.0, a_max=200.0) > 0
+    monkeypatch.setattr(fused_mod, "TRAVEL_SLACK", 0.0)
+    assert _run_both(rng, 2, 40, 4, occupancy=0.45) > 0
+
+
+def test_fused_steps_aside_for_other_cycle_hooks(rng):
+    """A further cycle hook must run between cycles: the fused motion declines and the per-cycle path runs (with the
+    stop hook), still matching a per-cycle env."""
+    calls = []
+
+    def setup(env):
+        env.sim.add_cycle_hook(lambda sim: calls.append(1))
+
+    _run_both(rng, 2, 36, 2, setup=setup, occupancy=0.5)
+    assert calls  # the hook ran: the per-cycle path was taken by both envs
+
+
+@pytest.mark.parametrize("movers, shape, jerk", [(40, "circle", False), (36, "box", True)])
+def test_tiled_kernel_with_cooperative_cpu_blocks(rng, monkeypatch, movers, shape, jerk):
+    """The CUDA shape itself (a block per world, one lane per mover, lanes past the last mover mirroring it, positions
+    exchanged through shared tiles each cycle, the travel reduction) on Warp's cooperative CPU blocks: the same results
+    as the per-cycle path, collisions, jerk control and action latency included."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    delays = torch.as_tensor(rng.integers(0, 12, 2), dtype=torch.int32)
+
+    def setup(env):
+        env.sim.set_latency(delays, bound=12)
+        if env.fused_step is not None:
+            env.fused_step.tiled = True
+            env.sim._graphs.clear()
+
+    assert _run_both(rng, 2, movers, 5, scale=300.0 if jerk else 12.0, setup=setup, occupancy=0.45,
+                     collision_shape=shape, learn_jerk=jerk) > 0
+
+
+def test_fused_default_and_options():
+    env = SwarmEnv(2, num_movers=8, device="cpu", seed=0)
+    assert env.fused_step is not None and env.sim._motion is env.fused_step  # on by default for the respawn rule
+    assert SwarmEnv(2, num_movers=8, device="cpu", seed=0, on_collision="end").fused_step is None
+    with pytest.raises(ValueError, match="on_collision='end'"):
+        SwarmConfig(num_movers=8, on_collision="end", fused=True)
+    with pytest.raises(ValueError, match="256 movers"):
+        SwarmConfig(num_movers=257, fused=True)
+    with pytest.raises(ValueError, match="fused must be None, True or False"):
+        SwarmConfig(num_movers=8, fused="yes")
+    assert np.isclose(env.fused_step.travel(env.sim, 40), 40 * 1e-3 * 2.0 * fused_mod.TRAVEL_SLACK)
