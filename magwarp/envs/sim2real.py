@@ -23,7 +23,11 @@
 
 Everything runs on the env's device, seeded by its generator, with no host sync. A model draws only when it has
 something to draw (a latency range of more than one value, a bias std, noise, a dropout probability): with any of
-these on, the env's later draws (goals, starts) differ from an env without them for the same seed.
+these on, the env's later draws (goals, starts) differ from an env without them for the same seed. Within an env
+step the sensor model draws its standard normals in one call (:meth:`SensorModel.new_step`: the step's reading, an
+autoreset's first reading and the reset worlds' new biases; a launch per step, not six), and readings outside a step
+(``reset()``) draw their own, velocities first: since #24's cost work a seed gives other noise inside steps than
+before (``std_noise`` included; a reset's reading is drawn as it always was).
 """
 
 from __future__ import annotations
