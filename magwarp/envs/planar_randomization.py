@@ -123,6 +123,7 @@ class PlanarRandomizer(EventRunner):
                                      f"{built:g} m: worlds of more than 32 movers bin them in grid cells sized at "
                                      "build; build the env with the largest size")
         self.sim.make_per_world(*sorted({arrays[f] for f in used if f in arrays}))
+        self._term_table()  # before any firing (never inside a captured step)
 
     def _check_stiffness(self, i: int, t: EventTerm) -> None:
         sim = self.sim
@@ -185,8 +186,6 @@ class PlanarRandomizer(EventRunner):
         due = [t for t in self.terms if t.mode == mode and (mode != "interval" or self.steps % t.interval_steps == 0)]
         if not due:
             return False
-        if not hasattr(self, "_table"):
-            self._term_table()
         sim = self.sim
         params = sim.mover_param_struct(self._scale_inertia()) if self._body else self._no_params()
         m = sim.model
