@@ -47,7 +47,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from magwarp.envs.randomization import Gaussian, EventRunner, EventTerm, LogUniform
+from magwarp.envs.randomization import EventRunner, EventTerm, Gaussian, LogUniform
 from magwarp.kernels import randomize as krand
 
 __all__ = ["PlanarRandomizer"]
@@ -56,10 +56,14 @@ __all__ = ["PlanarRandomizer"]
 BODY_KEYS = {"mover_mass": "mass", "mover_inertia": "inertia", "payload_mass": "payload", "stiffness_lin": "k_lin",
              "stiffness_rot": "k_rot", "v_max": "v_max", "a_max": "a_max", "j_max": "j_max"}
 SIZE_FIELDS = ("collision_radius", "collision_half_size", "collision_margin", "wall_margin")
-#: the kernel's field codes (:mod:`magwarp.kernels.randomize`)
-FIELD_CODES = {f: i for i, f in enumerate((*BODY_KEYS, *SIZE_FIELDS))}
-MODE_CODES = {"startup": 0, "reset": 1, "interval": 2}
-OP_CODES = {"set": 0, "scale": 1, "add": 2}
+#: the kernel's codes (:mod:`magwarp.kernels.randomize`)
+FIELD_CODES = {"mover_mass": krand.MOVER_MASS, "mover_inertia": krand.MOVER_INERTIA, "payload_mass": krand.PAYLOAD_MASS,
+               "stiffness_lin": krand.STIFFNESS_LIN, "stiffness_rot": krand.STIFFNESS_ROT, "v_max": krand.V_MAX,
+               "a_max": krand.A_MAX, "j_max": krand.J_MAX, "collision_radius": krand.COLLISION_RADIUS,
+               "collision_half_size": krand.COLLISION_HALF_SIZE, "collision_margin": krand.COLLISION_MARGIN,
+               "wall_margin": krand.WALL_MARGIN}
+MODE_CODES = {"startup": krand.MODE_STARTUP, "reset": krand.MODE_RESET, "interval": krand.MODE_INTERVAL}
+OP_CODES = {"set": krand.OP_SET, "scale": krand.OP_SCALE, "add": krand.OP_ADD}
 
 
 def rng_key(seed: int) -> int:
@@ -152,13 +156,13 @@ class PlanarRandomizer(EventRunner):
             row = krand.Term()
             row.field, row.dim = FIELD_CODES[t.field], nom.shape[1]
             if isinstance(d, Gaussian):
-                row.dist, row.a, row.b = 2, d.mean, d.std
+                row.dist, row.a, row.b = krand.GAUSSIAN, d.mean, d.std
                 row.clip = int(d.clip is not None)
                 row.lo, row.hi = d.clip if d.clip is not None else (0.0, 0.0)
             elif isinstance(d, LogUniform):
-                row.dist, row.a, row.b = 1, float(np.log(d.lo)), float(np.log(d.hi))
+                row.dist, row.a, row.b = krand.LOG_UNIFORM, float(np.log(d.lo)), float(np.log(d.hi))
             else:
-                row.dist, row.a, row.b = 0, d.lo, d.hi
+                row.dist, row.a, row.b = krand.UNIFORM, d.lo, d.hi
             row.op, row.mode = OP_CODES[t.op], MODE_CODES[t.mode]
             row.interval = int(t.interval_steps or 1)
             row.known = int(bool(t.known))

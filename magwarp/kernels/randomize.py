@@ -92,6 +92,13 @@ def apply_op(op: int, nominal: wp.float64, value: wp.float64) -> wp.float64:
 
 
 @wp.func
+def set_component(a: wp.array2d(dtype=wp.vec3d), w: int, m: int, k: int, v: wp.float64):
+    x = a[w, m]
+    x[k] = v
+    a[w, m] = x
+
+
+@wp.func
 def write_field(field: int, w: int, m: int, k: int, v: wp.float64, p: MoverParams,
                 radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2),
                 margins: wp.array(dtype=wp.vec2)):
@@ -99,19 +106,13 @@ def write_field(field: int, w: int, m: int, k: int, v: wp.float64, p: MoverParam
     if field == MOVER_MASS:
         p.mass[w, m] = v
     elif field == MOVER_INERTIA:
-        x = p.inertia[w, m]
-        x[k] = v
-        p.inertia[w, m] = x
+        set_component(p.inertia, w, m, k, v)
     elif field == PAYLOAD_MASS:
         p.payload[w, m] = v
     elif field == STIFFNESS_LIN:
-        x = p.k_lin[w, m]
-        x[k] = v
-        p.k_lin[w, m] = x
+        set_component(p.k_lin, w, m, k, v)
     elif field == STIFFNESS_ROT:
-        x = p.k_rot[w, m]
-        x[k] = v
-        p.k_rot[w, m] = x
+        set_component(p.k_rot, w, m, k, v)
     elif field == V_MAX:
         p.v_max[w, m] = v
     elif field == A_MAX:
