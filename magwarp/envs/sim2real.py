@@ -254,7 +254,8 @@ class SensorModel:
             return self._bundle[self.slots[(slot, key)]]
         return torch.randn(x.shape, generator=self.generator, device=x.device, dtype=x.dtype)
 
-    def _sense(self, key: str, x: torch.Tensor, bias: torch.Tensor | None, std: float, slot: str | None) -> torch.Tensor:
+    def _sense(self, key: str, x: torch.Tensor, bias: torch.Tensor | None, std: float,
+               slot: str | None) -> torch.Tensor:
         n = x.shape[0]
         if bias is not None:
             x = x + bias
