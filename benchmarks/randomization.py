@@ -83,9 +83,9 @@ def count_launches(env_id: str, device: str, num_envs: int = 256, **env_kwargs) 
 
     import magwarp  # noqa: F401  (registers the ids)
 
-    env = gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False, **env_kwargs).unwrapped
-    if getattr(env, "sim", None) is None:
+    if "TrajectoryPlanningEnv" not in str(gym.spec(env_id).vector_entry_point):  # the planar simulator's envs only
         return {}
+    env = gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False, **env_kwargs).unwrapped
     env.reset(seed=0)
     action = torch.zeros((num_envs, *env.single_action_space.shape), device=env.device)
     for _ in range(3):  # loads the modules; records the step graph on CUDA
