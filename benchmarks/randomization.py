@@ -98,8 +98,9 @@ def count_launches(env_id: str, device: str, num_envs: int = 256, **env_kwargs) 
                 for _ in range(4):
                     env.step(action)
                 torch.cuda.synchronize()
-            kernels = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA
-                       and not e.name.startswith("Memcpy") and not e.name.startswith("Memset")]
+            cuda = torch.autograd.DeviceType.CUDA
+            raw = [(e.name(), e.device_type()) for e in prof.profiler.kineto_results.events()]  # the device trace
+            kernels = [name for name, kind in raw if kind == cuda and not name.startswith(("Memcpy", "Memset"))]
             out["graph_kernels"] = len(kernels) / 4 if kernels else None
         except Exception as e:  # noqa: BLE001 - a profiler without CUPTI: the host count still stands
             print(f"  (no CUDA kernel count: {type(e).__name__}: {e})", flush=True)
