@@ -393,3 +393,31 @@ def test_apply_terms_matches_numpy(rng):
     packed = env.sim.model.body.numpy().copy()
     env.sim.commit_mover_params(mask, scale_inertia=True)
     assert same(env.sim.model.body.numpy(), packed)
+
+
+def test_vertical_payload_tilts_only_a_tilted_mover():
+    """A payload on the vertical axis: on a level mover gravity has no torque (the step skips it: the same bits as the
+    payload at the centre); on a tilted one, cross(R com, -M g z) = (sin(roll) com_z M g, 0, 0) in the first cycle."""
+    m, p, cz, roll = MASS, 0.3, 0.02, 0.05
+
+    def run(offset, start_roll):
+        sim = Simulator(Layout.grid(4, 4), num_movers=1, num_worlds=1, device="cpu",
+                        start_pose=[[[0.36, 0.36, 0.01, start_roll, 0.0, 0.0]]])
+        params = sim.mover_params
+        params["payload"].fill_(p)
+        params["payload_offset"].copy_(torch.tensor(offset, dtype=torch.float64).expand(1, 1, 3))
+        sim.commit_mover_params()
+        sim.reset()
+        sim.step(1 if start_roll else 30, torch.full((1, 1, 2), 3.0))
+        return sim
+
+    level, centre = run((0.0, 0.0, cz), 0.0), run((0.0, 0.0, 0.0), 0.0)
+    for name in ("pos", "quat", "vel", "omega"):
+        assert torch.equal(getattr(level, name), getattr(centre, name)), name
+    assert torch.all(level.omega == 0)
+    tilted = run((0.0, 0.0, cz), roll)
+    total = m + p
+    com_z = p / total * cz
+    inertia_x = tilted.mover.inertia[0] + m * p / total * cz * cz
+    alpha = math.sin(roll) * com_z * total * 9.81 / inertia_x
+    np.testing.assert_allclose(tilted.omega[0, 0, 0].item(), alpha * DT, rtol=1e-3)
