@@ -414,8 +414,9 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
         F = Ints()
         Fa = Ints()
         Pr = Ints()
-        C = Rows2()  # the command and the targets hold for the whole step: load them once
-        Cp = Rows2()  # latency only: the previous command, acting for the first d cycles
+        # The acting command: the step's (held for the whole step: loaded once) or, with latency, the previous
+        # step's during the world's first ``held`` cycles, the step's from cycle ``held`` on (loaded then, once).
+        C = Rows2()
         held = int(0)
         if wp.static(latency):
             held = delay[w]
@@ -435,7 +436,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
                 H[m] = half_size[wh, m]
             C[m] = cmd[w, m]
             if wp.static(latency):
-                Cp[m] = prev_cmd[w, m]
+                if held > 0:
+                    C[m] = prev_cmd[w, m]
             TP[m] = target_pos[w, m]
             tq = target_quat[w, m]
             TQ[m] = wp.vec4(tq[0], tq[1], tq[2], tq[3])
@@ -457,12 +459,13 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
         for c in range(num_cycles):
             if col.stop_on_collision == 1 and stopped == 1:
                 break
+            if wp.static(latency):
+                if c == held and c > 0:
+                    for m in range(M):
+                        C[m] = cmd[w, m]
             for m in range(M):
                 p = make_pose(P[m], wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3]), V[m], Om[m])
                 u = C[m]
-                if wp.static(latency):
-                    if c < held:
-                        u = Cp[m]
                 if wp.static(nominal):
                     bm = body[wb, m]
                 else:
@@ -541,7 +544,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
             flags_any[w, m] = Fa[m]
             partner[w, m] = Pr[m]
             if wp.static(latency):  # the next step's previous command
-                prev_cmd[w, m] = C[m]
+                prev_cmd[w, m] = cmd[w, m]
         world_pairs[w] = pairs
         world_walls[w] = walls
         halted[w] = stopped
