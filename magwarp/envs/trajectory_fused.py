@@ -17,8 +17,8 @@ One step (after the host-side input check and the copy of the action into the si
 5. :func:`magwarp.kernels.task.trajectory_obs`: the returned observation; the sensor model keeps it (what a dropped
    reading repeats).
 
-Interval-mode randomisation terms fire on the host before the step (the simulator's step callbacks, as in the torch
-step), then the graph is replayed: their draws come first, as in the torch step.
+Interval-mode randomisation terms fire before the step (the simulator's step callbacks, as in the torch step: one
+launch of the randomiser's kernel when a term is due), then the graph is replayed.
 
 On CUDA (``graph=True``) steps 1-5 are one CUDA graph recorded with ``torch.cuda.graph`` (the env's generator is
 registered with it, so every replay draws new numbers), replayed with no host sync and no Python beyond the replay.
