@@ -400,15 +400,19 @@ def test_vertical_payload_tilts_only_a_tilted_mover():
     payload at the centre); on a tilted one, cross(R com, -M g z) = (sin(roll) com_z M g, 0, 0) in the first cycle."""
     m, p, cz, roll = MASS, 0.3, 0.02, 0.05
 
+    layout = Layout.grid(4, 4)
+    centres = layout.tile_centers()[[0, 5, 10]]  # three movers (the kernels other tests compile), on a diagonal
+
     def run(offset, start_roll):
-        sim = Simulator(Layout.grid(4, 4), num_movers=1, num_worlds=1, device="cpu",
-                        start_pose=[[[0.36, 0.36, 0.01, start_roll, 0.0, 0.0]]])
+        pose = np.zeros((1, 3, 6))
+        pose[0, :, :2], pose[0, :, 2], pose[0, :, 3] = centres, 0.01, start_roll
+        sim = Simulator(layout, num_movers=3, num_worlds=1, device="cpu", start_pose=pose)
         params = sim.mover_params
         params["payload"].fill_(p)
-        params["payload_offset"].copy_(torch.tensor(offset, dtype=torch.float64).expand(1, 1, 3))
+        params["payload_offset"].copy_(torch.tensor(offset, dtype=torch.float64).expand(1, 3, 3))
         sim.commit_mover_params()
         sim.reset()
-        sim.step(1 if start_roll else 30, torch.full((1, 1, 2), 3.0))
+        sim.step(1 if start_roll else 30, torch.full((1, 3, 2), 3.0))
         return sim
 
     level, centre = run((0.0, 0.0, cz), 0.0), run((0.0, 0.0, 0.0), 0.0)
