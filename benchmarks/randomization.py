@@ -16,6 +16,11 @@ step; the table's "step path" column says which step ran); "physics ms" is the s
 terms switch its kernels to the general variant, which reads each world's parameters). Timing as in
 env_throughput.py (random actions from a bank, autoreset on, ``check_inputs`` off). Target: ``full`` costs at most
 10 % at 65,536 envs on the GPU.
+
+"launches" (the trajectory env): the device launches of one fused env step, counted on the host over the same
+kernels run eagerly (Warp launches, the simulator's too, plus torch ops that launch a kernel; views and no-op
+conversions not counted), at 256 envs (the count does not depend on the size); on CUDA, "graph kernels" counts the
+kernels the profiler sees in one replay of the step's graph (None where the profiler reports none).
 """
 
 from __future__ import annotations
@@ -59,6 +64,79 @@ ENVS = {
 }
 
 
+#: torch ops that launch no kernel (views, allocations, conversions to the same dtype)
+NO_KERNEL_OPS = {"aten::view", "aten::expand", "aten::expand_as", "aten::as_strided", "aten::reshape", "aten::slice",
+                 "aten::select", "aten::alias", "aten::unsqueeze", "aten::squeeze", "aten::permute", "aten::t",
+                 "aten::empty", "aten::empty_like", "aten::empty_strided", "aten::unbind", "aten::detach",
+                 "aten::_reshape_alias", "aten::resolve_conj", "aten::resolve_neg", "aten::lift_fresh", "aten::to"}
+
+
+def count_launches(env_id: str, device: str, num_envs: int = 256, **env_kwargs) -> dict:
+    """Device launches of one env step of the trajectory env (see the module doc): ``launches`` (Warp + torch),
+    ``warp_launches``, ``torch_kernels``, ``launch_names`` and, on CUDA, ``graph_kernels``."""
+    import collections
+
+    import gymnasium as gym
+    import torch
+    import warp as wp
+    from torch.profiler import ProfilerActivity, profile
+
+    import magwarp  # noqa: F401  (registers the ids)
+
+    if "TrajectoryPlanningEnv" not in str(gym.spec(env_id).vector_entry_point):  # the planar simulator's envs only
+        return {}
+    env = gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False, **env_kwargs).unwrapped
+    env.reset(seed=0)
+    action = torch.zeros((num_envs, *env.single_action_space.shape), device=env.device)
+    for _ in range(3):  # loads the modules; records the step graph on CUDA
+        env.step(action)
+    out: dict = {}
+    if env.sim.device.is_cuda and env.step_path == "fused graph":
+        try:
+            torch.cuda.synchronize()
+            with profile(activities=[ProfilerActivity.CUDA]) as prof:
+                for _ in range(4):
+                    env.step(action)
+                torch.cuda.synchronize()
+            cuda = torch.autograd.DeviceType.CUDA
+            raw = [(e.name(), e.device_type()) for e in prof.profiler.kineto_results.events()]  # the device trace
+            kernels = [name for name, kind in raw if kind == cuda and not name.startswith(("Memcpy", "Memset"))]
+            out["graph_kernels"] = len(kernels) / 4 if kernels else None
+        except Exception as e:  # noqa: BLE001 - a profiler without CUPTI: the host count still stands
+            print(f"  (no CUDA kernel count: {type(e).__name__}: {e})", flush=True)
+            out["graph_kernels"] = None
+    # the same kernels eagerly, counted on the host
+    fused = env._fused_step
+    graph, env.sim._use_graph = fused.graph if fused is not None else None, False
+    if fused is not None:
+        fused.graph = False
+    names: collections.Counter = collections.Counter()
+    launch = wp.launch
+
+    def counted(kernel, *args, **kwargs):
+        names[f"warp:{kernel.key}"] += 1
+        return launch(kernel, *args, **kwargs)
+
+    wp.launch = counted
+    try:
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            env.step(action)
+    finally:
+        wp.launch = launch
+        env.sim._use_graph = True
+        if fused is not None:
+            fused.graph = graph
+    for e in prof.events():
+        top = e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::")
+        if e.name.startswith("aten::") and top and e.name not in NO_KERNEL_OPS:
+            names[f"torch:{e.name}"] += 1
+    warp_n = sum(v for k, v in names.items() if k.startswith("warp:"))
+    torch_n = sum(v for k, v in names.items() if k.startswith("torch:"))
+    out.update(launches=warp_n + torch_n, warp_launches=warp_n, torch_kernels=torch_n,
+               launch_names=" ".join(f"{k}x{v}" for k, v in sorted(names.items())))
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default=None, help="cpu or cuda:N (default: cpu, plus cuda:0 when present)")
@@ -75,6 +153,12 @@ def main(argv=None) -> int:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else
                  ([64, 256] if device == "cpu" else [4096, 16384, 65536]))
         for env_id in [args.env] if args.env else list(ENVS):
+            counts = {name: count_launches(env_id, device, **kwargs) for name, kwargs in ENVS[env_id].items()}
+            for name, c in counts.items():
+                if c:
+                    graph = f"; graph kernels: {c['graph_kernels']}" if "graph_kernels" in c else ""
+                    print(f"  {device} {env_id} {name}: {c['launches']} launches per step "
+                          f"({c['launch_names']}{graph})", flush=True)
             for n in sizes:
                 base = None
                 for name, kwargs in ENVS[env_id].items():
@@ -82,12 +166,13 @@ def main(argv=None) -> int:
                     base = res if name == "off" else base
                     cost = 100.0 * (res["step_ms"] / base["step_ms"] - 1.0)
                     rows.append({"env": env_id, "device": device, "num_envs": n, "randomization": name,
-                                 "cost_pct": cost, **res})
+                                 "cost_pct": cost, **res, **counts[name]})
                     path = f", step path: {res['path']}" if "path" in res else ""
                     print(f"  {device} {env_id} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s "
                           f"({cost:+.1f} %{path})", flush=True)
     columns = ["env", "device", "num_envs", "randomization", ("step_ms", "ms/step"), ("env_steps_per_s", "env-steps/s"),
-               ("cost_pct", "cost % vs off"), ("sim_ms", "physics ms"), ("path", "step path")]
+               ("cost_pct", "cost % vs off"), ("sim_ms", "physics ms"), ("launches", "launches/step"),
+               ("graph_kernels", "graph kernels"), ("path", "step path")]
     return finish(rows, columns, info, args.json)
 
 

@@ -483,8 +483,15 @@ class Simulator:
             self._pack_mask = torch.ones(W, dtype=torch.bool, device=dev)
             vec = ("inertia", "payload_offset", "k_lin", "k_rot")
             arrays = {k: wp.from_torch(t, dtype=wp.vec3d if k in vec else wp.float64) for k, t in p.items()}
-            self._pack_inputs = [arrays[k] for k in ("mass", "inertia", "payload", "payload_offset", "payload_known",
-                                                     "k_lin", "k_rot", "v_max", "a_max", "j_max")]
+            params = kparams.MoverParams()
+            params.m_ctrl = float(self.mover.mass)
+            params.i_ctrl = wp.vec3d(*[float(v) for v in self.mover.inertia])
+            params.scale_inertia = 0
+            for key, name in (("mass", "mass"), ("inertia", "inertia"), ("payload", "payload"),
+                              ("payload_offset", "offset"), ("payload_known", "known"), ("k_lin", "k_lin"),
+                              ("k_rot", "k_rot"), ("v_max", "v_max"), ("a_max", "a_max"), ("j_max", "j_max")):
+                setattr(params, name, arrays[key])
+            self._params_struct = params
             self._pack_mask_wp = wp.from_torch(self._pack_mask, dtype=wp.bool)
         return self._mover_params
 
@@ -500,11 +507,16 @@ class Simulator:
             self._pack_mask.fill_(True)
         else:
             self._pack_mask.copy_(mask)
-        inertia = self.mover.inertia
         with contextlib.nullcontext() if current_stream else self._on_stream():
             wp.launch(kparams.pack_bodies, dim=(self.num_worlds, self.num_movers), device=self.device,
-                      inputs=[self._pack_mask_wp, float(self.mover.mass), wp.vec3d(*[float(v) for v in inertia]),
-                              int(bool(scale_inertia)), *self._pack_inputs, self.model.body])
+                      inputs=[self._pack_mask_wp, self.mover_param_struct(scale_inertia), self.model.body])
+
+    def mover_param_struct(self, scale_inertia: bool = False) -> kparams.MoverParams:
+        """:attr:`mover_params` as the kernels' :class:`~magwarp.kernels.params.MoverParams` (Warp views of the same
+        tensors); ``scale_inertia`` as in :meth:`commit_mover_params`."""
+        self.mover_params  # noqa: B018 - builds the tensors and the struct
+        self._params_struct.scale_inertia = int(bool(scale_inertia))
+        return self._params_struct
 
     # ------------------------------------------------------------------ inputs
     def _check_tensor(self, name: str, value, shape: tuple[int, ...]) -> torch.Tensor:

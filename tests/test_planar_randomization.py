@@ -112,6 +112,8 @@ def test_seeds_reproduce():
     a, b = make(16, terms, seed=3), make(16, terms, seed=3)
     assert same(a.sim.model.body.numpy(), b.sim.model.body.numpy())
     assert not np.array_equal(make(16, terms, seed=4).sim.model.body.numpy()["mass"], a.sim.model.body.numpy()["mass"])
+    for _ in range(5):  # a history of steps and autoresets, then the same reseed: the same draws
+        b.step(torch.full((16, 6), 9.0))
     a.reset(seed=11)
     b.reset(seed=11)
     assert same(a.sim.model.body.numpy(), b.sim.model.body.numpy())
@@ -302,3 +304,124 @@ def test_no_host_sync_on_cuda():
         torch.cuda.set_sync_debug_mode("default")
     after = env.sim.mover_params["mass"]
     assert torch.equal(after[~mask], before[~mask]) and torch.all(after[mask] != before[mask])
+
+
+def _pcg(state: int) -> int:
+    """Warp's rand_pcg on uint32 (python ints)."""
+    b = (state * 747796405 + 2891336453) & 0xFFFFFFFF
+    c = (((b >> ((b >> 28) + 4)) ^ b) * 277803737) & 0xFFFFFFFF
+    return (c >> 22) ^ c
+
+
+def _rand_init(seed: int, offset: int) -> int:
+    return _pcg((seed + _pcg(offset & 0xFFFFFFFF)) & 0xFFFFFFFF)
+
+
+class _Stream:
+    """A numpy reference of the kernel's per-world generator (Warp's randf / randn)."""
+
+    def __init__(self, key: int, counter: int, world: int):
+        s = _rand_init(key & 0xFFFFFFFF, counter)
+        self.state = _rand_init(s, world)
+
+    def randf(self) -> np.float32:
+        self.state = _pcg(self.state)
+        return np.float32(self.state >> 8) * np.float32(1.0 / 16777216.0)
+
+    def randn(self) -> float:
+        u1 = np.float32(self.randf() + np.float32(5.96e-8))
+        u2 = self.randf()
+        return float(np.sqrt(np.float32(-2.0) * np.log(u1)) * np.cos(np.float32(2.0 * np.pi) * u2))
+
+
+def test_apply_terms_matches_numpy(rng):
+    """magwarp.kernels.randomize.apply_terms (through the randomiser's reset) on random terms, targets and mask vs a
+    numpy reference of its draws, operations and writes; worlds outside the mask keep their rows and counters."""
+    lo = rng.uniform(0.8, 1.0, 4)
+    terms = [EventTerm("mover_mass", LogUniform(lo[0], lo[0] + 0.3), op="scale", targets=(0, 2)),
+             EventTerm("stiffness_rot", Uniform(lo[1], lo[1] + 0.2), op="scale"),
+             EventTerm("a_max", Gaussian(rng.uniform(8, 9), 0.5, clip=(7.5, 9.5))),
+             EventTerm("payload_mass", Uniform(0.0, lo[2] * 0.3), offset=tuple(rng.uniform(-0.01, 0.01, 3)),
+                       known=True, targets=(1,)),
+             EventTerm("collision_radius", Uniform(-0.005, 0.0), op="add"),
+             EventTerm("mover_mass", Uniform(1.0, 1.5), targets=(2,)),  # the last one that fires sets it
+             EventTerm("wall_margin", Gaussian(0.001, 0.0005, clip=(0.0, 0.002)), op="add")]
+    n = 7
+    env = make(n, terms, seed=int(rng.integers(1 << 30)))
+    r = env.randomizer
+    before = {k: v.clone() for k, v in r.values.items()}
+    counter = r._counter.clone().numpy()
+    body0 = env.sim.model.body.numpy().copy()
+    mask = torch.as_tensor(rng.random(n) < 0.6)
+    mask[0] = True
+    r.reset(mask)
+    key = int(r._key[0])
+    for w in range(n):
+        if not mask[w]:
+            for k, v in before.items():
+                assert torch.equal(r.values[k][w], v[w]), k
+            assert int(r._counter[w]) == counter[w]
+            assert same(env.sim.model.body.numpy()[w], body0[w])
+            continue
+        assert int(r._counter[w]) == counter[w] + 1
+        s = _Stream(key, int(counter[w]), w)
+        ref = {k: v[w].clone().double().numpy() for k, v in before.items()}
+        for t in terms:
+            field, count = t.field, r._targets[t.field]
+            nom = r.nominal[field].double().numpy().reshape(count, -1)
+            for m in (t.targets if t.targets is not None else range(count)):
+                for k in range(nom.shape[1]):
+                    d = t.dist
+                    if isinstance(d, Gaussian):
+                        v = float(np.clip(d.mean + d.std * s.randn(), *d.clip))
+                    elif isinstance(d, LogUniform):
+                        a, b = math.log(d.lo), math.log(d.hi)
+                        v = math.exp(a + float(s.randf()) * (b - a))
+                    else:
+                        v = d.lo + float(s.randf()) * (d.hi - d.lo)
+                    v = nom[m, k] * v if t.op == "scale" else nom[m, k] + v if t.op == "add" else v
+                    target = ref[field].reshape(count, -1)
+                    target[m, k] = v
+        for field, value in ref.items():
+            got = r.values[field][w].double().numpy()
+            tol = 1e-6 if r.values[field].dtype == torch.float32 or field in ("a_max", "wall_margin") else 1e-12
+            np.testing.assert_allclose(got, value.reshape(got.shape), rtol=tol, atol=1e-9, err_msg=field)
+        p = env.sim.mover_params
+        np.testing.assert_array_equal(p["payload_offset"][w, 1].numpy(), np.asarray(terms[3].offset))
+        assert p["payload_known"][w, 1] == p["payload"][w, 1] and p["payload"][w, [0, 2]].eq(0).all()
+    # the body rows of the drawn worlds are packed from the new values (pack_bodies' own test checks the packing)
+    packed = env.sim.model.body.numpy().copy()
+    env.sim.commit_mover_params(mask, scale_inertia=True)
+    assert same(env.sim.model.body.numpy(), packed)
+
+
+def test_vertical_payload_tilts_only_a_tilted_mover():
+    """A payload on the vertical axis: on a level mover gravity has no torque (the step skips it: the same bits as the
+    payload at the centre); on a tilted one, cross(R com, -M g z) = (sin(roll) com_z M g, 0, 0) in the first cycle."""
+    m, p, cz, roll = MASS, 0.3, 0.02, 0.05
+
+    layout = Layout.grid(4, 4)
+    centres = layout.tile_centers()[[0, 5, 10]]  # three movers (the kernels other tests compile), on a diagonal
+
+    def run(offset, start_roll):
+        pose = np.zeros((1, 3, 6))
+        pose[0, :, :2], pose[0, :, 2], pose[0, :, 3] = centres, 0.01, start_roll
+        sim = Simulator(layout, num_movers=3, num_worlds=1, device="cpu", start_pose=pose)
+        params = sim.mover_params
+        params["payload"].fill_(p)
+        params["payload_offset"].copy_(torch.tensor(offset, dtype=torch.float64).expand(1, 3, 3))
+        sim.commit_mover_params()
+        sim.reset()
+        sim.step(1 if start_roll else 30, torch.full((1, 3, 2), 3.0))
+        return sim
+
+    level, centre = run((0.0, 0.0, cz), 0.0), run((0.0, 0.0, 0.0), 0.0)
+    for name in ("pos", "quat", "vel", "omega"):
+        assert torch.equal(getattr(level, name), getattr(centre, name)), name
+    assert torch.all(level.omega == 0)
+    tilted = run((0.0, 0.0, cz), roll)
+    total = m + p
+    com_z = p / total * cz
+    inertia_x = tilted.mover.inertia[0] + m * p / total * cz * cz
+    alpha = math.sin(roll) * com_z * total * 9.81 / inertia_x
+    np.testing.assert_allclose(tilted.omega[0, 0, 0].item(), alpha * DT, rtol=1e-3)

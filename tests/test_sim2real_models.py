@@ -168,7 +168,8 @@ def test_set_bias_without_std_is_that_bias_everywhere():
 
 
 def test_std_noise_keeps_its_draws_and_equals_the_sensor_config():
-    """``std_noise`` draws velocity noise, then position noise, from the env's generator, as it always did."""
+    """``std_noise``: a reading outside a step draws velocity noise, then position noise, from the env's generator, as
+    it always did; inside steps it draws as the SensorConfig of the same stds."""
     s = 1e-3
     env = TrajectoryPlanningEnv(16, "B0", std_noise=s, device="cpu", seed=4)
     state = env._generator.get_state()

@@ -30,16 +30,25 @@ Fields, one draw per target (movers; the margins: one per world), ``dim`` compon
   the env with the largest size you draw (``collision_size``, ``safety_margin``) to keep starts collision free.
   Worlds of more than 32 movers (grid broad phase, its cells sized at build) refuse sizes above the built ones.
 
-Draws use the env's generator (``seed``, ``reset(seed=...)``): with terms on, the env's later draws (goals, starts)
-differ from an env without them. ``interval`` terms fire before each simulated env step.
+Every firing is one kernel launch (:func:`magwarp.kernels.randomize.apply_terms`: the draws, the operations, the
+writes for the targeted worlds and movers, and the packing of their body rows), from the torch step and from inside
+the fused step's graph alike. Its draws come from Warp's counter-based generator keyed by the env's seed (the one it was
+built with, then ``reset(seed=...)``'s) and a per-world count of firings, not from the env's torch generator: the same
+seed reproduces them, and the env's other draws (goals, starts) are those of an env without terms. (Until #24's cost
+work they were torch draws from the env's generator: the values for a given seed changed then.) ``interval`` terms
+fire before each simulated env step.
 """
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import torch
+import warp as wp
 
-from magwarp.envs.randomization import EventRunner, EventTerm
+from magwarp.envs.randomization import EventRunner, EventTerm, Gaussian, LogUniform
+from magwarp.kernels import randomize as krand
 
 __all__ = ["PlanarRandomizer"]
 
@@ -47,6 +56,20 @@ __all__ = ["PlanarRandomizer"]
 BODY_KEYS = {"mover_mass": "mass", "mover_inertia": "inertia", "payload_mass": "payload", "stiffness_lin": "k_lin",
              "stiffness_rot": "k_rot", "v_max": "v_max", "a_max": "a_max", "j_max": "j_max"}
 SIZE_FIELDS = ("collision_radius", "collision_half_size", "collision_margin", "wall_margin")
+#: the kernel's codes (:mod:`magwarp.kernels.randomize`)
+FIELD_CODES = {"mover_mass": krand.MOVER_MASS, "mover_inertia": krand.MOVER_INERTIA, "payload_mass": krand.PAYLOAD_MASS,
+               "stiffness_lin": krand.STIFFNESS_LIN, "stiffness_rot": krand.STIFFNESS_ROT, "v_max": krand.V_MAX,
+               "a_max": krand.A_MAX, "j_max": krand.J_MAX, "collision_radius": krand.COLLISION_RADIUS,
+               "collision_half_size": krand.COLLISION_HALF_SIZE, "collision_margin": krand.COLLISION_MARGIN,
+               "wall_margin": krand.WALL_MARGIN}
+MODE_CODES = {"startup": krand.MODE_STARTUP, "reset": krand.MODE_RESET, "interval": krand.MODE_INTERVAL}
+OP_CODES = {"set": krand.OP_SET, "scale": krand.OP_SCALE, "add": krand.OP_ADD}
+
+
+def rng_key(seed: int) -> int:
+    """The kernel's int32 generator key for an env seed (any non-negative integer)."""
+    k = (int(seed) ^ (int(seed) >> 32) ^ 0x5EED7E57) & 0xFFFFFFFF
+    return k - (1 << 32) if k >= 1 << 31 else k
 
 
 class PlanarRandomizer(EventRunner):
@@ -104,6 +127,7 @@ class PlanarRandomizer(EventRunner):
                                      f"{built:g} m: worlds of more than 32 movers bin them in grid cells sized at "
                                      "build; build the env with the largest size")
         self.sim.make_per_world(*sorted({arrays[f] for f in used if f in arrays}))
+        self._term_table()  # before any firing (never inside a captured step)
 
     def _check_stiffness(self, i: int, t: EventTerm) -> None:
         sim = self.sim
@@ -113,17 +137,105 @@ class PlanarRandomizer(EventRunner):
             self.check_stiffness_stable(i, t, float(sim.model.limits.dt), float(sim.mover.mass),
                                         float(np.min(np.asarray(sim.mover.inertia))))
 
-    # ------------------------------------------------------------------ model writes
-    def commit(self, mask: torch.Tensor | None, current_stream: bool = False) -> None:
-        """Pack the body fields of the worlds in ``mask`` (all if None): one kernel (the terms wrote the simulator's
-        parameter tensors and its collision sizes directly); ``current_stream``: on Warp's current stream."""
+    # ------------------------------------------------------------------ the kernel's inputs
+    def _term_table(self) -> None:
+        """The terms as the kernel reads them (:class:`magwarp.kernels.randomize.Term`), their targets and the nominal
+        values, on the device; the generator key and per-world counters."""
+        sim, dev = self.sim, self.sim.device
+        width = max(1, sim.num_movers)
+        T = len(self.terms)
+        targets = np.zeros((T, width), np.int32)
+        nominal = np.zeros((T, width, 3), np.float64)
+        table = []
+        for i, t in enumerate(self.terms):
+            count = self._targets[t.field]
+            targets[i, list(t.targets) if t.targets is not None else slice(0, count)] = 1
+            nom = self.nominal[t.field].detach().cpu().numpy().astype(np.float64).reshape(count, -1)
+            nominal[i, :count, :nom.shape[1]] = nom
+            d = t.dist
+            row = krand.Term()
+            row.field, row.dim = FIELD_CODES[t.field], nom.shape[1]
+            if isinstance(d, Gaussian):
+                row.dist, row.a, row.b = krand.GAUSSIAN, d.mean, d.std
+                row.clip = int(d.clip is not None)
+                row.lo, row.hi = d.clip if d.clip is not None else (0.0, 0.0)
+            elif isinstance(d, LogUniform):
+                row.dist, row.a, row.b = krand.LOG_UNIFORM, float(np.log(d.lo)), float(np.log(d.hi))
+            else:
+                row.dist, row.a, row.b = krand.UNIFORM, d.lo, d.hi
+            row.op, row.mode = OP_CODES[t.op], MODE_CODES[t.mode]
+            row.interval = int(t.interval_steps or 1)
+            row.known = int(bool(t.known))
+            row.offset = wp.vec3d(*(t.offset or (0.0, 0.0, 0.0)))
+            table.append(row)
+        self._table = wp.array(table, dtype=krand.Term, device=dev)
+        self._targets_wp = wp.array(targets, dtype=wp.int32, device=dev)
+        self._nominal_wp = wp.array(nominal, dtype=wp.float64, device=dev)
+        self._key = torch.tensor([rng_key(self.env._generator.initial_seed())], dtype=torch.int32,
+                                 device=self.device)
+        self._counter = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
+        self._all = wp.ones(1, dtype=wp.bool, device=dev)  # the mask placeholder when every world fires
+        self._body = any(t.field in BODY_KEYS for t in self.terms)
+
+    def reseed(self, seed: int) -> None:
+        """``reset(seed=...)``: the draws from here on follow ``seed`` (as for an env built with it, after startup)."""
+        self._key.fill_(rng_key(seed))
+        self._counter.zero_()
+
+    # ------------------------------------------------------------------ firing
+    def _fire(self, mode: str, mask: torch.Tensor | None, current_stream: bool = False) -> bool:
+        """Launch the kernel for the terms of ``mode`` due now (interval: their period divides the step count), for the
+        worlds in ``mask`` (all if None); nothing when none is due. ``current_stream``: on Warp's current stream (inside
+        a captured env step), else on the simulator's."""
+        due = [t for t in self.terms if t.mode == mode and (mode != "interval" or self.steps % t.interval_steps == 0)]
+        if not due:
+            return False
+        sim = self.sim
+        params = sim.mover_param_struct(self._scale_inertia()) if self._body else self._no_params()
+        m = sim.model
+        mask_wp = self._all if mask is None else wp.from_torch(mask, dtype=wp.bool)
+        with contextlib.nullcontext() if current_stream else sim._on_stream():
+            wp.launch(krand.apply_terms, dim=self.num_worlds, device=sim.device,
+                      inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, self._table,
+                              self._targets_wp, self._nominal_wp, wp.from_torch(self._key), int(self._body),
+                              wp.from_torch(self._counter), params, m.radius, m.half_size, m.margins],
+                      outputs=[m.body])
+        return True
+
+    def _scale_inertia(self) -> bool:
         used = self.values
-        if any(f in used for f in BODY_KEYS):
-            self.sim.commit_mover_params(mask, scale_inertia="mover_mass" in used and "mover_inertia" not in used,
-                                         current_stream=current_stream)
+        return "mover_mass" in used and "mover_inertia" not in used
+
+    def _no_params(self):
+        """Empty parameter arrays for terms of the collision sizes only (the kernel writes no body field then)."""
+        if not hasattr(self, "_empty_params"):
+            from magwarp.kernels.params import MoverParams
+
+            p, dev = MoverParams(), self.sim.device
+            p.m_ctrl, p.i_ctrl, p.scale_inertia = 1.0, wp.vec3d(1.0, 1.0, 1.0), 0
+            for name in ("mass", "payload", "known", "v_max", "a_max", "j_max"):
+                setattr(p, name, wp.empty((0, 0), dtype=wp.float64, device=dev))
+            for name in ("inertia", "offset", "k_lin", "k_rot"):
+                setattr(p, name, wp.empty((0, 0), dtype=wp.vec3d, device=dev))
+            self._empty_params = p
+        return self._empty_params
+
+    def reset(self, mask: torch.Tensor) -> None:
+        """Reset-mode terms for the worlds in ``mask`` (``[W]`` bool on the device): one launch, no host sync."""
+        self._fire("reset", mask)
+
+    def step(self) -> None:
+        """Count an env step; interval terms whose period divides the count fire (all worlds, one launch)."""
+        self.steps += 1
+        self._fire("interval", None)
+
+    def commit(self, mask: torch.Tensor | None, current_stream: bool = False) -> None:
+        """Pack the body fields of the worlds in ``mask`` (all if None) from the simulator's parameter tensors (after
+        writes into them from outside the terms): one kernel. The terms' own firings pack as they draw."""
+        if any(f in self.values for f in BODY_KEYS):
+            self.sim.commit_mover_params(mask, scale_inertia=self._scale_inertia(), current_stream=current_stream)
 
     def reset_in_step(self, mask: torch.Tensor) -> None:
-        """:meth:`reset` inside an env step (the fused step, possibly being captured as a CUDA graph): the same draws
-        and writes, the pack kernel on Warp's current stream. ``mask``: a device tensor (no host sync)."""
-        self._fire("reset", mask)
-        self.commit(mask, current_stream=True)
+        """:meth:`reset` inside an env step (the fused step, possibly being captured as a CUDA graph): the same
+        launch, on Warp's current stream. ``mask``: a device tensor (no host sync)."""
+        self._fire("reset", mask, current_stream=True)

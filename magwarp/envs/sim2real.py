@@ -23,7 +23,11 @@
 
 Everything runs on the env's device, seeded by its generator, with no host sync. A model draws only when it has
 something to draw (a latency range of more than one value, a bias std, noise, a dropout probability): with any of
-these on, the env's later draws (goals, starts) differ from an env without them for the same seed.
+these on, the env's later draws (goals, starts) differ from an env without them for the same seed. Within an env
+step the sensor model draws its standard normals in one call (:meth:`SensorModel.new_step`: the step's reading, an
+autoreset's first reading and the reset worlds' new biases; a launch per step, not six), and readings outside a step
+(``reset()``) draw their own, velocities first: since #24's cost work a seed gives other noise inside steps than
+before (``std_noise`` included; a reset's reading is drawn as it always was).
 """
 
 from __future__ import annotations
@@ -187,6 +191,16 @@ class SensorModel:
         # Updated in place (the fused step of the trajectory env reads them through Warp views).
         self._drop = torch.zeros(num_envs, dtype=torch.bool, device=device)
         self._held: dict[str, torch.Tensor] | None = None
+        # A step's standard normals, drawn at once by new_step (one launch): its two readings (the step's own and an
+        # autoreset's first one) and the reset biases, each part [num_envs, 2 num_movers], only the parts that draw.
+        read = [k for k, std in (("vel", config.vel_noise_std), ("pos", config.pos_noise_std)) if std != 0.0]
+        bias = [k for k, b, std in (("vel", self.vel_bias, config.vel_bias_std),
+                                    ("pos", self.pos_bias, config.pos_bias_std)) if b is not None and std != 0]
+        parts = [("read0", k) for k in read] + [("bias", k) for k in bias] + [("read1", k) for k in read]
+        self.slots = {part: i for i, part in enumerate(parts)}
+        self.bundle_shape = (len(parts), num_envs, 2 * num_movers)
+        self._bundle: torch.Tensor | None = None  # the step's draws, from new_step to commit
+        self._reads = 0
 
     @staticmethod
     def _bias_tensor(mean, std: float, name: str, shape, device) -> torch.Tensor | None:
@@ -203,56 +217,61 @@ class SensorModel:
 
     def reset(self, mask: torch.Tensor) -> None:
         """New biases for the worlds in ``mask``; their next reading is not dropped."""
-        for bias, mean, std in ((self.vel_bias, self._mean["vel"], self.config.vel_bias_std),
-                                (self.pos_bias, self._mean["pos"], self.config.pos_bias_std)):
+        for key, bias, mean, std in (("vel", self.vel_bias, self._mean["vel"], self.config.vel_bias_std),
+                                     ("pos", self.pos_bias, self._mean["pos"], self.config.pos_bias_std)):
             if bias is None or std == 0:  # a set bias stays
                 continue
-            draw = mean + std * torch.randn(bias.shape, generator=self.generator, device=bias.device)
-            bias.copy_(torch.where(mask[:, None, None], draw, bias))
+            if self._bundle is not None:  # inside a step: the step's draws
+                z = self._bundle[self.slots[("bias", key)]].view(bias.shape)
+            else:
+                z = torch.randn(bias.shape, generator=self.generator, device=bias.device)
+            bias.copy_(torch.where(mask[:, None, None], mean + std * z, bias))
         self._drop &= ~mask
 
     def new_step(self) -> None:
-        """Draw which worlds drop this step's reading."""
+        """Draw which worlds drop this step's reading, and the step's standard normals (:meth:`draw_step`)."""
         p = self.config.dropout_prob
         if p > 0:
             self._drop.copy_(torch.rand(self._drop.shape, generator=self.generator, device=self._drop.device) < p)
+        self._reads = 0
+        self._bundle = None
+        if self.bundle_shape[0]:
+            self._bundle = torch.randn(self.bundle_shape, generator=self.generator, device=self._drop.device)
 
-    # The draws of new_step, read and reset into given buffers, in their order, for the trajectory env's fused step
-    # (which applies them in its kernels: magwarp.kernels.task.SensorParams).
-    def draw_drop(self, u: torch.Tensor) -> None:
-        """:meth:`new_step`'s uniform draw per world into ``u`` (``[num_envs]`` float32; none without dropout)."""
+    # The draws of new_step into given buffers, in its order, for the trajectory env's fused step (which applies them
+    # in its kernels: magwarp.kernels.task.SensorParams).
+    def draw_step(self, u: torch.Tensor, bundle: torch.Tensor) -> None:
+        """:meth:`new_step`'s draws: the uniform per world into ``u`` (``[num_envs]`` float32; none without dropout),
+        the step's standard normals into ``bundle`` (:attr:`bundle_shape`; part ``slots[(use, key)]``, ``use`` one of
+        ``"read0"``, ``"bias"``, ``"read1"``, ``key`` ``"vel"`` or ``"pos"``; none without parts)."""
         if self.config.dropout_prob > 0:
             torch.rand(u.shape, generator=self.generator, out=u)
+        if self.bundle_shape[0]:
+            torch.randn(bundle.shape, generator=self.generator, out=bundle)
 
-    def draw_noise(self, vel: torch.Tensor, pos: torch.Tensor) -> None:
-        """The white noise of one reading into ``vel`` and ``pos`` (``[num_envs, num_movers * 2]`` float32), as
-        :meth:`read` draws it (velocities first; none where the std is 0)."""
-        for out, std in ((vel, self.config.vel_noise_std), (pos, self.config.pos_noise_std)):
-            if std != 0.0:
-                torch.randn(out.shape, generator=self.generator, out=out)
+    def _noise(self, key: str, x: torch.Tensor, slot: str | None) -> torch.Tensor:
+        if slot is not None:
+            return self._bundle[self.slots[(slot, key)]]
+        return torch.randn(x.shape, generator=self.generator, device=x.device, dtype=x.dtype)
 
-    def draw_biases(self, vel: torch.Tensor, pos: torch.Tensor) -> None:
-        """:meth:`reset`'s standard normal draws into ``vel`` and ``pos`` (``[num_envs, num_movers, 2]``; velocities
-        first; none for a set bias)."""
-        for out, bias, std in ((vel, self.vel_bias, self.config.vel_bias_std),
-                               (pos, self.pos_bias, self.config.pos_bias_std)):
-            if bias is not None and std != 0:
-                torch.randn(out.shape, generator=self.generator, out=out)
-
-    def _sense(self, x: torch.Tensor, bias: torch.Tensor | None, std: float) -> torch.Tensor:
+    def _sense(self, key: str, x: torch.Tensor, bias: torch.Tensor | None, std: float,
+               slot: str | None) -> torch.Tensor:
         n = x.shape[0]
         if bias is not None:
             x = x + bias
         x = x.reshape(n, -1)
         if std == 0.0:
             return x
-        return x + std * torch.randn(x.shape, generator=self.generator, device=x.device, dtype=x.dtype)
+        return x + std * self._noise(key, x, slot)
 
     def read(self, pos_xy: torch.Tensor, vel_xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Sensed ``(positions, velocities)``, flattened ``[num_envs, num_movers * 2]`` (velocity noise is drawn
-        first, as the env's ``std_noise`` always did)."""
-        vel = self._sense(vel_xy, self.vel_bias, self.config.vel_noise_std)
-        pos = self._sense(pos_xy, self.pos_bias, self.config.pos_noise_std)
+        """Sensed ``(positions, velocities)``, flattened ``[num_envs, num_movers * 2]``. The first two readings of a
+        step (after :meth:`new_step`: the step's, an autoreset's) take the step's draws; other readings (a reset
+        outside a step) draw their noise then, velocities first (as the env's ``std_noise`` always did)."""
+        slot = f"read{self._reads}" if self._bundle is not None and self._reads < 2 else None
+        self._reads += 1
+        vel = self._sense("vel", vel_xy, self.vel_bias, self.config.vel_noise_std, slot)
+        pos = self._sense("pos", pos_xy, self.pos_bias, self.config.pos_noise_std, slot)
         return pos, vel
 
     def hold(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -265,6 +284,7 @@ class SensorModel:
     def commit(self, obs: dict[str, torch.Tensor]) -> None:
         """Remember what the env returned (the next dropped reading repeats it); readings after this are fresh until
         the next step."""
+        self._bundle = None  # the step is over: later readings draw their own noise
         if self.config.dropout_prob == 0:
             return
         if self._held is None:

@@ -260,6 +260,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         super()._reseed(seed)
         self._pool_generator.manual_seed(seed)
         self.sampler.draw_pools(self._pool_generator)
+        if self.randomizer is not None:
+            self.randomizer.reseed(seed)
 
     def _nonfinite_worlds(self, obs) -> torch.Tensor:
         return (self.sim.nonfinite_step >= 0) | super()._nonfinite_worlds(obs)

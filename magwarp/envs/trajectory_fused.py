@@ -5,20 +5,20 @@ One step (after the host-side input check and the copy of the action into the si
 
 1. the simulator's step kernels (``num_cycles`` cycles, NaN guard);
 2. the random numbers of the step, drawn with the env's torch generator in the same calls, shapes and order as the
-   eager step draws them (dropped readings and the reading's white noise; goals for reached goals; a start
-   configuration, goals and, with a latency range, a delay for every world), so that both paths give the same
-   episodes for the same seed;
+   eager step draws them (dropped readings and the step's standard normals: both readings' white noise and the
+   finished worlds' new sensor biases, in one call; goals for reached goals; a start configuration, goals and, with a
+   latency range, a delay for every world), so that both paths give the same episodes for the same seed;
 3. :func:`magwarp.kernels.task.trajectory_step` (one thread per world): the final (sensed) observation, reward,
    flags, info, goal counters, resampled goals, and the next episode's starts and goals for the worlds that finished;
-4. for those worlds (the kernel's ``done`` flags as the mask, on the device): the sensor model's new biases and the
-   reset-mode randomisation terms (:meth:`~magwarp.envs.planar_randomization.PlanarRandomizer.reset_in_step`:
-   draws for every world, applied with ``torch.where``, one pack kernel), as the torch step's ``_reset_envs`` draws
-   them; the noise of the next reading; the simulator's reset kernels;
+4. for those worlds (the kernel's ``done`` flags as the mask, on the device): the sensor model's new biases (in
+   step 3's kernel) and the reset-mode randomisation terms
+   (:meth:`~magwarp.envs.planar_randomization.PlanarRandomizer.reset_in_step`: one kernel, the torch step's too);
+   the simulator's reset kernels;
 5. :func:`magwarp.kernels.task.trajectory_obs`: the returned observation; the sensor model keeps it (what a dropped
    reading repeats).
 
-Interval-mode randomisation terms fire on the host before the step (the simulator's step callbacks, as in the torch
-step), then the graph is replayed: their draws come first, as in the torch step.
+Interval-mode randomisation terms fire before the step (the simulator's step callbacks, as in the torch step: one
+launch of the randomiser's kernel when a term is due), then the graph is replayed.
 
 On CUDA (``graph=True``) steps 1-5 are one CUDA graph recorded with ``torch.cuda.graph`` (the env's generator is
 registered with it, so every replay draws new numbers), replayed with no host sync and no Python beyond the replay.
@@ -198,8 +198,17 @@ class FusedTrajectoryStep:
         def mean(name: str, bias: torch.Tensor | None) -> torch.Tensor | None:
             return None if bias is None else torch.broadcast_to(sensors._mean[name], bias.shape).contiguous()
 
-        self._noise = [(torch.zeros(n, 2 * m, device=dev), torch.zeros(n, 2 * m, device=dev)) for _ in range(2)]
-        self._bias_draw = (torch.zeros(n, m, 2, device=dev), torch.zeros(n, m, 2, device=dev))  # vel, pos
+        # the step's standard normals (SensorModel.draw_step: one launch) and the kernels' views of its parts (zeros
+        # where a part is not drawn: the kernels do not read them)
+        self._bundle = torch.zeros(sensors.bundle_shape, device=dev)
+        zero = torch.zeros(n, 2 * m, device=dev)
+
+        def part(use: str, key: str) -> torch.Tensor:
+            i = sensors.slots.get((use, key))
+            return zero if i is None else self._bundle[i]
+
+        self._noise = [(part(use, "vel"), part(use, "pos")) for use in ("read0", "read1")]
+        self._bias_draw = tuple(part("bias", key).view(n, m, 2) for key in ("vel", "pos"))
         self._drop_u = torch.zeros(n, device=dev)
         self._means = (mean("vel", sensors.vel_bias), mean("pos", sensors.pos_bias))
         p = ktask.SensorParams()
@@ -240,18 +249,16 @@ class FusedTrajectoryStep:
             torch.randint(*self._delay_range, (n,), generator=g, out=self._delay_draw)
 
     def _launch_task(self, out: _Outputs) -> None:
-        """Steps 2-5 (draws, task kernels, resets) on the current streams. The draws come in the torch step's order:
-        dropped readings and the reading's noise (``_apply_action``, ``_get_obs``), reached goals (``_end_step``),
-        then the autoreset's (``_reset_envs``: start, goals, delay, sensor biases, reset-mode terms) and the noise of
-        the next episode's first reading."""
+        """Steps 2-5 (draws, task kernels, resets) on the current streams. The torch draws come in the torch step's
+        order: dropped readings and the step's standard normals (``_apply_action``: the sensor model's
+        ``new_step``), reached goals (``_end_step``), then the autoreset's (``_reset_envs``: start, goals, delay); the
+        reset-mode terms draw in their own kernel."""
         env = self.env
         sim, sensors = env.sim, env.sensors
         st, delay = self._sim_arrays()
         a = self._wp
-        sensors.draw_drop(self._drop_u)
-        sensors.draw_noise(*self._noise[0])
+        sensors.draw_step(self._drop_u, self._bundle)
         self._draw()
-        sensors.draw_biases(*self._bias_draw)
         m = sim.model
         wp.launch(
             ktask.trajectory_step, dim=env.num_envs, device=sim.device,
@@ -265,7 +272,6 @@ class FusedTrajectoryStep:
         # the finished worlds' reset-mode randomisation (torch ops on the device mask)
         if env.randomizer is not None:
             env.randomizer.reset_in_step(out.done)
-        sensors.draw_noise(*self._noise[1])
         sim._launch_reset()
         wp.launch(
             ktask.trajectory_obs, dim=env.num_envs, device=sim.device,

@@ -50,41 +50,54 @@ def with_payload(mass: wp.float64, inertia: wp.vec3d, payload: wp.float64, offse
     return total, inertia + mu * shift, offset * (payload / total)
 
 
+@wp.struct
+class MoverParams:
+    """The per-world mover parameters a body row is packed from (:attr:`magwarp.sim.Simulator.mover_params`, float64
+    ``[W, M]`` arrays) and the controller's configured mover."""
+
+    m_ctrl: wp.float64  # the configured mass (the controller's)
+    i_ctrl: wp.vec3d  # the configured principal inertia
+    scale_inertia: int  # 1: use the configured inertia scaled with each mover's mass (uniform density)
+    mass: wp.array2d(dtype=wp.float64)
+    inertia: wp.array2d(dtype=wp.vec3d)
+    payload: wp.array2d(dtype=wp.float64)
+    offset: wp.array2d(dtype=wp.vec3d)
+    known: wp.array2d(dtype=wp.float64)  # the payload the controller is configured for
+    k_lin: wp.array2d(dtype=wp.vec3d)
+    k_rot: wp.array2d(dtype=wp.vec3d)
+    v_max: wp.array2d(dtype=wp.float64)
+    a_max: wp.array2d(dtype=wp.float64)
+    j_max: wp.array2d(dtype=wp.float64)
+
+
+@wp.func
+def pack_mover(p: MoverParams, w: int, m: int) -> Body:
+    """Mover ``m`` of world ``w``'s body row: its own mass and inertia (``p.scale_inertia``: the configured inertia
+    scaled with the mass, uniform density) plus a point payload (:func:`with_payload`; none when it is 0), then
+    :func:`pack_body` with the controller's mass ``m_ctrl + known`` (the payload its feedforward is configured for:
+    XPlanar's payload parametrisation)."""
+    mw = p.mass[w, m]
+    iw = p.inertia[w, m]
+    if p.scale_inertia != 0:
+        iw = iw * (mw / p.m_ctrl)
+    com = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
+    pay = p.payload[w, m]
+    if pay != wp.float64(0.0):
+        mw, iw, com = with_payload(mw, iw, pay, p.offset[w, m])
+    return pack_body(p.m_ctrl + p.known[w, m], p.i_ctrl, mw, iw, p.k_lin[w, m], p.k_rot[w, m], com, p.v_max[w, m],
+                     p.a_max[w, m], p.j_max[w, m])
+
+
 @wp.kernel
 def pack_bodies(
     mask: wp.array(dtype=wp.bool),
-    # Model:
-    m_ctrl: wp.float64,
-    i_ctrl: wp.vec3d,
-    scale_inertia: int,
     # State in:
-    mass: wp.array2d(dtype=wp.float64),
-    inertia: wp.array2d(dtype=wp.vec3d),
-    payload: wp.array2d(dtype=wp.float64),
-    offset: wp.array2d(dtype=wp.vec3d),
-    payload_known: wp.array2d(dtype=wp.float64),
-    k_lin: wp.array2d(dtype=wp.vec3d),
-    k_rot: wp.array2d(dtype=wp.vec3d),
-    v_max: wp.array2d(dtype=wp.float64),
-    a_max: wp.array2d(dtype=wp.float64),
-    j_max: wp.array2d(dtype=wp.float64),
+    params: MoverParams,
     # State out:
     body: wp.array2d(dtype=Body),
 ):
-    """Pack the masked worlds' mover parameters into their body rows (one thread per mover): the mover's own mass and
-    inertia (``scale_inertia``: the configured inertia scaled with the mass, uniform density) plus a point payload
-    (:func:`with_payload`; none when it is 0), then :func:`pack_body` with the controller's mass ``m_ctrl +
-    payload_known`` (the payload its feedforward is configured for: XPlanar's payload parametrisation)."""
+    """Pack the masked worlds' mover parameters into their body rows (one thread per mover, :func:`pack_mover`)."""
     w, m = wp.tid()
     if not mask[w]:
         return
-    mw = mass[w, m]
-    iw = inertia[w, m]
-    if scale_inertia != 0:
-        iw = iw * (mw / m_ctrl)
-    com = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    p = payload[w, m]
-    if p != wp.float64(0.0):
-        mw, iw, com = with_payload(mw, iw, p, offset[w, m])
-    body[w, m] = pack_body(m_ctrl + payload_known[w, m], i_ctrl, mw, iw, k_lin[w, m], k_rot[w, m], com, v_max[w, m],
-                           a_max[w, m], j_max[w, m])
+    body[w, m] = pack_mover(params, w, m)

@@ -55,6 +55,55 @@ def body_impedance(imp: Impedance, b: Body) -> Impedance:
     return out
 
 
+@wp.func
+def gravity_torque(com: wp.vec3, q: wp.quat) -> bool:
+    """Whether gravity has a torque about the mover centre: a centre of mass off it, unless it lies on the vertical
+    axis of a level mover (``q`` a pure yaw: ``cross(R com, (0, 0, -M g))`` is then exactly zero, so skipping it gives
+    the same bits; a payload on top of a level mover, the sim2real preset's, costs nothing per cycle)."""
+    if com[0] != 0.0 or com[1] != 0.0:
+        return True
+    return com[2] != 0.0 and (q[0] != 0.0 or q[1] != 0.0)
+
+
+#: one body row in registers: its float32 fields (mass, inv_mass, inertia, damp_lin, damp_rot, k_lin, k_rot, com)
+#: and its float64 ones (drive_gain, v_max, a_max, j_max)
+BodyF32 = wp.types.vector(length=20, dtype=wp.float32)
+BodyF64 = wp.types.vector(length=4, dtype=wp.float64)
+
+
+@wp.func
+def body_f32(b: Body) -> BodyF32:
+    """The float32 fields of a body row, as :func:`row_body` takes them."""
+    return BodyF32(b.mass, b.inv_mass, b.inertia[0], b.inertia[1], b.inertia[2], b.damp_lin[0], b.damp_lin[1],
+                   b.damp_lin[2], b.damp_rot[0], b.damp_rot[1], b.damp_rot[2], b.k_lin[0], b.k_lin[1], b.k_lin[2],
+                   b.k_rot[0], b.k_rot[1], b.k_rot[2], b.com[0], b.com[1], b.com[2])
+
+
+@wp.func
+def body_f64(b: Body) -> BodyF64:
+    """The float64 fields of a body row, as :func:`row_body` takes them."""
+    return BodyF64(b.drive_gain, b.v_max, b.a_max, b.j_max)
+
+
+@wp.func
+def row_body(f: BodyF32, d: BodyF64) -> Body:
+    """The body row held in registers as :func:`body_f32` and :func:`body_f64` (the same bits)."""
+    b = Body()
+    b.mass = f[0]
+    b.inv_mass = f[1]
+    b.inertia = wp.vec3(f[2], f[3], f[4])
+    b.damp_lin = wp.vec3(f[5], f[6], f[7])
+    b.damp_rot = wp.vec3(f[8], f[9], f[10])
+    b.k_lin = wp.vec3(f[11], f[12], f[13])
+    b.k_rot = wp.vec3(f[14], f[15], f[16])
+    b.com = wp.vec3(f[17], f[18], f[19])
+    b.drive_gain = d[0]
+    b.v_max = d[1]
+    b.a_max = d[2]
+    b.j_max = d[3]
+    return b
+
+
 @functools.cache
 def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: bool = False):
     """The per-cycle kernel, the fused per-world kernel and the one-mover cycle function, for ``force_fn``.
@@ -98,7 +147,7 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
             wrench = force_fn(p, b, drive, target_pos, target_quat, imp, lim, aux)
         else:
             wrench = force_fn(p, b, drive, target_pos, target_quat, body_impedance(imp, b), lim, aux)
-            if not (b.com == wp.vec3(0.0)):
+            if gravity_torque(b.com, p.quat):
                 weight = wp.vec3(0.0, 0.0, -b.mass * lim.gravity)
                 wrench.torque = wrench.torque + wp.cross(wp.quat_rotate(p.quat, b.com), weight)
         n = integrate_body(p, wrench, b, lim)
@@ -299,7 +348,9 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
 
     Specialised for ``num_movers`` (loops over movers unroll), it reads the world's state once, runs all cycles and
     writes the state back once: global memory traffic no longer scales with the cycle count. Same semantics as
-    ``fused_worlds``, action latency (``latency``) included.
+    ``fused_worlds``, action latency (``latency``) included. The general variant (``nominal=False``: per-world body
+    rows and collision sizes, domain randomisation) loads the world's rows into registers once per step too, where the
+    nominal one reads the one shared row (cached) every cycle.
     """
     M = int(num_movers)
     advance_pose = make_advance_kernel(force_fn, latency, nominal)[2]
@@ -308,6 +359,9 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
     Rows2 = wp.types.matrix(shape=(M, 2), dtype=wp.float32)
     Rows6d = wp.types.matrix(shape=(M, 6), dtype=wp.float64)
     Ints = wp.types.vector(length=M, dtype=wp.int32)
+    Sizes = wp.types.vector(length=M, dtype=wp.float32)
+    BodyRows = wp.types.matrix(shape=(M, 20), dtype=wp.float32)
+    BodyRows64 = wp.types.matrix(shape=(M, 4), dtype=wp.float64)
 
     @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
     def fused_registers(
@@ -360,17 +414,30 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
         F = Ints()
         Fa = Ints()
         Pr = Ints()
-        C = Rows2()  # the command and the targets hold for the whole step: load them once
-        Cp = Rows2()  # latency only: the previous command, acting for the first d cycles
+        # The acting command: the step's (held for the whole step: loaded once) or, with latency, the previous
+        # step's during the world's first ``held`` cycles, the step's from cycle ``held`` on (loaded then, once).
+        C = Rows2()
         held = int(0)
         if wp.static(latency):
             held = delay[w]
         TP = Rows3()
         TQ = Rows4()
+        # general variant: the world's body rows and collision sizes, once per step
+        BF = BodyRows()
+        BD = BodyRows64()
+        R = Sizes()
+        H = Rows2()
         for m in range(M):
+            if wp.static(not nominal):
+                b = body[wb, m]
+                BF[m] = body_f32(b)
+                BD[m] = body_f64(b)
+                R[m] = radius[wr, m]
+                H[m] = half_size[wh, m]
             C[m] = cmd[w, m]
             if wp.static(latency):
-                Cp[m] = prev_cmd[w, m]
+                if held > 0:
+                    C[m] = prev_cmd[w, m]
             TP[m] = target_pos[w, m]
             tq = target_quat[w, m]
             TQ[m] = wp.vec4(tq[0], tq[1], tq[2], tq[3])
@@ -392,23 +459,35 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
         for c in range(num_cycles):
             if col.stop_on_collision == 1 and stopped == 1:
                 break
+            if wp.static(latency):
+                if c == held and c > 0:
+                    for m in range(M):
+                        C[m] = cmd[w, m]
             for m in range(M):
                 p = make_pose(P[m], wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3]), V[m], Om[m])
                 u = C[m]
-                if wp.static(latency):
-                    if c < held:
-                        u = Cp[m]
-                n, a, xy = advance_pose(p, XY[m], u, body[wb, m], TP[m],
-                                        wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]), force_aux[w, m], lim, imp)
+                if wp.static(nominal):
+                    bm = body[wb, m]
+                else:
+                    bm = row_body(BF[m], BD[m])
+                n, a, xy = advance_pose(p, XY[m], u, bm, TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
+                                        force_aux[w, m], lim, imp)
                 P[m] = n.pos
                 V[m] = n.vel
                 Om[m] = n.omega
                 Q[m] = wp.vec4(n.quat[0], n.quat[1], n.quat[2], n.quat[3])
                 A[m] = a
                 XY[m] = xy
+                rm = float(0.0)
+                hm = wp.vec2(0.0)
+                if wp.static(nominal):
+                    rm = radius[wr, m]
+                    hm = half_size[wh, m]
+                else:
+                    rm = R[m]
+                    hm = H[m]
                 hit = int(0)
-                if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), radius[wr, m],
-                                half_size[wh, m]):
+                if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), rm, hm):
                     hit = 1
                 Wl[m] = hit
                 Pr[m] = -1
@@ -423,8 +502,21 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
                     if j > i:
                         d = wp.vec2(P[i, 0] - P[j, 0], P[i, 1] - P[j, 1])
                         yj = shape_heading(col, wp.quat(Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]))
-                        if movers_collide_cs(col, d, yi, radius[wr, i], half_size[wh, i], yj, radius[wr, j],
-                                             half_size[wh, j]):
+                        ri = float(0.0)
+                        rj = float(0.0)
+                        hi = wp.vec2(0.0)
+                        hj = wp.vec2(0.0)
+                        if wp.static(nominal):
+                            ri = radius[wr, i]
+                            rj = radius[wr, j]
+                            hi = half_size[wh, i]
+                            hj = half_size[wh, j]
+                        else:
+                            ri = R[i]
+                            rj = R[j]
+                            hi = H[i]
+                            hj = H[j]
+                        if movers_collide_cs(col, d, yi, ri, hi, yj, rj, hj):
                             if pairs < pair_list.shape[1]:
                                 pair_list[w, pairs] = wp.vec2i(i, j)
                             pairs += 1
@@ -452,7 +544,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
             flags_any[w, m] = Fa[m]
             partner[w, m] = Pr[m]
             if wp.static(latency):  # the next step's previous command
-                prev_cmd[w, m] = C[m]
+                prev_cmd[w, m] = cmd[w, m]
         world_pairs[w] = pairs
         world_walls[w] = walls
         halted[w] = stopped
