@@ -138,6 +138,13 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # #18: the scripted planner (lanes, safety filter) at 256 / 1024 / 4096 movers (2000 steps each: goal share in 40 s)
       timeout 590 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
         2>&1 | tail -20 ;;
+    register_rows)
+      # #24: B0's randomisation cost with each register-row variant of the general fused kernel (one JSON each)
+      for rows in all sizes none; do
+        timeout 180 python3 benchmarks/randomization.py --device cuda:0 --num-envs 16384,65536 \
+          --env magwarp/TrajectoryPlanningB0-v0 --register-rows $rows --json "$OUT/randomization_rows_$rows.json" \
+          2>&1 | grep -E "^magwarp" | tail -6
+      done ;;
     robustness)
       # #24: the shipped B0 policy and the randomisation-trained ones (paper.py runs b0_ppo_dr and b0_ppo_dr_ft,
       # trained by the suite stage into /tmp/runs: RUNS=b0_ppo_dr,b0_ppo_dr_ft), nominal and under each condition

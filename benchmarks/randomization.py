@@ -143,8 +143,15 @@ def main(argv=None) -> int:
     p.add_argument("--env", default=None, help=f"one env id (default: {', '.join(ENVS)})")
     p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 64,256 on CPU, 4096,65536 on GPU)")
     p.add_argument("--steps", type=int, default=20)
+    p.add_argument("--register-rows", default=None, choices=("all", "sizes", "none"),
+                   help="which per-world rows the general register kernel holds (magwarp.kernels.options.REGISTER_ROWS;"
+                        " default: the library's); each setting compiles its own kernel")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
+    from magwarp.kernels import options as kernel_options
+
+    if args.register_rows is not None:
+        kernel_options.REGISTER_ROWS = args.register_rows
     if args.env is not None and args.env not in ENVS:
         p.error(f"--env must be one of {', '.join(ENVS)}, got {args.env!r}")
     info, devices = start_run(args.device)
@@ -166,7 +173,8 @@ def main(argv=None) -> int:
                     base = res if name == "off" else base
                     cost = 100.0 * (res["step_ms"] / base["step_ms"] - 1.0)
                     rows.append({"env": env_id, "device": device, "num_envs": n, "randomization": name,
-                                 "cost_pct": cost, **res, **counts[name]})
+                                 "cost_pct": cost, **res, **counts[name],
+                                 "register_rows": kernel_options.REGISTER_ROWS})
                     path = f", step path: {res['path']}" if "path" in res else ""
                     print(f"  {device} {env_id} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s "
                           f"({cost:+.1f} %{path})", flush=True)

@@ -23,6 +23,7 @@ import warp as wp
 from magwarp._checks import as_count, as_finite, check_magnitude, init_warp, stiffness_limit, warp_device
 from magwarp.kernels import collision as kcol
 from magwarp.kernels import guard as kguard
+from magwarp.kernels import options as kernel_options
 from magwarp.kernels import params as kparams
 from magwarp.kernels import step as kstep
 from magwarp.kernels.impedance import default_force
@@ -223,7 +224,8 @@ class Simulator:
         self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(self._force_model, latency, nominal)
         if self.num_movers <= REGISTER_MAX_MOVERS:
             # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
-            self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency, nominal)
+            self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency, nominal,
+                                                            kernel_options.REGISTER_ROWS)
         self._graphs.clear()
 
     def _start_arrays(self, num_movers, start_xy, start_yaw, start_pose=None) -> np.ndarray:

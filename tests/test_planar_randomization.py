@@ -63,6 +63,28 @@ def test_nominal_kernels_equal_the_general_ones_bit_for_bit(rng, num_movers, con
             assert torch.equal(getattr(nominal, name), getattr(general, name)), name
 
 
+@pytest.mark.parametrize("rows", ["sizes", "none"])
+def test_register_row_variants_equal_bit_for_bit(monkeypatch, rows):
+    # MAGWARP_REGISTER_ROWS (a benchmark knob) picks which per-world rows the general register kernel holds in
+    # registers; every variant steps a randomised world with latency to the same bits as the default ("all").
+    from magwarp.kernels import options
+
+    def run():
+        env = make(6, "sim2real", seed=3, actuation={"latency_range": [0, 5]})
+        env.reset(seed=3)
+        gen = torch.Generator().manual_seed(4)
+        for _ in range(5):
+            env.step(torch.rand((6, *env.single_action_space.shape), generator=gen) * 2 - 1)
+        return env.sim
+
+    default = run()
+    monkeypatch.setattr(options, "REGISTER_ROWS", rows)
+    variant = run()
+    assert variant._fused_kernel is not default._fused_kernel  # another compiled variant
+    for name in ("pos", "quat", "vel", "omega", "acc"):
+        assert torch.equal(getattr(default, name), getattr(variant, name)), name
+
+
 def test_terms_draw_from_their_distributions():
     n = 1200
     env = make(n, [EventTerm("mover_mass", Uniform(1.0, 1.6)),

@@ -343,16 +343,21 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
 
 
 @functools.cache
-def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nominal: bool = False):
+def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nominal: bool = False,
+                         register_rows: str = "all"):
     """The fused small-world kernel with every mover's state held in registers for the whole step.
 
     Specialised for ``num_movers`` (loops over movers unroll), it reads the world's state once, runs all cycles and
     writes the state back once: global memory traffic no longer scales with the cycle count. Same semantics as
     ``fused_worlds``, action latency (``latency``) included. The general variant (``nominal=False``: per-world body
     rows and collision sizes, domain randomisation) loads the world's rows into registers once per step too, where the
-    nominal one reads the one shared row (cached) every cycle.
+    nominal one reads the one shared row (cached) every cycle. ``register_rows`` (:data:`~magwarp.kernels.options.
+    REGISTER_ROWS`): which rows the general variant holds: ``"all"``, ``"sizes"`` (collision sizes; body rows read
+    every cycle) or ``"none"`` (read every cycle, as the nominal variant does); the same results either way.
     """
     M = int(num_movers)
+    body_regs = bool(not nominal and register_rows == "all")
+    size_regs = bool(not nominal and register_rows in ("all", "sizes"))
     advance_pose = make_advance_kernel(force_fn, latency, nominal)[2]
     Rows3 = wp.types.matrix(shape=(M, 3), dtype=wp.float32)
     Rows4 = wp.types.matrix(shape=(M, 4), dtype=wp.float32)
@@ -428,10 +433,11 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
         R = Sizes()
         H = Rows2()
         for m in range(M):
-            if wp.static(not nominal):
+            if wp.static(body_regs):
                 b = body[wb, m]
                 BF[m] = body_f32(b)
                 BD[m] = body_f64(b)
+            if wp.static(size_regs):
                 R[m] = radius[wr, m]
                 H[m] = half_size[wh, m]
             C[m] = cmd[w, m]
@@ -466,7 +472,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
             for m in range(M):
                 p = make_pose(P[m], wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3]), V[m], Om[m])
                 u = C[m]
-                if wp.static(nominal):
+                if wp.static(not body_regs):
                     bm = body[wb, m]
                 else:
                     bm = row_body(BF[m], BD[m])
@@ -480,7 +486,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
                 XY[m] = xy
                 rm = float(0.0)
                 hm = wp.vec2(0.0)
-                if wp.static(nominal):
+                if wp.static(not size_regs):
                     rm = radius[wr, m]
                     hm = half_size[wh, m]
                 else:
@@ -506,7 +512,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
                         rj = float(0.0)
                         hi = wp.vec2(0.0)
                         hj = wp.vec2(0.0)
-                        if wp.static(nominal):
+                        if wp.static(not size_regs):
                             ri = radius[wr, i]
                             rj = radius[wr, j]
                             hi = half_size[wh, i]
