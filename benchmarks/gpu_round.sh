@@ -140,7 +140,7 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         2>&1 | tail -20 ;;
     register_rows)
       # #24: B0's randomisation cost with each register-row variant of the general fused kernel (one JSON each)
-      for rows in all sizes none; do
+      for rows in all f32 sizes none; do
         timeout 180 python3 benchmarks/randomization.py --device cuda:0 --num-envs 16384,65536 \
           --env magwarp/TrajectoryPlanningB0-v0 --register-rows $rows --json "$OUT/randomization_rows_$rows.json" \
           2>&1 | grep -E "^magwarp" | tail -6

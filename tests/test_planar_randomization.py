@@ -63,7 +63,7 @@ def test_nominal_kernels_equal_the_general_ones_bit_for_bit(rng, num_movers, con
             assert torch.equal(getattr(nominal, name), getattr(general, name)), name
 
 
-@pytest.mark.parametrize("rows", ["sizes", "none"])
+@pytest.mark.parametrize("rows", ["f32", "sizes", "none"])
 def test_register_row_variants_equal_bit_for_bit(monkeypatch, rows):
     # MAGWARP_REGISTER_ROWS (a benchmark knob) picks which per-world rows the general register kernel holds in
     # registers; every variant steps a randomised world with latency to the same bits as the default ("all").

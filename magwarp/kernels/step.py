@@ -352,12 +352,14 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
     ``fused_worlds``, action latency (``latency``) included. The general variant (``nominal=False``: per-world body
     rows and collision sizes, domain randomisation) loads the world's rows into registers once per step too, where the
     nominal one reads the one shared row (cached) every cycle. ``register_rows`` (:data:`~magwarp.kernels.options.
-    REGISTER_ROWS`): which rows the general variant holds: ``"all"``, ``"sizes"`` (collision sizes; body rows read
-    every cycle) or ``"none"`` (read every cycle, as the nominal variant does); the same results either way.
+    REGISTER_ROWS`): which rows the general variant holds: ``"all"``, ``"f32"`` (the body rows' float32 fields and the
+    collision sizes; the float64 limits read every cycle), ``"sizes"`` (collision sizes; body rows read every cycle)
+    or ``"none"`` (read every cycle, as the nominal variant does); the same results either way.
     """
     M = int(num_movers)
-    body_regs = bool(not nominal and register_rows == "all")
-    size_regs = bool(not nominal and register_rows in ("all", "sizes"))
+    body_regs = bool(not nominal and register_rows in ("all", "f32"))
+    f64_regs = bool(body_regs and register_rows == "all")
+    size_regs = bool(not nominal and register_rows in ("all", "f32", "sizes"))
     advance_pose = make_advance_kernel(force_fn, latency, nominal)[2]
     Rows3 = wp.types.matrix(shape=(M, 3), dtype=wp.float32)
     Rows4 = wp.types.matrix(shape=(M, 4), dtype=wp.float32)
@@ -436,7 +438,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
             if wp.static(body_regs):
                 b = body[wb, m]
                 BF[m] = body_f32(b)
-                BD[m] = body_f64(b)
+                if wp.static(f64_regs):
+                    BD[m] = body_f64(b)
             if wp.static(size_regs):
                 R[m] = radius[wr, m]
                 H[m] = half_size[wh, m]
@@ -474,8 +477,10 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
                 u = C[m]
                 if wp.static(not body_regs):
                     bm = body[wb, m]
-                else:
+                elif wp.static(f64_regs):
                     bm = row_body(BF[m], BD[m])
+                else:
+                    bm = row_body(BF[m], body_f64(body[wb, m]))
                 n, a, xy = advance_pose(p, XY[m], u, bm, TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
                                         force_aux[w, m], lim, imp)
                 P[m] = n.pos
