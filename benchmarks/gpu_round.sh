@@ -138,6 +138,11 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # #18: the scripted planner (lanes, safety filter) at 256 / 1024 / 4096 movers (2000 steps each: goal share in 40 s)
       timeout 590 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
         2>&1 | tail -20 ;;
+    rand_profile)
+      # #24: B0's randomisation cost at 4096/16384/65536 envs with each setting's per-kernel CUDA time at 65,536
+      timeout 400 python3 benchmarks/randomization.py --device cuda:0 --num-envs 4096,16384,65536 \
+        --env magwarp/TrajectoryPlanningB0-v0 --kernel-times 65536 --json "$OUT/randomization_fused_gpu.json" \
+        2>&1 | grep -v "^Module" | tail -16 ;;
     register_rows)
       # #24: B0's randomisation cost with each register-row variant of the general fused kernel (one JSON each)
       for rows in all f32 sizes none; do

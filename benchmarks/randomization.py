@@ -71,6 +71,37 @@ NO_KERNEL_OPS = {"aten::view", "aten::expand", "aten::expand_as", "aten::as_stri
                  "aten::_reshape_alias", "aten::resolve_conj", "aten::resolve_neg", "aten::lift_fresh", "aten::to"}
 
 
+def kernel_times(env_id: str, device: str, num_envs: int, steps: int = 10, **env_kwargs) -> dict[str, float]:
+    """CUDA time per env step of each kernel (us, summed over its launches) in the env's step at ``num_envs``, from the
+    profiler's device trace over ``steps`` steps (graph replays included): where a setting's extra time goes."""
+    import collections
+
+    import gymnasium as gym
+    import torch
+    from torch.profiler import ProfilerActivity, profile
+
+    import magwarp  # noqa: F401  (registers the ids)
+
+    env = gym.make_vec(env_id, num_envs=num_envs, device=device, check_inputs=False, **env_kwargs).unwrapped
+    env.reset(seed=0)
+    gen = torch.Generator(device=env.device).manual_seed(0)
+    actions = [torch.rand((num_envs, *env.single_action_space.shape), device=env.device, generator=gen) * 2 - 1
+               for _ in range(steps)]
+    for a in actions[:3]:
+        env.step(a)
+    torch.cuda.synchronize()
+    with profile(activities=[ProfilerActivity.CUDA]) as prof:
+        for a in actions:
+            env.step(a)
+        torch.cuda.synchronize()
+    cuda = torch.autograd.DeviceType.CUDA
+    total: collections.Counter = collections.Counter()
+    for e in prof.profiler.kineto_results.events():
+        if e.device_type() == cuda:
+            total[e.name()[:60]] += (e.duration_ns() / 1000.0) / steps
+    return dict(total.most_common())
+
+
 def count_launches(env_id: str, device: str, num_envs: int = 256, **env_kwargs) -> dict:
     """Device launches of one env step of the trajectory env (see the module doc): ``launches`` (Warp + torch),
     ``warp_launches``, ``torch_kernels``, ``launch_names`` and, on CUDA, ``graph_kernels``."""
@@ -146,6 +177,8 @@ def main(argv=None) -> int:
     p.add_argument("--register-rows", default=None, choices=("all", "f32", "sizes", "none"),
                    help="which per-world rows the general register kernel holds (magwarp.kernels.options.REGISTER_ROWS;"
                         " default: the library's); each setting compiles its own kernel")
+    p.add_argument("--kernel-times", type=int, default=0, metavar="N",
+                   help="also profile each setting's step at N envs on CUDA: per-kernel time per step (us)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     from magwarp.kernels import options as kernel_options
@@ -166,6 +199,17 @@ def main(argv=None) -> int:
                     graph = f"; graph kernels: {c['graph_kernels']}" if "graph_kernels" in c else ""
                     print(f"  {device} {env_id} {name}: {c['launches']} launches per step "
                           f"({c['launch_names']}{graph})", flush=True)
+            times = {}
+            if args.kernel_times and device != "cpu":
+                for name, kwargs in ENVS[env_id].items():
+                    try:
+                        times[name] = kernel_times(env_id, device, args.kernel_times, **kwargs)
+                    except Exception as e:  # noqa: BLE001 - a profiler without CUPTI: the timings still stand
+                        print(f"  (no kernel times: {type(e).__name__}: {e})", flush=True)
+                        times[name] = {}
+                    top = ", ".join(f"{k} {v:.1f}" for k, v in list(times[name].items())[:10])
+                    print(f"  {device} {env_id} {name} at {args.kernel_times} envs, us per step: "
+                          f"total {sum(times[name].values()):.1f}; {top}", flush=True)
             for n in sizes:
                 base = None
                 for name, kwargs in ENVS[env_id].items():
@@ -174,7 +218,8 @@ def main(argv=None) -> int:
                     cost = 100.0 * (res["step_ms"] / base["step_ms"] - 1.0)
                     rows.append({"env": env_id, "device": device, "num_envs": n, "randomization": name,
                                  "cost_pct": cost, **res, **counts[name],
-                                 "register_rows": kernel_options.REGISTER_ROWS})
+                                 "register_rows": kernel_options.REGISTER_ROWS,
+                                 "kernel_us": times.get(name) if n == args.kernel_times else None})
                     path = f", step path: {res['path']}" if "path" in res else ""
                     print(f"  {device} {env_id} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s "
                           f"({cost:+.1f} %{path})", flush=True)
