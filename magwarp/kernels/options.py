@@ -37,6 +37,8 @@ MODULE_OPTIONS: dict[str, bool] = {**DEFAULT_OPTIONS, **_parse(os.environ.get("M
 #: sm_90): ``MAGWARP_REGISTER_ROWS`` picks the variant, read once at import, a tuning knob for benchmarks
 #: (``benchmarks/randomization.py --register-rows``), not an API.
 REGISTER_ROWS_CHOICES = ("all", "f32", "sizes", "none")
-REGISTER_ROWS: str = os.environ.get("MAGWARP_REGISTER_ROWS", "all")
+# "f32" was the fastest on an H100 (B0, 65,536 envs, every planar term: +25% over no terms, against +32-36% for the
+# others; benchmarks/results/randomization_rows_*_gpu.json)
+REGISTER_ROWS: str = os.environ.get("MAGWARP_REGISTER_ROWS", "f32")
 if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
     raise ValueError(f"MAGWARP_REGISTER_ROWS must be one of {', '.join(REGISTER_ROWS_CHOICES)}, got {REGISTER_ROWS!r}")
