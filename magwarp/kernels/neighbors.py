@@ -4,6 +4,11 @@
   by distance, ties by index), found by scanning the neighbouring cells of a uniform grid whose lists the
   simulator's own :func:`~magwarp.kernels.collision.bin_movers` builds. The candidates are kept sorted in
   registers, so the work per mover is the movers in its neighbouring cells, not the world's.
+* :func:`make_observation_kernel` — the whole per-mover observation in one pass, written straight into the rows of an
+  ``[W, M, D]`` float array: the mover's own state (velocity, goal relative to it, acceleration, carrying flag; each
+  part optional), the k-nearest slots (relative x, y, vx, vy, mask) and the wall rays, with the neighbours' indices
+  beside it and a per-world flag for any non-finite entry written. Same values as the two kernels above plus the
+  copies that assemble them.
 * :func:`wall_distances` — for each mover and each of a few ray directions, the distance from its centre to the
   first point off the tiles (a hole or the layout's edge), capped at ``max_range``, by stepping tile by tile along
   the ray (at most ``max_range / tile_size`` steps per ray).
@@ -174,3 +179,128 @@ def wall_distances(
     w, m, r = wp.tid()
     p = pos[w, m]
     dist[w, m, r] = ray_to_wall(tiles, tile_size, wp.vec2(p[0], p[1]), dirs[r], max_range)
+
+
+#: parts of the mover's own state that :func:`make_observation_kernel` writes first (bit flags)
+OWN_STATE = 1  # x/y velocity, then the goal relative to the mover (4 columns)
+OWN_ACC = 2  # x/y acceleration (2 columns, after the state)
+OWN_CARRY = 4  # carrying flag (1 column, last)
+
+
+@functools.cache
+def make_observation_kernel(k: int, num_rays: int, own: int):
+    """The fused observation kernel for fixed ``k``, ``num_rays`` and own-state parts ``own`` (bits of
+    :data:`OWN_STATE`, :data:`OWN_ACC`, :data:`OWN_CARRY`). Row of a mover: its own state, then per neighbour slot
+    (relative x, y, relative vx, vy, mask) as :func:`make_knn_kernel` orders them, then ``num_rays`` wall distances
+    as :func:`wall_distances` measures them."""
+    K, R = int(k), int(num_rays)
+    KK = max(K, 1)
+    Dists = wp.types.vector(length=KK, dtype=wp.float32)
+    Ids = wp.types.vector(length=KK, dtype=wp.int32)
+    WITH_STATE, WITH_ACC, WITH_CARRY = bool(own & OWN_STATE), bool(own & OWN_ACC), bool(own & OWN_CARRY)
+    BASE = 4 * int(WITH_STATE) + 2 * int(WITH_ACC) + int(WITH_CARRY)
+
+    @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
+    def observe(
+        # Model:
+        grid: Grid,
+        radius: float,
+        reach: int,
+        tiles: wp.array2d(dtype=wp.int32),
+        tile_size: float,
+        dirs: wp.array(dtype=wp.vec2),
+        max_range: float,
+        # State in:
+        pos: wp.array2d(dtype=wp.vec3),
+        vel: wp.array2d(dtype=wp.vec3),
+        acc: wp.array2d(dtype=wp.vec2),
+        goals: wp.array2d(dtype=wp.vec2),
+        carrying: wp.array2d(dtype=wp.bool),
+        head: wp.array(dtype=wp.int32),
+        next_in_cell: wp.array2d(dtype=wp.int32),
+        # State out:
+        out: wp.array3d(dtype=wp.float32),
+        index: wp.array3d(dtype=wp.int32),
+        nonfinite: wp.array(dtype=wp.int32),
+    ):
+        """``out[w, m]``: the mover's observation row; ``index``: its neighbours (-1 in padded slots, whose
+        columns are zeros); ``nonfinite[w]`` set to 1 where a row of world ``w`` holds a NaN or an infinity (it is
+        only ever set: clear it before)."""
+        w, m = wp.tid()
+        p = pos[w, m]
+        v = vel[w, m]
+        finite = bool(True)
+        if wp.static(WITH_STATE):
+            g = goals[w, m]
+            row4 = wp.vec4(v[0], v[1], g[0] - p[0], g[1] - p[1])
+            for e in range(4):
+                out[w, m, e] = row4[e]
+                finite = finite and wp.isfinite(row4[e])
+        if wp.static(WITH_ACC):
+            a = acc[w, m]
+            out[w, m, 4] = a[0]
+            out[w, m, 5] = a[1]
+            finite = finite and wp.isfinite(a[0]) and wp.isfinite(a[1])
+        if wp.static(WITH_CARRY):
+            cv = float(0.0)
+            if carrying[w, m]:
+                cv = 1.0
+            out[w, m, BASE - 1] = cv
+        if wp.static(K > 0):
+            r2 = radius * radius
+            D = Dists()
+            I = Ids()
+            for s in range(KK):
+                D[s] = BIG
+                I[s] = -1
+            c = cell_coords(grid, p)
+            for dy in range(-reach, reach + 1):
+                cy = c[1] + dy
+                if cy < 0 or cy >= grid.ncy:
+                    continue
+                for dx in range(-reach, reach + 1):
+                    cx = c[0] + dx
+                    if cx < 0 or cx >= grid.ncx:
+                        continue
+                    j = head[(w * grid.ncy + cy) * grid.ncx + cx]
+                    while j >= 0:
+                        if j != m:
+                            q = pos[w, j]
+                            ex = q[0] - p[0]
+                            ey = q[1] - p[1]
+                            d2 = ex * ex + ey * ey
+                            # keep (d2, j) if it beats the last kept one; ties by the lower index
+                            if d2 <= r2 and (d2 < D[KK - 1] or (d2 == D[KK - 1] and j < I[KK - 1]) or I[KK - 1] < 0):
+                                s = KK - 1
+                                while s > 0 and (D[s - 1] > d2 or (D[s - 1] == d2 and I[s - 1] > j)):
+                                    D[s] = D[s - 1]
+                                    I[s] = I[s - 1]
+                                    s -= 1
+                                D[s] = d2
+                                I[s] = j
+                        j = next_in_cell[w, j]
+            for s in range(KK):
+                j = I[s]
+                index[w, m, s] = j
+                col = BASE + 5 * s
+                slot = wp.vec4(0.0)
+                flag = float(0.0)
+                if j >= 0:
+                    q = pos[w, j]
+                    u = vel[w, j]
+                    slot = wp.vec4(q[0] - p[0], q[1] - p[1], u[0] - v[0], u[1] - v[1])
+                    flag = 1.0
+                for e in range(4):
+                    out[w, m, col + e] = slot[e]
+                    finite = finite and wp.isfinite(slot[e])
+                out[w, m, col + 4] = flag
+        if wp.static(R > 0):
+            p2 = wp.vec2(p[0], p[1])
+            for r in range(R):
+                d = ray_to_wall(tiles, tile_size, p2, dirs[r], max_range)
+                out[w, m, BASE + 5 * K + r] = d
+                finite = finite and wp.isfinite(d)
+        if not finite:
+            nonfinite[w] = 1
+
+    return observe

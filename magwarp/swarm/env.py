@@ -291,9 +291,6 @@ class SwarmEnv(MagwarpVecEnv):
             obs = torch.where(done[:, None, None], self._get_obs(), obs)
         return obs, reward, terminated, truncated, info
 
-    def _nonfinite_worlds(self, obs) -> torch.Tensor:
-        return (self.sim.nonfinite_step >= 0) | super()._nonfinite_worlds(obs)
-
     # ------------------------------------------------------------------ task hooks
     def _place(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int, hold: bool = False,
                placer: Placer | None = None) -> torch.Tensor:
@@ -336,16 +333,17 @@ class SwarmEnv(MagwarpVecEnv):
 
     def _get_obs(self) -> torch.Tensor:
         sim = self.sim
-        self.local.compute(sim.state.pos, sim.state.vel)
         obs = torch.empty(self.num_envs, self.num_movers, self.own_dim + self.local.dim, device=self.device)
-        obs[..., 0:2].copy_(sim.vel[..., :2])
-        torch.sub(self.goals, sim.pos[..., :2], out=obs[..., 2:4])
-        if self.learn_jerk:
-            obs[..., 4:6].copy_(sim.acc)
-        if self.stations is not None:
-            obs[..., self.own_dim - 1].copy_(self.carrying)
-        self.local.features(obs[..., self.own_dim:])
+        self._obs_rows = self.local.observe(sim.state.pos, sim.state.vel, obs, goals=self.goals,
+                                            acc=sim.acc if self.learn_jerk else None,
+                                            carrying=self.carrying if self.stations is not None else None)
         return obs
+
+    def _nonfinite_worlds(self, obs) -> torch.Tensor:
+        sim_bad = self.sim.nonfinite_step >= 0
+        if obs is getattr(self, "_obs_rows", None):  # the observation kernel flagged its non-finite rows
+            return sim_bad | (self.local.nonfinite != 0)
+        return sim_bad | super()._nonfinite_worlds(obs)
 
     def _evaluate(self, obs) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         cfg = self.config
