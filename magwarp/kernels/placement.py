@@ -1,6 +1,8 @@
 """Parallel dart throwing: collision-free start poses and goals for many movers per world, on the device.
 
-One *round* is three launches over all movers of all worlds (threads of movers already placed exit at once):
+A call starts by binning the movers that stay (in the worlds with movers to place only) and ends by emptying the
+cells it filled (:func:`unbin`), so its work is per mover of those worlds, not per grid cell. One *round* is three
+launches over all movers of all worlds (threads of movers already placed exit at once):
 
 1. :func:`propose` — every mover still to place draws up to ``tries`` candidate points, each uniform over the
    present tiles, and keeps the first whose footprint (yaw 0, grown by the sampling offset) is on the tiles by the
@@ -85,6 +87,23 @@ def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32
 
 
 @wp.kernel
+def begin_todo(
+    # State in:
+    mask: wp.array2d(dtype=wp.bool),
+    # State out:
+    todo: wp.array2d(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+):
+    """``todo``: the movers to place (``mask``); ``active[w]`` (zeroed before): world ``w`` has one."""
+    w, m = wp.tid()
+    t = int(0)
+    if mask[w, m]:
+        t = 1
+        active[w] = 1
+    todo[w, m] = t
+
+
+@wp.kernel
 def bin_fixed(
     # Model:
     g: PlaceGrid,
@@ -92,20 +111,54 @@ def bin_fixed(
     # State in:
     pos: wp.array2d(dtype=wp.vec2),
     todo: wp.array2d(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
     # State out:
     head: wp.array(dtype=wp.int32),
     next_in_cell: wp.array2d(dtype=wp.int32),
     head_old: wp.array(dtype=wp.int32),
     next_old: wp.array2d(dtype=wp.int32),
+    old_cell: wp.array2d(dtype=wp.int32),
 ):
-    """Put every mover that stays where it is (``todo == 0``) into its cell's list; with ``hold``, the movers to
-    place go into the second lists at their current spots (which they keep until they are placed)."""
+    """In the worlds with movers to place (``active``): put every mover that stays where it is (``todo == 0``) into
+    its cell's list; with ``hold``, the movers to place go into the second lists at their current spots (which they
+    keep until they are placed; ``old_cell``: that cell, -1 for the others)."""
     w, m = wp.tid()
+    if active[w] == 0:
+        return
     c = cell_index(g, w, place_cell(g, pos[w, m]))
+    oc = int(-1)
     if todo[w, m] == 0:
         next_in_cell[w, m] = wp.atomic_exch(head, c, m)
     elif hold != 0:
         next_old[w, m] = wp.atomic_exch(head_old, c, m)
+        oc = c
+    old_cell[w, m] = oc
+
+
+@wp.kernel
+def unbin(
+    # Model:
+    g: PlaceGrid,
+    # State in:
+    pos: wp.array2d(dtype=wp.vec2),
+    todo: wp.array2d(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    old_cell: wp.array2d(dtype=wp.int32),
+    # State out:
+    head: wp.array(dtype=wp.int32),
+    head_old: wp.array(dtype=wp.int32),
+):
+    """Empty the cells a call filled (work per mover of the worlds placed in, not per cell): every mover in the
+    lists now (``todo == 0``: fixed or placed, at its position) and every held spot (``old_cell``). Claims need no
+    clearing: each round's :func:`unclaim` frees them."""
+    w, m = wp.tid()
+    if active[w] == 0:
+        return
+    if todo[w, m] == 0:
+        head[cell_index(g, w, place_cell(g, pos[w, m]))] = -1
+    oc = old_cell[w, m]
+    if oc >= 0:
+        head_old[oc] = -1
 
 
 @wp.func

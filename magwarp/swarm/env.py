@@ -57,12 +57,12 @@ import warp as wp
 
 from magwarp._checks import as_count, as_flag, warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.kernels.swarm import stop_collided
+from magwarp.kernels.swarm import SwarmRewards, apply_respawns, evaluate_movers, stop_collided
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies
 from magwarp.swarm.observations import LocalObservations
-from magwarp.swarm.placement import Placer
+from magwarp.swarm.placement import Placer, torch_stream
 
 __all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
 
@@ -231,6 +231,14 @@ class SwarmEnv(MagwarpVecEnv):
         self.respawn_pending = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self.goal_pending = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self._xy = torch.zeros(n, m, 2, device=dev)  # contiguous scratch positions for the placer
+        self._xy_wp = wp.from_torch(self._xy, dtype=wp.vec2)
+        self._goals_wp = wp.from_torch(self.goals, dtype=wp.vec2)
+        self._left = torch.zeros(n, m, dtype=torch.bool, device=dev)  # movers a respawn left unplaced
+        self._no_flags = torch.zeros(0, 0, dtype=torch.bool, device=dev)  # job_done without stations
+        rule = SwarmRewards()
+        rule.threshold, rule.reward_goal = float(cfg.threshold_pos), float(cfg.reward_goal)
+        rule.reward_collision, rule.reward_per_step = float(cfg.reward_collision), float(cfg.reward_per_step)
+        self._rule = rule
         self.stations = None
         if cfg.stations is not None:
             from magwarp.swarm.stations import Stations
@@ -300,7 +308,7 @@ class SwarmEnv(MagwarpVecEnv):
         if getattr(self, "_checked_reset", False):
             placer.place(xy, mask)
             return torch.zeros_like(mask)
-        return placer.place_async(xy, mask, rounds=rounds, hold=hold).clone()
+        return placer.place_async(xy, mask, rounds=rounds, hold=hold)
 
     def _reset_envs(self, mask: torch.Tensor) -> None:
         n, m = self.num_envs, self.num_movers
@@ -346,51 +354,60 @@ class SwarmEnv(MagwarpVecEnv):
         return sim_bad | super()._nonfinite_worlds(obs)
 
     def _evaluate(self, obs) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        """The step's outcome per mover in one kernel (:func:`~magwarp.kernels.swarm.evaluate_movers`), which also
+        counts the goals (and jobs) and marks the movers that want a new goal or a respawn, for :meth:`_end_step`."""
         cfg = self.config
-        flags = self.sim.flags_any
-        mover_col = (flags & 1) != 0
-        wall_col = (flags & 2) != 0
-        active = ~self.respawn_pending  # pending movers sit out: no reward, no new penalty
-        collided = (mover_col | wall_col) & active
-        dist = (self.sim.pos[..., :2] - self.goals).norm(dim=-1)
-        reached = (dist <= cfg.threshold_pos) & active & ~collided & ~self.goal_pending
-        agent_reward = torch.where(collided, cfg.reward_collision,
-                                   torch.where(reached, cfg.reward_goal, cfg.reward_per_step))
-        agent_reward = torch.where(active, agent_reward, 0.0)
+        n, m, dev = self.num_envs, self.num_movers, self.device
+
+        def flags():
+            return torch.empty(n, m, dtype=torch.bool, device=dev)
+
+        agent_reward = torch.empty(n, m, device=dev)
+        mover_col, wall_col, collided, reached = flags(), flags(), flags(), flags()
+        job_done = flags() if self.stations is not None else self._no_flags
+        self._want_goal, self._want_respawn = flags(), flags()
+        w = wp.from_torch
+        with torch_stream(self.sim.device):
+            wp.launch(evaluate_movers, dim=(n, m), device=self.sim.device,
+                      inputs=[self._rule, self.sim.state.flags_any, self.sim.state.pos, self._goals_wp,
+                              w(self.respawn_pending), w(self.goal_pending), w(self.carrying)],
+                      outputs=[w(agent_reward), w(mover_col), w(wall_col), w(collided), w(reached), w(job_done),
+                               w(self._want_goal), w(self._want_respawn), w(self.collected_goals), w(self.jobs)])
         reward = agent_reward.sum(dim=1)
         if cfg.on_collision == "end":
             terminated = collided.any(dim=1)
+            agent_terminated = collided | terminated[:, None]
         else:
-            terminated = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+            terminated = torch.zeros(n, dtype=torch.bool, device=dev)
+            agent_terminated = collided
         if self.max_episode_steps is None:
             truncated = torch.zeros_like(terminated)
         else:
             truncated = (self.num_steps + 1 >= self.max_episode_steps) & ~terminated
         info = {"agent_reward": agent_reward, "mover_collision": mover_col, "wall_collision": wall_col,
-                "agent_terminated": collided if cfg.on_collision == "respawn" else collided | terminated[:, None],
-                "goal_reached": reached, "collided": collided}
+                "agent_terminated": agent_terminated, "goal_reached": reached, "collided": collided}
         if self.stations is not None:
-            info["job_done"] = reached & self.carrying
+            info["job_done"] = job_done
         return reward, terminated, truncated, info
 
     def _end_step(self, obs, info) -> None:
+        """Goal streams (or stations) and respawns for the movers :meth:`_evaluate` marked (its kernel already
+        counted the goals and jobs)."""
         cfg = self.config
         self.num_steps += 1
         reached = info["goal_reached"]
-        self.collected_goals += reached
         if self.stations is not None:
             # material flow: a pick-up loads a job (next: a drop-off), a drop-off delivers it (next: a pick-up)
-            self.jobs += info["job_done"]
             self.carrying.copy_(self.carrying ^ reached)
             self.goals.copy_(torch.where(reached[..., None], self.stations.sample(self.carrying, self._generator),
                                          self.goals))
             info["jobs"] = self.jobs.clone()
         else:
             # goal streams: new goals clear of the other goals
-            want_goal = reached | self.goal_pending
-            self.goal_pending.copy_(self._place(self.goals, want_goal, cfg.goal_rounds, hold=True))
+            self.placer.place_async(self.goals, self._want_goal, rounds=cfg.goal_rounds, hold=True,
+                                    out=self.goal_pending)
         if cfg.on_collision == "respawn":
-            self._respawn(info["agent_terminated"] | self.respawn_pending)
+            self._respawn(self._want_respawn)
         info["collected_goals"] = self.collected_goals.clone()
         info["respawn_pending"] = self.respawn_pending.clone()
 
@@ -398,15 +415,13 @@ class SwarmEnv(MagwarpVecEnv):
         """Re-place the movers in ``want`` at free spots (clear of every other mover) and restart them at rest."""
         sim = self.sim
         self._xy.copy_(sim.pos[..., :2])
-        left = self._place(self._xy, want, self.config.respawn_rounds, hold=True, placer=self.respawn_placer)
-        placed = want & ~left
-        sel = placed[..., None]
-        pos = sim.pos
-        pos[..., :2] = torch.where(sel, self._xy, pos[..., :2])
-        for field in (sim.vel, sim.acc, sim.cmd):
-            field.masked_fill_(sel, 0.0)
-        self.stopped.masked_fill_(placed, 0)
-        self.respawn_pending.copy_(left & want)
+        left = self.respawn_placer.place_async(self._xy, want, rounds=self.config.respawn_rounds, hold=True,
+                                               out=self._left)
+        s, w = sim.state, wp.from_torch
+        with torch_stream(sim.device):
+            wp.launch(apply_respawns, dim=(self.num_envs, self.num_movers), device=sim.device,
+                      inputs=[w(want), w(left), self._xy_wp],
+                      outputs=[s.pos, s.vel, s.acc, s.cmd, self._stopped, w(self.respawn_pending)])
 
     def agent_view(self):
         """The flat parameter-shared view of this env (:class:`~magwarp.swarm.FlatSwarmEnv`): every mover of every
