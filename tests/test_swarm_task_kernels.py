@@ -8,7 +8,6 @@ import pytest
 import torch
 import warp as wp
 
-from magwarp.kernels.placement import NO_CLAIM
 from magwarp.kernels.swarm import SwarmRewards, apply_respawns, evaluate_movers
 from magwarp.layout import Layout
 from magwarp.swarm.placement import Placer
@@ -84,8 +83,8 @@ def test_apply_respawns_matches_numpy(rng):
 
 
 def test_placer_leaves_its_grid_clean_and_places_only_where_asked(rng):
-    """A call empties the cells it filled (no per-cell clearing), so back-to-back calls place as a fresh placer does;
-    worlds with nothing to place are left alone."""
+    """A call empties the cells it filled (no per-cell clearing) and leaves its claims to be beaten by later rounds'
+    so back-to-back calls place as a placer with a cleared grid does; worlds with nothing to place are left alone."""
     layout = Layout(np.ones((6, 6), dtype=np.int32))
     w, m = 4, 12
     placers = [Placer(layout, m, w, device="cpu", seed=int(rng.integers(1 << 20))) for _ in range(2)]
@@ -97,7 +96,6 @@ def test_placer_leaves_its_grid_clean_and_places_only_where_asked(rng):
         left = placers[0].place_async(xy, mask, rounds=3, hold=hold)
         p = placers[0]
         assert (p._head.numpy() == -1).all() and (p._head_old.numpy() == -1).all(), f"{rng}: cells left filled"
-        assert (p._claim.numpy() == NO_CLAIM).all(), f"{rng}: claims left"
         assert p._active.numpy().tolist() == mask.any(dim=1).int().tolist()
         assert torch.equal(xy[~mask], before[~mask]) and torch.equal(xy[2], before[2])
         placed = mask & ~left

@@ -129,7 +129,8 @@ class Placer:
         self._tiles = wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=self.device)
         shape = (self.num_worlds, self.num_movers)
         self._head = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
-        self._claim = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
+        self._claim = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int64, device=self.device)
+        self._round = 0  # the last round's number (claims of older rounds lose to newer ones: no clearing)
         self._head_old = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
         self._next = wp.zeros(shape, dtype=wp.int32, device=self.device)
         self._next_old = wp.zeros(shape, dtype=wp.int32, device=self.device)
@@ -251,12 +252,13 @@ class Placer:
         for _ in range(rounds):
             wp.launch(kpl.propose, dim=dim, device=dev,
                       inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
-                              self._next_seed(), self.tries, self._hold, pos, self._todo, self._head, self._next,
-                              self._head_old, self._next_old],
+                              self._next_seed(), self.tries, self._hold, self._round + 1, pos, self._todo, self._head,
+                              self._next, self._head_old, self._next_old],
                       outputs=[self._cand, self._cand_ok, self._claim])
+            self._round += 1
             wp.launch(kpl.resolve, dim=dim, device=dev,
-                      inputs=[g, self._cand, self._cand_ok, self._claim, self._todo, pos, self._head, self._next])
-            wp.launch(kpl.unclaim, dim=dim, device=dev, inputs=[g, self._cand, self._cand_ok, self._claim])
+                      inputs=[g, self._round, self._cand, self._cand_ok, self._claim, self._todo, pos, self._head,
+                              self._next])
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
                     hold: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
