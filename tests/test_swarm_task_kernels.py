@@ -69,7 +69,8 @@ def test_apply_respawns_matches_numpy(rng):
     arr = lambda a, dt: wp.array(a, dtype=dt, device="cpu")  # noqa: E731
     pos, vel, acc, cmd = arr(pos0, wp.vec3), arr(vel0, wp.vec3), arr(acc0, wp.vec2), arr(cmd0, wp.vec2)
     stopped, pending = arr(stopped0, wp.int32), arr(rng.random((w, m)) < 0.5, wp.bool)
-    wp.launch(apply_respawns, dim=(w, m), device="cpu", inputs=[arr(want, wp.bool), arr(left, wp.bool), arr(xy, wp.vec2)],
+    wp.launch(apply_respawns, dim=(w, m), device="cpu",
+              inputs=[arr(want, wp.bool), arr(left, wp.bool), arr(xy, wp.vec2)],
               outputs=[pos, vel, acc, cmd, stopped, pending])
     moved = want & ~left
     want_pos = pos0.copy()

@@ -244,7 +244,8 @@ class Placer:
     def _end(self, pos: wp.array) -> None:
         """Empty the cells this call filled (the next call finds the grid clean without clearing every cell)."""
         wp.launch(kpl.unbin, dim=(self.num_worlds, self.num_movers), device=self.device,
-                  inputs=[self.grid, pos, self._todo, self._active, self._old_cell], outputs=[self._head, self._head_old])
+                  inputs=[self.grid, pos, self._todo, self._active, self._old_cell],
+                  outputs=[self._head, self._head_old])
         self._grid_clean = True
 
     def _rounds(self, pos: wp.array, rounds: int) -> None:
