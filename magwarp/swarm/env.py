@@ -251,6 +251,12 @@ class SwarmEnv(MagwarpVecEnv):
                                          offset=cfg.collision_offset, device=wdev)
         self.carrying = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self.jobs = torch.zeros(n, m, dtype=torch.int64, device=dev)
+        # what the step kernel marks for _end_step (a new goal, a respawn), and Warp views of the state it updates
+        self._want_goal = torch.zeros(n, m, dtype=torch.bool, device=dev)
+        self._want_respawn = torch.zeros(n, m, dtype=torch.bool, device=dev)
+        self._task_wp = [wp.from_torch(t) for t in (self.respawn_pending, self.goal_pending, self.carrying,
+                                                     self._want_goal, self._want_respawn, self.collected_goals,
+                                                     self.jobs)]
         # own state: velocity, goal relative to the mover, (acceleration), (carrying a job)
         self.own_dim = (6 if self.learn_jerk else 4) + (1 if self.stations is not None else 0)
         limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
@@ -365,14 +371,13 @@ class SwarmEnv(MagwarpVecEnv):
         agent_reward = torch.empty(n, m, device=dev)
         mover_col, wall_col, collided, reached = flags(), flags(), flags(), flags()
         job_done = flags() if self.stations is not None else self._no_flags
-        self._want_goal, self._want_respawn = flags(), flags()
         w = wp.from_torch
         with torch_stream(self.sim.device):
             wp.launch(evaluate_movers, dim=(n, m), device=self.sim.device,
                       inputs=[self._rule, self.sim.state.flags_any, self.sim.state.pos, self._goals_wp,
-                              w(self.respawn_pending), w(self.goal_pending), w(self.carrying)],
+                              *self._task_wp[:3]],
                       outputs=[w(agent_reward), w(mover_col), w(wall_col), w(collided), w(reached), w(job_done),
-                               w(self._want_goal), w(self._want_respawn), w(self.collected_goals), w(self.jobs)])
+                               *self._task_wp[3:]])
         reward = agent_reward.sum(dim=1)
         if cfg.on_collision == "end":
             terminated = collided.any(dim=1)
@@ -421,7 +426,7 @@ class SwarmEnv(MagwarpVecEnv):
         with torch_stream(sim.device):
             wp.launch(apply_respawns, dim=(self.num_envs, self.num_movers), device=sim.device,
                       inputs=[w(want), w(left), self._xy_wp],
-                      outputs=[s.pos, s.vel, s.acc, s.cmd, self._stopped, w(self.respawn_pending)])
+                      outputs=[s.pos, s.vel, s.acc, s.cmd, self._stopped, self._task_wp[0]])
 
     def agent_view(self):
         """The flat parameter-shared view of this env (:class:`~magwarp.swarm.FlatSwarmEnv`): every mover of every
