@@ -8,7 +8,7 @@ import pytest
 import torch
 import warp as wp
 
-from magwarp.kernels.swarm import SwarmRewards, apply_respawns, evaluate_movers
+from magwarp.kernels.swarm import SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers
 from magwarp.layout import Layout
 from magwarp.swarm.placement import Placer
 
@@ -81,6 +81,17 @@ def test_apply_respawns_matches_numpy(rng):
     np.testing.assert_array_equal(cmd.numpy(), np.where(moved[..., None], 0.0, cmd0))
     np.testing.assert_array_equal(stopped.numpy(), np.where(moved, 0, stopped0))
     np.testing.assert_array_equal(pending.numpy(), want & left)
+
+
+def test_command_unless_stopped_matches_numpy(rng):
+    w, m = 3, 21
+    stopped = rng.integers(0, 2, (w, m)).astype(np.int32)
+    action = rng.normal(0, 5, (w, m, 2)).astype(np.float32)
+    cmd = wp.array(rng.normal(size=(w, m, 2)).astype(np.float32), dtype=wp.vec2, device="cpu")
+    wp.launch(command_unless_stopped, dim=(w, m), device="cpu",
+              inputs=[wp.array(stopped, dtype=wp.int32, device="cpu"), wp.array(action, dtype=wp.vec2, device="cpu")],
+              outputs=[cmd])
+    np.testing.assert_array_equal(cmd.numpy(), np.where(stopped[..., None] != 0, 0.0, action), err_msg=str(rng))
 
 
 def test_placer_leaves_its_grid_clean_and_places_only_where_asked(rng):

@@ -133,3 +133,19 @@ def apply_respawns(
         acc[w, m] = wp.vec2(0.0)
         cmd[w, m] = wp.vec2(0.0)
         stopped[w, m] = 0
+
+
+@wp.kernel
+def command_unless_stopped(
+    # State in:
+    stopped: wp.array2d(dtype=wp.int32),
+    action: wp.array2d(dtype=wp.vec2),
+    # State out:
+    cmd: wp.array2d(dtype=wp.vec2),
+):
+    """The step's command: the action, zero for stopped movers (pending respawns ignore their command)."""
+    w, m = wp.tid()
+    c = action[w, m]
+    if stopped[w, m] != 0:
+        c = wp.vec2(0.0)
+    cmd[w, m] = c

@@ -57,7 +57,8 @@ import warp as wp
 
 from magwarp._checks import as_count, as_flag, warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.kernels.swarm import SwarmRewards, apply_respawns, evaluate_movers, stop_collided
+from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers,
+                                   stop_collided)
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies
@@ -342,8 +343,12 @@ class SwarmEnv(MagwarpVecEnv):
 
     def _apply_action(self, action: torch.Tensor) -> None:
         # stopped movers (pending respawns) ignore their command; the stop hook keeps them still
-        cmd = torch.where(self.stopped[..., None].bool(), 0.0, action)
-        self.sim.step(self.num_cycles, cmd)
+        sim = self.sim
+        with torch_stream(sim.device):
+            wp.launch(command_unless_stopped, dim=(self.num_envs, self.num_movers), device=sim.device,
+                      inputs=[self._stopped, wp.from_torch(action.contiguous(), dtype=wp.vec2)],
+                      outputs=[sim.state.cmd])
+        sim.step(self.num_cycles)
 
     def _get_obs(self) -> torch.Tensor:
         sim = self.sim
