@@ -40,6 +40,11 @@ without synchronising, and a mover left unplaced there waits as a pending respaw
 With the respawn rule and up to 256 movers per world (the training regime), the step's control cycles and collision
 stops run as one launch (``fused``, :mod:`magwarp.swarm.fused`: one thread block per world on CUDA), with the
 per-cycle path's results bit for bit; larger worlds, MagBotSim's rule and further cycle hooks run per cycle.
+The rest of a step is a few launches over the movers, none of them a host sync: the command (stopped movers
+zeroed), one kernel for every mover's outcome (flags, reward, goal and job counts, what it asks of the placers,
+:func:`~magwarp.kernels.swarm.evaluate_movers`), the goal and respawn placers (their work only in the worlds with a
+mover to place), one kernel that applies the respawns, and the observation (grid binning, then one kernel writing
+each row straight into the returned tensor, with the NaN guard's per-world check).
 
 Every option is a field of :class:`SwarmConfig`; the constructor takes a config and/or the same names as keywords.
 """
