@@ -1,8 +1,12 @@
-"""Per-mover collision stops for swarms: the movers involved in a collision stop, the world goes on.
+"""Per-mover kernels of the swarm env's step: collision stops, the step's command, outcome and respawns.
 
 :func:`stop_collided` runs after every control cycle (a simulator cycle hook, inside the step graph): a mover
 flagged in this cycle (mover-mover or wall) is marked stopped, and every stopped mover has its x/y velocity,
 acceleration and command zeroed, so it stays where it collided (z and attitude stay under the impedance hold).
+
+Around the simulator's step, one launch each over every mover: :func:`command_unless_stopped` (the action, zero
+for stopped movers), :func:`evaluate_movers` (collision flags, reward, goal and job counts, and the movers that want
+a new goal or a respawn) and :func:`apply_respawns` (the placed movers moved to their spots, at rest).
 """
 
 import warp as wp
