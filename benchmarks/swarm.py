@@ -29,6 +29,12 @@ collide as in a run), computed on the device.
     python benchmarks/swarm.py --device cuda:0 --fused-sweep --json benchmarks/results/swarm_fused_gpu.json
     python benchmarks/swarm.py --device cpu --fused-sweep --small       # the same rows at CPU sizes (smoke check)
 
+Each fused row also splits the env step (``step_split``, each phase between device synchronisations inside real
+steps): physics (stop mask, command copy, the fused motion's graph), observations (grid binning and one kernel),
+rewards/resets (per-mover outcome kernel, goal streams, respawns), the rest (action check, NaN guard, info) and the
+steering rule's own time (``policy_ms``, which ``fused_env_ms`` includes;
+``env_only_agent_steps_per_s`` leaves it out: the issue's target of 5e8 agent-steps/s is about the env).
+
 ``--fused-sweep``: the training regime (many worlds of 64, 100 and 256 movers, 1024 to 16384 worlds): agent-steps/s
 of the env with the per-cycle step (``fused=False``: three or four launches per cycle, then the stop hook) and with
 the fused step (``fused=True``, :mod:`magwarp.swarm.fused`: one launch per env step), and the fused motion alone
@@ -210,7 +216,7 @@ def bench_planner(movers: int, device: str, steps: int, horizon: int = PLANNER_H
 
 
 FUSED_MOVERS = (64, 100, 256)
-FUSED_WORLDS = (1024, 4096, 16384)
+FUSED_WORLDS = (1024, 4096, 8192, 16384)
 SMALL_FUSED_MOVERS = (64, 100)
 SMALL_FUSED_WORLDS = (2, 8)
 COMPARE_STEPS = 6
@@ -291,6 +297,49 @@ def kernel_breakdown(step, steps: int = 5, top: int = 12) -> list[dict]:
     return events[:top]
 
 
+SPLIT = {"physics": ("_apply_action",), "task": ("_evaluate", "_end_step"), "obs": ("_get_obs",)}
+
+
+def step_split(env, device: str, steps: int, env_ms: float) -> dict:
+    """Where a (fused) env step's time goes, measured inside real steps: each phase of ``env.step`` runs between two
+    device synchronisations (so its time counts its launches and its device work, nothing overlapped):
+    ``physics_ms`` (the action's stop mask, the command copy and the simulator's step graph), ``task_ms`` (rewards,
+    goal counts, goal streams and respawns: ``_evaluate`` and ``_end_step``) and ``obs_ms`` (grid binning and the
+    observation kernel); ``rest_ms``: the unsynchronised env step (``env_ms``) less those and the steering rule
+    (``policy_ms``, timed alone; the env step timings include it): the action check, NaN guard and info, minus
+    what the phases overlapped in the unsynchronised step. ``env_only_ms``: the env step without the policy."""
+    totals = dict.fromkeys(SPLIT, 0.0)
+
+    def timed(fn, key):
+        def run(*args, **kwargs):
+            _sync(device)
+            t = time.perf_counter()
+            out = fn(*args, **kwargs)
+            _sync(device)
+            totals[key] += time.perf_counter() - t
+            return out
+        return run
+
+    for key, names in SPLIT.items():
+        for name in names:
+            setattr(env, name, timed(getattr(env, name), key))
+    try:
+        for _ in range(3):
+            env.step(seek_goals(env))
+        totals.update(dict.fromkeys(SPLIT, 0.0))
+        for _ in range(steps):
+            env.step(seek_goals(env))
+    finally:
+        for names in SPLIT.values():
+            for name in names:
+                delattr(env, name)  # the class's methods again
+    out = {f"{key}_ms": value / steps * 1e3 for key, value in totals.items()}
+    out["policy_ms"], _ = _time(lambda: seek_goals(env), device, steps)
+    out["env_only_ms"] = env_ms - out["policy_ms"]
+    out["rest_ms"] = out["env_only_ms"] - sum(out[f"{key}_ms"] for key in SPLIT)
+    return out
+
+
 def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float,
                     breakdown: bool = False) -> dict:
     from magwarp.swarm import SwarmEnv
@@ -307,8 +356,8 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
 
         row[f"{key}_env_ms"], row[f"{key}_env_std_ms"] = _time(step, device, steps)
         row[f"{key}_motion_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
-        if fused:  # where the rest of the env step goes: the local observations (grid k-nearest, rays, copies)
-            row["obs_ms"], _ = _time(env._get_obs, device, steps)
+        if fused:  # the env step's split: physics, observations, rewards/resets, rest
+            row.update(step_split(env, device, steps, row["fused_env_ms"]))
             if breakdown and device.startswith("cuda"):
                 try:
                     row["fused_kernels"] = kernel_breakdown(step)
@@ -320,11 +369,13 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
     for key in ("old", "fused"):
         row[f"{key}_agent_steps_per_s"] = agents / (row[f"{key}_env_ms"] * 1e-3)
         row[f"{key}_motion_agent_steps_per_s"] = agents / (row[f"{key}_motion_ms"] * 1e-3)
+    row["env_only_agent_steps_per_s"] = agents / (row["env_only_ms"] * 1e-3)
     row["speedup"] = row["old_env_ms"] / row["fused_env_ms"]
     row["bandwidth_gb_s"] = bandwidth / 1e9
     row["floor_agent_steps_per_s"] = bandwidth / row["floor_bytes_per_agent_step"]
     row["fused_of_floor"] = row["fused_agent_steps_per_s"] / row["floor_agent_steps_per_s"]
     row["fused_motion_of_floor"] = row["fused_motion_agent_steps_per_s"] / row["floor_agent_steps_per_s"]
+    row["env_only_of_floor"] = row["env_only_agent_steps_per_s"] / row["floor_agent_steps_per_s"]
     return row
 
 
@@ -350,6 +401,10 @@ def run_fused_sweep(args) -> list[dict]:
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
                   f"ms ({row['fused_agent_steps_per_s']:.3g} agent-steps/s, {row['fused_of_floor']:.2f} of the "
                   f"floor)", flush=True)
+            print(f"    split: physics {row['physics_ms']:.3f} ms (motion alone {row['fused_motion_ms']:.3f}), "
+                  f"observations {row['obs_ms']:.3f}, rewards/resets {row['task_ms']:.3f}, rest {row['rest_ms']:.3f} "
+                  f"(policy {row['policy_ms']:.3f} aside): {row['env_only_agent_steps_per_s']:.3g} agent-steps/s "
+                  f"without the policy", flush=True)
     return rows
 
 
@@ -429,6 +484,9 @@ def main(argv=None) -> None:
                            ("old_agent_steps_per_s", "old agent-steps/s"),
                            ("fused_agent_steps_per_s", "fused agent-steps/s"),
                            ("fused_motion_agent_steps_per_s", "fused motion agent-steps/s"),
+                           ("physics_ms", "physics ms"), ("obs_ms", "obs ms"), ("task_ms", "rewards/resets ms"),
+                           ("rest_ms", "rest ms"), ("policy_ms", "policy ms"),
+                           ("env_only_agent_steps_per_s", "env agent-steps/s (no policy)"),
                            ("floor_agent_steps_per_s", "floor agent-steps/s"), ("fused_of_floor", "fused/floor"),
                            ("match", "match")])
         default = "gpu" if any(r["device"].startswith("cuda") for r in rows) else "cpu"

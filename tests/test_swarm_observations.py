@@ -127,3 +127,43 @@ def test_features_layout_and_bad_options():
         LocalObservations(np.ones((3, 3)), 1, 4, radius=0.0, device="cpu")
     with pytest.raises(ValueError, match="k must"):
         LocalObservations(np.ones((3, 3)), 1, 4, k=-1, device="cpu")
+
+
+@pytest.mark.parametrize("jerk,carry", [(False, False), (True, True)])
+def test_observe_writes_own_state_then_features(rng, jerk, carry):
+    """observe(): the own state columns, then exactly compute()'s features, in the caller's rows; the local views
+    point at those rows; the non-finite flag marks the worlds with a NaN or an infinity in a row."""
+    import torch
+
+    layout = Layout(np.ones((7, 5), dtype=np.int32))
+    w, m, k, rays = 3, int(rng.integers(20, 50)), 4, 6
+    xy = rng.random((w, m, 2)) * np.asarray(layout.extent)
+    vel = rng.normal(size=(w, m, 2))
+    goals = torch.tensor(rng.random((w, m, 2)) * 3, dtype=torch.float32)
+    acc = torch.tensor(rng.normal(size=(w, m, 2)), dtype=torch.float32) if jerk else None
+    carrying = torch.tensor(rng.random((w, m)) < 0.5) if carry else None
+    own = 4 + 2 * jerk + carry
+    local = LocalObservations(layout, w, m, k=k, radius=0.9, num_rays=rays, device="cpu")
+    pos3, vel3 = _sim_arrays(xy, vel)
+    out = torch.full((w, m, own + local.dim), 7.0)
+    local.observe(pos3, vel3, out, goals=goals, acc=acc, carrying=carrying)
+    p, v = pos3.numpy()[..., :2], vel3.numpy()[..., :2]
+    got = out.numpy()
+    np.testing.assert_array_equal(got[..., 0:2], v, err_msg=str(rng))
+    np.testing.assert_array_equal(got[..., 2:4], goals.numpy() - p, err_msg=str(rng))
+    if jerk:
+        np.testing.assert_array_equal(got[..., 4:6], acc.numpy())
+    if carry:
+        np.testing.assert_array_equal(got[..., own - 1], carrying.numpy().astype(np.float32))
+    assert not local.nonfinite.any()
+    assert local.rel_pos.data_ptr() == out[..., own:].data_ptr()  # the views are the rows written
+    ref = LocalObservations(layout, w, m, k=k, radius=0.9, num_rays=rays, device="cpu")
+    ref.compute(pos3, vel3)
+    np.testing.assert_array_equal(got[..., own:], ref.features().numpy(), err_msg=str(rng))
+    np.testing.assert_array_equal(local.index.numpy(), ref.index.numpy())
+    bad = vel.copy()
+    bad[1, int(rng.integers(m)), 0] = np.inf
+    local.observe(pos3, _sim_arrays(xy, bad)[1], out, goals=goals, acc=acc, carrying=carrying)
+    assert local.nonfinite.tolist() == [0, 1, 0], f"{rng}"
+    with pytest.raises(ValueError, match="observation rows"):
+        local.observe(pos3, vel3, out[..., 1:], goals=goals, acc=acc, carrying=carrying)

@@ -1,16 +1,18 @@
 """Parallel dart throwing: collision-free start poses and goals for many movers per world, on the device.
 
-One *round* is three launches over all movers of all worlds (threads of movers already placed exit at once):
+A call starts by binning the movers that stay (in the worlds with movers to place only) and ends by emptying the
+cells it filled (:func:`unbin`), so its work is per mover of those worlds, not per grid cell. One *round* is two
+launches over all movers of all worlds (threads of movers already placed exit at once):
 
 1. :func:`propose` — every mover still to place draws up to ``tries`` candidate points, each uniform over the
    present tiles, and keeps the first whose footprint (yaw 0, grown by the sampling offset) is on the tiles by the
    simulator's own wall rule (:func:`~magwarp.kernels.collision.hits_wall_cs`) and which is clear of every mover
    already placed (looked up in the neighbouring cells of a uniform grid). It then claims its grid cell with an
-   ``atomic_min`` of its index.
-2. :func:`resolve` — a candidate that won its cell is accepted unless a lower-indexed cell winner nearby conflicts
-   with it (index priority, so no two accepted candidates of a round conflict). Accepted movers are written out and
-   pushed onto the cell lists the next rounds look up.
-3. :func:`unclaim` — the claimed cells are cleared for the next round (work per candidate, not per cell).
+   ``atomic_max`` of its *claim*: the round's number in the high 32 bits, the complement of its index in the low
+   ones, so the lowest index of the latest round holds the cell and older rounds' claims need no clearing.
+2. :func:`resolve` — a candidate that won its cell is accepted unless a lower-indexed cell winner of this round
+   nearby conflicts with it (index priority, so no two accepted candidates of a round conflict). Accepted movers are
+   written out and pushed onto the cell lists the next rounds look up.
 
 Cells are as small as the exclusion test allows (two candidates in one cell always conflict), so the claim loses
 no compatible pair; the placed set lives in per-cell linked lists (``atomic_exch``, as the simulator's broad phase),
@@ -29,7 +31,22 @@ from magwarp.types import SHAPE_CIRCLE, Collision
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 #: claim of a free cell
-NO_CLAIM = 2147483647
+NO_CLAIM = 0  # rounds are numbered from 1
+INDEX_BITS = wp.constant(wp.int64(0xFFFFFFFF))
+
+
+@wp.func
+def claim_of(round_id: wp.int64, m: int) -> wp.int64:
+    """The claim of mover ``m`` in round ``round_id``: later rounds win, then lower indices."""
+    return (round_id << wp.int64(32)) | (wp.int64(0x7FFFFFFF) - wp.int64(m))
+
+
+@wp.func
+def claimant(claim: wp.int64, round_id: wp.int64) -> int:
+    """The mover whose claim this is if it was made in round ``round_id``, else -1 (a free or older cell)."""
+    if (claim >> wp.int64(32)) != round_id:
+        return -1
+    return 0x7FFFFFFF - int(claim & INDEX_BITS)
 
 
 @wp.struct
@@ -76,12 +93,29 @@ def neighbor_cell(g: PlaceGrid, w: int, c: wp.vec2i, dx: int, dy: int) -> int:
 
 
 @wp.kernel
-def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32), claim: wp.array(dtype=wp.int32)):
+def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32), claim: wp.array(dtype=wp.int64)):
     """Empty every cell list and claim."""
     i = wp.tid()
     head[i] = -1
     head_old[i] = -1
-    claim[i] = NO_CLAIM
+    claim[i] = wp.int64(NO_CLAIM)
+
+
+@wp.kernel
+def begin_todo(
+    # State in:
+    mask: wp.array2d(dtype=wp.bool),
+    # State out:
+    todo: wp.array2d(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+):
+    """``todo``: the movers to place (``mask``); ``active[w]`` (zeroed before): world ``w`` has one."""
+    w, m = wp.tid()
+    t = int(0)
+    if mask[w, m]:
+        t = 1
+        active[w] = 1
+    todo[w, m] = t
 
 
 @wp.kernel
@@ -92,20 +126,54 @@ def bin_fixed(
     # State in:
     pos: wp.array2d(dtype=wp.vec2),
     todo: wp.array2d(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
     # State out:
     head: wp.array(dtype=wp.int32),
     next_in_cell: wp.array2d(dtype=wp.int32),
     head_old: wp.array(dtype=wp.int32),
     next_old: wp.array2d(dtype=wp.int32),
+    old_cell: wp.array2d(dtype=wp.int32),
 ):
-    """Put every mover that stays where it is (``todo == 0``) into its cell's list; with ``hold``, the movers to
-    place go into the second lists at their current spots (which they keep until they are placed)."""
+    """In the worlds with movers to place (``active``): put every mover that stays where it is (``todo == 0``) into
+    its cell's list; with ``hold``, the movers to place go into the second lists at their current spots (which they
+    keep until they are placed; ``old_cell``: that cell, -1 for the others)."""
     w, m = wp.tid()
+    if active[w] == 0:
+        return
     c = cell_index(g, w, place_cell(g, pos[w, m]))
+    oc = int(-1)
     if todo[w, m] == 0:
         next_in_cell[w, m] = wp.atomic_exch(head, c, m)
     elif hold != 0:
         next_old[w, m] = wp.atomic_exch(head_old, c, m)
+        oc = c
+    old_cell[w, m] = oc
+
+
+@wp.kernel
+def unbin(
+    # Model:
+    g: PlaceGrid,
+    # State in:
+    pos: wp.array2d(dtype=wp.vec2),
+    todo: wp.array2d(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    old_cell: wp.array2d(dtype=wp.int32),
+    # State out:
+    head: wp.array(dtype=wp.int32),
+    head_old: wp.array(dtype=wp.int32),
+):
+    """Empty the cells a call filled (work per mover of the worlds placed in, not per cell): every mover in the
+    lists now (``todo == 0``: fixed or placed, at its position) and every held spot (``old_cell``). Claims need no
+    clearing: a later round's claims beat them."""
+    w, m = wp.tid()
+    if active[w] == 0:
+        return
+    if todo[w, m] == 0:
+        head[cell_index(g, w, place_cell(g, pos[w, m]))] = -1
+    oc = old_cell[w, m]
+    if oc >= 0:
+        head_old[oc] = -1
 
 
 @wp.func
@@ -138,6 +206,7 @@ def propose(
     seed: int,
     tries: int,
     hold: int,
+    round_id: wp.int64,
     # State in:
     pos: wp.array2d(dtype=wp.vec2),
     todo: wp.array2d(dtype=wp.int32),
@@ -148,7 +217,7 @@ def propose(
     # State out:
     cand: wp.array2d(dtype=wp.vec2),
     cand_ok: wp.array2d(dtype=wp.int32),
-    claim: wp.array(dtype=wp.int32),
+    claim: wp.array(dtype=wp.int64),
 ):
     """Up to ``tries`` candidates for each mover still to place; the first valid one claims its cell.
 
@@ -173,7 +242,7 @@ def propose(
             continue
         cand[w, m] = p
         cand_ok[w, m] = 1
-        wp.atomic_min(claim, cell_index(g, w, place_cell(g, p)), m)
+        wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
         return
 
 
@@ -181,52 +250,37 @@ def propose(
 def resolve(
     # Model:
     g: PlaceGrid,
+    round_id: wp.int64,
     # State in:
     cand: wp.array2d(dtype=wp.vec2),
     cand_ok: wp.array2d(dtype=wp.int32),
-    claim: wp.array(dtype=wp.int32),
+    claim: wp.array(dtype=wp.int64),
     # State out:
     todo: wp.array2d(dtype=wp.int32),
     pos: wp.array2d(dtype=wp.vec2),
     head: wp.array(dtype=wp.int32),
     next_in_cell: wp.array2d(dtype=wp.int32),
 ):
-    """Accept the cell winners that no lower-indexed nearby winner conflicts with."""
+    """Accept the cell winners that no lower-indexed nearby winner of this round conflicts with."""
     w, m = wp.tid()
     if cand_ok[w, m] == 0:
         return
     p = cand[w, m]
     c = place_cell(g, p)
     own = cell_index(g, w, c)
-    if claim[own] != m:
+    if claimant(claim[own], round_id) != m:
         return
     for dy in range(-g.reach, g.reach + 1):
         for dx in range(-g.reach, g.reach + 1):
             cell = neighbor_cell(g, w, c, dx, dy)
             if cell < 0:
                 continue
-            j = claim[cell]
-            if j < m and conflict(g, p - cand[w, j]):
+            j = claimant(claim[cell], round_id)
+            if j >= 0 and j < m and conflict(g, p - cand[w, j]):
                 return
     pos[w, m] = p
     todo[w, m] = 0
     next_in_cell[w, m] = wp.atomic_exch(head, own, m)
-
-
-@wp.kernel
-def unclaim(
-    # Model:
-    g: PlaceGrid,
-    # State in:
-    cand: wp.array2d(dtype=wp.vec2),
-    cand_ok: wp.array2d(dtype=wp.int32),
-    # State out:
-    claim: wp.array(dtype=wp.int32),
-):
-    """Free the cells claimed this round (one write per candidate)."""
-    w, m = wp.tid()
-    if cand_ok[w, m] != 0:
-        claim[cell_index(g, w, place_cell(g, cand[w, m]))] = NO_CLAIM
 
 
 @wp.kernel

@@ -40,6 +40,11 @@ without synchronising, and a mover left unplaced there waits as a pending respaw
 With the respawn rule and up to 256 movers per world (the training regime), the step's control cycles and collision
 stops run as one launch (``fused``, :mod:`magwarp.swarm.fused`: one thread block per world on CUDA), with the
 per-cycle path's results bit for bit; larger worlds, MagBotSim's rule and further cycle hooks run per cycle.
+The rest of a step is a few launches over the movers, none of them a host sync: the command (stopped movers
+zeroed), one kernel for every mover's outcome (flags, reward, goal and job counts, what it asks of the placers,
+:func:`~magwarp.kernels.swarm.evaluate_movers`), the goal and respawn placers (their work only in the worlds with a
+mover to place), one kernel that applies the respawns, and the observation (grid binning, then one kernel writing
+each row straight into the returned tensor, with the NaN guard's per-world check).
 
 Every option is a field of :class:`SwarmConfig`; the constructor takes a config and/or the same names as keywords.
 """
@@ -57,12 +62,13 @@ import warp as wp
 
 from magwarp._checks import as_count, as_flag, warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.kernels.swarm import stop_collided
+from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers,
+                                   stop_collided)
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies
 from magwarp.swarm.observations import LocalObservations
-from magwarp.swarm.placement import Placer
+from magwarp.swarm.placement import Placer, torch_stream
 
 __all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
 
@@ -231,6 +237,14 @@ class SwarmEnv(MagwarpVecEnv):
         self.respawn_pending = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self.goal_pending = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self._xy = torch.zeros(n, m, 2, device=dev)  # contiguous scratch positions for the placer
+        self._xy_wp = wp.from_torch(self._xy, dtype=wp.vec2)
+        self._goals_wp = wp.from_torch(self.goals, dtype=wp.vec2)
+        self._left = torch.zeros(n, m, dtype=torch.bool, device=dev)  # movers a respawn left unplaced
+        self._no_flags = torch.zeros(0, 0, dtype=torch.bool, device=dev)  # job_done without stations
+        rule = SwarmRewards()
+        rule.threshold, rule.reward_goal = float(cfg.threshold_pos), float(cfg.reward_goal)
+        rule.reward_collision, rule.reward_per_step = float(cfg.reward_collision), float(cfg.reward_per_step)
+        self._rule = rule
         self.stations = None
         if cfg.stations is not None:
             from magwarp.swarm.stations import Stations
@@ -243,6 +257,12 @@ class SwarmEnv(MagwarpVecEnv):
                                          offset=cfg.collision_offset, device=wdev)
         self.carrying = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self.jobs = torch.zeros(n, m, dtype=torch.int64, device=dev)
+        # what the step kernel marks for _end_step (a new goal, a respawn), and Warp views of the state it updates
+        self._want_goal = torch.zeros(n, m, dtype=torch.bool, device=dev)
+        self._want_respawn = torch.zeros(n, m, dtype=torch.bool, device=dev)
+        self._task_wp = [wp.from_torch(t) for t in (self.respawn_pending, self.goal_pending, self.carrying,
+                                                     self._want_goal, self._want_respawn, self.collected_goals,
+                                                     self.jobs)]
         # own state: velocity, goal relative to the mover, (acceleration), (carrying a job)
         self.own_dim = (6 if self.learn_jerk else 4) + (1 if self.stations is not None else 0)
         limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
@@ -291,9 +311,6 @@ class SwarmEnv(MagwarpVecEnv):
             obs = torch.where(done[:, None, None], self._get_obs(), obs)
         return obs, reward, terminated, truncated, info
 
-    def _nonfinite_worlds(self, obs) -> torch.Tensor:
-        return (self.sim.nonfinite_step >= 0) | super()._nonfinite_worlds(obs)
-
     # ------------------------------------------------------------------ task hooks
     def _place(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int, hold: bool = False,
                placer: Placer | None = None) -> torch.Tensor:
@@ -303,7 +320,7 @@ class SwarmEnv(MagwarpVecEnv):
         if getattr(self, "_checked_reset", False):
             placer.place(xy, mask)
             return torch.zeros_like(mask)
-        return placer.place_async(xy, mask, rounds=rounds, hold=hold).clone()
+        return placer.place_async(xy, mask, rounds=rounds, hold=hold)
 
     def _reset_envs(self, mask: torch.Tensor) -> None:
         n, m = self.num_envs, self.num_movers
@@ -331,68 +348,81 @@ class SwarmEnv(MagwarpVecEnv):
 
     def _apply_action(self, action: torch.Tensor) -> None:
         # stopped movers (pending respawns) ignore their command; the stop hook keeps them still
-        cmd = torch.where(self.stopped[..., None].bool(), 0.0, action)
-        self.sim.step(self.num_cycles, cmd)
+        sim = self.sim
+        with torch_stream(sim.device):
+            wp.launch(command_unless_stopped, dim=(self.num_envs, self.num_movers), device=sim.device,
+                      inputs=[self._stopped, wp.from_torch(action.contiguous(), dtype=wp.vec2)],
+                      outputs=[sim.state.cmd])
+        sim.step(self.num_cycles)
 
     def _get_obs(self) -> torch.Tensor:
         sim = self.sim
-        self.local.compute(sim.state.pos, sim.state.vel)
         obs = torch.empty(self.num_envs, self.num_movers, self.own_dim + self.local.dim, device=self.device)
-        obs[..., 0:2].copy_(sim.vel[..., :2])
-        torch.sub(self.goals, sim.pos[..., :2], out=obs[..., 2:4])
-        if self.learn_jerk:
-            obs[..., 4:6].copy_(sim.acc)
-        if self.stations is not None:
-            obs[..., self.own_dim - 1].copy_(self.carrying)
-        self.local.features(obs[..., self.own_dim:])
+        self._obs_rows = self.local.observe(sim.state.pos, sim.state.vel, obs, goals=self.goals,
+                                            acc=sim.acc if self.learn_jerk else None,
+                                            carrying=self.carrying if self.stations is not None else None)
         return obs
 
+    def _nonfinite_worlds(self, obs) -> torch.Tensor:
+        sim_bad = self.sim.nonfinite_step >= 0
+        if obs is getattr(self, "_obs_rows", None):  # the observation kernel flagged its non-finite rows
+            return sim_bad | (self.local.nonfinite != 0)
+        return sim_bad | super()._nonfinite_worlds(obs)
+
     def _evaluate(self, obs) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        """The step's outcome per mover in one kernel (:func:`~magwarp.kernels.swarm.evaluate_movers`), which also
+        counts the goals (and jobs) and marks the movers that want a new goal or a respawn, for :meth:`_end_step`."""
         cfg = self.config
-        flags = self.sim.flags_any
-        mover_col = (flags & 1) != 0
-        wall_col = (flags & 2) != 0
-        active = ~self.respawn_pending  # pending movers sit out: no reward, no new penalty
-        collided = (mover_col | wall_col) & active
-        dist = (self.sim.pos[..., :2] - self.goals).norm(dim=-1)
-        reached = (dist <= cfg.threshold_pos) & active & ~collided & ~self.goal_pending
-        agent_reward = torch.where(collided, cfg.reward_collision,
-                                   torch.where(reached, cfg.reward_goal, cfg.reward_per_step))
-        agent_reward = torch.where(active, agent_reward, 0.0)
+        n, m, dev = self.num_envs, self.num_movers, self.device
+
+        def flags():
+            return torch.empty(n, m, dtype=torch.bool, device=dev)
+
+        agent_reward = torch.empty(n, m, device=dev)
+        mover_col, wall_col, collided, reached = flags(), flags(), flags(), flags()
+        job_done = flags() if self.stations is not None else self._no_flags
+        w = wp.from_torch
+        with torch_stream(self.sim.device):
+            wp.launch(evaluate_movers, dim=(n, m), device=self.sim.device,
+                      inputs=[self._rule, self.sim.state.flags_any, self.sim.state.pos, self._goals_wp,
+                              *self._task_wp[:3]],
+                      outputs=[w(agent_reward), w(mover_col), w(wall_col), w(collided), w(reached), w(job_done),
+                               *self._task_wp[3:]])
         reward = agent_reward.sum(dim=1)
         if cfg.on_collision == "end":
             terminated = collided.any(dim=1)
+            agent_terminated = collided | terminated[:, None]
         else:
-            terminated = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+            terminated = torch.zeros(n, dtype=torch.bool, device=dev)
+            agent_terminated = collided
         if self.max_episode_steps is None:
             truncated = torch.zeros_like(terminated)
         else:
             truncated = (self.num_steps + 1 >= self.max_episode_steps) & ~terminated
         info = {"agent_reward": agent_reward, "mover_collision": mover_col, "wall_collision": wall_col,
-                "agent_terminated": collided if cfg.on_collision == "respawn" else collided | terminated[:, None],
-                "goal_reached": reached, "collided": collided}
+                "agent_terminated": agent_terminated, "goal_reached": reached, "collided": collided}
         if self.stations is not None:
-            info["job_done"] = reached & self.carrying
+            info["job_done"] = job_done
         return reward, terminated, truncated, info
 
     def _end_step(self, obs, info) -> None:
+        """Goal streams (or stations) and respawns for the movers :meth:`_evaluate` marked (its kernel already
+        counted the goals and jobs)."""
         cfg = self.config
         self.num_steps += 1
         reached = info["goal_reached"]
-        self.collected_goals += reached
         if self.stations is not None:
             # material flow: a pick-up loads a job (next: a drop-off), a drop-off delivers it (next: a pick-up)
-            self.jobs += info["job_done"]
             self.carrying.copy_(self.carrying ^ reached)
             self.goals.copy_(torch.where(reached[..., None], self.stations.sample(self.carrying, self._generator),
                                          self.goals))
             info["jobs"] = self.jobs.clone()
         else:
             # goal streams: new goals clear of the other goals
-            want_goal = reached | self.goal_pending
-            self.goal_pending.copy_(self._place(self.goals, want_goal, cfg.goal_rounds, hold=True))
+            self.placer.place_async(self.goals, self._want_goal, rounds=cfg.goal_rounds, hold=True,
+                                    out=self.goal_pending)
         if cfg.on_collision == "respawn":
-            self._respawn(info["agent_terminated"] | self.respawn_pending)
+            self._respawn(self._want_respawn)
         info["collected_goals"] = self.collected_goals.clone()
         info["respawn_pending"] = self.respawn_pending.clone()
 
@@ -400,15 +430,13 @@ class SwarmEnv(MagwarpVecEnv):
         """Re-place the movers in ``want`` at free spots (clear of every other mover) and restart them at rest."""
         sim = self.sim
         self._xy.copy_(sim.pos[..., :2])
-        left = self._place(self._xy, want, self.config.respawn_rounds, hold=True, placer=self.respawn_placer)
-        placed = want & ~left
-        sel = placed[..., None]
-        pos = sim.pos
-        pos[..., :2] = torch.where(sel, self._xy, pos[..., :2])
-        for field in (sim.vel, sim.acc, sim.cmd):
-            field.masked_fill_(sel, 0.0)
-        self.stopped.masked_fill_(placed, 0)
-        self.respawn_pending.copy_(left & want)
+        left = self.respawn_placer.place_async(self._xy, want, rounds=self.config.respawn_rounds, hold=True,
+                                               out=self._left)
+        s, w = sim.state, wp.from_torch
+        with torch_stream(sim.device):
+            wp.launch(apply_respawns, dim=(self.num_envs, self.num_movers), device=sim.device,
+                      inputs=[w(want), w(left), self._xy_wp],
+                      outputs=[s.pos, s.vel, s.acc, s.cmd, self._stopped, self._task_wp[0]])
 
     def agent_view(self):
         """The flat parameter-shared view of this env (:class:`~magwarp.swarm.FlatSwarmEnv`): every mover of every

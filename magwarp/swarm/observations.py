@@ -9,6 +9,10 @@ covers the neighbourhood), bins the movers with the simulator's ``bin_movers`` k
 * ``mask`` ``[W, M, k]`` (bool) and ``index`` ``[W, M, k]`` (int32, -1 where padded);
 * ``walls`` ``[W, M, num_rays]``: the distance from the mover's centre to the first point off the tiles (hole or
   edge) along ``num_rays`` directions evenly spread from +x counter-clockwise, capped at ``max_range``.
+
+:meth:`LocalObservations.observe` writes the same values, with the mover's own state before them, straight into the
+rows of an env's observation tensor: three launches per call (clear the grid, bin, one observation kernel), no
+copies; ``rel_pos``, ``rel_vel`` and ``walls`` are then views of those rows.
 """
 
 from __future__ import annotations
@@ -64,17 +68,25 @@ class LocalObservations:
         self._head = wp.zeros(self.num_worlds * g.ncx * g.ncy, dtype=wp.int32, device=dev)
         self._next = wp.zeros(shape, dtype=wp.int32, device=dev)
         kk = max(self.k, 1)
-        self._rel_pos = wp.zeros((*shape, kk), dtype=wp.vec2, device=dev)
-        self._rel_vel = wp.zeros((*shape, kk), dtype=wp.vec2, device=dev)
         self._index = wp.full((*shape, kk), -1, dtype=wp.int32, device=dev)
-        self._walls = wp.zeros((*shape, max(self.num_rays, 1)), dtype=float, device=dev)
         self._dirs = wp.array(ray_directions(max(self.num_rays, 1)).astype(np.float32), dtype=wp.vec2, device=dev)
         self._tiles = wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=dev)
-        self._knn = knb.make_knn_kernel(kk) if self.k > 0 else None
-        self.rel_pos = wp.to_torch(self._rel_pos)[..., : self.k, :]
-        self.rel_vel = wp.to_torch(self._rel_vel)[..., : self.k, :]
+        self._nonfinite = wp.zeros(self.num_worlds, dtype=wp.int32, device=dev)
+        self.nonfinite = wp.to_torch(self._nonfinite)  # [W] int32: a written row of the world was not finite
+        self._none_vec2 = wp.empty((0, 0), dtype=wp.vec2, device=dev)
+        self._none_bool = wp.empty((0, 0), dtype=wp.bool, device=dev)
         self.index = wp.to_torch(self._index)[..., : self.k]
-        self.walls = wp.to_torch(self._walls)[..., : self.num_rays]
+        # the features of compute() (no own state); observe() points the views below at the rows it writes
+        self._features = torch.zeros(*shape, self.dim, device=wp.device_to_torch(dev))
+        self._view(self._features, 0)
+
+    def _view(self, rows: torch.Tensor, start: int) -> None:
+        """Point ``rel_pos``, ``rel_vel`` and ``walls`` at the local columns of ``rows`` (from column ``start``)."""
+        k = self.k
+        slots = rows[..., start: start + 5 * k].unflatten(-1, (k, 5))
+        self.rel_pos = slots[..., 0:2]
+        self.rel_vel = slots[..., 2:4]
+        self.walls = rows[..., start + 5 * k: start + self.dim]
 
     @property
     def mask(self) -> torch.Tensor:
@@ -88,18 +100,44 @@ class LocalObservations:
 
     def compute(self, pos: wp.array, vel: wp.array) -> None:
         """Fill the observations from ``[W, M]`` vec3 positions and velocities (e.g. a simulator's state)."""
+        self._launch(pos, vel, self._features, 0, None, None, None)
+        self._view(self._features, 0)
+
+    def observe(self, pos: wp.array, vel: wp.array, out: torch.Tensor, *, goals: torch.Tensor | None = None,
+                acc: torch.Tensor | None = None, carrying: torch.Tensor | None = None) -> torch.Tensor:
+        """The whole observation of every mover, written into ``out`` (contiguous float32 ``[W, M, own + dim]``) by
+        one kernel (after binning the movers): with ``goals`` (``[W, M, 2]``) the own state first (x/y velocity,
+        goal relative to the mover), then ``acc`` (``[W, M, 2]``) and ``carrying`` (bool ``[W, M]``, as 0/1) where
+        given, then :meth:`features`' columns. :attr:`rel_pos`, :attr:`rel_vel` and :attr:`walls` become views
+        of ``out``; :attr:`nonfinite` flags the worlds with a non-finite entry in ``out``. Returns ``out``."""
+        if goals is None and (acc is not None or carrying is not None):
+            raise ValueError("acceleration and carrying columns come after the own state: give goals too")
+        own = 4 * (goals is not None) + 2 * (acc is not None) + (carrying is not None)
+        shape = (self.num_worlds, self.num_movers, own + self.dim)
+        if tuple(out.shape) != shape or out.dtype != torch.float32 or not out.is_contiguous():
+            raise ValueError(f"observation rows must be a contiguous float32 tensor of shape {shape}, got "
+                             f"{out.dtype} {tuple(out.shape)}")
+        self._launch(pos, vel, out, own, goals, acc, carrying)
+        self._view(out, own)
+        return out
+
+    def _launch(self, pos, vel, out, own, goals, acc, carrying) -> None:
         dev, dim = self.device, (self.num_worlds, self.num_movers)
+        bits = (knb.OWN_STATE if goals is not None else 0) | (knb.OWN_ACC if acc is not None else 0) | \
+            (knb.OWN_CARRY if carrying is not None else 0)
+        kernel = knb.make_observation_kernel(self.k, self.num_rays, bits)
         with torch_stream(dev):
-            if self._knn is not None:
+            self.nonfinite.zero_()
+            if self.k > 0:
                 wp.launch(knb.clear_heads, dim=self._head.shape[0], inputs=[self._head], device=dev)
                 wp.launch(bin_movers, dim=dim, inputs=[self.grid, pos, self._head, self._next], device=dev)
-                wp.launch(self._knn, dim=dim, device=dev,
-                          inputs=[self.grid, self.radius, self.reach, pos, vel, self._head, self._next],
-                          outputs=[self._rel_pos, self._rel_vel, self._index])
-            if self.num_rays > 0:
-                wp.launch(knb.wall_distances, dim=(*dim, self.num_rays), device=dev,
-                          inputs=[self._tiles, float(self.layout.tile.size), self._dirs, self.max_range, pos],
-                          outputs=[self._walls])
+            vec2 = (lambda t: self._none_vec2 if t is None else wp.from_torch(t.contiguous(), dtype=wp.vec2))
+            wp.launch(kernel, dim=dim, device=dev,
+                      inputs=[self.grid, self.radius, self.reach, self._tiles, float(self.layout.tile.size), self._dirs,
+                              self.max_range, pos, vel, vec2(acc), vec2(goals),
+                              self._none_bool if carrying is None else wp.from_torch(carrying.contiguous()),
+                              self._head, self._next],
+                      outputs=[wp.from_torch(out), self._index, self._nonfinite])
 
     def features(self, out: torch.Tensor | None = None) -> torch.Tensor:
         """``[W, M, 5 k + num_rays]``: per neighbour slot (relative x, y, relative vx, vy, mask), then the rays.

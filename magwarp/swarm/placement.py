@@ -129,14 +129,18 @@ class Placer:
         self._tiles = wp.array(self.layout.tiles.astype(np.int32), dtype=wp.int32, device=self.device)
         shape = (self.num_worlds, self.num_movers)
         self._head = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
-        self._claim = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
+        self._claim = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int64, device=self.device)
+        self._round = 0  # the last round's number (claims of older rounds lose to newer ones: no clearing)
         self._head_old = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
         self._next = wp.zeros(shape, dtype=wp.int32, device=self.device)
         self._next_old = wp.zeros(shape, dtype=wp.int32, device=self.device)
         self._cand = wp.zeros(shape, dtype=wp.vec2, device=self.device)
         self._cand_ok = wp.zeros(shape, dtype=wp.int32, device=self.device)
         self._todo = wp.zeros(shape, dtype=wp.int32, device=self.device)
+        self._old_cell = wp.zeros(shape, dtype=wp.int32, device=self.device)
+        self._active = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)  # worlds with movers to place
         self._left = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)
+        self._grid_clean = False  # every cell list empty and every claim free (kept so between calls)
         self.valid_area, self.grown_area = self._measure_area()
         if self.valid_area <= 0.0:
             raise PlacementError(
@@ -224,38 +228,54 @@ class Placer:
 
     def _begin(self, xy: torch.Tensor, mask: torch.Tensor, hold: bool) -> wp.array:
         pos = wp.from_torch(xy, dtype=wp.vec2)
-        wp.to_torch(self._todo).copy_(mask.to(torch.int32))
         dev, dim = self.device, (self.num_worlds, self.num_movers)
-        wp.launch(kpl.clear_grid, dim=self._head.shape[0], inputs=[self._head, self._head_old, self._claim], device=dev)
-        wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo],
-                  outputs=[self._head, self._next, self._head_old, self._next_old], device=dev)
+        if not self._grid_clean:  # the first call (or one after a failed call): empty every cell
+            wp.launch(kpl.clear_grid, dim=self._head.shape[0], inputs=[self._head, self._head_old, self._claim],
+                      device=dev)
+        self._grid_clean = False
+        self._active.zero_()
+        wp.launch(kpl.begin_todo, dim=dim, inputs=[wp.from_torch(mask.to(torch.bool).contiguous(), dtype=wp.bool)],
+                  outputs=[self._todo, self._active], device=dev)
+        wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo, self._active],
+                  outputs=[self._head, self._next, self._head_old, self._next_old, self._old_cell], device=dev)
         self._hold = int(hold)
         return pos
+
+    def _end(self, pos: wp.array) -> None:
+        """Empty the cells this call filled (the next call finds the grid clean without clearing every cell)."""
+        wp.launch(kpl.unbin, dim=(self.num_worlds, self.num_movers), device=self.device,
+                  inputs=[self.grid, pos, self._todo, self._active, self._old_cell],
+                  outputs=[self._head, self._head_old])
+        self._grid_clean = True
 
     def _rounds(self, pos: wp.array, rounds: int) -> None:
         dev, dim, g = self.device, (self.num_worlds, self.num_movers), self.grid
         for _ in range(rounds):
             wp.launch(kpl.propose, dim=dim, device=dev,
                       inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
-                              self._next_seed(), self.tries, self._hold, pos, self._todo, self._head, self._next,
-                              self._head_old, self._next_old],
+                              self._next_seed(), self.tries, self._hold, self._round + 1, pos, self._todo, self._head,
+                              self._next, self._head_old, self._next_old],
                       outputs=[self._cand, self._cand_ok, self._claim])
+            self._round += 1
             wp.launch(kpl.resolve, dim=dim, device=dev,
-                      inputs=[g, self._cand, self._cand_ok, self._claim, self._todo, pos, self._head, self._next])
-            wp.launch(kpl.unclaim, dim=dim, device=dev, inputs=[g, self._cand, self._cand_ok, self._claim])
+                      inputs=[g, self._round, self._cand, self._cand_ok, self._claim, self._todo, pos, self._head,
+                              self._next])
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
-                    hold: bool = False) -> torch.Tensor:
+                    hold: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
         """Place the movers where ``mask`` (``[W, M]`` bool, default all) is true into ``xy`` (``[W, M, 2]``
         float32, written in place) around the others, in ``rounds`` rounds and without a host synchronisation.
         With ``hold``, the current rows of the masked movers are real spots too (e.g. movers to respawn, which stay
         where they are until placed): nothing is placed onto them. Returns the ``[W, M]`` bool tensor of the movers
-        still unplaced (their rows of ``xy`` are unchanged)."""
+        still unplaced (their rows of ``xy`` are unchanged), written into ``out`` when given. Work: per mover of the
+        worlds with movers to place (the others' threads exit at once)."""
         xy, mask = self._check(xy, mask)
         with torch_stream(self.device):
             pos = self._begin(xy, mask, hold)
             self._rounds(pos, int(rounds))
-        return wp.to_torch(self._todo).bool()
+            self._end(pos)
+            todo = wp.to_torch(self._todo)
+            return todo.bool() if out is None else torch.ne(todo, 0, out=out)
 
     def place(self, xy: torch.Tensor, mask: torch.Tensor | None = None, *, rounds_per_check: int = 16,
               max_rounds: int = 256) -> torch.Tensor:
@@ -282,7 +302,10 @@ class Placer:
                           device=self.device)
                 left = self._left.numpy()
                 if not left.any():
-                    return xy
+                    break
+            self._end(pos)
+        if not left.any():
+            return xy
         w = int(np.argmax(left))
         placed = self.num_movers - int(left[w])
         raise PlacementError(
