@@ -138,6 +138,10 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # #18: the scripted planner (lanes, safety filter) at 256 / 1024 / 4096 movers (2000 steps each: goal share in 40 s)
       timeout 590 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
         2>&1 | tail -20 ;;
+    swarm_fused)
+      # #18: the fused swarm env step at many worlds (FUSED_MOVERS, default 100; 1024-16384 worlds), split by phase
+      timeout 560 python3 benchmarks/swarm.py --device cuda:0 --fused-sweep --fused-movers ${FUSED_MOVERS:-100} \
+        --json "$OUT/swarm_fused_gpu_${FUSED_MOVERS:-100}.json" 2>&1 | grep -v "^Module" | tail -24 ;;
     rand_profile)
       # #24: B0's randomisation cost at 4096/16384/65536 envs with each setting's per-kernel CUDA time at 65,536
       timeout 400 python3 benchmarks/randomization.py --device cuda:0 --num-envs 4096,16384,65536 \
