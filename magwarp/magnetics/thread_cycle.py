@@ -1,0 +1,375 @@
+"""The magnetic control cycle with one thread per mover: wrench-table look-up and commutation, in float32 (or float64).
+
+    cycle = ThreadCycle(table_model, commutation)          # precision="float32" (default) or "float64"
+    cycle.run(pos, quat, wanted, result, coil_ids=None, gamma=None)   # ids / columns written only when given
+
+The same problem as :mod:`~magwarp.magnetics.commutation` (least copper loss under per-coil limits, the same primal
+active-set steps, the same flags), solved by one thread per mover with its window's columns in its own local array
+(slots x 6; on a GPU local memory is interleaved across a warp's threads, so the reads are coalesced) instead of a
+block of threads with reductions over shared memory:
+
+1. one pass over the window: each slot's coil and its interpolated column
+   (:func:`~magwarp.magnetics.table.slot_column`), kept locally, and the free coils' 6 x 6 matrix (lower triangle);
+2. the fast path: one scaled Cholesky solve (plus, in float32, one step of iterative refinement: the residual
+   ``rhs - A y`` solved again, which brings the delivered wrench to float32 rounding of the wanted one), then one pass
+   that writes every coil's current and sums the delivered wrench and the loss; if no coil passes its limit, that is
+   the answer (no coil saturated: most movers);
+3. otherwise the active-set steps of the float64 kernel (step toward the free coils' optimum as far as the first
+   limit, fix the coils that reach it, re-solve), on the local columns, and a last pass.
+
+A current computed as ``g . Y / R`` can pass its limit by rounding in the last digit (float32: about 1e-7 of the
+limit); such a free current is held at the limit, so a written current never exceeds its limit.
+
+float32 (``precision="float32"``): the columns are float32 already (the table is float16); the 6 x 6 matrix, the solve
+and the sums run in float32. Against the float64 kernel on the same columns (``tests/test_magnetics_thread_cycle.py``):
+currents within about 1e-4 of the limit, the delivered wrench within 1e-5 of the wanted wrench's size when no coil
+saturates, the same saturated coils except where a coil's optimum lies within rounding of its limit.
+
+The Gamma columns are written only when asked (``gamma``: 24 bytes per slot and mover, 1 GB per cycle at 1M movers);
+the currents (float64, as :class:`~magwarp.magnetics.commutation.CommutationResult`) always.
+"""
+
+# (no "from __future__ import annotations": the kernels annotate with types made in make_thread_cycle)
+
+import functools
+
+import warp as wp
+
+from magwarp.magnetics.commutation import FLAG_NO_COILS, FLAG_NOT_CONVERGED, FLAG_REGULARISED, CommutationResult, vec6f
+from magwarp.magnetics.cycle import CycleParams, cycle_params
+from magwarp.magnetics.exact import vec6d
+from magwarp.magnetics.geometry import MagneticsError
+from magwarp.magnetics.table import TableModel, quat_yaw, slot_column
+
+__all__ = ["PRECISIONS", "ThreadCycle", "ThreadOutputs", "make_thread_cycle"]
+
+#: The arithmetic of the 6 x 6 matrix, its solve and the per-slot sums.
+PRECISIONS = {"float32": wp.float32, "float64": wp.float64}
+
+
+@wp.struct
+class ThreadOutputs:
+    """What the one-thread cycle writes per mover (flat index): the commutation's result, and the look-up's coil ids
+    and columns when ``store_columns`` is 1 (the arrays may be empty otherwise)."""
+
+    currents: wp.array2d(dtype=wp.float64)
+    saturated: wp.array2d(dtype=wp.int32)
+    delivered: wp.array(dtype=vec6d)
+    residual: wp.array(dtype=vec6d)
+    loss: wp.array(dtype=wp.float64)
+    flags: wp.array(dtype=wp.int32)
+    count: wp.array(dtype=wp.int32)
+    store_columns: int
+    coil_ids: wp.array2d(dtype=wp.int32)
+    gamma: wp.array2d(dtype=vec6f)
+
+
+@functools.cache
+def make_thread_cycle(slots: int, precision: str = "float32"):
+    """``(mover_func, kernel)`` of the one-thread cycle for a window of ``slots`` slots in ``precision``.
+
+    ``mover_func(c, i, x, y, z, yaw, wanted, o)`` (a ``@wp.func``; ``wanted`` a ``vec6f``) runs mover ``i``'s cycle at
+    (x, y, z, yaw) and writes row ``i`` of the :class:`ThreadOutputs` ``o``; it returns the delivered wrench
+    (``vec6f``), the copper loss (float32, W) and the flags. ``kernel`` runs it for every mover of float64 pose
+    arrays (as the :class:`~magwarp.magnetics.cycle.ControlCycle`)."""
+    if precision not in PRECISIONS:
+        raise MagneticsError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    S = int(slots)
+    real = PRECISIONS[precision]
+    f32 = precision == "float32"
+    vec6r = wp.types.vector(length=6, dtype=real)
+    mat66r = wp.types.matrix(shape=(6, 6), dtype=real)
+    Cols = wp.types.matrix(shape=(S, 6), dtype=real)
+    Ints = wp.types.vector(length=S, dtype=wp.int32)
+    Reals = wp.types.vector(length=S, dtype=real)
+    # The share of a step within which a coil that reaches its limit counts as reaching it with the first one.
+    hit_tol = 1.0e-6 if f32 else 1.0e-12
+
+    @wp.func
+    def cholesky(a: mat66r, shift: real):
+        """Lower Cholesky factor of ``a + shift I`` (lower triangle of ``a``) and its smallest squared pivot."""
+        lo = mat66r()
+        piv = real(1.0e30)
+        for c in range(6):
+            s = a[c, c] + shift
+            for k in range(c):
+                s = s - lo[c, k] * lo[c, k]
+            piv = wp.min(piv, s)
+            d = wp.sqrt(wp.max(s, real(1.0e-30)))
+            lo[c, c] = d
+            for r in range(c + 1, 6):
+                t = a[r, c]
+                for k in range(c):
+                    t = t - lo[r, k] * lo[c, k]
+                lo[r, c] = t / d
+        return lo, piv
+
+    @wp.func
+    def chol_solve(lo: mat66r, b: vec6r) -> vec6r:
+        y = vec6r()
+        for r in range(6):
+            t = b[r]
+            for k in range(r):
+                t = t - lo[r, k] * y[k]
+            y[r] = t / lo[r, r]
+        x = vec6r()
+        for rr in range(6):
+            r = 5 - rr
+            t = y[r]
+            for k in range(r + 1, 6):
+                t = t - lo[k, r] * x[k]
+            x[r] = t / lo[r, r]
+        return x
+
+    @wp.func
+    def sym_mul(a: mat66r, y: vec6r) -> vec6r:
+        """``A y`` from A's lower triangle."""
+        out = vec6r()
+        for r in range(6):
+            t = real(0.0)
+            for c in range(6):
+                if c <= r:
+                    t = t + a[r, c] * y[c]
+                else:
+                    t = t + a[c, r] * y[c]
+            out[r] = t
+        return out
+
+    @wp.func
+    def solve(a: mat66r, rhs: vec6r, reg: real):
+        """y with A y = rhs (A's lower triangle), scaled to a unit diagonal, regularised (+ reg I on the scaled
+        system) when a pivot falls below ``reg``; in float32 one step of iterative refinement. Returns y and whether
+        it was regularised."""
+        scale = vec6r()
+        for r in range(6):
+            scale[r] = real(1.0)
+            if a[r, r] > real(0.0):
+                scale[r] = real(1.0) / wp.sqrt(a[r, r])
+        a_s = mat66r()
+        for r in range(6):
+            for c in range(r + 1):
+                a_s[r, c] = a[r, c] * scale[r] * scale[c]
+        lo, piv = cholesky(a_s, real(0.0))
+        regd = bool(False)
+        if piv < reg:
+            lo, piv = cholesky(a_s, reg)
+            regd = True
+        b = wp.cw_mul(rhs, scale)
+        y = chol_solve(lo, b)
+        if wp.static(f32):
+            if not regd:  # the residual of the scaled system, solved again
+                y = y + chol_solve(lo, b - sym_mul(a_s, y))
+        return wp.cw_mul(y, scale), regd
+
+    @wp.func
+    def add_outer(a: mat66r, g: vec6r, s: real) -> mat66r:
+        out = a
+        for r in range(6):
+            sg = s * g[r]
+            for c in range(r + 1):
+                out[r, c] = out[r, c] + sg * g[c]
+        return out
+
+    @wp.func
+    def to_real(v: vec6f) -> vec6r:
+        return vec6r(real(v[0]), real(v[1]), real(v[2]), real(v[3]), real(v[4]), real(v[5]))
+
+    @wp.func
+    def to_f32(v: vec6r) -> vec6f:
+        return vec6f(float(v[0]), float(v[1]), float(v[2]), float(v[3]), float(v[4]), float(v[5]))
+
+    @wp.func
+    def to_f64(v: vec6r) -> vec6d:
+        return vec6d(wp.float64(v[0]), wp.float64(v[1]), wp.float64(v[2]), wp.float64(v[3]), wp.float64(v[4]),
+                     wp.float64(v[5]))
+
+    @wp.func
+    def row(cols: Cols, j: int) -> vec6r:
+        return vec6r(cols[j, 0], cols[j, 1], cols[j, 2], cols[j, 3], cols[j, 4], cols[j, 5])
+
+    @wp.func
+    def mover_cycle(c: CycleParams, i: int, x: float, y: float, z: float, yaw: float, wanted: vec6r,
+                    o: ThreadOutputs):
+        """Mover ``i``'s look-up and commutation by this thread (see the module docstring)."""
+        cols = Cols()
+        ids = Ints()
+        sat = Ints()
+        cur = Reals()
+        a = mat66r()
+        n = int(0)
+        for j in range(S):
+            k, col = slot_column(c.table, c.slot_layer, c.slot_offset, j, x, y, z, yaw)
+            ids[j] = k
+            if o.store_columns != 0:
+                o.coil_ids[i, j] = k
+                o.gamma[i, j] = col
+            if k >= 0:
+                g = to_real(col)
+                for r in range(6):
+                    cols[j, r] = g[r]
+                a = add_outer(a, g, real(1.0) / real(c.resistance[k]))
+                n += 1
+        reg = real(c.reg)
+        flag = int(0)
+        if n == 0:
+            flag = flag | FLAG_NO_COILS
+        rhs = wanted
+        big_y = vec6r()  # the free coils' currents are g . Y / R
+        converged = bool(n == 0)
+        n_free = n
+        it = int(0)
+        delivered = vec6r()
+        loss = real(0.0)
+        while it < c.max_iter and not converged and n_free > 0:
+            it += 1
+            yv, regd = solve(a, rhs, reg)
+            if regd:
+                flag = flag | FLAG_REGULARISED
+            # How far toward the free coils' optimum the limits allow; on the first solve (every coil free) the
+            # currents, the delivered wrench and the loss too: if no coil passes its limit, that is the answer.
+            alpha = real(1.0)
+            first = it == 1
+            delivered = vec6r()
+            loss = real(0.0)
+            for j in range(S):
+                k = ids[j]
+                if k >= 0 and sat[j] == 0:
+                    g = row(cols, j)
+                    r_inv = real(1.0) / real(c.resistance[k])
+                    lim = real(c.limit[k])
+                    t = wp.dot(g, yv) * r_inv
+                    if wp.abs(t) > lim:
+                        now = wp.dot(g, big_y) * r_inv
+                        alpha = wp.min(alpha, (wp.sign(t) * lim - now) / (t - now))
+                    if first:
+                        cur[j] = t
+                        delivered = delivered + g * t
+                        loss = loss + real(c.resistance[k]) * t * t
+            if alpha >= real(1.0):
+                big_y = yv
+                converged = True
+            else:
+                # Fix the coils that reach their limit (within rounding of the step), rebuild the others' matrix.
+                hit = alpha * (real(1.0) + real(hit_tol))
+                a = mat66r()
+                for j in range(S):
+                    k = ids[j]
+                    if k >= 0 and sat[j] == 0:
+                        g = row(cols, j)
+                        r_inv = real(1.0) / real(c.resistance[k])
+                        lim = real(c.limit[k])
+                        t = wp.dot(g, yv) * r_inv
+                        reach = real(2.0)
+                        if wp.abs(t) > lim:
+                            now = wp.dot(g, big_y) * r_inv
+                            reach = (wp.sign(t) * lim - now) / (t - now)
+                        if reach <= hit:
+                            cur[j] = wp.sign(t) * lim
+                            sat[j] = 1
+                            rhs = rhs - g * cur[j]
+                            n_free -= 1
+                        else:
+                            a = add_outer(a, g, r_inv)
+                big_y = big_y + alpha * (yv - big_y)
+        if not converged:
+            flag = flag | FLAG_NOT_CONVERGED
+        if it > 1 or not converged:  # a coil saturated: the last pass (the first solve's sums are not the answer)
+            delivered = vec6r()
+            loss = real(0.0)
+            for j in range(S):
+                k = ids[j]
+                if k >= 0:
+                    g = row(cols, j)
+                    t = cur[j]
+                    if sat[j] == 0:
+                        lim = real(c.limit[k])
+                        t = wp.clamp(wp.dot(g, big_y) / real(c.resistance[k]), -lim, lim)
+                        cur[j] = t
+                    delivered = delivered + g * t
+                    loss = loss + real(c.resistance[k]) * t * t
+        for j in range(S):
+            out_i = wp.float64(0.0)
+            if ids[j] >= 0:
+                lim64 = c.limit[ids[j]]
+                # rounding of the first solve's currents (see the module docstring)
+                out_i = wp.clamp(wp.float64(cur[j]), -lim64, lim64)
+            o.currents[i, j] = out_i
+            o.saturated[i, j] = sat[j]
+        d64 = to_f64(delivered)
+        o.count[i] = n
+        o.delivered[i] = d64
+        o.residual[i] = to_f64(wanted) - d64
+        o.loss[i] = wp.float64(loss)
+        o.flags[i] = flag
+        return to_f32(delivered), float(loss), flag
+
+    @wp.kernel(module="unique")
+    def thread_cycle_kernel(
+        # Model:
+        c: CycleParams,
+        # State in:
+        pos: wp.array(dtype=wp.vec3d),
+        quat: wp.array(dtype=wp.quatd),
+        wanted: wp.array(dtype=vec6d),
+        # State out:
+        o: ThreadOutputs,
+    ):
+        """One thread per mover: the look-up of its window, then least-loss currents within the limits."""
+        i = wp.tid()
+        p = pos[i]
+        w = wanted[i]
+        mover_cycle(c, i, float(p[0]), float(p[1]), float(p[2]), quat_yaw(quat[i]),
+                    vec6r(real(w[0]), real(w[1]), real(w[2]), real(w[3]), real(w[4]), real(w[5])), o)
+
+    return mover_cycle, thread_cycle_kernel
+
+
+def thread_outputs(res: CommutationResult, count: wp.array, coil_ids: wp.array | None = None,
+                   gamma: wp.array | None = None) -> ThreadOutputs:
+    """The :class:`ThreadOutputs` of these arrays (``coil_ids`` and ``gamma`` both or neither)."""
+    if (coil_ids is None) != (gamma is None):
+        raise MagneticsError("the one-thread cycle writes coil ids and columns together: give both or neither")
+    o = ThreadOutputs()
+    o.currents, o.saturated, o.delivered, o.residual = res.currents, res.saturated, res.delivered, res.residual
+    o.loss, o.flags, o.count = res.loss, res.flags, count
+    dev = res.currents.device
+    o.store_columns = 0 if coil_ids is None else 1
+    o.coil_ids = coil_ids if coil_ids is not None else wp.empty((0, 0), dtype=wp.int32, device=dev)
+    o.gamma = gamma if gamma is not None else wp.empty((0, 0), dtype=vec6f, device=dev)
+    return o
+
+
+class ThreadCycle:
+    """The wrench-table look-up of ``model`` and the commutation of ``commutation`` (its resistances, limits and
+    options; not its threads per mover) in one launch of one thread per mover, in ``precision``."""
+
+    def __init__(self, model: TableModel, commutation, precision: str = "float32"):
+        self.params = cycle_params(model, commutation)
+        self.model, self.commutation, self.precision = model, commutation, precision
+        self.mover_func, self.kernel = make_thread_cycle(model.max_active, precision)
+
+    def run(self, pos: wp.array, quat: wp.array, wanted: wp.array, out: CommutationResult,
+            count: wp.array | None = None, coil_ids: wp.array | None = None,
+            gamma: wp.array | None = None) -> CommutationResult:
+        """The commutation's result ``out`` (as :meth:`Commutation.solve`; the coil counts into ``count`` when given)
+        for movers at ``pos``/``quat`` (float64) wanting ``wanted`` (``vec6d``); the coil ids and columns (as
+        :meth:`TableModel.columns`) into ``coil_ids`` and ``gamma`` when given."""
+        n, slots, dev = pos.shape[0], self.model.max_active, self.model.device
+        count = count if count is not None else wp.empty(n, dtype=wp.int32, device=dev)
+        shapes = {"quat": (quat.shape, (n,)), "wanted": (wanted.shape, (n,)), "count": (count.shape, (n,)),
+                  "currents": (out.currents.shape, (n, slots))}
+        if coil_ids is not None:
+            shapes["coil_ids"] = (coil_ids.shape, (n, slots))
+        if gamma is not None:
+            shapes["gamma"] = (gamma.shape, (n, slots))
+        for name, (got, want) in shapes.items():
+            if tuple(got) != want:
+                raise MagneticsError(f"ThreadCycle.run: {name} has shape {tuple(got)}, expected {want}")
+        arrays = {"pos": pos, "quat": quat, "wanted": wanted, "count": count, "currents": out.currents,
+                  "coil_ids": coil_ids, "gamma": gamma}
+        for name, a in arrays.items():  # a kernel on one device reading another's memory crashes the process
+            if a is not None and a.device != dev:
+                raise MagneticsError(f"ThreadCycle.run: {name} is on {a.device}, the model on {dev}")
+        wp.launch(self.kernel, dim=n, device=dev, inputs=[self.params, pos, quat, wanted],
+                  outputs=[thread_outputs(out, count, coil_ids, gamma)])
+        return out
