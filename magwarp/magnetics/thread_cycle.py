@@ -1,7 +1,9 @@
-"""The magnetic control cycle with one thread per mover: wrench-table look-up and commutation, in float32 (or float64).
+"""The magnetic control cycle with one thread per mover: wrench-table look-up and commutation, in float32 or float64.
 
     cycle = ThreadCycle(table_model, commutation)          # precision="float32" (default) or "float64"
-    cycle.run(pos, quat, wanted, result, coil_ids=None, gamma=None)   # ids / columns written only when given
+    cycle.run(pos, quat, wanted, result, count=None, coil_ids=None, gamma=None)  # ids, columns: written when given
+
+In the simulator it runs inside the step kernels (:class:`~magwarp.magnetics.drive.MagneticDrive`, ``in_step``).
 
 The same problem as :mod:`~magwarp.magnetics.commutation` (least copper loss under per-coil limits, the same primal
 active-set steps, the same flags), solved by one thread per mover with its window's columns in its own local array
@@ -20,13 +22,19 @@ block of threads with reductions over shared memory:
 A current computed as ``g . Y / R`` can pass its limit by rounding in the last digit (float32: about 1e-7 of the
 limit); such a free current is held at the limit, so a written current never exceeds its limit.
 
-float32 (``precision="float32"``): the columns are float32 already (the table is float16); the 6 x 6 matrix, the solve
-and the sums run in float32. Against the float64 kernel on the same columns (``tests/test_magnetics_thread_cycle.py``):
-currents within about 1e-4 of the limit, the delivered wrench within 1e-5 of the wanted wrench's size when no coil
-saturates, the same saturated coils except where a coil's optimum lies within rounding of its limit.
+Precision: the columns are kept as float32 (what the float16 table interpolates to) either way; ``precision`` is the
+arithmetic of the 6 x 6 matrix, its solve and the per-slot sums. ``"float64"`` gives the block kernel's results to
+rounding (``tests/test_magnetics_thread_cycle.py``). ``"float32"`` (against the float64 least-squares reference on
+the same columns, movers that need no regularisation): currents within 1e-3 of the limit, the delivered wrench within
+1e-5 of the wanted wrench's size when feasible, the same saturated coils but for near-ties. Where the system needs
+regularisation (a pivot of the unit-diagonal matrix below ``regularization``, 1e-6: few free coils left after many
+saturated), float32 rounding is amplified by about its inverse: the currents and the delivered wrench differ from
+float64's by percents and jitter from cycle to cycle (flagged :data:`FLAG_REGULARISED` either way). The simulator's
+drive uses float64 by default for that reason.
 
-The Gamma columns are written only when asked (``gamma``: 24 bytes per slot and mover, 1 GB per cycle at 1M movers);
-the currents (float64, as :class:`~magwarp.magnetics.commutation.CommutationResult`) always.
+The coil ids and Gamma columns are written only when asked (``gamma``: 24 bytes per slot and mover, 1 GB per cycle at
+1M movers); the currents (float64, as :class:`~magwarp.magnetics.commutation.CommutationResult`) always (the in-step
+drive: in a step's last cycle only).
 """
 
 # (no "from __future__ import annotations": the kernels annotate with types made in make_thread_cycle)
@@ -49,8 +57,8 @@ PRECISIONS = {"float32": wp.float32, "float64": wp.float64}
 
 @wp.struct
 class ThreadOutputs:
-    """What the one-thread cycle writes per mover (flat index): the commutation's result, and the look-up's coil ids
-    and columns when ``store_columns`` is 1 (the arrays may be empty otherwise)."""
+    """What the one-thread cycle writes per mover (flat index): the commutation's result, the look-up's coil ids when
+    ``store_ids`` is 1 and its columns when ``store_gamma`` is 1 (the arrays may be empty otherwise)."""
 
     currents: wp.array2d(dtype=wp.float64)
     saturated: wp.array2d(dtype=wp.int32)
@@ -59,7 +67,8 @@ class ThreadOutputs:
     loss: wp.array(dtype=wp.float64)
     flags: wp.array(dtype=wp.int32)
     count: wp.array(dtype=wp.int32)
-    store_columns: int
+    store_ids: int
+    store_gamma: int
     coil_ids: wp.array2d(dtype=wp.int32)
     gamma: wp.array2d(dtype=vec6f)
 
@@ -68,8 +77,9 @@ class ThreadOutputs:
 def make_thread_cycle(slots: int, precision: str = "float32"):
     """``(mover_func, kernel)`` of the one-thread cycle for a window of ``slots`` slots in ``precision``.
 
-    ``mover_func(c, i, x, y, z, yaw, wanted, o)`` (a ``@wp.func``; ``wanted`` a ``vec6f``) runs mover ``i``'s cycle at
-    (x, y, z, yaw) and writes row ``i`` of the :class:`ThreadOutputs` ``o``; it returns the delivered wrench
+    ``mover_func(c, i, x, y, z, yaw, wanted, o, write)`` (a ``@wp.func``) runs mover ``i``'s cycle at (x, y, z, yaw)
+    and, where ``write`` is 1, writes row ``i`` of the :class:`ThreadOutputs` ``o`` (0: nothing written, e.g. the
+    cycles of a simulator step but its last); it returns the delivered wrench
     (``vec6f``), the copper loss (float32, W) and the flags. ``kernel`` runs it for every mover of float64 pose
     arrays (as the :class:`~magwarp.magnetics.cycle.ControlCycle`)."""
     if precision not in PRECISIONS:
@@ -79,7 +89,7 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
     f32 = precision == "float32"
     vec6r = wp.types.vector(length=6, dtype=real)
     mat66r = wp.types.matrix(shape=(6, 6), dtype=real)
-    Cols = wp.types.matrix(shape=(S, 6), dtype=real)
+    Cols = wp.types.matrix(shape=(S, 6), dtype=wp.float32)  # the columns are float32 (from a float16 table)
     Ints = wp.types.vector(length=S, dtype=wp.int32)
     Reals = wp.types.vector(length=S, dtype=real)
     # The share of a step within which a coil that reaches its limit counts as reaching it with the first one.
@@ -185,11 +195,12 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
 
     @wp.func
     def row(cols: Cols, j: int) -> vec6r:
-        return vec6r(cols[j, 0], cols[j, 1], cols[j, 2], cols[j, 3], cols[j, 4], cols[j, 5])
+        return vec6r(real(cols[j, 0]), real(cols[j, 1]), real(cols[j, 2]), real(cols[j, 3]), real(cols[j, 4]),
+                     real(cols[j, 5]))
 
     @wp.func
     def mover_cycle(c: CycleParams, i: int, x: float, y: float, z: float, yaw: float, wanted: vec6r,
-                    o: ThreadOutputs):
+                    o: ThreadOutputs, write: int):
         """Mover ``i``'s look-up and commutation by this thread (see the module docstring)."""
         cols = Cols()
         ids = Ints()
@@ -200,14 +211,15 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
         for j in range(S):
             k, col = slot_column(c.table, c.slot_layer, c.slot_offset, j, x, y, z, yaw)
             ids[j] = k
-            if o.store_columns != 0:
-                o.coil_ids[i, j] = k
-                o.gamma[i, j] = col
+            if write != 0:
+                if o.store_ids != 0:
+                    o.coil_ids[i, j] = k
+                if o.store_gamma != 0:
+                    o.gamma[i, j] = col
             if k >= 0:
-                g = to_real(col)
                 for r in range(6):
-                    cols[j, r] = g[r]
-                a = add_outer(a, g, real(1.0) / real(c.resistance[k]))
+                    cols[j, r] = col[r]
+                a = add_outer(a, to_real(col), real(1.0) / real(c.resistance[k]))
                 n += 1
         reg = real(c.reg)
         flag = int(0)
@@ -287,20 +299,21 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
                         cur[j] = t
                     delivered = delivered + g * t
                     loss = loss + real(c.resistance[k]) * t * t
-        for j in range(S):
-            out_i = wp.float64(0.0)
-            if ids[j] >= 0:
-                lim64 = c.limit[ids[j]]
-                # rounding of the first solve's currents (see the module docstring)
-                out_i = wp.clamp(wp.float64(cur[j]), -lim64, lim64)
-            o.currents[i, j] = out_i
-            o.saturated[i, j] = sat[j]
-        d64 = to_f64(delivered)
-        o.count[i] = n
-        o.delivered[i] = d64
-        o.residual[i] = to_f64(wanted) - d64
-        o.loss[i] = wp.float64(loss)
-        o.flags[i] = flag
+        if write != 0:
+            for j in range(S):
+                out_i = wp.float64(0.0)
+                if ids[j] >= 0:
+                    lim64 = c.limit[ids[j]]
+                    # rounding of the first solve's currents (see the module docstring)
+                    out_i = wp.clamp(wp.float64(cur[j]), -lim64, lim64)
+                o.currents[i, j] = out_i
+                o.saturated[i, j] = sat[j]
+            d64 = to_f64(delivered)
+            o.count[i] = n
+            o.delivered[i] = d64
+            o.residual[i] = to_f64(wanted) - d64
+            o.loss[i] = wp.float64(loss)
+            o.flags[i] = flag
         return to_f32(delivered), float(loss), flag
 
     @wp.kernel(module="unique")
@@ -319,21 +332,20 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
         p = pos[i]
         w = wanted[i]
         mover_cycle(c, i, float(p[0]), float(p[1]), float(p[2]), quat_yaw(quat[i]),
-                    vec6r(real(w[0]), real(w[1]), real(w[2]), real(w[3]), real(w[4]), real(w[5])), o)
+                    vec6r(real(w[0]), real(w[1]), real(w[2]), real(w[3]), real(w[4]), real(w[5])), o, 1)
 
     return mover_cycle, thread_cycle_kernel
 
 
 def thread_outputs(res: CommutationResult, count: wp.array, coil_ids: wp.array | None = None,
                    gamma: wp.array | None = None) -> ThreadOutputs:
-    """The :class:`ThreadOutputs` of these arrays (``coil_ids`` and ``gamma`` both or neither)."""
-    if (coil_ids is None) != (gamma is None):
-        raise MagneticsError("the one-thread cycle writes coil ids and columns together: give both or neither")
+    """The :class:`ThreadOutputs` of these arrays (``coil_ids`` and ``gamma``: written only when given)."""
     o = ThreadOutputs()
     o.currents, o.saturated, o.delivered, o.residual = res.currents, res.saturated, res.delivered, res.residual
     o.loss, o.flags, o.count = res.loss, res.flags, count
     dev = res.currents.device
-    o.store_columns = 0 if coil_ids is None else 1
+    o.store_ids = 0 if coil_ids is None else 1
+    o.store_gamma = 0 if gamma is None else 1
     o.coil_ids = coil_ids if coil_ids is not None else wp.empty((0, 0), dtype=wp.int32, device=dev)
     o.gamma = gamma if gamma is not None else wp.empty((0, 0), dtype=vec6f, device=dev)
     return o
