@@ -11,7 +11,9 @@ active-set steps, the same flags), solved by one thread per mover with its windo
 block of threads with reductions over shared memory:
 
 1. one pass over the window: each slot's coil and its interpolated column
-   (:func:`~magwarp.magnetics.table.slot_column`), kept locally, and the free coils' 6 x 6 matrix (lower triangle);
+   (:func:`~magwarp.magnetics.table.slot_coil`, :func:`~magwarp.magnetics.table.table_column_at`: the height cell
+   and the yaw samples, with their sines and cosines, once per mover), kept locally, and the free coils' 6 x 6
+   matrix (lower triangle);
 2. the fast path: one scaled Cholesky solve (plus, in float32, one step of iterative refinement: the residual
    ``rhs - A y`` solved again, which brings the delivered wrench to float32 rounding of the wanted one), then one pass
    that writes every coil's current and sums the delivered wrench and the loss; if no coil passes its limit, that is
@@ -47,7 +49,7 @@ from magwarp.magnetics.commutation import FLAG_NO_COILS, FLAG_NOT_CONVERGED, FLA
 from magwarp.magnetics.cycle import CycleParams, cycle_params
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.geometry import MagneticsError
-from magwarp.magnetics.table import TableModel, quat_yaw, slot_column
+from magwarp.magnetics.table import TableModel, column_context, quat_yaw, slot_coil, table_column_at
 
 __all__ = ["PRECISIONS", "ThreadCycle", "ThreadOutputs", "make_thread_cycle"]
 
@@ -91,7 +93,6 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
     mat66r = wp.types.matrix(shape=(6, 6), dtype=real)
     Cols = wp.types.matrix(shape=(S, 6), dtype=wp.float32)  # the columns are float32 (from a float16 table)
     Ints = wp.types.vector(length=S, dtype=wp.int32)
-    Reals = wp.types.vector(length=S, dtype=real)
     # The share of a step within which a coil that reaches its limit counts as reaching it with the first one.
     hit_tol = 1.0e-6 if f32 else 1.0e-12
 
@@ -199,17 +200,31 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
                      real(cols[j, 5]))
 
     @wp.func
+    def current(c: CycleParams, k: int, g: vec6r, big_y: vec6r, sat: int) -> real:
+        """A coil's current: at its limit with the sign ``sat`` (+1, -1) where saturated, else ``g . Y / R`` (held
+        within the limit: rounding)."""
+        lim = real(c.limit[k])
+        if sat != 0:
+            return real(sat) * lim
+        return wp.clamp(wp.dot(g, big_y) / real(c.resistance[k]), -lim, lim)
+
+    @wp.func
     def mover_cycle(c: CycleParams, i: int, x: float, y: float, z: float, yaw: float, wanted: vec6r,
                     o: ThreadOutputs, write: int):
-        """Mover ``i``'s look-up and commutation by this thread (see the module docstring)."""
+        """Mover ``i``'s look-up and commutation by this thread (see the module docstring). Per slot the thread keeps
+        the column, the coil id and the saturation (0, or the sign of the current held at the limit)."""
         cols = Cols()
         ids = Ints()
         sat = Ints()
-        cur = Reals()
         a = mat66r()
         n = int(0)
+        # the height cell and yaw samples are the same for every slot: once per mover
+        kz, fz, y0, fy, rot, out = column_context(c.table, z, yaw)
         for j in range(S):
-            k, col = slot_column(c.table, c.slot_layer, c.slot_offset, j, x, y, z, yaw)
+            k, l, dx, dy = slot_coil(c.table, c.slot_layer, c.slot_offset, j, x, y)
+            col = vec6f()
+            if k >= 0:
+                col = table_column_at(c.table, l, dx, dy, kz, fz, y0, fy, rot)
             ids[j] = k
             if write != 0:
                 if o.store_ids != 0:
@@ -221,6 +236,8 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
                     cols[j, r] = col[r]
                 a = add_outer(a, to_real(col), real(1.0) / real(c.resistance[k]))
                 n += 1
+        if out and n > 0:  # as many look-ups outside the table's heights as the window's coils
+            wp.atomic_add(c.table.out_of_range, 0, n)
         reg = real(c.reg)
         flag = int(0)
         if n == 0:
@@ -237,12 +254,10 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
             yv, regd = solve(a, rhs, reg)
             if regd:
                 flag = flag | FLAG_REGULARISED
-            # How far toward the free coils' optimum the limits allow; on the first solve (every coil free) the
-            # currents, the delivered wrench and the loss too: if no coil passes its limit, that is the answer.
+            # How far toward the free coils' optimum the limits allow. On the first solve (every coil free) also the
+            # currents (written), the delivered wrench and the loss: if no coil passes its limit, that is the answer.
             alpha = real(1.0)
             first = it == 1
-            delivered = vec6r()
-            loss = real(0.0)
             for j in range(S):
                 k = ids[j]
                 if k >= 0 and sat[j] == 0:
@@ -254,9 +269,15 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
                         now = wp.dot(g, big_y) * r_inv
                         alpha = wp.min(alpha, (wp.sign(t) * lim - now) / (t - now))
                     if first:
-                        cur[j] = t
+                        t = wp.clamp(t, -lim, lim)  # (a current beyond its limit means another pass follows)
                         delivered = delivered + g * t
                         loss = loss + real(c.resistance[k]) * t * t
+                        if write != 0:
+                            o.currents[i, j] = wp.float64(t)
+                            o.saturated[i, j] = 0
+                elif first and write != 0:
+                    o.currents[i, j] = wp.float64(0.0)
+                    o.saturated[i, j] = 0
             if alpha >= real(1.0):
                 big_y = yv
                 converged = True
@@ -276,38 +297,29 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
                             now = wp.dot(g, big_y) * r_inv
                             reach = (wp.sign(t) * lim - now) / (t - now)
                         if reach <= hit:
-                            cur[j] = wp.sign(t) * lim
-                            sat[j] = 1
-                            rhs = rhs - g * cur[j]
+                            sat[j] = int(wp.sign(t))
+                            rhs = rhs - g * (wp.sign(t) * lim)
                             n_free -= 1
                         else:
                             a = add_outer(a, g, r_inv)
                 big_y = big_y + alpha * (yv - big_y)
         if not converged:
             flag = flag | FLAG_NOT_CONVERGED
-        if it > 1 or not converged:  # a coil saturated: the last pass (the first solve's sums are not the answer)
+        if it != 1 or not converged:  # not the first solve's answer: the last pass
             delivered = vec6r()
             loss = real(0.0)
             for j in range(S):
                 k = ids[j]
+                t = real(0.0)
                 if k >= 0:
                     g = row(cols, j)
-                    t = cur[j]
-                    if sat[j] == 0:
-                        lim = real(c.limit[k])
-                        t = wp.clamp(wp.dot(g, big_y) / real(c.resistance[k]), -lim, lim)
-                        cur[j] = t
+                    t = current(c, k, g, big_y, sat[j])
                     delivered = delivered + g * t
                     loss = loss + real(c.resistance[k]) * t * t
+                if write != 0:
+                    o.currents[i, j] = wp.float64(t)
+                    o.saturated[i, j] = wp.where(sat[j] != 0, 1, 0)
         if write != 0:
-            for j in range(S):
-                out_i = wp.float64(0.0)
-                if ids[j] >= 0:
-                    lim64 = c.limit[ids[j]]
-                    # rounding of the first solve's currents (see the module docstring)
-                    out_i = wp.clamp(wp.float64(cur[j]), -lim64, lim64)
-                o.currents[i, j] = out_i
-                o.saturated[i, j] = sat[j]
             d64 = to_f64(delivered)
             o.count[i] = n
             o.delivered[i] = d64
