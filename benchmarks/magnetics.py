@@ -433,21 +433,25 @@ def sim_rows(args, device: str, params, spec) -> list[dict]:
     rows = []
     for worlds in (args.sim_worlds if device.startswith("cuda") else args.cpu_sim_worlds):
         out = {"device": device, "worlds": worlds, "movers_per_world": movers, "cycles": 40}
-        for name in ("ideal", *args.drive_variants):
-            model = drive_model(args, params, name)
+        per_cycle = [f"{v}_per_cycle" for v in args.drive_variants if v.startswith("in_step") and args.per_cycle]
+        for name in ("ideal", *args.drive_variants, *per_cycle):
+            model = drive_model(args, params, name.removesuffix("_per_cycle"))
+            # _per_cycle: the per-cycle kernels (one thread per mover and cycle, 2 launches a cycle) instead of the
+            # fused one-thread-per-world kernel
             sim = Simulator(layout, movers, worlds, device=device, stop_on_collision=False, check_inputs=False,
-                            force_model=model)
+                            force_model=model, **({"fused_max_movers": 0} if name.endswith("_per_cycle") else {}))
             gen = torch.Generator(device=sim.torch_device).manual_seed(0)
             cmd = torch.rand((worlds, movers, 2), generator=gen, device=sim.torch_device) * 2.0 - 1.0
             sim.set_command(cmd)
             ms, _, _ = time_call(lambda: sim.step(40), args.repeats, warmup=1,
                                  sync=lambda: wp.synchronize_device(device))  # noqa: B023
             out[f"{name}_step_ms"] = ms
-        variants_share(out, args.drive_variants, lambda v: out["ideal_step_ms"] / out[f"{v}_step_ms"])
+        variants = [*args.drive_variants, *per_cycle]
+        variants_share(out, variants, lambda v: out["ideal_step_ms"] / out[f"{v}_step_ms"])
         rows.append(out)
         print(f"  {device:7s} B0 x {worlds:>6} worlds, 40 cycles: ideal {out['ideal_step_ms']:.3f} ms, magnetic "
               + ", ".join(f"{v} {out[f'{v}_step_ms']:.3f} ms ({out[f'{v}_share_of_ideal_speed']:.1%})"
-                          for v in args.drive_variants), flush=True)
+                          for v in variants), flush=True)
     return rows
 
 
@@ -560,6 +564,8 @@ def main(argv=None) -> int:
     parser.add_argument("--drive-variants", type=names, default=names("in_step_f64,in_step_f32,hook"),
                         help=f"magnetic drives of the sim and env rows (the first is reported as 'magnetic'): "
                              f"{', '.join(DRIVE_VARIANTS)}")
+    parser.add_argument("--per-cycle", action="store_true",
+                        help="sim rows: also each in-step drive on the per-cycle kernels (one thread per mover)")
     parser.add_argument("--tiles", type=int, default=8, help="the layout is tiles x tiles")
     parser.add_argument("--table-variants", type=lambda t: [s for s in t.split(",") if s], default=[],
                         help=f"wrench tables to time the one-thread cycle with at the largest size (and check "

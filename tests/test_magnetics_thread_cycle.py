@@ -7,28 +7,15 @@ import numpy as np
 import pytest
 import warp as wp
 
-from magwarp.layout import Layout
 from magwarp.magnetics import reference as ref
 from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED, FLAG_REGULARISED, Commutation, CommutationResult
 from magwarp.magnetics.commutation import vec6f as ModelCol
 from magwarp.magnetics.exact import vec6d
-from magwarp.magnetics.fast import FieldTableSpec
-from magwarp.magnetics.geometry import MagneticParams, MagneticsError, Quadrature
-from magwarp.magnetics.table import TableModel, WrenchTableSpec
+from magwarp.magnetics.geometry import MagneticsError
 from magwarp.magnetics.thread_cycle import ThreadCycle
 
-# The coarse table of tests/test_magnetics_cycle.py (seconds to build on a CPU).
-PARAMS = MagneticParams(quadrature=Quadrature(order=2, max_interval=0.01), active_radius=0.2)
-SPEC = WrenchTableSpec(step=0.003, yaw_steps=24, z_step=0.001, gap=(0.003, 0.005),
-                       field=FieldTableSpec(step=0.002, z_step=0.001, margin=0.08))
-
-
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("MAGWARP_CACHE_DIR", str(tmp_path_factory.mktemp("magnetics_cache")))
-    yield TableModel(Layout.grid(3, 2), PARAMS, SPEC, device="cpu")
-    mp.undo()
+# The coarse table of tests/test_magnetics_cycle.py (seconds to build on a CPU) and its module fixture.
+from test_magnetics_cycle import model  # noqa: E402, F401  (a fixture; tests/ is on sys.path)
 
 
 def random_case(model, rng, n: int, acc_max: float):

@@ -6,11 +6,12 @@
 
 (by hand: ``Simulator(..., force_model=magnetic_force, force_aux_dim=AUX_DIM)``, then ``MagneticDrive(sim)``).
 
-Before every cycle (a pre-cycle hook, inside the step graph, no host sync): the wrench the ideal model would apply
-at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
+Every cycle (inside the step kernels, or a pre-cycle hook: see below; no host sync): the wrench the ideal model
+would apply at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
 of the command, the impedance hold) is the wanted wrench; the wrench-table model (:mod:`~magwarp.magnetics.table`)
 gives each mover's Gamma(q); the commutation gives the least-loss currents within the limits; the realised wrench
-Gamma i goes into ``force_aux[w, m, 0:6]`` (float32), which :func:`magnetic_force` returns to the integrator. When
+Gamma i acts on the mover and goes into ``force_aux[w, m, 0:6]`` (float32; the hook's :func:`magnetic_force`
+returns it to the integrator). When
 no coil saturates, the realised wrench is the wanted one (to float32 rounding) and the motion matches the ideal
 model; when coils saturate, the wrench falls short (the mover accelerates less, or sinks) as on the real system.
 
@@ -23,8 +24,8 @@ Two ways to run it:
 * ``in_step=True`` (the default): inside the simulator's step kernels, as their
   :class:`~magwarp.kernels.step.Actuator` (:meth:`~magwarp.sim.Simulator.set_actuator`): every cycle of every mover,
   the force model (:func:`~magwarp.kernels.impedance.default_force`) gives the wanted wrench and the one-thread cycle
-  (:mod:`~magwarp.magnetics.thread_cycle`, float64 arithmetic by default, float32 columns) the realised one, in the same thread.
-  The step stays the fused one-launch kernel (B0's worlds of 3 movers: one thread per world runs all 40 cycles),
+  (:mod:`~magwarp.magnetics.thread_cycle`, float64 arithmetic by default, float32 columns) the realised one, in the
+  same thread. The step stays the fused one-launch kernel (B0's worlds of 3 movers: one thread per world runs all 40 cycles),
   captured in the env's graph. ``force_aux`` and the energy follow every cycle; the per-slot currents and coil ids
   are written in a step's last cycle (a world that halts early on a collision keeps those of its last full step).
 * ``in_step=False``: a pre-cycle hook (float64, one block of threads per mover, below).

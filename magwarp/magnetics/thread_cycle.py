@@ -45,8 +45,9 @@ import functools
 
 import warp as wp
 
-from magwarp.magnetics.commutation import FLAG_NO_COILS, FLAG_NOT_CONVERGED, FLAG_REGULARISED, CommutationResult, vec6f
-from magwarp.magnetics.cycle import CycleParams, cycle_params
+from magwarp.magnetics.commutation import (FLAG_NO_COILS, FLAG_NOT_CONVERGED, FLAG_REGULARISED, CommutationResult,
+                                           add_outer_lower, make_scaled_solver, vec6f)
+from magwarp.magnetics.cycle import CycleParams, check_arrays, cycle_params
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.geometry import MagneticsError
 from magwarp.magnetics.table import TableModel, column_context, quat_yaw, slot_coil, table_column_at
@@ -96,90 +97,7 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
     # The share of a step within which a coil that reaches its limit counts as reaching it with the first one.
     hit_tol = 1.0e-6 if f32 else 1.0e-12
 
-    @wp.func
-    def cholesky(a: mat66r, shift: real):
-        """Lower Cholesky factor of ``a + shift I`` (lower triangle of ``a``) and its smallest squared pivot."""
-        lo = mat66r()
-        piv = real(1.0e30)
-        for c in range(6):
-            s = a[c, c] + shift
-            for k in range(c):
-                s = s - lo[c, k] * lo[c, k]
-            piv = wp.min(piv, s)
-            d = wp.sqrt(wp.max(s, real(1.0e-30)))
-            lo[c, c] = d
-            for r in range(c + 1, 6):
-                t = a[r, c]
-                for k in range(c):
-                    t = t - lo[r, k] * lo[c, k]
-                lo[r, c] = t / d
-        return lo, piv
-
-    @wp.func
-    def chol_solve(lo: mat66r, b: vec6r) -> vec6r:
-        y = vec6r()
-        for r in range(6):
-            t = b[r]
-            for k in range(r):
-                t = t - lo[r, k] * y[k]
-            y[r] = t / lo[r, r]
-        x = vec6r()
-        for rr in range(6):
-            r = 5 - rr
-            t = y[r]
-            for k in range(r + 1, 6):
-                t = t - lo[k, r] * x[k]
-            x[r] = t / lo[r, r]
-        return x
-
-    @wp.func
-    def sym_mul(a: mat66r, y: vec6r) -> vec6r:
-        """``A y`` from A's lower triangle."""
-        out = vec6r()
-        for r in range(6):
-            t = real(0.0)
-            for c in range(6):
-                if c <= r:
-                    t = t + a[r, c] * y[c]
-                else:
-                    t = t + a[c, r] * y[c]
-            out[r] = t
-        return out
-
-    @wp.func
-    def solve(a: mat66r, rhs: vec6r, reg: real):
-        """y with A y = rhs (A's lower triangle), scaled to a unit diagonal, regularised (+ reg I on the scaled
-        system) when a pivot falls below ``reg``; in float32 one step of iterative refinement. Returns y and whether
-        it was regularised."""
-        scale = vec6r()
-        for r in range(6):
-            scale[r] = real(1.0)
-            if a[r, r] > real(0.0):
-                scale[r] = real(1.0) / wp.sqrt(a[r, r])
-        a_s = mat66r()
-        for r in range(6):
-            for c in range(r + 1):
-                a_s[r, c] = a[r, c] * scale[r] * scale[c]
-        lo, piv = cholesky(a_s, real(0.0))
-        regd = bool(False)
-        if piv < reg:
-            lo, piv = cholesky(a_s, reg)
-            regd = True
-        b = wp.cw_mul(rhs, scale)
-        y = chol_solve(lo, b)
-        if wp.static(f32):
-            if not regd:  # the residual of the scaled system, solved again
-                y = y + chol_solve(lo, b - sym_mul(a_s, y))
-        return wp.cw_mul(y, scale), regd
-
-    @wp.func
-    def add_outer(a: mat66r, g: vec6r, s: real) -> mat66r:
-        out = a
-        for r in range(6):
-            sg = s * g[r]
-            for c in range(r + 1):
-                out[r, c] = out[r, c] + sg * g[c]
-        return out
+    solve = make_scaled_solver(real, refine=f32)
 
     @wp.func
     def to_real(v: vec6f) -> vec6r:
@@ -198,6 +116,19 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
     def row(cols: Cols, j: int) -> vec6r:
         return vec6r(real(cols[j, 0]), real(cols[j, 1]), real(cols[j, 2]), real(cols[j, 3]), real(cols[j, 4]),
                      real(cols[j, 5]))
+
+    @wp.func
+    def coil_step(c: CycleParams, k: int, g: vec6r, yv: vec6r, big_y: vec6r):
+        """A free coil on a step from the currents of ``big_y`` toward those of ``yv``: its current at the step's end,
+        the share of the step at which it reaches its limit (2 where it never does), 1 / R and its limit."""
+        r_inv = real(1.0) / real(c.resistance[k])
+        lim = real(c.limit[k])
+        t = wp.dot(g, yv) * r_inv
+        reach = real(2.0)
+        if wp.abs(t) > lim:
+            now = wp.dot(g, big_y) * r_inv
+            reach = (wp.sign(t) * lim - now) / (t - now)
+        return t, reach, r_inv, lim
 
     @wp.func
     def current(c: CycleParams, k: int, g: vec6r, big_y: vec6r, sat: int) -> real:
@@ -234,7 +165,7 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
             if k >= 0:
                 for r in range(6):
                     cols[j, r] = col[r]
-                a = add_outer(a, to_real(col), real(1.0) / real(c.resistance[k]))
+                a = add_outer_lower(a, to_real(col), real(1.0) / real(c.resistance[k]))
                 n += 1
         if out and n > 0:  # as many look-ups outside the table's heights as the window's coils
             wp.atomic_add(c.table.out_of_range, 0, n)
@@ -262,12 +193,8 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
                 k = ids[j]
                 if k >= 0 and sat[j] == 0:
                     g = row(cols, j)
-                    r_inv = real(1.0) / real(c.resistance[k])
-                    lim = real(c.limit[k])
-                    t = wp.dot(g, yv) * r_inv
-                    if wp.abs(t) > lim:
-                        now = wp.dot(g, big_y) * r_inv
-                        alpha = wp.min(alpha, (wp.sign(t) * lim - now) / (t - now))
+                    t, reach, r_inv, lim = coil_step(c, k, g, yv, big_y)
+                    alpha = wp.min(alpha, reach)
                     if first:
                         t = wp.clamp(t, -lim, lim)  # (a current beyond its limit means another pass follows)
                         delivered = delivered + g * t
@@ -289,19 +216,13 @@ def make_thread_cycle(slots: int, precision: str = "float32"):
                     k = ids[j]
                     if k >= 0 and sat[j] == 0:
                         g = row(cols, j)
-                        r_inv = real(1.0) / real(c.resistance[k])
-                        lim = real(c.limit[k])
-                        t = wp.dot(g, yv) * r_inv
-                        reach = real(2.0)
-                        if wp.abs(t) > lim:
-                            now = wp.dot(g, big_y) * r_inv
-                            reach = (wp.sign(t) * lim - now) / (t - now)
+                        t, reach, r_inv, lim = coil_step(c, k, g, yv, big_y)
                         if reach <= hit:
                             sat[j] = int(wp.sign(t))
                             rhs = rhs - g * (wp.sign(t) * lim)
                             n_free -= 1
                         else:
-                            a = add_outer(a, g, r_inv)
+                            a = add_outer_lower(a, g, r_inv)
                 big_y = big_y + alpha * (yv - big_y)
         if not converged:
             flag = flag | FLAG_NOT_CONVERGED
@@ -386,14 +307,9 @@ class ThreadCycle:
             shapes["coil_ids"] = (coil_ids.shape, (n, slots))
         if gamma is not None:
             shapes["gamma"] = (gamma.shape, (n, slots))
-        for name, (got, want) in shapes.items():
-            if tuple(got) != want:
-                raise MagneticsError(f"ThreadCycle.run: {name} has shape {tuple(got)}, expected {want}")
         arrays = {"pos": pos, "quat": quat, "wanted": wanted, "count": count, "currents": out.currents,
                   "coil_ids": coil_ids, "gamma": gamma}
-        for name, a in arrays.items():  # a kernel on one device reading another's memory crashes the process
-            if a is not None and a.device != dev:
-                raise MagneticsError(f"ThreadCycle.run: {name} is on {a.device}, the model on {dev}")
+        check_arrays("ThreadCycle.run", shapes, arrays, dev)
         wp.launch(self.kernel, dim=n, device=dev, inputs=[self.params, pos, quat, wanted],
                   outputs=[thread_outputs(out, count, coil_ids, gamma)])
         return out
