@@ -138,11 +138,9 @@ def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int, 
     return out
 
 
-#: The one-thread cycles timed beside the block cycle: (name, precision, write coil ids, write columns, slots per
-#: look-up iteration).
-THREAD_VARIANTS = [("thread_f32", "float32", False, False, 1), ("thread_f64", "float64", False, False, 1),
-                   ("thread_f64_ids", "float64", True, False, 1), ("thread_f32_cols", "float32", True, True, 1),
-                   ("thread_f32_u4", "float32", False, False, 4), ("thread_f64_u4", "float64", False, False, 4)]
+#: The one-thread cycles timed beside the block cycle: (name, precision, write coil ids, write columns).
+THREAD_VARIANTS = [("thread_f32", "float32", False, False), ("thread_f64", "float64", False, False),
+                   ("thread_f64_ids", "float64", True, False), ("thread_f32_cols", "float32", True, True)]
 
 
 def thread_calls(model, com, pos, quat, w_in, shape, results: dict) -> list:
@@ -154,9 +152,9 @@ def thread_calls(model, com, pos, quat, w_in, shape, results: dict) -> list:
     dev = model.device
     calls = []
     count = wp.empty(shape[0], dtype=wp.int32, device=dev)
-    for name, precision, with_ids, with_gamma, unroll in THREAD_VARIANTS:
+    for name, precision, with_ids, with_gamma in THREAD_VARIANTS:
         res = results[name] = CommutationResult.zeros(*shape, dev)
-        cyc = ThreadCycle(model, com, precision, unroll)
+        cyc = ThreadCycle(model, com, precision)
         t_ids = wp.empty(shape, dtype=wp.int32, device=dev) if with_ids else None
         t_gamma = wp.empty(shape, dtype=vec6f, device=dev) if with_gamma else None
         calls.append((f"{name}_cycle", lambda c=cyc, r=res, i=t_ids, g=t_gamma: c.run(pos, quat, w_in, r, count, i,
@@ -458,12 +456,9 @@ def sim_rows(args, device: str, params, spec) -> list[dict]:
 
 
 #: The magnetic drive's variants (``--drive-variants``): inside the step kernels in float64 or float32
-#: arithmetic, one or 4 slots per look-up iteration (:class:`magwarp.magnetics.drive.MagneticDrive`,
-#: ``in_step=True``), or the float64 pre-cycle hook.
+#: arithmetic (:class:`magwarp.magnetics.drive.MagneticDrive`, ``in_step=True``), or the float64 pre-cycle hook.
 DRIVE_VARIANTS = {"in_step_f64": {"in_step": True, "precision": "float64"},
-                  "in_step_f32": {"in_step": True, "precision": "float32"},
-                  "in_step_f64_u4": {"in_step": True, "precision": "float64", "unroll": 4},
-                  "in_step_f32_u4": {"in_step": True, "precision": "float32", "unroll": 4}, "hook": {"in_step": False}}
+                  "in_step_f32": {"in_step": True, "precision": "float32"}, "hook": {"in_step": False}}
 
 
 def drive_model(args, params, name: str):

@@ -7,12 +7,12 @@
 (by hand: ``Simulator(..., force_model=magnetic_force, force_aux_dim=AUX_DIM)``, then ``MagneticDrive(sim)``).
 
 Every cycle (inside the step kernels, or a pre-cycle hook: see below; no host sync): the wrench the ideal model
-would apply at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation,
-the x/y drive of the command, the impedance hold) is the wanted wrench; the wrench-table model
-(:mod:`~magwarp.magnetics.table`) gives each mover's Gamma(q); the commutation gives the least-loss currents within
-the limits; the realised wrench Gamma i acts on the mover and goes into ``force_aux[w, m, 0:6]`` (float32; the
-hook's :func:`magnetic_force` returns it to the integrator). When no coil saturates, the realised wrench is the
-wanted one (to float32 rounding) and the motion matches the ideal
+would apply at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
+of the command, the impedance hold) is the wanted wrench; the wrench-table model (:mod:`~magwarp.magnetics.table`)
+gives each mover's Gamma(q); the commutation gives the least-loss currents within the limits; the realised wrench
+Gamma i acts on the mover and goes into ``force_aux[w, m, 0:6]`` (float32; the hook's :func:`magnetic_force`
+returns it to the integrator). When
+no coil saturates, the realised wrench is the wanted one (to float32 rounding) and the motion matches the ideal
 model; when coils saturate, the wrench falls short (the mover accelerates less, or sinks) as on the real system.
 
 ``force_aux[w, m, 6]`` is the copper loss (W) and ``[7]`` the commutation flags
@@ -25,10 +25,9 @@ Two ways to run it:
   :class:`~magwarp.kernels.step.Actuator` (:meth:`~magwarp.sim.Simulator.set_actuator`): every cycle of every mover,
   the force model (:func:`~magwarp.kernels.impedance.default_force`) gives the wanted wrench and the one-thread cycle
   (:mod:`~magwarp.magnetics.thread_cycle`, float64 arithmetic by default, float32 columns) the realised one, in the
-  same thread. The step stays the fused one-launch kernel (B0's worlds of 3 movers: one thread per world runs all
-  40 cycles), captured in the env's graph. ``force_aux`` and the energy follow every cycle; the per-slot currents
-  and coil ids are written in a step's last cycle (a world that halts early on a collision keeps those of its last
-  full step).
+  same thread. The step stays the fused one-launch kernel (B0's worlds of 3 movers: one thread per world runs all 40 cycles),
+  captured in the env's graph. ``force_aux`` and the energy follow every cycle; the per-slot currents and coil ids
+  are written in a step's last cycle (a world that halts early on a collision keeps those of its last full step).
 * ``in_step=False``: a pre-cycle hook (float64, one block of threads per mover, below).
 
 The hook is one launch per cycle (:func:`drive_cycle_kernel`: the wanted wrench, the look-up, the commutation and
@@ -188,11 +187,11 @@ class DriveParams:
 
 
 @functools.cache
-def drive_actuator(slots: int, precision: str = "float64", unroll: int = 1) -> Actuator:
+def drive_actuator(slots: int, precision: str = "float64") -> Actuator:
     """The in-step magnetic drive (a :class:`~magwarp.kernels.step.Actuator` over :class:`DriveParams`) for a window
     of ``slots`` slots: the one-thread cycle of the wanted wrench at the cycle's starting pose; the realised wrench,
     loss and flags into ``force_aux``, the loss into the energy."""
-    mover_cycle = make_thread_cycle(slots, precision, unroll)[0]
+    mover_cycle = make_thread_cycle(slots, precision)[0]
     real = PRECISIONS[precision]
     vec6r = wp.types.vector(length=6, dtype=real)
 
@@ -219,14 +218,13 @@ def drive_actuator(slots: int, precision: str = "float64", unroll: int = 1) -> A
 class MagneticDrive:
     """Attach the magnetic drive to ``sim`` (built with ``force_aux_dim >= AUX_DIM``): a
     :class:`~magwarp.magnetics.table.TableModel` of ``params`` on the simulator's layout and device, and the
-    commutation, run every cycle: inside the step kernels (``in_step=True``, in ``precision``, ``unroll`` slots per
-    look-up iteration: :func:`~magwarp.magnetics.thread_cycle.make_thread_cycle`; the simulator's force
+    commutation, run every cycle: inside the step kernels (``in_step=True``, in ``precision``; the simulator's force
     model becomes the wanted wrench's, :func:`~magwarp.kernels.impedance.default_force`) or as a pre-cycle hook
     (``in_step=False``, float64; the simulator built with ``force_model=magnetic_force``)."""
 
     def __init__(self, sim, params: MagneticParams | None = None, spec: WrenchTableSpec | None = None,
                  options: CommutationOptions | None = None, use_cache: bool = True, in_step: bool = True,
-                 precision: str = "float64", unroll: int = 1):
+                 precision: str = "float64"):
         aux = sim.state.force_aux
         if aux.shape[2] < AUX_DIM:
             raise MagneticsError(f"the simulator's force_aux has {aux.shape[2]} columns; the magnetic drive needs "
@@ -250,7 +248,7 @@ class MagneticDrive:
         p = DriveParams()
         p.c, p.o = self._cycle, thread_outputs(self._res, self._count, self._ids)
         p.energy, p.dt, p.movers = self._energy, self._dt, m_
-        sim.set_actuator(drive_actuator(self.model.max_active, precision, unroll), p)
+        sim.set_actuator(drive_actuator(self.model.max_active, precision), p)
 
     def _before_cycle(self, sim) -> None:
         m, s = sim.model, sim.state
@@ -298,8 +296,7 @@ class MagneticModel:
     """The magnetic force model as a simulator option: ``Simulator(..., force_model=MagneticModel(...))`` or
     ``force_model="magnetic"`` (the defaults). ``params``: the design (:class:`MagneticParams`); ``table``: the
     wrench table's grid (:class:`~magwarp.magnetics.table.WrenchTableSpec`); ``options``: the commutation's;
-    ``in_step``, ``precision``, ``unroll``: where and in what arithmetic the cycle runs (:class:`MagneticDrive`,
-    :func:`~magwarp.magnetics.thread_cycle.make_thread_cycle`)."""
+    ``in_step``, ``precision``: where and in what arithmetic the cycle runs (:class:`MagneticDrive`)."""
 
     params: MagneticParams | None = None
     table: WrenchTableSpec | None = None
@@ -307,11 +304,10 @@ class MagneticModel:
     use_cache: bool = True
     in_step: bool = True
     precision: str = "float64"
-    unroll: int = 1
 
     def attach(self, sim) -> MagneticDrive:
         return MagneticDrive(sim, self.params, self.table, self.options, self.use_cache, self.in_step,
-                             self.precision, self.unroll)
+                             self.precision)
 
 
 #: Force models by name (``Simulator(force_model=NAME)``); None: the ideal model.

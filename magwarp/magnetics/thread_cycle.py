@@ -77,10 +77,8 @@ class ThreadOutputs:
 
 
 @functools.cache
-def make_thread_cycle(slots: int, precision: str = "float32", unroll: int = 1):
-    """``(mover_func, kernel)`` of the one-thread cycle for a window of ``slots`` slots in ``precision``; the look-up
-    pass takes ``unroll`` slots per iteration (an unrolled inner loop: their memory reads are independent, so a GPU
-    thread can have them in flight together instead of one slot's after another's).
+def make_thread_cycle(slots: int, precision: str = "float32"):
+    """``(mover_func, kernel)`` of the one-thread cycle for a window of ``slots`` slots in ``precision``.
 
     ``mover_func(c, i, x, y, z, yaw, wanted, o, write)`` (a ``@wp.func``) runs mover ``i``'s cycle at (x, y, z, yaw)
     and, where ``write`` is 1, writes row ``i`` of the :class:`ThreadOutputs` ``o`` (0: nothing written, e.g. the
@@ -89,11 +87,7 @@ def make_thread_cycle(slots: int, precision: str = "float32", unroll: int = 1):
     arrays (as the :class:`~magwarp.magnetics.cycle.ControlCycle`)."""
     if precision not in PRECISIONS:
         raise MagneticsError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
-    if int(unroll) != unroll or not 1 <= unroll <= 16:
-        raise MagneticsError(f"unroll must be an integer in [1, 16], got {unroll!r}")
     S = int(slots)
-    U = int(unroll)
-    blocks = -(-S // U)
     real = PRECISIONS[precision]
     f32 = precision == "float32"
     vec6r = wp.types.vector(length=6, dtype=real)
@@ -157,25 +151,22 @@ def make_thread_cycle(slots: int, precision: str = "float32", unroll: int = 1):
         n = int(0)
         # the height cell and yaw samples are the same for every slot: once per mover
         kz, fz, y0, fy, rot, out = column_context(c.table, z, yaw)
-        for jb in range(blocks):
-            for u in range(U):  # unrolled
-                j = jb * U + u
-                if j < S:
-                    k, l, dx, dy = slot_coil(c.table, c.slot_layer, c.slot_offset, j, x, y)
-                    col = vec6f()
-                    if k >= 0:
-                        col = table_column_at(c.table, l, dx, dy, kz, fz, y0, fy, rot)
-                    ids[j] = k
-                    if write != 0:
-                        if o.store_ids != 0:
-                            o.coil_ids[i, j] = k
-                        if o.store_gamma != 0:
-                            o.gamma[i, j] = col
-                    if k >= 0:
-                        for r in range(6):
-                            cols[j, r] = col[r]
-                        a = add_outer_lower(a, to_real(col), real(1.0) / real(c.resistance[k]))
-                        n += 1
+        for j in range(S):
+            k, l, dx, dy = slot_coil(c.table, c.slot_layer, c.slot_offset, j, x, y)
+            col = vec6f()
+            if k >= 0:
+                col = table_column_at(c.table, l, dx, dy, kz, fz, y0, fy, rot)
+            ids[j] = k
+            if write != 0:
+                if o.store_ids != 0:
+                    o.coil_ids[i, j] = k
+                if o.store_gamma != 0:
+                    o.gamma[i, j] = col
+            if k >= 0:
+                for r in range(6):
+                    cols[j, r] = col[r]
+                a = add_outer_lower(a, to_real(col), real(1.0) / real(c.resistance[k]))
+                n += 1
         if out and n > 0:  # as many look-ups outside the table's heights as the window's coils
             wp.atomic_add(c.table.out_of_range, 0, n)
         reg = real(c.reg)
@@ -295,13 +286,12 @@ def thread_outputs(res: CommutationResult, count: wp.array, coil_ids: wp.array |
 
 class ThreadCycle:
     """The wrench-table look-up of ``model`` and the commutation of ``commutation`` (its resistances, limits and
-    options; not its threads per mover) in one launch of one thread per mover, in ``precision``, ``unroll`` slots per
-    look-up iteration (:func:`make_thread_cycle`)."""
+    options; not its threads per mover) in one launch of one thread per mover, in ``precision``."""
 
-    def __init__(self, model: TableModel, commutation, precision: str = "float32", unroll: int = 1):
+    def __init__(self, model: TableModel, commutation, precision: str = "float32"):
         self.params = cycle_params(model, commutation)
         self.model, self.commutation, self.precision = model, commutation, precision
-        self.mover_func, self.kernel = make_thread_cycle(model.max_active, precision, unroll)
+        self.mover_func, self.kernel = make_thread_cycle(model.max_active, precision)
 
     def run(self, pos: wp.array, quat: wp.array, wanted: wp.array, out: CommutationResult,
             count: wp.array | None = None, coil_ids: wp.array | None = None,
