@@ -31,8 +31,8 @@ per mover, the ratio, and how far the two wrenches differ.
     python benchmarks/magnetics.py --device cpu --sizes 10,100 --cpu-sim-worlds 2 --env-envs 2 --json /tmp/m.json
     python benchmarks/magnetics.py --device cuda:0 --json benchmarks/results/magnetics_gpu.json   # the GPU run
     python benchmarks/magnetics.py --device cuda:0 --accuracy-poses 8 --magpylib-movers 0 --limits '' \
-        --fast-sizes '' --exact-sizes '' --table-variants default,yaw24,gap25_55,yaw24_gap25_55 \
-        --json benchmarks/results/magnetics_cycle_gpu.json          # the control cycle's variants (issue 17)
+        --fast-sizes '' --exact-sizes '' --table-variants default,yaw24,gap25_55,yaw24_gap25_55 --per-cycle \
+        --env-steps 10 --json benchmarks/results/magnetics_cycle_gpu.json   # the control cycle's variants (#17)
 """
 
 from __future__ import annotations
