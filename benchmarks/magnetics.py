@@ -8,10 +8,17 @@ Per device and mover count (movers at random poses over an 8 x 8-tile layout, 3-
 * ``commutation``: least-loss currents for a hover-and-accelerate wrench per mover, given Gamma;
 * ``cycle``: both (one control cycle: for ``table``, the issue's <= 2 ms at 1M movers on the GPU); ``fused_cycle``
   (``table`` only): the same cycle in one launch, one block of threads per mover (:mod:`magwarp.magnetics.cycle`,
-  what the simulator's magnetic drive runs), with its largest current difference from the two launches.
+  the pre-cycle hook's cycle), with its largest current difference from the two launches; ``thread_*_cycle``
+  (``table`` only): the one-thread-per-mover cycle (:mod:`magwarp.magnetics.thread_cycle`, what the in-step drive
+  runs) in float32 / float64 arithmetic, with or without writing coil ids and columns, with its largest current
+  difference from the block cycle (all movers, and those neither regularised) and its share of equal flags;
+* ``table_variant`` (``--table-variants``): smaller wrench tables (to fit a GPU's L2): their size, the one-thread
+  cycle's time at the largest size and their error against the exact model;
 * ``sim``: one 40-cycle step of the B0 layout (3 movers per world) with the ideal model and with
-  ``force_model="magnetic"`` (:class:`magwarp.magnetics.drive.MagneticDrive`), and the drive's share of the ideal
-  speed; ``env``: the same for the ``magwarp/TrajectoryPlanningB0-v0`` env's env-steps/s (the issue's >= 25%);
+  ``force_model="magnetic"`` (:class:`magwarp.magnetics.drive.MagneticDrive`) in each of ``--drive-variants`` (in the
+  step kernels in float64 / float32, or the pre-cycle hook; the first is reported as ``magnetic``), and each one's
+  share of the ideal speed; ``env``: the same for the ``magwarp/TrajectoryPlanningB0-v0`` env's env-steps/s (the
+  issue's >= 25%);
 * ``sweep``: the shipped B0 policy's success rate and copper energy per goal with the ideal model and with the
   magnetic model as the coil current limit falls (``--limits``; ``magwarp eval`` with ``force_model``).
 Also: the table and fast models' largest column error as a share of the peak force and torque against the exact
@@ -23,6 +30,9 @@ per mover, the ratio, and how far the two wrenches differ.
     python benchmarks/magnetics.py --device cpu --json benchmarks/results/magnetics_cpu.json   # CPU
     python benchmarks/magnetics.py --device cpu --sizes 10,100 --cpu-sim-worlds 2 --env-envs 2 --json /tmp/m.json
     python benchmarks/magnetics.py --device cuda:0 --json benchmarks/results/magnetics_gpu.json   # the GPU run
+    python benchmarks/magnetics.py --device cuda:0 --accuracy-poses 8 --magpylib-movers 0 --limits '' \
+        --fast-sizes '' --exact-sizes '' --table-variants default,yaw24,gap25_55,yaw24_gap25_55 --per-cycle \
+        --env-steps 10 --json benchmarks/results/magnetics_cycle_gpu.json   # the control cycle's variants (#17)
 """
 
 from __future__ import annotations
@@ -87,6 +97,7 @@ def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int, 
         commutate()
 
     calls = [("gamma", gamma_eval), ("commutation", commutate), ("cycle", cycle)]
+    thread_res = {}
     if hasattr(model, "columns"):  # the same cycle in one launch (magwarp.magnetics.cycle)
         from magwarp.magnetics.commutation import CommutationResult
         from magwarp.magnetics.cycle import ControlCycle
@@ -100,12 +111,20 @@ def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int, 
             fused = ControlCycle(model, c)
             calls.append(("fused_cycle" if b is None else f"fused_cycle_b{b}",
                           lambda f=fused: f.run(pos, quat, w_in, f_ids, f_gamma, f_count, f_res)))
+        calls += thread_calls(model, com, pos, quat, w_in, ids.shape, thread_res)
     sync = lambda: wp.synchronize_device(dev)  # noqa: E731
     out = {}
     for name, fn in calls:
         out[f"{name}_ms"] = time_call(fn, repeats, warmup=1, sync=sync)[2]
     if hasattr(model, "columns"):  # the one-launch cycle gives the two launches' answer, and one thread per mover's
         calls[3][1]()
+        for name, r in thread_res.items():  # the one-thread cycles against the block cycle (float64)
+            diff = np.abs(r.currents.numpy() - f_res.currents.numpy()).max(axis=1)
+            same = r.flags.numpy() == f_res.flags.numpy()
+            regd = ((r.flags.numpy() | f_res.flags.numpy()) & 1) != 0
+            out[f"{name}_max_current_diff_a"] = float(diff.max())
+            out[f"{name}_max_current_diff_unregularised_a"] = float(diff[~regd].max()) if (~regd).any() else 0.0
+            out[f"{name}_same_flags_share"] = float(same.mean())
         # one thread per mover on the CPU: the block sums against a plain loop (on a CPU: the same kernel)
         cpu = [wp.clone(a, device="cpu") for a in (gamma, ids, count, w_in)]
         one = Commutation(com.coilset, com.options, "cpu", block_dim=1).solve(*cpu)
@@ -117,6 +136,30 @@ def time_model(model, com, poses: np.ndarray, wrench: np.ndarray, repeats: int, 
                .any(axis=1).sum()), flagged_movers=int((flags != 0).sum()),
                loss_w_mean=float(res.loss.numpy().mean()), slots=int(ids.shape[1]))
     return out
+
+
+#: The one-thread cycles timed beside the block cycle: (name, precision, write coil ids, write columns).
+THREAD_VARIANTS = [("thread_f32", "float32", False, False), ("thread_f64", "float64", False, False),
+                   ("thread_f64_ids", "float64", True, False), ("thread_f32_cols", "float32", True, True)]
+
+
+def thread_calls(model, com, pos, quat, w_in, shape, results: dict) -> list:
+    """``(name, call)`` of every one-thread cycle variant (:mod:`magwarp.magnetics.thread_cycle`); ``results`` gets
+    each variant's :class:`CommutationResult`."""
+    from magwarp.magnetics.commutation import CommutationResult, vec6f
+    from magwarp.magnetics.thread_cycle import ThreadCycle
+
+    dev = model.device
+    calls = []
+    count = wp.empty(shape[0], dtype=wp.int32, device=dev)
+    for name, precision, with_ids, with_gamma in THREAD_VARIANTS:
+        res = results[name] = CommutationResult.zeros(*shape, dev)
+        cyc = ThreadCycle(model, com, precision)
+        t_ids = wp.empty(shape, dtype=wp.int32, device=dev) if with_ids else None
+        t_gamma = wp.empty(shape, dtype=vec6f, device=dev) if with_gamma else None
+        calls.append((f"{name}_cycle", lambda c=cyc, r=res, i=t_ids, g=t_gamma: c.run(pos, quat, w_in, r, count, i,
+                                                                                        g)))
+    return calls
 
 
 def speed_rows(args, device: str, params, spec) -> list[dict]:
@@ -158,6 +201,12 @@ def speed_rows(args, device: str, params, spec) -> list[dict]:
                      f"{res['one_thread_same_flags']})")
             for b in (args.block_dims if gpu else ()):
                 fused += f", block_dim {b}: {res[f'fused_cycle_b{b}_ms']:.3f} ms"
+            for t in THREAD_VARIANTS:
+                row[f"{t[0]}_cycle_per_s"] = n / (res[f"{t[0]}_cycle_ms"] * 1e-3)
+                fused += (f"\n      one thread per mover {t[0]}: {res[f'{t[0]}_cycle_ms']:.3f} ms (max current diff "
+                          f"{res[f'{t[0]}_max_current_diff_a']:.1e} A, unregularised movers "
+                          f"{res[f'{t[0]}_max_current_diff_unregularised_a']:.1e} A, same flags "
+                          f"{res[f'{t[0]}_same_flags_share']:.2%})")
         if name == "fast":
             row.update(table_mb=fast.table_bytes / 1e6, table_build_s=build_s)
         if name == "table":
@@ -166,6 +215,73 @@ def speed_rows(args, device: str, params, spec) -> list[dict]:
         print(f"  {device:7s} {name:5s} movers={n:>8}  gamma {res['gamma_ms']:.3f} ms  commutation "
               f"{res['commutation_ms']:.3f} ms  cycle {res['cycle_ms']:.3f} ms{fused}", flush=True)
     return rows
+
+
+#: Smaller wrench tables (``--table-variants``), to fit a GPU's L2 cache (50 MB on an H100): fewer yaw samples, fewer
+#: heights (2.5-5.5 mm: 4 heights of 1 mm instead of 5 over 2-6 mm), both.
+TABLE_VARIANTS = {"default": {}, "yaw24": {"yaw_steps": 24}, "gap25_55": {"gap": (0.0025, 0.0055)},
+                  "yaw24_gap25_55": {"yaw_steps": 24, "gap": (0.0025, 0.0055)},
+                  "yaw16": {"yaw_steps": 16}}
+
+
+def table_variant_rows(args, device: str, params) -> list[dict]:
+    """Per table variant: its size, the one-thread cycles' time at the largest mover count (float32 and float64
+    arithmetic, no columns written) and, with ``--accuracy-poses``, its largest column error against the exact model
+    (level poses over its gaps, any yaw)."""
+    from dataclasses import replace
+
+    from magwarp.layout import Layout
+    from magwarp.magnetics.commutation import Commutation, CommutationResult
+    from magwarp.magnetics.exact import ExactModel, vec6d
+    from magwarp.magnetics.table import TableModel
+    from magwarp.magnetics.thread_cycle import ThreadCycle
+
+    gpu = device.startswith("cuda")
+    n = (args.sizes if gpu else args.cpu_sizes)[-1]
+    layout = Layout.grid(args.tiles, args.tiles)
+    bottom = float(params.magnets.bounds[0, 2])
+    rows = []
+    for name in args.table_variants:
+        spec = replace(args.table_spec, **TABLE_VARIANTS[name])
+        t0 = time.perf_counter()
+        table = TableModel(layout, params, spec, device=device)
+        row = {"device": device, "table_variant": name, "table_spec": repr(spec), "table_mb": table.table_bytes / 1e6,
+               "table_build_s": time.perf_counter() - t0, "movers": n}
+        com = Commutation(table.coilset, device=device)
+        rng = np.random.default_rng(0)
+        pos, quat = table.as_arrays(random_poses(rng, n, args.tiles, bottom))
+        w_in = wp.array(wanted_wrench(rng, n), dtype=vec6d, device=device)
+        res = CommutationResult.zeros(n, table.max_active, device)
+        for precision in ("float32", "float64"):
+            cyc = ThreadCycle(table, com, precision)
+            row[f"thread_{precision}_cycle_ms"] = time_call(lambda c=cyc: c.run(pos, quat, w_in, res), args.repeats,
+                                                            warmup=1, sync=lambda: wp.synchronize_device(device))[2]
+        if args.accuracy_poses > 0:
+            small = TableModel(Layout.grid(4, 4), params, spec, device=device)
+            exact = ExactModel(Layout.grid(4, 4), params, device=device)
+            row.update(table_accuracy(small, exact, spec, params, args.accuracy_poses, 0.0,
+                                      np.random.default_rng(5)))
+        rows.append(row)
+        print(f"  table {name}: {row['table_mb']:.1f} MB, one-thread cycle of {n} movers float32 "
+              f"{row['thread_float32_cycle_ms']:.3f} ms, float64 {row['thread_float64_cycle_ms']:.3f} ms"
+              + (f", force error {row['force_error_share']:.3%}, torque error {row['torque_error_share']:.3%}"
+                 if "force_error_share" in row else ""), flush=True)
+    return rows
+
+
+def table_accuracy(table, exact, spec, params, n: int, tilt: float, rng) -> dict:
+    """Largest |Gamma_table - Gamma_exact| as a share of the peak column force and torque over ``n`` random poses
+    (drawn from ``rng``) at the table's gaps, tilted up to ``tilt``, any yaw."""
+    lo, hi = spec.gap
+    poses = np.c_[rng.uniform(0.25, 0.71, (n, 2)), rng.uniform(lo, hi, n) - float(params.magnets.bounds[0, 2]),
+                  rng.uniform(-tilt, tilt, (n, 2)), rng.uniform(-np.pi, np.pi, n)]
+    ids, _, gt = table.evaluate(poses)
+    pos, quat = exact.as_arrays(poses)
+    ge = exact.wrench_matrix(pos, quat, wp.array(ids, dtype=wp.int32, device=exact.device)).numpy()
+    pf, pt = np.linalg.norm(ge[..., :3], axis=-1).max(), np.linalg.norm(ge[..., 3:], axis=-1).max()
+    return {"poses": n, "max_tilt_rad": tilt, "force_error_share": float(np.abs(gt - ge)[..., :3].max() / pf),
+            "torque_error_share": float(np.abs(gt - ge)[..., 3:].max() / pt), "peak_force_n_per_a": float(pf),
+            "peak_torque_nm_per_a": float(pt)}
 
 
 def accuracy_rows(args, device: str, params, spec) -> list[dict]:
@@ -181,19 +297,10 @@ def accuracy_rows(args, device: str, params, spec) -> list[dict]:
     rows = [accuracy_row(args, device, params, spec)]
     rng = np.random.default_rng(3)
     n = args.accuracy_poses
-    lo, hi = args.table_spec.gap
     for tilt in (0.0, 0.002):
-        poses = np.c_[rng.uniform(0.25, 0.71, (n, 2)), rng.uniform(lo, hi, n) - float(params.magnets.bounds[0, 2]),
-                      rng.uniform(-tilt, tilt, (n, 2)), rng.uniform(-np.pi, np.pi, n)]
-        ids, _, gt = table.evaluate(poses)
-        pos, quat = exact.as_arrays(poses)
-        ge = exact.wrench_matrix(pos, quat, wp.array(ids, dtype=wp.int32, device=exact.device)).numpy()
-        pf, pt = np.linalg.norm(ge[..., :3], axis=-1).max(), np.linalg.norm(ge[..., 3:], axis=-1).max()
         ts = args.table_spec
-        row = {"device": device, "model": "table", "poses": n, "gap_range_m": list(ts.gap), "max_tilt_rad": tilt,
-               "force_error_share": float(np.abs(gt - ge)[..., :3].max() / pf),
-               "torque_error_share": float(np.abs(gt - ge)[..., 3:].max() / pt),
-               "peak_force_n_per_a": float(pf), "peak_torque_nm_per_a": float(pt), "out_of_range": table.out_of_range,
+        row = {"device": device, "model": "table", "gap_range_m": list(ts.gap),
+               **table_accuracy(table, exact, ts, params, n, tilt, rng), "out_of_range": table.out_of_range,
                "table_mb": table.table_bytes / 1e6, "table_step_m": ts.step, "table_z_step_m": ts.z_step,
                "table_yaw_steps": ts.yaw_steps, "footprint_m": ts.footprint}
         rows.append(row)
@@ -320,49 +427,75 @@ def sim_rows(args, device: str, params, spec) -> list[dict]:
     import torch
 
     from magwarp.layout import benchmark_layout
-    from magwarp.magnetics.drive import MagneticModel
     from magwarp.sim import Simulator
 
     layout, movers = benchmark_layout("B0")
     rows = []
     for worlds in (args.sim_worlds if device.startswith("cuda") else args.cpu_sim_worlds):
         out = {"device": device, "worlds": worlds, "movers_per_world": movers, "cycles": 40}
-        for name in ("ideal", "magnetic"):
-            model = MagneticModel(params, args.table_spec) if name == "magnetic" else None
+        per_cycle = [f"{v}_per_cycle" for v in args.drive_variants if v.startswith("in_step") and args.per_cycle]
+        for name in ("ideal", *args.drive_variants, *per_cycle):
+            model = drive_model(args, params, name.removesuffix("_per_cycle"))
+            # _per_cycle: the per-cycle kernels (one thread per mover and cycle, 2 launches a cycle) instead of the
+            # fused one-thread-per-world kernel
             sim = Simulator(layout, movers, worlds, device=device, stop_on_collision=False, check_inputs=False,
-                            force_model=model)
+                            force_model=model, **({"fused_max_movers": 0} if name.endswith("_per_cycle") else {}))
             gen = torch.Generator(device=sim.torch_device).manual_seed(0)
             cmd = torch.rand((worlds, movers, 2), generator=gen, device=sim.torch_device) * 2.0 - 1.0
             sim.set_command(cmd)
             ms, _, _ = time_call(lambda: sim.step(40), args.repeats, warmup=1,
                                  sync=lambda: wp.synchronize_device(device))  # noqa: B023
             out[f"{name}_step_ms"] = ms
-        out["magnetic_share_of_ideal_speed"] = out["ideal_step_ms"] / out["magnetic_step_ms"]
+        variants = [*args.drive_variants, *per_cycle]
+        variants_share(out, variants, lambda v: out["ideal_step_ms"] / out[f"{v}_step_ms"])
         rows.append(out)
         print(f"  {device:7s} B0 x {worlds:>6} worlds, 40 cycles: ideal {out['ideal_step_ms']:.3f} ms, magnetic "
-              f"{out['magnetic_step_ms']:.3f} ms ({out['magnetic_share_of_ideal_speed']:.1%} of the ideal speed)",
-              flush=True)
+              + ", ".join(f"{v} {out[f'{v}_step_ms']:.3f} ms ({out[f'{v}_share_of_ideal_speed']:.1%})"
+                          for v in variants), flush=True)
     return rows
+
+
+#: The magnetic drive's variants (``--drive-variants``): inside the step kernels in float64 or float32
+#: arithmetic (:class:`magwarp.magnetics.drive.MagneticDrive`, ``in_step=True``), or the float64 pre-cycle hook.
+DRIVE_VARIANTS = {"in_step_f64": {"in_step": True, "precision": "float64"},
+                  "in_step_f32": {"in_step": True, "precision": "float32"}, "hook": {"in_step": False}}
+
+
+def drive_model(args, params, name: str):
+    """The force model of a row: None (``ideal``) or the magnetic model of drive variant ``name``."""
+    from magwarp.magnetics.drive import MagneticModel
+
+    return None if name == "ideal" else MagneticModel(params, args.table_spec, **DRIVE_VARIANTS[name])
+
+
+def variants_share(out: dict, variants, share) -> None:
+    """Each drive variant's share of the ideal speed; ``magnetic_*``: the first variant's (the default drive)."""
+    for v in variants:
+        out[f"{v}_share_of_ideal_speed"] = share(v)
+    first = variants[0]
+    out["magnetic_variant"] = first
+    for key in [k for k in out if k.startswith(first + "_")]:
+        out["magnetic" + key[len(first):]] = out[key]
 
 
 def env_rows(args, device: str, params) -> list[dict]:
     """env-steps/s of ``magwarp/TrajectoryPlanningB0-v0`` (random actions) with the ideal and the magnetic model."""
     from env_throughput import raw_env_row
 
-    from magwarp.magnetics.drive import MagneticModel
-
     rows = []
     for n in (args.env_envs if device.startswith("cuda") else args.cpu_env_envs):
         out = {"device": device, "env": "magwarp/TrajectoryPlanningB0-v0", "num_envs": n}
-        for name in ("ideal", "magnetic"):
-            model = MagneticModel(params, args.table_spec) if name == "magnetic" else None
-            res = raw_env_row(out["env"], n, device, args.env_steps, force_model=model)
+        for name in ("ideal", *args.drive_variants):
+            res = raw_env_row(out["env"], n, device, args.env_steps, force_model=drive_model(args, params, name))
             out[f"{name}_step_ms"] = res["step_ms"]
             out[f"{name}_env_steps_per_s"] = res["env_steps_per_s"]
-        out["magnetic_share_of_ideal_speed"] = out["magnetic_env_steps_per_s"] / out["ideal_env_steps_per_s"]
+            out[f"{name}_path"] = res.get("path")
+        variants_share(out, args.drive_variants,
+                       lambda v: out[f"{v}_env_steps_per_s"] / out["ideal_env_steps_per_s"])
         rows.append(out)
         print(f"  {device:7s} B0 env x {n:>6}: ideal {out['ideal_env_steps_per_s']:.4g} env-steps/s, magnetic "
-              f"{out['magnetic_env_steps_per_s']:.4g} ({out['magnetic_share_of_ideal_speed']:.1%})", flush=True)
+              + ", ".join(f"{v} {out[f'{v}_env_steps_per_s']:.4g} ({out[f'{v}_share_of_ideal_speed']:.1%}, "
+                          f"{out[f'{v}_path']})" for v in args.drive_variants), flush=True)
     return rows
 
 
@@ -399,6 +532,14 @@ def floats(text: str) -> list[float]:
     return [float(s) for s in text.split(",") if s]
 
 
+def names(text: str) -> list[str]:
+    out = [s for s in text.split(",") if s]
+    unknown = [s for s in out if s not in DRIVE_VARIANTS]
+    if unknown or not out:
+        raise argparse.ArgumentTypeError(f"drive variants must be some of {sorted(DRIVE_VARIANTS)}, got {text!r}")
+    return out
+
+
 def sizes(text: str) -> list[int]:
     return [int(float(s)) for s in text.split(",") if s]
 
@@ -420,7 +561,15 @@ def main(argv=None) -> int:
     parser.add_argument("--env-envs", type=sizes, default=sizes("4096,65536"), help="GPU B0 envs, env step")
     parser.add_argument("--cpu-env-envs", type=sizes, default=sizes("4"), help="CPU B0 envs, env step")
     parser.add_argument("--env-steps", type=int, default=20, help="env steps timed per row")
+    parser.add_argument("--drive-variants", type=names, default=names("in_step_f64,in_step_f32,hook"),
+                        help=f"magnetic drives of the sim and env rows (the first is reported as 'magnetic'): "
+                             f"{', '.join(DRIVE_VARIANTS)}")
+    parser.add_argument("--per-cycle", action="store_true",
+                        help="sim rows: also each in-step drive on the per-cycle kernels (one thread per mover)")
     parser.add_argument("--tiles", type=int, default=8, help="the layout is tiles x tiles")
+    parser.add_argument("--table-variants", type=lambda t: [s for s in t.split(",") if s], default=[],
+                        help=f"wrench tables to time the one-thread cycle with at the largest size (and check "
+                             f"against the exact model): some of {', '.join(TABLE_VARIANTS)}")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--accuracy-poses", type=int, default=8, help="0 skips the accuracy and footprint checks")
     parser.add_argument("--magpylib-movers", type=int, default=1, help="0 skips the magpylib comparison")
@@ -442,9 +591,13 @@ def main(argv=None) -> int:
     wp.init()
     params, spec = MagneticParams(), FieldTableSpec()
     args.table_spec = WrenchTableSpec()
-    speed, accuracy, footprint, magpylib, sim, env = [], [], [], [], [], []
+    unknown = [v for v in args.table_variants if v not in TABLE_VARIANTS]
+    if unknown:
+        parser.error(f"unknown --table-variants {unknown}; known: {sorted(TABLE_VARIANTS)}")
+    speed, accuracy, footprint, magpylib, sim, env, tables = [], [], [], [], [], [], []
     for device in devices:
         speed += speed_rows(args, device, params, spec)
+        tables += table_variant_rows(args, device, params)
         sim += sim_rows(args, device, params, spec)
         env += env_rows(args, device, params)
     if args.accuracy_poses > 0:
@@ -464,16 +617,20 @@ def main(argv=None) -> int:
                                      f"magnetics_{'gpu' if gpu else 'cpu'}.json")
     options = {k: v for k, v in vars(args).items() if k != "table_spec"}
     rows = ([{"kind": "speed", **r} for r in speed] + [{"kind": "sim", **r} for r in sim]
-            + [{"kind": "env", **r} for r in env] + [{"kind": "accuracy", **r} for r in accuracy]
+            + [{"kind": "env", **r} for r in env] + [{"kind": "table_variant", **r} for r in tables]
+            + [{"kind": "accuracy", **r} for r in accuracy]
             + [{"kind": "footprint", **r} for r in footprint] + [{"kind": "magpylib", **r} for r in magpylib]
             + [{"kind": "sweep", **r} for r in sweep]
             + [{"kind": "options", **options, "table_spec": repr(args.table_spec)}])
     finish([r for r in rows if r["kind"] != "options"],
            ["kind", "device", "model", "movers", "worlds", "num_envs", ("gamma_ms", "Gamma ms"),
             ("commutation_ms", "commutation ms"), ("cycle_ms", "cycle ms"),
-            ("fused_cycle_ms", "fused cycle ms"), ("active_coils_mean", "coils/mover"),
+            ("fused_cycle_ms", "fused cycle ms"), ("thread_f32_cycle_ms", "1-thread f32 ms"),
+            ("thread_f64_cycle_ms", "1-thread f64 ms"), "table_variant", ("table_mb", "table MB"),
+            ("thread_float32_cycle_ms", "variant f32 ms"), ("active_coils_mean", "coils/mover"),
             ("ideal_step_ms", "ideal ms/step"), ("magnetic_step_ms", "magnetic ms/step"),
-            ("magnetic_share_of_ideal_speed", "magnetic/ideal speed"), ("max_tilt_rad", "tilt"),
+            ("magnetic_share_of_ideal_speed", "magnetic/ideal speed"), ("hook_step_ms", "hook ms/step"),
+            ("hook_share_of_ideal_speed", "hook/ideal speed"), ("max_tilt_rad", "tilt"),
             ("force_error_share", "force err/peak"), ("torque_error_share", "torque err/peak"),
             ("hover_loss_ratio_mean", "footprint loss ratio"), ("speedup", "exact vs magpylib"),
             ("current_limit_a", "limit A"), ("success_rate", "success %"),

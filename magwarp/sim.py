@@ -198,6 +198,9 @@ class Simulator:
         self._steps = wp.zeros(1, dtype=wp.int32, device=self.device)
         self._nonfinite = wp.full(self.num_worlds, -1, dtype=wp.int32, device=self.device)
         self._force_model = force_model or default_force
+        # An actuator inside the step kernels (set_actuator: the magnetic drive's commutation); none until set.
+        self._actuator: kstep.Actuator | None = None
+        self._act_params = kstep.NoActuator()
         self._mover_params: dict[str, torch.Tensor] | None = None  # built by mover_params on first use
         # the body rows as built until make_per_world('body'): the step kernels' nominal variant
         self._nominal_body = True
@@ -221,11 +224,13 @@ class Simulator:
     def _build_kernels(self) -> None:
         latency = self._latency_bound is not None
         nominal = self._nominal_body  # drive gain 1, no payload, the shared gains and limits
-        self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(self._force_model, latency, nominal)
+        act = self._actuator
+        self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(self._force_model, latency, nominal,
+                                                                                act)
         if self.num_movers <= REGISTER_MAX_MOVERS:
             # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
             self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency, nominal,
-                                                            kernel_options.REGISTER_ROWS)
+                                                            kernel_options.REGISTER_ROWS, act)
         self._graphs.clear()
 
     def _start_arrays(self, num_movers, start_xy, start_yaw, start_pose=None) -> np.ndarray:
@@ -767,6 +772,19 @@ class Simulator:
         domain-randomisation events, which only queue device work)."""
         self._step_callbacks.append(callback)
 
+    def set_actuator(self, actuator: "kstep.Actuator", params, force_model=None) -> None:
+        """Run ``actuator`` inside the step kernels (every cycle of every mover: the force model's wrench is the
+        wanted one, the actuator's the acting one; see :mod:`magwarp.kernels.step`), with its parameters ``params``
+        (a struct of ``actuator.params_type``); ``force_model`` (a ``@wp.func``) replaces the force model, the
+        default: :func:`~magwarp.kernels.impedance.default_force`. Unlike a cycle hook it keeps the fused kernels (one
+        launch per step) and their graphs."""
+        if not isinstance(actuator, kstep.Actuator) or not isinstance(params, actuator.params_type.cls):
+            raise TypeError(f"set_actuator needs a magwarp.kernels.step.Actuator and a params struct of its "
+                            f"params_type, got {type(actuator).__name__} and {type(params).__name__}")
+        self._actuator, self._act_params = actuator, params
+        self._force_model = force_model or default_force
+        self._build_kernels()
+
     def add_cycle_hook(self, hook: Callable[["Simulator"], None], before: bool = False) -> None:
         """Run ``hook(sim)`` after every cycle (``before=True``: before it, e.g. to prepare ``force_aux`` from the
         cycle's starting state), inside the step graph. It must only launch device work."""
@@ -841,10 +859,10 @@ class Simulator:
         if self._fused:  # the fused kernels clear their per-step accumulators themselves
             wp.launch(
                 self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
-                inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins, s.cmd,
-                        self._delay, s.target_pos, s.target_quat, s.force_aux, self._prev_cmd, s.pos, s.quat, s.vel,
-                        s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any, s.partner, s.world_pairs,
-                        s.world_walls, s.halted, s.cycles, s.pair_list],
+                inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins,
+                        self._act_params, s.cmd, self._delay, s.target_pos, s.target_quat, s.force_aux,
+                        self._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
+                        s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list],
             )
             return
         wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
@@ -869,10 +887,10 @@ class Simulator:
         head, nxt = (self._cell_head, self._next_in_cell) if use_grid else (self._no_cells, self._no_next)
         wp.launch(
             self._advance_kernel, dim=(W, M), device=dev, block_dim=self._block_dim(W * M),
-            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins, s.cmd,
-                    self._prev_cmd, self._delay, c, s.target_pos, s.target_quat, s.force_aux, s.halted, s.pos, s.quat,
-                    s.vel, s.omega, s.acc, s.planar, s.wall, s.cycles, m.grid, 1 if use_grid else 0, head, nxt,
-                    s.world_pairs, s.world_walls],
+            inputs=[m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins,
+                    self._act_params, s.cmd, self._prev_cmd, self._delay, c, s.target_pos, s.target_quat,
+                    s.force_aux, s.halted, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.cycles, m.grid,
+                    1 if use_grid else 0, head, nxt, s.world_pairs, s.world_walls],
         )
         self._launch_narrow_phase()
 

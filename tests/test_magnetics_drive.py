@@ -10,7 +10,7 @@ import torch
 from magnetics_helpers import cpu_blocks  # noqa: F401  (a fixture; tests/ is on sys.path)
 
 from magwarp.layout import Layout
-from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED
+from magwarp.magnetics.commutation import FLAG_NOT_CONVERGED, FLAG_REGULARISED
 from magwarp.magnetics.drive import AUX_DIM, MagneticDrive, MagneticModel, magnetic_force
 from magwarp.magnetics.fast import FieldTableSpec
 from magwarp.magnetics.table import WrenchTableSpec
@@ -47,11 +47,14 @@ def run(sim, cmd, cycles):
     return sim.pos.numpy().copy(), sim.vel.numpy().copy()
 
 
-def test_motion_matches_ideal_model_without_saturation(cache, rng):
+@pytest.mark.parametrize("in_step", [True, False])
+def test_motion_matches_ideal_model_without_saturation(cache, rng, in_step):
+    """In the step kernels (float32) or as a pre-cycle hook (float64)."""
     cmd = rng.uniform(-3.0, 3.0, (2, 1, 2))
     ideal = make()
     mag_sim = make(magnetic_force, AUX_DIM)
-    drive = MagneticDrive(mag_sim, params(limit=1e3), SPEC)
+    drive = MagneticDrive(mag_sim, params(limit=1e3), SPEC, in_step=in_step)
+    assert mag_sim._fused == in_step and bool(mag_sim._pre_hooks) != in_step  # in-step: the fused kernel stays
     p0, v0 = run(ideal, cmd, 20)
     p1, v1 = run(mag_sim, cmd, 20)
     np.testing.assert_allclose(p1, p0, atol=1e-6, err_msg=str(rng))
@@ -65,9 +68,10 @@ def test_motion_matches_ideal_model_without_saturation(cache, rng):
     assert drive.energy.numpy() == pytest.approx(20e-3 * loss, rel=0.2)
 
 
-def test_low_current_limit_limits_the_wrench(cache):
+@pytest.mark.parametrize("in_step", [True, False])
+def test_low_current_limit_limits_the_wrench(cache, in_step):
     ideal, weak = make(), make(magnetic_force, AUX_DIM)
-    drive = MagneticDrive(weak, params(limit=0.5), SPEC)
+    drive = MagneticDrive(weak, params(limit=0.5), SPEC, in_step=in_step)
     cmd = np.zeros((2, 1, 2))
     p0, _ = run(ideal, cmd, 20)
     p1, _ = run(weak, cmd, 20)
@@ -99,7 +103,7 @@ def test_drive_with_blocks_of_threads_matches_one_thread(cache, rng, cpu_blocks)
     out = []
     for block_dim in (1, 8):
         sim = make(magnetic_force, AUX_DIM)
-        drive = MagneticDrive(sim, params(limit=2.0), SPEC)
+        drive = MagneticDrive(sim, params(limit=2.0), SPEC, in_step=False)
         drive.commutation.block_dim = block_dim
         p, v = run(sim, cmd, 10)
         out.append((p, v, drive.currents.numpy().copy(), drive.flags.numpy().copy()))
@@ -108,6 +112,51 @@ def test_drive_with_blocks_of_threads_matches_one_thread(cache, rng, cpu_blocks)
     np.testing.assert_allclose(v8, v1, atol=1e-6, err_msg=str(rng))
     np.testing.assert_allclose(c8, c1, rtol=1e-6, atol=1e-6, err_msg=str(rng))
     assert np.array_equal(f8, f1) and np.abs(c1).max() > 1.0, rng
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_in_step_drive_matches_the_hook(cache, rng, precision):
+    """The drive inside the step kernels (one thread per mover, one launch for a step of 10 cycles) moves the movers
+    as the float64 pre-cycle hook does (10 steps of a cycle; coils saturate), with the same currents (float64: to
+    rounding; float32: within 1e-3 of the limit), coil ids, loss and energy. float32 is compared in the worlds where
+    the hook needed no regularisation (a regularised float32 solve amplifies rounding, see
+    :mod:`magwarp.magnetics.thread_cycle`): at 3 A and up to 6 m/s^2, most."""
+    f32 = precision == "float32"
+    limit = 3.0 if f32 else 2.0
+    cmd = torch.as_tensor(rng.uniform(-6.0, 6.0, (2, 1, 2)) if f32 else rng.uniform(-8.0, 8.0, (2, 1, 2)),
+                          dtype=torch.float32)
+    out = []
+    regularised = np.zeros(2, dtype=bool)
+    for in_step in (False, True):
+        sim = make(magnetic_force, AUX_DIM)
+        drive = MagneticDrive(sim, params(limit=limit), SPEC, in_step=in_step, precision=precision)
+        sim.set_command(cmd)
+        for _ in range(1 if in_step else 10):
+            sim.step(10 if in_step else 1)
+            regularised |= (drive.flags.numpy()[:, 0].astype(int) & FLAG_REGULARISED) != 0
+        out.append([drive.currents.numpy().copy(), drive.coil_ids.numpy().copy(), sim.pos.numpy().copy(),
+                    sim.vel.numpy().copy(), drive.loss.numpy().copy(), drive.energy.numpy().copy()])
+    assert np.all(np.abs(out[1][0]) <= limit) and np.array_equal(out[1][1], out[0][1]), rng
+    keep = ~regularised if f32 else np.ones(2, dtype=bool)
+    if not keep.any():
+        pytest.skip(f"both worlds regularised ({rng}): nothing to compare in float32")
+    (c0, _, p0, v0, l0, e0), (c1, _, p1, v1, l1, e1) = ([a[keep] for a in o] for o in out)
+    assert np.abs(c0).max() > 1.0, rng
+    np.testing.assert_allclose(p1, p0, atol=1e-6 if f32 else 1e-7, err_msg=str(rng))
+    np.testing.assert_allclose(v1, v0, atol=1e-4 if f32 else 1e-6, err_msg=str(rng))
+    np.testing.assert_allclose(c1, c0, rtol=0, atol=1e-3 * limit if f32 else 1e-5, err_msg=str(rng))
+    np.testing.assert_allclose(l1, l0, rtol=1e-3 if f32 else 1e-5, err_msg=str(rng))
+    np.testing.assert_allclose(e1, e0, rtol=1e-3 if f32 else 1e-5, err_msg=str(rng))
+
+
+def test_in_step_drive_saturates(cache, rng):
+    """The in-step drive's coils reach their limit (2 A, up to 8 m/s^2) in a 10-cycle step, and stay within it."""
+    sim = make(magnetic_force, AUX_DIM)
+    drive = MagneticDrive(sim, params(limit=2.0), SPEC)
+    sim.set_command(torch.as_tensor(rng.uniform(-8.0, 8.0, (2, 1, 2)), dtype=torch.float32))
+    sim.step(10)
+    cur = np.abs(drive.currents.numpy())
+    assert cur.max() <= 2.0 and (cur >= 2.0 - 1e-9).any(), rng
 
 
 def test_actuator_wrench_mode_cycle_matches_commutate(cache, rng):

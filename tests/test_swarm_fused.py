@@ -99,6 +99,15 @@ def test_fused_steps_aside_for_other_cycle_hooks(rng):
     assert calls  # the hook ran: the per-cycle path was taken by both envs
 
 
+def test_fused_steps_aside_for_an_in_step_actuator():
+    """The in-step magnetic drive (Simulator.set_actuator) runs inside the simulator's step kernels, which the fused
+    swarm kernel does not call: while one is set, the per-cycle path must run."""
+    env = _env(True, 2, 8, 0)
+    assert env.fused_step.applies(env.sim)
+    env.sim._actuator = object()  # what set_actuator leaves (the drive itself needs force_aux columns the env lacks)
+    assert not env.fused_step.applies(env.sim)
+
+
 @pytest.mark.parametrize("movers, shape, jerk", [(40, "circle", False), (36, "box", True)])
 def test_tiled_kernel_with_cooperative_cpu_blocks(rng, monkeypatch, movers, shape, jerk):
     """The CUDA shape itself (a block per world, one lane per mover, lanes past the last mover mirroring it, positions

@@ -13,11 +13,19 @@ Action latency (per-world delays, :meth:`magwarp.sim.Simulator.set_latency`) is 
 
 All are built from a user-swappable force model (see :mod:`magwarp.kernels.impedance`), so a custom wrench law
 needs no fork of the kernels: pass another ``@wp.func`` with the same signature.
+
+An :class:`Actuator` (optional) turns the force model's wrench into the one that acts, inside the same kernels: every
+cycle of every mover, ``func(params, w, m, last, pose, wanted, aux) -> Wrench`` with the actuator's own parameters
+(``params``, a ``wp.struct`` of type ``params_type``, one kernel argument), ``last`` 1 in a step's last cycle (0 before
+it; 1 on the per-cycle path); e.g. the magnetic drive's commutation (:mod:`magwarp.magnetics.drive`): the force model
+gives the wanted wrench, the coils' currents the realised one. Without one the kernels take a placeholder
+(:class:`NoActuator`).
 """
 
-from __future__ import annotations
+# (no "from __future__ import annotations": the kernels annotate an argument with the actuator's parameter type)
 
 import functools
+from dataclasses import dataclass
 
 import warp as wp
 
@@ -30,6 +38,22 @@ from magwarp.types import Body, Collision, Grid, Impedance, Limits, Planar64, Po
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
+
+
+@wp.struct
+class NoActuator:
+    """The step kernels' actuator argument when there is no actuator (never read)."""
+
+    unused: int
+
+
+@dataclass(frozen=True)
+class Actuator:
+    """What turns the force model's (wanted) wrench into the acting one, inside the step kernels: ``func`` (a
+    ``@wp.func``, see the module docstring) and the ``wp.struct`` type of its parameters."""
+
+    func: object
+    params_type: object
 
 
 @wp.func
@@ -105,8 +129,11 @@ def row_body(f: BodyF32, d: BodyF64) -> Body:
 
 
 @functools.cache
-def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: bool = False):
-    """The per-cycle kernel, the fused per-world kernel and the one-mover cycle function, for ``force_fn``.
+def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: bool = False,
+                        actuator: Actuator | None = None):
+    """The per-cycle kernel, the fused per-world kernel and the one-mover cycle function, for ``force_fn`` (and
+    ``actuator``, see the module docstring; the kernels' ``act`` argument is its parameters, else a
+    :class:`NoActuator`).
 
     ``latency`` compiles in the action latency (:meth:`magwarp.sim.Simulator.set_latency`): the kernels then read the
     previous command ``prev_cmd`` during the first ``delay[w]`` cycles of a step, and the fused kernel copies the
@@ -116,11 +143,13 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
     the shared impedance gains and x/y limits): the same results bit for bit, without the per-world mass, payload,
     gain and limit reads (about 20% of a B0 step's physics on the CPU). The simulator uses it until a body row can differ
     (:meth:`~magwarp.sim.Simulator.make_per_world`, :attr:`~magwarp.sim.Simulator.mover_params`)."""
+    act_type = actuator.params_type if actuator is not None else NoActuator
+    act_fn = actuator.func if actuator is not None else None
 
     @wp.func
     def advance_pose(
         p: Pose, xy: Planar64, cmd: wp.vec2, b: Body, target_pos: wp.vec3, target_quat: wp.quat,
-        aux: wp.array(dtype=float), lim: Limits, imp: Impedance,
+        aux: wp.array(dtype=float), lim: Limits, imp: Impedance, act: act_type, w: int, m: int, last: int,
     ):
         """One cycle of one mover: limited x/y drive, force model, semi-implicit Euler. Returns the new pose, the
         x/y drive acceleration and the new float64 x/y state.
@@ -147,6 +176,9 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
             wrench = force_fn(p, b, drive, target_pos, target_quat, imp, lim, aux)
         else:
             wrench = force_fn(p, b, drive, target_pos, target_quat, body_impedance(imp, b), lim, aux)
+        if wp.static(actuator is not None):  # the force model's wrench is the wanted one; this one acts
+            wrench = act_fn(act, w, m, last, p, wrench, aux)
+        if wp.static(not nominal):
             if gravity_torque(b.com, p.quat):
                 weight = wp.vec3(0.0, 0.0, -b.mass * lim.gravity)
                 wrench.torque = wrench.torque + wp.cross(wp.quat_rotate(p.quat, b.com), weight)
@@ -172,6 +204,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
         prev_cmd: wp.array2d(dtype=wp.vec2),
         delay: wp.array(dtype=wp.int32),
         c: int,
+        last: int,
+        act: act_type,
         target_pos: wp.array2d(dtype=wp.vec3),
         target_quat: wp.array2d(dtype=wp.quat),
         force_aux: wp.array3d(dtype=float),
@@ -189,7 +223,7 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
         if wp.static(latency):
             u = delayed_command(cmd, prev_cmd, delay, w, m, c)
         n, a, xy = advance_pose(p, xy0, u, body[model_row(body.shape[0], w), m], target_pos[w, m], target_quat[w, m],
-                                force_aux[w, m], lim, imp)
+                                force_aux[w, m], lim, imp, act, w, m, last)
         pos[w, m] = n.pos
         quat[w, m] = n.quat
         vel[w, m] = n.vel
@@ -213,6 +247,7 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
         radius: wp.array2d(dtype=float),
         half_size: wp.array2d(dtype=wp.vec2),
         margins: wp.array(dtype=wp.vec2),
+        act: act_type,  # the actuator's parameters (a NoActuator without one)
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
         prev_cmd: wp.array2d(dtype=wp.vec2),  # latency only: the previous step's command
@@ -245,7 +280,7 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
             world_pairs[w] = 0
             world_walls[w] = 0
         if col.stop_on_collision == 0 or halted[w] == 0:
-            advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, prev_cmd, delay, cycle,
+            advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, prev_cmd, delay, cycle, 1, act,
                           target_pos, target_quat, force_aux, pos, quat, vel, omega, acc, planar, wall)
             if m == 0:
                 cycles[w] = cycles[w] + 1
@@ -264,6 +299,7 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
         radius: wp.array2d(dtype=float),
         half_size: wp.array2d(dtype=wp.vec2),
         margins: wp.array(dtype=wp.vec2),
+        act: act_type,  # the actuator's parameters (a NoActuator without one)
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
         delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
@@ -303,7 +339,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
                 break
             for m in range(num_movers):
                 advance_mover(w, m, lim, imp, col, tiles, body, radius, half_size, cmd, prev_cmd, delay, c,
-                              target_pos, target_quat, force_aux, pos, quat, vel, omega, acc, planar, wall)
+                              int(c == num_cycles - 1), act, target_pos, target_quat, force_aux, pos, quat, vel,
+                              omega, acc, planar, wall)
             cycles[w] = cycles[w] + 1
             # Brute-force pairs: each pair once, partner = lowest colliding index, same as the per-mover kernels.
             for m in range(num_movers):
@@ -344,7 +381,7 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
 
 @functools.cache
 def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nominal: bool = False,
-                         register_rows: str = "all"):
+                         register_rows: str = "all", actuator: Actuator | None = None):
     """The fused small-world kernel with every mover's state held in registers for the whole step.
 
     Specialised for ``num_movers`` (loops over movers unroll), it reads the world's state once, runs all cycles and
@@ -360,7 +397,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
     body_regs = bool(not nominal and register_rows in ("all", "f32"))
     f64_regs = bool(body_regs and register_rows == "all")
     size_regs = bool(not nominal and register_rows in ("all", "f32", "sizes"))
-    advance_pose = make_advance_kernel(force_fn, latency, nominal)[2]
+    advance_pose = make_advance_kernel(force_fn, latency, nominal, actuator)[2]
+    act_type = actuator.params_type if actuator is not None else NoActuator
     Rows3 = wp.types.matrix(shape=(M, 3), dtype=wp.float32)
     Rows4 = wp.types.matrix(shape=(M, 4), dtype=wp.float32)
     Rows2 = wp.types.matrix(shape=(M, 2), dtype=wp.float32)
@@ -382,6 +420,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
         radius: wp.array2d(dtype=float),
         half_size: wp.array2d(dtype=wp.vec2),
         margins: wp.array(dtype=wp.vec2),
+        act: act_type,  # the actuator's parameters (a NoActuator without one)
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
         delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
@@ -482,7 +521,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
                 else:
                     bm = row_body(BF[m], body_f64(body[wb, m]))
                 n, a, xy = advance_pose(p, XY[m], u, bm, TP[m], wp.quat(TQ[m, 0], TQ[m, 1], TQ[m, 2], TQ[m, 3]),
-                                        force_aux[w, m], lim, imp)
+                                        force_aux[w, m], lim, imp, act, w, m, int(c == num_cycles - 1))
                 P[m] = n.pos
                 V[m] = n.vel
                 Om[m] = n.omega

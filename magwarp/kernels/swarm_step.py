@@ -39,7 +39,7 @@ from magwarp.kernels.collision import (add_pair, collision_flags, hits_wall_cs, 
                                        shape_heading, world_collision)
 from magwarp.kernels.dynamics import sync_planar64
 from magwarp.kernels.options import MODULE_OPTIONS
-from magwarp.kernels.step import make_advance_kernel
+from magwarp.kernels.step import NoActuator, make_advance_kernel
 from magwarp.types import SHAPE_CIRCLE, Body, Collision, Impedance, Limits, Planar64, make_pose
 
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
@@ -157,7 +157,8 @@ def _mover_cycle(force_fn, latency: bool, nominal: bool):
     ):
         p = make_pose(pos, quat, vel, omega)
         xy0 = sync_planar64(planar, pos, vel, acc)
-        n, a, xy = advance_pose(p, xy0, u, b, target_pos, target_quat, aux, lim, imp)
+        # no actuator: the fused swarm step declines while one is set (FusedSwarmStep.applies)
+        n, a, xy = advance_pose(p, xy0, u, b, target_pos, target_quat, aux, lim, imp, NoActuator(), 0, 0, 0)
         hit = int(0)
         if hits_wall_cs(tiles, col, wp.vec2(n.pos[0], n.pos[1]), shape_heading(col, n.quat), r, half):
             hit = 1

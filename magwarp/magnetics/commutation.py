@@ -30,6 +30,7 @@ movers on an H100). :mod:`~magwarp.magnetics.cycle` fuses the wrench-table look-
 """
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import warp as wp
@@ -68,45 +69,6 @@ class CommutationOptions:
 
 
 @wp.func
-def cholesky6(a: mat66d, shift: wp.float64):
-    """Lower Cholesky factor of ``a + shift I`` and its smallest squared pivot (<= 0: not positive definite)."""
-    lo = mat66d()
-    piv = wp.float64(1.0e300)
-    for c in range(6):
-        s = a[c, c] + shift
-        for k in range(c):
-            s = s - lo[c, k] * lo[c, k]
-        piv = wp.min(piv, s)
-        d = wp.sqrt(wp.max(s, wp.float64(1.0e-300)))
-        lo[c, c] = d
-        for r in range(c + 1, 6):
-            t = a[r, c]
-            for k in range(c):
-                t = t - lo[r, k] * lo[c, k]
-            lo[r, c] = t / d
-    return lo, piv
-
-
-@wp.func
-def cholesky6_solve(lo: mat66d, b: vec6d) -> vec6d:
-    """x with L L^T x = b."""
-    y = vec6d()
-    for r in range(6):
-        t = b[r]
-        for k in range(r):
-            t = t - lo[r, k] * y[k]
-        y[r] = t / lo[r, r]
-    x = vec6d()
-    for rr in range(6):
-        r = 5 - rr
-        t = y[r]
-        for k in range(r + 1, 6):
-            t = t - lo[k, r] * x[k]
-        x[r] = t / lo[r, r]
-    return x
-
-
-@wp.func
 def as_vec6d(g: vec6d) -> vec6d:
     return g
 
@@ -118,8 +80,9 @@ def as_vec6d(g: vec6f) -> vec6d:  # noqa: F811 (an overload for float32 columns)
 
 
 @wp.func
-def add_outer_lower(a: mat66d, g: vec6d, s: wp.float64) -> mat66d:
-    """``a + s g g^T`` on the lower triangle only (the upper triangle is never read)."""
+def add_outer_lower(a: Any, g: Any, s: Any):
+    """``a + s g g^T`` on the lower triangle only (the upper triangle is never read); any float type (a 6 x 6
+    matrix, a 6-vector and a scalar of it)."""
     out = a
     for r in range(6):
         sg = s * g[r]
@@ -128,26 +91,95 @@ def add_outer_lower(a: mat66d, g: vec6d, s: wp.float64) -> mat66d:
     return out
 
 
-@wp.func
-def solve_scaled(a: mat66d, rhs: vec6d, reg: wp.float64):
-    """y with (A + shift) y = rhs from A's lower triangle, scaled to a unit diagonal; regularised (+ reg I on the
-    scaled system) when a Cholesky pivot falls below ``reg``. Returns y and whether it was regularised."""
-    scale = vec6d()
-    for r in range(6):
-        scale[r] = ONE
-        if a[r, r] > ZERO:
-            scale[r] = ONE / wp.sqrt(a[r, r])
-    a_s = mat66d()
-    for r in range(6):
-        for c in range(r + 1):
-            a_s[r, c] = a[r, c] * scale[r] * scale[c]
-    lo, piv = cholesky6(a_s, ZERO)
-    regd = bool(False)
-    if piv < reg:
-        lo, piv = cholesky6(a_s, reg)
-        regd = True
-    y = cholesky6_solve(lo, wp.cw_mul(rhs, scale))
-    return wp.cw_mul(y, scale), regd
+def make_scaled_solver(real=wp.float64, refine: bool = False):
+    """``solve_scaled(a, rhs, reg) -> (y, regularised)`` (a ``@wp.func``) in ``real`` arithmetic: y with A y = rhs from
+    A's lower triangle (a 6 x 6 matrix of ``real``), scaled to a unit diagonal and factorised by Cholesky;
+    regularised (+ reg I on the scaled system) when a pivot falls below ``reg``. ``refine``: one step of iterative
+    refinement (the scaled system's residual solved again; float32 uses it)."""
+    mat66r = wp.types.matrix(shape=(6, 6), dtype=real)
+    vec6r = wp.types.vector(length=6, dtype=real)
+    big, tiny = (1.0e300, 1.0e-300) if real == wp.float64 else (1.0e30, 1.0e-30)
+
+    @wp.func
+    def cholesky6(a: mat66r, shift: real):
+        """Lower Cholesky factor of ``a + shift I`` and its smallest squared pivot (<= 0: not positive definite)."""
+        lo = mat66r()
+        piv = real(big)
+        for c in range(6):
+            s = a[c, c] + shift
+            for k in range(c):
+                s = s - lo[c, k] * lo[c, k]
+            piv = wp.min(piv, s)
+            d = wp.sqrt(wp.max(s, real(tiny)))
+            lo[c, c] = d
+            for r in range(c + 1, 6):
+                t = a[r, c]
+                for k in range(c):
+                    t = t - lo[r, k] * lo[c, k]
+                lo[r, c] = t / d
+        return lo, piv
+
+    @wp.func
+    def cholesky6_solve(lo: mat66r, b: vec6r) -> vec6r:
+        """x with L L^T x = b."""
+        y = vec6r()
+        for r in range(6):
+            t = b[r]
+            for k in range(r):
+                t = t - lo[r, k] * y[k]
+            y[r] = t / lo[r, r]
+        x = vec6r()
+        for rr in range(6):
+            r = 5 - rr
+            t = y[r]
+            for k in range(r + 1, 6):
+                t = t - lo[k, r] * x[k]
+            x[r] = t / lo[r, r]
+        return x
+
+    @wp.func
+    def sym_mul(a: mat66r, y: vec6r) -> vec6r:
+        """``A y`` from A's lower triangle."""
+        out = vec6r()
+        for r in range(6):
+            t = real(0.0)
+            for c in range(6):
+                if c <= r:
+                    t = t + a[r, c] * y[c]
+                else:
+                    t = t + a[c, r] * y[c]
+            out[r] = t
+        return out
+
+    @wp.func
+    def solve_scaled(a: mat66r, rhs: vec6r, reg: real):
+        """y with A y = rhs (see :func:`make_scaled_solver`) and whether it was regularised."""
+        scale = vec6r()
+        for r in range(6):
+            scale[r] = real(1.0)
+            if a[r, r] > real(0.0):
+                scale[r] = real(1.0) / wp.sqrt(a[r, r])
+        a_s = mat66r()
+        for r in range(6):
+            for c in range(r + 1):
+                a_s[r, c] = a[r, c] * scale[r] * scale[c]
+        lo, piv = cholesky6(a_s, real(0.0))
+        regd = bool(False)
+        if piv < reg:
+            lo, piv = cholesky6(a_s, reg)
+            regd = True
+        b = wp.cw_mul(rhs, scale)
+        y = cholesky6_solve(lo, b)
+        if wp.static(refine):
+            if not regd:
+                y = y + cholesky6_solve(lo, b - sym_mul(a_s, y))
+        return wp.cw_mul(y, scale), regd
+
+    return solve_scaled
+
+
+#: The float64 solve of the commutation kernels.
+solve_scaled = make_scaled_solver(wp.float64)
 
 
 vec8d = wp.types.vector(length=8, dtype=wp.float64)

@@ -142,6 +142,18 @@ def cycle_buffers(model: TableModel, commutation: Commutation, n: int):
     res = CommutationResult.zeros(n, slots, dev)
     return ids, count, gamma, res, cycle_params(model, commutation), cycle_outputs(ids, gamma, count, res)
 
+def check_arrays(where: str, shapes: dict, arrays: dict, device) -> None:
+    """Refuse, naming it, an array whose shape is not its expected one (``shapes``: name -> (shape, expected)) or
+    that lives on another device than ``device`` (a kernel on one device reading another's memory crashes the
+    process); ``None`` arrays are skipped."""
+    for name, (got, want) in shapes.items():
+        if tuple(got) != want:
+            raise MagneticsError(f"{where}: {name} has shape {tuple(got)}, expected {want}")
+    for name, a in arrays.items():
+        if a is not None and a.device != device:
+            raise MagneticsError(f"{where}: {name} is on {a.device}, the model on {device}")
+
+
 class ControlCycle:
     """The wrench-table look-up of ``model`` (:class:`~magwarp.magnetics.table.TableModel`) and the commutation of
     ``commutation`` (its resistances, limits, options and threads per mover) in one launch."""
@@ -158,14 +170,9 @@ class ControlCycle:
         shapes = {"quat": (quat.shape, (n,)), "wanted": (wanted.shape, (n,)), "coil_ids": (coil_ids.shape, (n, slots)),
                   "gamma": (gamma.shape, (n, slots)), "count": (count.shape, (n,)),
                   "currents": (out.currents.shape, (n, slots))}
-        for name, (got, want) in shapes.items():
-            if tuple(got) != want:
-                raise MagneticsError(f"ControlCycle.run: {name} has shape {tuple(got)}, expected {want}")
         arrays = {"pos": pos, "quat": quat, "wanted": wanted, "coil_ids": coil_ids, "gamma": gamma, "count": count,
                   "currents": out.currents}
-        for name, a in arrays.items():  # a kernel on one device reading another's memory crashes the process
-            if a.device != self.model.device:
-                raise MagneticsError(f"ControlCycle.run: {name} is on {a.device}, the model on {self.model.device}")
+        check_arrays("ControlCycle.run", shapes, arrays, self.model.device)
         wp.launch_tiled(cycle_kernel, dim=[n], block_dim=self.commutation.block_dim, device=self.model.device,
                         inputs=[self.params, pos, quat, wanted],
                         outputs=[cycle_outputs(coil_ids, gamma, count, out)])

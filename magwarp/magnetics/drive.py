@@ -6,17 +6,30 @@
 
 (by hand: ``Simulator(..., force_model=magnetic_force, force_aux_dim=AUX_DIM)``, then ``MagneticDrive(sim)``).
 
-Before every cycle (a pre-cycle hook, inside the step graph, no host sync): the wrench the ideal model would apply
-at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
+Every cycle (inside the step kernels, or a pre-cycle hook: see below; no host sync): the wrench the ideal model
+would apply at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
 of the command, the impedance hold) is the wanted wrench; the wrench-table model (:mod:`~magwarp.magnetics.table`)
 gives each mover's Gamma(q); the commutation gives the least-loss currents within the limits; the realised wrench
-Gamma i goes into ``force_aux[w, m, 0:6]`` (float32), which :func:`magnetic_force` returns to the integrator. When
+Gamma i acts on the mover and goes into ``force_aux[w, m, 0:6]`` (float32; the hook's :func:`magnetic_force`
+returns it to the integrator). When
 no coil saturates, the realised wrench is the wanted one (to float32 rounding) and the motion matches the ideal
 model; when coils saturate, the wrench falls short (the mover accelerates less, or sinks) as on the real system.
 
 ``force_aux[w, m, 6]`` is the copper loss (W) and ``[7]`` the commutation flags
 (:mod:`~magwarp.magnetics.commutation`); :attr:`MagneticDrive.energy` accumulates the loss over time (J);
 :attr:`MagneticDrive.currents` and :attr:`MagneticDrive.coil_ids` are the active coils' currents (A) and ids.
+
+Two ways to run it:
+
+* ``in_step=True`` (the default): inside the simulator's step kernels, as their
+  :class:`~magwarp.kernels.step.Actuator` (:meth:`~magwarp.sim.Simulator.set_actuator`): every cycle of every mover,
+  the force model (:func:`~magwarp.kernels.impedance.default_force`) gives the wanted wrench and the one-thread cycle
+  (:mod:`~magwarp.magnetics.thread_cycle`, float64 arithmetic by default, float32 columns) the realised one, in the
+  same thread. The step stays the fused one-launch kernel (B0's worlds of 3 movers: one thread per world runs all 40 cycles),
+  captured in the env's graph. ``force_aux`` and the energy follow every cycle; the per-slot currents and coil ids
+  are written in a step's last cycle (a world that halts early on a collision keeps those of its last full step).
+* ``in_step=False``: a pre-cycle hook (float64, one block of threads per mover, below).
+
 The hook is one launch per cycle (:func:`drive_cycle_kernel`: the wanted wrench, the look-up, the commutation and
 the store, one block of threads per mover, :mod:`~magwarp.magnetics.cycle`), captured in the step graph; it still
 forces the simulator's per-cycle launch path (as any cycle hook does): each cycle is this launch, the step kernel's
@@ -26,6 +39,7 @@ the hook is marked ``fused_step_safe``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import warp as wp
@@ -33,10 +47,12 @@ import warp as wp
 from magwarp.kernels.collision import model_row
 from magwarp.kernels.dynamics import planar_acceleration
 from magwarp.kernels.impedance import default_force
+from magwarp.kernels.step import Actuator
 from magwarp.magnetics.commutation import Commutation, CommutationOptions
 from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_buffers, cycle_mover
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.table import TableModel, WrenchTableSpec
+from magwarp.magnetics.thread_cycle import PRECISIONS, ThreadOutputs, make_thread_cycle, thread_outputs
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
 from magwarp.types import Body, Impedance, Limits, Pose, Wrench, make_pose
 
@@ -158,17 +174,63 @@ def store_wrench_kernel(
     store_wrench(w, m, dt, delivered[i], loss[i], flags[i], force_aux, energy)
 
 
+@wp.struct
+class DriveParams:
+    """The in-step drive's parameters (the step kernels' actuator argument): the cycle's model and outputs, the
+    energy (J) per mover, the cycle time and the movers per world."""
+
+    c: CycleParams
+    o: ThreadOutputs
+    energy: wp.array2d(dtype=wp.float64)
+    dt: float
+    movers: int
+
+
+@functools.cache
+def drive_actuator(slots: int, precision: str = "float64") -> Actuator:
+    """The in-step magnetic drive (a :class:`~magwarp.kernels.step.Actuator` over :class:`DriveParams`) for a window
+    of ``slots`` slots: the one-thread cycle of the wanted wrench at the cycle's starting pose; the realised wrench,
+    loss and flags into ``force_aux``, the loss into the energy."""
+    mover_cycle = make_thread_cycle(slots, precision)[0]
+    real = PRECISIONS[precision]
+    vec6r = wp.types.vector(length=6, dtype=real)
+
+    @wp.func
+    def actuate(a: DriveParams, w: int, m: int, last: int, p: Pose, wanted: Wrench, aux: wp.array(dtype=float)):
+        q = p.quat
+        yaw = wp.atan2(2.0 * (q[3] * q[2] + q[0] * q[1]), 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]))
+        want = vec6r(real(wanted.force[0]), real(wanted.force[1]), real(wanted.force[2]), real(wanted.torque[0]),
+                     real(wanted.torque[1]), real(wanted.torque[2]))
+        d, loss, flag = mover_cycle(a.c, w * a.movers + m, p.pos[0], p.pos[1], p.pos[2], yaw, want, a.o, last)
+        for k in range(6):
+            aux[k] = d[k]
+        aux[6] = loss
+        aux[7] = float(flag)
+        a.energy[w, m] = a.energy[w, m] + wp.float64(loss) * wp.float64(a.dt)
+        out = Wrench()
+        out.force = wp.vec3(d[0], d[1], d[2])
+        out.torque = wp.vec3(d[3], d[4], d[5])
+        return out
+
+    return Actuator(actuate, DriveParams)
+
+
 class MagneticDrive:
-    """Attach the magnetic drive to ``sim`` (built with ``force_model=magnetic_force`` and ``force_aux_dim >=
-    AUX_DIM``): a :class:`~magwarp.magnetics.table.TableModel` of ``params`` on the simulator's layout and device,
-    and the commutation, run before every cycle."""
+    """Attach the magnetic drive to ``sim`` (built with ``force_aux_dim >= AUX_DIM``): a
+    :class:`~magwarp.magnetics.table.TableModel` of ``params`` on the simulator's layout and device, and the
+    commutation, run every cycle: inside the step kernels (``in_step=True``, in ``precision``; the simulator's force
+    model becomes the wanted wrench's, :func:`~magwarp.kernels.impedance.default_force`) or as a pre-cycle hook
+    (``in_step=False``, float64; the simulator built with ``force_model=magnetic_force``)."""
 
     def __init__(self, sim, params: MagneticParams | None = None, spec: WrenchTableSpec | None = None,
-                 options: CommutationOptions | None = None, use_cache: bool = True):
+                 options: CommutationOptions | None = None, use_cache: bool = True, in_step: bool = True,
+                 precision: str = "float64"):
         aux = sim.state.force_aux
         if aux.shape[2] < AUX_DIM:
             raise MagneticsError(f"the simulator's force_aux has {aux.shape[2]} columns; the magnetic drive needs "
                                  f"force_aux_dim >= {AUX_DIM} (and force_model=magnetic_force)")
+        if precision not in PRECISIONS:
+            raise MagneticsError(f"MagneticDrive precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         self.sim = sim
         dev = sim.device
         self.model = TableModel(sim.layout, params, spec, device=dev, use_cache=use_cache)
@@ -179,7 +241,14 @@ class MagneticDrive:
         self._dt = float(sim.model.limits.dt)
         self._ids, self._count, self._gamma, self._res, self._cycle, self._outputs = cycle_buffers(
             self.model, self.commutation, n)
-        sim.add_cycle_hook(self._before_cycle, before=True)
+        self.in_step, self.precision = bool(in_step), precision
+        if not self.in_step:
+            sim.add_cycle_hook(self._before_cycle, before=True)
+            return
+        p = DriveParams()
+        p.c, p.o = self._cycle, thread_outputs(self._res, self._count, self._ids)
+        p.energy, p.dt, p.movers = self._energy, self._dt, m_
+        sim.set_actuator(drive_actuator(self.model.max_active, precision), p)
 
     def _before_cycle(self, sim) -> None:
         m, s = sim.model, sim.state
@@ -226,15 +295,19 @@ class MagneticDrive:
 class MagneticModel:
     """The magnetic force model as a simulator option: ``Simulator(..., force_model=MagneticModel(...))`` or
     ``force_model="magnetic"`` (the defaults). ``params``: the design (:class:`MagneticParams`); ``table``: the
-    wrench table's grid (:class:`~magwarp.magnetics.table.WrenchTableSpec`); ``options``: the commutation's."""
+    wrench table's grid (:class:`~magwarp.magnetics.table.WrenchTableSpec`); ``options``: the commutation's;
+    ``in_step``, ``precision``: where and in what arithmetic the cycle runs (:class:`MagneticDrive`)."""
 
     params: MagneticParams | None = None
     table: WrenchTableSpec | None = None
     options: CommutationOptions | None = None
     use_cache: bool = True
+    in_step: bool = True
+    precision: str = "float64"
 
     def attach(self, sim) -> MagneticDrive:
-        return MagneticDrive(sim, self.params, self.table, self.options, self.use_cache)
+        return MagneticDrive(sim, self.params, self.table, self.options, self.use_cache, self.in_step,
+                             self.precision)
 
 
 #: Force models by name (``Simulator(force_model=NAME)``); None: the ideal model.

@@ -164,19 +164,16 @@ def _trilinear(t: WrenchTable, ly: int, across: float, along: float, k: int, fk:
 
 
 @wp.func
-def table_column(t: WrenchTable, l: int, dx: float, dy: float, z: float, yaw: float) -> vec6f:
-    """The interpolated column (world frame) of a layer-``l`` coil for a mover at offset (dx, dy) from the coil's
-    centre (world, mover minus coil), height ``z`` and ``yaw``.
-
-    Linear in height and yaw, bilinear in the offset. Between the two yaw samples psi_k the look-up is
-    rotation-compensated: sample k is read at the offset turned by psi_k - yaw (where the coil sits at the same
-    place relative to the magnets) and its column turned back, so only the coil's turn about its own centre is
-    interpolated (a lever of the coil's size, not of its distance)."""
+def column_context(t: WrenchTable, z: float, yaw: float):
+    """What every look-up of a mover at height ``z`` and ``yaw`` shares: the height cell ``k`` and weight ``fk``,
+    the first yaw sample ``y0`` and weight ``fy``, the rotations (cos, sin of psi_k - yaw) of the two yaw samples,
+    and whether ``z`` lies outside the table's heights (then clamped)."""
     ny = t.ny
     nz = t.data.shape[3]
     gk = (z - t.z0) * t.inv_z_step
+    out = bool(False)
     if gk < 0.0 or gk > float(nz - 1):
-        wp.atomic_add(t.out_of_range, 0, 1)
+        out = True
         gk = wp.clamp(gk, 0.0, float(nz - 1))
     k = wp.min(int(gk), nz - 2)
     fk = gk - float(k)
@@ -186,13 +183,21 @@ def table_column(t: WrenchTable, l: int, dx: float, dy: float, z: float, yaw: fl
     y0 = int(fy0) % ny
     if y0 < 0:
         y0 = y0 + ny
+    d0 = -fy / t.yaw_scale  # psi_k - yaw
+    d1 = (1.0 - fy) / t.yaw_scale
+    return k, fk, y0, fy, wp.vec4(wp.cos(d0), wp.sin(d0), wp.cos(d1), wp.sin(d1)), out
+
+
+@wp.func
+def table_column_at(t: WrenchTable, l: int, dx: float, dy: float, k: int, fk: float, y0: int, fy: float,
+                    rot: wp.vec4) -> vec6f:
+    """:func:`table_column` given the mover's :func:`column_context`."""
     out = vec6f()
     for dyaw in range(2):
         wy = wp.where(dyaw == 0, 1.0 - fy, fy)
-        yy = (y0 + dyaw) % ny
-        delta = (float(dyaw) - fy) / t.yaw_scale  # psi_k - yaw
-        c = wp.cos(delta)
-        s = wp.sin(delta)
+        yy = (y0 + dyaw) % t.ny
+        c = rot[2 * dyaw]
+        s = rot[2 * dyaw + 1]
         rx = c * dx - s * dy
         ry = s * dx + c * dy
         across = rx
@@ -200,12 +205,27 @@ def table_column(t: WrenchTable, l: int, dx: float, dy: float, z: float, yaw: fl
         if t.direction[l] == 0:
             across = ry
             along = rx
-        col = _trilinear(t, l * ny + yy, across, along, k, fk)
+        col = _trilinear(t, l * t.ny + yy, across, along, k, fk)
         # turn the sample's column back by -delta
         f = wp.vec3(c * col[0] + s * col[1], -s * col[0] + c * col[1], col[2])
         tq = wp.vec3(c * col[3] + s * col[4], -s * col[3] + c * col[4], col[5])
         out = out + wy * vec6f(f[0], f[1], f[2], tq[0], tq[1], tq[2])
     return out
+
+
+@wp.func
+def table_column(t: WrenchTable, l: int, dx: float, dy: float, z: float, yaw: float) -> vec6f:
+    """The interpolated column (world frame) of a layer-``l`` coil for a mover at offset (dx, dy) from the coil's
+    centre (world, mover minus coil), height ``z`` and ``yaw``.
+
+    Linear in height and yaw, bilinear in the offset. Between the two yaw samples psi_k the look-up is
+    rotation-compensated: sample k is read at the offset turned by psi_k - yaw (where the coil sits at the same
+    place relative to the magnets) and its column turned back, so only the coil's turn about its own centre is
+    interpolated (a lever of the coil's size, not of its distance)."""
+    k, fk, y0, fy, rot, out = column_context(t, z, yaw)
+    if out:
+        wp.atomic_add(t.out_of_range, 0, 1)
+    return table_column_at(t, l, dx, dy, k, fk, y0, fy, rot)
 
 
 @wp.func
@@ -219,12 +239,12 @@ def quat_yaw(q: wp.quatd) -> float:
 
 
 @wp.func
-def slot_column(
+def slot_coil(
     t: WrenchTable, slot_layer: wp.array(dtype=wp.int32), slot_offset: wp.array(dtype=wp.vec2i), s: int, x: float,
-    y: float, z: float, yaw: float,
+    y: float,
 ):
-    """Window slot ``s`` of a mover at (x, y, z, yaw): its coil (-1 beyond the footprint, a hole or the layout) and
-    its interpolated column (zeros for -1)."""
+    """Window slot ``s`` of a mover at (x, y): its coil (-1 beyond the footprint, a hole or the layout), its layer
+    and the mover's offset from the coil's centre."""
     l = slot_layer[s]
     off = slot_offset[s]
     h = t.half[l]
@@ -234,7 +254,8 @@ def slot_column(
     ix = int(wp.ceil((x - reach_x) / p[0] - 0.5)) + off[0]
     iy = int(wp.ceil((y - reach_y) / p[1] - 0.5)) + off[1]
     k = int(-1)
-    col = vec6f()
+    dx = float(0.0)
+    dy = float(0.0)
     if ix >= 0 and iy >= 0 and ix < t.coil_grid.shape[1] and iy < t.coil_grid.shape[2]:
         k = t.coil_grid[l, ix, iy]
         if k >= 0:
@@ -242,10 +263,22 @@ def slot_column(
             dy = y - (float(iy) + 0.5) * p[1]
             ex = wp.max(wp.abs(dx) - h[0], 0.0)
             ey = wp.max(wp.abs(dy) - h[1], 0.0)
-            if ex * ex + ey * ey < t.footprint * t.footprint:
-                col = table_column(t, l, dx, dy, z, yaw)
-            else:
+            if ex * ex + ey * ey >= t.footprint * t.footprint:
                 k = -1
+    return k, l, dx, dy
+
+
+@wp.func
+def slot_column(
+    t: WrenchTable, slot_layer: wp.array(dtype=wp.int32), slot_offset: wp.array(dtype=wp.vec2i), s: int, x: float,
+    y: float, z: float, yaw: float,
+):
+    """Window slot ``s`` of a mover at (x, y, z, yaw): its coil (-1 beyond the footprint, a hole or the layout) and
+    its interpolated column (zeros for -1)."""
+    k, l, dx, dy = slot_coil(t, slot_layer, slot_offset, s, x, y)
+    col = vec6f()
+    if k >= 0:
+        col = table_column(t, l, dx, dy, z, yaw)
     return k, col
 
 

@@ -7,7 +7,7 @@ path (the step kernels, then the stop hook after every cycle) bit for bit: same 
 same stops, same state.
 
 It steps aside (the per-cycle path runs, the stop hook included) while the simulator has other cycle hooks (metrics,
-a magnetic drive), which must run between cycles.
+a magnetic drive as a hook), which must run between cycles, or an in-step actuator (the magnetic drive's default).
 """
 
 from __future__ import annotations
@@ -60,8 +60,9 @@ class FusedSwarmStep:
                                                                                  wp.int32)]
 
     def applies(self, sim) -> bool:
-        """False while other cycle hooks must run between cycles (then the per-cycle path runs)."""
-        return not sim._pre_hooks and all(h == self.stop_hook for h in sim._hooks)
+        """False while other cycle hooks must run between cycles, or an actuator (the in-step magnetic drive) runs in
+        the step kernels, which this kernel does not call (then the per-cycle path runs)."""
+        return not sim._pre_hooks and all(h == self.stop_hook for h in sim._hooks) and sim._actuator is None
 
     def travel(self, sim, num_cycles: int) -> float:
         """The candidate lists' travel budget (m): the distance at the shared speed cap over the step, with some room
