@@ -129,3 +129,17 @@ def test_ppo_preset_starts_the_actor_at_the_baseline():
     assert args.actor_init == "orthogonal"
     with pytest.raises(ValueError, match="actor_init"):
         ppo.Agent(14, 4, [32], -1.0, actor_init="ones")
+
+
+def test_eval_refuses_a_residual_policy_on_the_base_env(tmp_path):
+    from magwarp.evaluate import EvalError, load_policy
+    from magwarp.training.common import RunningMeanStd
+    from magwarp.training.policy import save_policy
+
+    path = str(tmp_path / "policy.pt")
+    save_policy(path, torch.nn.Linear(18, 4), RunningMeanStd(18, "cpu"), torch.full((4,), 10.0), squash="clip",
+                env_id="magwarp/CoopPushResidual-v0")
+    plain, residual = _pair()
+    assert load_policy(path, residual)(residual.reset(seed=0)[0]).shape == (3, 4)
+    with pytest.raises(EvalError, match="corrections to that env's scripted baseline"):
+        load_policy(path, plain)
