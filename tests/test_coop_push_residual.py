@@ -131,15 +131,63 @@ def test_ppo_preset_starts_the_actor_at_the_baseline():
         ppo.Agent(14, 4, [32], -1.0, actor_init="ones")
 
 
-def test_eval_refuses_a_residual_policy_on_the_base_env(tmp_path):
-    from magwarp.evaluate import EvalError, load_policy
+def _residual_file(path: str) -> str:
+    """A policy file for the residual env whose corrections are not zero (a random linear map, 1 m/s^2 or so)."""
     from magwarp.training.common import RunningMeanStd
     from magwarp.training.policy import save_policy
 
-    path = str(tmp_path / "policy.pt")
-    save_policy(path, torch.nn.Linear(18, 4), RunningMeanStd(18, "cpu"), torch.full((4,), 10.0), squash="clip",
-                env_id="magwarp/CoopPushResidual-v0")
-    plain, residual = _pair()
-    assert load_policy(path, residual)(residual.reset(seed=0)[0]).shape == (3, 4)
+    torch.manual_seed(0)
+    net = torch.nn.Linear(18, 4)
+    torch.nn.init.normal_(net.weight, std=0.05)
+    save_policy(path, net, RunningMeanStd(18, "cpu"), torch.full((4,), 10.0), squash="clip",
+                env_id="magwarp/CoopPushResidual-v0", metadata={"eval_env_kwargs": '{"num_cycles": 40}'})
+    return path
+
+
+def test_the_standalone_policy_acts_on_plain_coop_push_as_in_the_residual_env(tmp_path):
+    """write_standalone_policy: baseline + scale x residual in one TorchScript file for CoopPush-v0 observations;
+    through autoresets (new goals start new episodes) it steps the plain env exactly as the residual env steps."""
+    from magwarp.evaluate import EvalError, load_policy
+    from magwarp.training.policy import policy_metadata
+
+    path = _residual_file(str(tmp_path / "policy.pt"))
+    plain, residual = _pair(residual_scale=0.5)
+    out = str(tmp_path / residual.STANDALONE_POLICY)
+    residual.write_standalone_policy(path, out)
+    meta = policy_metadata(out)
+    assert meta["env_id"] == "magwarp/CoopPush-v0" and meta["residual_env_id"] == "magwarp/CoopPushResidual-v0"
+    assert meta["residual_scale"] == 0.5 and meta["eval_env_kwargs"] == '{"num_cycles": 40}'
+    trained, standalone = load_policy(path, residual), load_policy(out, plain)
+    obs_r, _ = residual.reset(seed=6)
+    obs, _ = plain.reset(seed=6)
+    for _ in range(15):  # through an autoreset (12-step episodes)
+        correction = trained(obs_r)
+        assert correction.abs().max() > 0.1  # the residual acts
+        obs_r, reward_r, *_ = residual.step(correction)
+        obs, reward, *_ = plain.step(standalone(obs))
+        for key in obs:
+            assert torch.equal(obs[key], obs_r[key]), key
+        assert torch.equal(reward, reward_r)
+    # a batch of another size starts afresh; a flattened observation is taken as the goal dict
+    flat = torch.cat([obs["achieved_goal"], obs["desired_goal"], obs["observation"]], -1)
+    module = standalone.module
+    assert module(flat[:2]).shape == (2, 4) and torch.isfinite(module(flat)).all()
+    # eval refuses each file on the other env: corrections alone, or the baseline added twice
     with pytest.raises(EvalError, match="corrections to that env's scripted baseline"):
         load_policy(path, plain)
+    with pytest.raises(EvalError, match="already adds"):
+        load_policy(out, residual)
+
+
+def test_ppo_writes_the_standalone_policy_beside_its_own(tmp_path):
+    from magwarp.training import ppo
+    from magwarp.training.policy import policy_metadata
+
+    args = ppo.parse_args(["--env-id", "magwarp/CoopPushResidual-v0", "--env-kwargs", '{"max_episode_steps": 8}',
+                           "--device", "cpu", "--seed", "1", "--num-envs", "4", "--num-steps", "4",
+                           "--num-minibatches", "1", "--update-epochs", "1", "--hidden", "16", "--critic-warmup", "0",
+                           "--total-steps", "32", "--eval-steps", "0", "--out", str(tmp_path), "--no-progress",
+                           "--log-every", "1000"])
+    ppo.train(args)
+    assert policy_metadata(str(tmp_path / "policy.pt"))["env_id"] == "magwarp/CoopPushResidual-v0"
+    assert policy_metadata(str(tmp_path / "policy_coop_push.pt"))["env_id"] == "magwarp/CoopPush-v0"

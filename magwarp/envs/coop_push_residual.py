@@ -47,8 +47,47 @@ class CoopPushResidualEnv(ResidualAction, CoopPushEnv):
         if baseline_options is not None and not isinstance(baseline_options, dict):
             raise TypeError(f"baseline_options must be a dict of CoopPushPolicy options, got {baseline_options!r}")
         super().__init__(num_envs, num_movers, **kwargs)
-        self._init_residual(CoopPushPolicy(self, **(baseline_options or {})), residual_scale)
+        self.baseline_options = dict(baseline_options or {})
+        self._init_residual(CoopPushPolicy(self, **self.baseline_options), residual_scale)
 
     def scripted_policy(self):
         """The baseline alone: the zero correction."""
         return ZeroAction(self)
+
+    #: the file :meth:`write_standalone_policy` writes beside a training run's ``policy.pt``
+    STANDALONE_POLICY = "policy_coop_push.pt"
+
+    def write_standalone_policy(self, policy_path: str, out_path: str) -> None:
+        """Write the policy file ``policy_path`` (trained on this env) as one for plain ``magwarp/CoopPush-v0``
+        observations (:class:`~magwarp.policies.coop_push.CoopPushResidualPolicy`: this env's baseline, with its
+        options, plus ``residual_scale`` times the policy). Its metadata is the policy's, with ``env_id``
+        ``magwarp/CoopPush-v0``, the residual env's id and scale, and env options without the residual ones."""
+        import copy
+        import json
+        import os
+        import warnings
+
+        import torch
+
+        from magwarp.policies.coop_push import CoopPushResidualPolicy
+        from magwarp.training.policy import load_policy, policy_metadata
+
+        residual = load_policy(policy_path)
+        meta = policy_metadata(policy_path)
+        core = copy.deepcopy(self.baseline.core).cpu()
+        core.pushing, core.dir = torch.zeros(0, dtype=torch.bool), torch.zeros(0, 2)  # sized by the first batch
+        module = CoopPushResidualPolicy(core, residual, self.residual_scale, 4 if self.learn_pose else 2,
+                                        int(residual.obs_dim), int(residual.action_dim))
+        for key in ("env_kwargs", "eval_env_kwargs"):
+            if meta.get(key):
+                kwargs = json.loads(meta[key]) if isinstance(meta[key], str) else dict(meta[key])
+                meta[key] = json.dumps({k: v for k, v in kwargs.items()
+                                        if k not in ("residual_scale", "baseline_options")})
+        meta.update(env_id=module.env_id, residual_env_id=meta.get("env_id"), residual_scale=self.residual_scale,
+                    baseline_options=self.baseline_options)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            scripted = torch.jit.script(module.eval())
+        tmp = f"{out_path}.tmp"
+        torch.jit.save(scripted, tmp, _extra_files={"magwarp.json": json.dumps(meta, default=str)})
+        os.replace(tmp, out_path)

@@ -427,6 +427,9 @@ def _train(args: argparse.Namespace) -> dict:
                                                   "eval_env_kwargs": args.eval_env_kwargs,
                                                   "global_step": global_step, "wall_s": session.timer.total,
                                                   **(summary or {})})
+        standalone = getattr(base, "write_standalone_policy", None)  # a residual env's policy on its base env
+        if standalone is not None:
+            standalone(os.path.join(args.out, "policy.pt"), os.path.join(args.out, base.STANDALONE_POLICY))
 
     obs, _ = env.reset(seed=seed)
     raw = flatten_obs(obs)
