@@ -184,7 +184,7 @@ PAPER_RUNS: dict[str, PaperRun] = {
     "coop_push_sac_mass_mix": PaperRun("magwarp/CoopPush-v0", "sac-her", {**_COOP, "randomization": [_COOP_MASS_MIX]},
                                        _COOP, "no paper row; scripted line-up-and-push baseline in magwarp eval"),
     # PPO on a residual over the scripted baseline (magwarp/CoopPushResidual-v0: the applied acceleration is the
-    # baseline's plus a learned correction of up to a_max, 10 m/s^2; the actor starts at zero, the baseline's 73%): the
+    # baseline's plus a learned correction of up to 5 m/s^2; the actor starts at zero, the baseline's 73%): the
     # policy file acts on the residual env, which runs the baseline (it keeps state the observation does not hold).
     # PPO's "CoopPushResidual" preset (ppo.PRESETS) sets the rest; the suite's "scripted" row is the zero correction
     "coop_push_residual": PaperRun("magwarp/CoopPushResidual-v0", "ppo", _COOP, _COOP,
