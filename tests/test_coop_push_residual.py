@@ -172,6 +172,10 @@ def test_the_standalone_policy_acts_on_plain_coop_push_as_in_the_residual_env(tm
     flat = torch.cat([obs["achieved_goal"], obs["desired_goal"], obs["observation"]], -1)
     module = standalone.module
     assert module(flat[:2]).shape == (2, 4) and torch.isfinite(module(flat)).all()
+    from magwarp.training.export import _flat_module
+
+    with pytest.raises(ValueError, match="keeps state between calls"):
+        _flat_module(module, None)
     # eval refuses each file on the other env: corrections alone, or the baseline added twice
     with pytest.raises(EvalError, match="corrections to that env's scripted baseline"):
         load_policy(path, plain)

@@ -273,6 +273,7 @@ class CoopPushResidualPolicy(nn.Module):
         self.scale = float(scale)
         self.goal_dim, self.obs_dim, self.action_dim = int(goal_dim), int(obs_dim), int(action_dim)
         self.env_id = str(env_id)
+        self.stateful = True  # magwarp export refuses it (an ONNX graph holds no state)
         self.register_buffer("last_goal", torch.zeros(0, self.goal_dim, device=core.verts.device))
 
     def forward(self, obs: Union[torch.Tensor, Dict[str, torch.Tensor]]) -> torch.Tensor:
