@@ -33,7 +33,7 @@ baseline's state itself and starts a world afresh when its goal changes); PPO wr
 from __future__ import annotations
 
 from magwarp.envs.coop_push import CoopPushEnv
-from magwarp.envs.residual import ResidualAction, ZeroAction, check_residual_scale
+from magwarp.envs.residual import ResidualAction, check_residual_scale
 
 __all__ = ["CoopPushResidualEnv"]
 
@@ -54,10 +54,6 @@ class CoopPushResidualEnv(ResidualAction, CoopPushEnv):
         super().__init__(num_envs, num_movers, **kwargs)
         self.baseline_options = dict(baseline_options or {})
         self._init_residual(CoopPushPolicy(self, **self.baseline_options), residual_scale)
-
-    def scripted_policy(self):
-        """The baseline alone: the zero correction."""
-        return ZeroAction(self)
 
     #: the file :meth:`write_standalone_policy` writes beside a training run's ``policy.pt``
     STANDALONE_POLICY = "policy_coop_push.pt"

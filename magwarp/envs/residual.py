@@ -59,6 +59,10 @@ class ResidualAction:
         base = self.baseline_action().reshape(action.shape)
         super()._apply_action(base + self.residual_scale * action)
 
+    def scripted_policy(self):
+        """The baseline alone (what ``magwarp eval --policy scripted`` runs here): the zero correction."""
+        return ZeroAction(self)
+
 
 class ZeroAction:
     """The scripted policy of a residual env: the zero correction (the env then applies its baseline alone)."""
