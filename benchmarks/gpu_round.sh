@@ -115,6 +115,15 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
             --repeats 10 --device cuda:0 --json "/tmp/runs/$name/eval_$(basename "$pol" .pt).json" \
             > "/tmp/runs/$name/eval_$(basename "$pol" .pt).log" 2>&1 &
         done
+        # a residual env's run also writes its policy for the base env (policy_<base>.pt, e.g. CoopPush-v0's): on the
+        # env its metadata names, with the options it stores
+        for pol in /tmp/runs/"$name"/policy_*.pt; do
+          [ -f "$pol" ] || continue
+          penv=$(python3 -c "from magwarp.training.policy import policy_metadata as m; print(m('$pol')['env_id'])")
+          stem="/tmp/runs/$name/eval_$(basename "$pol" .pt)"
+          timeout 300 python3 -m magwarp eval "$penv" --policy "$pol" --episodes 200 --repeats 10 --device cuda:0 \
+            --json "$stem.json" > "$stem.log" 2>&1 &
+        done
       done
       wait
       for f in /tmp/runs/*/eval_*.log; do echo "--- $f"; grep -E "Success|Coll|Energy|Error|error" "$f" | head -5; done

@@ -140,6 +140,27 @@ def scripted_policy(env) -> Callable:
     raise EvalError(f"no scripted policy for {type(env).__name__}")
 
 
+def _check_residual_env(path: str, env) -> None:
+    """A policy trained on a residual env (its actions correct that env's scripted baseline) is refused elsewhere:
+    on the base env its corrections would act alone; one that adds the baseline itself (``residual_env_id`` in its
+    metadata) is refused on the residual env, which would add it twice."""
+    from magwarp.registration import env_ids
+    from magwarp.training.policy import policy_metadata
+
+    try:
+        meta = policy_metadata(path)
+    except Exception:  # noqa: BLE001 - not a TorchScript file: it names no env
+        return
+    trained_on, residual_of = meta.get("env_id", ""), meta.get("residual_env_id", "")
+    cls = env_ids().get(trained_on, ("",))[0]
+    if "Residual" in cls and type(env).__name__ != cls:
+        raise EvalError(f"policy file {path!r} was trained on {trained_on}: its actions are corrections to that env's "
+                        f"scripted baseline, not actions for {type(env).__name__}; evaluate it on {trained_on}")
+    if residual_of and type(env).__name__ == env_ids().get(residual_of, ("",))[0]:
+        raise EvalError(f"policy file {path!r} already adds {residual_of}'s baseline to its actions: evaluate it on "
+                        f"{trained_on}")
+
+
 def load_policy(spec: str, env, *, trusted: bool = False) -> Callable:
     """``scripted``, a TorchScript / ``torch.save``d module file, or ``module:callable`` (a class is instantiated
     with the env; a function is the policy ``fn(obs) -> actions``). A file is loaded without running pickled code
@@ -155,6 +176,7 @@ def load_policy(spec: str, env, *, trusted: bool = False) -> Callable:
             raise EvalError(str(e)) from None
         if not callable(module):
             raise EvalError(f"policy file {spec!r} holds a {type(module).__name__}, not a callable module")
+        _check_residual_env(spec, env)
         return ModulePolicy(module, env)
     if ":" in spec:
         mod_name, _, attr = spec.partition(":")

@@ -27,6 +27,7 @@ ENV_CLASSES = {
     "SwarmEnv": "magwarp.swarm.env",
     "PlatformPoseEnv": "magwarp.envs.platform_pose",
     "CoopPushEnv": "magwarp.envs.coop_push",
+    "CoopPushResidualEnv": "magwarp.envs.coop_push_residual",
     "LevitationEnv": "magwarp.envs.levitation",
     "LevitationResidualEnv": "magwarp.envs.levitation_residual",
     # MagBots (issue 19): pick and place with the 6D platform and with the gripper
@@ -73,6 +74,7 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/SwarmMaterialFlow-v0"] = ("SwarmEnv", {"stations": "auto"})
     ids["magwarp/PlatformPose-v0"] = ("PlatformPoseEnv", {})
     ids["magwarp/CoopPush-v0"] = ("CoopPushEnv", {})
+    ids["magwarp/CoopPushResidual-v0"] = ("CoopPushResidualEnv", {})
     ids["magwarp/Levitation-v0"] = ("LevitationEnv", {})
     ids["magwarp/LevitationHover-v0"] = ("LevitationEnv", {"task": "hover"})
     ids["magwarp/LevitationWrench-v0"] = ("LevitationEnv", {"action": "wrench"})

@@ -178,3 +178,12 @@ def test_verdicts_ask_for_a_margin_of_energy():
     sweep = [{**base, "frequency_hz": 8.0, "pos_rms_mm": 3.0, "energy_j": 8.0}, base]
     assert not bench.sweep_verdict({**slightly, "pos_rms_mm": 2.0}, sweep, base, "rms", 0.01)[0]
     assert bench.sweep_verdict({**slightly, "pos_rms_mm": 2.0}, sweep, base, "rms", 0.0)[0]
+
+
+def test_residual_env_scripted_policy_is_the_zero_correction():
+    """``magwarp eval LevitationResidual --policy scripted`` runs the PD alone (not the PD as a correction to itself)."""
+    from magwarp.envs.levitation_residual import LevitationResidualEnv
+
+    env = LevitationResidualEnv(2, magnetics=MAG, device="cpu", seed=0)
+    obs, _ = env.reset(seed=0)
+    assert torch.equal(env.scripted_policy()(obs), torch.zeros(2, *env.single_action_space.shape))

@@ -2,11 +2,12 @@
 
 The env of :mod:`magwarp.envs.levitation` (every option the same; ``action="wrench"`` by default here) whose action
 is a correction to the scripted baseline's (:class:`~magwarp.policies.levitation.LevitationPD`: a PD law through
-the commutation): the applied action is ``pd(obs) + residual_scale * action`` in the base env's action units
-(wrench shares of ``wrench_scale``, or current shares of the coil limit), unclipped as in the base env (currents
-beyond their limit saturate; the commutation holds a wrench's currents within the limits). A zero action is the
-baseline exactly, so a policy starts from a controller that already holds the mover and learns what the reward
-(pose error plus ``loss_weight`` times the copper loss) asks beyond it, e.g. a transient that spends less energy.
+the commutation; the mechanism is :class:`~magwarp.envs.residual.ResidualAction`): the applied action is
+``pd(obs) + residual_scale * action`` in the base env's action units (wrench shares of ``wrench_scale``, or current
+shares of the coil limit), unclipped as in the base env (currents beyond their limit saturate; the commutation holds
+a wrench's currents within the limits). A zero action is the baseline exactly, so a policy starts from a controller
+that already holds the mover and learns what the reward (pose error plus ``loss_weight`` times the copper loss) asks
+beyond it, e.g. a transient that spends less energy.
 Observation, reward, ends and ``info`` are the base env's.
 
 Why: from scratch, PPO first has to learn to levitate a free 6-DoF body at 1 kHz from a 19-number observation
@@ -16,16 +17,13 @@ minutes it learns to hover but not to track (``benchmarks/levitation_policy.py``
 
 from __future__ import annotations
 
-import math
-
-import torch
-
 from magwarp.envs.levitation import LevitationEnv
+from magwarp.envs.residual import ResidualAction, check_residual_scale
 
 __all__ = ["LevitationResidualEnv"]
 
 
-class LevitationResidualEnv(LevitationEnv):
+class LevitationResidualEnv(ResidualAction, LevitationEnv):
     """:class:`LevitationEnv` whose action corrects the PD baseline's (see the module docstring).
 
     ``residual_scale``: the correction's range as a share of the action range (default 0.25: 10 N and 0.5 N m with
@@ -35,13 +33,6 @@ class LevitationResidualEnv(LevitationEnv):
                  action: str = "wrench", **kwargs):
         from magwarp.policies.levitation import LevitationPD
 
-        ok = isinstance(residual_scale, (int, float)) and math.isfinite(residual_scale)
-        if not ok or not 0.0 < residual_scale <= 2.0:
-            raise ValueError(f"residual_scale must be a number in (0, 2], got {residual_scale!r}")
+        check_residual_scale(residual_scale)  # before the env is built
         super().__init__(num_envs, action=action, **kwargs)
-        self.residual_scale = float(residual_scale)
-        self.baseline = LevitationPD(self, frequency=pd_frequency)
-
-    def _apply_action(self, action: torch.Tensor) -> None:
-        base = self.baseline(self._get_obs())  # at the current state (what the policy saw)
-        super()._apply_action(base + self.residual_scale * action)
+        self._init_residual(LevitationPD(self, frequency=pd_frequency), residual_scale)

@@ -24,17 +24,19 @@ one held env step, norm-clipped to ``a_max``.
 from __future__ import annotations
 
 import math
+from typing import Dict, Union
 
 import numpy as np
 import torch
+from torch import nn
 
 from magwarp.envs.coop_push import GRAVITY, _OBJECT_OBS
 
-__all__ = ["CoopPushPolicy"]
+__all__ = ["CoopPushPolicy", "CoopPushCore", "CoopPushResidualPolicy"]
 
 
 def _unit(v: torch.Tensor) -> torch.Tensor:
-    return v / v.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    return v / v.norm(p=2, dim=-1, keepdim=True).clamp_min(1e-9)
 
 
 def _perp(v: torch.Tensor) -> torch.Tensor:
@@ -42,7 +44,7 @@ def _perp(v: torch.Tensor) -> torch.Tensor:
 
 
 def _clip_norm(v: torch.Tensor, limit: float) -> torch.Tensor:
-    return v * (limit / v.norm(dim=-1, keepdim=True).clamp_min(limit))
+    return v * (limit / v.norm(p=2, dim=-1, keepdim=True).clamp_min(limit))
 
 
 class CoopPushPolicy:
@@ -106,16 +108,49 @@ class CoopPushPolicy:
         ext = np.asarray(env.layout.extent, float)
         self.lo = torch.tensor([wall, wall], dtype=torch.float32, device=dev)
         self.hi = torch.as_tensor(ext - wall, dtype=torch.float32, device=dev)
-        self.pushing = torch.zeros(env.num_envs, dtype=torch.bool, device=dev)
-        self.dir = torch.zeros(env.num_envs, 2, device=dev)
         self.hold_dir = 3 * env.max_position_err
+        self.num_envs = int(env.num_envs)
+        self.core = CoopPushCore(self)
+
+    @property
+    def pushing(self) -> torch.Tensor:
+        """``[N]`` bool: the worlds whose movers push (else they approach their staging points)."""
+        return self.core.pushing
 
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Forget the push phase of the worlds in ``mask`` (all by default); new episodes start approaching."""
         if mask is None:
-            self.pushing.zero_()
+            self.core.pushing.zero_()
         else:
-            self.pushing.masked_fill_(mask.to(self.pushing.device), False)
+            self.core.pushing.masked_fill_(mask.to(self.core.pushing.device), False)
+
+    def __call__(self, obs) -> torch.Tensor:
+        o = obs["observation"]
+        n = o.shape[0]
+        if n != self.num_envs:
+            raise ValueError(f"CoopPushPolicy was built for {self.num_envs} worlds, got observations of {n}")
+        return self.core(o, obs["desired_goal"], self.env.num_steps == 0)  # a new episode starts approaching
+
+
+class CoopPushCore(nn.Module):
+    """The baseline's step as a TorchScript-able module, with its per-world state (push phase, held direction):
+    ``core(observation [N, D], desired_goal [N, G], fresh [N] bool) -> action [N, 2 M]``, ``fresh`` marking the worlds
+    whose episode has just begun. Built from a :class:`CoopPushPolicy` (its numbers); a batch of another size than
+    the state's starts every world afresh."""
+
+    def __init__(self, p: CoopPushPolicy):
+        super().__init__()
+        self.m, self.box = int(p.m), bool(p.box)
+        self.object_obs = _OBJECT_OBS  # the observation's tail: object x, y, sin yaw, cos yaw, vx, vy
+        for name in ("half", "c_half", "spacing", "radius", "standoff", "cruise", "push_speed", "approach_brake",
+                     "push_brake", "tolerance", "lateral_share", "settle", "stop_at", "decel", "a_max", "dt",
+                     "hold_dir"):
+            setattr(self, name, float(getattr(p, name)))
+        for name in ("slots", "verts", "lo", "hi"):
+            self.register_buffer(name, getattr(p, name).clone())
+        dev = p.verts.device
+        self.register_buffer("pushing", torch.zeros(p.num_envs, dtype=torch.bool, device=dev))
+        self.register_buffer("dir", torch.zeros(p.num_envs, 2, device=dev))
 
     def _support(self, yaw: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Support distance of the object outline at ``yaw [N]`` in world directions ``u [N, 2]``."""
@@ -134,23 +169,24 @@ class CoopPushPolicy:
     def _goto(self, pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """Velocity towards ``target`` at up to cruise speed, braking to arrive."""
         gap = target - pos
-        dist = gap.norm(dim=-1, keepdim=True)
+        dist = gap.norm(p=2, dim=-1, keepdim=True)
         speed = torch.minimum(torch.sqrt(2 * self.approach_brake * dist), torch.full_like(dist, self.cruise))
         return _unit(gap) * torch.minimum(speed, dist / self.dt)
 
-    def __call__(self, obs) -> torch.Tensor:
-        env, m = self.env, self.m
-        o = obs["observation"]
+    def forward(self, o: torch.Tensor, desired_goal: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
+        m = self.m
         n = o.shape[0]
-        if self.pushing.shape[0] != n:
-            raise ValueError(f"CoopPushPolicy was built for {self.pushing.shape[0]} worlds, got observations of {n}")
+        if self.pushing.shape[0] != n:  # a new batch: every world starts approaching
+            self.pushing = torch.zeros(n, dtype=torch.bool, device=o.device)
+            self.dir = torch.zeros(n, 2, device=o.device)
+            fresh = torch.ones(n, dtype=torch.bool, device=o.device)
         pos = o[:, :2 * m].reshape(n, m, 2)
         vel = o[:, 2 * m:4 * m].reshape(n, m, 2)
-        ob = o[:, -_OBJECT_OBS:]
+        ob = o[:, o.shape[1] - self.object_obs:]
         obj, yaw, ovel = ob[:, :2], torch.atan2(ob[:, 2], ob[:, 3]), ob[:, 4:6]
-        goal = obs["desired_goal"][:, :2]
+        goal = desired_goal[:, :2]
         to_goal = goal - obj
-        dist = to_goal.norm(dim=-1)
+        dist = to_goal.norm(p=2, dim=-1)
         # the push direction; while pushing near the goal it is held (it would swing as the object passes the goal)
         d = torch.where((self.pushing & (dist < self.hold_dir))[:, None], self.dir, _unit(to_goal))
         self.dir = d
@@ -172,9 +208,9 @@ class CoopPushPolicy:
         v_app = self._goto(pos, staging)
         to_t = staging - pos
         t_star = (-(rel * to_t).sum(-1) / (to_t * to_t).sum(-1).clamp_min(1e-9)).clamp(0.0, 1.0)
-        closest = (rel + t_star[..., None] * to_t).norm(dim=-1)
-        r = rel.norm(dim=-1)
-        clips = (closest < self.radius) & (to_t.norm(dim=-1) > self.tolerance)
+        closest = (rel + t_star[..., None] * to_t).norm(p=2, dim=-1)
+        r = rel.norm(p=2, dim=-1)
+        clips = (closest < self.radius) & (to_t.norm(p=2, dim=-1) > self.tolerance)
         r_hat = _unit(rel)
         stage_rel = staging - obj[:, None]
         sign = torch.sign(rel[..., 0] * stage_rel[..., 1] - rel[..., 1] * stage_rel[..., 0])
@@ -183,7 +219,7 @@ class CoopPushPolicy:
         v_app = torch.where(clips[..., None], _clip_norm(orbit, self.cruise), v_app)
         # keep movers apart while approaching
         diff = pos[:, :, None] - pos[:, None]  # [N, M, M, 2]
-        gap = (diff.abs().amax(-1) if self.box else diff.norm(dim=-1)) + torch.eye(m, device=o.device) * 1e3
+        gap = (diff.abs().amax(-1) if self.box else diff.norm(p=2, dim=-1)) + torch.eye(m, device=o.device) * 1e3
         near = (self.spacing - 0.004 - gap).clamp_min(0.0)
         v_app = v_app + (_unit(diff) * near[..., None]).sum(2) * (2 / self.dt)
         # and cap each pair's closing speed to what can still brake before their collision shapes touch
@@ -196,11 +232,11 @@ class CoopPushPolicy:
 
         # push: all movers drive along d, holding their slots and closing up on the object's back
         lined = (((u - stage_u).abs() < self.tolerance) & ((lat - offset).abs() < self.tolerance)
-                 & (vel.norm(dim=-1) < self.cruise * 0.1))
+                 & (vel.norm(p=2, dim=-1) < self.cruise * 0.1))
         behind = (u < 0.0) & ((lat - offset).abs() < 2 * self.tolerance)
-        rest = obj + ovel * (ovel.norm(dim=-1, keepdim=True) / (2 * self.decel))
-        settled = (rest - goal).norm(dim=-1) < self.settle
-        was = self.pushing & (env.num_steps > 0)  # a new episode starts approaching
+        rest = obj + ovel * (ovel.norm(p=2, dim=-1, keepdim=True) / (2 * self.decel))
+        settled = (rest - goal).norm(p=2, dim=-1) < self.settle
+        was = self.pushing & ~fresh  # a new episode starts approaching
         self.pushing = torch.where(was, behind.all(1), lined.all(1))
         speed = torch.sqrt(2 * self.push_brake * (dist - self.stop_at).clamp_min(0.0)).clamp_max(self.push_speed)
         speed = torch.where(settled, torch.zeros_like(speed), speed)
@@ -218,3 +254,37 @@ class CoopPushPolicy:
         a_app = _clip_norm((self._wall_cap(pos, v_app) - vel) / self.dt, self.a_max)
         acc = torch.where(self.pushing[:, None, None], a_push, a_app)
         return acc.reshape(n, 2 * m)
+
+
+class CoopPushResidualPolicy(nn.Module):
+    """A policy for plain ``magwarp/CoopPush-v0`` observations: the scripted baseline's action plus ``scale`` times a
+    residual policy's (one trained on ``magwarp/CoopPushResidual-v0``, whose env adds them the same way), so it acts
+    as that policy did in its residual env. It follows the policy-file contract (:mod:`magwarp.training.policy`:
+    a goal-dict or the flattened observation in, actions out; ``obs_dim``, ``action_dim``, ``env_id``) but is not a
+    pure function of the observation: the baseline keeps its per-world state (push phase, held direction) between
+    calls, and a world whose goal changes (or a batch of another size) starts a new episode. So call it once per env
+    step, in step order; it has no ``flat`` path (ONNX export would drop that state)."""
+
+    def __init__(self, core: CoopPushCore, residual: nn.Module, scale: float, goal_dim: int, obs_dim: int,
+                 action_dim: int, env_id: str = "magwarp/CoopPush-v0"):
+        super().__init__()
+        self.core = core
+        self.residual = residual
+        self.scale = float(scale)
+        self.goal_dim, self.obs_dim, self.action_dim = int(goal_dim), int(obs_dim), int(action_dim)
+        self.env_id = str(env_id)
+        self.stateful = True  # magwarp export refuses it (an ONNX graph holds no state)
+        self.register_buffer("last_goal", torch.zeros(0, self.goal_dim, device=core.verts.device))
+
+    def forward(self, obs: Union[torch.Tensor, Dict[str, torch.Tensor]]) -> torch.Tensor:
+        if isinstance(obs, torch.Tensor):
+            flat = obs.to(torch.float32)
+        else:
+            flat = torch.cat([obs["achieved_goal"], obs["desired_goal"], obs["observation"]], -1).to(torch.float32)
+        g = self.goal_dim
+        desired, observation = flat[:, g:2 * g], flat[:, 2 * g:]
+        if self.last_goal.shape[0] != flat.shape[0]:
+            self.last_goal = torch.full_like(desired, float("nan"))  # a new batch: every world starts afresh
+        fresh = (desired != self.last_goal).any(-1)
+        self.last_goal = desired.clone()
+        return self.core(observation, desired, fresh) + self.scale * self.residual(flat)

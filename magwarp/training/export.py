@@ -29,6 +29,9 @@ TARGETS = ("onnx", "twincat", "twincat-mlp")
 
 
 def _flat_module(policy: torch.nn.Module, obs_dim: int | None) -> tuple[torch.nn.Module, int]:
+    if getattr(policy, "stateful", False):
+        raise ValueError("the policy keeps state between calls (e.g. a scripted baseline's phase, which an ONNX graph "
+                         "cannot hold): export the residual policy file it was built from")
     flat = getattr(policy, "flat", policy)
     recorded = getattr(policy, "obs_dim", None)
     dim = obs_dim if obs_dim is not None else recorded
