@@ -32,6 +32,17 @@ for stage in "$@"; do
       # current-limit sweep: those rows are in magnetics_table_gpu.json)
       timeout 400 python3 benchmarks/magnetics.py --device cuda:0 --accuracy-poses 0 --magpylib-movers 0 --limits '' \
         --json "$OUT/magnetics_cycle_gpu.json" 2>&1 | grep -v "^Module" | tail -30 ;;
+    magnetics_variants)
+      # #17: the one-thread control cycle (float32/float64), the in-step drive and smaller tables beside the block
+      # kernel, 1e3-1e6 movers and B0 at 4096/65536 envs
+      timeout 590 python3 benchmarks/magnetics.py --device cuda:0 --accuracy-poses 8 --magpylib-movers 0 --limits '' \
+        --fast-sizes '' --exact-sizes '' --table-variants default,yaw24,gap25_55,yaw24_gap25_55 --per-cycle \
+        --env-steps 10 --json "$OUT/magnetics_cycle_gpu.json" 2>&1 | grep -v "^Module" | tail -40 ;;
+    magnetics_sweep)
+      # #17: the shipped B0 policy driven magnetically (the in-step drive) as the current limit falls; not timed
+      timeout 590 python3 benchmarks/magnetics.py --device cuda:0 --sizes '' --fast-sizes '' --exact-sizes '' \
+        --sim-worlds '' --env-envs '' --accuracy-poses 0 --magpylib-movers 0 --limits 7,5,3,2 \
+        --json "$OUT/magnetics_sweep_gpu.json" 2>&1 | grep -v "^Module" | tail -20 ;;
     swarm)
       timeout 500 python3 benchmarks/swarm.py --device cuda:0 --json "$OUT/swarm_gpu.json" 2>&1 | tail -40 ;;
     perf)

@@ -597,7 +597,8 @@ def main(argv=None) -> int:
     speed, accuracy, footprint, magpylib, sim, env, tables = [], [], [], [], [], [], []
     for device in devices:
         speed += speed_rows(args, device, params, spec)
-        tables += table_variant_rows(args, device, params)
+        if args.table_variants:
+            tables += table_variant_rows(args, device, params)
         sim += sim_rows(args, device, params, spec)
         env += env_rows(args, device, params)
     if args.accuracy_poses > 0:
