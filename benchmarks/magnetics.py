@@ -486,7 +486,11 @@ def env_rows(args, device: str, params) -> list[dict]:
     for n in (args.env_envs if device.startswith("cuda") else args.cpu_env_envs):
         out = {"device": device, "env": "magwarp/TrajectoryPlanningB0-v0", "num_envs": n}
         for name in ("ideal", *args.drive_variants):
-            res = raw_env_row(out["env"], n, device, args.env_steps, force_model=drive_model(args, params, name))
+            try:
+                res = raw_env_row(out["env"], n, device, args.env_steps, force_model=drive_model(args, params, name))
+            except Exception as e:  # noqa: BLE001 - a variant that fails is a result; the others still run
+                print(f"  {device:7s} B0 env x {n:>6}: {name} failed: {type(e).__name__}: {str(e)[:300]}", flush=True)
+                res = {"step_ms": float("nan"), "env_steps_per_s": float("nan"), "path": f"failed: {type(e).__name__}"}
             out[f"{name}_step_ms"] = res["step_ms"]
             out[f"{name}_env_steps_per_s"] = res["env_steps_per_s"]
             out[f"{name}_path"] = res.get("path")

@@ -21,14 +21,19 @@ model; when coils saturate, the wrench falls short (the mover accelerates less, 
 
 Two ways to run it:
 
-* ``in_step=True`` (the default): inside the simulator's step kernels, as their
+* ``in_step=True``: inside the simulator's step kernels, as their
   :class:`~magwarp.kernels.step.Actuator` (:meth:`~magwarp.sim.Simulator.set_actuator`): every cycle of every mover,
   the force model (:func:`~magwarp.kernels.impedance.default_force`) gives the wanted wrench and the one-thread cycle
   (:mod:`~magwarp.magnetics.thread_cycle`, float64 arithmetic by default, float32 columns) the realised one, in the
   same thread. The step stays the fused one-launch kernel (B0's worlds of 3 movers: one thread per world runs all 40 cycles),
   captured in the env's graph. ``force_aux`` and the energy follow every cycle; the per-slot currents and coil ids
   are written in a step's last cycle (a world that halts early on a collision keeps those of its last full step).
-* ``in_step=False``: a pre-cycle hook (float64, one block of threads per mover, below).
+* ``in_step=False`` (the default): a pre-cycle hook (float64, one block of threads per mover, below).
+
+The hook stays the default until the in-step drive has run on a GPU inside the trajectory env's graph: its first H100
+run (2026-11-25) failed to capture B0's step graph with it (torch graphs destroyed during the capture; the eager
+fallback then found the env's generator still registered with the failed graph). On the CPU both give the same
+motion (``tests/test_magnetics_drive.py``).
 
 The hook is one launch per cycle (:func:`drive_cycle_kernel`: the wanted wrench, the look-up, the commutation and
 the store, one block of threads per mover, :mod:`~magwarp.magnetics.cycle`), captured in the step graph; it still
@@ -223,7 +228,7 @@ class MagneticDrive:
     (``in_step=False``, float64; the simulator built with ``force_model=magnetic_force``)."""
 
     def __init__(self, sim, params: MagneticParams | None = None, spec: WrenchTableSpec | None = None,
-                 options: CommutationOptions | None = None, use_cache: bool = True, in_step: bool = True,
+                 options: CommutationOptions | None = None, use_cache: bool = True, in_step: bool = False,
                  precision: str = "float64"):
         aux = sim.state.force_aux
         if aux.shape[2] < AUX_DIM:
@@ -302,7 +307,7 @@ class MagneticModel:
     table: WrenchTableSpec | None = None
     options: CommutationOptions | None = None
     use_cache: bool = True
-    in_step: bool = True
+    in_step: bool = False
     precision: str = "float64"
 
     def attach(self, sim) -> MagneticDrive:
