@@ -565,7 +565,7 @@ def main(argv=None) -> int:
     parser.add_argument("--env-envs", type=sizes, default=sizes("4096,65536"), help="GPU B0 envs, env step")
     parser.add_argument("--cpu-env-envs", type=sizes, default=sizes("4"), help="CPU B0 envs, env step")
     parser.add_argument("--env-steps", type=int, default=20, help="env steps timed per row")
-    parser.add_argument("--drive-variants", type=names, default=names("in_step_f64,in_step_f32,hook"),
+    parser.add_argument("--drive-variants", type=names, default=names("hook,in_step_f64,in_step_f32"),
                         help=f"magnetic drives of the sim and env rows (the first is reported as 'magnetic'): "
                              f"{', '.join(DRIVE_VARIANTS)}")
     parser.add_argument("--per-cycle", action="store_true",
