@@ -21,6 +21,7 @@ import math
 import torch
 
 from magwarp.envs.levitation import LevitationEnv
+from magwarp.policies.levitation import DEFAULT_MAX_ACC, LevitationPD
 
 __all__ = ["LevitationResidualEnv"]
 
@@ -29,18 +30,20 @@ class LevitationResidualEnv(LevitationEnv):
     """:class:`LevitationEnv` whose action corrects the PD baseline's (see the module docstring).
 
     ``residual_scale``: the correction's range as a share of the action range (default 0.25: 10 N and 0.5 N m with
-    the default ``wrench_scale``); ``pd_frequency``: the baseline's natural frequency (Hz)."""
+    the default ``wrench_scale``); ``pd_frequency``: the baseline's natural frequency (Hz); ``pd_max_acc``: its
+    feedback acceleration limits (m/s^2 linear, rad/s^2 angular; default the shipped baseline's). A softer or
+    otherwise retuned baseline (``paper.py``'s ``lev_residual_soft``) changes what the policy corrects, not what
+    it is compared with: ``benchmarks/levitation_policy.py`` measures the shipped PD."""
 
     def __init__(self, num_envs: int = 1, *, residual_scale: float = 0.25, pd_frequency: float = 15.0,
-                 action: str = "wrench", **kwargs):
-        from magwarp.policies.levitation import LevitationPD
-
+                 pd_max_acc: tuple[float, float] = DEFAULT_MAX_ACC, action: str = "wrench", **kwargs):
         ok = isinstance(residual_scale, (int, float)) and math.isfinite(residual_scale)
         if not ok or not 0.0 < residual_scale <= 2.0:
             raise ValueError(f"residual_scale must be a number in (0, 2], got {residual_scale!r}")
         super().__init__(num_envs, action=action, **kwargs)
         self.residual_scale = float(residual_scale)
-        self.baseline = LevitationPD(self, frequency=pd_frequency)
+        self.baseline = LevitationPD(self, frequency=pd_frequency, max_acc=pd_max_acc)
+        self.pd_frequency, self.pd_max_acc = float(pd_frequency), tuple(self.baseline.max_acc)
 
     def _apply_action(self, action: torch.Tensor) -> None:
         base = self.baseline(self._get_obs())  # at the current state (what the policy saw)
