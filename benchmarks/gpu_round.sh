@@ -141,7 +141,7 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         name=$(basename "$(dirname "$pol")"); tag=${name#lev_residual}
         echo "--- $name"
         timeout 280 python3 benchmarks/levitation_policy.py --policy "$pol" --device cuda:0 --envs 4096 \
-          --json "$OUT/levitation_policy${tag:+_${name}}_gpu.json" 2>&1 | grep -v "^Module" | tail -16
+          --json "$OUT/levitation_policy${tag:+_${name}}_gpu.json" 2>&1 | grep -v "^Module" | tail -20
       done ;;
     planner)
       # #18: the scripted planner (lanes, safety filter) at 256 / 1024 / 4096 movers (2000 steps each: goal share in 40 s)
