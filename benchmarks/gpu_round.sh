@@ -6,7 +6,7 @@
 # Stages: tests (GPU/CPU agreement of the new kernels), queries (collision queries), magnetics, swarm, perf
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
-# suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24),
+# suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
 # compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
@@ -144,15 +144,24 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # policy against its PD (when lev_residual was trained) and the swarm planner at 256/1024/4096 movers
       bash "$0" suite_eval > "$OUT/suite_eval.log" 2>&1 &
       REPEATS=${REPEATS:-10} bash "$0" robustness > "$OUT/robustness.log" 2>&1 &
-      if [ -f /tmp/runs/lev_residual/policy.pt ]; then
-        timeout 500 python3 benchmarks/levitation_policy.py --policy /tmp/runs/lev_residual/policy.pt --device cuda:0 \
-          --envs 4096 --json "$OUT/levitation_policy_gpu.json" > "$OUT/levitation_policy.log" 2>&1 &
-      fi
+      bash "$0" lev_eval > "$OUT/levitation_policy.log" 2>&1 &
       timeout 560 python3 benchmarks/swarm.py --device cuda:0 --planner-only --json "$OUT/swarm_planner_gpu.json" \
         > "$OUT/planner.log" 2>&1 &
       wait
       for f in suite_eval robustness levitation_policy planner; do
         [ -f "$OUT/$f.log" ] && { echo "--- $f"; tail -25 "$OUT/$f.log"; }
+      done ;;
+    lev_eval)
+      # #17: each levitation residual run left in /tmp/runs by the suite stage (lev_residual, lev_residual_soft, ...)
+      # against the shipped PD and its frequency sweep on the same 4096 worlds, one run after the other (the policy's
+      # env options come from its policy.pt); JSON levitation_policy_gpu.json (lev_residual) or
+      # levitation_policy_<run>_gpu.json
+      for pol in /tmp/runs/lev_residual*/policy.pt; do
+        [ -f "$pol" ] || continue
+        name=$(basename "$(dirname "$pol")"); tag=${name#lev_residual}
+        echo "--- $name"
+        timeout 280 python3 benchmarks/levitation_policy.py --policy "$pol" --device cuda:0 --envs 4096 \
+          --json "$OUT/levitation_policy${tag:+_${name}}_gpu.json" 2>&1 | grep -v "^Module" | tail -20
       done ;;
     planner)
       # #18: the scripted planner (lanes, safety filter) at 256 / 1024 / 4096 movers (2000 steps each: goal share in 40 s)

@@ -13,7 +13,9 @@ The baseline is :class:`magwarp.policies.levitation.LevitationPD` (a PD law thro
 critically damped): the shipped one (15 Hz) and a sweep of its natural frequency (``--pd-frequencies``), in the
 policy's action mode, plus the shipped one in the other action mode for information (``currents``: the
 commutation gets the PD's whole wrench; ``wrench``: the env's action clips it at ``wrench_scale``). For a policy of
-``magwarp/LevitationResidual-v0`` (a correction to the PD's action) the PD rows are that env's zero action.
+``magwarp/LevitationResidual-v0`` (a correction to the PD's action) the PD rows are that env's zero action with
+the shipped PD's acceleration limits; a policy whose base PD was retuned (``pd_frequency`` and ``pd_max_acc`` off
+the sweep) gets one more row, its base alone, with that base's own verdict printed for information.
 
 Per controller, over every world: ``failed`` (share terminated: gap, tilt or distance out of bounds) and
 ``success`` (not failed and, at the end, position error <= ``--success-pos`` and rotation error <=
@@ -215,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     import magwarp  # noqa: F401  (registers the ids)
     from magwarp.envs.levitation_residual import LevitationResidualEnv
     from magwarp.evaluate import load_policy
-    from magwarp.policies.levitation import LevitationPD
+    from magwarp.policies.levitation import DEFAULT_MAX_ACC, LevitationPD
     from magwarp.training.policy import policy_metadata
 
     path = args.policy
@@ -240,9 +242,9 @@ def main(argv: list[str] | None = None) -> int:
     residual = isinstance(probe, LevitationResidualEnv)
     envs = {mode: probe}
 
-    def run_pd(action: str, frequency: float) -> dict:
-        if residual:  # the residual env's zero action is its PD (of its pd_frequency)
-            env = make(action, pd_frequency=frequency)
+    def run_pd(action: str, frequency: float, max_acc=DEFAULT_MAX_ACC) -> dict:
+        if residual:  # the residual env's zero action is its PD (of its pd_frequency and pd_max_acc)
+            env = make(action, pd_frequency=frequency, pd_max_acc=list(max_acc))
             zero = torch.zeros((env.num_envs, *env.single_action_space.shape), device=env.device)
             return episode(env, lambda obs: zero, args.seed, steps)
         if action not in envs:
@@ -250,6 +252,10 @@ def main(argv: list[str] | None = None) -> int:
         return episode(envs[action], LevitationPD(envs[action], frequency=frequency), args.seed, steps)
 
     results = [({"controller": f"PD {f:g} Hz", "action": mode, "frequency_hz": f}, run_pd(mode, f)) for f in freqs]
+    base = (probe.pd_frequency, tuple(probe.pd_max_acc)) if residual else None
+    if base is not None and base[1] != tuple(DEFAULT_MAX_ACC):  # a retuned base: its zero action, for information
+        results.append(({"controller": f"PD {base[0]:g} Hz, max_acc {base[1][0]:g}/{base[1][1]:g} (policy's base)",
+                         "action": mode, "frequency_hz": None}, run_pd(mode, *base)))
     results.append(({"controller": f"PD {SHIPPED_HZ:g} Hz", "action": other_mode, "frequency_hz": SHIPPED_HZ},
                     run_pd(other_mode, SHIPPED_HZ)))
     if path:
@@ -277,6 +283,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{', '.join(f'{f:g}' for f in freqs)} Hz): {'beats it' if retuned[0] else 'does not beat it'}: "
               f"{retuned[1]}")
         info_row = verdict(pol, rows[-2], args.tracking, args.tolerance, args.margin)
+        if len(rows) > len(sweep) + 2:  # the policy's retuned base PD alone (its zero action), for information
+            alone = verdict(rows[-3], shipped, args.tracking, args.tolerance, args.margin)
+            print(f"(for information, the policy's base PD alone ({rows[-3]['controller']}) against the shipped PD: "
+                  f"{'beats it' if alone[0] else 'does not beat it'}: {alone[1]})")
         print(f"(for information, against the shipped PD in the {other_mode} action: "
               f"{'beats it' if info_row[0] else 'does not beat it'}: {info_row[1]})")
         beats = direct[0] or retuned[0]

@@ -50,8 +50,9 @@ def coarse_default(monkeypatch):
     monkeypatch.setattr(drive, "MagneticModel", coarse)
 
 
-def _zero_policy(path: Path) -> None:
-    """A policy file as magwarp train writes it for LevitationWrench-v0, whose action is always zero."""
+def _zero_policy(path: Path, env_id: str = "magwarp/LevitationWrench-v0",
+                 env_kwargs: str = '{"max_episode_steps": 40}') -> None:
+    """A policy file as magwarp train writes it for ``env_id`` (a wrench action), whose action is always zero."""
     from magwarp.training.common import RunningMeanStd
     from magwarp.training.policy import mlp, save_policy
 
@@ -59,8 +60,7 @@ def _zero_policy(path: Path) -> None:
     for p in net.parameters():
         torch.nn.init.zeros_(p)
     save_policy(str(path), net, RunningMeanStd(19, "cpu"), torch.ones(6), squash="clip",
-                env_id="magwarp/LevitationWrench-v0",
-                metadata={"algo": "ppo", "env_kwargs": '{"max_episode_steps": 40}'})
+                env_id=env_id, metadata={"algo": "ppo", "env_kwargs": env_kwargs})
 
 
 def test_benchmark_compares_a_policy_with_the_baseline(coarse_default, tmp_path, capsys):
@@ -82,6 +82,46 @@ def test_benchmark_compares_a_policy_with_the_baseline(coarse_default, tmp_path,
         assert r["failed"] == 0 and r["compared"] == 0 and math.isnan(r["energy_j"])
     assert "VERDICT: policy beats baseline on energy at equal (or better) tracking error: NO" in text
     assert all(r["verdict"] is False for r in rows)
+
+
+def test_benchmark_measures_a_retuned_residual_base_against_the_shipped_pd(coarse_default, tmp_path, capsys):
+    # a residual over a retuned PD (lev_residual_soft): the PD rows stay the shipped PD's (15 Hz, max_acc 5/60), the
+    # base alone gets its own row, and a zero residual is exactly that base
+    _zero_policy(tmp_path / "policy.pt", "magwarp/LevitationResidual-v0",
+                 '{"max_episode_steps": 30, "pd_frequency": 8.0, "pd_max_acc": [8.0, 100.0]}')
+    out = tmp_path / "lev.json"
+    assert bench.main(["--policy", str(tmp_path), "--envs", "3", "--pd-frequencies", "8", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    rows = json.loads(out.read_text())
+    assert [r["controller"] for r in rows] == ["PD 8 Hz", "PD 15 Hz", "PD 8 Hz, max_acc 8/100 (policy's base)",
+                                               "PD 15 Hz", f"policy {tmp_path.name}"]
+    soft, shipped, base, _, zero = rows
+    assert all(r["failed"] == 0 and r["compared"] == 3 for r in rows)
+    for key in ("energy_j", "pos_rms_mm", "rot_rms_mrad"):
+        assert zero[key] == pytest.approx(base[key], rel=1e-6)  # the zero residual is its base
+    # the 8 Hz sweep row is the shipped limits' 8 Hz PD, not the base: the setpoint moves hit 5 m/s^2, not 8
+    assert soft["pos_rms_mm"] > base["pos_rms_mm"] * 1.001 and shipped["energy_j"] > soft["energy_j"]
+    assert "the policy's base PD alone (PD 8 Hz, max_acc 8/100 (policy's base)) against the shipped PD" in text
+
+
+def test_residual_env_takes_the_base_pd_options():
+    from magwarp.envs.levitation_residual import LevitationResidualEnv
+
+    plain = LevitationEnv(2, magnetics=MAG, action="wrench", device="cpu", seed=1)
+    residual = LevitationResidualEnv(2, magnetics=MAG, device="cpu", seed=1, pd_frequency=8.0, pd_max_acc=(8, 100))
+    assert (residual.pd_frequency, residual.pd_max_acc) == (8.0, (8.0, 100.0))
+    pd = LevitationPD(plain, frequency=8.0, max_acc=(8.0, 100.0))
+    obs, _ = plain.reset(seed=3)
+    residual.reset(seed=3)
+    zero = torch.zeros((2, 6))
+    for _ in range(10):
+        obs, *_ = plain.step(pd(obs))
+        obs_r, *_ = residual.step(zero)
+    torch.testing.assert_close(obs_r, obs)
+    assert LevitationResidualEnv(1, magnetics=MAG, device="cpu").pd_max_acc == (5.0, 60.0)  # the shipped PD's
+    for bad in ((8.0,), (8.0, float("nan")), (0.0, 60.0)):
+        with pytest.raises(ValueError, match="max_acc"):
+            LevitationResidualEnv(1, magnetics=MAG, device="cpu", pd_max_acc=bad)
 
 
 def test_benchmark_baseline_alone_measures_energy_and_tracking(coarse_default, tmp_path, capsys):

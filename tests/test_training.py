@@ -4,6 +4,7 @@ file contract of :mod:`magwarp.training.policy` (TorchScript, dict or flat obser
 from __future__ import annotations
 
 import importlib
+import math
 from pathlib import Path
 
 import pytest
@@ -315,6 +316,9 @@ def test_paper_runs_build_their_envs():
                 assert env.min_coverage == kwargs["min_coverage"]
             if "obstacle_mode" in kwargs:
                 assert env.obstacle_mode == kwargs["obstacle_mode"]
+            if "pd_max_acc" in kwargs:  # a residual's retuned base PD (lev_residual_soft)
+                assert env.baseline.max_acc == tuple(kwargs["pd_max_acc"]), name
+                assert env.baseline.kp == pytest.approx((2 * math.pi * kwargs["pd_frequency"]) ** 2), name
             env.close()
 
 

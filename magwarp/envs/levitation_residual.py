@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from magwarp.envs.levitation import LevitationEnv
 from magwarp.envs.residual import ResidualAction, check_residual_scale
+from magwarp.policies.levitation import DEFAULT_MAX_ACC, LevitationPD
 
 __all__ = ["LevitationResidualEnv"]
 
@@ -27,12 +28,15 @@ class LevitationResidualEnv(ResidualAction, LevitationEnv):
     """:class:`LevitationEnv` whose action corrects the PD baseline's (see the module docstring).
 
     ``residual_scale``: the correction's range as a share of the action range (default 0.25: 10 N and 0.5 N m with
-    the default ``wrench_scale``); ``pd_frequency``: the baseline's natural frequency (Hz)."""
+    the default ``wrench_scale``); ``pd_frequency``: the baseline's natural frequency (Hz); ``pd_max_acc``: its
+    feedback acceleration limits (m/s^2 linear, rad/s^2 angular; default the shipped baseline's). A softer or
+    otherwise retuned baseline (``paper.py``'s ``lev_residual_soft``) changes what the policy corrects, not what
+    it is compared with: ``benchmarks/levitation_policy.py`` measures the shipped PD."""
 
     def __init__(self, num_envs: int = 1, *, residual_scale: float = 0.25, pd_frequency: float = 15.0,
-                 action: str = "wrench", **kwargs):
-        from magwarp.policies.levitation import LevitationPD
-
+                 pd_max_acc: tuple[float, float] = DEFAULT_MAX_ACC, action: str = "wrench", **kwargs):
         check_residual_scale(residual_scale)  # before the env is built
         super().__init__(num_envs, action=action, **kwargs)
-        self._init_residual(LevitationPD(self, frequency=pd_frequency), residual_scale)
+        baseline = LevitationPD(self, frequency=pd_frequency, max_acc=pd_max_acc)
+        self._init_residual(baseline, residual_scale)
+        self.pd_frequency, self.pd_max_acc = float(pd_frequency), tuple(baseline.max_acc)

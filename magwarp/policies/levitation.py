@@ -31,7 +31,10 @@ import torch
 
 from magwarp.pendulum import rotate
 
-__all__ = ["LevitationPD"]
+__all__ = ["DEFAULT_MAX_ACC", "LevitationPD"]
+
+#: the shipped baseline's feedback acceleration limits (m/s^2 for x/y together and for z, rad/s^2 angular)
+DEFAULT_MAX_ACC = (5.0, 60.0)
 
 
 def _quat_from_rpy(rpy: torch.Tensor) -> torch.Tensor:
@@ -81,7 +84,7 @@ def _clip_norm(x: torch.Tensor, limit: float) -> torch.Tensor:
 class LevitationPD:
     """``policy(obs) -> action`` for a :class:`~magwarp.envs.levitation.LevitationEnv` (batched, on its device)."""
 
-    def __init__(self, env, frequency: float = 15.0, damping: float = 1.0, max_acc: tuple[float, float] = (5.0, 60.0)):
+    def __init__(self, env, frequency: float = 15.0, damping: float = 1.0, max_acc: tuple[float, float] = DEFAULT_MAX_ACC):
         self.env = getattr(env, "unwrapped", env)
         try:
             max_acc = tuple(float(v) for v in max_acc)
@@ -91,7 +94,7 @@ class LevitationPD:
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0 or len(max_acc) != 2:
                 raise ValueError(f"{name} must be a positive finite number (max_acc: two), got "
                                  f"{max_acc if name == 'max_acc' else value!r}")
-        self.max_lin, self.max_ang = max_acc
+        self.max_lin, self.max_ang = self.max_acc = max_acc
         w = 2 * math.pi * frequency
         self.kp, self.kd = w * w, 2 * damping * w
         dev = self.env.device

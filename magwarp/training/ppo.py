@@ -65,7 +65,9 @@ PRESETS = {
     # energy) and small, KL-capped steps. Not yet shown to beat the PD: on the CPU (256-512 worlds), ~1 M steps
     # ended 2.4% above the PD's energy and 0.6% above its position RMS with these settings (3% and 1% with lr
     # 1.5e-4, KL 0.01), and 2.4 M steps drifted further (+10%, +9%, a 0.65 mm steady offset; lr 2e-5, 2 epochs,
-    # 1024 worlds: +8%, +4% after 1.7 M): the drift is systematic, not yet understood;
+    # 1024 worlds: +8%, +4% after 1.7 M): the drift is systematic: the residual learns a steady upward force (0.8 mm
+    # above the setpoint after 0.6 M steps on the CPU) although a constant one lowers the return; with --gae-lambda
+    # 1.0 (Monte-Carlo advantages, no critic slope in them) it stayed near zero (paper.py's lev_residual_soft);
     # benchmarks/levitation_policy.py measures a run
     "LevitationResidual": dict(num_envs=4096, num_steps=32, num_minibatches=4, gamma=0.99, hidden="256,256",
                                init_log_std=-3.0, lr=5e-5, desired_kl=0.005),
