@@ -510,3 +510,25 @@ def test_observation_noise_is_seeded_and_of_the_given_size():
     assert torch.equal(obs["achieved_goal"], env.reset(seed=2)[0]["achieved_goal"])
     with pytest.raises(ValueError, match="std_noise"):
         TrajectoryPlanningEnv(1, "B0", std_noise=float("nan"), device="cpu")
+
+
+def test_replaced_generator_continues_the_draws_for_every_user():
+    # After a failed CUDA graph capture the env swaps its generator (trajectory_fused's fallback): goals, starts,
+    # latency and sensor draws must all move to the new one and continue the old stream exactly.
+    kw = dict(num_envs=4, seed=5, device="cpu", actuation={"latency_range": [0, 3]},
+              sensors={"pos_noise_std": 0.001, "vel_bias_std": 0.01})
+    a, b = TrajectoryPlanningEnv(**kw), TrajectoryPlanningEnv(**kw)
+    a.reset(seed=5)
+    b.reset(seed=5)
+    gen = torch.Generator().manual_seed(1)
+    actions = [torch.rand((4, 2 * a.num_movers), generator=gen) * 2 - 1 for _ in range(6)]
+    for i, act in enumerate(actions):
+        if i == 3:
+            old = b._generator
+            b._replace_generator()
+            users = (b._generator, b.sampler.generator, b.sensors.generator, b.latency.generator)
+            assert all(u is b._generator for u in users) and b._generator is not old
+        oa, ra, *_ = a.step(act)
+        ob, rb, *_ = b.step(act)
+        assert torch.equal(oa["observation"], ob["observation"]) and torch.equal(ra, rb), f"step {i}"
+        assert torch.equal(a.goals, b.goals), f"step {i}"

@@ -330,6 +330,18 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
             "desired_goal": self.goals.reshape(n, -1).clone(),
         })
 
+    def _replace_generator(self) -> None:
+        """Give the env's draws (goals, starts, latency, sensors) a new generator that continues from the old one's
+        state (a fresh seed from it where its state cannot be read): a CUDA graph capture that failed may leave the
+        old generator registered with the dead graph, where torch refuses every later draw outside a capture."""
+        old = self._generator
+        fresh = torch.Generator(device=old.device)
+        try:
+            fresh.set_state(old.get_state())
+        except RuntimeError:
+            fresh.manual_seed(int(old.initial_seed()) + 1)
+        self._generator = self.sampler.generator = self.sensors.generator = self.latency.generator = fresh
+
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """See :meth:`MagwarpVecEnv.reset`; the sensor model remembers the returned readings (for dropped ones)."""
         obs, info = super().reset(seed=seed, options=options)

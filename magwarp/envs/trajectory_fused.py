@@ -332,6 +332,7 @@ class FusedTrajectoryStep:
                 warnings.warn(f"TrajectoryPlanningEnv: the step could not be captured as a CUDA graph ({e}); it runs "
                               "the same kernels eagerly (graph=False)", RuntimeWarning, stacklevel=3)
                 self.graph = self.env._graph = False
+                self.env._replace_generator()  # the failed capture may keep the old one registered
         else:
             for callback in env.sim._step_callbacks:  # as sim.step runs them (interval randomisation terms)
                 callback()
