@@ -7,7 +7,8 @@ path (the step kernels, then the stop hook after every cycle) bit for bit: same 
 same stops, same state.
 
 It steps aside (the per-cycle path runs, the stop hook included) while the simulator has other cycle hooks (metrics,
-a magnetic drive as a hook), which must run between cycles, or an in-step actuator (the magnetic drive's default).
+a magnetic drive as a hook), which must run between cycles, or an in-step actuator (a magnetic drive with
+``in_step=True``).
 """
 
 from __future__ import annotations
