@@ -144,7 +144,8 @@ def _check_residual_env(path: str, env) -> None:
     """A policy trained on a residual env (its actions correct that env's scripted baseline) is refused elsewhere:
     on the base env its corrections would act alone; one that adds the baseline itself (``residual_env_id`` in its
     metadata) is refused on the residual env, which would add it twice."""
-    from magwarp.registration import env_ids
+    from magwarp.envs.residual import ResidualAction
+    from magwarp.registration import _load, env_ids
     from magwarp.training.policy import policy_metadata
 
     try:
@@ -153,7 +154,7 @@ def _check_residual_env(path: str, env) -> None:
         return
     trained_on, residual_of = meta.get("env_id", ""), meta.get("residual_env_id", "")
     cls = env_ids().get(trained_on, ("",))[0]
-    if "Residual" in cls and type(env).__name__ != cls:
+    if cls and issubclass(_load(cls), ResidualAction) and type(env).__name__ != cls:
         raise EvalError(f"policy file {path!r} was trained on {trained_on}: its actions are corrections to that env's "
                         f"scripted baseline, not actions for {type(env).__name__}; evaluate it on {trained_on}")
     if residual_of and type(env).__name__ == env_ids().get(residual_of, ("",))[0]:
