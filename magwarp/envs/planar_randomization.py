@@ -49,6 +49,7 @@ import warp as wp
 
 from magwarp.envs.randomization import EventRunner, EventTerm, Gaussian, LogUniform
 from magwarp.kernels import randomize as krand
+from magwarp.kernels.params import MoverParams
 
 __all__ = ["PlanarRandomizer"]
 
@@ -70,6 +71,17 @@ def rng_key(seed: int) -> int:
     """The kernel's int32 generator key for an env seed (any non-negative integer)."""
     k = (int(seed) ^ (int(seed) >> 32) ^ 0x5EED7E57) & 0xFFFFFFFF
     return k - (1 << 32) if k >= 1 << 31 else k
+
+
+def _empty_mover_params(device):
+    """:class:`~magwarp.kernels.params.MoverParams` with empty arrays, for a term table without body fields."""
+    p = MoverParams()
+    p.m_ctrl, p.i_ctrl, p.scale_inertia = 1.0, wp.vec3d(1.0, 1.0, 1.0), 0
+    for name in ("mass", "payload", "known", "v_max", "a_max", "j_max"):
+        setattr(p, name, wp.empty((0, 0), dtype=wp.float64, device=device))
+    for name in ("inertia", "offset", "k_lin", "k_rot"):
+        setattr(p, name, wp.empty((0, 0), dtype=wp.vec3d, device=device))
+    return p
 
 
 class PlanarRandomizer(EventRunner):
@@ -176,6 +188,8 @@ class PlanarRandomizer(EventRunner):
         self._counter = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self._all = wp.ones(1, dtype=wp.bool, device=dev)  # the mask placeholder when every world fires
         self._body = any(t.field in BODY_KEYS for t in self.terms)
+        # terms of the collision sizes only: empty parameter arrays (the kernel writes no body field then)
+        self._empty_params = None if self._body else _empty_mover_params(dev)
 
     def reseed(self, seed: int) -> None:
         """``reset(seed=...)``: the draws from here on follow ``seed`` (as for an env built with it, after startup)."""
@@ -191,7 +205,7 @@ class PlanarRandomizer(EventRunner):
         if not due:
             return False
         sim = self.sim
-        params = sim.mover_param_struct(self._scale_inertia()) if self._body else self._no_params()
+        params = sim.mover_param_struct(self._scale_inertia()) if self._body else self._empty_params
         m = sim.model
         mask_wp = self._all if mask is None else wp.from_torch(mask, dtype=wp.bool)
         with contextlib.nullcontext() if current_stream else sim._on_stream():
@@ -205,20 +219,6 @@ class PlanarRandomizer(EventRunner):
     def _scale_inertia(self) -> bool:
         used = self.values
         return "mover_mass" in used and "mover_inertia" not in used
-
-    def _no_params(self):
-        """Empty parameter arrays for terms of the collision sizes only (the kernel writes no body field then)."""
-        if not hasattr(self, "_empty_params"):
-            from magwarp.kernels.params import MoverParams
-
-            p, dev = MoverParams(), self.sim.device
-            p.m_ctrl, p.i_ctrl, p.scale_inertia = 1.0, wp.vec3d(1.0, 1.0, 1.0), 0
-            for name in ("mass", "payload", "known", "v_max", "a_max", "j_max"):
-                setattr(p, name, wp.empty((0, 0), dtype=wp.float64, device=dev))
-            for name in ("inertia", "offset", "k_lin", "k_rot"):
-                setattr(p, name, wp.empty((0, 0), dtype=wp.vec3d, device=dev))
-            self._empty_params = p
-        return self._empty_params
 
     def reset(self, mask: torch.Tensor) -> None:
         """Reset-mode terms for the worlds in ``mask`` (``[W]`` bool on the device): one launch, no host sync."""
