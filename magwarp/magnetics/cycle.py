@@ -130,7 +130,6 @@ def cycle_outputs(coil_ids: wp.array, gamma: wp.array, count: wp.array, res: Com
     return o
 
 
-
 def cycle_buffers(model: TableModel, commutation: Commutation, n: int):
     """The arrays of ``n`` movers' control cycles, zeroed (coil ids -1): ``(coil_ids, count, gamma, result)`` (as
     :meth:`TableModel.columns` and :meth:`Commutation.solve` fill them), with the one-launch cycle's
@@ -141,6 +140,7 @@ def cycle_buffers(model: TableModel, commutation: Commutation, n: int):
     gamma = wp.zeros((n, slots), dtype=vec6f, device=dev)
     res = CommutationResult.zeros(n, slots, dev)
     return ids, count, gamma, res, cycle_params(model, commutation), cycle_outputs(ids, gamma, count, res)
+
 
 def check_arrays(where: str, shapes: dict, arrays: dict, device) -> None:
     """Refuse, naming it, an array whose shape is not its expected one (``shapes``: name -> (shape, expected)) or
