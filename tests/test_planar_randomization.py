@@ -13,6 +13,7 @@ import torch
 
 from magwarp.envs.randomization import PRESETS, EventTerm, Gaussian, LogUniform, Uniform
 from magwarp.envs.trajectory import TrajectoryPlanningEnv
+from magwarp.kernels import options as kernel_options
 from magwarp.layout import Layout
 from magwarp.sim import Simulator
 
@@ -63,12 +64,10 @@ def test_nominal_kernels_equal_the_general_ones_bit_for_bit(rng, num_movers, con
             assert torch.equal(getattr(nominal, name), getattr(general, name)), name
 
 
-@pytest.mark.parametrize("rows", ["all", "f32", "sizes", "none"])
+@pytest.mark.parametrize("rows", [r for r in kernel_options.REGISTER_ROWS_CHOICES if r != kernel_options.REGISTER_ROWS])
 def test_register_row_variants_equal_bit_for_bit(monkeypatch, rows):
     # MAGWARP_REGISTER_ROWS (a benchmark knob) picks which per-world rows the general register kernel holds in
     # registers; every variant steps a randomised world with latency to the same bits as the default.
-    from magwarp.kernels import options
-
     def run():
         env = make(6, "sim2real", seed=3, actuation={"latency_range": [0, 5]})
         env.reset(seed=3)
@@ -77,10 +76,8 @@ def test_register_row_variants_equal_bit_for_bit(monkeypatch, rows):
             env.step(torch.rand((6, *env.single_action_space.shape), generator=gen) * 2 - 1)
         return env.sim
 
-    if rows == options.REGISTER_ROWS:
-        pytest.skip(f"{rows!r} is the default")
     default = run()
-    monkeypatch.setattr(options, "REGISTER_ROWS", rows)
+    monkeypatch.setattr(kernel_options, "REGISTER_ROWS", rows)
     variant = run()
     assert variant._fused_kernel is not default._fused_kernel  # another compiled variant
     for name in ("pos", "quat", "vel", "omega", "acc"):
