@@ -848,6 +848,8 @@ class Simulator:
         (e.g. the swarm env's fused step, :mod:`magwarp.swarm.fused`): it returns True where it did, False to let the
         built-in launch shapes run. It runs inside the step graph, before the NaN guard, on the simulator's stream,
         and must only launch device work. None: the built-in kernels only."""
+        if motion is not None and not callable(motion):
+            raise TypeError(f"set_motion needs a callable motion(sim, num_cycles) or None, got {motion!r}")
         self._motion = motion
         self._graphs.clear()
 

@@ -137,3 +137,10 @@ def test_fused_default_and_options():
     with pytest.raises(ValueError, match="fused must be None, True or False"):
         SwarmConfig(num_movers=8, fused="yes")
     assert np.isclose(env.fused_step.travel(env.sim, 40), 40 * 1e-3 * 2.0 * fused_mod.TRAVEL_SLACK)
+
+
+def test_set_motion_refuses_a_non_callable():
+    env = _env(True, 2, 8, 0)
+    with pytest.raises(TypeError, match="set_motion needs a callable.*got 3"):
+        env.sim.set_motion(3)
+    assert env.sim._motion is env.fused_step  # unchanged

@@ -167,3 +167,5 @@ def test_observe_writes_own_state_then_features(rng, jerk, carry):
     assert local.nonfinite.tolist() == [0, 1, 0], f"{rng}"
     with pytest.raises(ValueError, match="observation rows"):
         local.observe(pos3, vel3, out[..., 1:], goals=goals, acc=acc, carrying=carrying)
+    with pytest.raises(ValueError, match=r"goals must have shape \(3, "):
+        local.observe(pos3, vel3, out, goals=goals[:, :-1], acc=acc, carrying=carrying)

@@ -125,3 +125,13 @@ def test_placer_leaves_its_grid_clean_and_places_only_where_asked(rng):
         again = before.clone()
         q.place_async(again, mask, rounds=3, hold=hold)
         assert torch.equal(again, xy), f"{rng}: a reused grid placed differently"
+
+
+def test_place_async_refuses_a_bad_out_tensor():
+    placer = Placer(Layout(np.ones((4, 4), dtype=np.int32)), 3, 2, device="cpu", seed=1)
+    xy = placer.sample()
+    mask = torch.zeros(2, 3, dtype=torch.bool)
+    for out, what in ((torch.zeros(2, 3, dtype=torch.int32), "torch.int32"), (torch.zeros(2, 4, dtype=torch.bool),
+                                                                             r"\(2, 4\)")):
+        with pytest.raises(ValueError, match=f"out must be a bool tensor of shape \\(2, 3\\).*{what}"):
+            placer.place_async(xy, mask, out=out)

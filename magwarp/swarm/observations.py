@@ -114,9 +114,14 @@ class LocalObservations:
             raise ValueError("acceleration and carrying columns come after the own state: give goals too")
         own = 4 * (goals is not None) + 2 * (acc is not None) + (carrying is not None)
         shape = (self.num_worlds, self.num_movers, own + self.dim)
-        if tuple(out.shape) != shape or out.dtype != torch.float32 or not out.is_contiguous():
-            raise ValueError(f"observation rows must be a contiguous float32 tensor of shape {shape}, got "
-                             f"{out.dtype} {tuple(out.shape)}")
+        dev = torch.device(wp.device_to_torch(self.device))
+        if tuple(out.shape) != shape or out.dtype != torch.float32 or not out.is_contiguous() or out.device != dev:
+            raise ValueError(f"observation rows must be a contiguous float32 tensor of shape {shape} on {dev}, got "
+                             f"{out.dtype} {tuple(out.shape)} on {out.device}")
+        for name, t, tail in (("goals", goals, (2,)), ("acc", acc, (2,)), ("carrying", carrying, ())):
+            want = (self.num_worlds, self.num_movers, *tail)
+            if t is not None and (tuple(t.shape) != want or t.device != dev):
+                raise ValueError(f"{name} must have shape {want} on {dev}, got {tuple(t.shape)} on {t.device}")
         self._launch(pos, vel, out, own, goals, acc, carrying)
         self._view(out, own)
         return out

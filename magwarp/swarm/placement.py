@@ -270,6 +270,11 @@ class Placer:
         still unplaced (their rows of ``xy`` are unchanged), written into ``out`` when given. Work: per mover of the
         worlds with movers to place (the others' threads exit at once)."""
         xy, mask = self._check(xy, mask)
+        if out is not None and (not isinstance(out, torch.Tensor) or tuple(out.shape) != tuple(mask.shape)
+                                or out.dtype != torch.bool or out.device != self.torch_device):
+            raise ValueError(f"out must be a bool tensor of shape {tuple(mask.shape)} on {self.torch_device}, got "
+                             f"{getattr(out, 'dtype', type(out))} {tuple(getattr(out, 'shape', ()))} on "
+                             f"{getattr(out, 'device', None)}")
         with torch_stream(self.device):
             pos = self._begin(xy, mask, hold)
             self._rounds(pos, int(rounds))
