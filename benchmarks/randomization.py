@@ -62,6 +62,9 @@ ENVS = {
     "magwarp/PushBox-v0": {"off": {}, "terms": {"randomization": PUSH_TERMS},
                            "full": {"randomization": PUSH_TERMS, **SIM2REAL}},
 }
+#: settings that split "full" into its parts (``--settings``): the terms with latency only, with the sensors only
+PARTS = {env_id: {"latency": {**s["terms"], "actuation": SIM2REAL["actuation"]},
+                  "sensors": {**s["terms"], "sensors": SIM2REAL["sensors"]}} for env_id, s in ENVS.items()}
 
 
 #: torch ops that launch no kernel (views, allocations, conversions to the same dtype)
@@ -174,13 +177,20 @@ def main(argv=None) -> int:
     p.add_argument("--env", default=None, help=f"one env id (default: {', '.join(ENVS)})")
     p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 64,256 on CPU, 4096,65536 on GPU)")
     p.add_argument("--steps", type=int, default=20)
-    p.add_argument("--register-rows", default=None, choices=("all", "f32", "sizes", "none"),
+    p.add_argument("--register-rows", default=None, choices=("all", "f32", "sizes", "none", "soa"),
                    help="which per-world rows the general register kernel holds (magwarp.kernels.options.REGISTER_ROWS;"
                         " default: the library's); each setting compiles its own kernel")
     p.add_argument("--kernel-times", type=int, default=0, metavar="N",
                    help="also profile each setting's step at N envs on CUDA: per-kernel time per step (us)")
+    p.add_argument("--settings", default="off,terms,full",
+                   help="comma-separated settings (off, terms, full; latency and sensors: the terms with that part of "
+                        "full alone); off is always run first, as the base of the cost")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
+    wanted = ["off"] + [s for s in args.settings.split(",") if s and s != "off"]
+    unknown = [s for s in wanted if s not in ("off", "terms", "full", "latency", "sensors")]
+    if unknown:
+        p.error(f"--settings: unknown setting(s) {', '.join(unknown)} (known: off, terms, full, latency, sensors)")
     from magwarp.kernels import options as kernel_options
 
     if args.register_rows is not None:
@@ -193,7 +203,8 @@ def main(argv=None) -> int:
         sizes = ([int(s) for s in args.num_envs.split(",")] if args.num_envs else
                  ([64, 256] if device == "cpu" else [4096, 16384, 65536]))
         for env_id in [args.env] if args.env else list(ENVS):
-            counts = {name: count_launches(env_id, device, **kwargs) for name, kwargs in ENVS[env_id].items()}
+            settings = {name: {**ENVS[env_id], **PARTS[env_id]}[name] for name in wanted}
+            counts = {name: count_launches(env_id, device, **kwargs) for name, kwargs in settings.items()}
             for name, c in counts.items():
                 if c:
                     graph = f"; graph kernels: {c['graph_kernels']}" if "graph_kernels" in c else ""
@@ -201,7 +212,7 @@ def main(argv=None) -> int:
                           f"({c['launch_names']}{graph})", flush=True)
             times = {}
             if args.kernel_times and device != "cpu":
-                for name, kwargs in ENVS[env_id].items():
+                for name, kwargs in settings.items():
                     try:
                         times[name] = kernel_times(env_id, device, args.kernel_times, **kwargs)
                     except Exception as e:  # noqa: BLE001 - a profiler without CUPTI: the timings still stand
@@ -212,7 +223,7 @@ def main(argv=None) -> int:
                           f"total {sum(times[name].values()):.1f}; {top}", flush=True)
             for n in sizes:
                 base = None
-                for name, kwargs in ENVS[env_id].items():
+                for name, kwargs in settings.items():
                     res = raw_env_row(env_id, n, device, args.steps, **kwargs)
                     base = res if name == "off" else base
                     cost = 100.0 * (res["step_ms"] / base["step_ms"] - 1.0)

@@ -213,7 +213,7 @@ class PlanarRandomizer(EventRunner):
                       inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, self._table,
                               self._targets_wp, self._nominal_wp, wp.from_torch(self._key), int(self._body),
                               wp.from_torch(self._counter), params, m.radius, m.half_size, m.margins],
-                      outputs=[m.body])
+                      outputs=[m.body, m.body_t32, m.body_t64])
         return True
 
     def _scale_inertia(self) -> bool:

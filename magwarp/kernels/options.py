@@ -32,11 +32,13 @@ MODULE_OPTIONS: dict[str, bool] = {**DEFAULT_OPTIONS, **_parse(os.environ.get("M
 #: Which of a world's per-world rows the general fused register kernel
 #: (:func:`magwarp.kernels.step.make_register_kernel`, domain randomisation) holds in registers for the whole step:
 #: ``"all"`` (body rows and collision sizes), ``"f32"`` (the same less the body rows' float64 limits, read every
-#: cycle), ``"sizes"`` (collision sizes only; body rows read every cycle) or ``"none"`` (every row read every cycle, as
-#: the nominal kernel reads its one shared row). Registers save a memory read per cycle but can spill (the kernel is at
-#: 255 registers on sm_90): ``MAGWARP_REGISTER_ROWS`` picks the variant, read once at import, a tuning knob for
-#: benchmarks (``benchmarks/randomization.py --register-rows``), not an API.
-REGISTER_ROWS_CHOICES = ("all", "f32", "sizes", "none")
+#: cycle), ``"sizes"`` (collision sizes only; body rows read every cycle), ``"none"`` (every row read every cycle, as
+#: the nominal kernel reads its one shared row) or ``"soa"`` (collision sizes held, the body rows read every cycle
+#: from their transposed copy, one transaction per warp and field: :func:`magwarp.kernels.params.load_body`).
+#: Registers save a memory read per cycle but can spill (the kernel is at 255 registers on sm_90):
+#: ``MAGWARP_REGISTER_ROWS`` picks the variant, read once at import, a tuning knob for benchmarks
+#: (``benchmarks/randomization.py --register-rows``), not an API.
+REGISTER_ROWS_CHOICES = ("all", "f32", "sizes", "none", "soa")
 # "f32" was the fastest in one H100 run of the four (B0, 65,536 envs, every planar term: +25% over no terms, against
 # +32-36% for the others; benchmarks/results/randomization_rows_*_gpu.json; calls vary by about 5 points)
 REGISTER_ROWS: str = os.environ.get("MAGWARP_REGISTER_ROWS", "f32")

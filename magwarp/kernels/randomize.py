@@ -15,7 +15,7 @@ from __future__ import annotations
 import warp as wp
 
 from magwarp.kernels.options import MODULE_OPTIONS
-from magwarp.kernels.params import MoverParams, pack_mover
+from magwarp.kernels.params import MoverParams, pack_mover, store_body
 from magwarp.types import Body
 
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
@@ -155,6 +155,8 @@ def apply_terms(
     margins: wp.array(dtype=wp.vec2),
     # State out:
     body: wp.array2d(dtype=Body),
+    body_t32: wp.array3d(dtype=wp.float32),  # the transposed rows (kernels.params.store_body)
+    body_t64: wp.array3d(dtype=wp.float64),
 ):
     """Fire the terms of ``mode`` due now for one world (one thread per world), in their order (the one that fired
     last sets a field), then pack its body rows (:func:`~magwarp.kernels.params.pack_mover`)."""
@@ -190,4 +192,4 @@ def apply_terms(
     counter[w] = counter[w] + 1
     if pack != 0:
         for m in range(body.shape[1]):
-            body[w, m] = pack_mover(params, w, m)
+            store_body(pack_mover(params, w, m), w, m, body, body_t32, body_t64)

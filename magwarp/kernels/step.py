@@ -34,6 +34,7 @@ from magwarp.kernels.collision import (collision_flags, hits_wall_cs, model_row,
 from magwarp.kernels.dynamics import integrate_body, integrate_planar64, planar_acceleration64, sync_planar64
 from magwarp.kernels.impedance import default_force
 from magwarp.kernels.options import MODULE_OPTIONS
+from magwarp.kernels.params import body_f32, body_f64, load_body, row_body
 from magwarp.types import Body, Collision, Grid, Impedance, Limits, Planar64, Pose, make_pose
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
@@ -87,45 +88,6 @@ def gravity_torque(com: wp.vec3, q: wp.quat) -> bool:
     if com[0] != 0.0 or com[1] != 0.0:
         return True
     return com[2] != 0.0 and (q[0] != 0.0 or q[1] != 0.0)
-
-
-#: one body row in registers: its float32 fields (mass, inv_mass, inertia, damp_lin, damp_rot, k_lin, k_rot, com)
-#: and its float64 ones (drive_gain, v_max, a_max, j_max)
-BodyF32 = wp.types.vector(length=20, dtype=wp.float32)
-BodyF64 = wp.types.vector(length=4, dtype=wp.float64)
-
-
-@wp.func
-def body_f32(b: Body) -> BodyF32:
-    """The float32 fields of a body row, as :func:`row_body` takes them."""
-    return BodyF32(b.mass, b.inv_mass, b.inertia[0], b.inertia[1], b.inertia[2], b.damp_lin[0], b.damp_lin[1],
-                   b.damp_lin[2], b.damp_rot[0], b.damp_rot[1], b.damp_rot[2], b.k_lin[0], b.k_lin[1], b.k_lin[2],
-                   b.k_rot[0], b.k_rot[1], b.k_rot[2], b.com[0], b.com[1], b.com[2])
-
-
-@wp.func
-def body_f64(b: Body) -> BodyF64:
-    """The float64 fields of a body row, as :func:`row_body` takes them."""
-    return BodyF64(b.drive_gain, b.v_max, b.a_max, b.j_max)
-
-
-@wp.func
-def row_body(f: BodyF32, d: BodyF64) -> Body:
-    """The body row held in registers as :func:`body_f32` and :func:`body_f64` (the same bits)."""
-    b = Body()
-    b.mass = f[0]
-    b.inv_mass = f[1]
-    b.inertia = wp.vec3(f[2], f[3], f[4])
-    b.damp_lin = wp.vec3(f[5], f[6], f[7])
-    b.damp_rot = wp.vec3(f[8], f[9], f[10])
-    b.k_lin = wp.vec3(f[11], f[12], f[13])
-    b.k_rot = wp.vec3(f[14], f[15], f[16])
-    b.com = wp.vec3(f[17], f[18], f[19])
-    b.drive_gain = d[0]
-    b.v_max = d[1]
-    b.a_max = d[2]
-    b.j_max = d[3]
-    return b
 
 
 @functools.cache
@@ -299,6 +261,8 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
         radius: wp.array2d(dtype=float),
         half_size: wp.array2d(dtype=wp.vec2),
         margins: wp.array(dtype=wp.vec2),
+        body_t32: wp.array3d(dtype=wp.float32),  # the body rows transposed (kernels.params.store_body)
+        body_t64: wp.array3d(dtype=wp.float64),
         act: act_type,  # the actuator's parameters (a NoActuator without one)
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
@@ -391,12 +355,15 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
     nominal one reads the one shared row (cached) every cycle. ``register_rows`` (:data:`~magwarp.kernels.options.
     REGISTER_ROWS`): which rows the general variant holds: ``"all"``, ``"f32"`` (the body rows' float32 fields and the
     collision sizes; the float64 limits read every cycle), ``"sizes"`` (collision sizes; body rows read every cycle)
-    or ``"none"`` (read every cycle, as the nominal variant does); the same results either way.
+    or ``"none"`` (read every cycle, as the nominal variant does) or ``"soa"`` (collision sizes held; the body rows read
+    every cycle from their transposed copy, :func:`~magwarp.kernels.params.load_body`, where a warp's reads of a field
+    are one transaction); the same results either way.
     """
     M = int(num_movers)
     body_regs = bool(not nominal and register_rows in ("all", "f32"))
     f64_regs = bool(body_regs and register_rows == "all")
-    size_regs = bool(not nominal and register_rows in ("all", "f32", "sizes"))
+    soa_rows = bool(not nominal and register_rows == "soa")
+    size_regs = bool(not nominal and register_rows in ("all", "f32", "sizes", "soa"))
     advance_pose = make_advance_kernel(force_fn, latency, nominal, actuator)[2]
     act_type = actuator.params_type if actuator is not None else NoActuator
     Rows3 = wp.types.matrix(shape=(M, 3), dtype=wp.float32)
@@ -420,6 +387,8 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
         radius: wp.array2d(dtype=float),
         half_size: wp.array2d(dtype=wp.vec2),
         margins: wp.array(dtype=wp.vec2),
+        body_t32: wp.array3d(dtype=wp.float32),  # the body rows transposed (kernels.params.store_body)
+        body_t64: wp.array3d(dtype=wp.float64),
         act: act_type,  # the actuator's parameters (a NoActuator without one)
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
@@ -514,7 +483,21 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
             for m in range(M):
                 p = make_pose(P[m], wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3]), V[m], Om[m])
                 u = C[m]
-                if wp.static(not body_regs):
+                if wp.static(soa_rows):  # (inline: a function taking the arrays grows the stack frame)
+                    bm = Body()
+                    bm.mass = body_t32[m, 0, w]
+                    bm.inv_mass = body_t32[m, 1, w]
+                    bm.inertia = wp.vec3(body_t32[m, 2, w], body_t32[m, 3, w], body_t32[m, 4, w])
+                    bm.damp_lin = wp.vec3(body_t32[m, 5, w], body_t32[m, 6, w], body_t32[m, 7, w])
+                    bm.damp_rot = wp.vec3(body_t32[m, 8, w], body_t32[m, 9, w], body_t32[m, 10, w])
+                    bm.k_lin = wp.vec3(body_t32[m, 11, w], body_t32[m, 12, w], body_t32[m, 13, w])
+                    bm.k_rot = wp.vec3(body_t32[m, 14, w], body_t32[m, 15, w], body_t32[m, 16, w])
+                    bm.com = wp.vec3(body_t32[m, 17, w], body_t32[m, 18, w], body_t32[m, 19, w])
+                    bm.drive_gain = body_t64[m, 0, w]
+                    bm.v_max = body_t64[m, 1, w]
+                    bm.a_max = body_t64[m, 2, w]
+                    bm.j_max = body_t64[m, 3, w]
+                elif wp.static(not body_regs):
                     bm = body[wb, m]
                 elif wp.static(f64_regs):
                     bm = row_body(BF[m], BD[m])
