@@ -37,7 +37,7 @@ for stage in "$@"; do
       # kernel, 1e3-1e6 movers and B0 at 4096/65536 envs
       timeout 590 python3 benchmarks/magnetics.py --device cuda:0 --accuracy-poses 8 --magpylib-movers 0 --limits '' \
         --fast-sizes '' --exact-sizes '' --table-variants default,yaw24_gap25_55 --per-cycle \
-        --drive-variants hook,in_step_f64 --env-steps 10 --json "$OUT/magnetics_cycle_gpu.json" 2>&1 | grep -v "^Module" | tail -40 ;;
+        --drive-variants ${DRIVES:-hook} --env-steps 10 --json "$OUT/magnetics_cycle_gpu.json" 2>&1 | grep -v "^Module" | tail -40 ;;
     magnetics_sweep)
       # #17: the shipped B0 policy driven magnetically (the in-step drive) as the current limit falls; not timed
       timeout 590 python3 benchmarks/magnetics.py --device cuda:0 --sizes '' --fast-sizes '' --exact-sizes '' \
