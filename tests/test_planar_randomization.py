@@ -140,6 +140,11 @@ def test_terms_draw_from_their_distributions():
     np.testing.assert_allclose(body["inv_mass"], 1.0 / body["mass"], rtol=1e-6)
     np.testing.assert_allclose(body["drive_gain"], MASS / body["mass"], rtol=1e-6)
     np.testing.assert_allclose(body["damp_lin"], 2 * np.sqrt(body["k_lin"] * MASS), rtol=1e-6)
+    # independent across components and movers (each its own generator state): no correlation beyond chance
+    bound = 4 / math.sqrt(n)
+    for x in (np.log(body["k_lin"].reshape(-1, 3).astype(np.float64)), mass.reshape(n, 3), a):
+        c = np.corrcoef(x.reshape(-1, 3).T)
+        assert np.abs(c[np.triu_indices(3, 1)]).max() < bound
 
 
 def test_only_the_targeted_worlds_and_movers_change():
@@ -286,6 +291,101 @@ def test_interval_terms_fire_every_n_steps():
     assert changed == [False, False, True, False, False, True]
 
 
+def test_last_due_term_wins_per_field_and_mover():
+    """Two terms of one field and mover: the later one in the table sets it (a payload term also its offset and
+    known); of two interval terms, the later one wins only at the steps where it is due."""
+    terms = [EventTerm("mover_mass", Uniform(2.0, 2.5)),
+             EventTerm("mover_mass", Uniform(5.0, 5.5), targets=(1,)),
+             EventTerm("payload_mass", Uniform(0.1, 0.2), offset=(0.01, 0.0, 0.0), known=True),
+             EventTerm("payload_mass", Uniform(0.3, 0.4), offset=(0.0, 0.0, 0.005), targets=(2,)),
+             EventTerm("a_max", Uniform(1.0, 2.0), mode="interval", interval_steps=2),
+             EventTerm("a_max", Uniform(5.0, 6.0), mode="interval", interval_steps=3, targets=(0,))]
+    env = make(5, terms)
+    p, r = env.sim.mover_params, env.randomizer
+
+    def within(x, lo, hi):
+        x = np.asarray(x)
+        return bool(((x >= lo) & (x <= hi)).all())
+
+    mass, pay = p["mass"].numpy(), p["payload"].numpy()
+    assert within(mass[:, [0, 2]], 2.0, 2.5) and within(mass[:, 1], 5.0, 5.5)
+    assert within(pay[:, :2], 0.1, 0.2) and within(pay[:, 2], 0.3, 0.4)
+    np.testing.assert_array_equal(p["payload_offset"][:, :2].numpy(), np.broadcast_to([0.01, 0.0, 0.0], (5, 2, 3)))
+    np.testing.assert_array_equal(p["payload_offset"][:, 2].numpy(), np.broadcast_to([0.0, 0.0, 0.005], (5, 3)))
+    np.testing.assert_array_equal(p["payload_known"].numpy(), np.where([True, True, False], pay, 0.0))
+    np.testing.assert_allclose(env.sim.model.body.numpy()["mass"], mass + pay, rtol=1e-6)  # packed after the draws
+    counter = r._counter.clone()
+    previous = p["a_max"].clone()
+    for step in range(1, 7):
+        r.step()
+        a = p["a_max"].numpy()
+        two, three = step % 2 == 0, step % 3 == 0
+        if three:
+            assert within(a[:, 0], 5.0, 6.0), step
+        elif two:
+            assert within(a[:, 0], 1.0, 2.0), step
+        if two:
+            assert within(a[:, 1:], 1.0, 2.0) and np.all(a[:, 1:] != previous[:, 1:].numpy()), step
+        else:
+            assert torch.equal(p["a_max"][:, 1:], previous[:, 1:]), step
+        assert torch.equal(p["a_max"], previous) == (not (two or three)), step
+        previous = p["a_max"].clone()
+    assert torch.equal(r._counter, counter + 4)  # one per firing (steps 2, 3, 4 and 6), whatever fired in it
+
+
+def test_worlds_not_drawn_keep_rows_and_counters_bit_for_bit():
+    """A reset firing for some worlds: the others keep every row (body, box sizes, both margins, the parameters)
+    bit for bit and their counters; the drawn ones advance theirs by one and get every component drawn."""
+    terms = [EventTerm("collision_half_size", Uniform(0.05, 0.06)),
+             EventTerm("collision_margin", Uniform(0.001, 0.002)),
+             EventTerm("wall_margin", Uniform(0.003, 0.004)),
+             EventTerm("stiffness_lin", Uniform(0.7, 1.3), op="scale", targets=(0, 2))]
+    env = make(6, terms, collision_shape="box", collision_size=(0.06, 0.06))
+    sim, r = env.sim, env.randomizer
+    before = {"body": sim.model.body.numpy().copy(), "half": sim.half_sizes.clone(), "margins": sim.margins.clone(),
+              "counter": r._counter.clone(), **{k: v.clone() for k, v in sim.mover_params.items()}}
+    mask = torch.tensor([True, False, False, True, False, True])
+    r.reset(mask)
+    keep = ~mask
+    assert same(sim.model.body.numpy()[keep.numpy()], before["body"][keep.numpy()])
+    for name, now in (("half", sim.half_sizes), ("margins", sim.margins), ("counter", r._counter),
+                      *sim.mover_params.items()):
+        assert torch.equal(now[keep], before[name][keep]), name
+    assert torch.equal(r._counter[mask], before["counter"][mask] + 1)
+    half, margins = sim.half_sizes[mask].numpy(), sim.margins[mask].numpy()
+    assert half.min() >= np.float32(0.05) and half.max() <= np.float32(0.06) and np.all(half[..., 0] != half[..., 1])
+    assert np.all((margins[:, 0] >= np.float32(0.001)) & (margins[:, 0] <= np.float32(0.002)))
+    assert np.all((margins[:, 1] >= np.float32(0.003)) & (margins[:, 1] <= np.float32(0.004)))
+    k_lin = sim.mover_params["k_lin"]
+    assert torch.equal(k_lin[:, 1], before["k_lin"][:, 1])
+    assert torch.all(k_lin[mask][:, [0, 2]] != before["k_lin"][mask][:, [0, 2]])
+
+
+@pytest.mark.parametrize("per_thread", [1, 2])
+def test_draws_do_not_depend_on_other_worlds_or_the_thread_layout(per_thread):
+    """Each world, mover and component draws from its own generator state: a world gets the same values whichever
+    other worlds are drawn for in the same firing, and whichever targets share a thread (the GPU's layout: one per
+    thread; the CPU's: all of a world's)."""
+    terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
+             EventTerm("stiffness_rot", Gaussian(1.0, 0.1, clip=(0.7, 1.3)), op="scale"),
+             EventTerm("payload_mass", Uniform(0.0, 0.2), targets=(0, 2)),
+             EventTerm("wall_margin", Uniform(0.0, 0.002))]
+    a, b, c = (make(6, terms, seed=5) for _ in range(3))
+    assert a.randomizer._per_thread == 3  # the CPU's
+    c.randomizer._per_thread = per_thread
+    everyone = torch.ones(6, dtype=torch.bool)
+    a.randomizer.reset(everyone)
+    c.randomizer.reset(everyone)
+    b.randomizer.reset(torch.tensor([False, True, False, False, True, False]))
+    assert same(a.sim.model.body.numpy(), c.sim.model.body.numpy())
+    assert torch.equal(a.randomizer._counter, c.randomizer._counter) and torch.equal(a.sim.margins, c.sim.margins)
+    for w in (1, 4):
+        assert same(a.sim.model.body.numpy()[w], b.sim.model.body.numpy()[w]), w
+        for key in ("mass", "k_rot", "payload"):
+            assert torch.equal(a.sim.mover_params[key][w], b.sim.mover_params[key][w]), (w, key)
+        assert torch.equal(a.sim.margins[w], b.sim.margins[w])
+
+
 def test_preset_and_mappings_from_json():
     env = make(4, "sim2real")
     assert {t.field for t in env.randomizer.terms} >= {"mover_mass", "payload_mass", "stiffness_lin", "a_max"}
@@ -372,11 +472,12 @@ def _rand_init(seed: int, offset: int) -> int:
 
 
 class _Stream:
-    """A numpy reference of the kernel's per-world generator (Warp's randf / randn)."""
+    """A numpy reference of the kernel's generator for one component (Warp's randf / randn): world ``world``'s seed
+    for its firing ``counter``, then the component's own ``stream``."""
 
-    def __init__(self, key: int, counter: int, world: int):
-        s = _rand_init(key & 0xFFFFFFFF, counter)
-        self.state = _rand_init(s, world)
+    def __init__(self, key: int, counter: int, world: int, stream: int):
+        seed = _rand_init(_rand_init(key & 0xFFFFFFFF, counter), world)
+        self.state = _rand_init(seed, stream)
 
     def randf(self) -> np.float32:
         self.state = _pcg(self.state)
@@ -418,13 +519,13 @@ def test_apply_terms_matches_numpy(rng):
             assert same(env.sim.model.body.numpy()[w], body0[w])
             continue
         assert int(r._counter[w]) == counter[w] + 1
-        s = _Stream(key, int(counter[w]), w)
         ref = {k: v[w].clone().double().numpy() for k, v in before.items()}
-        for t in terms:
+        for i, t in enumerate(terms):
             field, count = t.field, r._targets[t.field]
             nom = r.nominal[field].double().numpy().reshape(count, -1)
             for m in (t.targets if t.targets is not None else range(count)):
                 for k in range(nom.shape[1]):
+                    s = _Stream(key, int(counter[w]), w, (i * env.sim.num_movers + m) * 3 + k)
                     d = t.dist
                     if isinstance(d, Gaussian):
                         v = float(np.clip(d.mean + d.std * s.randn(), *d.clip))

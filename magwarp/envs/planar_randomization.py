@@ -30,12 +30,14 @@ Fields, one draw per target (movers; the margins: one per world), ``dim`` compon
   the env with the largest size you draw (``collision_size``, ``safety_margin``) to keep starts collision free.
   Worlds of more than 32 movers (grid broad phase, its cells sized at build) refuse sizes above the built ones.
 
-Every firing is one kernel launch (:func:`magwarp.kernels.randomize.apply_terms`: the draws, the operations, the
-writes for the targeted worlds and movers, and the packing of their body rows), from the torch step and from inside
-the fused step's graph alike. Its draws come from Warp's counter-based generator keyed by the env's seed (the one it was
-built with, then ``reset(seed=...)``'s) and a per-world count of firings, not from the env's torch generator: the same
-seed reproduces them, and the env's other draws (goals, starts) are those of an env without terms. (Until #24's cost
-work they were torch draws from the env's generator: the values for a given seed changed then.) ``interval`` terms
+Every firing is two kernel launches over (world, mover) threads (:func:`magwarp.kernels.randomize.apply_terms`: the
+draws, the operations and the writes for the targeted worlds and movers; :func:`~magwarp.kernels.randomize.pack_rows`:
+the packing of their body rows), from the torch step and from inside the fused step's graph alike. The draws come
+from Warp's counter-based generator keyed by the env's seed (the one it was built with, then ``reset(seed=...)``'s),
+a per-world count of firings, and the term, mover and component (each component its own generator state), not from
+the env's torch generator: the same seed reproduces them, and the env's other draws (goals, starts) are those of an
+env without terms. (Until #24's cost work they were torch draws from the env's generator, then, until its second cost
+pass, one generator state per world drawn in turn: the values for a given seed changed each time.) ``interval`` terms
 fire before each simulated env step.
 """
 
@@ -182,7 +184,10 @@ class PlanarRandomizer(EventRunner):
             table.append(row)
         self._table = wp.array(table, dtype=krand.Term, device=dev)
         self._targets_wp = wp.array(targets, dtype=wp.int32, device=dev)
-        self._nominal_wp = wp.array(nominal, dtype=wp.float64, device=dev)
+        self._nominal_wp = wp.array(nominal, dtype=wp.vec3d, device=dev)
+        # targets per thread: one on a GPU (the firing's latency is one target's terms), all on the CPU (a thread's
+        # setup dominates there); the draws do not depend on it
+        self._per_thread = 1 if sim.device.is_cuda else width
         self._key = torch.tensor([rng_key(self.env._generator.initial_seed())], dtype=torch.int32,
                                  device=self.device)
         self._counter = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
@@ -198,7 +203,7 @@ class PlanarRandomizer(EventRunner):
 
     # ------------------------------------------------------------------ firing
     def _fire(self, mode: str, mask: torch.Tensor | None, current_stream: bool = False) -> bool:
-        """Launch the kernel for the terms of ``mode`` due now (interval: their period divides the step count), for the
+        """Launch the kernels for the terms of ``mode`` due now (interval: their period divides the step count), for the
         worlds in ``mask`` (all if None); nothing when none is due. ``current_stream``: on Warp's current stream (inside
         a captured env step), else on the simulator's."""
         due = [t for t in self.terms if t.mode == mode and (mode != "interval" or self.steps % t.interval_steps == 0)]
@@ -208,11 +213,16 @@ class PlanarRandomizer(EventRunner):
         params = sim.mover_param_struct(self._scale_inertia()) if self._body else self._empty_params
         m = sim.model
         mask_wp = self._all if mask is None else wp.from_torch(mask, dtype=wp.bool)
+        worlds = [int(mask is None), mask_wp, self._per_thread]
+        counter = wp.from_torch(self._counter)
+        dim = (self.num_worlds, -(-self._targets_wp.shape[1] // self._per_thread))
         with contextlib.nullcontext() if current_stream else sim._on_stream():
-            wp.launch(krand.apply_terms, dim=self.num_worlds, device=sim.device,
-                      inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, self._table,
-                              self._targets_wp, self._nominal_wp, wp.from_torch(self._key), int(self._body),
-                              wp.from_torch(self._counter), params, m.radius, m.half_size, m.margins],
+            wp.launch(krand.apply_terms, dim=dim, device=sim.device,
+                      inputs=[MODE_CODES[mode], int(self.steps), *worlds, self._table, self._targets_wp,
+                              self._nominal_wp, wp.from_torch(self._key), counter],
+                      outputs=[params, m.radius, m.half_size, m.margins])
+            wp.launch(krand.pack_rows, dim=dim, device=sim.device,
+                      inputs=[*worlds, int(self._body), params, counter],
                       outputs=[m.body, m.body_t32, m.body_t64])
         return True
 
@@ -221,17 +231,17 @@ class PlanarRandomizer(EventRunner):
         return "mover_mass" in used and "mover_inertia" not in used
 
     def reset(self, mask: torch.Tensor) -> None:
-        """Reset-mode terms for the worlds in ``mask`` (``[W]`` bool on the device): one launch, no host sync."""
+        """Reset-mode terms for the worlds in ``mask`` (``[W]`` bool on the device): two launches, no host sync."""
         self._fire("reset", mask)
 
     def step(self) -> None:
-        """Count an env step; interval terms whose period divides the count fire (all worlds, one launch)."""
+        """Count an env step; interval terms whose period divides the count fire (all worlds, two launches)."""
         self.steps += 1
         self._fire("interval", None)
 
     def commit(self, mask: torch.Tensor | None, current_stream: bool = False) -> None:
         """Pack the body fields of the worlds in ``mask`` (all if None) from the simulator's parameter tensors (after
-        writes into them from outside the terms): one kernel. The terms' own firings pack as they draw."""
+        writes into them from outside the terms): one kernel. The terms' own firings pack after they draw."""
         if any(f in self.values for f in BODY_KEYS):
             self.sim.commit_mover_params(mask, scale_inertia=self._scale_inertia(), current_stream=current_stream)
 
