@@ -185,11 +185,11 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       done ;;
     rand_rows)
       # #24: B0's randomisation cost at 65,536 envs split into its parts (terms, + latency, + sensors, full) for each
-      # register-row variant of the general fused kernel (ROWS, default "f32 soa none"; one JSON each)
-      for rows in ${ROWS:-f32 soa none}; do
+      # register-row variant of the general fused kernel (ROWS, default "f32 none"; one JSON each)
+      for rows in ${ROWS:-f32 none}; do
         timeout 170 python3 benchmarks/randomization.py --device cuda:0 --num-envs 65536 \
           --env magwarp/TrajectoryPlanningB0-v0 --register-rows $rows --settings terms,latency,sensors,full \
-          --json "$OUT/randomization_parts_$rows.json" 2>&1 | grep -E "^  cuda.*num_envs" | tail -6
+          --json "$OUT/randomization_parts_${rows}_gpu.json" 2>&1 | grep -E "^  cuda.*num_envs" | tail -6
       done ;;
     robustness)
       # #24: the shipped B0 policy and the randomisation-trained ones (paper.py runs b0_ppo_dr and b0_ppo_dr_ft,

@@ -177,7 +177,7 @@ def main(argv=None) -> int:
     p.add_argument("--env", default=None, help=f"one env id (default: {', '.join(ENVS)})")
     p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 64,256 on CPU, 4096,65536 on GPU)")
     p.add_argument("--steps", type=int, default=20)
-    p.add_argument("--register-rows", default=None, choices=("all", "f32", "sizes", "none", "soa"),
+    p.add_argument("--register-rows", default=None, choices=("all", "f32", "sizes", "none"),
                    help="which per-world rows the general register kernel holds (magwarp.kernels.options.REGISTER_ROWS;"
                         " default: the library's); each setting compiles its own kernel")
     p.add_argument("--kernel-times", type=int, default=0, metavar="N",

@@ -348,8 +348,6 @@ class Simulator:
             half_size=wp.array(half.astype(np.float32)[None], dtype=wp.vec2, device=dev),
             margins=wp.array(margins, dtype=wp.vec2, device=dev),
             hover_z=self.mover.hover_z,
-            body_t32=wp.zeros((m, 20, 0), dtype=wp.float32, device=dev),
-            body_t64=wp.zeros((m, 4, 0), dtype=wp.float64, device=dev),
         )
 
     def _check_stiffness(self, k_lin, k_rot, hold, dt: float) -> None:
@@ -455,10 +453,6 @@ class Simulator:
             if arr.shape[0] != self.num_worlds:
                 rows = np.repeat(arr.numpy(), self.num_worlds, axis=0)
                 setattr(self.model, name, wp.array(rows, dtype=arr.dtype, device=self.device))
-                if name == "body":  # and its transposed copy (kernels.params.store_body)
-                    t32, t64 = kparams.transposed_rows(rows)
-                    self.model.body_t32 = wp.array(t32, dtype=wp.float32, device=self.device)
-                    self.model.body_t64 = wp.array(t64, dtype=wp.float64, device=self.device)
                 self._graphs.clear()
         if "body" in names and self._nominal_body:
             self._nominal_body = False  # body rows may now differ from the mover as built: the general kernels
@@ -522,8 +516,7 @@ class Simulator:
             self._pack_mask.copy_(mask)
         with contextlib.nullcontext() if current_stream else self._on_stream():
             wp.launch(kparams.pack_bodies, dim=(self.num_worlds, self.num_movers), device=self.device,
-                      inputs=[self._pack_mask_wp, self.mover_param_struct(scale_inertia), self.model.body,
-                              self.model.body_t32, self.model.body_t64])
+                      inputs=[self._pack_mask_wp, self.mover_param_struct(scale_inertia), self.model.body])
 
     def mover_param_struct(self, scale_inertia: bool = False) -> kparams.MoverParams:
         """:attr:`mover_params` as the kernels' :class:`~magwarp.kernels.params.MoverParams` (Warp views of the same
@@ -869,7 +862,7 @@ class Simulator:
             wp.launch(
                 self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
                 inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins,
-                        m.body_t32, m.body_t64, self._act_params, s.cmd, self._delay, s.target_pos, s.target_quat, s.force_aux,
+                        self._act_params, s.cmd, self._delay, s.target_pos, s.target_quat, s.force_aux,
                         self._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
                         s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list],
             )

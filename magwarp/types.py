@@ -137,11 +137,6 @@ class Model:
     half_size: wp.array2d  # vec2 per world and mover, box collision half extents
     margins: wp.array  # vec2 per world: (mover-mover margin, wall margin); Collision holds the configured ones
     hover_z: float
-    # The body rows transposed (float32 [M, 20, W] and float64 [M, 4, W], kernels.params.store_body), kept by every
-    # writer of per-world rows for the step kernels that read them (MAGWARP_REGISTER_ROWS=soa); a world column
-    # count of 0 while the rows are shared.
-    body_t32: wp.array3d | None = None
-    body_t64: wp.array3d | None = None
 
 
 @dataclass

@@ -14,7 +14,6 @@ import torch
 from magwarp.envs.randomization import PRESETS, EventTerm, Gaussian, LogUniform, Uniform
 from magwarp.envs.trajectory import TrajectoryPlanningEnv
 from magwarp.kernels import options as kernel_options
-from magwarp.kernels import params as kparams
 from magwarp.layout import Layout
 from magwarp.sim import Simulator
 
@@ -83,38 +82,6 @@ def test_register_row_variants_equal_bit_for_bit(monkeypatch, rows):
     assert variant._fused_kernel is not default._fused_kernel  # another compiled variant
     for name in ("pos", "quat", "vel", "omega", "acc"):
         assert torch.equal(getattr(default, name), getattr(variant, name)), name
-
-
-def assert_transposed_rows(sim) -> None:
-    """The model's transposed body rows (kernels.params.store_body, read by MAGWARP_REGISTER_ROWS=soa) hold its
-    rows' values bit for bit, field by field."""
-    body = sim.model.body.numpy()
-    t32, t64 = sim.model.body_t32.numpy(), sim.model.body_t64.numpy()
-    assert t32.shape == (body.shape[1], 20, body.shape[0]) and t64.shape == (body.shape[1], 4, body.shape[0])
-    k = 0
-    for name, n in kparams.BODY_F32_FIELDS:
-        want = np.asarray(body[name], np.float32).reshape(*body.shape, n).transpose(1, 2, 0)
-        assert np.array_equal(t32[:, k:k + n], want), name
-        k += n
-    for k, name in enumerate(kparams.BODY_F64_FIELDS):
-        assert np.array_equal(t64[:, k], body[name].T), name
-
-
-def test_transposed_rows_follow_every_writer(rng):
-    # make_per_world copies, commit_mover_params packs (masked) and the terms' kernel packs (reset worlds): each keeps
-    # the transposed copy equal to the rows.
-    env = make(5, [EventTerm("mover_mass", Uniform(1.0, 1.6)), EventTerm("v_max", Uniform(1.0, 2.0)),
-                   EventTerm("payload_mass", Uniform(0.1, 0.3), offset=(0.01, -0.02, 0.03))])
-    sim = env.sim
-    assert_transposed_rows(sim)
-    sim.mover_params["k_lin"].mul_(torch.as_tensor(rng.uniform(0.5, 2.0, (5, 3, 3))))
-    sim.commit_mover_params(torch.as_tensor([True, False, True, False, True]))
-    assert_transposed_rows(sim)
-    env.reset(seed=2)
-    env.randomizer.reset(torch.as_tensor([False, True, False, False, True]))
-    assert_transposed_rows(sim)
-    shared = Simulator(Layout.grid(4, 3), num_movers=3, num_worlds=4, device="cpu")
-    assert sim.model.body_t32.shape[2] == 5 and shared.model.body_t32.shape == (3, 20, 0)  # none while shared
 
 
 def test_terms_draw_from_their_distributions():

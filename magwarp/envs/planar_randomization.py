@@ -223,7 +223,7 @@ class PlanarRandomizer(EventRunner):
                       outputs=[params, m.radius, m.half_size, m.margins])
             wp.launch(krand.pack_rows, dim=dim, device=sim.device,
                       inputs=[*worlds, int(self._body), params, counter],
-                      outputs=[m.body, m.body_t32, m.body_t64])
+                      outputs=[m.body])
         return True
 
     def _scale_inertia(self) -> bool:

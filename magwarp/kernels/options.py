@@ -32,15 +32,15 @@ MODULE_OPTIONS: dict[str, bool] = {**DEFAULT_OPTIONS, **_parse(os.environ.get("M
 #: Which of a world's per-world rows the general fused register kernel
 #: (:func:`magwarp.kernels.step.make_register_kernel`, domain randomisation) holds in registers for the whole step:
 #: ``"all"`` (body rows and collision sizes), ``"f32"`` (the same less the body rows' float64 limits, read every
-#: cycle), ``"sizes"`` (collision sizes only; body rows read every cycle), ``"none"`` (every row read every cycle, as
-#: the nominal kernel reads its one shared row) or ``"soa"`` (collision sizes held, the body rows read every cycle
-#: from their transposed copy, one transaction per warp and field: :func:`magwarp.kernels.params.load_body`).
-#: Registers save a memory read per cycle but can spill (the kernel is at 255 registers on sm_90):
-#: ``MAGWARP_REGISTER_ROWS`` picks the variant, read once at import, a tuning knob for benchmarks
-#: (``benchmarks/randomization.py --register-rows``), not an API.
-REGISTER_ROWS_CHOICES = ("all", "f32", "sizes", "none", "soa")
+#: cycle), ``"sizes"`` (collision sizes only; body rows read every cycle) or ``"none"`` (every row read every cycle,
+#: as the nominal kernel reads its one shared row). Registers save a memory read per cycle but can spill (the kernel
+#: is at 255 registers on sm_90): ``MAGWARP_REGISTER_ROWS`` picks the variant, read once at import, a tuning knob for
+#: benchmarks (``benchmarks/randomization.py --register-rows``), not an API.
+REGISTER_ROWS_CHOICES = ("all", "f32", "sizes", "none")
 # "f32" was the fastest in one H100 run of the four (B0, 65,536 envs, every planar term: +25% over no terms, against
-# +32-36% for the others; benchmarks/results/randomization_rows_*_gpu.json; calls vary by about 5 points)
+# +32-36% for the others; benchmarks/results/randomization_rows_*_gpu.json; calls vary by about 5 points). A fifth,
+# the body rows read every cycle from a transposed copy (one transaction per warp and field), measured +65% against
+# f32's +37% (terms, 65,536 envs, randomization_parts_*_gpu.json, 2026-11-25) and was removed.
 REGISTER_ROWS: str = os.environ.get("MAGWARP_REGISTER_ROWS", "f32")
 if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
     raise ValueError(f"MAGWARP_REGISTER_ROWS must be one of {', '.join(REGISTER_ROWS_CHOICES)}, got {REGISTER_ROWS!r}")

@@ -3,7 +3,6 @@ randomisation changes them on the device between steps, with no rebuild)."""
 
 from __future__ import annotations
 
-import numpy as np
 import warp as wp
 
 from magwarp.kernels.options import MODULE_OPTIONS
@@ -13,13 +12,9 @@ wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 
 #: one body row as two vectors: its float32 fields (mass, inv_mass, inertia, damp_lin, damp_rot, k_lin, k_rot, com)
-#: and its float64 ones (drive_gain, v_max, a_max, j_max): the general register step kernel holds rows as these, and
-#: the transposed rows (:func:`store_body`) list the fields in this order
+#: and its float64 ones (drive_gain, v_max, a_max, j_max), as the general register step kernel holds rows
 BodyF32 = wp.types.vector(length=20, dtype=wp.float32)
 BodyF64 = wp.types.vector(length=4, dtype=wp.float64)
-BODY_F32_FIELDS = (("mass", 1), ("inv_mass", 1), ("inertia", 3), ("damp_lin", 3), ("damp_rot", 3), ("k_lin", 3),
-                   ("k_rot", 3), ("com", 3))
-BODY_F64_FIELDS = ("drive_gain", "v_max", "a_max", "j_max")
 
 
 @wp.func
@@ -53,52 +48,6 @@ def row_body(f: BodyF32, d: BodyF64) -> Body:
     b.a_max = d[2]
     b.j_max = d[3]
     return b
-
-
-@wp.func
-def load_body(t32: wp.array3d(dtype=wp.float32), t64: wp.array3d(dtype=wp.float64), w: int, m: int) -> Body:
-    """Mover ``m`` of world ``w``'s body row from the transposed rows (``t32[m, k, w]``: float32 field ``k`` in
-    :func:`body_f32`'s order, ``t64[m, k, w]`` the float64 ones): the threads of a warp, consecutive worlds, read each
-    field from consecutive addresses (one transaction), where reading the rows themselves touches a line per world."""
-    b = Body()
-    b.mass = t32[m, 0, w]
-    b.inv_mass = t32[m, 1, w]
-    b.inertia = wp.vec3(t32[m, 2, w], t32[m, 3, w], t32[m, 4, w])
-    b.damp_lin = wp.vec3(t32[m, 5, w], t32[m, 6, w], t32[m, 7, w])
-    b.damp_rot = wp.vec3(t32[m, 8, w], t32[m, 9, w], t32[m, 10, w])
-    b.k_lin = wp.vec3(t32[m, 11, w], t32[m, 12, w], t32[m, 13, w])
-    b.k_rot = wp.vec3(t32[m, 14, w], t32[m, 15, w], t32[m, 16, w])
-    b.com = wp.vec3(t32[m, 17, w], t32[m, 18, w], t32[m, 19, w])
-    b.drive_gain = t64[m, 0, w]
-    b.v_max = t64[m, 1, w]
-    b.a_max = t64[m, 2, w]
-    b.j_max = t64[m, 3, w]
-    return b
-
-
-@wp.func
-def store_body(b: Body, w: int, m: int, body: wp.array2d(dtype=Body), t32: wp.array3d(dtype=wp.float32),
-               t64: wp.array3d(dtype=wp.float64)):
-    """Write mover ``m`` of world ``w``'s body row, and its transposed copy (:func:`load_body`) where the model keeps
-    one (``t32`` has a column per world; an empty one while the rows are shared)."""
-    body[w, m] = b
-    if t32.shape[2] == 0:
-        return
-    f = body_f32(b)
-    for k in range(20):
-        t32[m, k, w] = f[k]
-    d = body_f64(b)
-    for k in range(4):
-        t64[m, k, w] = d[k]
-
-
-def transposed_rows(rows):
-    """The transposed copies (:func:`load_body`) of body rows ``rows`` (a ``[W, M]`` numpy array of
-    ``Body.numpy_dtype()``): float32 ``[M, 20, W]`` and float64 ``[M, 4, W]`` numpy arrays."""
-    f32 = np.concatenate([np.asarray(rows[name], np.float32).reshape(*rows.shape, n) for name, n in BODY_F32_FIELDS],
-                         axis=-1)
-    f64 = np.stack([np.asarray(rows[name], np.float64) for name in BODY_F64_FIELDS], axis=-1)
-    return np.ascontiguousarray(f32.transpose(1, 2, 0)), np.ascontiguousarray(f64.transpose(1, 2, 0))
 
 
 @wp.func
@@ -185,11 +134,9 @@ def pack_bodies(
     params: MoverParams,
     # State out:
     body: wp.array2d(dtype=Body),
-    body_t32: wp.array3d(dtype=wp.float32),  # the transposed rows (store_body)
-    body_t64: wp.array3d(dtype=wp.float64),
 ):
     """Pack the masked worlds' mover parameters into their body rows (one thread per mover, :func:`pack_mover`)."""
     w, m = wp.tid()
     if not mask[w]:
         return
-    store_body(pack_mover(params, w, m), w, m, body, body_t32, body_t64)
+    body[w, m] = pack_mover(params, w, m)

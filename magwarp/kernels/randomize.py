@@ -25,7 +25,7 @@ from __future__ import annotations
 import warp as wp
 
 from magwarp.kernels.options import MODULE_OPTIONS
-from magwarp.kernels.params import MoverParams, pack_mover, store_body
+from magwarp.kernels.params import MoverParams, pack_mover
 from magwarp.types import Body
 
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
@@ -228,8 +228,6 @@ def pack_rows(
     counter: wp.array(dtype=wp.int32),  # [W] firings drawn per world
     # State out:
     body: wp.array2d(dtype=Body),
-    body_t32: wp.array3d(dtype=wp.float32),  # the transposed rows (kernels.params.store_body)
-    body_t64: wp.array3d(dtype=wp.float64),
 ):
     """After :func:`apply_terms` (the same worlds and threads; launched only when a term is due, as it is): the worlds
     it drew for advance their counter (thread 0) and (``pack``) pack the body rows of the thread's movers
@@ -241,4 +239,4 @@ def pack_rows(
         counter[w] = counter[w] + 1
     if pack != 0:
         for m in range(j * per_thread, wp.min((j + 1) * per_thread, body.shape[1])):
-            store_body(pack_mover(params, w, m), w, m, body, body_t32, body_t64)
+            body[w, m] = pack_mover(params, w, m)

@@ -34,7 +34,7 @@ from magwarp.kernels.collision import (collision_flags, hits_wall_cs, model_row,
 from magwarp.kernels.dynamics import integrate_body, integrate_planar64, planar_acceleration64, sync_planar64
 from magwarp.kernels.impedance import default_force
 from magwarp.kernels.options import MODULE_OPTIONS
-from magwarp.kernels.params import body_f32, body_f64, load_body, row_body
+from magwarp.kernels.params import body_f32, body_f64, row_body
 from magwarp.types import Body, Collision, Grid, Impedance, Limits, Planar64, Pose, make_pose
 
 # Forward simulation only: skipping adjoint code halves the (cold) compile time.
@@ -261,8 +261,6 @@ def make_advance_kernel(force_fn=default_force, latency: bool = False, nominal: 
         radius: wp.array2d(dtype=float),
         half_size: wp.array2d(dtype=wp.vec2),
         margins: wp.array(dtype=wp.vec2),
-        body_t32: wp.array3d(dtype=wp.float32),  # the body rows transposed (kernels.params.store_body)
-        body_t64: wp.array3d(dtype=wp.float64),
         act: act_type,  # the actuator's parameters (a NoActuator without one)
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
@@ -355,15 +353,12 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
     nominal one reads the one shared row (cached) every cycle. ``register_rows`` (:data:`~magwarp.kernels.options.
     REGISTER_ROWS`): which rows the general variant holds: ``"all"``, ``"f32"`` (the body rows' float32 fields and the
     collision sizes; the float64 limits read every cycle), ``"sizes"`` (collision sizes; body rows read every cycle)
-    or ``"none"`` (read every cycle, as the nominal variant does) or ``"soa"`` (collision sizes held; the body rows read
-    every cycle from their transposed copy, :func:`~magwarp.kernels.params.load_body`, where a warp's reads of a field
-    are one transaction); the same results either way.
+    or ``"none"`` (read every cycle, as the nominal variant does); the same results either way.
     """
     M = int(num_movers)
     body_regs = bool(not nominal and register_rows in ("all", "f32"))
     f64_regs = bool(body_regs and register_rows == "all")
-    soa_rows = bool(not nominal and register_rows == "soa")
-    size_regs = bool(not nominal and register_rows in ("all", "f32", "sizes", "soa"))
+    size_regs = bool(not nominal and register_rows in ("all", "f32", "sizes"))
     advance_pose = make_advance_kernel(force_fn, latency, nominal, actuator)[2]
     act_type = actuator.params_type if actuator is not None else NoActuator
     Rows3 = wp.types.matrix(shape=(M, 3), dtype=wp.float32)
@@ -387,8 +382,6 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
         radius: wp.array2d(dtype=float),
         half_size: wp.array2d(dtype=wp.vec2),
         margins: wp.array(dtype=wp.vec2),
-        body_t32: wp.array3d(dtype=wp.float32),  # the body rows transposed (kernels.params.store_body)
-        body_t64: wp.array3d(dtype=wp.float64),
         act: act_type,  # the actuator's parameters (a NoActuator without one)
         # State in:
         cmd: wp.array2d(dtype=wp.vec2),
@@ -483,21 +476,7 @@ def make_register_kernel(force_fn, num_movers: int, latency: bool = False, nomin
             for m in range(M):
                 p = make_pose(P[m], wp.quat(Q[m, 0], Q[m, 1], Q[m, 2], Q[m, 3]), V[m], Om[m])
                 u = C[m]
-                if wp.static(soa_rows):  # (inline: a function taking the arrays grows the stack frame)
-                    bm = Body()
-                    bm.mass = body_t32[m, 0, w]
-                    bm.inv_mass = body_t32[m, 1, w]
-                    bm.inertia = wp.vec3(body_t32[m, 2, w], body_t32[m, 3, w], body_t32[m, 4, w])
-                    bm.damp_lin = wp.vec3(body_t32[m, 5, w], body_t32[m, 6, w], body_t32[m, 7, w])
-                    bm.damp_rot = wp.vec3(body_t32[m, 8, w], body_t32[m, 9, w], body_t32[m, 10, w])
-                    bm.k_lin = wp.vec3(body_t32[m, 11, w], body_t32[m, 12, w], body_t32[m, 13, w])
-                    bm.k_rot = wp.vec3(body_t32[m, 14, w], body_t32[m, 15, w], body_t32[m, 16, w])
-                    bm.com = wp.vec3(body_t32[m, 17, w], body_t32[m, 18, w], body_t32[m, 19, w])
-                    bm.drive_gain = body_t64[m, 0, w]
-                    bm.v_max = body_t64[m, 1, w]
-                    bm.a_max = body_t64[m, 2, w]
-                    bm.j_max = body_t64[m, 3, w]
-                elif wp.static(not body_regs):
+                if wp.static(not body_regs):
                     bm = body[wb, m]
                 elif wp.static(f64_regs):
                     bm = row_body(BF[m], BD[m])
