@@ -135,11 +135,12 @@ def test_env_latency_range_draws_uniformly_per_reset_and_reproduces():
     assert torch.equal(env.sim.latency_cycles, again.sim.latency_cycles)
 
 
-def test_sensor_bias_and_noise_have_the_given_moments():
+@pytest.mark.parametrize("fused", [True, False])
+def test_sensor_bias_and_noise_have_the_given_moments(fused):
     n = 1024
     cfg = SensorConfig(pos_bias=(0.01, -0.02), pos_bias_std=0.005, vel_bias=0.003, vel_bias_std=0.002,
                        pos_noise_std=0.002, vel_noise_std=0.001)
-    env = TrajectoryPlanningEnv(n, "B0", device="cpu", seed=5, sensors=cfg)
+    env = TrajectoryPlanningEnv(n, "B0", device="cpu", seed=5, sensors=cfg, fused=fused)
     obs, _ = env.reset(seed=7)
     bias_p, bias_v = env.sensors.pos_bias.clone(), env.sensors.vel_bias.clone()  # [n, 3, 2]
     for bias, mean, std in ((bias_p, (0.01, -0.02), 0.005), (bias_v, (0.003, 0.003), 0.002)):
