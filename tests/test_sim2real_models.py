@@ -223,7 +223,7 @@ def test_all_models_reproduce_from_a_seed(rng):
         env = TrajectoryPlanningEnv(32, "B0", **{**kw, "seed": env_seed})
         frames = [env.reset(seed=env_seed)[0]["achieved_goal"]]
         for _ in range(4):
-            frames.append(env.step(torch.full((32, 6), 2.0))[0]["observation"])
+            frames.append(env.step(torch.full((32, 6), 2.0))[0]["observation"].clone())  # fused: the env's buffers
         runs.append((env.sim.latency_cycles.clone(), torch.stack([f[:, :6] for f in frames])))
     assert torch.equal(runs[0][0], runs[1][0]) and torch.equal(runs[0][1], runs[1][1]), rng
     assert not torch.equal(runs[0][1], runs[2][1]), rng
