@@ -188,6 +188,25 @@ def test_step_path_choice():
     assert env.step_path == "eager (benchmark metrics)"
 
 
+def test_sensor_draws_match_when_the_step_path_switches_midway():
+    """The sim2real models' counter-based draws follow the env's step count and reseeds on either path: an env that
+    switches between the fused and the torch step (its device clock re-set from the host count) stays bit for bit with
+    a torch-step twin, dropped readings, noise, biases and delays included."""
+    kw = dict(max_episode_steps=4, actuation={"latency_range": [0, 9]},
+              sensors={**SENSORS, "dropout_prob": 0.5})
+    eager, fused = twin_envs("cpu", **kw)
+    gen = torch.Generator().manual_seed(2)
+    assert_same(eager.reset(seed=4), fused.reset(seed=4), "reset")
+    for t in range(16):
+        fused.fused = t not in range(5, 9)
+        assert fused.step_path == ("fused" if fused.fused else "eager (fused=False)")
+        act = (2 * torch.rand(eager.num_envs, 6, generator=gen) - 1) * 10
+        assert_same(eager.step(act), fused.step(act), f"step {t}")
+        if t == 11:  # a reseed midway: the clock counts from it on both
+            assert_same(eager.reset(seed=9), fused.reset(seed=9), "reseed")
+    assert_same(twin_state(eager), twin_state(fused), "state")
+
+
 def test_fused_outputs_stay_valid_through_the_next_step():
     env = TrajectoryPlanningEnv(8, device="cpu", seed=2)
     env.reset(seed=2)

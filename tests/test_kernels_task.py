@@ -7,6 +7,7 @@ import numpy as np
 import warp as wp
 
 from magwarp.kernels import guard as kguard
+from magwarp.kernels import sensor_draws as kdraw
 from magwarp.kernels import task as ktask
 from magwarp.layout import Layout
 from magwarp.sim import Simulator
@@ -20,7 +21,15 @@ def _task(rng, learn_jerk: int) -> ktask.TrajectoryTask:
     t.timeout_steps = int(rng.choice([-1, 2, 4]))
     t.max_episode_steps = int(rng.choice([-1, 5, 8]))
     t.draw_latency = 1
+    t.delay_low, t.delay_span = 2, 7
     return t
+
+
+def _draws(kernel, shape, dtype, key, clock: int, slot: int, *extra) -> np.ndarray:
+    """The counter-based draws of ``slot`` (the fill kernels: tested against numpy in test_sensor_draws.py)."""
+    out = wp.zeros(shape, dtype=dtype, device="cpu")
+    wp.launch(kernel, dim=shape, inputs=[key, wp.int64(clock), slot, *extra], outputs=[out], device="cpu")
+    return out.numpy()
 
 
 def test_trajectory_step_and_obs_match_numpy(rng):
@@ -42,14 +51,15 @@ def test_trajectory_step_and_obs_match_numpy(rng):
     u1 = rng.uniform(-0.3, 1, (W, M, C, 2)).astype(f32)  # some candidates outside the box: the fallback is taken
     u2 = rng.uniform(-0.3, 1, (W, M, C, 2)).astype(f32)
     i1, i2 = rng.integers(0, P, (W, M)), rng.integers(0, P, (W, M))
-    si, lat = rng.integers(0, P, W), rng.integers(0, 9, W).astype(np.int32)
+    si = rng.integers(0, P, W)
     goal_pool = rng.uniform(0, 1, (P, 2)).astype(f32)
     start_pool = rng.uniform(0, 1, (P, M, 2)).astype(f32)
     num_steps = rng.integers(0, 8, W)
     last = np.minimum(num_steps, rng.integers(0, 8, W))
     collected = rng.integers(0, 5, (W, M))
     init_pos = rng.uniform(0, 1, (W, M, 3)).astype(f32)
-    env_step = np.array([17])
+    clock = np.array([17, int(rng.integers(-3, 40))])  # [env steps, draw clock]
+    key = wp.array([int(rng.integers(-(1 << 31), 1 << 31))], dtype=wp.int32, device="cpu")
     D = 2 * M * (1 + learn_jerk)
     # sensor models: each part on or off at random
     sp = ktask.SensorParams()
@@ -57,24 +67,28 @@ def test_trajectory_step_and_obs_match_numpy(rng):
     sp.pos_std, sp.vel_std, sp.pos_bias_std, sp.vel_bias_std = (float(v) for v in rng.choice([0.0, 0.01], 4))
     sp.drop_prob = 0.3
     pos_bias, vel_bias, pos_mean, vel_mean = rng.normal(0, 0.01, (4, W, M, 2)).astype(f32)
-    bias_draw = rng.normal(0, 1, (2, W, M, 2)).astype(f32)  # [pos, vel]
-    noise = rng.normal(0, 1, (2, 2, W, M, 2)).astype(f32)  # [reading][pos, vel]
-    drop_u = rng.uniform(size=W).astype(f32)
+    # the counter-based draws the kernels compute: [pos, vel] biases, [reading][pos, vel] noise, dropout, delays
+    bias_draw = np.stack([_draws(kdraw.fill_normals, (W, M), wp.vec2, key, clock[1], slot)
+                          for slot in (kdraw.BIAS_POS, kdraw.BIAS_VEL)])
+    noise = np.stack([np.stack([_draws(kdraw.fill_normals, (W, M), wp.vec2, key, clock[1], kdraw.READ + 2 * r + k)
+                                for k in (1, 0)]) for r in (0, 1)])
+    drop_u = _draws(kdraw.fill_uniforms, W, float, key, clock[1], kdraw.DROP)
+    lat = _draws(kdraw.fill_ints, W, wp.int32, key, clock[1], kdraw.DELAY, 2, 7)
     held_obs, held_ach = rng.normal(0, 1, (W, D)).astype(f32), rng.uniform(0, 1, (W, 2 * M)).astype(f32)
-    held_ach[5] = goals[5].reshape(-1)  # a dropped reading at its goals: reached on the held reading
-    drop_u[5] = 0.0
+    w5 = int(np.flatnonzero(drop_u < f32(0.3))[0])
+    held_ach[w5] = goals[w5].reshape(-1)  # a dropped reading at its goals: reached on the held reading
+    drop_before = rng.uniform(size=W) < 0.5
     sensor_arrays = {k: wp.array(v, dtype=wp.vec2, device="cpu") for k, v in [
-        ("pos_bias", pos_bias), ("vel_bias", vel_bias), ("pos_mean", pos_mean), ("vel_mean", vel_mean),
-        ("pos_bias_draw", bias_draw[0]), ("vel_bias_draw", bias_draw[1])]}
-    sensor_arrays.update(drop_u=wp.array(drop_u, device="cpu"), drop=wp.array(drop_u < 0.5, device="cpu"),
-                         held_obs=wp.array(held_obs, device="cpu"), held_achieved=wp.array(held_ach, device="cpu"))
+        ("pos_bias", pos_bias), ("vel_bias", vel_bias), ("pos_mean", pos_mean), ("vel_mean", vel_mean)]}
+    sensor_arrays.update(drop=wp.array(drop_before, device="cpu"), held_obs=wp.array(held_obs, device="cpu"),
+                         held_achieved=wp.array(held_ach, device="cpu"))
     for k, v in sensor_arrays.items():
         setattr(sp, k, v)
 
     a = {k: wp.array(v, device="cpu", dtype=dt) for k, v, dt in [
         ("goals", goals, wp.vec2), ("num_steps", num_steps, wp.int64), ("last", last, wp.int64),
         ("collected", collected, wp.int64), ("init_pos", init_pos, wp.vec3), ("pos", pos, wp.vec3),
-        ("vel", vel, wp.vec3), ("acc", acc, wp.vec2), ("env_step", env_step, wp.int64)]}
+        ("vel", vel, wp.vec3), ("acc", acc, wp.vec2), ("clock", clock, wp.int64)]}
     init_quat = wp.zeros((W, M), dtype=wp.quat, device="cpu")
     mask, delay = wp.zeros(W, dtype=wp.int32, device="cpu"), wp.zeros(W, dtype=wp.int32, device="cpu")
     outs = [wp.zeros((W, D), dtype=float, device="cpu"), wp.zeros((W, 2 * M), dtype=float, device="cpu"),
@@ -99,15 +113,15 @@ def test_trajectory_step_and_obs_match_numpy(rng):
 
     wp.launch(ktask.trajectory_step, dim=W, device="cpu",
               inputs=[task, s, m.tiles, m.collision, arr(goal_pool, wp.vec2), arr(start_pool, wp.vec2), a["pos"],
-                      a["vel"], a["acc"], arr(flags), arr(sim_bad), a["env_step"], arr(u1, wp.vec2), arr(i1),
-                      arr(si), arr(u2, wp.vec2), arr(i2), arr(lat), sp, arr(noise[0, 0], wp.vec2),
-                      arr(noise[0, 1], wp.vec2), a["goals"], a["num_steps"], a["last"], a["collected"], a["init_pos"],
-                      init_quat, mask, delay], outputs=outs)
+                      a["vel"], a["acc"], arr(flags), arr(sim_bad), a["clock"], key, arr(u1, wp.vec2), arr(i1),
+                      arr(si), arr(u2, wp.vec2), arr(i2), sp, a["goals"], a["num_steps"], a["last"], a["collected"],
+                      a["init_pos"], init_quat, mask, delay], outputs=outs)
     obs = [wp.zeros((W, D), dtype=float, device="cpu"), wp.zeros((W, 2 * M), dtype=float, device="cpu"),
            wp.zeros((W, 2 * M), dtype=float, device="cpu")]
+    clock_next = wp.zeros(2, dtype=wp.int64, device="cpu")
     wp.launch(ktask.trajectory_obs, dim=W, device="cpu",
-              inputs=[learn_jerk, a["pos"], a["vel"], a["acc"], a["goals"], sp, arr(noise[1, 0], wp.vec2),
-                      arr(noise[1, 1], wp.vec2), outs[-1], *outs[:3], a["env_step"]],
+              inputs=[learn_jerk, a["pos"], a["vel"], a["acc"], a["goals"], sp, a["clock"], key, outs[-1],
+                      *outs[:3], clock_next],
               outputs=obs)
     (f_obs, f_ach, f_des, reward, term, trunc, mc, wc, since, coll_out, reached, tl, bad, bad_step,
      done) = (o.numpy() for o in outs)
@@ -180,9 +194,10 @@ def test_trajectory_step_and_obs_match_numpy(rng):
         assert not sensor_arrays["drop"].numpy().any()
     else:  # untouched
         np.testing.assert_array_equal(sensor_arrays["held_obs"].numpy(), held_obs)
-        np.testing.assert_array_equal(sensor_arrays["drop"].numpy(), drop_u < 0.5)
+        np.testing.assert_array_equal(sensor_arrays["drop"].numpy(), drop_before)
     np.testing.assert_array_equal(obs[2].numpy(), np.where(done[:, None], new_goals.reshape(W, -1), f_des))
-    assert a["env_step"].numpy()[0] == 18
+    np.testing.assert_array_equal(a["clock"].numpy(), clock)  # read only; the next step's clock goes to clock_next
+    np.testing.assert_array_equal(clock_next.numpy(), clock + 1)
     assert done.any() and (~done).any() and at.any()
 
 

@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from magwarp.envs.sim2real import ActuationConfig, SensorConfig
+from magwarp.envs.sim2real import ActuationConfig, SensorConfig, draw_key
 from magwarp.envs.trajectory import TrajectoryPlanningEnv
+from magwarp.kernels import sensor_draws as kdraw
 from magwarp.layout import Layout
 from magwarp.sim import Simulator
 
 from conftest import cuda_available
+from test_sensor_draws import fill_normals
 
 # launch shapes: register-resident fused (M <= 8), fused from memory (M <= 16), per cycle (fused_max_movers=0)
 PATHS = {"registers": (3, 16), "fused": (10, 16), "per_cycle": (3, 0)}
@@ -133,11 +135,12 @@ def test_env_latency_range_draws_uniformly_per_reset_and_reproduces():
     assert torch.equal(env.sim.latency_cycles, again.sim.latency_cycles)
 
 
-def test_sensor_bias_and_noise_have_the_given_moments():
+@pytest.mark.parametrize("fused", [True, False])
+def test_sensor_bias_and_noise_have_the_given_moments(fused):
     n = 1024
     cfg = SensorConfig(pos_bias=(0.01, -0.02), pos_bias_std=0.005, vel_bias=0.003, vel_bias_std=0.002,
                        pos_noise_std=0.002, vel_noise_std=0.001)
-    env = TrajectoryPlanningEnv(n, "B0", device="cpu", seed=5, sensors=cfg)
+    env = TrajectoryPlanningEnv(n, "B0", device="cpu", seed=5, sensors=cfg, fused=fused)
     obs, _ = env.reset(seed=7)
     bias_p, bias_v = env.sensors.pos_bias.clone(), env.sensors.vel_bias.clone()  # [n, 3, 2]
     for bias, mean, std in ((bias_p, (0.01, -0.02), 0.005), (bias_v, (0.003, 0.003), 0.002)):
@@ -167,18 +170,16 @@ def test_set_bias_without_std_is_that_bias_everywhere():
     assert torch.equal(obs["observation"], env.sim.vel[..., :2].reshape(4, -1)), "no velocity model: exact"
 
 
-def test_std_noise_keeps_its_draws_and_equals_the_sensor_config():
-    """``std_noise``: a reading outside a step draws velocity noise, then position noise, from the env's generator, as
-    it always did; inside steps it draws as the SensorConfig of the same stds."""
+def test_std_noise_draws_are_counter_based_and_equal_the_sensor_config():
+    """``std_noise``: a reading outside a step draws its velocity and position noise from the counter-based generator
+    (the env's key and draw clock, reading slot pair of the clock: since #24, not the env's torch generator); inside
+    steps it draws as the SensorConfig of the same stds."""
     s = 1e-3
     env = TrajectoryPlanningEnv(16, "B0", std_noise=s, device="cpu", seed=4)
-    state = env._generator.get_state()
-    obs = env._get_obs()
-    g = torch.Generator().set_state(state)
-    vel = env.sim.vel[..., :2].reshape(16, -1)
-    vel = vel + s * torch.randn(vel.shape, generator=g)
-    pos = env.sim.pos[..., :2].reshape(16, -1)
-    pos = pos + s * torch.randn(pos.shape, generator=g)
+    obs, _ = env.reset()  # the 2nd reset outside a step since the seed: clock -2, its first reading
+    z = {slot: fill_normals(draw_key(4), -2, slot, 16, 3) for slot in (kdraw.READ, kdraw.READ + 1)}
+    vel = env.sim.vel[..., :2].reshape(16, -1) + s * z[kdraw.READ].reshape(16, -1)
+    pos = env.sim.pos[..., :2].reshape(16, -1) + s * z[kdraw.READ + 1].reshape(16, -1)
     assert torch.equal(obs["observation"], vel) and torch.equal(obs["achieved_goal"], pos)
     other = TrajectoryPlanningEnv(16, "B0", device="cpu", seed=4,
                                   sensors=SensorConfig(pos_noise_std=s, vel_noise_std=s))
@@ -188,6 +189,28 @@ def test_std_noise_keeps_its_draws_and_equals_the_sensor_config():
     for _ in range(3):
         a, b = env.step(action)[0], other.step(action)[0]
         assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_models_leave_the_goal_and_start_draws_alone():
+    """The sensor and latency models draw nothing from the env's generator: goals, starts and episodes of an env
+    with every model on are those of an env without them, for the same seed (the movers' poses differ only by the
+    delayed actions, so the goals are compared with the latency off)."""
+    kw = dict(device="cpu", seed=6, max_episode_steps=3)
+    plain = TrajectoryPlanningEnv(64, "B0", **kw)
+    noisy = TrajectoryPlanningEnv(64, "B0", sensors=SensorConfig(pos_bias_std=0.01, vel_bias_std=0.01,
+                                                                pos_noise_std=1e-3, vel_noise_std=1e-3,
+                                                                dropout_prob=0.2), **kw)
+    late = TrajectoryPlanningEnv(64, "B0", actuation={"latency_range": [0, 9]}, **kw)
+    for env in (plain, noisy, late):
+        env.reset(seed=21)
+    assert torch.equal(plain.goals, noisy.goals) and torch.equal(plain.sim.pos, noisy.sim.pos)
+    assert torch.equal(plain.goals, late.goals) and torch.equal(plain.sim.pos, late.sim.pos)
+    for _ in range(7):  # episodes of 3 steps: two autoresets of every world
+        for env in (plain, noisy, late):
+            env.step(torch.zeros(64, 6))
+    assert torch.equal(plain.goals, late.goals)
+    assert torch.equal(plain._generator.get_state(), noisy._generator.get_state())
+    assert torch.equal(plain._generator.get_state(), late._generator.get_state())
 
 
 def test_all_models_reproduce_from_a_seed(rng):
@@ -200,7 +223,7 @@ def test_all_models_reproduce_from_a_seed(rng):
         env = TrajectoryPlanningEnv(32, "B0", **{**kw, "seed": env_seed})
         frames = [env.reset(seed=env_seed)[0]["achieved_goal"]]
         for _ in range(4):
-            frames.append(env.step(torch.full((32, 6), 2.0))[0]["observation"])
+            frames.append(env.step(torch.full((32, 6), 2.0))[0]["observation"].clone())  # fused: the env's buffers
         runs.append((env.sim.latency_cycles.clone(), torch.stack([f[:, :6] for f in frames])))
     assert torch.equal(runs[0][0], runs[1][0]) and torch.equal(runs[0][1], runs[1][1]), rng
     assert not torch.equal(runs[0][1], runs[2][1]), rng

@@ -3,7 +3,7 @@
 * :class:`ActuationConfig`: **action latency**. With a delay of ``k`` control cycles (1 ms each) the action given to
   ``env.step`` at step ``t`` takes effect ``k`` cycles after the step starts; during the step's first ``k`` cycles
   the previous step's action still acts (zero after a reset). The delay is per world: one value for all, one per
-  world, or drawn uniformly from an integer range at every reset of a world (the env's generator). It runs inside
+  world, or drawn uniformly from an integer range at every reset of a world (counter-based, below). It runs inside
   the simulator's step kernels (:meth:`magwarp.sim.Simulator.set_latency`): exact to the cycle, no host sync, one
   graph per step. ``0 <= k <= num_cycles``: a longer delay would act after the next action is issued (it would need a
   queue of actions) and is refused.
@@ -21,17 +21,20 @@
   what the policy sees (as with MagBotSim's noise). The env's ``std_noise`` is ``SensorConfig(pos_noise_std=s,
   vel_noise_std=s)``, with the same draws for the same seed.
 
-Everything runs on the env's device, seeded by its generator, with no host sync. A model draws only when it has
-something to draw (a latency range of more than one value, a bias std, noise, a dropout probability): with any of
-these on, the env's later draws (goals, starts) differ from an env without them for the same seed. Within an env
-step the sensor model draws its standard normals in one call (:meth:`SensorModel.new_step`: the step's reading, an
-autoreset's first reading and the reset worlds' new biases; a launch per step, not six), and readings outside a step
-(``reset()``) draw their own, velocities first: since #24's cost work a seed gives other noise inside steps than
-before (``std_noise`` included; a reset's reading is drawn as it always was).
+Everything runs on the env's device with no host sync. The models' draws (a latency range of more than one value, a
+bias std, noise, a dropout probability) are counter-based (:mod:`magwarp.kernels.sensor_draws`): each value is a pure
+function of a key that follows the env's seed (:func:`draw_key`; ``reset(seed=...)`` sets it), a clock
+(:class:`DrawClock`: the env steps since the last reseed, or the number of ``reset()`` calls outside a step), the
+world, what is drawn and the mover. The kernels that use a draw compute it (the trajectory env's fused step draws no
+numbers of its own for these models: no launch), and the torch step fills the same values with small Warp kernels, so
+both paths give the same bits. The models never touch the env's torch generator: an env's goals and starts are the
+same for a seed with or without them. Since #24 a seed gives other sensor noise, biases, dropped readings and delays
+than before (``std_noise`` included: a reading outside a step, too, is a counter-based draw now).
 """
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
@@ -40,8 +43,10 @@ import torch
 import warp as wp
 
 from magwarp._checks import as_count, check_finite, check_magnitude
+from magwarp.kernels import sensor_draws as kdraw
 
-__all__ = ["ActuationConfig", "BackendLatency", "PushSim2Real", "SensorConfig", "Latency", "SensorModel", "as_config"]
+__all__ = ["ActuationConfig", "BackendLatency", "DrawClock", "PushSim2Real", "SensorConfig", "Latency", "SensorModel",
+           "as_config", "draw_key"]
 
 
 def as_config(cls, value, name: str):
@@ -147,41 +152,115 @@ class SensorConfig:
             raise ValueError(f"dropout_prob must be a probability in [0, 1], got {self.dropout_prob!r}")
 
 
-class Latency:
-    """Per-world action delays of a simulator, drawn at resets from an :class:`ActuationConfig`'s range."""
+def draw_key(seed: int) -> int:
+    """The int32 key of the sim2real models' draws for an env seed (any non-negative integer; salted apart from the
+    randomisation terms' key)."""
+    k = (int(seed) ^ (int(seed) >> 32) ^ 0x53E5D0A7) & 0xFFFFFFFF
+    return k - (1 << 32) if k >= 1 << 31 else k
 
-    def __init__(self, config: ActuationConfig | dict | None, sim, num_cycles: int, generator: torch.Generator):
+
+class DrawClock:
+    """The key and clock of an env's sim2real draws (:mod:`magwarp.kernels.sensor_draws`). :attr:`key`: ``[1]`` int32
+    on the device (the fused step's kernels read it there; :meth:`reseed` refills it). :attr:`value`: the clock of the
+    draws made now: ``step_count - base`` inside an env step (:meth:`step`), ``-k`` for the ``k``-th ``reset()``
+    outside a step since the last reseed (:meth:`tick_reset`). :attr:`epoch` changes with every new clock (a model
+    numbers its readings within one)."""
+
+    def __init__(self, seed: int, device):
+        self.key = torch.tensor([draw_key(seed)], dtype=torch.int32, device=device)
+        self.base = 0  # the env's step count at the last reseed
+        self.resets = 0  # reset() calls outside a step since then
+        self.value = 0
+        self.in_step = False
+        self.epoch = 0
+
+    def reseed(self, seed: int, step_count: int) -> None:
+        """``reset(seed=...)``: the draws from here on follow ``seed``, as for an env built with it."""
+        self.key.fill_(draw_key(seed))
+        self.base, self.resets = int(step_count), 0
+
+    @contextlib.contextmanager
+    def step(self, step_count: int):
+        """The draws inside the ``with`` block are those of the env step after ``step_count`` steps."""
+        self.value, self.in_step = int(step_count) - self.base, True
+        self.epoch += 1
+        try:
+            yield
+        finally:
+            self.in_step = False
+
+    def tick_reset(self) -> None:
+        """A reset begins: outside a step it takes the next reset clock (inside one it draws with the step's)."""
+        if self.in_step:
+            return
+        self.resets += 1
+        self.value = -self.resets
+        self.epoch += 1
+
+    def _launch(self, kernel, dim, slot: int, out, *extra) -> None:
+        wp.launch(kernel, dim=dim, device=out.device,
+                  inputs=[wp.from_torch(self.key), wp.int64(self.value), int(slot), *extra], outputs=[out])
+
+    def normals(self, slot: int, num_envs: int, num_movers: int) -> torch.Tensor:
+        """``[num_envs, num_movers, 2]`` standard normals of ``slot`` at the current clock."""
+        z = torch.empty(num_envs, num_movers, 2, device=self.key.device)
+        self._launch(kdraw.fill_normals, (num_envs, num_movers), slot, wp.from_torch(z, dtype=wp.vec2))
+        return z
+
+    def uniforms(self, slot: int, num_envs: int) -> torch.Tensor:
+        """``[num_envs]`` uniforms in ``[0, 1)`` of ``slot`` at the current clock."""
+        u = torch.empty(num_envs, device=self.key.device)
+        self._launch(kdraw.fill_uniforms, num_envs, slot, wp.from_torch(u))
+        return u
+
+    def integers(self, slot: int, low: int, high: int, out: torch.Tensor) -> None:
+        """Uniform integers in ``[low, high]`` of ``slot`` at the current clock into ``out`` (``[num_envs]`` int32)."""
+        self._launch(kdraw.fill_ints, out.shape[0], slot, wp.from_torch(out), int(low), int(high) - int(low) + 1)
+
+
+class Latency:
+    """Per-world action delays of a simulator, drawn at resets from an :class:`ActuationConfig`'s range (counter-based:
+    slot ``DELAY`` of :mod:`magwarp.kernels.sensor_draws`)."""
+
+    def __init__(self, config: ActuationConfig | dict | None, sim, num_cycles: int, clock: DrawClock):
         self.config = config = as_config(ActuationConfig, config, "actuation")
         self.sim = sim
-        self.generator = generator
+        self.clock = clock
         fixed, bound = config.delays(sim.num_worlds, num_cycles)
         if config.enabled:
             sim.set_latency(fixed, bound=bound)
 
+    @property
+    def draw_range(self) -> tuple[int, int] | None:
+        """``(low, high)`` of the drawn delays, or None where nothing is drawn (no range, or a single value)."""
+        rng = self.config.latency_range
+        return None if rng is None or rng[0] == rng[1] else (int(rng[0]), int(rng[1]))
+
     def reset(self, mask: torch.Tensor) -> None:
         """Draw new delays for the worlds in ``mask`` (with a range of more than one value; fixed delays stay)."""
-        if self.config.latency_range is None:
-            return
-        low, high = (int(v) for v in self.config.latency_range)
-        if low == high:  # nothing to draw: the generator's stream (goals, starts) stays as without latency
+        rng = self.draw_range
+        if rng is None:
             return
         cycles = self.sim.latency_cycles
-        draw = torch.randint(low, high + 1, cycles.shape, generator=self.generator, device=cycles.device,
-                             dtype=cycles.dtype)
+        draw = torch.empty_like(cycles)
+        self.clock.integers(kdraw.DELAY, *rng, draw)
         cycles.copy_(torch.where(mask, draw, cycles))
 
 
 class SensorModel:
     """Biased, noisy, dropping readings of mover x/y positions and velocities (a :class:`SensorConfig`), on the
     device. The env calls :meth:`reset` for reset worlds, :meth:`new_step` after simulating, :meth:`read` in every
-    observation, :meth:`hold` on the observation and :meth:`commit` on what it returned."""
+    observation, :meth:`hold` on the observation and :meth:`commit` on what it returned. Its draws are counter-based
+    at ``clock``'s value (:mod:`magwarp.kernels.sensor_draws`): the ``r``-th reading of a clock takes slot pair
+    ``READ + 2 r`` (velocities, positions), new biases ``BIAS_VEL``/``BIAS_POS``, dropped readings ``DROP``."""
 
     HELD_KEYS = ("observation", "achieved_goal")
 
     def __init__(self, config: SensorConfig | dict | None, num_envs: int, num_movers: int, device,
-                 generator: torch.Generator):
+                 clock: DrawClock):
         self.config = config = as_config(SensorConfig, config, "sensors")
-        self.generator = generator
+        self.clock = clock
+        self.num_envs, self.num_movers = int(num_envs), int(num_movers)
         shape = (num_envs, num_movers, 2)
         self.pos_bias = self._bias_tensor(config.pos_bias, config.pos_bias_std, "pos_bias", shape, device)
         self.vel_bias = self._bias_tensor(config.vel_bias, config.vel_bias_std, "vel_bias", shape, device)
@@ -191,16 +270,7 @@ class SensorModel:
         # Updated in place (the fused step of the trajectory env reads them through Warp views).
         self._drop = torch.zeros(num_envs, dtype=torch.bool, device=device)
         self._held: dict[str, torch.Tensor] | None = None
-        # A step's standard normals, drawn at once by new_step (one launch): its two readings (the step's own and an
-        # autoreset's first one) and the reset biases, each part [num_envs, 2 num_movers], only the parts that draw.
-        read = [k for k, std in (("vel", config.vel_noise_std), ("pos", config.pos_noise_std)) if std != 0.0]
-        bias = [k for k, b, std in (("vel", self.vel_bias, config.vel_bias_std),
-                                    ("pos", self.pos_bias, config.pos_bias_std)) if b is not None and std != 0]
-        parts = [("read0", k) for k in read] + [("bias", k) for k in bias] + [("read1", k) for k in read]
-        self.slots = {part: i for i, part in enumerate(parts)}
-        self.bundle_shape = (len(parts), num_envs, 2 * num_movers)
-        self._bundle: torch.Tensor | None = None  # the step's draws, from new_step to commit
-        self._reads = 0
+        self._reads = (-1, 0)  # (clock epoch, readings drawn in it)
 
     @staticmethod
     def _bias_tensor(mean, std: float, name: str, shape, device) -> torch.Tensor | None:
@@ -217,61 +287,39 @@ class SensorModel:
 
     def reset(self, mask: torch.Tensor) -> None:
         """New biases for the worlds in ``mask``; their next reading is not dropped."""
-        for key, bias, mean, std in (("vel", self.vel_bias, self._mean["vel"], self.config.vel_bias_std),
-                                     ("pos", self.pos_bias, self._mean["pos"], self.config.pos_bias_std)):
+        for slot, bias, mean, std in ((kdraw.BIAS_VEL, self.vel_bias, self._mean["vel"], self.config.vel_bias_std),
+                                      (kdraw.BIAS_POS, self.pos_bias, self._mean["pos"], self.config.pos_bias_std)):
             if bias is None or std == 0:  # a set bias stays
                 continue
-            if self._bundle is not None:  # inside a step: the step's draws
-                z = self._bundle[self.slots[("bias", key)]].view(bias.shape)
-            else:
-                z = torch.randn(bias.shape, generator=self.generator, device=bias.device)
+            z = self.clock.normals(slot, self.num_envs, self.num_movers)
             bias.copy_(torch.where(mask[:, None, None], mean + std * z, bias))
         self._drop &= ~mask
 
     def new_step(self) -> None:
-        """Draw which worlds drop this step's reading, and the step's standard normals (:meth:`draw_step`)."""
+        """Draw which worlds drop this step's reading (at the step's clock: :meth:`DrawClock.step`)."""
         p = self.config.dropout_prob
         if p > 0:
-            self._drop.copy_(torch.rand(self._drop.shape, generator=self.generator, device=self._drop.device) < p)
-        self._reads = 0
-        self._bundle = None
-        if self.bundle_shape[0]:
-            self._bundle = torch.randn(self.bundle_shape, generator=self.generator, device=self._drop.device)
+            self._drop.copy_(self.clock.uniforms(kdraw.DROP, self.num_envs) < p)
 
-    # The draws of new_step into given buffers, in its order, for the trajectory env's fused step (which applies them
-    # in its kernels: magwarp.kernels.task.SensorParams).
-    def draw_step(self, u: torch.Tensor, bundle: torch.Tensor) -> None:
-        """:meth:`new_step`'s draws: the uniform per world into ``u`` (``[num_envs]`` float32; none without dropout),
-        the step's standard normals into ``bundle`` (:attr:`bundle_shape`; part ``slots[(use, key)]``, ``use`` one of
-        ``"read0"``, ``"bias"``, ``"read1"``, ``key`` ``"vel"`` or ``"pos"``; none without parts)."""
-        if self.config.dropout_prob > 0:
-            torch.rand(u.shape, generator=self.generator, out=u)
-        if self.bundle_shape[0]:
-            torch.randn(bundle.shape, generator=self.generator, out=bundle)
-
-    def _noise(self, key: str, x: torch.Tensor, slot: str | None) -> torch.Tensor:
-        if slot is not None:
-            return self._bundle[self.slots[(slot, key)]]
-        return torch.randn(x.shape, generator=self.generator, device=x.device, dtype=x.dtype)
-
-    def _sense(self, key: str, x: torch.Tensor, bias: torch.Tensor | None, std: float,
-               slot: str | None) -> torch.Tensor:
+    def _sense(self, slot: int, x: torch.Tensor, bias: torch.Tensor | None, std: float) -> torch.Tensor:
         n = x.shape[0]
         if bias is not None:
             x = x + bias
         x = x.reshape(n, -1)
         if std == 0.0:
             return x
-        return x + std * self._noise(key, x, slot)
+        return x + std * self.clock.normals(slot, self.num_envs, self.num_movers).view(n, -1)
 
     def read(self, pos_xy: torch.Tensor, vel_xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Sensed ``(positions, velocities)``, flattened ``[num_envs, num_movers * 2]``. The first two readings of a
-        step (after :meth:`new_step`: the step's, an autoreset's) take the step's draws; other readings (a reset
-        outside a step) draw their noise then, velocities first (as the env's ``std_noise`` always did)."""
-        slot = f"read{self._reads}" if self._bundle is not None and self._reads < 2 else None
-        self._reads += 1
-        vel = self._sense("vel", vel_xy, self.vel_bias, self.config.vel_noise_std, slot)
-        pos = self._sense("pos", pos_xy, self.pos_bias, self.config.pos_noise_std, slot)
+        """Sensed ``(positions, velocities)``, flattened ``[num_envs, num_movers * 2]``. The ``r``-th reading at the
+        clock's value (a step's own reading ``r = 0``, an autoreset's ``r = 1``) draws slots ``READ + 2 r`` and
+        ``READ + 2 r + 1``."""
+        epoch, r = self._reads
+        if epoch != self.clock.epoch:
+            epoch, r = self.clock.epoch, 0
+        self._reads = (epoch, r + 1)
+        vel = self._sense(kdraw.READ + 2 * r, vel_xy, self.vel_bias, self.config.vel_noise_std)
+        pos = self._sense(kdraw.READ + 2 * r + 1, pos_xy, self.pos_bias, self.config.pos_noise_std)
         return pos, vel
 
     def hold(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -282,9 +330,7 @@ class SensorModel:
         return {k: torch.where(drop, self._held[k], v) if k in self._held else v for k, v in obs.items()}
 
     def commit(self, obs: dict[str, torch.Tensor]) -> None:
-        """Remember what the env returned (the next dropped reading repeats it); readings after this are fresh until
-        the next step."""
-        self._bundle = None  # the step is over: later readings draw their own noise
+        """Remember what the env returned (the next dropped reading repeats it)."""
         if self.config.dropout_prob == 0:
             return
         if self._held is None:
@@ -293,7 +339,6 @@ class SensorModel:
             for k in self.HELD_KEYS:
                 self._held[k].copy_(obs[k])
         self._drop.zero_()
-
 
 
 @wp.kernel(enable_backward=False)
@@ -387,11 +432,13 @@ class PushSim2Real:
     """Mixin of the push envs (:class:`magwarp.envs.push.PushEnv`): their ``actuation`` (:class:`BackendLatency`)
     and ``sensors`` (:class:`SensorModel` on the mover x/y positions and velocities of ``observation``; a dropped
     reading repeats the whole ``observation`` and ``achieved_goal``) options, as on the trajectory env. ``sensors``
-    replaces ``std_noise`` (not both; its noise draws come in another order, so the same seed gives other noise) and
-    needs the x/y observation layout (not ``learn_mover_c_rotation``)."""
+    replaces ``std_noise`` (not both; its draws are counter-based, :class:`DrawClock`, so the same seed gives other
+    noise than ``std_noise``'s, and the env's generator is left to the episodes) and needs the x/y observation layout
+    (not ``learn_mover_c_rotation``). The latency's delays are still drawn with the env's generator."""
 
     latency: BackendLatency | None = None
     sensors: SensorModel | None = None
+    draw_clock: DrawClock | None = None
 
     def _init_sim2real(self, actuation, sensors) -> None:
         self.latency = BackendLatency(actuation, self.backend, self.num_cycles, self._generator)
@@ -402,11 +449,18 @@ class PushSim2Real:
                              "SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise))")
         if self.learn_mover_c_rotation:
             raise ValueError("sensors model x/y positions and velocities; not with learn_mover_c_rotation=True")
-        self.sensors = SensorModel(sensors, self.num_envs, self.num_movers, self.device, self._generator)
+        self.draw_clock = DrawClock(self._generator.initial_seed(), self.device)
+        self.sensors = SensorModel(sensors, self.num_envs, self.num_movers, self.device, self.draw_clock)
+
+    def _reseed(self, seed: int) -> None:
+        super()._reseed(seed)
+        if self.draw_clock is not None:
+            self.draw_clock.reseed(seed, self._step_count)
 
     def _sim2real_reset(self, mask: torch.Tensor) -> None:
         self.latency.reset(mask)
         if self.sensors is not None:
+            self.draw_clock.tick_reset()
             self.sensors.reset(mask)
 
     def _step_backend(self, action: torch.Tensor) -> None:
@@ -437,7 +491,9 @@ class PushSim2Real:
         return obs, info
 
     def step(self, action):
-        out = super().step(action)
-        if self.sensors is not None:
-            self.sensors.commit(out[0])
+        if self.sensors is None:
+            return super().step(action)
+        with self.draw_clock.step(self._step_count):
+            out = super().step(action)
+        self.sensors.commit(out[0])
         return out

@@ -36,7 +36,7 @@ from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.planar_randomization import SIZE_FIELDS, PlanarRandomizer
 from magwarp.envs.sampling import PoseSampler
-from magwarp.envs.sim2real import ActuationConfig, Latency, SensorConfig, SensorModel
+from magwarp.envs.sim2real import ActuationConfig, DrawClock, Latency, SensorConfig, SensorModel
 from magwarp.envs.trajectory_fused import FusedTrajectoryStep, fused_step_blocker
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
@@ -213,8 +213,10 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.num_cycles = int(num_cycles)
         if sensors is None:
             sensors = SensorConfig(pos_noise_std=self.std_noise, vel_noise_std=self.std_noise)
-        self.sensors = SensorModel(sensors, self.num_envs, int(num_movers), self.device, self._generator)
-        self.latency = Latency(actuation, self.sim, self.num_cycles, self._generator)
+        #: the key and clock of the sensor and latency models' counter-based draws (they leave the generator alone)
+        self.draw_clock = DrawClock(0 if seed is None else int(seed), self.device)
+        self.sensors = SensorModel(sensors, self.num_envs, int(num_movers), self.device, self.draw_clock)
+        self.latency = Latency(actuation, self.sim, self.num_cycles, self.draw_clock)
         self.threshold_pos = float(threshold_pos)
         self.reward_success = float(reward_success)
         self.reward_collision = float(reward_collision)
@@ -258,6 +260,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
     # ------------------------------------------------------------------ task hooks
     def _reseed(self, seed: int) -> None:
         super()._reseed(seed)
+        self.draw_clock.reseed(seed, self._step_count)
         self._pool_generator.manual_seed(seed)
         self.sampler.draw_pools(self._pool_generator)
         if self.randomizer is not None:
@@ -285,6 +288,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.num_steps.copy_(torch.where(mask, zero, self.num_steps))
         self.last_goal_step.copy_(torch.where(mask, zero, self.last_goal_step))
         self.collected_goals.masked_fill_(mask[:, None], 0)
+        self.draw_clock.tick_reset()
         self.latency.reset(mask)
         self.sensors.reset(mask)
         if self.randomizer is not None:
@@ -331,7 +335,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         })
 
     def _replace_generator(self) -> None:
-        """Give the env's draws (goals, starts, latency, sensors) a new generator that continues from the old one's
+        """Give the env's draws (goals, starts) a new generator that continues from the old one's
         state (a fresh seed from it where its state cannot be read): a CUDA graph capture that failed may leave the
         old generator registered with the dead graph, where torch refuses every later draw outside a capture."""
         old = self._generator
@@ -340,7 +344,7 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
             fresh.set_state(old.get_state())
         except RuntimeError:
             fresh.manual_seed(int(old.initial_seed()) + 1)
-        self._generator = self.sampler.generator = self.sensors.generator = self.latency.generator = fresh
+        self._generator = self.sampler.generator = fresh
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """See :meth:`MagwarpVecEnv.reset`; the sensor model remembers the returned readings (for dropped ones)."""
@@ -369,7 +373,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
                 if self._fused_step is None:
                     self._fused_step = FusedTrajectoryStep(self, graph=self._graph)
                 return self._fused_step.step(action)
-        out = super().step(action)
+        with self.draw_clock.step(self._step_count):
+            out = super().step(action)
         self.sensors.commit(out[0])
         return out
 

@@ -4,18 +4,21 @@ and autoreset in a handful of launches, captured as one CUDA graph on a GPU.
 One step (after the host-side input check and the copy of the action into the simulator's command buffer) is:
 
 1. the simulator's step kernels (``num_cycles`` cycles, NaN guard);
-2. the random numbers of the step, drawn with the env's torch generator in the same calls, shapes and order as the
-   eager step draws them (dropped readings and the step's standard normals: both readings' white noise and the
-   finished worlds' new sensor biases, in one call; goals for reached goals; a start configuration, goals and, with a
-   latency range, a delay for every world), so that both paths give the same episodes for the same seed;
+2. the random numbers of the goals and starts, drawn with the env's torch generator in the same calls, shapes and
+   order as the eager step draws them (goals for reached goals; a start configuration and goals for every world), so
+   that both paths give the same episodes for the same seed. The sensor and latency models draw nothing here: their
+   draws are counter-based (:mod:`magwarp.kernels.sensor_draws`), computed in the kernels of steps 3 and 5 from the
+   env's draw key and the device clock (as the torch step's fill kernels compute them);
 3. :func:`magwarp.kernels.task.trajectory_step` (one thread per world): the final (sensed) observation, reward,
-   flags, info, goal counters, resampled goals, and the next episode's starts and goals for the worlds that finished;
+   flags, info, goal counters, resampled goals, and the next episode's starts, goals and (with a latency range)
+   delays for the worlds that finished;
 4. for those worlds (the kernel's ``done`` flags as the mask, on the device): the sensor model's new biases (in
    step 3's kernel) and the reset-mode randomisation terms
    (:meth:`~magwarp.envs.planar_randomization.PlanarRandomizer.reset_in_step`: one kernel, the torch step's too);
    the simulator's reset kernels;
 5. :func:`magwarp.kernels.task.trajectory_obs`: the returned observation; the sensor model keeps it (what a dropped
-   reading repeats).
+   reading repeats); the next step's clock (env steps and draw clock: two device rows that the two alternating step
+   graphs read and write crosswise, since a kernel cannot advance a counter all its threads read).
 
 Interval-mode randomisation terms fire before the step (the simulator's step callbacks, as in the torch step: one
 launch of the randomiser's kernel when a term is due), then the graph is replayed.
@@ -140,25 +143,27 @@ class FusedTrajectoryStep:
         self._start_index = torch.zeros(n, dtype=torch.int64, device=dev)
         self._reset_u = torch.zeros(n, m, c, 2, device=dev)
         self._reset_fallback = torch.zeros(n, m, dtype=torch.int64, device=dev)
-        self._delay_draw = torch.zeros(n, dtype=torch.int32, device=dev)
-        rng = env.latency.config.latency_range
-        self._delay_range = None if rng is None or rng[0] == rng[1] else (int(rng[0]), int(rng[1]) + 1)
+        self._delay_range = env.latency.draw_range
+        self._no_delay = wp.zeros(n, dtype=wp.int32, device=sim.device)  # the kernel's delay output without a range
         # Stable copies of the sampler's pools (reset(seed=...) redraws them; they are copied in, same sizes).
         self._goal_pool = sampler.goal_pool.clone()
         self._start_pool = sampler.start_pool.clone()
         self._pool_sources = (sampler.goal_pool, sampler.start_pool)
-        # The device env-step counter (for info["nonfinite_step"]) and the host count it was last set from.
-        self._env_step = torch.zeros(1, dtype=torch.int64, device=dev)
-        self._env_step_host = 0
+        # The device clocks: row s is read by the steps of slot s, and written (the next step's) by the other slot's:
+        # [env steps before the step (for info["nonfinite_step"]), the sim2real models' draw clock]; the host values
+        # they were last set from.
+        self._clock = torch.zeros(2, 2, dtype=torch.int64, device=dev)
+        self._clock_host = None
         self._cmd = sim.cmd
         # Warp views of the env's and these buffers (all stable: converted once).
         w = wp.from_torch
         self._wp = {
             "goal_pool": w(self._goal_pool, dtype=wp.vec2), "start_pool": w(self._start_pool, dtype=wp.vec2),
-            "env_step": w(self._env_step), "step_u": w(self._step_u, dtype=wp.vec2),
+            "clock": [w(self._clock[0]), w(self._clock[1])], "key": w(env.draw_clock.key),
+            "step_u": w(self._step_u, dtype=wp.vec2),
             "step_fallback": w(self._step_fallback), "start_index": w(self._start_index),
             "reset_u": w(self._reset_u, dtype=wp.vec2), "reset_fallback": w(self._reset_fallback),
-            "delay_draw": w(self._delay_draw), "goals": w(env.goals, dtype=wp.vec2), "num_steps": w(env.num_steps),
+            "goals": w(env.goals, dtype=wp.vec2), "num_steps": w(env.num_steps),
             "last_goal_step": w(env.last_goal_step), "collected": w(env.collected_goals),
         }
 
@@ -171,6 +176,8 @@ class FusedTrajectoryStep:
         task.timeout_steps = -1 if env.timeout_steps is None else int(env.timeout_steps)
         task.max_episode_steps = -1 if env.max_episode_steps is None else int(env.max_episode_steps)
         task.draw_latency = 0 if self._delay_range is None else 1
+        low, high = self._delay_range or (0, 0)
+        task.delay_low, task.delay_span = low, high - low + 1
         self._task = task
         s = ktask.GoalSampler()
         lo, span = sampler.lo.cpu(), sampler.span.cpu()
@@ -186,8 +193,8 @@ class FusedTrajectoryStep:
 
     def _init_sensors(self, n: int, m: int) -> None:
         """The sensor model on the device (:class:`magwarp.kernels.task.SensorParams`: its biases, dropped-reading
-        flags and held readings are the model's own tensors, updated in place) and the buffers of its draws."""
-        sensors, dev, wdev = self.env.sensors, self.env.device, self.env.sim.device
+        flags and held readings are the model's own tensors, updated in place; the kernels compute its draws)."""
+        sensors, wdev = self.env.sensors, self.env.sim.device
         cfg = sensors.config
         w = wp.from_torch
 
@@ -198,18 +205,6 @@ class FusedTrajectoryStep:
         def mean(name: str, bias: torch.Tensor | None) -> torch.Tensor | None:
             return None if bias is None else torch.broadcast_to(sensors._mean[name], bias.shape).contiguous()
 
-        # the step's standard normals (SensorModel.draw_step: one launch) and the kernels' views of its parts (zeros
-        # where a part is not drawn: the kernels do not read them)
-        self._bundle = torch.zeros(sensors.bundle_shape, device=dev)
-        zero = torch.zeros(n, 2 * m, device=dev)
-
-        def part(use: str, key: str) -> torch.Tensor:
-            i = sensors.slots.get((use, key))
-            return zero if i is None else self._bundle[i]
-
-        self._noise = [(part(use, "vel"), part(use, "pos")) for use in ("read0", "read1")]
-        self._bias_draw = tuple(part("bias", key).view(n, m, 2) for key in ("vel", "pos"))
-        self._drop_u = torch.zeros(n, device=dev)
         self._means = (mean("vel", sensors.vel_bias), mean("pos", sensors.pos_bias))
         p = ktask.SensorParams()
         p.pos_bias_on, p.vel_bias_on = int(sensors.pos_bias is not None), int(sensors.vel_bias is not None)
@@ -219,21 +214,19 @@ class FusedTrajectoryStep:
         p.dropout, p.drop_prob = int(cfg.dropout_prob > 0), float(cfg.dropout_prob)
         p.pos_bias, p.vel_bias = vec2(sensors.pos_bias), vec2(sensors.vel_bias)
         p.vel_mean, p.pos_mean = vec2(self._means[0]), vec2(self._means[1])
-        p.vel_bias_draw, p.pos_bias_draw = vec2(self._bias_draw[0]), vec2(self._bias_draw[1])
-        p.drop_u, p.drop = w(self._drop_u), w(sensors._drop)
+        p.drop = w(sensors._drop)
         held = sensors._held if p.dropout else None
         none2d = wp.empty((0, 0), dtype=float, device=wdev)
         p.held_obs = w(held["observation"]) if held is not None else none2d
         p.held_achieved = w(held["achieved_goal"]) if held is not None else none2d
         self._sensor = p
-        self._noise_wp = [(vec2(pos), vec2(vel)) for vel, pos in self._noise]
 
     # ------------------------------------------------------------------ launches
     def _sim_arrays(self):
         """The simulator arrays the kernels touch (looked up per launch/capture: set_latency replaces some)."""
         sim = self.env.sim
         st = sim.state
-        delay = sim._delay if self._delay_range is not None else self._wp["delay_draw"]
+        delay = sim._delay if self._delay_range is not None else self._no_delay
         return st, delay
 
     def _draw(self) -> None:
@@ -245,28 +238,24 @@ class FusedTrajectoryStep:
         torch.randint(len(sampler.start_pool), (n,), generator=g, out=self._start_index)
         torch.rand(self._reset_u.shape, generator=g, out=self._reset_u)
         torch.randint(len(sampler.goal_pool), (n, m), generator=g, out=self._reset_fallback)
-        if self._delay_range is not None:
-            torch.randint(*self._delay_range, (n,), generator=g, out=self._delay_draw)
 
-    def _launch_task(self, out: _Outputs) -> None:
-        """Steps 2-5 (draws, task kernels, resets) on the current streams. The torch draws come in the torch step's
-        order: dropped readings and the step's standard normals (``_apply_action``: the sensor model's
-        ``new_step``), reached goals (``_end_step``), then the autoreset's (``_reset_envs``: start, goals, delay); the
-        reset-mode terms draw in their own kernel."""
+    def _launch_task(self, out: _Outputs, slot: int) -> None:
+        """Steps 2-5 (draws, task kernels, resets) on the current streams, reading clock row ``slot``. The torch draws
+        come in the torch step's order: reached goals (``_end_step``), then the autoreset's (``_reset_envs``: start,
+        goals); the reset-mode terms draw in their own kernel, the sensor and latency models in the task kernels."""
         env = self.env
-        sim, sensors = env.sim, env.sensors
+        sim = env.sim
         st, delay = self._sim_arrays()
         a = self._wp
-        sensors.draw_step(self._drop_u, self._bundle)
+        clock, clock_next = a["clock"][slot], a["clock"][slot ^ 1]
         self._draw()
         m = sim.model
         wp.launch(
             ktask.trajectory_step, dim=env.num_envs, device=sim.device,
             inputs=[self._task, self._sampler, m.tiles, m.collision, a["goal_pool"], a["start_pool"], st.pos, st.vel,
-                    st.acc, st.flags_any, sim._nonfinite, a["env_step"], a["step_u"], a["step_fallback"],
-                    a["start_index"], a["reset_u"], a["reset_fallback"], a["delay_draw"], self._sensor,
-                    *self._noise_wp[0], a["goals"], a["num_steps"], a["last_goal_step"], a["collected"], sim._init_pos,
-                    sim._init_quat, sim._reset_mask, delay],
+                    st.acc, st.flags_any, sim._nonfinite, clock, a["key"], a["step_u"], a["step_fallback"],
+                    a["start_index"], a["reset_u"], a["reset_fallback"], self._sensor, a["goals"], a["num_steps"],
+                    a["last_goal_step"], a["collected"], sim._init_pos, sim._init_quat, sim._reset_mask, delay],
             outputs=out.step_outputs,
         )
         # the finished worlds' reset-mode randomisation (torch ops on the device mask)
@@ -275,24 +264,24 @@ class FusedTrajectoryStep:
         sim._launch_reset()
         wp.launch(
             ktask.trajectory_obs, dim=env.num_envs, device=sim.device,
-            inputs=[self._task.learn_jerk, st.pos, st.vel, st.acc, a["goals"], self._sensor, *self._noise_wp[1],
-                    out.step_outputs[-1], *out.step_outputs[:3], a["env_step"]],
+            inputs=[self._task.learn_jerk, st.pos, st.vel, st.acc, a["goals"], self._sensor, clock, a["key"],
+                    out.step_outputs[-1], *out.step_outputs[:3], clock_next],
             outputs=out.obs_wp,
         )
 
-    def _launch_eager(self, out: _Outputs) -> None:
+    def _launch_eager(self, out: _Outputs, slot: int) -> None:
         env = self.env
         env.sim.step(env.num_cycles)
         with env.sim._on_stream():
-            self._launch_task(out)
+            self._launch_task(out, slot)
 
-    def _capture(self, out: _Outputs) -> RecordedGraph:
+    def _capture(self, out: _Outputs, slot: int) -> RecordedGraph:
         """Record steps 1-5 as one CUDA graph on a side stream (:func:`~magwarp.envs.step_graph.record_cuda_graph`)."""
         env, sim = self.env, self.env.sim
 
         def launches() -> None:
             sim._launch_step(env.num_cycles)
-            self._launch_task(out)
+            self._launch_task(out, slot)
 
         return record_cuda_graph(launches, env.device, generators=(env.sampler.generator,))
 
@@ -304,8 +293,11 @@ class FusedTrajectoryStep:
             self._goal_pool.copy_(sampler.goal_pool)
             self._start_pool.copy_(sampler.start_pool)
             self._pool_sources = (sampler.goal_pool, sampler.start_pool)
-        if self._env_step_host != env._step_count:
-            self._env_step.fill_(env._step_count)
+        host = (env._step_count, env._step_count - env.draw_clock.base)
+        if self._clock_host != host:  # eager steps or a reseed since the last fused step: set both rows
+            self._clock[:, 0].fill_(host[0])
+            self._clock[:, 1].fill_(host[1])
+            self._clock_host = host
         sim = env.sim
         key = (id(sim._fused_kernel), id(sim._advance_kernel), id(sim._delay), id(sim._prev_cmd), id(sim.state),
                sim._fused, *(id(getattr(sim.model, k)) for k in ("body", "radius", "half_size", "margins")))
@@ -319,13 +311,14 @@ class FusedTrajectoryStep:
         env = self.env
         self._sync_state()
         self._cmd.copy_(action.reshape(self._cmd.shape))
-        out = self._outputs[self._slot]
+        slot = self._slot
+        out = self._outputs[slot]
         if not self.graph:
-            self._launch_eager(out)
-        elif self._graphs[self._slot] is None:
-            self._launch_eager(out)  # loads the kernels; the graph is recorded after this real step
+            self._launch_eager(out, slot)
+        elif self._graphs[slot] is None:
+            self._launch_eager(out, slot)  # loads the kernels; the graph is recorded after this real step
             try:
-                self._graphs[self._slot] = self._capture(out)
+                self._graphs[slot] = self._capture(out, slot)
             except (RuntimeError, AttributeError) as e:  # e.g. no generator registration: the same kernels, eager
                 import warnings
 
@@ -339,6 +332,6 @@ class FusedTrajectoryStep:
             self._graphs[self._slot].graph.replay()
         self._slot ^= 1
         env._step_count += 1
-        self._env_step_host = env._step_count
+        self._clock_host = (env._step_count, env._step_count - env.draw_clock.base)
         return out.returns(env.max_episode_steps is not None)
 

@@ -7,22 +7,25 @@
   simulator's reset mask set;
 * (the simulator's reset kernels then put the finished worlds back at their new starts);
 * :func:`trajectory_obs` — the returned observation: the next episode's first one where a world finished, else the
-  final one; it also advances the device env-step counter.
+  final one; it also advances the device clock (env steps, draw clock).
 
 Sensor models (:class:`SensorParams`): both kernels read the mover positions and velocities as
-:class:`magwarp.envs.sim2real.SensorModel` does (bias, then white noise drawn by torch), and :func:`trajectory_step`
-repeats the held reading of a world whose reading is dropped; goal checks and the NaN guard see the reading.
+:class:`magwarp.envs.sim2real.SensorModel` does (bias, then white noise), and :func:`trajectory_step` repeats the held
+reading of a world whose reading is dropped; goal checks and the NaN guard see the reading.
 
-The random numbers are drawn before the kernels, with the env's torch generator, in the same calls and order as the
-eager step (:mod:`magwarp.envs.trajectory_fused`): the kernels only select among them, so that both paths give the
-same numbers for the same seed. Floating-point contraction is off in this module (``fuse_fp``): ``lo + u * span`` must
-round as torch's separate multiply and add do.
+The goals' and starts' random numbers are drawn before the kernels, with the env's torch generator, in the same calls
+and order as the eager step (:mod:`magwarp.envs.trajectory_fused`): the kernels only select among them. The sim2real
+models' draws (white noise, new biases, dropped readings, action delays) are counter-based
+(:mod:`magwarp.kernels.sensor_draws`): the kernels compute them from the key and the draw clock, as the torch step's
+fill kernels do. Both paths give the same numbers for the same seed. Floating-point contraction is off in this module
+(``fuse_fp``): ``lo + u * span`` must round as torch's separate multiply and add do.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
+from magwarp.kernels import sensor_draws as kdraw
 from magwarp.kernels.collision import hits_wall_cs
 from magwarp.types import COLLIDE_MOVER, COLLIDE_WALL, Collision
 
@@ -40,14 +43,16 @@ class TrajectoryTask:
     reward_per_step: float
     timeout_steps: int  # truncate when more steps than this passed since the last goal; -1: never
     max_episode_steps: int  # truncate after this many steps; -1: never
-    draw_latency: int  # 1: resets take the pre-drawn per-world action delay
+    draw_latency: int  # 1: resets draw the world's action delay in [delay_low, delay_low + delay_span)
+    delay_low: int
+    delay_span: int
 
 
 @wp.struct
 class SensorParams:
     """:class:`magwarp.envs.sim2real.SensorModel` on the device: a reading is ``x + bias`` (where set), then ``+ std *
-    noise`` (where the std is not 0; the noise drawn by torch); a world whose pre-drawn uniform is below
-    ``drop_prob`` repeats its held reading; a finished world draws new biases ``mean + bias_std * draw``."""
+    noise`` (where the std is not 0); a world whose uniform is below ``drop_prob`` repeats its held reading; a
+    finished world draws new biases ``mean + bias_std * draw`` (draws: :mod:`magwarp.kernels.sensor_draws`)."""
 
     pos_bias_on: int  # 1: add the per-world position bias
     vel_bias_on: int  # 1: add the per-world velocity bias
@@ -55,16 +60,13 @@ class SensorParams:
     vel_std: float  # white noise std on velocities (0: none drawn)
     pos_bias_std: float  # 0: a set bias (none drawn at resets)
     vel_bias_std: float
-    dropout: int  # 1: dropped readings (``drop_u < drop_prob``) repeat the held observation and achieved goal
+    dropout: int  # 1: dropped readings (the world's uniform < ``drop_prob``) repeat the held observation and goal
     drop_prob: float
     # State in/out (the model's own tensors, [W, M] x/y; the held readings [W, D] and [W, 2 M]):
     pos_bias: wp.array2d(dtype=wp.vec2)
     vel_bias: wp.array2d(dtype=wp.vec2)
     pos_mean: wp.array2d(dtype=wp.vec2)
     vel_mean: wp.array2d(dtype=wp.vec2)
-    pos_bias_draw: wp.array2d(dtype=wp.vec2)  # standard normal draws for the finished worlds' new biases
-    vel_bias_draw: wp.array2d(dtype=wp.vec2)
-    drop_u: wp.array(dtype=float)  # this step's uniform draw per world
     drop: wp.array(dtype=wp.bool)
     held_obs: wp.array2d(dtype=float)
     held_achieved: wp.array2d(dtype=float)
@@ -129,31 +131,32 @@ def write_obs(
 
 
 @wp.func
-def sense(s: SensorParams, vel: wp.vec2, pos: wp.vec2, vel_noise: wp.array2d(dtype=wp.vec2),
-          pos_noise: wp.array2d(dtype=wp.vec2), w: int, m: int):
+def sense(s: SensorParams, vel: wp.vec2, pos: wp.vec2, ws: wp.uint32, reading: int, w: int, m: int):
     """Mover ``m``'s sensed (velocity, position) as ``(vx, vy, px, py)`` (``SensorModel._sense``: the bias added
-    first, then the scaled noise, in float32)."""
+    first, then the scaled noise, in float32); the noise is the world's (``ws``) draws of reading ``reading``."""
     v = wp.vec2(vel[0], vel[1])
     p = wp.vec2(pos[0], pos[1])
     if s.vel_bias_on == 1:
         v = v + s.vel_bias[w, m]
     if s.vel_std != 0.0:
-        v = v + s.vel_std * vel_noise[w, m]
+        v = v + s.vel_std * kdraw.normal2(kdraw.value_state(ws, kdraw.READ + 2 * reading, m))
     if s.pos_bias_on == 1:
         p = p + s.pos_bias[w, m]
     if s.pos_std != 0.0:
-        p = p + s.pos_std * pos_noise[w, m]
+        p = p + s.pos_std * kdraw.normal2(kdraw.value_state(ws, kdraw.READ + 2 * reading + 1, m))
     return wp.vec4(v[0], v[1], p[0], p[1])
 
 
 @wp.func
-def redraw_biases(s: SensorParams, w: int, num_movers: int):
+def redraw_biases(s: SensorParams, ws: wp.uint32, w: int, num_movers: int):
     """A reset world's new biases (``SensorModel.reset``: ``mean + std * draw``) and a fresh next reading."""
     for m in range(num_movers):
         if s.vel_bias_std != 0.0:
-            s.vel_bias[w, m] = s.vel_mean[w, m] + s.vel_bias_std * s.vel_bias_draw[w, m]
+            s.vel_bias[w, m] = s.vel_mean[w, m] + s.vel_bias_std * kdraw.normal2(
+                kdraw.value_state(ws, kdraw.BIAS_VEL, m))
         if s.pos_bias_std != 0.0:
-            s.pos_bias[w, m] = s.pos_mean[w, m] + s.pos_bias_std * s.pos_bias_draw[w, m]
+            s.pos_bias[w, m] = s.pos_mean[w, m] + s.pos_bias_std * kdraw.normal2(
+                kdraw.value_state(ws, kdraw.BIAS_POS, m))
     if s.dropout == 1:
         s.drop[w] = False
 
@@ -178,17 +181,15 @@ def trajectory_step(
     acc: wp.array2d(dtype=wp.vec2),
     flags_any: wp.array2d(dtype=wp.int32),
     sim_nonfinite: wp.array(dtype=wp.int32),
-    env_step: wp.array(dtype=wp.int64),  # env steps before this one
+    clock: wp.array(dtype=wp.int64),  # [env steps before this one, the sim2real models' draw clock]
+    key: wp.array(dtype=wp.int32),  # [1]: the sim2real models' draw key
     step_u: wp.array3d(dtype=wp.vec2),  # draws for the goals reached this step
     step_fallback: wp.array2d(dtype=wp.int64),
-    start_index: wp.array(dtype=wp.int64),  # draws for the autoreset: start configuration, goals, delay
+    start_index: wp.array(dtype=wp.int64),  # draws for the autoreset: start configuration, goals
     reset_u: wp.array3d(dtype=wp.vec2),
     reset_fallback: wp.array2d(dtype=wp.int64),
-    delay_draw: wp.array(dtype=wp.int32),
-    # Sensors (the model, its drawn biases and dropped readings; this reading's noise):
+    # Sensors (the model, its biases, dropped readings and held readings):
     sensor: SensorParams,
-    pos_noise: wp.array2d(dtype=wp.vec2),
-    vel_noise: wp.array2d(dtype=wp.vec2),
     # State in/out:
     goals: wp.array2d(dtype=wp.vec2),
     num_steps: wp.array(dtype=wp.int64),
@@ -217,14 +218,14 @@ def trajectory_step(
 ):
     w = wp.tid()
     num_movers = pos.shape[1]
-    # The observation the reward is computed for (sensed; a dropped reading repeats the held one).
+    ws = kdraw.world_state(key[0], clock[1], w)  # the world's sim2real draws of this step
+    # The observation the reward is computed for (sensed: reading 0; a dropped reading repeats the held one).
     for m in range(num_movers):
-        sv = sense(sensor, wp.vec2(vel[w, m][0], vel[w, m][1]), wp.vec2(pos[w, m][0], pos[w, m][1]), vel_noise,
-                  pos_noise, w, m)
+        sv = sense(sensor, wp.vec2(vel[w, m][0], vel[w, m][1]), wp.vec2(pos[w, m][0], pos[w, m][1]), ws, 0, w, m)
         write_obs(w, m, num_movers, task.learn_jerk, wp.vec2(sv[0], sv[1]), acc[w, m], wp.vec2(sv[2], sv[3]),
                   goals[w, m], final_obs, final_achieved, final_desired)
     if sensor.dropout == 1:
-        dropped = sensor.drop_u[w] < sensor.drop_prob
+        dropped = kdraw.uniform(kdraw.value_state(ws, kdraw.DROP, 0)) < sensor.drop_prob
         sensor.drop[w] = dropped
         if dropped:
             for k in range(final_obs.shape[1]):
@@ -285,7 +286,7 @@ def trajectory_step(
     if not ok:
         r = 0.0
         term = True
-        nonfinite_step[w] = env_step[0] + wp.int64(1)
+        nonfinite_step[w] = clock[0] + wp.int64(1)
     reward[w] = r
     terminated[w] = term
     truncated[w] = trunc
@@ -305,8 +306,8 @@ def trajectory_step(
         num_steps[w] = wp.int64(0)
         last_goal_step[w] = wp.int64(0)
         if task.draw_latency == 1:
-            delay[w] = delay_draw[w]
-        redraw_biases(sensor, w, num_movers)
+            delay[w] = kdraw.uniform_int(kdraw.value_state(ws, kdraw.DELAY, 0), task.delay_low, task.delay_span)
+        redraw_biases(sensor, ws, w, num_movers)
 
 
 @wp.kernel
@@ -318,29 +319,31 @@ def trajectory_obs(
     vel: wp.array2d(dtype=wp.vec3),
     acc: wp.array2d(dtype=wp.vec2),
     goals: wp.array2d(dtype=wp.vec2),
-    sensor: SensorParams,  # the next episode's first reading: the new biases, this reading's noise
-    pos_noise: wp.array2d(dtype=wp.vec2),
-    vel_noise: wp.array2d(dtype=wp.vec2),
+    sensor: SensorParams,  # the next episode's first reading: the new biases, reading 1's noise
+    clock: wp.array(dtype=wp.int64),  # [env steps before this one, draw clock] (as trajectory_step's)
+    key: wp.array(dtype=wp.int32),
     done: wp.array(dtype=wp.bool),
     final_obs: wp.array2d(dtype=float),
     final_achieved: wp.array2d(dtype=float),
     final_desired: wp.array2d(dtype=float),
     # State out:
-    env_step: wp.array(dtype=wp.int64),
+    clock_next: wp.array(dtype=wp.int64),  # the next step's clock: another array than ``clock`` (no race)
     obs: wp.array2d(dtype=float),
     achieved: wp.array2d(dtype=float),
     desired: wp.array2d(dtype=float),
 ):
     """The returned observation: the first of the next episode where the world finished (after the reset), else the
-    final one. Thread 0 counts the env step (after :func:`trajectory_step` has read the count)."""
+    final one. Thread 0 writes the next step's clock (``clock + 1``) into ``clock_next``: every thread reads ``clock``,
+    so it cannot be advanced in place (the fused step alternates two clock arrays)."""
     w = wp.tid()
     if w == 0:
-        env_step[0] = env_step[0] + wp.int64(1)
+        clock_next[0] = clock[0] + wp.int64(1)
+        clock_next[1] = clock[1] + wp.int64(1)
     num_movers = pos.shape[1]
     if done[w]:
+        ws = kdraw.world_state(key[0], clock[1], w)
         for m in range(num_movers):
-            sv = sense(sensor, wp.vec2(vel[w, m][0], vel[w, m][1]), wp.vec2(pos[w, m][0], pos[w, m][1]), vel_noise,
-                      pos_noise, w, m)
+            sv = sense(sensor, wp.vec2(vel[w, m][0], vel[w, m][1]), wp.vec2(pos[w, m][0], pos[w, m][1]), ws, 1, w, m)
             write_obs(w, m, num_movers, learn_jerk, wp.vec2(sv[0], sv[1]), acc[w, m], wp.vec2(sv[2], sv[3]),
                       goals[w, m], obs, achieved, desired)
     else:
