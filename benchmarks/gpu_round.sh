@@ -22,6 +22,12 @@ for stage in "$@"; do
         tests/test_reliability.py tests/test_sim_errors.py tests/test_sim2real_models.py \
         > "$OUT/pytest_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_gpu.log" | tail -25 ;;
+    tests24)
+      # #24: the randomisation, sensor and latency draws on CUDA (graph step == torch step bit for bit, no host sync)
+      timeout 400 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings tests/test_graph_step.py \
+        tests/test_sensor_draws.py tests/test_sim2real_models.py tests/test_planar_randomization.py \
+        > "$OUT/pytest24_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest24_gpu.log" | tail -25 ;;
     queries)
       timeout 400 python3 benchmarks/collision_queries.py --devices cpu cuda:0 --max-poses-cpu 1e5 \
         --json "$OUT/collision_queries_gpu.json" 2>&1 | tail -40 ;;
