@@ -44,3 +44,20 @@ REGISTER_ROWS_CHOICES = ("all", "f32", "sizes", "none")
 REGISTER_ROWS: str = os.environ.get("MAGWARP_REGISTER_ROWS", "f32")
 if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
     raise ValueError(f"MAGWARP_REGISTER_ROWS must be one of {', '.join(REGISTER_ROWS_CHOICES)}, got {REGISTER_ROWS!r}")
+
+
+#: The launch shape of the fused step for small worlds (up to :data:`magwarp.sim.REGISTER_MAX_MOVERS` movers) on CUDA:
+#: ``"registers"`` (one thread per world, every mover's state in registers:
+#: :func:`magwarp.kernels.step.make_register_kernel`) or ``"movers"`` (one thread per mover, several worlds per block,
+#: poses exchanged through shared memory each cycle: :mod:`magwarp.kernels.step_blocks`; never with an actuator). The
+#: same results bit for bit. ``MAGWARP_SMALL_WORLD_KERNEL`` picks it, ``MAGWARP_SMALL_WORLD_BLOCK`` the threads per block
+#: of the "movers" shape (``block_dim // num_movers`` worlds a block); read once at import, tuning knobs for benchmarks
+#: (``benchmarks/randomization.py --small-world-kernel``), not an API.
+SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
+SMALL_WORLD_KERNEL: str = os.environ.get("MAGWARP_SMALL_WORLD_KERNEL", "registers")
+if SMALL_WORLD_KERNEL not in SMALL_WORLD_KERNEL_CHOICES:
+    raise ValueError(f"MAGWARP_SMALL_WORLD_KERNEL must be one of {', '.join(SMALL_WORLD_KERNEL_CHOICES)}, got "
+                     f"{SMALL_WORLD_KERNEL!r}")
+SMALL_WORLD_BLOCK: int = int(os.environ.get("MAGWARP_SMALL_WORLD_BLOCK", "96"))
+if not 1 <= SMALL_WORLD_BLOCK <= 1024:
+    raise ValueError(f"MAGWARP_SMALL_WORLD_BLOCK must be in 1..1024, got {SMALL_WORLD_BLOCK}")

@@ -1,0 +1,232 @@
+"""The fused small-world step with one thread per mover: several worlds per thread block, each world's positions and
+headings exchanged through shared memory (Warp tiles) every cycle.
+
+:func:`magwarp.kernels.step.make_register_kernel` runs a small world in one thread that holds every mover's state
+(and, in the general variant, every mover's body row) in registers for all cycles of a step: on sm_90 it sits at the
+255-register cap and spills, the more so with per-world rows and action latency. Here a thread holds one mover: its
+state, its command and its body row (loaded once per step in both variants), and the per-world rows cost it one row,
+not ``num_movers``. Each cycle:
+
+1. every live mover advances (:func:`~magwarp.kernels.step.make_advance_kernel`'s ``advance_pose``: the same force
+   model, limits and float64 x/y law as the register kernel, called with the same arguments) and checks the walls;
+2. it writes its x/y and shape heading into a shared tile; after the block's barrier it checks every other mover of
+   its world (the pair ``(i, j)``, ``i < j``, evaluated as the register kernel does: offset ``p_i - p_j``, ``i``'s
+   heading and sizes first), its partner being the lowest colliding index;
+3. it writes its count of pairs with higher movers and its wall flag into a second shared tile; after the barrier
+   every mover of the world knows the world's pair and wall counts (so whether the world stops) and where its own
+   pairs go in the world's pair list (the register kernel's order: ``i`` ascending, then ``j``).
+
+The results are those of the register kernel bit for bit (same arithmetic, same order), outputs included
+(``flags``, ``flags_any``, ``partner``, ``wall``, ``world_pairs``, ``world_walls``, ``pair_list``, ``halted``,
+``cycles``, ``stop_on_collision``, action latency). A world that stops (``stop_on_collision``) keeps its lanes in the
+cycle loop, idle, since every lane must reach every barrier of its block.
+
+Launch: ``wp.launch_tiled(kernel, dim=[num_blocks(W, M, block_dim)], block_dim=block_dim)``: ``K = block_dim // M``
+worlds per block, lane ``l`` is mover ``l % M`` of the block's world ``l // M``. Lanes past ``K * M`` and lanes of
+worlds past the last one mirror a valid world's mover (the same work on the same inputs, their own tile entries,
+no writes). No actuator (:class:`~magwarp.kernels.step.Actuator`): the simulator keeps the register kernel then.
+On the CPU it needs Warp's cooperative CPU blocks (``wp.config.enable_cpu_blocks``).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import warp as wp
+
+from magwarp.kernels.collision import (collision_flags, hits_wall_cs, model_row, movers_collide_cs, shape_heading,
+                                       world_collision)
+from magwarp.kernels.dynamics import sync_planar64
+from magwarp.kernels.options import MODULE_OPTIONS
+from magwarp.kernels.step import NoActuator, make_advance_kernel
+from magwarp.types import Body, Collision, Impedance, Limits, Planar64, make_pose
+
+wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
+
+
+def worlds_per_block(num_movers: int, block_dim: int) -> int:
+    """Worlds of ``num_movers`` movers one block of ``block_dim`` threads holds."""
+    if num_movers < 1 or block_dim < num_movers:
+        raise ValueError(f"a block of {block_dim} threads cannot hold a world of {num_movers} movers")
+    return block_dim // num_movers
+
+
+def num_blocks(num_worlds: int, num_movers: int, block_dim: int) -> int:
+    """Blocks of the launch for ``num_worlds`` worlds."""
+    k = worlds_per_block(num_movers, block_dim)
+    return (num_worlds + k - 1) // k
+
+
+@functools.cache
+def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal: bool = False,
+                       block_dim: int = 96):
+    """The one-thread-per-mover fused step for ``force_fn``, specialised for ``num_movers`` and ``block_dim`` (see the
+    module docstring). Same arguments as :func:`~magwarp.kernels.step.make_register_kernel`'s kernel (``act`` a
+    :class:`~magwarp.kernels.step.NoActuator`), ``latency`` and ``nominal`` as there."""
+    M = int(num_movers)
+    B = int(block_dim)
+    K = worlds_per_block(M, B)
+    advance_pose = make_advance_kernel(force_fn, latency, nominal)[2]
+
+    @wp.kernel(module="unique", enable_backward=False, module_options={**MODULE_OPTIONS, "block_dim": B})
+    def fused_movers(
+        num_cycles: int,
+        # Model:
+        lim: Limits,
+        imp: Impedance,
+        col_shared: Collision,
+        tiles: wp.array2d(dtype=wp.int32),
+        body: wp.array2d(dtype=Body),
+        radius: wp.array2d(dtype=float),
+        half_size: wp.array2d(dtype=wp.vec2),
+        margins: wp.array(dtype=wp.vec2),
+        act: NoActuator,  # never read (no actuator in this shape)
+        # State in:
+        cmd: wp.array2d(dtype=wp.vec2),
+        delay: wp.array(dtype=wp.int32),  # latency only: per-world delay (cycles)
+        target_pos: wp.array2d(dtype=wp.vec3),
+        target_quat: wp.array2d(dtype=wp.quat),
+        force_aux: wp.array3d(dtype=float),
+        # State out:
+        prev_cmd: wp.array2d(dtype=wp.vec2),  # latency only: the previous step's command, then this step's
+        pos: wp.array2d(dtype=wp.vec3),
+        quat: wp.array2d(dtype=wp.quat),
+        vel: wp.array2d(dtype=wp.vec3),
+        omega: wp.array2d(dtype=wp.vec3),
+        acc: wp.array2d(dtype=wp.vec2),
+        planar: wp.array2d(dtype=Planar64),
+        wall: wp.array2d(dtype=wp.int32),
+        flags: wp.array2d(dtype=wp.int32),
+        flags_any: wp.array2d(dtype=wp.int32),
+        partner: wp.array2d(dtype=wp.int32),
+        world_pairs: wp.array(dtype=wp.int32),
+        world_walls: wp.array(dtype=wp.int32),
+        halted: wp.array(dtype=wp.int32),
+        cycles: wp.array(dtype=wp.int32),
+        pair_list: wp.array2d(dtype=wp.vec2i),
+    ):
+        blk, lane = wp.tid()
+        m = lane % M
+        slot = wp.min(lane // M, K - 1)  # lanes past K * M mirror the block's last world
+        first = slot * M  # the tile entry of the world's mover 0
+        w_raw = blk * K + slot
+        w = wp.min(w_raw, pos.shape[0] - 1)  # worlds past the last one mirror it
+        live = lane < K * M and w_raw < pos.shape[0]
+        col = world_collision(col_shared, margins, w)
+        b = body[model_row(body.shape[0], w), m]
+        r = radius[model_row(radius.shape[0], w), m]
+        h = half_size[model_row(half_size.shape[0], w), m]
+        P = pos[w, m]
+        Q = quat[w, m]
+        V = vel[w, m]
+        Om = omega[w, m]
+        A = acc[w, m]
+        XY = sync_planar64(planar[w, m], P, V, A)
+        TP = target_pos[w, m]
+        TQ = target_quat[w, m]
+        # The acting command: the step's or, with latency, the previous step's during the world's first ``held``
+        # cycles, the step's from cycle ``held`` on (as the register kernel loads them).
+        U = cmd[w, m]
+        held = int(0)
+        if wp.static(latency):
+            held = delay[w]
+            if held > 0:
+                U = prev_cmd[w, m]
+        Wl = wall[w, m]
+        F = flags[w, m]
+        Fa = int(0)  # per-step accumulators start here: fused steps need no begin_step launch
+        Pr = partner[w, m]
+        pairs = world_pairs[w]
+        walls = world_walls[w]
+        stopped = int(0)
+        done = int(0)
+        # Shared tiles, one entry per lane, each lane writing its own (tile_assign writes, then synchronises the
+        # block): the sizes once, then per cycle the poses (x, y, heading) and the (pairs above, wall) counts. Two
+        # barriers a cycle keep a lane from overwriting an entry that another lane has yet to read.
+        sizes = wp.tile_zeros(shape=B, dtype=wp.vec3, storage="shared")
+        poses = wp.tile_zeros(shape=B, dtype=wp.vec4, storage="shared")
+        counts = wp.tile_zeros(shape=B, dtype=wp.int32, storage="shared")
+        wp.tile_assign(sizes, wp.tile(wp.vec3(r, h[0], h[1]), preserve_type=True))
+        for c in range(num_cycles):
+            active = col.stop_on_collision == 0 or stopped == 0  # the same in every lane of a world
+            if active:
+                if wp.static(latency):
+                    if c == held and c > 0:
+                        U = cmd[w, m]
+                n, a, xy = advance_pose(make_pose(P, Q, V, Om), XY, U, b, TP, TQ, force_aux[w, m], lim, imp, act, w,
+                                        m, int(c == num_cycles - 1))
+                P = n.pos
+                Q = n.quat
+                V = n.vel
+                Om = n.omega
+                A = a
+                XY = xy
+                hit = int(0)
+                if hits_wall_cs(tiles, col, wp.vec2(P[0], P[1]), shape_heading(col, Q), r, h):
+                    hit = 1
+                Wl = hit
+                done += 1
+            hd = shape_heading(col, Q)
+            wp.tile_assign(poses, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
+            above = int(0)  # colliding movers above this one: bit j set for mover j
+            num_above = int(0)
+            if active:
+                Pr = -1
+                for j in range(M):
+                    if j != m:
+                        o = poses[first + j]
+                        s = sizes[first + j]
+                        hit_j = bool(False)
+                        if j < m:  # the pair (j, m), as the register kernel evaluates it
+                            hit_j = movers_collide_cs(col, wp.vec2(o[0] - P[0], o[1] - P[1]), wp.vec2(o[2], o[3]),
+                                                      s[0], wp.vec2(s[1], s[2]), hd, r, h)
+                        else:  # the pair (m, j)
+                            hit_j = movers_collide_cs(col, wp.vec2(P[0] - o[0], P[1] - o[1]), hd, r, h,
+                                                      wp.vec2(o[2], o[3]), s[0], wp.vec2(s[1], s[2]))
+                        if hit_j:
+                            if Pr < 0:  # ascending: the first hit is the lowest index
+                                Pr = j
+                            if j > m:
+                                above = above | (1 << j)
+                                num_above += 1
+                F = collision_flags(Pr, Wl)
+                Fa = Fa | F
+            wp.tile_assign(counts, wp.tile(2 * num_above + wp.where(Wl != 0, 1, 0), preserve_type=True))
+            if active:
+                pairs = int(0)
+                walls = int(0)
+                k = int(0)  # this mover's first entry in the world's pair list
+                for j in range(M):
+                    e = counts[first + j]
+                    pairs += e >> 1
+                    walls += e & 1
+                    if j < m:
+                        k += e >> 1
+                if live:
+                    for j in range(M):
+                        if (above >> j) & 1 != 0:
+                            if k < pair_list.shape[1]:
+                                pair_list[w, k] = wp.vec2i(m, j)
+                            k += 1
+                if pairs > 0 or walls > 0:
+                    stopped = 1
+        if live:
+            pos[w, m] = P
+            quat[w, m] = Q
+            vel[w, m] = V
+            omega[w, m] = Om
+            acc[w, m] = A
+            planar[w, m] = XY
+            wall[w, m] = Wl
+            flags[w, m] = F
+            flags_any[w, m] = Fa
+            partner[w, m] = Pr
+            if wp.static(latency):  # the next step's previous command
+                prev_cmd[w, m] = cmd[w, m]
+            if m == 0:
+                world_pairs[w] = pairs
+                world_walls[w] = walls
+                halted[w] = stopped
+                cycles[w] = done
+
+    return fused_movers
