@@ -51,8 +51,10 @@ if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
 #: :func:`magwarp.kernels.step.make_register_kernel`) or ``"movers"`` (one thread per mover, several worlds per block,
 #: poses exchanged through shared memory each cycle: :mod:`magwarp.kernels.step_blocks`; never with an actuator). The
 #: same results bit for bit. ``MAGWARP_SMALL_WORLD_KERNEL`` picks it, ``MAGWARP_SMALL_WORLD_BLOCK`` the threads per block
-#: of the "movers" shape (``block_dim // num_movers`` worlds a block); read once at import, tuning knobs for benchmarks
-#: (``benchmarks/randomization.py --small-world-kernel``), not an API.
+#: of the "movers" shape (``block_dim // num_movers`` worlds a block) and ``MAGWARP_SMALL_WORLD_MAXREG`` its register cap
+#: per thread (0: none; uncapped it takes about 180 (nominal) to 215 (per-world rows) registers on sm_90 for 3 movers,
+#: three blocks of 96 per SM); read once at import, tuning knobs for benchmarks
+#: (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``), not an API.
 SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
 SMALL_WORLD_KERNEL: str = os.environ.get("MAGWARP_SMALL_WORLD_KERNEL", "registers")
 if SMALL_WORLD_KERNEL not in SMALL_WORLD_KERNEL_CHOICES:
@@ -61,3 +63,6 @@ if SMALL_WORLD_KERNEL not in SMALL_WORLD_KERNEL_CHOICES:
 SMALL_WORLD_BLOCK: int = int(os.environ.get("MAGWARP_SMALL_WORLD_BLOCK", "96"))
 if not 1 <= SMALL_WORLD_BLOCK <= 1024:
     raise ValueError(f"MAGWARP_SMALL_WORLD_BLOCK must be in 1..1024, got {SMALL_WORLD_BLOCK}")
+SMALL_WORLD_MAXREG: int = int(os.environ.get("MAGWARP_SMALL_WORLD_MAXREG", "0"))
+if not 0 <= SMALL_WORLD_MAXREG <= 255:
+    raise ValueError(f"MAGWARP_SMALL_WORLD_MAXREG must be in 0..255 (0: no cap), got {SMALL_WORLD_MAXREG}")

@@ -59,16 +59,18 @@ def num_blocks(num_worlds: int, num_movers: int, block_dim: int) -> int:
 
 @functools.cache
 def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal: bool = False,
-                       block_dim: int = 96):
+                       block_dim: int = 96, max_registers: int = 0):
     """The one-thread-per-mover fused step for ``force_fn``, specialised for ``num_movers`` and ``block_dim`` (see the
     module docstring). Same arguments as :func:`~magwarp.kernels.step.make_register_kernel`'s kernel (``act`` a
-    :class:`~magwarp.kernels.step.NoActuator`), ``latency`` and ``nominal`` as there."""
+    :class:`~magwarp.kernels.step.NoActuator`), ``latency`` and ``nominal`` as there. ``max_registers`` > 0 caps the
+    registers per thread on CUDA (``__maxnreg__``: more blocks per SM, spilling what does not fit)."""
     M = int(num_movers)
     B = int(block_dim)
     K = worlds_per_block(M, B)
     advance_pose = make_advance_kernel(force_fn, latency, nominal)[2]
+    caps = {"cuda_max_registers": int(max_registers)} if max_registers > 0 else {}
 
-    @wp.kernel(module="unique", enable_backward=False, module_options={**MODULE_OPTIONS, "block_dim": B})
+    @wp.kernel(module="unique", enable_backward=False, module_options={**MODULE_OPTIONS, "block_dim": B}, **caps)
     def fused_movers(
         num_cycles: int,
         # Model:
@@ -113,7 +115,8 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
         w = wp.min(w_raw, pos.shape[0] - 1)  # worlds past the last one mirror it
         live = lane < K * M and w_raw < pos.shape[0]
         col = world_collision(col_shared, margins, w)
-        b = body[model_row(body.shape[0], w), m]
+        wb = model_row(body.shape[0], w)
+        b = body[wb, m]  # the general variant holds the world's row; the nominal one reads the shared row each cycle
         r = radius[model_row(radius.shape[0], w), m]
         h = half_size[model_row(half_size.shape[0], w), m]
         P = pos[w, m]
@@ -153,6 +156,8 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
                 if wp.static(latency):
                     if c == held and c > 0:
                         U = cmd[w, m]
+                if wp.static(nominal):
+                    b = body[wb, m]
                 n, a, xy = advance_pose(make_pose(P, Q, V, Om), XY, U, b, TP, TQ, force_aux[w, m], lim, imp, act, w,
                                         m, int(c == num_cycles - 1))
                 P = n.pos
