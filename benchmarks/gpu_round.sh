@@ -7,6 +7,7 @@
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
+# small_world_kernels and small_world (#24: the one-thread-per-mover fused step),
 # compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
@@ -196,6 +197,22 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         timeout 170 python3 benchmarks/randomization.py --device cuda:0 --num-envs 65536 \
           --env magwarp/TrajectoryPlanningB0-v0 --register-rows $rows --settings terms,latency,sensors,full \
           --json "$OUT/randomization_parts_${rows}_gpu.json" 2>&1 | grep -E "^  cuda.*num_envs" | tail -6
+      done ;;
+    small_world_kernels)
+      # #24: the fused small-world step's two launch shapes: B0 physics per step (nominal, per-world rows, + latency)
+      # and bitwise agreement, registers vs movers for each block size (BLOCKS) and register cap (MAXREGS, 0: none);
+      # each setting compiles three kernels: split larger sweeps over calls (the kernel cache stays while warm)
+      timeout 590 python3 benchmarks/small_world_kernels.py --device cuda:0 --num-envs 16384,65536 \
+        --blocks "${BLOCKS:-96}" --maxregs "${MAXREGS:-0,168}" --json "$OUT/small_world_kernels_gpu.json" \
+        2>&1 | grep -E "^  cuda|^cuda" | tail -40 ;;
+    small_world)
+      # #24: B0's randomisation cost with each launch shape of the fused small-world step (KERNELS, default
+      # "registers movers"; the movers shape with SMALL_BLOCK threads a block and SMALL_MAXREG registers, 0: no cap)
+      for k in ${KERNELS:-registers movers}; do
+        timeout 290 python3 benchmarks/randomization.py --device cuda:0 --num-envs 16384,65536 \
+          --env magwarp/TrajectoryPlanningB0-v0 --settings terms,latency,full --kernel-times 65536 \
+          --small-world-kernel $k --small-world-block "${SMALL_BLOCK:-96}" --small-world-maxreg "${SMALL_MAXREG:-0}" \
+          --json "$OUT/randomization_small_world_${k}_gpu.json" 2>&1 | grep -E "^  cuda" | tail -12
       done ;;
     robustness)
       # #24: the shipped B0 policy and the randomisation-trained ones (paper.py runs b0_ppo_dr and b0_ppo_dr_ft,

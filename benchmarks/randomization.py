@@ -180,6 +180,13 @@ def main(argv=None) -> int:
     p.add_argument("--register-rows", default=None, choices=("all", "f32", "sizes", "none"),
                    help="which per-world rows the general register kernel holds (magwarp.kernels.options.REGISTER_ROWS;"
                         " default: the library's); each setting compiles its own kernel")
+    p.add_argument("--small-world-kernel", default=None, choices=("registers", "movers"),
+                   help="the fused small-world step's launch shape (magwarp.kernels.options.SMALL_WORLD_KERNEL: one "
+                        "thread per world, or per mover; default: the library's)")
+    p.add_argument("--small-world-block", type=int, default=None,
+                   help="threads per block of the movers shape (SMALL_WORLD_BLOCK; default: the library's)")
+    p.add_argument("--small-world-maxreg", type=int, default=None,
+                   help="register cap of the movers shape (SMALL_WORLD_MAXREG, 0: none; default: the library's)")
     p.add_argument("--kernel-times", type=int, default=0, metavar="N",
                    help="also profile each setting's step at N envs on CUDA: per-kernel time per step (us)")
     p.add_argument("--settings", default="off,terms,full",
@@ -195,6 +202,12 @@ def main(argv=None) -> int:
 
     if args.register_rows is not None:
         kernel_options.REGISTER_ROWS = args.register_rows
+    if args.small_world_kernel is not None:
+        kernel_options.SMALL_WORLD_KERNEL = args.small_world_kernel
+    if args.small_world_block is not None:
+        kernel_options.SMALL_WORLD_BLOCK = args.small_world_block
+    if args.small_world_maxreg is not None:
+        kernel_options.SMALL_WORLD_MAXREG = args.small_world_maxreg
     if args.env is not None and args.env not in ENVS:
         p.error(f"--env must be one of {', '.join(ENVS)}, got {args.env!r}")
     info, devices = start_run(args.device)
@@ -230,6 +243,9 @@ def main(argv=None) -> int:
                     rows.append({"env": env_id, "device": device, "num_envs": n, "randomization": name,
                                  "cost_pct": cost, **res, **counts[name],
                                  "register_rows": kernel_options.REGISTER_ROWS,
+                                 "small_world_kernel": kernel_options.SMALL_WORLD_KERNEL,
+                                 "small_world_block": kernel_options.SMALL_WORLD_BLOCK,
+                                 "small_world_maxreg": kernel_options.SMALL_WORLD_MAXREG,
                                  "kernel_us": times.get(name) if n == args.kernel_times else None})
                     path = f", step path: {res['path']}" if "path" in res else ""
                     print(f"  {device} {env_id} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s "

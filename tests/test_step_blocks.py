@@ -122,7 +122,8 @@ def test_movers_kernel_equals_the_register_kernel_bit_for_bit(rng, monkeypatch, 
         walls += int((s.world_walls.numpy() > 0).sum())
         halted_early += int((s.cycles.numpy() < 10).sum())
         pl, n = s.pair_list.numpy(), s.world_pairs.numpy()  # movers in two pairs: the partner is the lowest index
-        multi += sum(int((np.bincount(pl[w, :n[w]].ravel(), minlength=num_movers) > 1).sum()) for w in range(num_worlds))
+        multi += sum(int((np.bincount(pl[w, :n[w]].ravel(), minlength=num_movers) > 1).sum())
+                     for w in range(num_worlds))
     print(case, "worlds with pairs", pairs, "movers in several pairs", multi, "worlds with walls", walls,
           "halted early", halted_early)
     assert (pairs > 0 or num_movers == 1) and walls > 0, "the case must exercise pairs and walls"
@@ -166,3 +167,30 @@ def test_blocks_and_fallbacks(monkeypatch):
     assert sim._small_world_block() == 96
     monkeypatch.setattr(kernel_options, "SMALL_WORLD_BLOCK", 1)  # a world of 2 movers needs 2 threads
     assert sim._small_world_block() == 0
+
+
+def test_trajectory_env_fused_step_with_the_movers_kernel(monkeypatch):
+    # The trajectory env's fused step (its graphs keyed on the simulator's kernels) with full randomisation, latency
+    # drawn at resets and autoresets: the same observations, rewards and flags with either small-world kernel.
+    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    monkeypatch.setattr(kernel_options, "SMALL_WORLD_BLOCK", 32)
+    runs = []
+    for kernel in ("registers", "movers"):
+        monkeypatch.setattr(kernel_options, "SMALL_WORLD_KERNEL", kernel)
+        env = TrajectoryPlanningEnv(12, device="cpu", seed=5, randomization="sim2real", max_episode_steps=6,
+                                    actuation={"latency_range": [0, 5]})
+        env.reset(seed=5)
+        assert env.step_path == "fused" and env.sim._movers_block == (32 if kernel == "movers" else 0)
+        gen = torch.Generator().manual_seed(6)
+        out = []
+        for _ in range(8):
+            obs, reward, terminated, truncated, _ = env.step(torch.rand((12, *env.single_action_space.shape),
+                                                                        generator=gen) * 2 - 1)
+            out.append([t.clone() for t in (*obs.values(), reward, terminated, truncated)])
+        runs.append(out)
+    assert any(bool(step[-1].any() or step[-2].any()) for step in runs[0]), "autoresets must happen"
+    for a, b in zip(*runs):
+        for x, y in zip(a, b):
+            assert torch.equal(x, y)

@@ -48,13 +48,14 @@ if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
 
 #: The launch shape of the fused step for small worlds (up to :data:`magwarp.sim.REGISTER_MAX_MOVERS` movers) on CUDA:
 #: ``"registers"`` (one thread per world, every mover's state in registers:
-#: :func:`magwarp.kernels.step.make_register_kernel`) or ``"movers"`` (one thread per mover, several worlds per block,
-#: poses exchanged through shared memory each cycle: :mod:`magwarp.kernels.step_blocks`; never with an actuator). The
-#: same results bit for bit. ``MAGWARP_SMALL_WORLD_KERNEL`` picks it, ``MAGWARP_SMALL_WORLD_BLOCK`` the threads per block
-#: of the "movers" shape (``block_dim // num_movers`` worlds a block) and ``MAGWARP_SMALL_WORLD_MAXREG`` its register cap
-#: per thread (0: none; uncapped it takes about 180 (nominal) to 215 (per-world rows) registers on sm_90 for 3 movers,
-#: three blocks of 96 per SM); read once at import, tuning knobs for benchmarks
-#: (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``), not an API.
+#: :func:`magwarp.kernels.step.make_register_kernel`) or ``"movers"`` (one thread per mover, several worlds per
+#: block, poses exchanged through shared memory each cycle: :mod:`magwarp.kernels.step_blocks`; never with an
+#: actuator). The same results bit for bit. ``MAGWARP_SMALL_WORLD_KERNEL`` picks it, ``MAGWARP_SMALL_WORLD_BLOCK``
+#: the threads per block of the "movers" shape (``block_dim // num_movers`` worlds a block) and
+#: ``MAGWARP_SMALL_WORLD_MAXREG`` its register cap per thread (0: none; uncapped it takes about 180 (nominal) to 215
+#: (per-world rows) registers on sm_90 for 3 movers: three blocks of 96 threads per SM); read once at import, tuning
+#: knobs for benchmarks (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``),
+#: not an API.
 SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
 SMALL_WORLD_KERNEL: str = os.environ.get("MAGWARP_SMALL_WORLD_KERNEL", "registers")
 if SMALL_WORLD_KERNEL not in SMALL_WORLD_KERNEL_CHOICES:
