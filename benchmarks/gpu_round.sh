@@ -203,15 +203,17 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # and bitwise agreement, registers vs movers for each block size (BLOCKS) and register cap (MAXREGS, 0: none);
       # each setting compiles three kernels: split larger sweeps over calls (the kernel cache stays while warm)
       timeout 590 python3 benchmarks/small_world_kernels.py --device cuda:0 --num-envs 16384,65536 \
-        --blocks "${BLOCKS:-96}" --maxregs "${MAXREGS:-0,168}" --json "$OUT/small_world_kernels_gpu.json" \
+        --blocks "${BLOCKS:-96}" --maxregs "${MAXREGS:-168,0}" --json "$OUT/small_world_kernels_gpu.json" \
         2>&1 | grep -E "^  cuda|^cuda" | tail -40 ;;
     small_world)
       # #24: B0's randomisation cost with each launch shape of the fused small-world step (KERNELS, default
-      # "registers movers"; the movers shape with SMALL_BLOCK threads a block and SMALL_MAXREG registers, 0: no cap)
+      # "registers movers"; the movers shape with SMALL_BLOCK threads a block, default 96, and a cap of SMALL_MAXREG
+      # registers, default 168, 0: none)
       for k in ${KERNELS:-registers movers}; do
         timeout 290 python3 benchmarks/randomization.py --device cuda:0 --num-envs 16384,65536 \
           --env magwarp/TrajectoryPlanningB0-v0 --settings terms,latency,full --kernel-times 65536 \
-          --small-world-kernel $k --small-world-block "${SMALL_BLOCK:-96}" --small-world-maxreg "${SMALL_MAXREG:-0}" \
+          --small-world-kernel $k --small-world-block "${SMALL_BLOCK:-96}" \
+          --small-world-maxreg "${SMALL_MAXREG:-168}" \
           --json "$OUT/randomization_small_world_${k}_gpu.json" 2>&1 | grep -E "^  cuda" | tail -12
       done ;;
     robustness)

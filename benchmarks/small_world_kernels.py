@@ -3,7 +3,7 @@ alone: 40 control cycles, its CUDA graph replayed) per variant and kernel settin
 equal the register kernel's bit for bit.
 
     python benchmarks/small_world_kernels.py                                   # cpu smoke check (cooperative blocks)
-    python benchmarks/small_world_kernels.py --device cuda:0 --num-envs 16384,65536 --blocks 96,128 --maxregs 0,128 \\
+    python benchmarks/small_world_kernels.py --device cuda:0 --num-envs 16384,65536 --blocks 96 --maxregs 168,0 \\
         --json small_world_kernels_gpu.json
 
 Kernels (:data:`magwarp.kernels.options.SMALL_WORLD_KERNEL`): ``registers`` (one thread per world, the whole world in
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu", help="cpu (cooperative CPU blocks: a smoke check) or cuda:N")
     p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 64 on CPU, 16384,65536 on GPU)")
     p.add_argument("--blocks", default="96", help="comma-separated threads per block of the movers kernel")
-    p.add_argument("--maxregs", default="0", help="comma-separated register caps of the movers kernel (0: none)")
+    p.add_argument("--maxregs", default="168", help="comma-separated register caps of the movers kernel (0: none)")
     p.add_argument("--variants", default=",".join(VARIANTS))
     p.add_argument("--reps", type=int, default=None, help="timed steps (default: 5 on CPU, 50 on GPU)")
     p.add_argument("--check-steps", type=int, default=5)

@@ -52,10 +52,11 @@ if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
 #: block, poses exchanged through shared memory each cycle: :mod:`magwarp.kernels.step_blocks`; never with an
 #: actuator). The same results bit for bit. ``MAGWARP_SMALL_WORLD_KERNEL`` picks it, ``MAGWARP_SMALL_WORLD_BLOCK``
 #: the threads per block of the "movers" shape (``block_dim // num_movers`` worlds a block) and
-#: ``MAGWARP_SMALL_WORLD_MAXREG`` its register cap per thread (0: none; uncapped it takes about 180 (nominal) to 215
-#: (per-world rows) registers on sm_90 for 3 movers: three blocks of 96 threads per SM); read once at import, tuning
-#: knobs for benchmarks (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``),
-#: not an API.
+#: ``MAGWARP_SMALL_WORLD_MAXREG`` its register cap per thread (0: none); read once at import, tuning knobs for
+#: benchmarks (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``), not an
+#: API. The cap's default, 168: uncapped, the kernel takes 175 (nominal) to 188 (per-world rows, latency) registers on
+#: sm_90 for 3 movers (``benchmarks/kernel_registers.py``), three blocks of 96 threads per SM; at 168, four blocks fit
+#: (65,536 registers / (4 x 96)), the nominal variant spills nothing and the general ones 48-56 bytes per thread.
 SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
 SMALL_WORLD_KERNEL: str = os.environ.get("MAGWARP_SMALL_WORLD_KERNEL", "registers")
 if SMALL_WORLD_KERNEL not in SMALL_WORLD_KERNEL_CHOICES:
@@ -64,6 +65,6 @@ if SMALL_WORLD_KERNEL not in SMALL_WORLD_KERNEL_CHOICES:
 SMALL_WORLD_BLOCK: int = int(os.environ.get("MAGWARP_SMALL_WORLD_BLOCK", "96"))
 if not 1 <= SMALL_WORLD_BLOCK <= 1024:
     raise ValueError(f"MAGWARP_SMALL_WORLD_BLOCK must be in 1..1024, got {SMALL_WORLD_BLOCK}")
-SMALL_WORLD_MAXREG: int = int(os.environ.get("MAGWARP_SMALL_WORLD_MAXREG", "0"))
+SMALL_WORLD_MAXREG: int = int(os.environ.get("MAGWARP_SMALL_WORLD_MAXREG", "168"))
 if not 0 <= SMALL_WORLD_MAXREG <= 255:
     raise ValueError(f"MAGWARP_SMALL_WORLD_MAXREG must be in 0..255 (0: no cap), got {SMALL_WORLD_MAXREG}")
