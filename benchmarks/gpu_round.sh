@@ -200,10 +200,12 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       done ;;
     small_world_kernels)
       # #24: the fused small-world step's two launch shapes: B0 physics per step (nominal, per-world rows, + latency)
-      # and bitwise agreement, registers vs movers for each block size (BLOCKS) and register cap (MAXREGS, 0: none);
-      # each setting compiles three kernels: split larger sweeps over calls (the kernel cache stays while warm)
+      # and bitwise agreement, registers vs movers for each block size (BLOCKS), register cap (MAXREGS, 0: none) and
+      # place of the general variant's body rows (ROWS); each setting compiles up to three kernels: split larger sweeps
+      # over calls (the kernel cache stays while the machine is warm), e.g. MAXREGS=0 in a second call
       timeout 590 python3 benchmarks/small_world_kernels.py --device cuda:0 --num-envs 16384,65536 \
-        --blocks "${BLOCKS:-96}" --maxregs "${MAXREGS:-168,0}" --json "$OUT/small_world_kernels_gpu.json" \
+        --blocks "${BLOCKS:-96}" --maxregs "${MAXREGS:-168}" --rows "${ROWS:-shared,registers}" \
+        --json "$OUT/small_world_kernels${TAG:+_$TAG}_gpu.json" \
         2>&1 | grep -E "^  cuda|^cuda" | tail -40 ;;
     small_world)
       # #24: B0's randomisation cost with each launch shape of the fused small-world step (KERNELS, default

@@ -7,7 +7,8 @@ EIATTR_MIN_STACK_SIZE, 0x12: the per-thread stack frame, spills included).
 
 Shapes: ``registers`` (:func:`magwarp.kernels.step.make_register_kernel`, one thread per world, the register-row
 variant given by ``--register-rows``) and ``movers`` (:func:`magwarp.kernels.step_blocks.make_movers_kernel`, one
-thread per mover, ``--block`` threads per block, ``--maxregs`` register caps; setting "block/cap"). Variants: ``nominal`` (the body rows as built), ``general``
+thread per mover, ``--block`` threads per block, ``--maxregs`` register caps, ``--rows``; setting "block/cap/rows").
+Variants: ``nominal`` (the body rows as built), ``general``
 (per-world rows: domain randomisation) and ``general+latency`` (with action latency).
 """
 
@@ -100,6 +101,7 @@ def main(argv=None) -> int:
     p.add_argument("--movers", default="3", help="comma-separated mover counts")
     p.add_argument("--block", default="96", help="comma-separated threads per block of the movers shape")
     p.add_argument("--maxregs", default="0,168", help="comma-separated register caps of the movers shape (0: none)")
+    p.add_argument("--rows", default="shared,registers", help="comma-separated: the movers shape's body rows")
     p.add_argument("--register-rows", default=None, help="the register kernel's rows (default: the library's)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
@@ -115,9 +117,10 @@ def main(argv=None) -> int:
     for m in (int(s) for s in args.movers.split(",")):
         for variant, (latency, nominal) in variants.items():
             kernels = [("registers", rows, kstep.make_register_kernel(default_force, m, latency, nominal, rows))]
-            kernels += [("movers", f"{b}/{r}", step_blocks.make_movers_kernel(default_force, m, latency, nominal,
-                                                                              int(b), int(r)))
-                        for b in args.block.split(",") for r in args.maxregs.split(",")]
+            kernels += [("movers", f"{b}/{r}/{rows}", step_blocks.make_movers_kernel(default_force, m, latency,
+                                                                                     nominal, int(b), int(r), rows))
+                        for b in args.block.split(",") for r in args.maxregs.split(",")
+                        for rows in (args.rows.split(",") if not nominal else ["shared"])]
             for shape, setting, kernel in kernels:
                 fig = kernel_figures(kernel, args.arch)
                 row = {"arch": f"sm_{args.arch}", "num_movers": m, "shape": shape, "setting": setting,

@@ -187,6 +187,8 @@ def main(argv=None) -> int:
                    help="threads per block of the movers shape (SMALL_WORLD_BLOCK; default: the library's)")
     p.add_argument("--small-world-maxreg", type=int, default=None,
                    help="register cap of the movers shape (SMALL_WORLD_MAXREG, 0: none; default: the library's)")
+    p.add_argument("--small-world-rows", default=None, choices=("shared", "registers"),
+                   help="where the movers shape's general variant keeps the body rows (SMALL_WORLD_ROWS)")
     p.add_argument("--kernel-times", type=int, default=0, metavar="N",
                    help="also profile each setting's step at N envs on CUDA: per-kernel time per step (us)")
     p.add_argument("--settings", default="off,terms,full",
@@ -208,6 +210,8 @@ def main(argv=None) -> int:
         kernel_options.SMALL_WORLD_BLOCK = args.small_world_block
     if args.small_world_maxreg is not None:
         kernel_options.SMALL_WORLD_MAXREG = args.small_world_maxreg
+    if args.small_world_rows is not None:
+        kernel_options.SMALL_WORLD_ROWS = args.small_world_rows
     if args.env is not None and args.env not in ENVS:
         p.error(f"--env must be one of {', '.join(ENVS)}, got {args.env!r}")
     info, devices = start_run(args.device)
@@ -246,6 +250,7 @@ def main(argv=None) -> int:
                                  "small_world_kernel": kernel_options.SMALL_WORLD_KERNEL,
                                  "small_world_block": kernel_options.SMALL_WORLD_BLOCK,
                                  "small_world_maxreg": kernel_options.SMALL_WORLD_MAXREG,
+                                 "small_world_rows": kernel_options.SMALL_WORLD_ROWS,
                                  "kernel_us": times.get(name) if n == args.kernel_times else None})
                     path = f", step path: {res['path']}" if "path" in res else ""
                     print(f"  {device} {env_id} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s "

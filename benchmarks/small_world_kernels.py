@@ -8,12 +8,13 @@ equal the register kernel's bit for bit.
 
 Kernels (:data:`magwarp.kernels.options.SMALL_WORLD_KERNEL`): ``registers`` (one thread per world, the whole world in
 registers: :func:`magwarp.kernels.step.make_register_kernel`) and ``movers`` (one thread per mover, several worlds a
-block: :mod:`magwarp.kernels.step_blocks`) for each ``--blocks`` x ``--maxregs`` setting. Variants: ``nominal`` (body
-rows as built), ``general`` (per-world body rows and collision sizes: what domain randomisation switches to) and
-``general+latency`` (plus action latency, per-world delays of 0..5 cycles). The worlds are the B0 env's (its layout,
-movers and reset starts, seed 0), stepped with random accelerations (the same for every setting); ``equal`` compares
-every output (poses, velocities, float64 x/y state, flags, partners, walls, pair counts and lists, halted, cycles)
-with the register kernel's after ``--check-steps`` steps, ``max_pos_diff`` the largest position difference (m).
+block: :mod:`magwarp.kernels.step_blocks`) for each ``--blocks`` x ``--maxregs`` x ``--rows`` setting. Variants:
+``nominal`` (body rows as built), ``general`` (per-world body rows and collision sizes: what domain randomisation
+switches to) and ``general+latency`` (plus action latency, per-world delays of 0..5 cycles). The worlds are the B0
+env's (its layout, movers and reset starts, seed 0), stepped with random accelerations (the same for every setting);
+``equal`` compares every output (poses, velocities, float64 x/y state, flags, partners, walls, pair counts and lists,
+halted, cycles) with the register kernel's after ``--check-steps`` steps, ``max_pos_diff`` the largest position
+difference (m).
 Targets (#24): the movers kernel's ``general+latency`` no slower than the register kernel's ``nominal``, and its
 ``nominal`` no slower than the register kernel's.
 """
@@ -35,7 +36,7 @@ VARIANTS = ("nominal", "general", "general+latency")
 CYCLES = 40
 
 
-def make_sim(device: str, num_envs: int, variant: str, kernel: str, block: int, maxreg: int):
+def make_sim(device: str, num_envs: int, variant: str, kernel: str, block: int, maxreg: int, rows: str):
     """The B0 env's simulator (reset with seed 0) under one kernel setting and variant."""
     import numpy as np
     import torch
@@ -44,7 +45,7 @@ def make_sim(device: str, num_envs: int, variant: str, kernel: str, block: int, 
     from magwarp.kernels import options as kernel_options
 
     kernel_options.SMALL_WORLD_KERNEL, kernel_options.SMALL_WORLD_BLOCK = kernel, block
-    kernel_options.SMALL_WORLD_MAXREG = maxreg
+    kernel_options.SMALL_WORLD_MAXREG, kernel_options.SMALL_WORLD_ROWS = maxreg, rows
     env = TrajectoryPlanningEnv(num_envs, device=device, seed=0, check_inputs=False)
     env.reset(seed=0)
     sim = env.sim
@@ -96,6 +97,8 @@ def main(argv=None) -> int:
     p.add_argument("--num-envs", default=None, help="comma-separated sizes (default: 64 on CPU, 16384,65536 on GPU)")
     p.add_argument("--blocks", default="96", help="comma-separated threads per block of the movers kernel")
     p.add_argument("--maxregs", default="168", help="comma-separated register caps of the movers kernel (0: none)")
+    p.add_argument("--rows", default="shared", help="comma-separated: where the movers kernel's general variant keeps "
+                   "the body rows (shared, registers)")
     p.add_argument("--variants", default=",".join(VARIANTS))
     p.add_argument("--reps", type=int, default=None, help="timed steps (default: 5 on CPU, 50 on GPU)")
     p.add_argument("--check-steps", type=int, default=5)
@@ -110,8 +113,8 @@ def main(argv=None) -> int:
         wp.config.enable_cpu_blocks = True  # the movers kernel's shape on the CPU (Warp's cooperative blocks)
     sizes = [int(s) for s in args.num_envs.split(",")] if args.num_envs else ([16384, 65536] if cuda else [64])
     reps = args.reps or (50 if cuda else 5)
-    settings = [("registers", 0, 0)] + [("movers", int(b), int(r)) for b in args.blocks.split(",")
-                                        for r in args.maxregs.split(",")]
+    settings = [("registers", 0, 0, "-")] + [("movers", int(b), int(r), where) for b in args.blocks.split(",")
+                                             for r in args.maxregs.split(",") for where in args.rows.split(",")]
     variants = [v for v in args.variants.split(",") if v]
     unknown = sorted(set(variants) - set(VARIANTS))
     if unknown:
@@ -120,8 +123,10 @@ def main(argv=None) -> int:
     for n in sizes:
         for variant in variants:
             reference = None
-            for kernel, block, maxreg in settings:
-                env, sim = make_sim(args.device, n, variant, kernel, block, maxreg)
+            for kernel, block, maxreg, where in settings:
+                if where == "registers" and variant == "nominal" and ("movers", block, maxreg, "shared") in settings:
+                    continue  # the nominal variant holds no rows: the same kernel
+                env, sim = make_sim(args.device, n, variant, kernel, block, maxreg, where)
                 cmds = commands(sim, max(args.check_steps, 8))
                 for cmd in cmds[:args.check_steps]:  # the agreement check (also loads the kernels, records the graph)
                     sim.set_command(cmd)
@@ -135,14 +140,17 @@ def main(argv=None) -> int:
                 halted = int(out["halted"].sum())
                 us = time_steps(sim, cmds, reps)
                 rows.append({"device": args.device, "num_envs": n, "variant": variant, "kernel": kernel,
-                             "block": block or None, "maxreg": maxreg or None, "us_per_step": us, "equal": equal,
+                             "block": block or None, "maxreg": maxreg or None, "rows": where, "us_per_step": us,
+                             "equal": equal,
                              "differs": ",".join(differ), "max_pos_diff": pos_diff, "halted_worlds": halted,
                              "movers_block": sim._movers_block})
-                print(f"  {args.device} n={n} {variant} {kernel} block={block} maxreg={maxreg}: {us:.1f} us/step, "
+                print(f"  {args.device} n={n} {variant} {kernel} block={block} maxreg={maxreg} rows={where}: "
+                      f"{us:.1f} us/step, "
                       f"equal={equal}{' (' + ','.join(differ) + ')' if differ else ''}, max pos diff {pos_diff:.3g},"
                       f" halted {halted}", flush=True)
                 del env, sim
-    columns = ["device", "num_envs", "variant", "kernel", "block", "maxreg", ("us_per_step", "us/step"), "equal",
+    columns = ["device", "num_envs", "variant", "kernel", "block", "maxreg", "rows", ("us_per_step", "us/step"),
+               "equal",
                ("max_pos_diff", "max |dpos| m"), ("halted_worlds", "halted")]
     return finish(rows, columns, info, args.json)
 

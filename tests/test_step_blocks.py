@@ -38,9 +38,10 @@ def push(rng, sim: Simulator) -> np.ndarray:
     return out + rng.uniform(-0.7, 0.7, out.shape)
 
 
-def build(monkeypatch, kernel: str, xy: np.ndarray, block: int, **kw) -> Simulator:
+def build(monkeypatch, kernel: str, xy: np.ndarray, block: int, rows: str = "shared", **kw) -> Simulator:
     monkeypatch.setattr(kernel_options, "SMALL_WORLD_KERNEL", kernel)
     monkeypatch.setattr(kernel_options, "SMALL_WORLD_BLOCK", block)
+    monkeypatch.setattr(kernel_options, "SMALL_WORLD_ROWS", rows)
     sim = Simulator(Layout.grid(6, 4), num_movers=xy.shape[1], num_worlds=xy.shape[0], device="cpu", start_xy=xy,
                     dt=0.004, **kw)
     assert (sim._movers_block == block) == (kernel == "movers")
@@ -73,9 +74,11 @@ CASES = {  # num_movers, num_worlds, block, options
     "m3-nominal": (3, 23, 24, {}),
     "m3-random-latency-box": (3, 23, 32, {"random": True, "latency": True, "mover": MoverSpec(collision_shape="box")}),
     "m3-jerk-no-stop": (3, 10, 96, {"control": "jerk", "stop_on_collision": False}),
-    "m3-random-no-stop-latency": (3, 9, 16, {"random": True, "latency": True, "stop_on_collision": False}),
+    "m3-random-no-stop-latency-rows-in-registers": (3, 9, 16, {"random": True, "latency": True, "rows": "registers",
+                                                                "stop_on_collision": False}),
     "m1-latency": (1, 11, 8, {"latency": True}),
     "m8-random": (8, 7, 24, {"random": True}),
+    "m8-random-rows-in-registers": (8, 5, 16, {"random": True, "rows": "registers"}),
     "m8-no-stop-jerk-box": (8, 3, 16, {"control": "jerk", "stop_on_collision": False,
                                        "mover": MoverSpec(collision_shape="box")}),
 }

@@ -56,7 +56,8 @@ if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
 #: benchmarks (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``), not an
 #: API. The cap's default, 168: uncapped, the kernel takes 175 (nominal) to 188 (per-world rows, latency) registers on
 #: sm_90 for 3 movers (``benchmarks/kernel_registers.py``), three blocks of 96 threads per SM; at 168, four blocks fit
-#: (65,536 registers / (4 x 96)), the nominal variant spills nothing and the general ones 48-56 bytes per thread.
+#: (65,536 registers / (4 x 96)) and no variant spills: the general ones keep the per-world body rows in shared memory
+#: (``MAGWARP_SMALL_WORLD_ROWS=shared``; ``registers``: 183-188 registers uncapped, 48-56 bytes of spills at 168).
 SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
 SMALL_WORLD_KERNEL: str = os.environ.get("MAGWARP_SMALL_WORLD_KERNEL", "registers")
 if SMALL_WORLD_KERNEL not in SMALL_WORLD_KERNEL_CHOICES:
@@ -68,3 +69,8 @@ if not 1 <= SMALL_WORLD_BLOCK <= 1024:
 SMALL_WORLD_MAXREG: int = int(os.environ.get("MAGWARP_SMALL_WORLD_MAXREG", "168"))
 if not 0 <= SMALL_WORLD_MAXREG <= 255:
     raise ValueError(f"MAGWARP_SMALL_WORLD_MAXREG must be in 0..255 (0: no cap), got {SMALL_WORLD_MAXREG}")
+SMALL_WORLD_ROWS_CHOICES = ("shared", "registers")
+SMALL_WORLD_ROWS: str = os.environ.get("MAGWARP_SMALL_WORLD_ROWS", "shared")
+if SMALL_WORLD_ROWS not in SMALL_WORLD_ROWS_CHOICES:
+    raise ValueError(f"MAGWARP_SMALL_WORLD_ROWS must be one of {', '.join(SMALL_WORLD_ROWS_CHOICES)}, got "
+                     f"{SMALL_WORLD_ROWS!r}")

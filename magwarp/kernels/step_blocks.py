@@ -38,6 +38,7 @@ from magwarp.kernels.collision import (collision_flags, hits_wall_cs, model_row,
                                        world_collision)
 from magwarp.kernels.dynamics import sync_planar64
 from magwarp.kernels.options import MODULE_OPTIONS
+from magwarp.kernels.params import BodyF32, BodyF64, body_f32, body_f64, row_body
 from magwarp.kernels.step import NoActuator, make_advance_kernel
 from magwarp.types import Body, Collision, Impedance, Limits, Planar64, make_pose
 
@@ -59,11 +60,17 @@ def num_blocks(num_worlds: int, num_movers: int, block_dim: int) -> int:
 
 @functools.cache
 def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal: bool = False,
-                       block_dim: int = 96, max_registers: int = 0):
+                       block_dim: int = 96, max_registers: int = 0, rows: str = "shared"):
     """The one-thread-per-mover fused step for ``force_fn``, specialised for ``num_movers`` and ``block_dim`` (see the
     module docstring). Same arguments as :func:`~magwarp.kernels.step.make_register_kernel`'s kernel (``act`` a
     :class:`~magwarp.kernels.step.NoActuator`), ``latency`` and ``nominal`` as there. ``max_registers`` > 0 caps the
-    registers per thread on CUDA (``__maxnreg__``: more blocks per SM, spilling what does not fit)."""
+    registers per thread on CUDA (``__maxnreg__``: more blocks per SM, spilling what does not fit). ``rows``: where
+    the general variant keeps each mover's body row for the step, ``"registers"`` or ``"shared"`` (shared memory, one
+    column per lane, read every cycle: about 20 registers fewer; the nominal variant reads the one shared row from
+    memory every cycle either way)."""
+    if rows not in ("registers", "shared"):
+        raise ValueError(f"rows must be 'registers' or 'shared', got {rows!r}")
+    shared_rows = bool(rows == "shared" and not nominal)
     M = int(num_movers)
     B = int(block_dim)
     K = worlds_per_block(M, B)
@@ -116,7 +123,7 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
         live = lane < K * M and w_raw < pos.shape[0]
         col = world_collision(col_shared, margins, w)
         wb = model_row(body.shape[0], w)
-        b = body[wb, m]  # the general variant holds the world's row; the nominal one reads the shared row each cycle
+        b = body[wb, m]  # kept by the general variant (see rows); the nominal one reads the shared row each cycle
         r = radius[model_row(radius.shape[0], w), m]
         h = half_size[model_row(half_size.shape[0], w), m]
         P = pos[w, m]
@@ -150,6 +157,11 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
         poses = wp.tile_zeros(shape=B, dtype=wp.vec4, storage="shared")
         counts = wp.tile_zeros(shape=B, dtype=wp.int32, storage="shared")
         wp.tile_assign(sizes, wp.tile(wp.vec3(r, h[0], h[1]), preserve_type=True))
+        if wp.static(shared_rows):  # the body rows, a column per lane (conflict-free reads)
+            rows32 = wp.tile_zeros(shape=(20, B), dtype=wp.float32, storage="shared")
+            rows64 = wp.tile_zeros(shape=(4, B), dtype=wp.float64, storage="shared")
+            wp.tile_assign(rows32, wp.tile(body_f32(b)))
+            wp.tile_assign(rows64, wp.tile(body_f64(b)))
         for c in range(num_cycles):
             active = col.stop_on_collision == 0 or stopped == 0  # the same in every lane of a world
             if active:
@@ -158,6 +170,14 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
                         U = cmd[w, m]
                 if wp.static(nominal):
                     b = body[wb, m]
+                if wp.static(shared_rows):
+                    f32 = BodyF32()
+                    for k in range(20):
+                        f32[k] = rows32[k, lane]
+                    f64 = BodyF64()
+                    for k in range(4):
+                        f64[k] = rows64[k, lane]
+                    b = row_body(f32, f64)
                 n, a, xy = advance_pose(make_pose(P, Q, V, Om), XY, U, b, TP, TQ, force_aux[w, m], lim, imp, act, w,
                                         m, int(c == num_cycles - 1))
                 P = n.pos
