@@ -26,6 +26,24 @@ def _parse(text: str) -> dict[str, bool]:
     return out
 
 
+def _env_choice(name: str, choices: tuple[str, ...], default: str) -> str:
+    value = os.environ.get(name, default)
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+def _env_int(name: str, default: int, lo: int, hi: int) -> int:
+    text = os.environ.get(name, str(default))
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not lo <= value <= hi:
+        raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {text!r}")
+    return value
+
+
 MODULE_OPTIONS: dict[str, bool] = {**DEFAULT_OPTIONS, **_parse(os.environ.get("MAGWARP_KERNEL_OPTIONS", ""))}
 
 
@@ -59,18 +77,8 @@ if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
 #: (65,536 registers / (4 x 96)) and no variant spills: the general ones keep the per-world body rows in shared memory
 #: (``MAGWARP_SMALL_WORLD_ROWS=shared``; ``registers``: 183-188 registers uncapped, 48-56 bytes of spills at 168).
 SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
-SMALL_WORLD_KERNEL: str = os.environ.get("MAGWARP_SMALL_WORLD_KERNEL", "registers")
-if SMALL_WORLD_KERNEL not in SMALL_WORLD_KERNEL_CHOICES:
-    raise ValueError(f"MAGWARP_SMALL_WORLD_KERNEL must be one of {', '.join(SMALL_WORLD_KERNEL_CHOICES)}, got "
-                     f"{SMALL_WORLD_KERNEL!r}")
-SMALL_WORLD_BLOCK: int = int(os.environ.get("MAGWARP_SMALL_WORLD_BLOCK", "96"))
-if not 1 <= SMALL_WORLD_BLOCK <= 1024:
-    raise ValueError(f"MAGWARP_SMALL_WORLD_BLOCK must be in 1..1024, got {SMALL_WORLD_BLOCK}")
-SMALL_WORLD_MAXREG: int = int(os.environ.get("MAGWARP_SMALL_WORLD_MAXREG", "168"))
-if not 0 <= SMALL_WORLD_MAXREG <= 255:
-    raise ValueError(f"MAGWARP_SMALL_WORLD_MAXREG must be in 0..255 (0: no cap), got {SMALL_WORLD_MAXREG}")
+SMALL_WORLD_KERNEL: str = _env_choice("MAGWARP_SMALL_WORLD_KERNEL", SMALL_WORLD_KERNEL_CHOICES, "registers")
+SMALL_WORLD_BLOCK: int = _env_int("MAGWARP_SMALL_WORLD_BLOCK", 96, 1, 1024)
+SMALL_WORLD_MAXREG: int = _env_int("MAGWARP_SMALL_WORLD_MAXREG", 168, 0, 255)  # 0: no cap
 SMALL_WORLD_ROWS_CHOICES = ("shared", "registers")
-SMALL_WORLD_ROWS: str = os.environ.get("MAGWARP_SMALL_WORLD_ROWS", "shared")
-if SMALL_WORLD_ROWS not in SMALL_WORLD_ROWS_CHOICES:
-    raise ValueError(f"MAGWARP_SMALL_WORLD_ROWS must be one of {', '.join(SMALL_WORLD_ROWS_CHOICES)}, got "
-                     f"{SMALL_WORLD_ROWS!r}")
+SMALL_WORLD_ROWS: str = _env_choice("MAGWARP_SMALL_WORLD_ROWS", SMALL_WORLD_ROWS_CHOICES, "shared")
