@@ -155,6 +155,10 @@ def test_blocks_and_fallbacks(monkeypatch):
     assert step_blocks.num_blocks(23, 3, 24) == 3 and step_blocks.worlds_per_block(8, 8) == 1
     with pytest.raises(ValueError, match="block of 4 threads cannot hold a world of 8 movers"):
         step_blocks.worlds_per_block(8, 4)
+    with pytest.raises(ValueError, match="1 to 31 movers, got 32"):
+        step_blocks.make_movers_kernel(None, 32)
+    with pytest.raises(ValueError, match="rows must be 'registers' or 'shared', got 'global'"):
+        step_blocks.make_movers_kernel(None, 3, rows="global")
     xy = np.array([[[0.13, 0.36], [0.37, 0.36]]])
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", False)  # no cooperative CPU blocks: the register kernel
     sim = build(monkeypatch, "registers", xy, 96)

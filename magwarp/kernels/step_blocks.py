@@ -4,8 +4,9 @@ headings exchanged through shared memory (Warp tiles) every cycle.
 :func:`magwarp.kernels.step.make_register_kernel` runs a small world in one thread that holds every mover's state
 (and, in the general variant, every mover's body row) in registers for all cycles of a step: on sm_90 it sits at the
 255-register cap and spills, the more so with per-world rows and action latency. Here a thread holds one mover: its
-state, its command and its body row (loaded once per step in both variants), and the per-world rows cost it one row,
-not ``num_movers``. Each cycle:
+state and its command; the general variant keeps the mover's (per-world) body row for the step in shared memory, a
+column per lane (or in registers: ``rows``), the nominal one reads the one shared row every cycle, as the register
+kernel does. Each cycle:
 
 1. every live mover advances (:func:`~magwarp.kernels.step.make_advance_kernel`'s ``advance_pose``: the same force
    model, limits and float64 x/y law as the register kernel, called with the same arguments) and checks the walls;
@@ -19,7 +20,9 @@ not ``num_movers``. Each cycle:
 The results are those of the register kernel bit for bit (same arithmetic, same order), outputs included
 (``flags``, ``flags_any``, ``partner``, ``wall``, ``world_pairs``, ``world_walls``, ``pair_list``, ``halted``,
 ``cycles``, ``stop_on_collision``, action latency). A world that stops (``stop_on_collision``) keeps its lanes in the
-cycle loop, idle, since every lane must reach every barrier of its block.
+cycle loop, idle, since every lane must reach every barrier of its block. (Bit for bit on the CPU:
+``tests/test_step_blocks.py``; on CUDA the two kernels are separate compilations of the same functions, which
+``benchmarks/small_world_kernels.py`` compares.)
 
 Launch: ``wp.launch_tiled(kernel, dim=[num_blocks(W, M, block_dim)], block_dim=block_dim)``: ``K = block_dim // M``
 worlds per block, lane ``l`` is mover ``l % M`` of the block's world ``l // M``. Lanes past ``K * M`` and lanes of
@@ -70,6 +73,8 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
     memory every cycle either way)."""
     if rows not in ("registers", "shared"):
         raise ValueError(f"rows must be 'registers' or 'shared', got {rows!r}")
+    if not 1 <= int(num_movers) <= 31:  # a mover's colliding partners above it are an int32 bit mask
+        raise ValueError(f"the movers kernel takes worlds of 1 to 31 movers, got {num_movers!r}")
     shared_rows = bool(rows == "shared" and not nominal)
     M = int(num_movers)
     B = int(block_dim)
