@@ -209,13 +209,17 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
                     if j != m:
                         o = poses[i]
                         s = sizes[i]
-                        hit_j = bool(False)
-                        if j < m:  # the pair (j, m), as the register kernel evaluates it
-                            hit_j = movers_collide_cs(col, wp.vec2(o[0] - P[0], o[1] - P[1]), wp.vec2(o[2], o[3]),
-                                                      s[0], wp.vec2(s[1], s[2]), hd, r, h)
-                        else:  # the pair (m, j)
-                            hit_j = movers_collide_cs(col, wp.vec2(P[0] - o[0], P[1] - o[1]), hd, r, h,
-                                                      wp.vec2(o[2], o[3]), s[0], wp.vec2(s[1], s[2]))
+                        # the pair (lower index, higher index) as the register kernel evaluates it, through one call
+                        # for every lane (a branch per order would run both orders in turn in a warp)
+                        lo = j < m
+                        oh = wp.vec2(o[2], o[3])
+                        oz = wp.vec2(s[1], s[2])
+                        d = wp.vec2(P[0] - o[0], P[1] - o[1])
+                        if lo:
+                            d = wp.vec2(o[0] - P[0], o[1] - P[1])
+                        hit_j = movers_collide_cs(col, d, wp.where(lo, oh, hd), wp.where(lo, s[0], r),
+                                                  wp.where(lo, oz, h), wp.where(lo, hd, oh), wp.where(lo, r, s[0]),
+                                                  wp.where(lo, h, oz))
                         if hit_j:
                             if Pr < 0:  # ascending: the first hit is the lowest index
                                 Pr = j
