@@ -169,6 +169,7 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
             wp.tile_assign(rows64, wp.tile(body_f64(b)))
         for c in range(num_cycles):
             active = col.stop_on_collision == 0 or stopped == 0  # the same in every lane of a world
+            hd = wp.vec2(1.0, 0.0)  # the shape's heading (cos, sin); a stopped world's lanes read no tile entries
             if active:
                 if wp.static(latency):
                     if c == held and c > 0:
@@ -191,12 +192,12 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
                 Om = n.omega
                 A = a
                 XY = xy
+                hd = shape_heading(col, Q)
                 hit = int(0)
-                if hits_wall_cs(tiles, col, wp.vec2(P[0], P[1]), shape_heading(col, Q), r, h):
+                if hits_wall_cs(tiles, col, wp.vec2(P[0], P[1]), hd, r, h):
                     hit = 1
                 Wl = hit
                 done += 1
-            hd = shape_heading(col, Q)
             wp.tile_assign(poses, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
             above = int(0)  # colliding movers above this one: bit j set for mover j
             num_above = int(0)
