@@ -73,7 +73,7 @@ def outputs(sim: Simulator) -> dict[str, bytes]:
 CASES = {  # num_movers, num_worlds, block, options
     "m3-nominal": (3, 23, 24, {}),
     "m3-random-latency-box": (3, 23, 32, {"random": True, "latency": True, "mover": MoverSpec(collision_shape="box")}),
-    "m3-jerk-no-stop": (3, 10, 96, {"control": "jerk", "stop_on_collision": False}),
+    "m3-jerk-no-stop": (3, 10, 24, {"control": "jerk", "stop_on_collision": False}),
     "m3-random-no-stop-latency-rows-in-registers": (3, 9, 16, {"random": True, "latency": True, "rows": "registers",
                                                                 "stop_on_collision": False}),
     "m1-latency": (1, 11, 8, {"latency": True}),
