@@ -4,9 +4,12 @@
 
 * its own state (velocity, goal relative to it, acceleration, carrying flag; each part optional);
 * the ``k`` nearest other movers of its world within ``radius`` (ordered by distance, ties by index; relative x, y,
-  vx, vy and a mask per slot), found by scanning the neighbouring cells of a uniform grid whose lists the
-  simulator's own :func:`~magwarp.kernels.collision.bin_movers` builds. The candidates are kept sorted in
-  registers, so the work per mover is the movers in its neighbouring cells, not the world's;
+  vx, vy and a mask per slot), found either by scanning the neighbouring cells of a uniform grid whose lists the
+  simulator's own :func:`~magwarp.kernels.collision.bin_movers` builds (work per mover: the movers in its
+  neighbouring cells, not the world's), or, for worlds of up to 256 movers on CUDA, with one thread block per world
+  that loads its movers' positions and velocities into shared memory once and lets each lane scan them all (no grid
+  to build, no linked lists to chase: every lane reads the same entry at once). The kept candidates sit in a
+  sorted list walked by an unrolled compare-and-swap chain, so it stays in registers;
 * for each of a few ray directions, the distance from its centre to the first point off the tiles (a hole or the
   layout's edge), capped at ``max_range``, by stepping tile by tile along the ray (at most ``max_range / tile_size``
   steps per ray: :func:`ray_to_wall`).
@@ -18,6 +21,7 @@ and a per-world flag for any non-finite entry.
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import warp as wp
 
@@ -89,18 +93,23 @@ def ray_to_wall(tiles: wp.array2d(dtype=wp.int32), size: float, p: wp.vec2, d: w
     return max_range
 
 
-#: parts of the mover's own state that :func:`make_observation_kernel` writes first (bit flags)
+#: parts of the mover's own state that the observation kernels write first (bit flags)
 OWN_STATE = 1  # x/y velocity, then the goal relative to the mover (4 columns)
 OWN_ACC = 2  # x/y acceleration (2 columns, after the state)
 OWN_CARRY = 4  # carrying flag (1 column, last)
 
+#: how the observation kernels find the k nearest movers: the uniform grid's neighbouring cells, or every mover of
+#: the world (a block per world on CUDA, the world's positions in shared memory)
+SEARCHES = ("grid", "world")
+#: the most movers per world the block-per-world kernel holds (one lane per mover)
+MAX_WORLD_BLOCK = 256
+
 
 @functools.cache
-def make_observation_kernel(k: int, num_rays: int, own: int):
-    """The fused observation kernel for fixed ``k``, ``num_rays`` and own-state parts ``own`` (bits of
-    :data:`OWN_STATE`, :data:`OWN_ACC`, :data:`OWN_CARRY`). Row of a mover: its own state, then per neighbour slot
-    (relative x, y, relative vx, vy, mask; nearest first, ties by the lower index; zeros in padded slots), then
-    ``num_rays`` wall distances (:func:`ray_to_wall` along ``dirs``)."""
+def _row_funcs(k: int, num_rays: int, own: int):
+    """The pieces of a mover's observation row shared by every search (see :func:`make_observation_kernel`):
+    ``own_state``, ``keep_nearest`` (insert a candidate into the sorted slots), ``scan_world`` (every mover of a
+    world as candidates), ``write_slots`` and ``write_rays``."""
     K, R = int(k), int(num_rays)
     KK = max(K, 1)
     Dists = wp.types.vector(length=KK, dtype=wp.float32)
@@ -108,7 +117,145 @@ def make_observation_kernel(k: int, num_rays: int, own: int):
     WITH_STATE, WITH_ACC, WITH_CARRY = bool(own & OWN_STATE), bool(own & OWN_ACC), bool(own & OWN_CARRY)
     BASE = 4 * int(WITH_STATE) + 2 * int(WITH_ACC) + int(WITH_CARRY)
 
-    @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
+    @wp.func
+    def own_state(
+        w: int, m: int, p: wp.vec3, v: wp.vec3, acc: wp.array2d(dtype=wp.vec2), goals: wp.array2d(dtype=wp.vec2),
+        carrying: wp.array2d(dtype=wp.bool), out: wp.array3d(dtype=wp.float32),
+    ) -> bool:
+        """Write the own-state columns; False if one is not finite."""
+        finite = bool(True)
+        if wp.static(WITH_STATE):
+            g = goals[w, m]
+            row4 = wp.vec4(v[0], v[1], g[0] - p[0], g[1] - p[1])
+            for e in range(4):
+                out[w, m, e] = row4[e]
+                finite = finite and wp.isfinite(row4[e])
+        if wp.static(WITH_ACC):
+            a = acc[w, m]
+            out[w, m, 4] = a[0]
+            out[w, m, 5] = a[1]
+            finite = finite and wp.isfinite(a[0]) and wp.isfinite(a[1])
+        if wp.static(WITH_CARRY):
+            cv = float(0.0)
+            if carrying[w, m]:
+                cv = 1.0
+            out[w, m, BASE - 1] = cv
+        return finite
+
+    @wp.func
+    def empty_slots():
+        D = Dists()
+        I = Ids()
+        for s in range(KK):
+            D[s] = BIG
+            I[s] = -1
+        return D, I
+
+    @wp.func
+    def keep_nearest(D: Any, I: Any, d2: float, j: int):
+        """``(d2, j)`` inserted into the slots (nearest first, ties by the lower index) if it beats the last kept
+        one. The slots are walked with constant indices (an unrolled compare-and-swap chain), so they stay in
+        registers."""
+        Dn = D
+        In = I
+        if d2 < Dn[KK - 1] or (d2 == Dn[KK - 1] and j < In[KK - 1]) or In[KK - 1] < 0:
+            cd = d2
+            cj = j
+            for s in range(wp.static(KK)):
+                if cj >= 0 and (In[s] < 0 or cd < Dn[s] or (cd == Dn[s] and cj < In[s])):
+                    td = Dn[s]
+                    tj = In[s]
+                    Dn[s] = cd
+                    In[s] = cj
+                    cd = td
+                    cj = tj
+        return Dn, In
+
+    @wp.func
+    def scan_world(rows: Any, m: int, num_movers: int, p: wp.vec3, r2: float):
+        """The slots of mover ``m`` at ``p`` from every other mover ``j`` of its world (``rows[j]``: its x, y first;
+        an array row or a shared tile)."""
+        D, I = empty_slots()
+        for j in range(num_movers):
+            if j != m:
+                q = rows[j]
+                ex = q[0] - p[0]
+                ey = q[1] - p[1]
+                d2 = ex * ex + ey * ey
+                if d2 <= r2:
+                    D, I = keep_nearest(D, I, d2, j)
+        return D, I
+
+    @wp.func
+    def write_slots(
+        w: int, m: int, p: wp.vec3, v: wp.vec3, I: Any, rows_pos: Any, rows_vel: Any,
+        out: wp.array3d(dtype=wp.float32), index: wp.array3d(dtype=wp.int32),
+    ) -> bool:
+        """Write the neighbour slots of the indices ``I`` (``rows_pos[j]`` / ``rows_vel[j]``: mover ``j``'s x/y position
+        and velocity first); False if one is not finite."""
+        finite = bool(True)
+        for s in range(KK):
+            j = I[s]
+            index[w, m, s] = j
+            col = BASE + 5 * s
+            slot = wp.vec4(0.0)
+            flag = float(0.0)
+            if j >= 0:
+                q = rows_pos[j]
+                u = rows_vel[j]
+                slot = wp.vec4(q[0] - p[0], q[1] - p[1], u[0] - v[0], u[1] - v[1])
+                flag = 1.0
+            for e in range(4):
+                out[w, m, col + e] = slot[e]
+                finite = finite and wp.isfinite(slot[e])
+            out[w, m, col + 4] = flag
+        return finite
+
+    @wp.func
+    def write_rays(
+        w: int, m: int, p: wp.vec3, tiles: wp.array2d(dtype=wp.int32), tile_size: float,
+        dirs: wp.array(dtype=wp.vec2), max_range: float, out: wp.array3d(dtype=wp.float32),
+    ) -> bool:
+        finite = bool(True)
+        p2 = wp.vec2(p[0], p[1])
+        for r in range(R):
+            d = ray_to_wall(tiles, tile_size, p2, dirs[r], max_range)
+            out[w, m, BASE + 5 * K + r] = d
+            finite = finite and wp.isfinite(d)
+        return finite
+
+    return own_state, empty_slots, keep_nearest, scan_world, write_slots, write_rays
+
+
+@functools.cache
+def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid", block_dim: int = 0):
+    """The fused observation kernel for fixed ``k``, ``num_rays`` and own-state parts ``own`` (bits of
+    :data:`OWN_STATE`, :data:`OWN_ACC`, :data:`OWN_CARRY`). Row of a mover: its own state, then per neighbour slot
+    (relative x, y, relative vx, vy, mask; nearest first, ties by the lower index; zeros in padded slots), then
+    ``num_rays`` wall distances (:func:`ray_to_wall` along ``dirs``).
+
+    ``search`` (:data:`SEARCHES`) picks the candidates, with the same rows either way (the k nearest within the
+    radius are a function of the positions alone):
+
+    * ``"grid"``: the movers of the neighbouring cells of a uniform grid (``head`` / ``next_in_cell``, binned before
+      by :func:`~magwarp.kernels.collision.bin_movers`), ``dim=(W, M)``: work per mover is its cells' movers;
+    * ``"world"``: every mover of the world, no grid (``head`` / ``next_in_cell`` unused): for worlds of up to
+      :data:`MAX_WORLD_BLOCK` movers. ``block_dim`` > 0: the CUDA shape,
+      ``wp.launch_tiled(kernel, dim=W, block_dim=block_dim)`` with ``block_dim`` >= the movers per world: one
+      block per world loads its movers' x/y positions and velocities into shared memory once and each lane scans
+      them (lanes past the last mover mirror it and write nothing); ``block_dim`` 0: ``dim=(W, M)``, each thread
+      scanning its world's rows of ``pos`` (the CPU shape)."""
+    if search not in SEARCHES:
+        raise ValueError(f"search must be one of {SEARCHES}, got {search!r}")
+    K, R = int(k), int(num_rays)
+    KK = max(K, 1)
+    own_state, empty_slots, keep_nearest, scan_world, write_slots, write_rays = _row_funcs(K, R, int(own))
+    GRID = search == "grid"
+    TILED = not GRID and int(block_dim) > 0
+    BLOCK = max(int(block_dim), 1)
+    options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
+
+    @wp.kernel(module="unique", enable_backward=False, module_options=options)
     def observe(
         # Model:
         grid: Grid,
@@ -134,80 +281,60 @@ def make_observation_kernel(k: int, num_rays: int, own: int):
         """``out[w, m]``: the mover's observation row; ``index``: its neighbours (-1 in padded slots, whose
         columns are zeros); ``nonfinite[w]`` set to 1 where a row of world ``w`` holds a NaN or an infinity (it is
         only ever set: clear it before)."""
-        w, m = wp.tid()
+        live = bool(True)
+        if wp.static(TILED):
+            w, lane = wp.tid()
+            M = pos.shape[1]
+            live = lane < M
+            m = wp.min(lane, M - 1)
+        else:
+            w, m = wp.tid()
+            M = pos.shape[1]
         p = pos[w, m]
         v = vel[w, m]
         finite = bool(True)
-        if wp.static(WITH_STATE):
-            g = goals[w, m]
-            row4 = wp.vec4(v[0], v[1], g[0] - p[0], g[1] - p[1])
-            for e in range(4):
-                out[w, m, e] = row4[e]
-                finite = finite and wp.isfinite(row4[e])
-        if wp.static(WITH_ACC):
-            a = acc[w, m]
-            out[w, m, 4] = a[0]
-            out[w, m, 5] = a[1]
-            finite = finite and wp.isfinite(a[0]) and wp.isfinite(a[1])
-        if wp.static(WITH_CARRY):
-            cv = float(0.0)
-            if carrying[w, m]:
-                cv = 1.0
-            out[w, m, BASE - 1] = cv
         if wp.static(K > 0):
             r2 = radius * radius
-            D = Dists()
-            I = Ids()
-            for s in range(KK):
-                D[s] = BIG
-                I[s] = -1
-            c = cell_coords(grid, p)
-            for dy in range(-reach, reach + 1):
-                cy = c[1] + dy
-                if cy < 0 or cy >= grid.ncy:
-                    continue
-                for dx in range(-reach, reach + 1):
-                    cx = c[0] + dx
-                    if cx < 0 or cx >= grid.ncx:
+            if wp.static(TILED):
+                # the world's x/y positions and velocities in shared memory, one entry per lane (tile_assign
+                # synchronises the block after writing), then every lane scans them
+                rows_pos = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
+                rows_vel = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
+                wp.tile_assign(rows_pos, wp.tile(wp.vec2(p[0], p[1]), preserve_type=True))
+                wp.tile_assign(rows_vel, wp.tile(wp.vec2(v[0], v[1]), preserve_type=True))
+                D, I = scan_world(rows_pos, m, M, p, r2)
+                if live:
+                    finite = write_slots(w, m, p, v, I, rows_pos, rows_vel, out, index)
+            elif wp.static(GRID):
+                D, I = empty_slots()
+                c = cell_coords(grid, p)
+                for dy in range(-reach, reach + 1):
+                    cy = c[1] + dy
+                    if cy < 0 or cy >= grid.ncy:
                         continue
-                    j = head[(w * grid.ncy + cy) * grid.ncx + cx]
-                    while j >= 0:
-                        if j != m:
-                            q = pos[w, j]
-                            ex = q[0] - p[0]
-                            ey = q[1] - p[1]
-                            d2 = ex * ex + ey * ey
-                            # keep (d2, j) if it beats the last kept one; ties by the lower index
-                            if d2 <= r2 and (d2 < D[KK - 1] or (d2 == D[KK - 1] and j < I[KK - 1]) or I[KK - 1] < 0):
-                                s = KK - 1
-                                while s > 0 and (D[s - 1] > d2 or (D[s - 1] == d2 and I[s - 1] > j)):
-                                    D[s] = D[s - 1]
-                                    I[s] = I[s - 1]
-                                    s -= 1
-                                D[s] = d2
-                                I[s] = j
-                        j = next_in_cell[w, j]
-            for s in range(KK):
-                j = I[s]
-                index[w, m, s] = j
-                col = BASE + 5 * s
-                slot = wp.vec4(0.0)
-                flag = float(0.0)
-                if j >= 0:
-                    q = pos[w, j]
-                    u = vel[w, j]
-                    slot = wp.vec4(q[0] - p[0], q[1] - p[1], u[0] - v[0], u[1] - v[1])
-                    flag = 1.0
-                for e in range(4):
-                    out[w, m, col + e] = slot[e]
-                    finite = finite and wp.isfinite(slot[e])
-                out[w, m, col + 4] = flag
+                    for dx in range(-reach, reach + 1):
+                        cx = c[0] + dx
+                        if cx < 0 or cx >= grid.ncx:
+                            continue
+                        j = head[(w * grid.ncy + cy) * grid.ncx + cx]
+                        while j >= 0:
+                            if j != m:
+                                q = pos[w, j]
+                                ex = q[0] - p[0]
+                                ey = q[1] - p[1]
+                                d2 = ex * ex + ey * ey
+                                if d2 <= r2:
+                                    D, I = keep_nearest(D, I, d2, j)
+                            j = next_in_cell[w, j]
+                finite = write_slots(w, m, p, v, I, pos[w], vel[w], out, index)
+            else:
+                D, I = scan_world(pos[w], m, M, p, r2)
+                finite = write_slots(w, m, p, v, I, pos[w], vel[w], out, index)
+        if not live:
+            return
+        finite = own_state(w, m, p, v, acc, goals, carrying, out) and finite
         if wp.static(R > 0):
-            p2 = wp.vec2(p[0], p[1])
-            for r in range(R):
-                d = ray_to_wall(tiles, tile_size, p2, dirs[r], max_range)
-                out[w, m, BASE + 5 * K + r] = d
-                finite = finite and wp.isfinite(d)
+            finite = write_rays(w, m, p, tiles, tile_size, dirs, max_range, out) and finite
         if not finite:
             nonfinite[w] = 1
 
