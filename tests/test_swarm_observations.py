@@ -61,11 +61,11 @@ def ray_reference(layout: Layout, p: np.ndarray, d: np.ndarray, max_range: float
     return float(min(best, max_range))
 
 
-def _sim_arrays(xy: np.ndarray, vel: np.ndarray):
+def _sim_arrays(xy: np.ndarray, vel: np.ndarray, device: str = "cpu"):
     w, m = xy.shape[:2]
     pos3 = np.concatenate([xy, np.full((w, m, 1), 0.01)], axis=-1).astype(np.float32)
     vel3 = np.concatenate([vel, np.zeros((w, m, 1))], axis=-1).astype(np.float32)
-    return wp.array(pos3, dtype=wp.vec3, device="cpu"), wp.array(vel3, dtype=wp.vec3, device="cpu")
+    return wp.array(pos3, dtype=wp.vec3, device=device), wp.array(vel3, dtype=wp.vec3, device=device)
 
 
 @pytest.mark.parametrize("k,radius", [(4, 0.5), (8, 1.3), (3, 0.05)])
@@ -178,21 +178,26 @@ def test_observe_writes_own_state_then_features(rng, jerk, carry):
         local.observe(pos3, vel3, out, goals=goals[:, :-1], acc=acc, carrying=carrying)
 
 
-def _search_obs(layout, w, m, search, tiled, monkeypatch, **kw) -> LocalObservations:
-    obs = LocalObservations(layout, w, m, search=search, device="cpu", **kw)
-    if tiled:  # the CUDA shape (a block per world, positions in shared memory) on Warp's cooperative CPU blocks
+def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", **kw) -> LocalObservations:
+    obs = LocalObservations(layout, w, m, search=search, device=device, **kw)
+    if tiled and device == "cpu":  # the CUDA shape (a block per world, shared memory) on Warp's cooperative CPU blocks
         monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
         obs.tiled = True
     return obs
 
 
-@pytest.mark.parametrize("search,tiled", [("world", False), ("world", True), ("grid", False)])
-def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled):
+@pytest.mark.parametrize("search,tiled,device", [("world", False, "cpu"), ("world", True, "cpu"),
+                                                 ("grid", False, "cpu"), ("world", True, "cuda:0")])
+def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, device):
     """Every search (the grid's cells; every mover of the world, per thread or a block per world with the positions in
     shared memory) writes the same rows bit for bit, which match the brute-force reference: clusters with more than k
     candidates, isolated movers with fewer than k (padded, masked), movers over holes and off the layout, a NaN
-    mover (never a neighbour, its own row flagged), a world size that leaves idle lanes in the last warp."""
+    mover (never a neighbour, its own row flagged), a world size that leaves idle lanes in the last warp. On CUDA
+    (where present) the block-per-world kernel against the grid kernel of the same build."""
     import torch
+
+    if device != "cpu" and not wp.is_cuda_available():
+        pytest.skip("no CUDA device")
 
     tiles = (rng.random((9, 7)) >= 0.2).astype(np.int32)
     layout = Layout(tiles)
@@ -209,20 +214,21 @@ def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled
     vel = rng.normal(size=(w, m, 2)).astype(np.float32).astype(np.float64)
     xy_nan = xy.copy()
     xy_nan[1, 7] = np.nan
-    goals = torch.tensor(rng.random((w, m, 2)) * 2, dtype=torch.float32)
-    kw = dict(k=k, radius=0.6, num_rays=rays, max_range=0.8)
+    goals = torch.tensor(rng.random((w, m, 2)) * 2, dtype=torch.float32, device=device)
+    kw = dict(k=k, radius=0.6, num_rays=rays, max_range=0.8, device=device)
     ref = _search_obs(layout, w, m, "grid", False, monkeypatch, **kw)
     obs = _search_obs(layout, w, m, search, tiled, monkeypatch, **kw)
-    assert obs.search == search
-    pos3, vel3 = _sim_arrays(xy_nan, vel)
-    rows = [torch.full((w, m, 4 + ref.dim), 7.0) for _ in range(2)]
+    assert obs.search == search and obs.tiled == tiled
+    pos3, vel3 = _sim_arrays(xy_nan, vel, device)
+    rows = [torch.full((w, m, 4 + ref.dim), 7.0, device=device) for _ in range(2)]
     for o, out in zip((ref, obs), rows):
         o.observe(pos3, vel3, out, goals=goals)
-    np.testing.assert_array_equal(rows[1].numpy(), rows[0].numpy(), err_msg=str(rng))
-    np.testing.assert_array_equal(obs.index.numpy(), ref.index.numpy(), err_msg=str(rng))
+    rows = [r.cpu().numpy() for r in rows]
+    np.testing.assert_array_equal(rows[1], rows[0], err_msg=str(rng))
+    np.testing.assert_array_equal(obs.index.cpu().numpy(), ref.index.cpu().numpy(), err_msg=str(rng))
     assert obs.nonfinite.tolist() == ref.nonfinite.tolist() == [0, 1, 0], f"{rng}"
     # against the brute-force reference (the NaN mover left out of it: it is nobody's neighbour)
-    idx = obs.index.numpy()
+    idx = obs.index.cpu().numpy()
     assert not (idx[1] == 7).any()
     keep = np.arange(m) != 7
     want_idx, want_dist = knn_reference(xy, k, 0.6)
@@ -237,8 +243,8 @@ def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled
     assert clear[[0, 2]].mean() > 0.8 and clear1.mean() > 0.8, f"{rng}: too many near-ties to check"
     padded = (idx[2] >= 0).sum(-1)
     assert (padded < k).mean() > 0.5 and padded.max() >= 1, f"{rng}"  # fewer than k neighbours: padded, masked
-    mask = obs.mask.numpy()
-    assert not rows[1].numpy()[..., 4:4 + 5 * k].reshape(w, m, k, 5)[~mask].any()  # padded slots are zeros
+    mask = obs.mask.cpu().numpy()
+    assert not rows[1][..., 4:4 + 5 * k].reshape(w, m, k, 5)[~mask].any()  # padded slots are zeros
 
 
 def test_world_search_inside_the_env_with_respawns(rng, monkeypatch):
@@ -268,7 +274,11 @@ def test_search_option_errors():
         LocalObservations(np.ones((3, 3)), 1, 4, search="tree", device="cpu")
     with pytest.raises(ValueError, match="at most 256 movers"):
         LocalObservations(np.ones((30, 30)), 1, 300, search="world", device="cpu")
-    assert LocalObservations(np.ones((30, 30)), 1, 300, device="cpu").search == "grid"
+    big = LocalObservations(np.ones((30, 30)), 1, 300, device="cpu")
+    assert big.search == "grid"
+    with pytest.raises(ValueError, match="at most 256 movers"):
+        big.search = "world"
+    assert big.search == "grid"
     assert LocalObservations(np.ones((3, 3)), 1, 4, search="world", device="cpu").search == "world"
     obs = LocalObservations(np.ones((3, 3)), 1, 4, search="world", device="cpu")
     obs.tiled = True

@@ -56,18 +56,14 @@ class LocalObservations:
         for name, value in (("radius", radius), ("max_range", max_range)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        if search is not None and search not in knb.SEARCHES:
-            raise ValueError(f"search must be None or one of {knb.SEARCHES}, got {search!r}")
-        if search == "world" and int(num_movers) > knb.MAX_WORLD_BLOCK:
-            raise ValueError(f"search='world' holds at most {knb.MAX_WORLD_BLOCK} movers per world, got {num_movers}")
         self.k, self.num_rays = int(k), int(num_rays)
         self.radius, self.max_range = float(radius), float(max_range)
         self.num_worlds, self.num_movers = int(num_worlds), int(num_movers)
         self.device = wp.get_device(device)
         dev = self.device
-        #: how the k nearest are found (rows are the same either way): on CUDA every mover of a world of up to 256
-        #: (a block per world, positions in shared memory, no grid), else the grid's neighbouring cells (on the CPU
-        #: the grid is faster: 5.0 vs 5.7 ms at 64 worlds x 64 movers, 8.6 vs 11.7 at 64 x 100, 23 vs 54 at 64 x 256)
+        # on CUDA every mover of a world of up to 256 (a block per world, positions in shared memory, no grid), else
+        # the grid's neighbouring cells (on the CPU the grid is faster: 5.0 vs 5.7 ms at 64 worlds x 64 movers, 8.6
+        # vs 11.7 at 64 x 100, 23 vs 54 at 64 x 256)
         self.search = search or ("world" if dev.is_cuda and self.num_movers <= knb.MAX_WORLD_BLOCK else "grid")
         #: the block-per-world launch shape of the world search (CUDA; on the CPU a tile block is one thread wide
         #: unless warp.config.enable_cpu_blocks, so there each thread scans its world's rows)
@@ -96,6 +92,21 @@ class LocalObservations:
         # the features of compute() (no own state); observe() points the views below at the rows it writes
         self._features = torch.zeros(*shape, self.dim, device=wp.device_to_torch(dev))
         self._view(self._features, 0)
+
+    @property
+    def search(self) -> str:
+        """How the k nearest are found (:data:`~magwarp.kernels.neighbors.SEARCHES`; the rows are the same either
+        way); settable."""
+        return self._search
+
+    @search.setter
+    def search(self, value: str) -> None:
+        if value not in knb.SEARCHES:
+            raise ValueError(f"search must be None or one of {knb.SEARCHES}, got {value!r}")
+        if value == "world" and self.num_movers > knb.MAX_WORLD_BLOCK:
+            raise ValueError(f"search='world' holds at most {knb.MAX_WORLD_BLOCK} movers per world, got "
+                             f"{self.num_movers}")
+        self._search = value
 
     def _view(self, rows: torch.Tensor, start: int) -> None:
         """Point ``rel_pos``, ``rel_vel`` and ``walls`` at the local columns of ``rows`` (from column ``start``)."""
