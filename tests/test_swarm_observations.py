@@ -178,22 +178,26 @@ def test_observe_writes_own_state_then_features(rng, jerk, carry):
         local.observe(pos3, vel3, out, goals=goals[:, :-1], acc=acc, carrying=carrying)
 
 
-def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", **kw) -> LocalObservations:
+def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", unrolled=None, **kw) -> LocalObservations:
     obs = LocalObservations(layout, w, m, search=search, device=device, **kw)
     if tiled and device == "cpu":  # the CUDA shape (a block per world, shared memory) on Warp's cooperative CPU blocks
         monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
         obs.tiled = True
+    if unrolled is not None:
+        obs.unrolled = unrolled
     return obs
 
 
-@pytest.mark.parametrize("search,tiled,device", [("world", False, "cpu"), ("world", True, "cpu"),
-                                                 ("grid", False, "cpu"), ("world", True, "cuda:0")])
-def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, device):
+@pytest.mark.parametrize("search,tiled,unrolled,device", [
+    ("world", False, False, "cpu"), ("world", True, True, "cpu"), ("grid", False, True, "cpu"),
+    ("world", True, None, "cuda:0"), ("grid", False, False, "cuda:0")])
+def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, device):
     """Every search (the grid's cells; every mover of the world, per thread or a block per world with the positions in
-    shared memory) writes the same rows bit for bit, which match the brute-force reference: clusters with more than k
-    candidates, isolated movers with fewer than k (padded, masked), movers over holes and off the layout, a NaN
-    mover (never a neighbour, its own row flagged), a world size that leaves idle lanes in the last warp. On CUDA
-    (where present) the block-per-world kernel against the grid kernel of the same build."""
+    shared memory) and either insertion into the sorted slots (CUDA's unrolled chain, the CPU's shift) write the same
+    rows bit for bit, which match the brute-force reference: clusters with more than k candidates, isolated movers
+    with fewer than k (padded, masked), movers over holes and off the layout, a NaN mover (never a neighbour, its own
+    row flagged), a world size that leaves idle lanes in the last warp. On CUDA (where present) against the grid
+    kernel of the same build."""
     import torch
 
     if device != "cpu" and not wp.is_cuda_available():
@@ -217,8 +221,9 @@ def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled
     goals = torch.tensor(rng.random((w, m, 2)) * 2, dtype=torch.float32, device=device)
     kw = dict(k=k, radius=0.6, num_rays=rays, max_range=0.8, device=device)
     ref = _search_obs(layout, w, m, "grid", False, monkeypatch, **kw)
-    obs = _search_obs(layout, w, m, search, tiled, monkeypatch, **kw)
+    obs = _search_obs(layout, w, m, search, tiled, monkeypatch, unrolled=unrolled, **kw)
     assert obs.search == search and obs.tiled == tiled
+    assert (ref.unrolled, obs.unrolled) == (device != "cpu", device != "cpu" if unrolled is None else unrolled)
     pos3, vel3 = _sim_arrays(xy_nan, vel, device)
     rows = [torch.full((w, m, 4 + ref.dim), 7.0, device=device) for _ in range(2)]
     for o, out in zip((ref, obs), rows):
@@ -256,7 +261,7 @@ def test_world_search_inside_the_env_with_respawns(rng, monkeypatch):
 
     env = SwarmEnv(3, num_movers=40, occupancy=0.6, device="cpu", seed=int(rng.integers(1 << 30)), obs_radius=0.7)
     assert env.local.search == "grid"  # the CPU's default
-    ref = _search_obs(env.layout, 3, 40, "world", True, monkeypatch, k=env.config.k, radius=0.7,
+    ref = _search_obs(env.layout, 3, 40, "world", True, monkeypatch, unrolled=True, k=env.config.k, radius=0.7,
                       num_rays=env.config.num_rays, max_range=env.config.ray_range)
     respawned = 0
     for _ in range(6):

@@ -106,16 +106,16 @@ MAX_WORLD_BLOCK = 256
 
 
 @functools.cache
-def _row_funcs(k: int, num_rays: int, own: int):
-    """The pieces of a mover's observation row shared by every search (see :func:`make_observation_kernel`):
-    ``own_state``, ``keep_nearest`` (insert a candidate into the sorted slots), ``scan_world`` (every mover of a
-    world as candidates), ``write_slots`` and ``write_rays``."""
+def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
+    """The pieces of a mover's observation row (see :func:`make_observation_kernel`): ``own_state``, ``nearest``
+    (the k nearest within the radius, by ``search``), ``write_slots`` and ``write_rays``."""
     K, R = int(k), int(num_rays)
     KK = max(K, 1)
     Dists = wp.types.vector(length=KK, dtype=wp.float32)
     Ids = wp.types.vector(length=KK, dtype=wp.int32)
     WITH_STATE, WITH_ACC, WITH_CARRY = bool(own & OWN_STATE), bool(own & OWN_ACC), bool(own & OWN_CARRY)
     BASE = 4 * int(WITH_STATE) + 2 * int(WITH_ACC) + int(WITH_CARRY)
+    GRID, UNROLLED = search == "grid", bool(unrolled)
 
     @wp.func
     def own_state(
@@ -143,47 +143,65 @@ def _row_funcs(k: int, num_rays: int, own: int):
         return finite
 
     @wp.func
-    def empty_slots():
+    def nearest(
+        rows: Any, w: int, m: int, num_movers: int, p: wp.vec3, r2: float, grid: Grid, reach: int,
+        head: wp.array(dtype=wp.int32), next_in_cell: wp.array2d(dtype=wp.int32),
+    ):
+        """Distances squared and indices of mover ``m``'s k nearest others within the radius (nearest first, ties by
+        the lower index; -1 past the last), ``rows[j]``: mover ``j``'s x, y first (an array row or a shared tile).
+        Candidates: the movers of the grid's neighbouring cells, or (world search: one "cell" listing every mover)
+        all of the world's."""
         D = Dists()
         I = Ids()
         for s in range(KK):
             D[s] = BIG
             I[s] = -1
-        return D, I
-
-    @wp.func
-    def keep_nearest(D: Any, I: Any, d2: float, j: int):
-        """``(d2, j)`` inserted into the slots (nearest first, ties by the lower index) if it beats the last kept
-        one. The slots are walked with constant indices (an unrolled compare-and-swap chain), so they stay in
-        registers."""
-        Dn = D
-        In = I
-        if d2 < Dn[KK - 1] or (d2 == Dn[KK - 1] and j < In[KK - 1]) or In[KK - 1] < 0:
-            cd = d2
-            cj = j
-            for s in range(wp.static(KK)):
-                if cj >= 0 and (In[s] < 0 or cd < Dn[s] or (cd == Dn[s] and cj < In[s])):
-                    td = Dn[s]
-                    tj = In[s]
-                    Dn[s] = cd
-                    In[s] = cj
-                    cd = td
-                    cj = tj
-        return Dn, In
-
-    @wp.func
-    def scan_world(rows: Any, m: int, num_movers: int, p: wp.vec3, r2: float):
-        """The slots of mover ``m`` at ``p`` from every other mover ``j`` of its world (``rows[j]``: its x, y first;
-        an array row or a shared tile)."""
-        D, I = empty_slots()
-        for j in range(num_movers):
-            if j != m:
-                q = rows[j]
-                ex = q[0] - p[0]
-                ey = q[1] - p[1]
-                d2 = ex * ex + ey * ey
-                if d2 <= r2:
-                    D, I = keep_nearest(D, I, d2, j)
+        c = cell_coords(grid, p)
+        lo = -reach
+        if wp.static(not GRID):
+            lo = 0
+        for dy in range(lo, -lo + 1):
+            for dx in range(lo, -lo + 1):
+                j = int(0)
+                if wp.static(GRID):
+                    cy = c[1] + dy
+                    cx = c[0] + dx
+                    if cy < 0 or cy >= grid.ncy or cx < 0 or cx >= grid.ncx:
+                        continue
+                    j = head[(w * grid.ncy + cy) * grid.ncx + cx]
+                while j >= 0 and j < num_movers:
+                    if j != m:
+                        q = rows[j]
+                        ex = q[0] - p[0]
+                        ey = q[1] - p[1]
+                        d2 = ex * ex + ey * ey
+                        # keep (d2, j) if it beats the last kept one
+                        if d2 <= r2 and (d2 < D[KK - 1] or (d2 == D[KK - 1] and j < I[KK - 1]) or I[KK - 1] < 0):
+                            if wp.static(UNROLLED):
+                                # constant indices (an unrolled compare-and-swap chain): the slots stay in registers
+                                cd = d2
+                                cj = j
+                                for s in range(wp.static(KK)):
+                                    if cj >= 0 and (I[s] < 0 or cd < D[s] or (cd == D[s] and cj < I[s])):
+                                        td = D[s]
+                                        tj = I[s]
+                                        D[s] = cd
+                                        I[s] = cj
+                                        cd = td
+                                        cj = tj
+                            else:
+                                # shifted from the back to its place (fewer steps; a CPU keeps the slots in cache)
+                                s = KK - 1
+                                while s > 0 and (D[s - 1] > d2 or (D[s - 1] == d2 and I[s - 1] > j)):
+                                    D[s] = D[s - 1]
+                                    I[s] = I[s - 1]
+                                    s -= 1
+                                D[s] = d2
+                                I[s] = j
+                    if wp.static(GRID):
+                        j = next_in_cell[w, j]
+                    else:
+                        j += 1
         return D, I
 
     @wp.func
@@ -224,11 +242,12 @@ def _row_funcs(k: int, num_rays: int, own: int):
             finite = finite and wp.isfinite(d)
         return finite
 
-    return own_state, empty_slots, keep_nearest, scan_world, write_slots, write_rays
+    return own_state, nearest, write_slots, write_rays
 
 
 @functools.cache
-def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid", block_dim: int = 0):
+def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid", block_dim: int = 0,
+                           unrolled: bool = True):
     """The fused observation kernel for fixed ``k``, ``num_rays`` and own-state parts ``own`` (bits of
     :data:`OWN_STATE`, :data:`OWN_ACC`, :data:`OWN_CARRY`). Row of a mover: its own state, then per neighbour slot
     (relative x, y, relative vx, vy, mask; nearest first, ties by the lower index; zeros in padded slots), then
@@ -244,14 +263,16 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
       ``wp.launch_tiled(kernel, dim=W, block_dim=block_dim)`` with ``block_dim`` >= the movers per world: one
       block per world loads its movers' x/y positions and velocities into shared memory once and each lane scans
       them (lanes past the last mover mirror it and write nothing); ``block_dim`` 0: ``dim=(W, M)``, each thread
-      scanning its world's rows of ``pos`` (the CPU shape)."""
+      scanning its world's rows of ``pos`` (the CPU shape).
+
+    ``unrolled``: how a candidate enters the sorted slots: an unrolled compare-and-swap chain (constant indices: the
+    slots stay in registers on CUDA) or a shift from the back (fewer steps where the slots sit in a cache: the CPU);
+    the same slots either way."""
     if search not in SEARCHES:
         raise ValueError(f"search must be one of {SEARCHES}, got {search!r}")
     K, R = int(k), int(num_rays)
-    KK = max(K, 1)
-    own_state, empty_slots, keep_nearest, scan_world, write_slots, write_rays = _row_funcs(K, R, int(own))
-    GRID = search == "grid"
-    TILED = not GRID and int(block_dim) > 0
+    own_state, nearest, write_slots, write_rays = _row_funcs(K, R, int(own), search, bool(unrolled))
+    TILED = search == "world" and int(block_dim) > 0
     BLOCK = max(int(block_dim), 1)
     options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
 
@@ -302,33 +323,11 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
                 rows_vel = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
                 wp.tile_assign(rows_pos, wp.tile(wp.vec2(p[0], p[1]), preserve_type=True))
                 wp.tile_assign(rows_vel, wp.tile(wp.vec2(v[0], v[1]), preserve_type=True))
-                D, I = scan_world(rows_pos, m, M, p, r2)
+                D, I = nearest(rows_pos, w, m, M, p, r2, grid, reach, head, next_in_cell)
                 if live:
                     finite = write_slots(w, m, p, v, I, rows_pos, rows_vel, out, index)
-            elif wp.static(GRID):
-                D, I = empty_slots()
-                c = cell_coords(grid, p)
-                for dy in range(-reach, reach + 1):
-                    cy = c[1] + dy
-                    if cy < 0 or cy >= grid.ncy:
-                        continue
-                    for dx in range(-reach, reach + 1):
-                        cx = c[0] + dx
-                        if cx < 0 or cx >= grid.ncx:
-                            continue
-                        j = head[(w * grid.ncy + cy) * grid.ncx + cx]
-                        while j >= 0:
-                            if j != m:
-                                q = pos[w, j]
-                                ex = q[0] - p[0]
-                                ey = q[1] - p[1]
-                                d2 = ex * ex + ey * ey
-                                if d2 <= r2:
-                                    D, I = keep_nearest(D, I, d2, j)
-                            j = next_in_cell[w, j]
-                finite = write_slots(w, m, p, v, I, pos[w], vel[w], out, index)
             else:
-                D, I = scan_world(pos[w], m, M, p, r2)
+                D, I = nearest(pos[w], w, m, M, p, r2, grid, reach, head, next_in_cell)
                 finite = write_slots(w, m, p, v, I, pos[w], vel[w], out, index)
         if not live:
             return

@@ -68,6 +68,9 @@ class LocalObservations:
         #: the block-per-world launch shape of the world search (CUDA; on the CPU a tile block is one thread wide
         #: unless warp.config.enable_cpu_blocks, so there each thread scans its world's rows)
         self.tiled = dev.is_cuda
+        #: how a candidate enters the sorted slots (the same slots either way): an unrolled compare-and-swap chain
+        #: that keeps them in registers (CUDA), or a shift from the back (the CPU, where it takes fewer steps)
+        self.unrolled = dev.is_cuda
         ext = self.layout.extent
         g = Grid()
         # no more cells than about 4 per mover: a large radius on a sparse world scans a few more cells instead
@@ -164,7 +167,7 @@ class LocalObservations:
             raise ValueError(f"the block-per-world observation kernel runs on the CPU only with "
                              f"warp.config.enable_cpu_blocks (Warp's cooperative CPU blocks), got {self.num_movers} "
                              f"movers")
-        kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block)
+        kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block, self.unrolled)
         with torch_stream(dev):
             self.nonfinite.zero_()
             if self.k > 0 and grid:
