@@ -190,7 +190,7 @@ def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", unrolled
 
 @pytest.mark.parametrize("search,tiled,unrolled,device", [
     ("world", False, False, "cpu"), ("world", True, True, "cpu"), ("grid", False, True, "cpu"),
-    ("world", True, None, "cuda:0"), ("grid", False, False, "cuda:0")])
+    ("world", True, None, "cuda:0"), ("grid", True, False, "cuda:0")])  # tiled: the attribute (the grid ignores it)
 def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, device):
     """Every search (the grid's cells; every mover of the world, per thread or a block per world with the positions in
     shared memory) and either insertion into the sorted slots (CUDA's unrolled chain, the CPU's shift) write the same
