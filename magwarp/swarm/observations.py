@@ -62,8 +62,8 @@ class LocalObservations:
         self.device = wp.get_device(device)
         dev = self.device
         # on CUDA every mover of a world of up to 256 (a block per world, positions in shared memory, no grid), else
-        # the grid's neighbouring cells (on the CPU the grid is faster: 5.0 vs 5.7 ms at 64 worlds x 64 movers, 8.6
-        # vs 11.7 at 64 x 100, 23 vs 54 at 64 x 256)
+        # the grid's neighbouring cells (on the CPU the two are about even, grid vs world: 2.1-2.4 vs 1.95 ms at 64
+        # worlds x 64 movers, 3.4 vs 3.2-3.3 at 64 x 100, 9.4 vs 10.3 at 64 x 256; one thread per mover either way)
         self.search = search or ("world" if dev.is_cuda and self.num_movers <= knb.MAX_WORLD_BLOCK else "grid")
         #: the block-per-world launch shape of the world search (CUDA; on the CPU a tile block is one thread wide
         #: unless warp.config.enable_cpu_blocks, so there each thread scans its world's rows)
