@@ -30,12 +30,13 @@ collide as in a run), computed on the device.
     python benchmarks/swarm.py --device cpu --fused-sweep --small       # the same rows at CPU sizes (smoke check)
 
 Each fused row also splits the env step (``step_split``, each phase between device synchronisations inside real
-steps): physics (stop mask, command copy, the fused motion's graph), observations (on CUDA one block-per-world kernel,
-on the CPU grid binning and one kernel), rewards/resets (per-mover outcome kernel, goal streams, respawns), the rest
-(action check, NaN guard, info) and the steering rule's own time (``policy_ms``, which ``fused_env_ms`` includes;
-``env_only_agent_steps_per_s`` leaves it out: the issue's target of 5e8 agent-steps/s is about the env). It also
-times the observation alone with each neighbour search (``obs_grid_ms``, ``obs_world_ms``) and checks that they
-write the same rows bit for bit (``obs_searches_match``); ``--obs-search`` picks the one the timed envs use.
+steps): physics (stop mask, command copy, the fused motion's graph), observations (one kernel scanning each world's
+movers: on CUDA a block per world; grid binning first above 256 movers, 128 on the CPU), rewards/resets (per-mover
+outcome kernel, goal streams, respawns), the rest (action check, NaN guard, info) and the steering rule's own time
+(``policy_ms``, which ``fused_env_ms`` includes; ``env_only_agent_steps_per_s`` leaves it out: the issue's target of
+5e8 agent-steps/s is about the env). It also times the observation alone with each neighbour search (``obs_grid_ms``,
+``obs_world_ms``) and checks that they write the same rows bit for bit (``obs_searches_match``); ``--obs-search``
+picks the one the timed envs use.
 
 ``--fused-sweep``: the training regime (many worlds of 64, 100 and 256 movers, 1024 to 16384 worlds): agent-steps/s
 of the env with the per-cycle step (``fused=False``: three or four launches per cycle, then the stop hook) and with

@@ -253,15 +253,15 @@ def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled
 
 
 def test_world_search_inside_the_env_with_respawns(rng, monkeypatch):
-    """In the swarm env (worlds whose movers collide, stop and respawn), the block-per-world search (CUDA's default,
-    here on cooperative CPU blocks) writes the env's rows (the CPU's grid search) bit for bit, after every step."""
+    """In the swarm env (worlds whose movers collide, stop and respawn), the grid search writes the env's rows (the
+    CPU's default for small worlds: each mover scanning its world) bit for bit, after every step."""
     import torch
 
     from magwarp.swarm import SwarmEnv
 
     env = SwarmEnv(3, num_movers=40, occupancy=0.6, device="cpu", seed=int(rng.integers(1 << 30)), obs_radius=0.7)
-    assert env.local.search == "grid"  # the CPU's default
-    ref = _search_obs(env.layout, 3, 40, "world", True, monkeypatch, unrolled=True, k=env.config.k, radius=0.7,
+    assert env.local.search == "world" and not env.local.unrolled  # the CPU's default at 40 movers
+    ref = _search_obs(env.layout, 3, 40, "grid", False, monkeypatch, unrolled=True, k=env.config.k, radius=0.7,
                       num_rays=env.config.num_rays, max_range=env.config.ray_range)
     respawned = 0
     for _ in range(6):
@@ -279,6 +279,7 @@ def test_search_option_errors():
         LocalObservations(np.ones((3, 3)), 1, 4, search="tree", device="cpu")
     with pytest.raises(ValueError, match="at most 256 movers"):
         LocalObservations(np.ones((30, 30)), 1, 300, search="world", device="cpu")
+    assert LocalObservations(np.ones((30, 30)), 1, 129, device="cpu").search == "grid"
     big = LocalObservations(np.ones((30, 30)), 1, 300, device="cpu")
     assert big.search == "grid"
     with pytest.raises(ValueError, match="at most 256 movers"):

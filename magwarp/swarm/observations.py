@@ -11,10 +11,10 @@ covers the neighbourhood), bins the movers with the simulator's ``bin_movers`` k
   edge) along ``num_rays`` directions evenly spread from +x counter-clockwise, capped at ``max_range``.
 
 :meth:`LocalObservations.observe` writes the same values, with the mover's own state before them, straight into the
-rows of an env's observation tensor: three launches per call (clear the grid, bin, one observation kernel), or on
-CUDA for worlds of up to 256 movers one (a thread block per world scanning its movers in shared memory, no grid:
-``search="world"``), no copies; ``rel_pos``, ``rel_vel`` and ``walls`` are then views of those rows. Both searches
-write the same rows bit for bit.
+rows of an env's observation tensor: three launches per call (clear the grid, bin, one observation kernel), or for
+small worlds one (``search="world"``, no grid: each mover scans its world's movers; on CUDA, up to 256 movers per
+world, a thread block per world with its movers in shared memory), no copies; ``rel_pos``, ``rel_vel`` and ``walls``
+are then views of those rows. Both searches write the same rows bit for bit.
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ def ray_directions(num_rays: int) -> np.ndarray:
 
 class LocalObservations:
     """Neighbour and wall observations for ``num_worlds`` worlds of ``num_movers`` movers on ``layout``. ``search``:
-    ``"grid"``, ``"world"`` (up to 256 movers per world) or None (``"world"`` on CUDA where it applies, else
-    ``"grid"``): how the k nearest are found; the rows are the same."""
+    ``"grid"``, ``"world"`` (up to 256 movers per world) or None (``"world"`` up to 256 movers per world on CUDA and
+    128 on the CPU, else ``"grid"``): how the k nearest are found; the rows are the same."""
 
     def __init__(self, layout: Layout | np.ndarray, num_worlds: int, num_movers: int, *, k: int = 8,
                  radius: float = 1.0, num_rays: int = 8, max_range: float = 1.0, search: str | None = None,
@@ -61,10 +61,10 @@ class LocalObservations:
         self.num_worlds, self.num_movers = int(num_worlds), int(num_movers)
         self.device = wp.get_device(device)
         dev = self.device
-        # on CUDA every mover of a world of up to 256 (a block per world, positions in shared memory, no grid), else
-        # the grid's neighbouring cells (on the CPU the two are about even, grid vs world: 2.1-2.4 vs 1.95 ms at 64
-        # worlds x 64 movers, 3.4 vs 3.2-3.3 at 64 x 100, 9.4 vs 10.3 at 64 x 256; one thread per mover either way)
-        self.search = search or ("world" if dev.is_cuda and self.num_movers <= knb.MAX_WORLD_BLOCK else "grid")
+        # every mover of the world for small worlds (on CUDA up to 256: a block per world, positions in shared memory;
+        # on the CPU up to 128: a thread per mover), no grid to build; else the grid's neighbouring cells
+        most = knb.MAX_WORLD_BLOCK if dev.is_cuda else knb.MAX_WORLD_SCAN_CPU
+        self.search = search or ("world" if self.num_movers <= most else "grid")
         #: the block-per-world launch shape of the world search (CUDA; on the CPU a tile block is one thread wide
         #: unless warp.config.enable_cpu_blocks, so there each thread scans its world's rows)
         self.tiled = dev.is_cuda
