@@ -178,8 +178,10 @@ def test_observe_writes_own_state_then_features(rng, jerk, carry):
         local.observe(pos3, vel3, out, goals=goals[:, :-1], acc=acc, carrying=carrying)
 
 
-def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", unrolled=None, **kw) -> LocalObservations:
+def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", unrolled=None, staged=False,
+                **kw) -> LocalObservations:
     obs = LocalObservations(layout, w, m, search=search, device=device, **kw)
+    obs.staged = staged
     if tiled and device == "cpu":  # the CUDA shape (a block per world, shared memory) on Warp's cooperative CPU blocks
         monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
         obs.tiled = True
@@ -188,16 +190,17 @@ def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", unrolled
     return obs
 
 
-@pytest.mark.parametrize("search,tiled,unrolled,device", [
-    ("world", False, False, "cpu"), ("world", True, True, "cpu"), ("grid", False, True, "cpu"),
-    ("world", True, None, "cuda:0"), ("grid", True, False, "cuda:0")])  # tiled: the attribute (the grid ignores it)
-def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, device):
+@pytest.mark.parametrize("search,tiled,unrolled,staged,device", [
+    ("world", False, False, False, "cpu"), ("world", True, True, False, "cpu"), ("world", True, False, True, "cpu"),
+    ("grid", False, True, False, "cpu"), ("world", True, None, False, "cuda:0"), ("world", True, None, True, "cuda:0"),
+    ("grid", True, False, False, "cuda:0")])  # tiled: the attribute (the grid ignores it)
+def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, staged, device):
     """Every search (the grid's cells; every mover of the world, per thread or a block per world with the positions in
-    shared memory) and either insertion into the sorted slots (CUDA's unrolled chain, the CPU's shift) write the same
-    rows bit for bit, which match the brute-force reference: clusters with more than k candidates, isolated movers
-    with fewer than k (padded, masked), movers over holes and off the layout, a NaN mover (never a neighbour, its own
-    row flagged), a world size that leaves idle lanes in the last warp. On CUDA (where present) against the grid
-    kernel of the same build."""
+    shared memory, its rows written directly or staged in shared memory) and either insertion into the sorted slots
+    (CUDA's unrolled chain, the CPU's shift) write the same rows bit for bit, which match the brute-force reference:
+    clusters with more than k candidates, isolated movers with fewer than k (padded, masked), movers over holes and
+    off the layout, a NaN mover (never a neighbour, its own row flagged), a world size that leaves idle lanes in the
+    last warp. On CUDA (where present) against the grid kernel of the same build."""
     import torch
 
     if device != "cpu" and not wp.is_cuda_available():
@@ -221,7 +224,7 @@ def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled
     goals = torch.tensor(rng.random((w, m, 2)) * 2, dtype=torch.float32, device=device)
     kw = dict(k=k, radius=0.6, num_rays=rays, max_range=0.8, device=device)
     ref = _search_obs(layout, w, m, "grid", False, monkeypatch, **kw)
-    obs = _search_obs(layout, w, m, search, tiled, monkeypatch, unrolled=unrolled, **kw)
+    obs = _search_obs(layout, w, m, search, tiled, monkeypatch, unrolled=unrolled, staged=staged, **kw)
     assert obs.search == search and obs.tiled == tiled
     assert (ref.unrolled, obs.unrolled) == (device != "cpu", device != "cpu" if unrolled is None else unrolled)
     pos3, vel3 = _sim_arrays(xy_nan, vel, device)

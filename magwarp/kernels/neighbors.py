@@ -123,26 +123,27 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
     @wp.func
     def own_state(
         w: int, m: int, p: wp.vec3, v: wp.vec3, acc: wp.array2d(dtype=wp.vec2), goals: wp.array2d(dtype=wp.vec2),
-        carrying: wp.array2d(dtype=wp.bool), out: wp.array3d(dtype=wp.float32),
+        carrying: wp.array2d(dtype=wp.bool), out: Any, row: int,
     ) -> bool:
-        """Write the own-state columns; False if one is not finite."""
+        """Write the own-state columns into ``out[row]`` (the world's rows of the output, or a staging tile); False
+        if one is not finite. Every write is unconditional (a staging tile's writes are block barriers)."""
         finite = bool(True)
         if wp.static(WITH_STATE):
             g = goals[w, m]
             row4 = wp.vec4(v[0], v[1], g[0] - p[0], g[1] - p[1])
             for e in range(4):
-                out[w, m, e] = row4[e]
+                out[row, e] = row4[e]
                 finite = finite and wp.isfinite(row4[e])
         if wp.static(WITH_ACC):
             a = acc[w, m]
-            out[w, m, 4] = a[0]
-            out[w, m, 5] = a[1]
+            out[row, 4] = a[0]
+            out[row, 5] = a[1]
             finite = finite and wp.isfinite(a[0]) and wp.isfinite(a[1])
         if wp.static(WITH_CARRY):
             cv = float(0.0)
             if carrying[w, m]:
                 cv = 1.0
-            out[w, m, BASE - 1] = cv
+            out[row, BASE - 1] = cv
         return finite
 
     @wp.func
@@ -210,14 +211,14 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
     @wp.func
     def write_slots(
         w: int, m: int, p: wp.vec3, v: wp.vec3, I: Any, rows_pos: Any, rows_vel: Any,
-        out: wp.array3d(dtype=wp.float32), index: wp.array3d(dtype=wp.int32),
+        out: Any, index: Any, row: int,
     ) -> bool:
         """Write the neighbour slots of the indices ``I`` (``rows_pos[j]`` / ``rows_vel[j]``: mover ``j``'s x/y position
         and velocity first); False if one is not finite."""
         finite = bool(True)
         for s in range(KK):
             j = I[s]
-            index[w, m, s] = j
+            index[row, s] = j
             col = BASE + 5 * s
             slot = wp.vec4(0.0)
             flag = float(0.0)
@@ -227,30 +228,30 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
                 slot = wp.vec4(q[0] - p[0], q[1] - p[1], u[0] - v[0], u[1] - v[1])
                 flag = 1.0
             for e in range(4):
-                out[w, m, col + e] = slot[e]
+                out[row, col + e] = slot[e]
                 finite = finite and wp.isfinite(slot[e])
-            out[w, m, col + 4] = flag
+            out[row, col + 4] = flag
         return finite
 
     @wp.func
     def write_rays(
         w: int, m: int, p: wp.vec3, tiles: wp.array2d(dtype=wp.int32), tile_size: float,
-        dirs: wp.array(dtype=wp.vec2), max_range: float, out: wp.array3d(dtype=wp.float32),
+        dirs: wp.array(dtype=wp.vec2), max_range: float, out: Any, row: int,
     ) -> bool:
         finite = bool(True)
         p2 = wp.vec2(p[0], p[1])
         for r in range(R):
             d = ray_to_wall(tiles, tile_size, p2, dirs[r], max_range)
-            out[w, m, BASE + 5 * K + r] = d
+            out[row, BASE + 5 * K + r] = d
             finite = finite and wp.isfinite(d)
         return finite
 
-    return own_state, nearest, write_slots, write_rays
+    return own_state, nearest, write_slots, write_rays, BASE + 5 * K + R
 
 
 @functools.cache
 def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid", block_dim: int = 0,
-                           unrolled: bool = True):
+                           unrolled: bool = True, staged: bool = False):
     """The fused observation kernel for fixed ``k``, ``num_rays`` and own-state parts ``own`` (bits of
     :data:`OWN_STATE`, :data:`OWN_ACC`, :data:`OWN_CARRY`). Row of a mover: its own state, then per neighbour slot
     (relative x, y, relative vx, vy, mask; nearest first, ties by the lower index; zeros in padded slots), then
@@ -266,7 +267,9 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
       ``wp.launch_tiled(kernel, dim=W, block_dim=block_dim)`` with ``block_dim`` >= the movers per world: one
       block per world loads its movers' x/y positions and velocities into shared memory once and each lane scans
       them (lanes past the last mover mirror it and write nothing); ``block_dim`` 0: ``dim=(W, M)``, each thread
-      scanning its world's rows of ``pos`` (the CPU shape).
+      scanning its world's rows of ``pos`` (the CPU shape). ``staged`` (block shape only): the block's rows are
+      written into shared memory first (one barrier per column) and stored to ``out`` / ``index`` together, each
+      lane writing consecutive addresses, instead of each lane writing its own row (addresses a row apart).
 
     ``unrolled``: how a candidate enters the sorted slots: an unrolled compare-and-swap chain (constant indices: the
     slots stay in registers on CUDA) or a shift from the back (fewer steps where the slots sit in a cache: the CPU);
@@ -274,8 +277,10 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
     if search not in SEARCHES:
         raise ValueError(f"search must be one of {SEARCHES}, got {search!r}")
     K, R = int(k), int(num_rays)
-    own_state, nearest, write_slots, write_rays = _row_funcs(K, R, int(own), search, bool(unrolled))
+    own_state, nearest, write_slots, write_rays, DIM = _row_funcs(K, R, int(own), search, bool(unrolled))
+    KK = max(K, 1)
     TILED = search == "world" and int(block_dim) > 0
+    STAGED = TILED and bool(staged)
     BLOCK = max(int(block_dim), 1)
     options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
 
@@ -317,6 +322,11 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
         p = pos[w, m]
         v = vel[w, m]
         finite = bool(True)
+        if wp.static(STAGED):
+            # every lane (idle ones too: their rows fall past the world's and are not stored) writes its row into
+            # the staging tiles, then the block stores them
+            rows_out = wp.tile_zeros(shape=(BLOCK, DIM), dtype=wp.float32, storage="shared")
+            rows_index = wp.tile_zeros(shape=(BLOCK, KK), dtype=wp.int32, storage="shared")
         if wp.static(K > 0):
             r2 = radius * radius
             if wp.static(TILED):
@@ -327,17 +337,27 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
                 wp.tile_assign(rows_pos, wp.tile(wp.vec2(p[0], p[1]), preserve_type=True))
                 wp.tile_assign(rows_vel, wp.tile(wp.vec2(v[0], v[1]), preserve_type=True))
                 D, I = nearest(rows_pos, w, m, M, p, r2, grid, reach, head, next_in_cell)
-                if live:
-                    finite = write_slots(w, m, p, v, I, rows_pos, rows_vel, out, index)
+                if wp.static(STAGED):
+                    finite = write_slots(w, m, p, v, I, rows_pos, rows_vel, rows_out, rows_index, lane)
+                elif live:
+                    finite = write_slots(w, m, p, v, I, rows_pos, rows_vel, out[w], index[w], m)
             else:
                 D, I = nearest(pos[w], w, m, M, p, r2, grid, reach, head, next_in_cell)
-                finite = write_slots(w, m, p, v, I, pos[w], vel[w], out, index)
-        if not live:
-            return
-        finite = own_state(w, m, p, v, acc, goals, carrying, out) and finite
-        if wp.static(R > 0):
-            finite = write_rays(w, m, p, tiles, tile_size, dirs, max_range, out) and finite
-        if not finite:
+                finite = write_slots(w, m, p, v, I, pos[w], vel[w], out[w], index[w], m)
+        if wp.static(STAGED):
+            finite = own_state(w, m, p, v, acc, goals, carrying, rows_out, lane) and finite
+            if wp.static(R > 0):
+                finite = write_rays(w, m, p, tiles, tile_size, dirs, max_range, rows_out, lane) and finite
+            wp.tile_store(out[w], rows_out)
+            if wp.static(K > 0):
+                wp.tile_store(index[w], rows_index)
+        else:
+            if not live:
+                return
+            finite = own_state(w, m, p, v, acc, goals, carrying, out[w], m) and finite
+            if wp.static(R > 0):
+                finite = write_rays(w, m, p, tiles, tile_size, dirs, max_range, out[w], m) and finite
+        if live and not finite:
             nonfinite[w] = 1
 
     return observe

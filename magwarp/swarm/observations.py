@@ -71,6 +71,9 @@ class LocalObservations:
         #: how a candidate enters the sorted slots (the same slots either way): an unrolled compare-and-swap chain
         #: that keeps them in registers (CUDA), or a shift from the back (the CPU, where it takes fewer steps)
         self.unrolled = dev.is_cuda
+        #: the block-per-world kernel stages its block's rows in shared memory and stores them together (consecutive
+        #: addresses per lane) instead of each lane writing its own row; the same rows either way
+        self.staged = False
         ext = self.layout.extent
         g = Grid()
         # no more cells than about 4 per mover: a large radius on a sparse world scans a few more cells instead
@@ -167,7 +170,8 @@ class LocalObservations:
             raise ValueError(f"the block-per-world observation kernel runs on the CPU only with "
                              f"warp.config.enable_cpu_blocks (Warp's cooperative CPU blocks), got {self.num_movers} "
                              f"movers")
-        kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block, self.unrolled)
+        kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block, self.unrolled,
+                                              bool(block) and self.staged)
         with torch_stream(dev):
             self.nonfinite.zero_()
             if self.k > 0 and grid:
