@@ -106,6 +106,10 @@ MAX_WORLD_BLOCK = 256
 #: the most movers per world for which the CPU scans the whole world by default (above it the grid is faster: at 64
 #: worlds, world vs grid search 1.95 vs 2.1-2.4 ms with 64 movers, 3.2-3.3 vs 3.4 with 100, 10.3 vs 9.4 with 256)
 MAX_WORLD_SCAN_CPU = 128
+#: the world search's default limit on CUDA: on the H100 it took 0.75 ms (staged) against the grid's 1.15 ms at 16,384
+#: worlds x 64 movers, but 1.96 against 1.73 at 100 movers and 7.13 against 4.28 at 256 (each lane scans every mover of
+#: its world: O(M^2) per world; benchmarks/swarm.py --fused-sweep, swarm_fused_gpu_*.json, 2026-11-25)
+WORLD_SEARCH_CUDA = 64
 
 
 @functools.cache
