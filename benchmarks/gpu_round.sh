@@ -219,9 +219,10 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
           --json "$OUT/randomization_small_world_${k}_gpu.json" 2>&1 | grep -E "^  cuda" | tail -12
       done ;;
     robustness)
-      # #24: the shipped B0 policy and the randomisation-trained ones (paper.py runs b0_ppo_dr and b0_ppo_dr_ft,
-      # trained by the suite stage into /tmp/runs: RUNS=b0_ppo_dr,b0_ppo_dr_ft), nominal and under each condition
-      POL=(--policy pretrained:b0_ppo)
+      # #24: the shipped B0 policy, the shipped randomisation-trained one (pretrained:b0_ppo_sim2real) and any
+      # randomisation-trained runs in /tmp/runs (paper.py runs b0_ppo_dr and b0_ppo_dr_ft, trained by the suite
+      # stage: RUNS=b0_ppo_dr,b0_ppo_dr_ft), nominal and under each condition
+      POL=(--policy pretrained:b0_ppo --policy pretrained:b0_ppo_sim2real)
       for r in b0_ppo_dr b0_ppo_dr_ft; do
         [ -f "/tmp/runs/$r/policy.pt" ] && POL+=(--policy "/tmp/runs/$r/policy.pt")
       done

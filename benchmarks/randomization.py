@@ -74,9 +74,10 @@ NO_KERNEL_OPS = {"aten::view", "aten::expand", "aten::expand_as", "aten::as_stri
                  "aten::_reshape_alias", "aten::resolve_conj", "aten::resolve_neg", "aten::lift_fresh", "aten::to"}
 
 
-def kernel_times(env_id: str, device: str, num_envs: int, steps: int = 10, **env_kwargs) -> dict[str, float]:
+def kernel_times(env_id: str, device: str, num_envs: int, steps: int = 10, **env_kwargs) -> tuple[dict, dict]:
     """CUDA time per env step of each kernel (us, summed over its launches) in the env's step at ``num_envs``, from the
-    profiler's device trace over ``steps`` steps (graph replays included): where a setting's extra time goes."""
+    profiler's device trace over ``steps`` steps (graph replays included): where a setting's extra time goes. Also
+    each kernel's launch count and median and longest launch (us): a term firing every N steps shows there."""
     import collections
 
     import gymnasium as gym
@@ -99,10 +100,14 @@ def kernel_times(env_id: str, device: str, num_envs: int, steps: int = 10, **env
         torch.cuda.synchronize()
     cuda = torch.autograd.DeviceType.CUDA
     total: collections.Counter = collections.Counter()
+    launches: dict[str, list[float]] = collections.defaultdict(list)
     for e in prof.profiler.kineto_results.events():
         if e.device_type() == cuda:
             total[e.name()[:60]] += (e.duration_ns() / 1000.0) / steps
-    return dict(total.most_common())
+            launches[e.name()[:60]].append(e.duration_ns() / 1000.0)
+    stats = {k: {"launches": len(v), "median_us": float(sorted(v)[len(v) // 2]), "max_us": max(v)}
+             for k, v in launches.items()}
+    return dict(total.most_common()), stats
 
 
 def count_launches(env_id: str, device: str, num_envs: int = 256, **env_kwargs) -> dict:
@@ -145,18 +150,22 @@ def count_launches(env_id: str, device: str, num_envs: int = 256, **env_kwargs) 
     if fused is not None:
         fused.graph = False
     names: collections.Counter = collections.Counter()
-    launch = wp.launch
+    launch, launch_tiled = wp.launch, wp.launch_tiled
 
     def counted(kernel, *args, **kwargs):
         names[f"warp:{kernel.key}"] += 1
         return launch(kernel, *args, **kwargs)
 
-    wp.launch = counted
+    def counted_tiled(kernel, *args, **kwargs):  # (launch_tiled calls Warp's own launch, not wp.launch)
+        names[f"warp:{kernel.key}"] += 1
+        return launch_tiled(kernel, *args, **kwargs)
+
+    wp.launch, wp.launch_tiled = counted, counted_tiled
     try:
         with profile(activities=[ProfilerActivity.CPU]) as prof:
             env.step(action)
     finally:
-        wp.launch = launch
+        wp.launch, wp.launch_tiled = launch, launch_tiled
         env.sim._use_graph = True
         if fused is not None:
             fused.graph = graph
@@ -227,17 +236,20 @@ def main(argv=None) -> int:
                     graph = f"; graph kernels: {c['graph_kernels']}" if "graph_kernels" in c else ""
                     print(f"  {device} {env_id} {name}: {c['launches']} launches per step "
                           f"({c['launch_names']}{graph})", flush=True)
-            times = {}
+            times, launch_stats = {}, {}
             if args.kernel_times and device != "cpu":
                 for name, kwargs in settings.items():
                     try:
-                        times[name] = kernel_times(env_id, device, args.kernel_times, **kwargs)
+                        times[name], launch_stats[name] = kernel_times(env_id, device, args.kernel_times, **kwargs)
                     except Exception as e:  # noqa: BLE001 - a profiler without CUPTI: the timings still stand
                         print(f"  (no kernel times: {type(e).__name__}: {e})", flush=True)
-                        times[name] = {}
+                        times[name], launch_stats[name] = {}, {}
                     top = ", ".join(f"{k} {v:.1f}" for k, v in list(times[name].items())[:10])
                     print(f"  {device} {env_id} {name} at {args.kernel_times} envs, us per step: "
                           f"total {sum(times[name].values()):.1f}; {top}", flush=True)
+                    print("    launches (count/median us/max us): " + ", ".join(
+                        f"{k[:32]} {v['launches']}/{v['median_us']:.1f}/{v['max_us']:.1f}"
+                        for k, v in launch_stats[name].items()), flush=True)
             for n in sizes:
                 base = None
                 for name, kwargs in settings.items():
@@ -251,7 +263,8 @@ def main(argv=None) -> int:
                                  "small_world_block": kernel_options.SMALL_WORLD_BLOCK,
                                  "small_world_maxreg": kernel_options.SMALL_WORLD_MAXREG,
                                  "small_world_rows": kernel_options.SMALL_WORLD_ROWS,
-                                 "kernel_us": times.get(name) if n == args.kernel_times else None})
+                                 "kernel_us": times.get(name) if n == args.kernel_times else None,
+                                 "kernel_launches": launch_stats.get(name) if n == args.kernel_times else None})
                     path = f", step path: {res['path']}" if "path" in res else ""
                     print(f"  {device} {env_id} num_envs={n} {name}: {res['env_steps_per_s']:.4g} env-steps/s "
                           f"({cost:+.1f} %{path})", flush=True)

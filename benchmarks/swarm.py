@@ -30,10 +30,13 @@ collide as in a run), computed on the device.
     python benchmarks/swarm.py --device cpu --fused-sweep --small       # the same rows at CPU sizes (smoke check)
 
 Each fused row also splits the env step (``step_split``, each phase between device synchronisations inside real
-steps): physics (stop mask, command copy, the fused motion's graph), observations (grid binning and one kernel),
-rewards/resets (per-mover outcome kernel, goal streams, respawns), the rest (action check, NaN guard, info) and the
-steering rule's own time (``policy_ms``, which ``fused_env_ms`` includes;
-``env_only_agent_steps_per_s`` leaves it out: the issue's target of 5e8 agent-steps/s is about the env).
+steps): physics (stop mask, command copy, the fused motion's graph), observations (one kernel scanning each world's
+movers: on CUDA a block per world; grid binning first above 256 movers, 128 on the CPU), rewards/resets (per-mover
+outcome kernel, goal streams, respawns), the rest (action check, NaN guard, info) and the steering rule's own time
+(``policy_ms``, which ``fused_env_ms`` includes; ``env_only_agent_steps_per_s`` leaves it out: the issue's target of
+5e8 agent-steps/s is about the env). It also times the observation alone with each neighbour search (``obs_grid_ms``,
+``obs_world_ms``, on CUDA ``obs_world_staged_ms``) and checks that they write the same rows bit for bit
+(``obs_searches_match``); ``--obs-search`` picks the one the timed envs use.
 
 ``--fused-sweep``: the training regime (many worlds of 64, 100 and 256 movers, 1024 to 16384 worlds): agent-steps/s
 of the env with the per-cycle step (``fused=False``: three or four launches per cycle, then the stop hook) and with
@@ -340,8 +343,35 @@ def step_split(env, device: str, steps: int, env_ms: float) -> dict:
     return out
 
 
+def obs_searches(env, device: str, steps: int) -> dict:
+    """The observation alone (``env._get_obs()``: what the step's ``obs`` phase runs) with each search of
+    :class:`~magwarp.swarm.LocalObservations` on the env's current state: ``obs_<search>_ms`` (on CUDA also
+    ``obs_world_staged_ms``: the block-per-world kernel with its rows staged in shared memory), and
+    ``obs_searches_match``: every search wrote the same rows and neighbour indices bit for bit (the device's own build,
+    fast math included)."""
+    from magwarp.kernels.neighbors import MAX_WORLD_BLOCK, SEARCHES
+
+    local, out, rows = env.local, {}, {}
+    default = local.search, local.staged
+    variants = [(search, False) for search in SEARCHES if search == "grid" or env.num_movers <= MAX_WORLD_BLOCK]
+    if local.tiled and env.num_movers <= MAX_WORLD_BLOCK:
+        variants.append(("world", True))  # the block's rows staged in shared memory, stored together
+    try:
+        for search, staged in variants:
+            local.search, local.staged = search, staged
+            name = search + ("_staged" if staged else "")
+            out[f"obs_{name}_ms"], _ = _time(env._get_obs, device, steps)
+            rows[name] = (env._get_obs().clone(), local.index.clone())
+    finally:
+        local.search, local.staged = default
+    first = next(iter(rows.values()))
+    out["obs_searches_match"] = all(torch.equal(r[0], first[0]) and torch.equal(r[1], first[1]) for r in rows.values())
+    out["obs_search"] = default[0] + ("_staged" if default[1] and local.tiled and default[0] == "world" else "")
+    return out
+
+
 def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float,
-                    breakdown: bool = False) -> dict:
+                    breakdown: bool = False, obs_search: str | None = None) -> dict:
     from magwarp.swarm import SwarmEnv
 
     row: dict = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps}
@@ -349,6 +379,8 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
         gc.collect()
         env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False,
                        fused=fused)
+        if obs_search is not None:
+            env.local.search, env.local.staged = obs_search.split("_")[0], obs_search.endswith("_staged")
         key = "fused" if fused else "old"
 
         def step():
@@ -358,6 +390,7 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
         row[f"{key}_motion_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
         if fused:  # the env step's split: physics, observations, rewards/resets, rest
             row.update(step_split(env, device, steps, row["fused_env_ms"]))
+            row.update(obs_searches(env, device, steps))
             if breakdown and device.startswith("cuda"):
                 try:
                     row["fused_kernels"] = kernel_breakdown(step)
@@ -395,7 +428,8 @@ def run_fused_sweep(args) -> list[dict]:
               f"{check['compare_flags_differing']} differing)", flush=True)
         for worlds in worlds_list:
             steps = args.steps or (20 if device.startswith("cuda") else 3)
-            row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1])
+            row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1],
+                                  obs_search=args.obs_search)
             row.update(check)
             rows.append(row)
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
@@ -405,6 +439,10 @@ def run_fused_sweep(args) -> list[dict]:
                   f"observations {row['obs_ms']:.3f}, rewards/resets {row['task_ms']:.3f}, rest {row['rest_ms']:.3f} "
                   f"(policy {row['policy_ms']:.3f} aside): {row['env_only_agent_steps_per_s']:.3g} agent-steps/s "
                   f"without the policy", flush=True)
+            alone = ", ".join(f"{k} {row[f'obs_{k}_ms']:.3f} ms" for k in ("grid", "world", "world_staged")
+                              if f"obs_{k}_ms" in row)
+            print(f"    observation alone by search: {alone} (env uses {row['obs_search']}; same rows: "
+                  f"{row['obs_searches_match']})", flush=True)
     return rows
 
 
@@ -462,6 +500,10 @@ def main(argv=None) -> None:
                    f"{FUSED_MOVERS}; CPU/--small {SMALL_FUSED_MOVERS})")
     p.add_argument("--fused-worlds", type=int, nargs="+", help=f"--fused-sweep's world counts (default {FUSED_WORLDS}; "
                    f"CPU/--small {SMALL_FUSED_WORLDS})")
+    p.add_argument("--obs-search", choices=("grid", "world", "world_staged"), help="--fused-sweep: the "
+                   "observation's neighbour search in the timed envs (default: LocalObservations' choice: world, up to "
+                   "256 movers per world on CUDA and 128 on the CPU, else grid; world_staged: CUDA's block per world "
+                   "with its rows staged in shared memory); every row also times the observation alone with each")
     p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json, "
                    "swarm_fused_<cpu|gpu>.json with --fused-sweep)")
     args = p.parse_args(argv)
@@ -485,7 +527,9 @@ def main(argv=None) -> None:
                            ("fused_agent_steps_per_s", "fused agent-steps/s"),
                            ("fused_motion_agent_steps_per_s", "fused motion agent-steps/s"),
                            ("physics_ms", "physics ms"), ("obs_ms", "obs ms"), ("task_ms", "rewards/resets ms"),
-                           ("rest_ms", "rest ms"), ("policy_ms", "policy ms"),
+                           ("rest_ms", "rest ms"), ("policy_ms", "policy ms"), ("obs_grid_ms", "obs grid ms"),
+                           ("obs_world_ms", "obs world ms"), ("obs_world_staged_ms", "obs staged ms"),
+                           ("obs_searches_match", "obs same"),
                            ("env_only_agent_steps_per_s", "env agent-steps/s (no policy)"),
                            ("floor_agent_steps_per_s", "floor agent-steps/s"), ("fused_of_floor", "fused/floor"),
                            ("match", "match")])

@@ -29,6 +29,16 @@ def knn_reference(xy: np.ndarray, k: int, radius: float) -> tuple[np.ndarray, np
     return idx, dist
 
 
+def clear_of_ties(dist: np.ndarray, radius: float) -> np.ndarray:
+    """``(W, M)``: the mover's reference neighbours have no near-tie and none is near the radius (float32 may order
+    or keep those otherwise)."""
+    kept = np.where(np.isinf(dist), np.nan, dist)  # padded slots tie with nothing
+    with np.errstate(invalid="ignore"):
+        near_tie = np.abs(np.diff(kept, axis=-1)) < 1e-5
+        border = np.abs(kept - radius) < 1e-5
+    return ~(near_tie.any(-1) | border.any(-1))
+
+
 def ray_reference(layout: Layout, p: np.ndarray, d: np.ndarray, max_range: float) -> float:
     """Entry distance of the ray into the first missing tile, or its exit from the layout's rectangle."""
     size = layout.tile.size
@@ -51,11 +61,11 @@ def ray_reference(layout: Layout, p: np.ndarray, d: np.ndarray, max_range: float
     return float(min(best, max_range))
 
 
-def _sim_arrays(xy: np.ndarray, vel: np.ndarray):
+def _sim_arrays(xy: np.ndarray, vel: np.ndarray, device: str = "cpu"):
     w, m = xy.shape[:2]
     pos3 = np.concatenate([xy, np.full((w, m, 1), 0.01)], axis=-1).astype(np.float32)
     vel3 = np.concatenate([vel, np.zeros((w, m, 1))], axis=-1).astype(np.float32)
-    return wp.array(pos3, dtype=wp.vec3, device="cpu"), wp.array(vel3, dtype=wp.vec3, device="cpu")
+    return wp.array(pos3, dtype=wp.vec3, device=device), wp.array(vel3, dtype=wp.vec3, device=device)
 
 
 @pytest.mark.parametrize("k,radius", [(4, 0.5), (8, 1.3), (3, 0.05)])
@@ -76,10 +86,7 @@ def test_knn_matches_brute_force(rng, k, radius):
     # distances agree slot by slot (float32 may swap near-ties, never change the sorted distances)
     np.testing.assert_allclose(np.where(np.isinf(ref_dist), 0, ref_dist), np.where(np.isinf(got_dist), 0, got_dist),
                                atol=1e-5, err_msg=str(rng))
-    finite = np.where(np.isinf(ref_dist), 1e9, ref_dist)
-    near_tie = np.abs(np.diff(np.concatenate([finite, np.full((w, m, 1), 2e9)], -1), axis=-1)) < 1e-5
-    border = np.abs(finite - radius) < 1e-5
-    clear = ~(near_tie.any(-1) | border.any(-1))
+    clear = clear_of_ties(ref_dist, radius)
     assert np.array_equal(idx[clear], ref_idx[clear]), f"{rng}: neighbour indices differ"
     # relative positions and velocities of the returned neighbours, zeros in padded slots
     a, i, s = np.nonzero(idx >= 0)
@@ -169,3 +176,120 @@ def test_observe_writes_own_state_then_features(rng, jerk, carry):
         local.observe(pos3, vel3, out[..., 1:], goals=goals, acc=acc, carrying=carrying)
     with pytest.raises(ValueError, match=r"goals must have shape \(3, "):
         local.observe(pos3, vel3, out, goals=goals[:, :-1], acc=acc, carrying=carrying)
+
+
+def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", unrolled=None, staged=False,
+                **kw) -> LocalObservations:
+    obs = LocalObservations(layout, w, m, search=search, device=device, **kw)
+    obs.staged = staged
+    if tiled and device == "cpu":  # the CUDA shape (a block per world, shared memory) on Warp's cooperative CPU blocks
+        monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+        obs.tiled = True
+    if unrolled is not None:
+        obs.unrolled = unrolled
+    return obs
+
+
+@pytest.mark.parametrize("search,tiled,unrolled,staged,device", [
+    ("world", False, False, False, "cpu"), ("world", True, True, False, "cpu"), ("world", True, False, True, "cpu"),
+    ("grid", False, True, False, "cpu"), ("world", True, None, False, "cuda:0"), ("world", True, None, True, "cuda:0"),
+    ("grid", True, False, False, "cuda:0")])  # tiled: the attribute (the grid ignores it)
+def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, staged, device):
+    """Every search (the grid's cells; every mover of the world, per thread or a block per world with the positions in
+    shared memory, its rows written directly or staged in shared memory) and either insertion into the sorted slots
+    (CUDA's unrolled chain, the CPU's shift) write the same rows bit for bit, which match the brute-force reference:
+    clusters with more than k candidates, isolated movers with fewer than k (padded, masked), movers over holes and
+    off the layout, a NaN mover (never a neighbour, its own row flagged), a world size that leaves idle lanes in the
+    last warp. On CUDA (where present) against the grid kernel of the same build."""
+    import torch
+
+    if device != "cpu" and not wp.is_cuda_available():
+        pytest.skip("no CUDA device")
+
+    tiles = (rng.random((9, 7)) >= 0.2).astype(np.int32)
+    layout = Layout(tiles)
+    w, m, k, rays = 3, 45, 6, 5
+    ext = np.asarray(layout.extent)
+    xy = rng.random((w, m, 2)) * ext
+    xy[0, :9] = 0.3 + rng.random((9, 2)) * 0.15  # a cluster: more candidates than slots
+    xy[1, 5] = [0.5 * ext[0], -0.2]  # off the layout
+    hi, hj = np.nonzero(tiles == 0)
+    if len(hi):
+        xy[1, 6] = (np.array([hi[0], hj[0]]) + 0.5) * layout.tile.size  # over a hole
+    xy[2] *= 3.0  # sparse (mostly off the layout): fewer than k neighbours
+    xy = xy.astype(np.float32).astype(np.float64)
+    vel = rng.normal(size=(w, m, 2)).astype(np.float32).astype(np.float64)
+    xy_nan = xy.copy()
+    xy_nan[1, 7] = np.nan
+    goals = torch.tensor(rng.random((w, m, 2)) * 2, dtype=torch.float32, device=device)
+    kw = dict(k=k, radius=0.6, num_rays=rays, max_range=0.8, device=device)
+    ref = _search_obs(layout, w, m, "grid", False, monkeypatch, **kw)
+    obs = _search_obs(layout, w, m, search, tiled, monkeypatch, unrolled=unrolled, staged=staged, **kw)
+    assert obs.search == search and obs.tiled == tiled
+    assert (ref.unrolled, obs.unrolled) == (device != "cpu", device != "cpu" if unrolled is None else unrolled)
+    pos3, vel3 = _sim_arrays(xy_nan, vel, device)
+    rows = [torch.full((w, m, 4 + ref.dim), 7.0, device=device) for _ in range(2)]
+    for o, out in zip((ref, obs), rows):
+        o.observe(pos3, vel3, out, goals=goals)
+    rows = [r.cpu().numpy() for r in rows]
+    np.testing.assert_array_equal(rows[1], rows[0], err_msg=str(rng))
+    np.testing.assert_array_equal(obs.index.cpu().numpy(), ref.index.cpu().numpy(), err_msg=str(rng))
+    assert obs.nonfinite.tolist() == ref.nonfinite.tolist() == [0, 1, 0], f"{rng}"
+    # against the brute-force reference (the NaN mover left out of it: it is nobody's neighbour)
+    idx = obs.index.cpu().numpy()
+    assert not (idx[1] == 7).any()
+    keep = np.arange(m) != 7
+    want_idx, want_dist = knn_reference(xy, k, 0.6)
+    clear = clear_of_ties(want_dist, 0.6)
+    for a in (0, 2):
+        np.testing.assert_array_equal(idx[a][clear[a]], want_idx[a][clear[a]], err_msg=str(rng))
+    sub_idx, sub_dist = knn_reference(xy[1:2, keep], k, 0.6)
+    remap = np.flatnonzero(keep)
+    clear1 = clear_of_ties(sub_dist, 0.6)[0]
+    np.testing.assert_array_equal(idx[1, keep][clear1], np.where(sub_idx[0] >= 0, remap[sub_idx[0]], -1)[clear1],
+                                  err_msg=str(rng))
+    assert clear[[0, 2]].mean() > 0.8 and clear1.mean() > 0.8, f"{rng}: too many near-ties to check"
+    padded = (idx[2] >= 0).sum(-1)
+    assert (padded < k).mean() > 0.5 and padded.max() >= 1, f"{rng}"  # fewer than k neighbours: padded, masked
+    mask = obs.mask.cpu().numpy()
+    assert not rows[1][..., 4:4 + 5 * k].reshape(w, m, k, 5)[~mask].any()  # padded slots are zeros
+
+
+def test_world_search_inside_the_env_with_respawns(rng, monkeypatch):
+    """In the swarm env (worlds whose movers collide, stop and respawn), the grid search writes the env's rows (the
+    CPU's default for small worlds: each mover scanning its world) bit for bit, after every step."""
+    import torch
+
+    from magwarp.swarm import SwarmEnv
+
+    env = SwarmEnv(3, num_movers=40, occupancy=0.6, device="cpu", seed=int(rng.integers(1 << 30)), obs_radius=0.7)
+    assert env.local.search == "world" and not env.local.unrolled  # the CPU's default at 40 movers
+    ref = _search_obs(env.layout, 3, 40, "grid", False, monkeypatch, unrolled=True, k=env.config.k, radius=0.7,
+                      num_rays=env.config.num_rays, max_range=env.config.ray_range)
+    respawned = 0
+    for _ in range(6):
+        action = torch.as_tensor(rng.normal(size=(3, 40, 2)) * 12.0, dtype=torch.float32)
+        obs, _, _, _, info = env.step(action)
+        respawned += int(info["agent_terminated"].sum())
+        want = torch.empty_like(obs)
+        ref.observe(env.sim.state.pos, env.sim.state.vel, want, goals=env.goals)
+        np.testing.assert_array_equal(obs.numpy(), want.numpy(), err_msg=str(rng))
+    assert respawned > 0, f"{rng}: no mover collided (the respawn path was not exercised)"
+
+
+def test_search_option_errors():
+    with pytest.raises(ValueError, match="search must be None or one of"):
+        LocalObservations(np.ones((3, 3)), 1, 4, search="tree", device="cpu")
+    with pytest.raises(ValueError, match="at most 256 movers"):
+        LocalObservations(np.ones((30, 30)), 1, 300, search="world", device="cpu")
+    assert LocalObservations(np.ones((30, 30)), 1, 129, device="cpu").search == "grid"
+    big = LocalObservations(np.ones((30, 30)), 1, 300, device="cpu")
+    assert big.search == "grid"
+    with pytest.raises(ValueError, match="at most 256 movers"):
+        big.search = "world"
+    assert big.search == "grid"
+    assert LocalObservations(np.ones((3, 3)), 1, 4, search="world", device="cpu").search == "world"
+    obs = LocalObservations(np.ones((3, 3)), 1, 4, search="world", device="cpu")
+    obs.tiled = True
+    with pytest.raises(ValueError, match="enable_cpu_blocks"):
+        obs.compute(*_sim_arrays(np.zeros((1, 4, 2)), np.zeros((1, 4, 2))))

@@ -47,6 +47,12 @@ def _env_int(name: str, default: int, lo: int, hi: int) -> int:
 MODULE_OPTIONS: dict[str, bool] = {**DEFAULT_OPTIONS, **_parse(os.environ.get("MAGWARP_KERNEL_OPTIONS", ""))}
 
 
+
+def world_block_dim(num_movers: int) -> int:
+    """Threads per block of a block-per-world kernel (one lane per mover): the movers rounded up to whole warps."""
+    return max(32, -(-int(num_movers) // 32) * 32)
+
+
 #: Which of a world's per-world rows the general fused register kernel
 #: (:func:`magwarp.kernels.step.make_register_kernel`, domain randomisation) holds in registers for the whole step:
 #: ``"all"`` (body rows and collision sizes), ``"f32"`` (the same less the body rows' float64 limits, read every

@@ -2,7 +2,8 @@
 
 A call starts by binning the movers that stay (in the worlds with movers to place only) and ends by emptying the
 cells it filled (:func:`unbin`), so its work is per mover of those worlds, not per grid cell. One *round* is two
-launches over all movers of all worlds (threads of movers already placed exit at once):
+launches over the movers to place, listed at the call's start (:func:`begin_todo`; threads of movers already placed
+exit at once), so a warp's threads work on movers to place, not on one among 31 idle others:
 
 1. :func:`propose` — every mover still to place draws up to ``tries`` candidate points, each uniform over the
    present tiles, and keeps the first whose footprint (yaw 0, grown by the sampling offset) is on the tiles by the
@@ -108,14 +109,27 @@ def begin_todo(
     # State out:
     todo: wp.array2d(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
+    listed: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
 ):
-    """``todo``: the movers to place (``mask``); ``active[w]`` (zeroed before): world ``w`` has one."""
+    """``todo``: the movers to place (``mask``); ``active[w]`` (zeroed before): world ``w`` has one; ``listed``: the
+    flat indices ``w * M + m`` of the movers to place, ``count[0]`` (zeroed before) of them, in any order (the rounds
+    launch a thread per listed mover: threads of one warp work on movers to place, not on a few among many others)."""
     w, m = wp.tid()
     t = int(0)
     if mask[w, m]:
         t = 1
         active[w] = 1
+        listed[wp.atomic_add(count, 0, 1)] = w * mask.shape[1] + m
     todo[w, m] = t
+
+
+@wp.func
+def listed_mover(i: int, listed: wp.array(dtype=wp.int32), num_movers: int):
+    """World and mover of the ``i``-th listed mover."""
+    wm = listed[i]
+    w = wm // num_movers
+    return w, wm - w * num_movers
 
 
 @wp.kernel
@@ -214,6 +228,8 @@ def propose(
     next_in_cell: wp.array2d(dtype=wp.int32),
     head_old: wp.array(dtype=wp.int32),
     next_old: wp.array2d(dtype=wp.int32),
+    listed: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
     # State out:
     cand: wp.array2d(dtype=wp.vec2),
     cand_ok: wp.array2d(dtype=wp.int32),
@@ -223,8 +239,12 @@ def propose(
 
     ``radius`` / ``half``: the footprint (circle radius or box half sizes) grown by the sampling offset; the wall
     margin is added by the wall rule itself. With ``hold``, candidates also keep clear of the spots the other movers
-    to place still hold (their positions before this call; a mover placed in an earlier round keeps both)."""
-    w, m = wp.tid()
+    to place still hold (their positions before this call; a mover placed in an earlier round keeps both). One thread
+    per mover of ``listed`` (:func:`begin_todo`; threads past ``count[0]`` exit)."""
+    i = wp.tid()
+    if i >= count[0]:
+        return
+    w, m = listed_mover(i, listed, todo.shape[1])
     cand_ok[w, m] = 0
     if todo[w, m] == 0:
         return
@@ -255,14 +275,20 @@ def resolve(
     cand: wp.array2d(dtype=wp.vec2),
     cand_ok: wp.array2d(dtype=wp.int32),
     claim: wp.array(dtype=wp.int64),
+    listed: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
     # State out:
     todo: wp.array2d(dtype=wp.int32),
     pos: wp.array2d(dtype=wp.vec2),
     head: wp.array(dtype=wp.int32),
     next_in_cell: wp.array2d(dtype=wp.int32),
 ):
-    """Accept the cell winners that no lower-indexed nearby winner of this round conflicts with."""
-    w, m = wp.tid()
+    """Accept the cell winners that no lower-indexed nearby winner of this round conflicts with (one thread per listed
+    mover, as :func:`propose`)."""
+    i = wp.tid()
+    if i >= count[0]:
+        return
+    w, m = listed_mover(i, listed, todo.shape[1])
     if cand_ok[w, m] == 0:
         return
     p = cand[w, m]

@@ -18,6 +18,7 @@ from collections.abc import Callable
 import warp as wp
 
 from magwarp.kernels import swarm_step as kss
+from magwarp.kernels.options import world_block_dim
 
 __all__ = ["FusedSwarmStep", "fused_applies", "MAX_FUSED_MOVERS"]
 
@@ -32,11 +33,6 @@ def fused_applies(num_movers: int, on_collision: str) -> str | None:
     if num_movers > MAX_FUSED_MOVERS:
         return f"num_movers={num_movers} exceeds the {MAX_FUSED_MOVERS} movers one thread block holds"
     return None
-
-
-def _block_dim(num_movers: int) -> int:
-    """Threads per block: the movers rounded up to whole warps."""
-    return max(32, -(-int(num_movers) // 32) * 32)
 
 
 class FusedSwarmStep:
@@ -84,7 +80,7 @@ class FusedSwarmStep:
             if not dev.is_cuda and sim.num_movers != 1 and not wp.config.enable_cpu_blocks:
                 raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks (Warp's "
                                  f"cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} movers")
-            block = _block_dim(sim.num_movers)
+            block = world_block_dim(sim.num_movers)
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block)
             wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=[*args, *self._scratch], block_dim=block, device=dev)
         else:

@@ -11,8 +11,10 @@ covers the neighbourhood), bins the movers with the simulator's ``bin_movers`` k
   edge) along ``num_rays`` directions evenly spread from +x counter-clockwise, capped at ``max_range``.
 
 :meth:`LocalObservations.observe` writes the same values, with the mover's own state before them, straight into the
-rows of an env's observation tensor: three launches per call (clear the grid, bin, one observation kernel), no
-copies; ``rel_pos``, ``rel_vel`` and ``walls`` are then views of those rows.
+rows of an env's observation tensor: three launches per call (clear the grid, bin, one observation kernel), or for
+small worlds one (``search="world"``, no grid: each mover scans its world's movers; on CUDA, up to 256 movers per
+world, a thread block per world with its movers in shared memory), no copies; ``rel_pos``, ``rel_vel`` and ``walls``
+are then views of those rows. Both searches write the same rows bit for bit.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import warp as wp
 
 from magwarp.kernels import neighbors as knb
 from magwarp.kernels.collision import bin_movers
+from magwarp.kernels.options import world_block_dim
 from magwarp.layout import Layout
 from magwarp.swarm.placement import torch_stream
 from magwarp.types import Grid
@@ -39,10 +42,14 @@ def ray_directions(num_rays: int) -> np.ndarray:
 
 
 class LocalObservations:
-    """Neighbour and wall observations for ``num_worlds`` worlds of ``num_movers`` movers on ``layout``."""
+    """Neighbour and wall observations for ``num_worlds`` worlds of ``num_movers`` movers on ``layout``. ``search``:
+    ``"grid"``, ``"world"`` (up to 256 movers per world) or None (``"world"`` up to 64 movers per world on CUDA and
+    128 on the CPU, where it was measured faster, else ``"grid"``): how the k nearest are found; the rows are the
+    same."""
 
     def __init__(self, layout: Layout | np.ndarray, num_worlds: int, num_movers: int, *, k: int = 8,
-                 radius: float = 1.0, num_rays: int = 8, max_range: float = 1.0, device=None):
+                 radius: float = 1.0, num_rays: int = 8, max_range: float = 1.0, search: str | None = None,
+                 device=None):
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
         for name, value in (("k", k), ("num_rays", num_rays)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
@@ -55,6 +62,21 @@ class LocalObservations:
         self.num_worlds, self.num_movers = int(num_worlds), int(num_movers)
         self.device = wp.get_device(device)
         dev = self.device
+        # every mover of the world for small worlds (on CUDA up to 64: a block per world, positions in shared memory;
+        # on the CPU up to 128: a thread per mover), no grid to build; else the grid's neighbouring cells
+        most = knb.WORLD_SEARCH_CUDA if dev.is_cuda else knb.MAX_WORLD_SCAN_CPU
+        self.search = search or ("world" if self.num_movers <= most else "grid")
+        #: the block-per-world launch shape of the world search (CUDA; on the CPU a tile block is one thread wide
+        #: unless warp.config.enable_cpu_blocks, so there each thread scans its world's rows)
+        self.tiled = dev.is_cuda
+        #: how a candidate enters the sorted slots (the same slots either way): an unrolled compare-and-swap chain
+        #: that keeps them in registers (CUDA), or a shift from the back (the CPU, where it takes fewer steps)
+        self.unrolled = dev.is_cuda
+        #: the block-per-world kernel stages its block's rows in shared memory and stores them together (consecutive
+        #: addresses per lane) instead of each lane writing its own row; the same rows either way. On: on the H100 the
+        #: observation of 16,384 worlds x 64 movers took 0.75 ms staged against 1.23 ms not (benchmarks/swarm.py,
+        #: swarm_fused_gpu_64.json, 2026-11-25)
+        self.staged = True
         ext = self.layout.extent
         g = Grid()
         # no more cells than about 4 per mover: a large radius on a sparse world scans a few more cells instead
@@ -79,6 +101,21 @@ class LocalObservations:
         # the features of compute() (no own state); observe() points the views below at the rows it writes
         self._features = torch.zeros(*shape, self.dim, device=wp.device_to_torch(dev))
         self._view(self._features, 0)
+
+    @property
+    def search(self) -> str:
+        """How the k nearest are found (:data:`~magwarp.kernels.neighbors.SEARCHES`; the rows are the same either
+        way); settable."""
+        return self._search
+
+    @search.setter
+    def search(self, value: str) -> None:
+        if value not in knb.SEARCHES:
+            raise ValueError(f"search must be None or one of {knb.SEARCHES}, got {value!r}")
+        if value == "world" and self.num_movers > knb.MAX_WORLD_BLOCK:
+            raise ValueError(f"search='world' holds at most {knb.MAX_WORLD_BLOCK} movers per world, got "
+                             f"{self.num_movers}")
+        self._search = value
 
     def _view(self, rows: torch.Tensor, start: int) -> None:
         """Point ``rel_pos``, ``rel_vel`` and ``walls`` at the local columns of ``rows`` (from column ``start``)."""
@@ -130,19 +167,28 @@ class LocalObservations:
         dev, dim = self.device, (self.num_worlds, self.num_movers)
         bits = (knb.OWN_STATE if goals is not None else 0) | (knb.OWN_ACC if acc is not None else 0) | \
             (knb.OWN_CARRY if carrying is not None else 0)
-        kernel = knb.make_observation_kernel(self.k, self.num_rays, bits)
+        grid = self.search == "grid"
+        block = 0 if grid or not self.tiled else world_block_dim(self.num_movers)
+        if block and not dev.is_cuda and self.num_movers != 1 and not wp.config.enable_cpu_blocks:
+            raise ValueError(f"the block-per-world observation kernel runs on the CPU only with "
+                             f"warp.config.enable_cpu_blocks (Warp's cooperative CPU blocks), got {self.num_movers} "
+                             f"movers")
+        kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block, self.unrolled,
+                                              bool(block) and self.staged)
         with torch_stream(dev):
             self.nonfinite.zero_()
-            if self.k > 0:
+            if self.k > 0 and grid:
                 wp.launch(knb.clear_heads, dim=self._head.shape[0], inputs=[self._head], device=dev)
                 wp.launch(bin_movers, dim=dim, inputs=[self.grid, pos, self._head, self._next], device=dev)
             vec2 = (lambda t: self._none_vec2 if t is None else wp.from_torch(t.contiguous(), dtype=wp.vec2))
-            wp.launch(kernel, dim=dim, device=dev,
-                      inputs=[self.grid, self.radius, self.reach, self._tiles, float(self.layout.tile.size), self._dirs,
-                              self.max_range, pos, vel, vec2(acc), vec2(goals),
-                              self._none_bool if carrying is None else wp.from_torch(carrying.contiguous()),
-                              self._head, self._next],
-                      outputs=[wp.from_torch(out), self._index, self._nonfinite])
+            args = [self.grid, self.radius, self.reach, self._tiles, float(self.layout.tile.size), self._dirs,
+                    self.max_range, pos, vel, vec2(acc), vec2(goals),
+                    self._none_bool if carrying is None else wp.from_torch(carrying.contiguous()), self._head,
+                    self._next, wp.from_torch(out), self._index, self._nonfinite]
+            if block:
+                wp.launch_tiled(kernel, dim=[self.num_worlds], inputs=args, block_dim=block, device=dev)
+            else:
+                wp.launch(kernel, dim=dim, inputs=args, device=dev)
 
     def features(self, out: torch.Tensor | None = None) -> torch.Tensor:
         """``[W, M, 5 k + num_rays]``: per neighbour slot (relative x, y, relative vx, vy, mask), then the rays.

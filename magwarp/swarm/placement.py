@@ -140,6 +140,9 @@ class Placer:
         self._old_cell = wp.zeros(shape, dtype=wp.int32, device=self.device)
         self._active = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)  # worlds with movers to place
         self._left = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)
+        # the movers to place this call (flat indices, any order) and their count: the rounds run a thread per one
+        self._listed = wp.zeros(self.num_worlds * self.num_movers, dtype=wp.int32, device=self.device)
+        self._count = wp.zeros(1, dtype=wp.int32, device=self.device)
         self._grid_clean = False  # every cell list empty and every claim free (kept so between calls)
         self.valid_area, self.grown_area = self._measure_area()
         if self.valid_area <= 0.0:
@@ -234,8 +237,9 @@ class Placer:
                       device=dev)
         self._grid_clean = False
         self._active.zero_()
+        self._count.zero_()
         wp.launch(kpl.begin_todo, dim=dim, inputs=[wp.from_torch(mask.to(torch.bool).contiguous(), dtype=wp.bool)],
-                  outputs=[self._todo, self._active], device=dev)
+                  outputs=[self._todo, self._active, self._listed, self._count], device=dev)
         wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo, self._active],
                   outputs=[self._head, self._next, self._head_old, self._next_old, self._old_cell], device=dev)
         self._hold = int(hold)
@@ -249,17 +253,18 @@ class Placer:
         self._grid_clean = True
 
     def _rounds(self, pos: wp.array, rounds: int) -> None:
-        dev, dim, g = self.device, (self.num_worlds, self.num_movers), self.grid
+        # a thread per listed mover (the count stays on the device: threads past it exit)
+        dev, dim, g = self.device, self.num_worlds * self.num_movers, self.grid
         for _ in range(rounds):
             wp.launch(kpl.propose, dim=dim, device=dev,
                       inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
                               self._next_seed(), self.tries, self._hold, self._round + 1, pos, self._todo, self._head,
-                              self._next, self._head_old, self._next_old],
+                              self._next, self._head_old, self._next_old, self._listed, self._count],
                       outputs=[self._cand, self._cand_ok, self._claim])
             self._round += 1
             wp.launch(kpl.resolve, dim=dim, device=dev,
-                      inputs=[g, self._round, self._cand, self._cand_ok, self._claim, self._todo, pos, self._head,
-                              self._next])
+                      inputs=[g, self._round, self._cand, self._cand_ok, self._claim, self._listed, self._count,
+                              self._todo, pos, self._head, self._next])
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
                     hold: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
