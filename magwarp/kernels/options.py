@@ -78,10 +78,10 @@ if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
 #: the threads per block of the "movers" shape (``block_dim // num_movers`` worlds a block) and
 #: ``MAGWARP_SMALL_WORLD_MAXREG`` its register cap per thread (0: none); read once at import, tuning knobs for
 #: benchmarks (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``), not an
-#: API. The cap's default, 168: uncapped, the kernel takes 167-173 registers on sm_90 for 3 movers
+#: API. The cap's default, 168: uncapped, the kernel takes 167-170 registers on sm_90 for 3 movers
 #: (``benchmarks/kernel_registers.py``), three blocks of 96 threads per SM; at 168, four blocks fit (65,536 registers /
 #: (4 x 96)) and no variant spills: the general ones keep the per-world body rows in shared memory
-#: (``MAGWARP_SMALL_WORLD_ROWS=shared``; ``registers``: 184-186 registers uncapped, 48-56 bytes of spills at 168).
+#: (``MAGWARP_SMALL_WORLD_ROWS=shared``; ``registers``: 186-190 registers uncapped, 48-56 bytes of spills at 168).
 SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
 SMALL_WORLD_KERNEL: str = _env_choice("MAGWARP_SMALL_WORLD_KERNEL", SMALL_WORLD_KERNEL_CHOICES, "registers")
 SMALL_WORLD_BLOCK: int = _env_int("MAGWARP_SMALL_WORLD_BLOCK", 96, 1, 1024)
