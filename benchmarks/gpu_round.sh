@@ -7,6 +7,7 @@
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
+# small_world_kernels and small_world (#24: the one-thread-per-mover fused step),
 # compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
@@ -196,6 +197,26 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         timeout 170 python3 benchmarks/randomization.py --device cuda:0 --num-envs 65536 \
           --env magwarp/TrajectoryPlanningB0-v0 --register-rows $rows --settings terms,latency,sensors,full \
           --json "$OUT/randomization_parts_${rows}_gpu.json" 2>&1 | grep -E "^  cuda.*num_envs" | tail -6
+      done ;;
+    small_world_kernels)
+      # #24: the fused small-world step's two launch shapes: B0 physics per step (nominal, per-world rows, + latency)
+      # and bitwise agreement, registers vs movers for each block size (BLOCKS), register cap (MAXREGS, 0: none) and
+      # place of the general variant's body rows (ROWS); each setting compiles up to three kernels: split larger sweeps
+      # over calls (the kernel cache stays while the machine is warm), e.g. MAXREGS=0 in a second call
+      timeout 590 python3 benchmarks/small_world_kernels.py --device cuda:0 --num-envs 16384,65536 \
+        --blocks "${BLOCKS:-96}" --maxregs "${MAXREGS:-168}" --rows "${ROWS:-shared,registers}" \
+        --json "$OUT/small_world_kernels${TAG:+_$TAG}_gpu.json" \
+        2>&1 | grep -E "^  cuda|^cuda" | tail -40 ;;
+    small_world)
+      # #24: B0's randomisation cost with each launch shape of the fused small-world step (KERNELS, default
+      # "registers movers"; the movers shape with SMALL_BLOCK threads a block, default 96, and a cap of SMALL_MAXREG
+      # registers, default 168, 0: none)
+      for k in ${KERNELS:-registers movers}; do
+        timeout 290 python3 benchmarks/randomization.py --device cuda:0 --num-envs 16384,65536 \
+          --env magwarp/TrajectoryPlanningB0-v0 --settings terms,latency,full --kernel-times 65536 \
+          --small-world-kernel $k --small-world-block "${SMALL_BLOCK:-96}" \
+          --small-world-maxreg "${SMALL_MAXREG:-168}" \
+          --json "$OUT/randomization_small_world_${k}_gpu.json" 2>&1 | grep -E "^  cuda" | tail -12
       done ;;
     robustness)
       # #24: the shipped B0 policy, the shipped randomisation-trained one (pretrained:b0_ppo_sim2real) and any

@@ -150,18 +150,22 @@ def count_launches(env_id: str, device: str, num_envs: int = 256, **env_kwargs) 
     if fused is not None:
         fused.graph = False
     names: collections.Counter = collections.Counter()
-    launch = wp.launch
+    launch, launch_tiled = wp.launch, wp.launch_tiled
 
     def counted(kernel, *args, **kwargs):
         names[f"warp:{kernel.key}"] += 1
         return launch(kernel, *args, **kwargs)
 
-    wp.launch = counted
+    def counted_tiled(kernel, *args, **kwargs):  # (launch_tiled calls Warp's own launch, not wp.launch)
+        names[f"warp:{kernel.key}"] += 1
+        return launch_tiled(kernel, *args, **kwargs)
+
+    wp.launch, wp.launch_tiled = counted, counted_tiled
     try:
         with profile(activities=[ProfilerActivity.CPU]) as prof:
             env.step(action)
     finally:
-        wp.launch = launch
+        wp.launch, wp.launch_tiled = launch, launch_tiled
         env.sim._use_graph = True
         if fused is not None:
             fused.graph = graph
@@ -185,6 +189,15 @@ def main(argv=None) -> int:
     p.add_argument("--register-rows", default=None, choices=("all", "f32", "sizes", "none"),
                    help="which per-world rows the general register kernel holds (magwarp.kernels.options.REGISTER_ROWS;"
                         " default: the library's); each setting compiles its own kernel")
+    p.add_argument("--small-world-kernel", default=None, choices=("registers", "movers"),
+                   help="the fused small-world step's launch shape (magwarp.kernels.options.SMALL_WORLD_KERNEL: one "
+                        "thread per world, or per mover; default: the library's)")
+    p.add_argument("--small-world-block", type=int, default=None,
+                   help="threads per block of the movers shape (SMALL_WORLD_BLOCK; default: the library's)")
+    p.add_argument("--small-world-maxreg", type=int, default=None,
+                   help="register cap of the movers shape (SMALL_WORLD_MAXREG, 0: none; default: the library's)")
+    p.add_argument("--small-world-rows", default=None, choices=("shared", "registers"),
+                   help="where the movers shape's general variant keeps the body rows (SMALL_WORLD_ROWS)")
     p.add_argument("--kernel-times", type=int, default=0, metavar="N",
                    help="also profile each setting's step at N envs on CUDA: per-kernel time per step (us)")
     p.add_argument("--settings", default="off,terms,full",
@@ -200,6 +213,14 @@ def main(argv=None) -> int:
 
     if args.register_rows is not None:
         kernel_options.REGISTER_ROWS = args.register_rows
+    if args.small_world_kernel is not None:
+        kernel_options.SMALL_WORLD_KERNEL = args.small_world_kernel
+    if args.small_world_block is not None:
+        kernel_options.SMALL_WORLD_BLOCK = args.small_world_block
+    if args.small_world_maxreg is not None:
+        kernel_options.SMALL_WORLD_MAXREG = args.small_world_maxreg
+    if args.small_world_rows is not None:
+        kernel_options.SMALL_WORLD_ROWS = args.small_world_rows
     if args.env is not None and args.env not in ENVS:
         p.error(f"--env must be one of {', '.join(ENVS)}, got {args.env!r}")
     info, devices = start_run(args.device)
@@ -238,6 +259,10 @@ def main(argv=None) -> int:
                     rows.append({"env": env_id, "device": device, "num_envs": n, "randomization": name,
                                  "cost_pct": cost, **res, **counts[name],
                                  "register_rows": kernel_options.REGISTER_ROWS,
+                                 "small_world_kernel": kernel_options.SMALL_WORLD_KERNEL,
+                                 "small_world_block": kernel_options.SMALL_WORLD_BLOCK,
+                                 "small_world_maxreg": kernel_options.SMALL_WORLD_MAXREG,
+                                 "small_world_rows": kernel_options.SMALL_WORLD_ROWS,
                                  "kernel_us": times.get(name) if n == args.kernel_times else None,
                                  "kernel_launches": launch_stats.get(name) if n == args.kernel_times else None})
                     path = f", step path: {res['path']}" if "path" in res else ""

@@ -4,10 +4,12 @@ One call of :meth:`Simulator.step` runs ``num_cycles`` control cycles (control, 
 every world as a single Warp graph replay, on CPU or GPU. State is exposed zero-copy as torch tensors.
 
 Launch shapes (see :mod:`magwarp.kernels.step`): small worlds run *fused*, one thread per world for all cycles (with
-the whole world in registers up to ``REGISTER_MAX_MOVERS`` movers); larger worlds run two or three kernels per cycle,
-with a uniform-grid broad phase above 32 movers. Per-cycle hooks (e.g. metrics) force the per-cycle shape so that they
-can run between cycles, still inside the same graph. Action latency (:meth:`Simulator.set_latency`, per-world delays
-of whole cycles) runs inside the same kernels, compiled in only once it is turned on.
+the whole world in registers up to ``REGISTER_MAX_MOVERS`` movers; or, asked for with
+``MAGWARP_SMALL_WORLD_KERNEL=movers``, one thread per mover, several worlds a block:
+:mod:`magwarp.kernels.step_blocks`); larger worlds run two or three kernels per cycle, with a uniform-grid broad phase
+above 32 movers. Per-cycle hooks (e.g. metrics) force the per-cycle shape so that they can run between cycles, still
+inside the same graph. Action latency (:meth:`Simulator.set_latency`, per-world delays of whole cycles) runs inside
+the same kernels, compiled in only once it is turned on.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from magwarp.kernels import guard as kguard
 from magwarp.kernels import options as kernel_options
 from magwarp.kernels import params as kparams
 from magwarp.kernels import step as kstep
+from magwarp.kernels import step_blocks as kblocks
 from magwarp.kernels.impedance import default_force
 from magwarp.layout import Layout, LayoutError, MoverSpec
 from magwarp.types import (COLLIDE_WALL, SHAPE_BOX, SHAPE_CIRCLE, Body, Collision, Grid, Impedance, Limits, Model,
@@ -227,11 +230,31 @@ class Simulator:
         act = self._actuator
         self._advance_kernel, self._fused_kernel, _ = kstep.make_advance_kernel(self._force_model, latency, nominal,
                                                                                 act)
+        self._movers_block = self._small_world_block()
         if self.num_movers <= REGISTER_MAX_MOVERS:
-            # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
-            self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency, nominal,
-                                                            kernel_options.REGISTER_ROWS, act)
+            if self._movers_block:
+                # Tiny worlds, one thread per mover: several worlds a block, poses exchanged through shared memory.
+                self._fused_kernel = kblocks.make_movers_kernel(self._force_model, self.num_movers, latency, nominal,
+                                                                self._movers_block, kernel_options.SMALL_WORLD_MAXREG,
+                                                                kernel_options.SMALL_WORLD_ROWS)
+            else:
+                # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
+                self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency, nominal,
+                                                                kernel_options.REGISTER_ROWS, act)
+        self._movers_kernel = self._fused_kernel if self._movers_block else None
         self._graphs.clear()
+
+    def _small_world_block(self) -> int:
+        """Threads per block of the one-thread-per-mover fused kernel (:mod:`magwarp.kernels.step_blocks`) where it
+        runs the step, else 0 (the register kernel): asked for (:data:`~magwarp.kernels.options.SMALL_WORLD_KERNEL`),
+        worlds of at most ``REGISTER_MAX_MOVERS`` movers, no actuator, on CUDA (on the CPU only with Warp's cooperative
+        CPU blocks, ``wp.config.enable_cpu_blocks``: tests)."""
+        block = kernel_options.SMALL_WORLD_BLOCK
+        if (kernel_options.SMALL_WORLD_KERNEL != "movers" or self.num_movers > REGISTER_MAX_MOVERS
+                or self._actuator is not None or block < self.num_movers
+                or not (self.device.is_cuda or wp.config.enable_cpu_blocks)):
+            return 0
+        return block
 
     def _start_arrays(self, num_movers, start_xy, start_yaw, start_pose=None) -> np.ndarray:
         """Start poses ``(W, M, 6)`` (x, y, z, roll, pitch, yaw) from ``start_pose`` or from ``start_xy`` /
@@ -859,13 +882,16 @@ class Simulator:
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
         if self._fused:  # the fused kernels clear their per-step accumulators themselves
-            wp.launch(
-                self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W),
-                inputs=[n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins,
-                        self._act_params, s.cmd, self._delay, s.target_pos, s.target_quat, s.force_aux,
-                        self._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
-                        s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list],
-            )
+            inputs = [n, m.limits, m.impedance, m.collision, m.tiles, m.body, m.radius, m.half_size, m.margins,
+                      self._act_params, s.cmd, self._delay, s.target_pos, s.target_quat, s.force_aux,
+                      self._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
+                      s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list]
+            if self._movers_kernel is not None and self._fused_kernel is self._movers_kernel:
+                B = self._movers_block
+                wp.launch_tiled(self._fused_kernel, dim=[kblocks.num_blocks(W, M, B)], block_dim=B, device=dev,
+                                inputs=inputs)
+                return
+            wp.launch(self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W), inputs=inputs)
             return
         wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
         for c in range(n):

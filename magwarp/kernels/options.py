@@ -26,6 +26,24 @@ def _parse(text: str) -> dict[str, bool]:
     return out
 
 
+def _env_choice(name: str, choices: tuple[str, ...], default: str) -> str:
+    value = os.environ.get(name, default)
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
+    return value
+
+
+def _env_int(name: str, default: int, lo: int, hi: int) -> int:
+    text = os.environ.get(name, str(default))
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not lo <= value <= hi:
+        raise ValueError(f"{name} must be an integer in {lo}..{hi}, got {text!r}")
+    return value
+
+
 MODULE_OPTIONS: dict[str, bool] = {**DEFAULT_OPTIONS, **_parse(os.environ.get("MAGWARP_KERNEL_OPTIONS", ""))}
 
 
@@ -50,3 +68,23 @@ REGISTER_ROWS_CHOICES = ("all", "f32", "sizes", "none")
 REGISTER_ROWS: str = os.environ.get("MAGWARP_REGISTER_ROWS", "f32")
 if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
     raise ValueError(f"MAGWARP_REGISTER_ROWS must be one of {', '.join(REGISTER_ROWS_CHOICES)}, got {REGISTER_ROWS!r}")
+
+
+#: The launch shape of the fused step for small worlds (up to :data:`magwarp.sim.REGISTER_MAX_MOVERS` movers) on CUDA:
+#: ``"registers"`` (one thread per world, every mover's state in registers:
+#: :func:`magwarp.kernels.step.make_register_kernel`) or ``"movers"`` (one thread per mover, several worlds per
+#: block, poses exchanged through shared memory each cycle: :mod:`magwarp.kernels.step_blocks`; never with an
+#: actuator). The same results bit for bit. ``MAGWARP_SMALL_WORLD_KERNEL`` picks it, ``MAGWARP_SMALL_WORLD_BLOCK``
+#: the threads per block of the "movers" shape (``block_dim // num_movers`` worlds a block) and
+#: ``MAGWARP_SMALL_WORLD_MAXREG`` its register cap per thread (0: none); read once at import, tuning knobs for
+#: benchmarks (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``), not an
+#: API. The cap's default, 168: uncapped, the kernel takes 167-170 registers on sm_90 for 3 movers
+#: (``benchmarks/kernel_registers.py``), three blocks of 96 threads per SM; at 168, four blocks fit (65,536 registers /
+#: (4 x 96)) and no variant spills: the general ones keep the per-world body rows in shared memory
+#: (``MAGWARP_SMALL_WORLD_ROWS=shared``; ``registers``: 186-190 registers uncapped, 48-56 bytes of spills at 168).
+SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
+SMALL_WORLD_KERNEL: str = _env_choice("MAGWARP_SMALL_WORLD_KERNEL", SMALL_WORLD_KERNEL_CHOICES, "registers")
+SMALL_WORLD_BLOCK: int = _env_int("MAGWARP_SMALL_WORLD_BLOCK", 96, 1, 1024)
+SMALL_WORLD_MAXREG: int = _env_int("MAGWARP_SMALL_WORLD_MAXREG", 168, 0, 255)  # 0: no cap
+SMALL_WORLD_ROWS_CHOICES = ("shared", "registers")
+SMALL_WORLD_ROWS: str = _env_choice("MAGWARP_SMALL_WORLD_ROWS", SMALL_WORLD_ROWS_CHOICES, "shared")

@@ -1,0 +1,136 @@
+"""Registers and stack per thread of the fused small-world step kernels, compiled ahead of time for a GPU arch (no GPU
+needed: Warp's NVRTC writes the cubin), read from the cubin's ``.nv.info`` attributes (EIATTR_REGCOUNT, 0x2f;
+EIATTR_MIN_STACK_SIZE, 0x12: the per-thread stack frame, spills included).
+
+    python benchmarks/kernel_registers.py                        # sm_90, 3 movers, both shapes, three variants
+    python benchmarks/kernel_registers.py --arch 90 --movers 3,8 --json kernel_registers.json
+
+Shapes: ``registers`` (:func:`magwarp.kernels.step.make_register_kernel`, one thread per world, the register-row
+variant given by ``--register-rows``) and ``movers`` (:func:`magwarp.kernels.step_blocks.make_movers_kernel`, one
+thread per mover, ``--block`` threads per block, ``--maxregs`` register caps, ``--rows``; setting "block/cap/rows").
+Variants: ``nominal`` (the body rows as built), ``general``
+(per-world rows: domain randomisation) and ``general+latency`` (with action latency).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import struct
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from common import finish, start_run  # noqa: E402
+
+ATTR_REGCOUNT = 0x2F
+ATTR_MIN_STACK_SIZE = 0x12
+
+
+def _sections(blob: bytes) -> list[tuple[str, int, int]]:
+    """(name, offset, size) of every section of an ELF64 file."""
+    shoff, = struct.unpack_from("<Q", blob, 0x28)
+    shentsize, shnum, shstrndx = struct.unpack_from("<HHH", blob, 0x3A)
+    hdrs = [struct.unpack_from("<IIQQQQIIQQ", blob, shoff + i * shentsize) for i in range(shnum)]
+    strings = hdrs[shstrndx][4]
+
+    def name(o: int) -> str:
+        return blob[strings + o:blob.index(b"\0", strings + o)].decode()
+
+    return [(name(h[0]), h[4], h[5]) for h in hdrs]
+
+
+def _symbols(blob: bytes, sections: list[tuple[str, int, int]]) -> list[str]:
+    """The names of the ELF symbol table's entries, by index."""
+    table = {name: (off, size) for name, off, size in sections}
+    (sym_off, sym_size), (str_off, _) = table[".symtab"], table[".strtab"]
+    names = []
+    for o in range(sym_off, sym_off + sym_size, 24):
+        st_name, = struct.unpack_from("<I", blob, o)
+        names.append(blob[str_off + st_name:blob.index(b"\0", str_off + st_name)].decode())
+    return names
+
+
+def cubin_attributes(path: str) -> dict[str, dict[str, int]]:
+    """Per function symbol with a register count: ``registers`` and ``stack`` (bytes per thread), from the
+    ``.nv.info`` sections' (symbol index, value) attributes."""
+    blob = open(path, "rb").read()
+    sections = _sections(blob)
+    symbols = _symbols(blob, sections)
+    out: dict[str, dict[str, int]] = {}
+    for name, off, size in sections:
+        if not name.startswith(".nv.info"):
+            continue
+        o, end = off, off + size
+        while o < end:
+            fmt, attr = blob[o], blob[o + 1]
+            if fmt == 4:  # EIFMT_SVAL: a 16-bit size, then the data
+                n, = struct.unpack_from("<H", blob, o + 2)
+                if attr in (ATTR_REGCOUNT, ATTR_MIN_STACK_SIZE) and n == 8:
+                    sym, value = struct.unpack_from("<II", blob, o + 4)
+                    out.setdefault(symbols[sym], {})["registers" if attr == ATTR_REGCOUNT else "stack"] = value
+                o += 4 + n
+            elif fmt == 3:  # EIFMT_HVAL
+                o += 4
+            elif fmt == 2:  # EIFMT_BVAL
+                o += 3
+            else:
+                o += 2
+    return {k: v for k, v in out.items() if "registers" in v}
+
+
+def kernel_figures(kernel, arch: int) -> dict[str, int]:
+    """Registers and stack per thread of ``kernel`` compiled for ``sm_<arch>``."""
+    import warp as wp
+
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = wp.compile_aot_module(kernel.module, arch=arch, module_dir=tmp, use_ptx=False)
+        cubins = [str(p) for p in paths if str(p).endswith(".cubin")]
+        if not cubins:
+            raise RuntimeError(f"no cubin written for {kernel.key} (got {[str(p) for p in paths]})")
+        found = {k: v for c in cubins for k, v in cubin_attributes(c).items() if kernel.key in k}
+    if len(found) != 1:
+        raise RuntimeError(f"expected one {kernel.key} entry in the cubin, found {sorted(found)}")
+    return next(iter(found.values()))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--arch", type=int, default=90)
+    p.add_argument("--movers", default="3", help="comma-separated mover counts")
+    p.add_argument("--block", default="96", help="comma-separated threads per block of the movers shape")
+    p.add_argument("--maxregs", default="0,168", help="comma-separated register caps of the movers shape (0: none)")
+    p.add_argument("--rows", default="shared,registers", help="comma-separated: the movers shape's body rows")
+    p.add_argument("--register-rows", default=None, help="the register kernel's rows (default: the library's)")
+    p.add_argument("--json", default=None)
+    args = p.parse_args(argv)
+    from magwarp.kernels import options as kernel_options
+    from magwarp.kernels import step as kstep
+    from magwarp.kernels import step_blocks
+    from magwarp.kernels.impedance import default_force
+
+    rows = args.register_rows or kernel_options.REGISTER_ROWS
+    info, _ = start_run("cpu")
+    variants = {"nominal": (False, True), "general": (False, False), "general+latency": (True, False)}
+    results = []
+    for m in (int(s) for s in args.movers.split(",")):
+        for variant, (latency, nominal) in variants.items():
+            kernels = [("registers", rows, kstep.make_register_kernel(default_force, m, latency, nominal, rows))]
+            kernels += [("movers", f"{b}/{r}/{rows}", step_blocks.make_movers_kernel(default_force, m, latency,
+                                                                                     nominal, int(b), int(r), rows))
+                        for b in args.block.split(",") for r in args.maxregs.split(",")
+                        for rows in (args.rows.split(",") if not nominal else ["shared"])]
+            for shape, setting, kernel in kernels:
+                fig = kernel_figures(kernel, args.arch)
+                row = {"arch": f"sm_{args.arch}", "num_movers": m, "shape": shape, "setting": setting,
+                       "variant": variant, **fig}
+                print(f"  sm_{args.arch} M={m} {shape} ({setting}) {variant}: {fig.get('registers')} registers, "
+                      f"{fig.get('stack')} B stack", flush=True)
+                results.append(row)
+    columns = ["arch", "num_movers", "shape", "setting", "variant", "registers", ("stack", "stack B/thread")]
+    return finish(results, columns, info, args.json)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
