@@ -74,7 +74,12 @@ if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
 #: ``"registers"`` (one thread per world, every mover's state in registers:
 #: :func:`magwarp.kernels.step.make_register_kernel`) or ``"movers"`` (one thread per mover, several worlds per
 #: block, poses exchanged through shared memory each cycle: :mod:`magwarp.kernels.step_blocks`; never with an
-#: actuator). The same results bit for bit. ``MAGWARP_SMALL_WORLD_KERNEL`` picks it, ``MAGWARP_SMALL_WORLD_BLOCK``
+#: actuator). The same arithmetic: bit for bit on the CPU (Warp's cooperative blocks, the tests) and, on the H100, for
+#: the general variants; the nominal one within 6e-8 m there (the compiler contracts a multiply-add differently).
+#: ``"movers"`` is the default (CUDA; the CPU runs ``"registers"``): on the H100 at 65,536 B0 worlds, in the env's
+#: step, it took 199.6 / 221.9 / 231.2 us without / with the planar terms / with terms and latency, against 199.3 /
+#: 234.8 / 258.5 for ``"registers"`` (benchmarks/results/randomization_small_world_*_gpu.json, 2026-11-25).
+#: ``MAGWARP_SMALL_WORLD_KERNEL`` picks it, ``MAGWARP_SMALL_WORLD_BLOCK``
 #: the threads per block of the "movers" shape (``block_dim // num_movers`` worlds a block) and
 #: ``MAGWARP_SMALL_WORLD_MAXREG`` its register cap per thread (0: none); read once at import, tuning knobs for
 #: benchmarks (``benchmarks/randomization.py --small-world-kernel``, ``benchmarks/small_world_kernels.py``), not an
@@ -83,7 +88,7 @@ if REGISTER_ROWS not in REGISTER_ROWS_CHOICES:
 #: (4 x 96)) and no variant spills: the general ones keep the per-world body rows in shared memory
 #: (``MAGWARP_SMALL_WORLD_ROWS=shared``; ``registers``: 186-190 registers uncapped, 48-56 bytes of spills at 168).
 SMALL_WORLD_KERNEL_CHOICES = ("registers", "movers")
-SMALL_WORLD_KERNEL: str = _env_choice("MAGWARP_SMALL_WORLD_KERNEL", SMALL_WORLD_KERNEL_CHOICES, "registers")
+SMALL_WORLD_KERNEL: str = _env_choice("MAGWARP_SMALL_WORLD_KERNEL", SMALL_WORLD_KERNEL_CHOICES, "movers")
 SMALL_WORLD_BLOCK: int = _env_int("MAGWARP_SMALL_WORLD_BLOCK", 96, 1, 1024)
 SMALL_WORLD_MAXREG: int = _env_int("MAGWARP_SMALL_WORLD_MAXREG", 168, 0, 255)  # 0: no cap
 SMALL_WORLD_ROWS_CHOICES = ("shared", "registers")
