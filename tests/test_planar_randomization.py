@@ -596,10 +596,14 @@ def test_item_plan_matches_the_last_writer_rule(rng):
             assert got == _last_writers(terms, targets, "interval", steps, interval), (terms, targets, steps)
 
 
-def test_one_item_per_thread_gives_the_same_bits():
-    """The GPU's layout (one (term, target) item per thread, one mover per packing thread) against the CPU's (all of
-    a world's in one thread): the same values, bit for bit, with both margins of a world drawn by two items at once
-    (each writes its own component), competing terms and interval terms of two periods."""
+@pytest.mark.parametrize("items_per_thread", [1, 2])
+def test_one_item_per_thread_gives_the_same_bits(monkeypatch, items_per_thread):
+    """The GPU's layout (one (term, target) item per thread, or ITEMS_PER_THREAD; one mover per packing thread)
+    against the CPU's (all of a world's in one thread): the same values, bit for bit, with both margins of a world
+    drawn by two items at once (each writes its own component), competing terms and interval terms of two periods."""
+    from magwarp.envs import planar_randomization
+
+    monkeypatch.setattr(planar_randomization, "ITEMS_PER_THREAD", items_per_thread)
     terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
              EventTerm("mover_mass", Uniform(2.0, 2.5), targets=(1,)),
              EventTerm("collision_margin", Uniform(0.001, 0.002), mode="reset"),

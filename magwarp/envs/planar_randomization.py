@@ -67,6 +67,11 @@ FIELD_CODES = {"mover_mass": krand.MOVER_MASS, "mover_inertia": krand.MOVER_INER
                "wall_margin": krand.WALL_MARGIN}
 MODE_CODES = {"startup": krand.MODE_STARTUP, "reset": krand.MODE_RESET, "interval": krand.MODE_INTERVAL}
 OP_CODES = {"set": krand.OP_SET, "scale": krand.OP_SCALE, "add": krand.OP_ADD}
+#: :func:`~magwarp.kernels.randomize.apply_terms`' items per thread for each target a thread takes (a GPU's: one target
+#: per thread): 1, the firing's latency is one item's draw; more, fewer threads that exit at once for the worlds not
+#: drawn for, each drawing that many items in turn (the draws do not depend on it; benchmarks/randomization.py
+#: ``--items-per-thread`` sets it)
+ITEMS_PER_THREAD = 1
 
 
 def rng_key(seed: int) -> int:
@@ -248,7 +253,7 @@ class PlanarRandomizer(EventRunner):
         movers = max(1, sim.num_movers) if self._body else 1
         # per thread (see _term_table): as many items as targets, all of a world's when a thread takes all its targets
         whole = self._per_thread >= max(1, sim.num_movers)
-        per_item = max(1, items.shape[0]) if whole else self._per_thread
+        per_item = max(1, items.shape[0]) if whole else self._per_thread * ITEMS_PER_THREAD
         per_mover = min(self._per_thread, movers)
         with contextlib.nullcontext() if current_stream else sim._on_stream():
             wp.launch(krand.apply_terms, dim=(self.num_worlds, -(-items.shape[0] // per_item)), device=sim.device,
