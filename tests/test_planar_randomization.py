@@ -630,3 +630,29 @@ def test_one_item_per_thread_gives_the_same_bits(monkeypatch, items_per_thread):
     assert torch.equal(a.sim.margins, b.sim.margins) and torch.equal(a.sim.radii, b.sim.radii)
     assert torch.equal(a.randomizer._counter, b.randomizer._counter)
     assert torch.all((a.sim.margins[:, 1] >= 0.004) & (a.sim.margins[:, 1] <= 0.005))  # step 6: the interval one
+
+
+def test_limits_only_firing_packs_the_same_bits():
+    """A firing that draws only the limits (v_max, a_max, j_max: pack_level's PACK_LIMITS) writes those fields of the
+    rows alone; the rows are then bit for bit those of a whole repack (commit_mover_params), and a firing with
+    another body field (or none) takes the other levels."""
+    from magwarp.envs.planar_randomization import pack_level
+    from magwarp.kernels import randomize as krand
+
+    assert pack_level({"j_max", "v_max"}) == krand.PACK_LIMITS
+    assert pack_level({"j_max", "mover_mass"}) == pack_level({"payload_mass"}) == krand.PACK_ALL
+    assert pack_level({"wall_margin", "collision_radius"}) == pack_level(set()) == krand.PACK_NONE
+    terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
+             EventTerm("payload_mass", Uniform(0.0, 0.2), offset=(0.01, 0.0, 0.002)),
+             EventTerm("j_max", Uniform(0.9, 1.0), op="scale", mode="interval", interval_steps=2),
+             EventTerm("v_max", Uniform(0.5, 1.0), mode="interval", interval_steps=3, targets=(1,))]
+    env = make(4, terms, seed=3)
+    r, body = env.randomizer, env.sim.model.body
+    for step in range(1, 7):
+        before = body.numpy().copy()
+        r.step()
+        after = body.numpy().copy()
+        changed = {f for f in after.dtype.names if not np.array_equal(before[f], after[f])}
+        assert changed == ({"j_max"} if step % 2 == 0 else set()) | ({"v_max"} if step % 3 == 0 else set()), step
+        env.sim.commit_mover_params(None, scale_inertia=True)
+        assert same(body.numpy(), after), step

@@ -111,6 +111,17 @@ def _term_row(t: EventTerm, dim: int):
     return row
 
 
+def pack_level(fields: set[str]) -> int:
+    """How a firing that draws ``fields`` packs the body rows (:func:`magwarp.kernels.randomize.pack_rows`): not at
+    all without a body field, only the limits (copied verbatim into the rows) when it draws only those, else whole.
+    (The rows hold the parameters as last packed: writes into them from outside the terms need
+    :meth:`PlanarRandomizer.commit`.)"""
+    body = {f for f in fields if f in BODY_KEYS}
+    if not body:
+        return krand.PACK_NONE
+    return krand.PACK_LIMITS if body <= {"v_max", "a_max", "j_max"} else krand.PACK_ALL
+
+
 def item_plan(terms: list[tuple[str, str]], targets: list[list[int]]) -> dict[str, list[tuple[int, int, int]]]:
     """The kernel's items per mode: ``(term, target, later)``, term ``i`` (``terms[i]``: its field and mode) on each
     of its ``targets[i]``, in term order. ``later``: the index (in the mode's list) of the next item of the mode that
@@ -250,7 +261,8 @@ class PlanarRandomizer(EventRunner):
         mask_wp = self._all if mask is None else wp.from_torch(mask, dtype=wp.bool)
         counter = wp.from_torch(self._counter)
         items = self._items[mode]
-        movers = max(1, sim.num_movers) if self._body else 1
+        pack = pack_level({t.field for t in due})
+        movers = max(1, sim.num_movers) if pack != krand.PACK_NONE else 1
         # per thread (see _term_table): as many items as targets, all of a world's when a thread takes all its targets
         whole = self._per_thread >= max(1, sim.num_movers)
         per_item = max(1, items.shape[0]) if whole else self._per_thread * ITEMS_PER_THREAD
@@ -261,7 +273,7 @@ class PlanarRandomizer(EventRunner):
                               wp.from_torch(self._key), counter],
                       outputs=[params, m.radius, m.half_size, m.margins])
             wp.launch(krand.pack_rows, dim=(self.num_worlds, -(-movers // per_mover)), device=sim.device,
-                      inputs=[int(mask is None), mask_wp, per_mover, int(self._body), params, counter],
+                      inputs=[int(mask is None), mask_wp, per_mover, pack, params, counter],
                       outputs=[m.body])
         return True
 

@@ -56,6 +56,10 @@ OP_SET = wp.constant(0)
 OP_SCALE = wp.constant(1)
 OP_ADD = wp.constant(2)
 
+PACK_NONE = wp.constant(0)  # no body field drawn: the counters only
+PACK_LIMITS = wp.constant(1)  # only v_max, a_max, j_max drawn: the rows take them verbatim
+PACK_ALL = wp.constant(2)  # the whole rows (pack_mover)
+
 MODE_STARTUP = wp.constant(0)
 MODE_RESET = wp.constant(1)
 MODE_INTERVAL = wp.constant(2)
@@ -242,7 +246,7 @@ def pack_rows(
     all_worlds: int,
     mask: wp.array(dtype=wp.bool),
     per_thread: int,
-    pack: int,  # 1: pack the body rows of the worlds drawn for (terms of body fields)
+    pack: int,  # PACK_ALL: pack the body rows of the worlds drawn for; PACK_LIMITS: only their limits; PACK_NONE
     # State in:
     params: MoverParams,
     # State in/out:
@@ -250,14 +254,19 @@ def pack_rows(
     # State out:
     body: wp.array2d(dtype=Body),
 ):
-    """After :func:`apply_terms` (the same worlds and threads; launched only when a term is due, as it is): the worlds
-    it drew for advance their counter (thread 0) and (``pack``) pack the body rows of the thread's movers
-    (:func:`~magwarp.kernels.params.pack_mover`)."""
+    """After :func:`apply_terms` (the same worlds; launched only when a term is due, as it is): the worlds it drew for
+    advance their counter (thread 0) and (``pack``) pack the body rows of the thread's movers
+    (:func:`~magwarp.kernels.params.pack_mover`; a firing of the limits only: those fields of the rows)."""
     w, j = wp.tid()
     if not drawn(all_worlds, mask, w):
         return
-    if j == 0:
-        counter[w] = counter[w] + 1
-    if pack != 0:
-        for m in range(j * per_thread, wp.min((j + 1) * per_thread, body.shape[1])):
+    count = counter[w]  # loaded with the parameters (the store after them: it would order their loads after it)
+    for m in range(j * per_thread, wp.min((j + 1) * per_thread, body.shape[1])):
+        if pack == PACK_ALL:
             body[w, m] = pack_mover(params, w, m)
+        elif pack == PACK_LIMITS:  # pack_body copies them: the same bits, without the row's other loads and stores
+            body[w, m].v_max = params.v_max[w, m]
+            body[w, m].a_max = params.a_max[w, m]
+            body[w, m].j_max = params.j_max[w, m]
+    if j == 0:
+        counter[w] = count + 1
