@@ -4,6 +4,7 @@ EIATTR_MIN_STACK_SIZE, 0x12: the per-thread stack frame, spills included).
 
     python benchmarks/kernel_registers.py                        # sm_90, 3 movers, both shapes, three variants
     python benchmarks/kernel_registers.py --arch 90 --movers 3,8 --json kernel_registers.json
+    python benchmarks/kernel_registers.py --randomize            # the randomisation firing kernels instead
 
 Shapes: ``registers`` (:func:`magwarp.kernels.step.make_register_kernel`, one thread per world, the register-row
 variant given by ``--register-rows``) and ``movers`` (:func:`magwarp.kernels.step_blocks.make_movers_kernel`, one
@@ -95,6 +96,20 @@ def kernel_figures(kernel, arch: int) -> dict[str, int]:
     return next(iter(found.values()))
 
 
+def randomize_figures(arch: int, json_path: str | None) -> int:
+    """Registers and stack of the randomisation firing kernels (:func:`magwarp.kernels.randomize.apply_terms`,
+    :func:`~magwarp.kernels.randomize.pack_rows`): they do not depend on the mover count."""
+    from magwarp.kernels import randomize as krand
+
+    info, _ = start_run("cpu")
+    results = []
+    for kernel in (krand.apply_terms, krand.pack_rows):
+        fig = kernel_figures(kernel, arch)
+        results.append({"arch": f"sm_{arch}", "kernel": kernel.key, **fig})
+        print(f"  sm_{arch} {kernel.key}: {fig.get('registers')} registers, {fig.get('stack')} B stack", flush=True)
+    return finish(results, ["arch", "kernel", "registers", ("stack", "stack B/thread")], info, json_path)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--arch", type=int, default=90)
@@ -103,8 +118,12 @@ def main(argv=None) -> int:
     p.add_argument("--maxregs", default="0,168", help="comma-separated register caps of the movers shape (0: none)")
     p.add_argument("--rows", default="shared,registers", help="comma-separated: the movers shape's body rows")
     p.add_argument("--register-rows", default=None, help="the register kernel's rows (default: the library's)")
+    p.add_argument("--randomize", action="store_true",
+                   help="the domain-randomisation firing kernels (magwarp.kernels.randomize) instead of the step's")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
+    if args.randomize:
+        return randomize_figures(args.arch, args.json)
     from magwarp.kernels import options as kernel_options
     from magwarp.kernels import step as kstep
     from magwarp.kernels import step_blocks

@@ -547,3 +547,112 @@ def test_vertical_payload_tilts_only_a_tilted_mover():
     inertia_x = tilted.mover.inertia[0] + m * p / total * cz * cz
     alpha = math.sin(roll) * com_z * total * 9.81 / inertia_x
     np.testing.assert_allclose(tilted.omega[0, 0, 0].item(), alpha * DT, rtol=1e-3)
+
+
+def _last_writers(terms, targets, mode, steps, interval):
+    """Brute force: the (term, target) pairs of ``mode`` that set a value at env step ``steps`` (interval: the terms
+    whose period divides it), each the last due term in the table of its field and target."""
+    winner = {}
+    for i, (field, md) in enumerate(terms):
+        if md == mode and (mode != "interval" or steps % interval[i] == 0):
+            for m in targets[i]:
+                winner[field, m] = i
+    return {(i, m) for (_, m), i in winner.items()}
+
+
+def test_item_plan_matches_the_last_writer_rule(rng):
+    """item_plan (the kernel's per-mode items) on random term tables: the startup and reset lists are exactly the
+    last writers of each field and target; walking ``later`` over the interval list at each step count picks exactly
+    the last due writers (the kernel's ``wins``)."""
+    from magwarp.envs.planar_randomization import item_plan
+
+    fields, modes = ["mover_mass", "a_max", "wall_margin", "collision_margin"], ["startup", "reset", "interval"]
+    for _ in range(50):
+        n = int(rng.integers(1, 9))
+        terms = [(fields[rng.integers(len(fields))], modes[rng.integers(3)]) for _ in range(n)]
+        targets = [[0] if f.endswith("margin") else sorted(rng.choice(3, int(rng.integers(1, 4)), replace=False))
+                   for f, _ in terms]
+        interval = [int(rng.integers(1, 5)) for _ in range(n)]
+        plans = item_plan(terms, targets)
+        for mode in ("startup", "reset"):
+            assert all(later == -1 for _, _, later in plans[mode])
+            assert [(i, m) for i, m, _ in plans[mode]] == sorted(_last_writers(terms, targets, mode, 0, interval))
+        items = plans["interval"]
+        assert [(i, m) for i, m, _ in items] == [(i, m) for i, (_, md) in enumerate(terms) if md == "interval"
+                                                 for m in targets[i]]
+        for steps in range(1, 13):
+            def due(q):
+                return steps % interval[items[q][0]] == 0
+
+            def wins(q):
+                k = items[q][2]
+                while k >= 0:
+                    if due(k):
+                        return False
+                    k = items[k][2]
+                return due(q)
+
+            got = {items[q][:2] for q in range(len(items)) if wins(q)}
+            assert got == _last_writers(terms, targets, "interval", steps, interval), (terms, targets, steps)
+
+
+@pytest.mark.parametrize("items_per_thread", [1, 2])
+def test_one_item_per_thread_gives_the_same_bits(monkeypatch, items_per_thread):
+    """The GPU's layout (one (term, target) item per thread, or ITEMS_PER_THREAD; one mover per packing thread)
+    against the CPU's (all of a world's in one thread): the same values, bit for bit, with both margins of a world
+    drawn by two items at once (each writes its own component), competing terms and interval terms of two periods."""
+    from magwarp.envs import planar_randomization
+
+    monkeypatch.setattr(planar_randomization, "ITEMS_PER_THREAD", items_per_thread)
+    terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
+             EventTerm("mover_mass", Uniform(2.0, 2.5), targets=(1,)),
+             EventTerm("collision_margin", Uniform(0.001, 0.002), mode="reset"),
+             EventTerm("wall_margin", Gaussian(0.003, 0.0005, clip=(0.002, 0.004))),
+             EventTerm("collision_radius", Uniform(-0.005, 0.0), op="add"),
+             EventTerm("payload_mass", Uniform(0.0, 0.2), offset=(0.01, 0.0, 0.0), known=True, targets=(0, 2)),
+             EventTerm("a_max", Uniform(1.0, 2.0), mode="interval", interval_steps=2),
+             EventTerm("a_max", Uniform(5.0, 6.0), mode="interval", interval_steps=3, targets=(0,)),
+             EventTerm("wall_margin", Uniform(0.004, 0.005), mode="interval", interval_steps=3)]
+    a, b = make(5, terms, seed=11), make(5, terms, seed=11)
+    b.randomizer._per_thread = 1
+    mask = torch.tensor([True, False, True, True, False])
+    for env in (a, b):
+        before = env.sim.margins.clone()
+        env.randomizer.reset(mask)
+        m = env.sim.margins
+        assert torch.all((m[mask] != before[mask]).all(1)) and torch.equal(m[~mask], before[~mask])
+        assert torch.all((m[mask, 0] >= 0.001) & (m[mask, 0] <= 0.002))
+        for _ in range(6):
+            env.randomizer.step()
+    assert same(a.sim.model.body.numpy(), b.sim.model.body.numpy())
+    for key in ("mass", "payload", "payload_offset", "payload_known", "a_max"):
+        assert torch.equal(a.sim.mover_params[key], b.sim.mover_params[key]), key
+    assert torch.equal(a.sim.margins, b.sim.margins) and torch.equal(a.sim.radii, b.sim.radii)
+    assert torch.equal(a.randomizer._counter, b.randomizer._counter)
+    assert torch.all((a.sim.margins[:, 1] >= 0.004) & (a.sim.margins[:, 1] <= 0.005))  # step 6: the interval one
+
+
+def test_limits_only_firing_packs_the_same_bits():
+    """A firing that draws only the limits (v_max, a_max, j_max: pack_level's PACK_LIMITS) writes those fields of the
+    rows alone; the rows are then bit for bit those of a whole repack (commit_mover_params), and a firing with
+    another body field (or none) takes the other levels."""
+    from magwarp.envs.planar_randomization import pack_level
+    from magwarp.kernels import randomize as krand
+
+    assert pack_level({"j_max", "v_max"}) == krand.PACK_LIMITS
+    assert pack_level({"j_max", "mover_mass"}) == pack_level({"payload_mass"}) == krand.PACK_ALL
+    assert pack_level({"wall_margin", "collision_radius"}) == pack_level(set()) == krand.PACK_NONE
+    terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
+             EventTerm("payload_mass", Uniform(0.0, 0.2), offset=(0.01, 0.0, 0.002)),
+             EventTerm("j_max", Uniform(0.9, 1.0), op="scale", mode="interval", interval_steps=2),
+             EventTerm("v_max", Uniform(0.5, 1.0), mode="interval", interval_steps=3, targets=(1,))]
+    env = make(4, terms, seed=3)
+    r, body = env.randomizer, env.sim.model.body
+    for step in range(1, 7):
+        before = body.numpy().copy()
+        r.step()
+        after = body.numpy().copy()
+        changed = {f for f in after.dtype.names if not np.array_equal(before[f], after[f])}
+        assert changed == ({"j_max"} if step % 2 == 0 else set()) | ({"v_max"} if step % 3 == 0 else set()), step
+        env.sim.commit_mover_params(None, scale_inertia=True)
+        assert same(body.numpy(), after), step

@@ -30,15 +30,15 @@ Fields, one draw per target (movers; the margins: one per world), ``dim`` compon
   the env with the largest size you draw (``collision_size``, ``safety_margin``) to keep starts collision free.
   Worlds of more than 32 movers (grid broad phase, its cells sized at build) refuse sizes above the built ones.
 
-Every firing is two kernel launches over (world, mover) threads (:func:`magwarp.kernels.randomize.apply_terms`: the
-draws, the operations and the writes for the targeted worlds and movers; :func:`~magwarp.kernels.randomize.pack_rows`:
-the packing of their body rows), from the torch step and from inside the fused step's graph alike. The draws come
-from Warp's counter-based generator keyed by the env's seed (the one it was built with, then ``reset(seed=...)``'s),
-a per-world count of firings, and the term, mover and component (each component its own generator state), not from
-the env's torch generator: the same seed reproduces them, and the env's other draws (goals, starts) are those of an
-env without terms. (Until #24's cost work they were torch draws from the env's generator, then, until its second cost
-pass, one generator state per world drawn in turn: the values for a given seed changed each time.) ``interval`` terms
-fire before each simulated env step.
+Every firing is two kernel launches (:func:`magwarp.kernels.randomize.apply_terms`, over (world, item) threads, an item
+a (term, target) pair: the draws, the operations and the writes for the targeted worlds and movers;
+:func:`~magwarp.kernels.randomize.pack_rows`, over (world, mover) threads: the packing of their body rows), from the
+torch step and from inside the fused step's graph alike. The draws come from Warp's counter-based generator keyed by the
+env's seed (the one it was built with, then ``reset(seed=...)``'s), a per-world count of firings, and the term, mover
+and component (each component its own generator state), not from the env's torch generator: the same seed reproduces
+them, and the env's other draws (goals, starts) are those of an env without terms. (Until #24's cost work they were
+torch draws from the env's generator, then, until its second cost pass, one generator state per world drawn in turn: the
+values for a given seed changed each time.) ``interval`` terms fire before each simulated env step.
 """
 
 from __future__ import annotations
@@ -67,6 +67,11 @@ FIELD_CODES = {"mover_mass": krand.MOVER_MASS, "mover_inertia": krand.MOVER_INER
                "wall_margin": krand.WALL_MARGIN}
 MODE_CODES = {"startup": krand.MODE_STARTUP, "reset": krand.MODE_RESET, "interval": krand.MODE_INTERVAL}
 OP_CODES = {"set": krand.OP_SET, "scale": krand.OP_SCALE, "add": krand.OP_ADD}
+#: :func:`~magwarp.kernels.randomize.apply_terms`' items per thread for each target a thread takes (a GPU's: one target
+#: per thread): 1, the firing's latency is one item's draw; more, fewer threads that exit at once for the worlds not
+#: drawn for, each drawing that many items in turn (the draws do not depend on it; benchmarks/randomization.py
+#: ``--items-per-thread`` sets it)
+ITEMS_PER_THREAD = 1
 
 
 def rng_key(seed: int) -> int:
@@ -84,6 +89,57 @@ def _empty_mover_params(device):
     for name in ("inertia", "offset", "k_lin", "k_rot"):
         setattr(p, name, wp.empty((0, 0), dtype=wp.vec3d, device=device))
     return p
+
+
+def _term_row(t: EventTerm, dim: int):
+    """Term ``t`` (``dim`` components per target) as the kernel reads it (:class:`magwarp.kernels.randomize.Term`)."""
+    d = t.dist
+    row = krand.Term()
+    row.field, row.dim = FIELD_CODES[t.field], dim
+    if isinstance(d, Gaussian):
+        row.dist, row.a, row.b = krand.GAUSSIAN, d.mean, d.std
+        row.clip = int(d.clip is not None)
+        row.lo, row.hi = d.clip if d.clip is not None else (0.0, 0.0)
+    elif isinstance(d, LogUniform):
+        row.dist, row.a, row.b = krand.LOG_UNIFORM, float(np.log(d.lo)), float(np.log(d.hi))
+    else:
+        row.dist, row.a, row.b = krand.UNIFORM, d.lo, d.hi
+    row.op, row.mode = OP_CODES[t.op], MODE_CODES[t.mode]
+    row.interval = int(t.interval_steps or 1)
+    row.known = int(bool(t.known))
+    row.offset = wp.vec3d(*(t.offset or (0.0, 0.0, 0.0)))
+    return row
+
+
+def pack_level(fields: set[str]) -> int:
+    """How a firing that draws ``fields`` packs the body rows (:func:`magwarp.kernels.randomize.pack_rows`): not at
+    all without a body field, only the limits (copied verbatim into the rows) when it draws only those, else whole.
+    (The rows hold the parameters as last packed: writes into them from outside the terms need
+    :meth:`PlanarRandomizer.commit`.)"""
+    body = {f for f in fields if f in BODY_KEYS}
+    if not body:
+        return krand.PACK_NONE
+    return krand.PACK_LIMITS if body <= {"v_max", "a_max", "j_max"} else krand.PACK_ALL
+
+
+def item_plan(terms: list[tuple[str, str]], targets: list[list[int]]) -> dict[str, list[tuple[int, int, int]]]:
+    """The kernel's items per mode: ``(term, target, later)``, term ``i`` (``terms[i]``: its field and mode) on each
+    of its ``targets[i]``, in term order. ``later``: the index (in the mode's list) of the next item of the mode that
+    writes the same field of the same target, -1 for none: of the items that fire in one launch, the last one of a
+    field and target sets it. Every startup and reset term fires in its mode's launch, so those lists keep only the
+    items with no later one (the others' draws would be overwritten; each component draws from its own generator
+    state, so dropping them changes no other draw); the interval list keeps them all (which fire depends on the
+    step count: the kernel walks ``later``)."""
+    plans = {}
+    for mode in MODE_CODES:
+        pairs = [(i, m) for i, (_, md) in enumerate(terms) if md == mode for m in targets[i]]
+        later = []
+        for q, (i, m) in enumerate(pairs):
+            nxt = [r for r in range(q + 1, len(pairs)) if terms[pairs[r][0]][0] == terms[i][0] and pairs[r][1] == m]
+            later.append(nxt[0] if nxt else -1)
+        plan = [(i, m, nx) for (i, m), nx in zip(pairs, later)]
+        plans[mode] = plan if mode == "interval" else [(i, m, -1) for i, m, nx in plan if nx < 0]
+    return plans
 
 
 class PlanarRandomizer(EventRunner):
@@ -153,40 +209,30 @@ class PlanarRandomizer(EventRunner):
 
     # ------------------------------------------------------------------ the kernel's inputs
     def _term_table(self) -> None:
-        """The terms as the kernel reads them (:class:`magwarp.kernels.randomize.Term`), their targets and the nominal
-        values, on the device; the generator key and per-world counters."""
+        """The terms as the kernel reads them: per mode, its (term, target) pairs
+        (:class:`magwarp.kernels.randomize.Item`, the startup and reset ones: only those that set a value, see
+        :func:`item_plan`), on the device; the generator key and per-world counters."""
         sim, dev = self.sim, self.sim.device
         width = max(1, sim.num_movers)
-        T = len(self.terms)
-        targets = np.zeros((T, width), np.int32)
-        nominal = np.zeros((T, width, 3), np.float64)
-        table = []
-        for i, t in enumerate(self.terms):
+        rows, targets = [], []
+        for t in self.terms:
             count = self._targets[t.field]
-            targets[i, list(t.targets) if t.targets is not None else slice(0, count)] = 1
+            targets.append(list(t.targets) if t.targets is not None else list(range(count)))
             nom = self.nominal[t.field].detach().cpu().numpy().astype(np.float64).reshape(count, -1)
-            nominal[i, :count, :nom.shape[1]] = nom
-            d = t.dist
-            row = krand.Term()
-            row.field, row.dim = FIELD_CODES[t.field], nom.shape[1]
-            if isinstance(d, Gaussian):
-                row.dist, row.a, row.b = krand.GAUSSIAN, d.mean, d.std
-                row.clip = int(d.clip is not None)
-                row.lo, row.hi = d.clip if d.clip is not None else (0.0, 0.0)
-            elif isinstance(d, LogUniform):
-                row.dist, row.a, row.b = krand.LOG_UNIFORM, float(np.log(d.lo)), float(np.log(d.hi))
-            else:
-                row.dist, row.a, row.b = krand.UNIFORM, d.lo, d.hi
-            row.op, row.mode = OP_CODES[t.op], MODE_CODES[t.mode]
-            row.interval = int(t.interval_steps or 1)
-            row.known = int(bool(t.known))
-            row.offset = wp.vec3d(*(t.offset or (0.0, 0.0, 0.0)))
-            table.append(row)
-        self._table = wp.array(table, dtype=krand.Term, device=dev)
-        self._targets_wp = wp.array(targets, dtype=wp.int32, device=dev)
-        self._nominal_wp = wp.array(nominal, dtype=wp.vec3d, device=dev)
-        # targets per thread: one on a GPU (the firing's latency is one target's terms), all on the CPU (a thread's
-        # setup dominates there); the draws do not depend on it
+            rows.append((_term_row(t, nom.shape[1]), nom))
+        self._items = {}
+        for mode, plan in item_plan([(t.field, t.mode) for t in self.terms], targets).items():
+            items = []
+            for i, m, later in plan:
+                row, nom = rows[i]
+                it = krand.Item()
+                it.t, it.target, it.stream, it.later = row, m, 3 * (i * width + m), later
+                it.nominal = wp.vec3d(*nom[m], *([0.0] * (3 - nom.shape[1])))
+                items.append(it)
+            self._items[mode] = (wp.array(items, dtype=krand.Item, device=dev) if items
+                                 else wp.empty(0, dtype=krand.Item, device=dev))
+        # targets (movers) and items per thread: one on a GPU (the firing's latency is one item's draw, one mover's
+        # packing), all of a world's on the CPU (a thread's setup dominates there); the draws do not depend on it
         self._per_thread = 1 if sim.device.is_cuda else width
         self._key = torch.tensor([rng_key(self.env._generator.initial_seed())], dtype=torch.int32,
                                  device=self.device)
@@ -213,16 +259,21 @@ class PlanarRandomizer(EventRunner):
         params = sim.mover_param_struct(self._scale_inertia()) if self._body else self._empty_params
         m = sim.model
         mask_wp = self._all if mask is None else wp.from_torch(mask, dtype=wp.bool)
-        worlds = [int(mask is None), mask_wp, self._per_thread]
         counter = wp.from_torch(self._counter)
-        dim = (self.num_worlds, -(-self._targets_wp.shape[1] // self._per_thread))
+        items = self._items[mode]
+        pack = pack_level({t.field for t in due})
+        movers = max(1, sim.num_movers) if pack != krand.PACK_NONE else 1
+        # per thread (see _term_table): as many items as targets, all of a world's when a thread takes all its targets
+        whole = self._per_thread >= max(1, sim.num_movers)
+        per_item = max(1, items.shape[0]) if whole else self._per_thread * ITEMS_PER_THREAD
+        per_mover = min(self._per_thread, movers)
         with contextlib.nullcontext() if current_stream else sim._on_stream():
-            wp.launch(krand.apply_terms, dim=dim, device=sim.device,
-                      inputs=[MODE_CODES[mode], int(self.steps), *worlds, self._table, self._targets_wp,
-                              self._nominal_wp, wp.from_torch(self._key), counter],
+            wp.launch(krand.apply_terms, dim=(self.num_worlds, -(-items.shape[0] // per_item)), device=sim.device,
+                      inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, per_item, items,
+                              wp.from_torch(self._key), counter],
                       outputs=[params, m.radius, m.half_size, m.margins])
-            wp.launch(krand.pack_rows, dim=dim, device=sim.device,
-                      inputs=[*worlds, int(self._body), params, counter],
+            wp.launch(krand.pack_rows, dim=(self.num_worlds, -(-movers // per_mover)), device=sim.device,
+                      inputs=[int(mask is None), mask_wp, per_mover, pack, params, counter],
                       outputs=[m.body])
         return True
 

@@ -121,8 +121,9 @@ def pack_mover(p: MoverParams, w: int, m: int) -> Body:
         iw = iw * (mw / p.m_ctrl)
     com = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
     pay = p.payload[w, m]
+    off = p.offset[w, m]  # loaded with the others, not after the test (one memory latency less)
     if pay != wp.float64(0.0):
-        mw, iw, com = with_payload(mw, iw, pay, p.offset[w, m])
+        mw, iw, com = with_payload(mw, iw, pay, off)
     return pack_body(p.m_ctrl + p.known[w, m], p.i_ctrl, mw, iw, p.k_lin[w, m], p.k_rot[w, m], com, p.v_max[w, m],
                      p.a_max[w, m], p.j_max[w, m])
 

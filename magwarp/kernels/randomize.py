@@ -4,11 +4,15 @@ rows; :func:`pack_rows` then packs the body rows of the worlds drawn for and adv
 (:mod:`magwarp.envs.planar_randomization` builds the term table; the torch step and the fused step graph both launch
 these kernels, so they draw the same numbers).
 
-Both run one thread per world and target (mover; the per-world fields: target 0) on a GPU, or per world and
-``per_thread`` targets (on the CPU, where a thread's cost is mostly its setup: all of a world's), and a world that is
-not drawn for exits first thing. The thread of target ``m`` runs the due terms that target it in their order (the
-last one that fires sets a field; a payload term also sets its offset and ``known``); the scale and add operations
-use the built value.
+:func:`apply_terms` runs one thread per world and item on a GPU, an item a (term, target) pair of the firing's mode
+(:class:`Item`, one load: the term, the target's built value and the component streams; the per-world fields: target
+0), or per world and ``per_thread`` items (on the CPU, where a thread's cost is mostly its setup: all of a world's).
+Of the items that fire in one launch the last one in the table of a field and target sets it (a payload term also its
+offset and ``known``): the startup and reset lists hold only those (every term of those modes fires), an interval item
+checks the later ones of its field and target (``later``). So the items of a firing write disjoint values and need no
+order: a thread's latency is one item's draw, not a chain of dependent loads and stores over the terms. The scale and
+add operations use the built value. :func:`pack_rows` runs one thread per world and mover (the CPU: ``per_thread``).
+A world that is not drawn for exits first thing.
 
 Draws: world ``w``'s seed for one firing is ``rand_init(rand_init(key, counter[w]), w)``: the key follows the env's
 seed, ``counter[w]`` counts the firings that drew for world ``w`` (so a world that is not reset draws nothing and
@@ -16,8 +20,8 @@ keeps its stream). Component ``k`` of target ``m`` of term ``i`` draws from its 
 ``rand_init(seed, 3 (i n + m) + k)`` (``n``: the target table's width, the simulator's movers), so the draws do not
 depend on the order the threads run in: uniform ``lo + u (hi - lo)``, log-uniform
 ``exp(log lo + u (log hi - log lo))`` (``u``: ``wp.randf``, 24 bits), Gaussian ``mean + std z`` (``z``: ``wp.randn``),
-clipped where asked. (Until #24's second cost pass one thread per
-world drew every term, target and component in turn from one state: the values for a given seed changed then.)
+clipped where asked. (Until #24's second cost pass one thread per world drew every term, target and component in turn
+from one state: the values for a given seed changed then. The third pass, one thread per item, kept the draws.)
 """
 
 from __future__ import annotations
@@ -51,6 +55,10 @@ GAUSSIAN = wp.constant(2)
 OP_SET = wp.constant(0)
 OP_SCALE = wp.constant(1)
 OP_ADD = wp.constant(2)
+
+PACK_NONE = wp.constant(0)  # no body field drawn: the counters only
+PACK_LIMITS = wp.constant(1)  # only v_max, a_max, j_max drawn: the rows take them verbatim
+PACK_ALL = wp.constant(2)  # the whole rows (pack_mover)
 
 MODE_STARTUP = wp.constant(0)
 MODE_RESET = wp.constant(1)
@@ -149,39 +157,55 @@ def write_field(field: int, w: int, m: int, v: wp.vec3d, p: MoverParams,
         radius[w, m] = wp.float32(v[0])
     elif field == COLLISION_HALF_SIZE:
         half_size[w, m] = wp.vec2(wp.float32(v[0]), wp.float32(v[1]))
-    elif field == COLLISION_MARGIN:
-        g = margins[w]
-        margins[w] = wp.vec2(wp.float32(v[0]), g[1])
+    elif field == COLLISION_MARGIN:  # its own component: the wall margin's item may write the other one meanwhile
+        margins[w][0] = wp.float32(v[0])
     elif field == WALL_MARGIN:
-        g = margins[w]
-        margins[w] = wp.vec2(g[0], wp.float32(v[0]))
+        margins[w][1] = wp.float32(v[0])
+
+
+@wp.struct
+class Item:
+    """One (term, target) pair of a mode's firing as the kernel reads it: one load, with no dependent one after it."""
+
+    t: Term
+    nominal: wp.vec3d  # the target's built value (scale, add), ``t.dim`` components
+    target: int  # the mover (the per-world fields: 0)
+    stream: int  # 3 (i n + target): component k draws from rand_init(seed, stream + k)
+    later: int  # the next item of the mode that writes the same field of the same target (interval only), -1: none
 
 
 @wp.func
-def fire_target(mode: int, steps: int, terms: wp.array(dtype=Term), targets: wp.array2d(dtype=wp.int32),
-                nominal: wp.array2d(dtype=wp.vec3d), seed: int, w: int, m: int, params: MoverParams,
-                radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2),
-                margins: wp.array(dtype=wp.vec2)):
-    """The terms of ``mode`` due now that target ``m``, for world ``w`` (its firing's ``seed``), in their order."""
-    for i in range(terms.shape[0]):
-        # the term's loads first, with no branch between them: one memory latency per term
-        t = terms[i]
-        hit = targets[i, m]
-        nom = nominal[i, m]
-        if hit == 0 or not is_due(t, mode, steps):
-            continue
-        v = wp.vec3d()
-        stream = (i * targets.shape[1] + m) * 3
-        for k in range(3):
-            if k < t.dim:
-                v[k] = apply_op(t.op, nom[k], draw(t, seed, stream + k))
-        write_field(t.field, w, m, v, params, radius, half_size, margins)
-        if t.field == PAYLOAD_MASS:
-            params.offset[w, m] = t.offset
-            known = wp.float64(0.0)
-            if t.known != 0:
-                known = v[0]
-            params.known[w, m] = known
+def wins(it: Item, items: wp.array(dtype=Item), mode: int, steps: int) -> bool:
+    """Item ``it`` fires now and no later item of its field and target does (the last one that fires sets a field).
+    The startup and reset lists hold only their winners (every term of those modes fires): no ``later`` to check."""
+    if not is_due(it.t, mode, steps):
+        return False
+    k = it.later
+    while k >= 0:
+        if is_due(items[k].t, mode, steps):
+            return False
+        k = items[k].later
+    return True
+
+
+@wp.func
+def fire_item(it: Item, seed: int, w: int, params: MoverParams, radius: wp.array2d(dtype=float),
+              half_size: wp.array2d(dtype=wp.vec2), margins: wp.array(dtype=wp.vec2)):
+    """Draw item ``it`` for world ``w`` (its firing's ``seed``) and write its field (a payload: also its offset and
+    ``known``)."""
+    t = it.t
+    m = it.target
+    v = wp.vec3d()
+    for k in range(3):
+        if k < t.dim:
+            v[k] = apply_op(t.op, it.nominal[k], draw(t, seed, it.stream + k))
+    write_field(t.field, w, m, v, params, radius, half_size, margins)
+    if t.field == PAYLOAD_MASS:
+        params.offset[w, m] = t.offset
+        known = wp.float64(0.0)
+        if t.known != 0:
+            known = v[0]
+        params.known[w, m] = known
 
 
 @wp.kernel
@@ -190,11 +214,9 @@ def apply_terms(
     steps: int,  # MODE_INTERVAL: the env step count
     all_worlds: int,  # 1: every world (startup, interval), 0: the worlds in mask
     mask: wp.array(dtype=wp.bool),
-    per_thread: int,  # targets per thread: thread (w, j) draws targets [j per_thread, (j + 1) per_thread)
+    per_thread: int,  # items per thread: thread (w, j) draws items [j per_thread, (j + 1) per_thread)
     # Model:
-    terms: wp.array(dtype=Term),
-    targets: wp.array2d(dtype=wp.int32),  # [T, max targets]: 1 where the term writes that target
-    nominal: wp.array2d(dtype=wp.vec3d),  # [T, max targets]: the built value (scale, add), dim components
+    items: wp.array(dtype=Item),  # the mode's (term, target) pairs (startup, reset: their winners only)
     key: wp.array(dtype=wp.int32),  # [1]: the generator key (the env's seed)
     # State in:
     counter: wp.array(dtype=wp.int32),  # [W] firings drawn per world
@@ -204,16 +226,19 @@ def apply_terms(
     half_size: wp.array2d(dtype=wp.vec2),
     margins: wp.array(dtype=wp.vec2),
 ):
-    """Fire the terms of ``mode`` due now for world ``w`` and its targets of thread ``j`` (the per-world fields:
-    target 0), each target's terms in their order: the last one that fires sets a field. Every component draws from
-    its own generator state (see the module doc), whichever thread draws it. :func:`pack_rows` then packs the rows
-    and advances the counters."""
+    """Fire the items of ``mode`` for world ``w`` that thread ``j`` holds: each (term, target) pair draws its
+    components (each from its own generator state, see the module doc) and writes its field when it is the last of
+    its field and target that fires now. The items write disjoint values (a margin: its own component of
+    ``margins[w]``), so they need no order: on a GPU one item per thread, and a thread's latency is one item's draw.
+    :func:`pack_rows` then packs the rows and advances the counters."""
     w, j = wp.tid()
     if not drawn(all_worlds, mask, w):
         return
     seed = world_seed(key[0], counter[w], w)
-    for m in range(j * per_thread, wp.min((j + 1) * per_thread, targets.shape[1])):
-        fire_target(mode, steps, terms, targets, nominal, seed, w, m, params, radius, half_size, margins)
+    for q in range(j * per_thread, wp.min((j + 1) * per_thread, items.shape[0])):
+        it = items[q]
+        if wins(it, items, mode, steps):
+            fire_item(it, seed, w, params, radius, half_size, margins)
 
 
 @wp.kernel
@@ -221,7 +246,7 @@ def pack_rows(
     all_worlds: int,
     mask: wp.array(dtype=wp.bool),
     per_thread: int,
-    pack: int,  # 1: pack the body rows of the worlds drawn for (terms of body fields)
+    pack: int,  # PACK_ALL: pack the body rows of the worlds drawn for; PACK_LIMITS: only their limits; PACK_NONE
     # State in:
     params: MoverParams,
     # State in/out:
@@ -229,14 +254,19 @@ def pack_rows(
     # State out:
     body: wp.array2d(dtype=Body),
 ):
-    """After :func:`apply_terms` (the same worlds and threads; launched only when a term is due, as it is): the worlds
-    it drew for advance their counter (thread 0) and (``pack``) pack the body rows of the thread's movers
-    (:func:`~magwarp.kernels.params.pack_mover`)."""
+    """After :func:`apply_terms` (the same worlds; launched only when a term is due, as it is): the worlds it drew for
+    advance their counter (thread 0) and (``pack``) pack the body rows of the thread's movers
+    (:func:`~magwarp.kernels.params.pack_mover`; a firing of the limits only: those fields of the rows)."""
     w, j = wp.tid()
     if not drawn(all_worlds, mask, w):
         return
-    if j == 0:
-        counter[w] = counter[w] + 1
-    if pack != 0:
-        for m in range(j * per_thread, wp.min((j + 1) * per_thread, body.shape[1])):
+    count = counter[w]  # loaded with the parameters (the store after them: it would order their loads after it)
+    for m in range(j * per_thread, wp.min((j + 1) * per_thread, body.shape[1])):
+        if pack == PACK_ALL:
             body[w, m] = pack_mover(params, w, m)
+        elif pack == PACK_LIMITS:  # pack_body copies them: the same bits, without the row's other loads and stores
+            body[w, m].v_max = params.v_max[w, m]
+            body[w, m].a_max = params.a_max[w, m]
+            body[w, m].j_max = params.j_max[w, m]
+    if j == 0:
+        counter[w] = count + 1
