@@ -218,6 +218,13 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
           --small-world-maxreg "${SMALL_MAXREG:-168}" \
           --json "$OUT/randomization_small_world_${k}_gpu.json" 2>&1 | grep -E "^  cuda" | tail -12
       done ;;
+    fire)
+      # #24: the terms' reset firing (apply_terms, pack_rows) at 65,536 B0 envs, one and three items per thread
+      for ipt in 1 3; do
+        timeout 250 python3 benchmarks/randomization.py --device cuda:0 --num-envs 16384,65536 \
+          --env magwarp/TrajectoryPlanningB0-v0 --settings terms,full --kernel-times 65536 --items-per-thread $ipt \
+          --json "$OUT/randomization_fire_ipt${ipt}_gpu.json" 2>&1 | grep -E "^  cuda.*num_envs|launches" | tail -8
+      done ;;
     robustness)
       # #24: the shipped B0 policy, the shipped randomisation-trained one (pretrained:b0_ppo_sim2real) and any
       # randomisation-trained runs in /tmp/runs (paper.py runs b0_ppo_dr and b0_ppo_dr_ft, trained by the suite
