@@ -656,3 +656,59 @@ def test_limits_only_firing_packs_the_same_bits():
         assert changed == ({"j_max"} if step % 2 == 0 else set()) | ({"v_max"} if step % 3 == 0 else set()), step
         env.sim.commit_mover_params(None, scale_inertia=True)
         assert same(body.numpy(), after), step
+
+
+@pytest.mark.parametrize("threads, per_thread", [(1, None), (3, None), (3, 1), (1000, 1)],
+                         ids=["cpu-1", "stride-3", "gpu-layout-stride-3", "gpu-layout-wide"])
+def test_listed_reset_firing_equals_the_sweep(monkeypatch, rng, threads, per_thread):
+    """A reset firing over the listed worlds (list_worlds, then apply_terms and pack_rows walking count x units over a
+    fixed grid of ``threads``) against the same firing sweeping every world with the same mask: bit-identical rows,
+    parameters, sizes and counters on random masks (empty and full ones too), over several firings in turn (the
+    listing's count is zeroed between them), interval firings between them; worlds outside the mask are untouched."""
+    from magwarp.envs import planar_randomization
+
+    monkeypatch.setattr(planar_randomization, "CPU_FIRING_THREADS", threads)
+    terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
+             EventTerm("mover_mass", Uniform(2.0, 2.5), targets=(1,)),
+             EventTerm("payload_mass", Uniform(0.0, 0.2), offset=(0.01, 0.0, 0.0), known=True, targets=(0, 2)),
+             EventTerm("stiffness_lin", Uniform(0.7, 1.3), op="scale"),
+             EventTerm("collision_margin", Uniform(0.001, 0.002)),
+             EventTerm("wall_margin", Gaussian(0.003, 0.0005, clip=(0.002, 0.004))),
+             EventTerm("collision_radius", Uniform(-0.005, 0.0), op="add"),
+             EventTerm("a_max", Uniform(1.0, 2.0), mode="interval", interval_steps=2)]
+    n = 9
+    seed = int(rng.integers(1 << 30))
+    listed, swept = make(n, terms, seed=seed), make(n, terms, seed=seed)
+    if per_thread is not None:
+        listed.randomizer._per_thread = swept.randomizer._per_thread = per_thread
+
+    def state(env):
+        sim, r = env.sim, env.randomizer
+        return {"body": sim.model.body.numpy().copy(), "margins": sim.margins.clone(), "radii": sim.radii.clone(),
+                "counter": r._counter.clone(),
+                **{k: v.clone() for k, v in sim.mover_params.items() if isinstance(v, torch.Tensor)}}
+
+    masks = [torch.zeros(n, dtype=torch.bool), torch.ones(n, dtype=torch.bool)]
+    masks += [torch.as_tensor(rng.random(n) < p) for p in (0.2, 0.5, 0.8, 0.5)]
+    for i, mask in enumerate(masks):
+        before = state(listed)
+        monkeypatch.setattr(planar_randomization, "LISTED_RESETS", True)
+        listed.randomizer.reset(mask)
+        monkeypatch.setattr(planar_randomization, "LISTED_RESETS", False)
+        swept.randomizer.reset(mask)
+        a, b = state(listed), state(swept)
+        assert same(a["body"], b["body"]), i
+        for k in a:
+            if k != "body":
+                assert torch.equal(a[k], b[k]), (i, k)
+        keep = ~mask
+        assert same(a["body"][keep.numpy()], before["body"][keep.numpy()]), i
+        for k in a:
+            if k != "body":
+                assert torch.equal(a[k][keep], before[k][keep]), (i, k)
+        assert torch.equal(a["counter"], before["counter"] + mask.int()), i
+        if mask.any():  # the drawn worlds changed (a mass drawn anew is never the old one here)
+            assert np.all(a["body"]["mass"][mask.numpy()] != before["body"]["mass"][mask.numpy()]), i
+        assert listed.randomizer._count.numpy()[0] == 0  # the listing's count, zeroed for the next firing
+        for env in (listed, swept):
+            env.randomizer.step()  # an interval firing (every other step): all worlds, a sweep
