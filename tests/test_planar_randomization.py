@@ -658,16 +658,22 @@ def test_limits_only_firing_packs_the_same_bits():
         assert same(body.numpy(), after), step
 
 
-@pytest.mark.parametrize("threads, per_thread", [(1, None), (3, None), (3, 1), (1000, 1)],
-                         ids=["cpu-1", "stride-3", "gpu-layout-stride-3", "gpu-layout-wide"])
-def test_listed_reset_firing_equals_the_sweep(monkeypatch, rng, threads, per_thread):
+@pytest.mark.parametrize("device, threads, per_thread",
+                         [("cpu", 1, None), ("cpu", 3, None), ("cpu", 3, 1), ("cpu", 1000, 1),
+                          pytest.param("cuda:0", 3, None, marks=pytest.mark.skipif(not cuda_available(),
+                                                                                  reason="needs CUDA")),
+                          pytest.param("cuda:0", 16384, None, marks=pytest.mark.skipif(not cuda_available(),
+                                                                                      reason="needs CUDA"))],
+                         ids=["cpu-1", "stride-3", "gpu-layout-stride-3", "gpu-layout-wide", "cuda-stride-3",
+                              "cuda-default"])
+def test_listed_reset_firing_equals_the_sweep(monkeypatch, rng, device, threads, per_thread):
     """A reset firing over the listed worlds (list_worlds, then apply_terms and pack_rows walking count x units over a
     fixed grid of ``threads``) against the same firing sweeping every world with the same mask: bit-identical rows,
     parameters, sizes and counters on random masks (empty and full ones too), over several firings in turn (the
     listing's count is zeroed between them), interval firings between them; worlds outside the mask are untouched."""
     from magwarp.envs import planar_randomization
 
-    monkeypatch.setattr(planar_randomization, "CPU_FIRING_THREADS", threads)
+    monkeypatch.setattr(planar_randomization, "CPU_FIRING_THREADS" if device == "cpu" else "FIRING_THREADS", threads)
     terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
              EventTerm("mover_mass", Uniform(2.0, 2.5), targets=(1,)),
              EventTerm("payload_mass", Uniform(0.0, 0.2), offset=(0.01, 0.0, 0.0), known=True, targets=(0, 2)),
@@ -678,24 +684,24 @@ def test_listed_reset_firing_equals_the_sweep(monkeypatch, rng, threads, per_thr
              EventTerm("a_max", Uniform(1.0, 2.0), mode="interval", interval_steps=2)]
     n = 9
     seed = int(rng.integers(1 << 30))
-    listed, swept = make(n, terms, seed=seed), make(n, terms, seed=seed)
+    listed, swept = (TrajectoryPlanningEnv(n, device=device, seed=seed, randomization=terms) for _ in range(2))
     if per_thread is not None:
         listed.randomizer._per_thread = swept.randomizer._per_thread = per_thread
 
     def state(env):
         sim, r = env.sim, env.randomizer
-        return {"body": sim.model.body.numpy().copy(), "margins": sim.margins.clone(), "radii": sim.radii.clone(),
-                "counter": r._counter.clone(),
-                **{k: v.clone() for k, v in sim.mover_params.items() if isinstance(v, torch.Tensor)}}
+        tensors = {"margins": sim.margins, "radii": sim.radii, "counter": r._counter,
+                   **{k: v for k, v in sim.mover_params.items() if isinstance(v, torch.Tensor)}}
+        return {"body": sim.model.body.numpy().copy(), **{k: v.cpu().clone() for k, v in tensors.items()}}
 
     masks = [torch.zeros(n, dtype=torch.bool), torch.ones(n, dtype=torch.bool)]
     masks += [torch.as_tensor(rng.random(n) < p) for p in (0.2, 0.5, 0.8, 0.5)]
     for i, mask in enumerate(masks):
         before = state(listed)
         monkeypatch.setattr(planar_randomization, "LISTED_RESETS", True)
-        listed.randomizer.reset(mask)
+        listed.randomizer.reset(mask.to(device))
         monkeypatch.setattr(planar_randomization, "LISTED_RESETS", False)
-        swept.randomizer.reset(mask)
+        swept.randomizer.reset(mask.to(device))
         a, b = state(listed), state(swept)
         assert same(a["body"], b["body"]), i
         for k in a:
