@@ -656,3 +656,65 @@ def test_limits_only_firing_packs_the_same_bits():
         assert changed == ({"j_max"} if step % 2 == 0 else set()) | ({"v_max"} if step % 3 == 0 else set()), step
         env.sim.commit_mover_params(None, scale_inertia=True)
         assert same(body.numpy(), after), step
+
+
+@pytest.mark.parametrize("device, threads, per_thread",
+                         [("cpu", 1, None), ("cpu", 3, None), ("cpu", 3, 1), ("cpu", 1000, 1),
+                          pytest.param("cuda:0", 3, None, marks=pytest.mark.skipif(not cuda_available(),
+                                                                                  reason="needs CUDA")),
+                          pytest.param("cuda:0", 16384, None, marks=pytest.mark.skipif(not cuda_available(),
+                                                                                      reason="needs CUDA"))],
+                         ids=["cpu-1", "stride-3", "gpu-layout-stride-3", "gpu-layout-wide", "cuda-stride-3",
+                              "cuda-default"])
+def test_listed_reset_firing_equals_the_sweep(monkeypatch, rng, device, threads, per_thread):
+    """A reset firing over the listed worlds (list_worlds, then apply_terms and pack_rows walking count x units over a
+    fixed grid of ``threads``) against the same firing sweeping every world with the same mask: bit-identical rows,
+    parameters, sizes and counters on random masks (empty and full ones too), over several firings in turn (the
+    listing's count is zeroed between them), interval firings between them; worlds outside the mask are untouched."""
+    from magwarp.envs import planar_randomization
+
+    monkeypatch.setattr(planar_randomization, "CPU_FIRING_THREADS" if device == "cpu" else "FIRING_THREADS", threads)
+    terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
+             EventTerm("mover_mass", Uniform(2.0, 2.5), targets=(1,)),
+             EventTerm("payload_mass", Uniform(0.0, 0.2), offset=(0.01, 0.0, 0.0), known=True, targets=(0, 2)),
+             EventTerm("stiffness_lin", Uniform(0.7, 1.3), op="scale"),
+             EventTerm("collision_margin", Uniform(0.001, 0.002)),
+             EventTerm("wall_margin", Gaussian(0.003, 0.0005, clip=(0.002, 0.004))),
+             EventTerm("collision_radius", Uniform(-0.005, 0.0), op="add"),
+             EventTerm("a_max", Uniform(1.0, 2.0), mode="interval", interval_steps=2)]
+    n = 9
+    seed = int(rng.integers(1 << 30))
+    listed, swept = (TrajectoryPlanningEnv(n, device=device, seed=seed, randomization=terms) for _ in range(2))
+    if per_thread is not None:
+        listed.randomizer._per_thread = swept.randomizer._per_thread = per_thread
+
+    def state(env):
+        sim, r = env.sim, env.randomizer
+        tensors = {"margins": sim.margins, "radii": sim.radii, "counter": r._counter,
+                   **{k: v for k, v in sim.mover_params.items() if isinstance(v, torch.Tensor)}}
+        return {"body": sim.model.body.numpy().copy(), **{k: v.cpu().clone() for k, v in tensors.items()}}
+
+    masks = [torch.zeros(n, dtype=torch.bool), torch.ones(n, dtype=torch.bool)]
+    masks += [torch.as_tensor(rng.random(n) < p) for p in (0.2, 0.5, 0.8, 0.5)]
+    for i, mask in enumerate(masks):
+        before = state(listed)
+        monkeypatch.setattr(planar_randomization, "LISTED_RESETS", True)
+        listed.randomizer.reset(mask.to(device))
+        monkeypatch.setattr(planar_randomization, "LISTED_RESETS", False)
+        swept.randomizer.reset(mask.to(device))
+        a, b = state(listed), state(swept)
+        assert same(a["body"], b["body"]), i
+        for k in a:
+            if k != "body":
+                assert torch.equal(a[k], b[k]), (i, k)
+        keep = ~mask
+        assert same(a["body"][keep.numpy()], before["body"][keep.numpy()]), i
+        for k in a:
+            if k != "body":
+                assert torch.equal(a[k][keep], before[k][keep]), (i, k)
+        assert torch.equal(a["counter"], before["counter"] + mask.int()), i
+        if mask.any():  # the drawn worlds changed (a mass drawn anew is never the old one here)
+            assert np.all(a["body"]["mass"][mask.numpy()] != before["body"]["mass"][mask.numpy()]), i
+        assert listed.randomizer._count.numpy()[0] == 0  # the listing's count, zeroed for the next firing
+        for env in (listed, swept):
+            env.randomizer.step()  # an interval firing (every other step): all worlds, a sweep
