@@ -97,14 +97,13 @@ def kernel_figures(kernel, arch: int) -> dict[str, int]:
 
 
 def randomize_figures(arch: int, json_path: str | None) -> int:
-    """Registers and stack of the randomisation firing kernels (:func:`magwarp.kernels.randomize.list_worlds`,
-    :func:`~magwarp.kernels.randomize.apply_terms`, :func:`~magwarp.kernels.randomize.pack_rows`): they do not depend
-    on the mover count."""
+    """Registers and stack of the randomisation firing kernels (:func:`magwarp.kernels.randomize.apply_terms`,
+    :func:`~magwarp.kernels.randomize.pack_rows`): they do not depend on the mover count."""
     from magwarp.kernels import randomize as krand
 
     info, _ = start_run("cpu")
     results = []
-    for kernel in (krand.list_worlds, krand.apply_terms, krand.pack_rows):
+    for kernel in (krand.apply_terms, krand.pack_rows):
         fig = kernel_figures(kernel, arch)
         results.append({"arch": f"sm_{arch}", "kernel": kernel.key, **fig})
         print(f"  sm_{arch} {kernel.key}: {fig.get('registers')} registers, {fig.get('stack')} B stack", flush=True)

@@ -205,9 +205,6 @@ def main(argv=None) -> int:
                         "full alone); off is always run first, as the base of the cost")
     p.add_argument("--items-per-thread", type=int, default=None,
                    help="the planar firing's items per GPU thread (planar_randomization.ITEMS_PER_THREAD, >= 1)")
-    p.add_argument("--sweep-resets", action="store_true",
-                   help="the planar reset firing sweeps every world (planar_randomization.LISTED_RESETS = False) "
-                        "instead of listing the worlds that reset first")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     if args.items_per_thread is not None and args.items_per_thread < 1:
@@ -232,8 +229,6 @@ def main(argv=None) -> int:
 
     if args.items_per_thread is not None:
         planar_randomization.ITEMS_PER_THREAD = args.items_per_thread
-    if args.sweep_resets:
-        planar_randomization.LISTED_RESETS = False
     if args.env is not None and args.env not in ENVS:
         p.error(f"--env must be one of {', '.join(ENVS)}, got {args.env!r}")
     info, devices = start_run(args.device)
@@ -277,8 +272,6 @@ def main(argv=None) -> int:
                                  "small_world_maxreg": kernel_options.SMALL_WORLD_MAXREG,
                                  "small_world_rows": kernel_options.SMALL_WORLD_ROWS,
                                  "items_per_thread": planar_randomization.ITEMS_PER_THREAD,
-                                 "listed_resets": planar_randomization.LISTED_RESETS,
-                                 "firing_threads": planar_randomization.FIRING_THREADS,
                                  "kernel_us": times.get(name) if n == args.kernel_times else None,
                                  "kernel_launches": launch_stats.get(name) if n == args.kernel_times else None})
                     path = f", step path: {res['path']}" if "path" in res else ""

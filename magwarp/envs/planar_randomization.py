@@ -30,11 +30,9 @@ Fields, one draw per target (movers; the margins: one per world), ``dim`` compon
   the env with the largest size you draw (``collision_size``, ``safety_margin``) to keep starts collision free.
   Worlds of more than 32 movers (grid broad phase, its cells sized at build) refuse sizes above the built ones.
 
-Every firing is two kernel launches (:func:`magwarp.kernels.randomize.apply_terms`, over (world, item) units, an item
+Every firing is two kernel launches (:func:`magwarp.kernels.randomize.apply_terms`, over (world, item) threads, an item
 a (term, target) pair: the draws, the operations and the writes for the targeted worlds and movers;
-:func:`~magwarp.kernels.randomize.pack_rows`, over (world, mover) units: the packing of their body rows), a reset firing
-three (:func:`~magwarp.kernels.randomize.list_worlds` first lists the worlds that reset, and the two others walk only
-their units over a fixed grid: :data:`LISTED_RESETS`, :data:`FIRING_THREADS`), from the
+:func:`~magwarp.kernels.randomize.pack_rows`, over (world, mover) threads: the packing of their body rows), from the
 torch step and from inside the fused step's graph alike. The draws come from Warp's counter-based generator keyed by the
 env's seed (the one it was built with, then ``reset(seed=...)``'s), a per-world count of firings, and the term, mover
 and component (each component its own generator state), not from the env's torch generator: the same seed reproduces
@@ -74,23 +72,6 @@ OP_CODES = {"set": krand.OP_SET, "scale": krand.OP_SCALE, "add": krand.OP_ADD}
 #: drawn for, each drawing that many items in turn (the draws do not depend on it; benchmarks/randomization.py
 #: ``--items-per-thread`` sets it)
 ITEMS_PER_THREAD = 1
-#: a reset firing (a mask) lists its worlds first (:func:`~magwarp.kernels.randomize.list_worlds`: one thread per world,
-#: an atomic counter), then :func:`~magwarp.kernels.randomize.apply_terms` and
-#: :func:`~magwarp.kernels.randomize.pack_rows` walk the listed worlds' units over a fixed grid (grid stride), so their
-#: work follows the worlds that reset, not every world. False: both sweep every world, one thread per unit, and the
-#: threads of the worlds outside the mask exit at once (the startup and interval firings, all worlds, always do)
-LISTED_RESETS = True
-#: the fixed grid of a listed firing on a GPU (at most a thread per unit of every world). The launch dims are static
-#: (the firing is captured in the step's graph), so the grid is sized for a typical step, not for its count:
-#: 16,384 threads (64 blocks of 256, a fraction of one wave on an H100: 132 SMs of 2,048 resident threads) take
-#: one item each for up to 682 resetting worlds of 24 items (1 % of 65,536 worlds, a step of episodes a few hundred
-#: steps long resets far fewer), and a thread without work reads one count and exits: against the launch itself its
-#: cost is small (the sweep it replaces: 1.57M such threads, 17 us). A larger count makes each thread walk
-#: ceil(count x items / 16,384) units in turn: a reset of every world through a mask (``env.reset()``, host-side,
-#: once) draws 96 items per thread there
-FIRING_THREADS = 16384
-#: the same on the CPU, where Warp runs a launch's threads one after another: one thread walks every listed world
-CPU_FIRING_THREADS = 1
 
 
 def rng_key(seed: int) -> int:
@@ -257,10 +238,6 @@ class PlanarRandomizer(EventRunner):
                                  device=self.device)
         self._counter = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self._all = wp.ones(1, dtype=wp.bool, device=dev)  # the mask placeholder when every world fires
-        # a listed reset firing's worlds (krand.list_worlds) and [2] counts: count[0] listed (zero between firings:
-        # pack_rows zeroes it), count[1] its copy for pack_rows
-        self._listed = wp.zeros(self.num_worlds, dtype=wp.int32, device=dev)
-        self._count = wp.zeros(2, dtype=wp.int32, device=dev)
         self._body = any(t.field in BODY_KEYS for t in self.terms)
         # terms of the collision sizes only: empty parameter arrays (the kernel writes no body field then)
         self._empty_params = None if self._body else _empty_mover_params(dev)
@@ -273,8 +250,7 @@ class PlanarRandomizer(EventRunner):
     # ------------------------------------------------------------------ firing
     def _fire(self, mode: str, mask: torch.Tensor | None, current_stream: bool = False) -> bool:
         """Launch the kernels for the terms of ``mode`` due now (interval: their period divides the step count), for the
-        worlds in ``mask`` (all if None: a sweep; a mask: its worlds listed first, see :data:`LISTED_RESETS`); nothing
-        when none is due. ``current_stream``: on Warp's current stream (inside
+        worlds in ``mask`` (all if None); nothing when none is due. ``current_stream``: on Warp's current stream (inside
         a captured env step), else on the simulator's."""
         due = [t for t in self.terms if t.mode == mode and (mode != "interval" or self.steps % t.interval_steps == 0)]
         if not due:
@@ -287,29 +263,17 @@ class PlanarRandomizer(EventRunner):
         items = self._items[mode]
         pack = pack_level({t.field for t in due})
         movers = max(1, sim.num_movers) if pack != krand.PACK_NONE else 1
-        # per unit (see _term_table): as many items as targets, all of a world's when a thread takes all its targets
+        # per thread (see _term_table): as many items as targets, all of a world's when a thread takes all its targets
         whole = self._per_thread >= max(1, sim.num_movers)
         per_item = max(1, items.shape[0]) if whole else self._per_thread * ITEMS_PER_THREAD
         per_mover = min(self._per_thread, movers)
-        chunks, mover_chunks = -(-items.shape[0] // per_item), -(-movers // per_mover)
-        listed = mask is not None and LISTED_RESETS
-        if listed:  # a fixed grid (the launch is captured) walks the listed worlds' units
-            cap = FIRING_THREADS if sim.device.is_cuda else CPU_FIRING_THREADS
-            threads = max(1, min(self.num_worlds * chunks, cap))
-            pack_threads = max(1, min(self.num_worlds * mover_chunks, cap))
-        else:  # a sweep: one thread per unit of every world
-            threads, pack_threads = self.num_worlds * chunks, self.num_worlds * mover_chunks
         with contextlib.nullcontext() if current_stream else sim._on_stream():
-            if listed:
-                wp.launch(krand.list_worlds, dim=self.num_worlds, device=sim.device, inputs=[mask_wp],
-                          outputs=[self._listed, self._count])
-            wp.launch(krand.apply_terms, dim=threads, device=sim.device,
-                      inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, int(listed), self._listed,
-                              per_item, chunks, threads, items, wp.from_torch(self._key), counter, self._count],
+            wp.launch(krand.apply_terms, dim=(self.num_worlds, -(-items.shape[0] // per_item)), device=sim.device,
+                      inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, per_item, items,
+                              wp.from_torch(self._key), counter],
                       outputs=[params, m.radius, m.half_size, m.margins])
-            wp.launch(krand.pack_rows, dim=pack_threads, device=sim.device,
-                      inputs=[int(mask is None), mask_wp, int(listed), self._listed, per_mover, mover_chunks,
-                              pack_threads, pack, params, counter, self._count],
+            wp.launch(krand.pack_rows, dim=(self.num_worlds, -(-movers // per_mover)), device=sim.device,
+                      inputs=[int(mask is None), mask_wp, per_mover, pack, params, counter],
                       outputs=[m.body])
         return True
 
@@ -318,8 +282,7 @@ class PlanarRandomizer(EventRunner):
         return "mover_mass" in used and "mover_inertia" not in used
 
     def reset(self, mask: torch.Tensor) -> None:
-        """Reset-mode terms for the worlds in ``mask`` (``[W]`` bool on the device): three launches (the listing, the
-        draws, the packing), no host sync."""
+        """Reset-mode terms for the worlds in ``mask`` (``[W]`` bool on the device): two launches, no host sync."""
         self._fire("reset", mask)
 
     def step(self) -> None:

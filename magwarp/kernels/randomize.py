@@ -1,21 +1,18 @@
-"""Domain randomisation of the planar simulator: :func:`apply_terms` fires every event term whose time has come, drawn
-per world and target with Warp's counter-based generator and written into the per-world parameter rows;
-:func:`pack_rows` then packs the body rows of the worlds drawn for and advances their counters
+"""Domain randomisation of the planar simulator in two launches: :func:`apply_terms` fires every event term whose time
+has come, drawn per world and target with Warp's counter-based generator and written into the per-world parameter
+rows; :func:`pack_rows` then packs the body rows of the worlds drawn for and advances their counters
 (:mod:`magwarp.envs.planar_randomization` builds the term table; the torch step and the fused step graph both launch
-these kernels, so they draw the same numbers). A reset firing (a mask of worlds) first lists its worlds
-(:func:`list_worlds`: one thread per world, an atomic counter), so that the two others walk the listed worlds' work
-over a fixed grid (a grid stride: the launch dims stay static inside a captured graph), a few hundred worlds of 65,536
-in a step, not every world; a firing of every world (startup, interval) sweeps them, one thread per unit.
+these kernels, so they draw the same numbers).
 
-:func:`apply_terms`' unit is a world and ``per_thread`` of the firing mode's items, an item a (term, target) pair
+:func:`apply_terms` runs one thread per world and item on a GPU, an item a (term, target) pair of the firing's mode
 (:class:`Item`, one load: the term, the target's built value and the component streams; the per-world fields: target
-0): on a GPU one item per unit, on the CPU all of a world's (a thread's cost there is mostly its setup). Of the items
-that fire in one launch the last one in the table of a field and target sets it (a payload term also its offset and
-``known``): the startup and reset lists hold only those (every term of those modes fires), an interval item checks the
-later ones of its field and target (``later``). So the items of a firing write disjoint values and need no order: a
-unit's latency is one item's draw, not a chain of dependent loads and stores over the terms. The scale and add
-operations use the built value. :func:`pack_rows`' unit is a world and its movers (a GPU: one mover). In a sweep, the
-units of a world that is not drawn for exit first thing.
+0), or per world and ``per_thread`` items (on the CPU, where a thread's cost is mostly its setup: all of a world's).
+Of the items that fire in one launch the last one in the table of a field and target sets it (a payload term also its
+offset and ``known``): the startup and reset lists hold only those (every term of those modes fires), an interval item
+checks the later ones of its field and target (``later``). So the items of a firing write disjoint values and need no
+order: a thread's latency is one item's draw, not a chain of dependent loads and stores over the terms. The scale and
+add operations use the built value. :func:`pack_rows` runs one thread per world and mover (the CPU: ``per_thread``).
+A world that is not drawn for exits first thing.
 
 Draws: world ``w``'s seed for one firing is ``rand_init(rand_init(key, counter[w]), w)``: the key follows the env's
 seed, ``counter[w]`` counts the firings that drew for world ``w`` (so a world that is not reset draws nothing and
@@ -212,121 +209,64 @@ def fire_item(it: Item, seed: int, w: int, params: MoverParams, radius: wp.array
 
 
 @wp.kernel
-def list_worlds(
-    # State in:
-    mask: wp.array(dtype=wp.bool),  # [W] the worlds to draw for
-    # State out:
-    listed: wp.array(dtype=wp.int32),  # [W] the worlds in mask, count[0] of them, in any order
-    count: wp.array(dtype=wp.int32),  # [2] count[0]: zero before (pack_rows zeroes it after a listed firing)
-):
-    """A listed firing's first launch, one thread per world: the worlds in ``mask`` onto ``listed`` with an atomic
-    counter (the order does not matter: every draw is keyed by world and item, not by thread). :func:`apply_terms`
-    and :func:`pack_rows` then walk ``count x`` their work, not every world."""
-    w = wp.tid()
-    if mask[w]:
-        listed[wp.atomic_add(count, 0, 1)] = w
-
-
-@wp.func
-def unit_world(s: int, listed_only: int, all_worlds: int, mask: wp.array(dtype=wp.bool),
-               listed: wp.array(dtype=wp.int32)) -> int:
-    """The world of slot ``s``: the ``s``-th listed world (a listed firing), else world ``s`` when it is drawn for
-    (-1 when it is not)."""
-    if listed_only != 0:
-        return listed[s]
-    if drawn(all_worlds, mask, s):
-        return s
-    return -1
-
-
-@wp.kernel
 def apply_terms(
     mode: int,
     steps: int,  # MODE_INTERVAL: the env step count
-    all_worlds: int,  # a sweep: 1, every world (startup, interval); 0, the worlds in mask
+    all_worlds: int,  # 1: every world (startup, interval), 0: the worlds in mask
     mask: wp.array(dtype=wp.bool),
-    listed_only: int,  # 1: the worlds of list_worlds (listed, count[0] of them); 0: a sweep of every world
-    listed: wp.array(dtype=wp.int32),
-    per_thread: int,  # items per unit: unit (world, j) draws items [j per_thread, (j + 1) per_thread)
-    chunks: int,  # units per world: ceil(items / per_thread)
-    threads: int,  # the launch's threads: thread t walks units t, t + threads, ... (a sweep: one unit each)
+    per_thread: int,  # items per thread: thread (w, j) draws items [j per_thread, (j + 1) per_thread)
     # Model:
     items: wp.array(dtype=Item),  # the mode's (term, target) pairs (startup, reset: their winners only)
     key: wp.array(dtype=wp.int32),  # [1]: the generator key (the env's seed)
     # State in:
     counter: wp.array(dtype=wp.int32),  # [W] firings drawn per world
-    # State in/out:
-    count: wp.array(dtype=wp.int32),  # [2] a listed firing: count[0] listed worlds; out: count[1] = count[0]
     # State out:
     params: MoverParams,
     radius: wp.array2d(dtype=float),
     half_size: wp.array2d(dtype=wp.vec2),
     margins: wp.array(dtype=wp.vec2),
 ):
-    """Fire the items of ``mode`` that a thread's units hold, a unit a world and ``per_thread`` of its items: each
-    (term, target) pair draws its components (each from its own generator state, see the module doc) and writes its
-    field when it is the last of its field and target that fires now. The items write disjoint values (a margin: its
-    own component of ``margins[w]``), so they need no order: on a GPU one item per unit, and a thread's latency is
-    one item's draw per unit it walks. A sweep's units are every world's (the worlds not drawn for exit at once); a
-    listed firing's the listed worlds' only (thread 0 copies their count to ``count[1]`` for :func:`pack_rows`).
+    """Fire the items of ``mode`` for world ``w`` that thread ``j`` holds: each (term, target) pair draws its
+    components (each from its own generator state, see the module doc) and writes its field when it is the last of
+    its field and target that fires now. The items write disjoint values (a margin: its own component of
+    ``margins[w]``), so they need no order: on a GPU one item per thread, and a thread's latency is one item's draw.
     :func:`pack_rows` then packs the rows and advances the counters."""
-    t = wp.tid()
-    worlds = counter.shape[0]
-    if listed_only != 0:
-        worlds = count[0]
-        if t == 0:
-            count[1] = worlds  # pack_rows reads it there: it zeroes count[0], which the threads here read
-    for u in range(t, worlds * chunks, threads):
-        s = u // chunks
-        w = unit_world(s, listed_only, all_worlds, mask, listed)
-        if w >= 0:
-            j = u - s * chunks
-            seed = world_seed(key[0], counter[w], w)
-            for q in range(j * per_thread, wp.min((j + 1) * per_thread, items.shape[0])):
-                it = items[q]
-                if wins(it, items, mode, steps):
-                    fire_item(it, seed, w, params, radius, half_size, margins)
+    w, j = wp.tid()
+    if not drawn(all_worlds, mask, w):
+        return
+    seed = world_seed(key[0], counter[w], w)
+    for q in range(j * per_thread, wp.min((j + 1) * per_thread, items.shape[0])):
+        it = items[q]
+        if wins(it, items, mode, steps):
+            fire_item(it, seed, w, params, radius, half_size, margins)
 
 
 @wp.kernel
 def pack_rows(
     all_worlds: int,
     mask: wp.array(dtype=wp.bool),
-    listed_only: int,  # as apply_terms': the worlds listed (count[1] of them) or a sweep
-    listed: wp.array(dtype=wp.int32),
-    per_thread: int,  # movers per unit
-    chunks: int,  # units per world: ceil(movers / per_thread), 1 for PACK_NONE
-    threads: int,  # the launch's threads (grid stride)
+    per_thread: int,
     pack: int,  # PACK_ALL: pack the body rows of the worlds drawn for; PACK_LIMITS: only their limits; PACK_NONE
     # State in:
     params: MoverParams,
     # State in/out:
     counter: wp.array(dtype=wp.int32),  # [W] firings drawn per world
-    count: wp.array(dtype=wp.int32),  # [2] a listed firing: count[1] worlds; out: count[0] = 0 (the next listing)
     # State out:
     body: wp.array2d(dtype=Body),
 ):
     """After :func:`apply_terms` (the same worlds; launched only when a term is due, as it is): the worlds it drew for
-    advance their counter (unit 0 of a world) and (``pack``) pack the body rows of the unit's movers
+    advance their counter (thread 0) and (``pack``) pack the body rows of the thread's movers
     (:func:`~magwarp.kernels.params.pack_mover`; a firing of the limits only: those fields of the rows)."""
-    t = wp.tid()
-    worlds = counter.shape[0]
-    if listed_only != 0:
-        worlds = count[1]
-        if t == 0:
-            count[0] = 0
-    for u in range(t, worlds * chunks, threads):
-        s = u // chunks
-        w = unit_world(s, listed_only, all_worlds, mask, listed)
-        if w >= 0:
-            j = u - s * chunks
-            c = counter[w]  # loaded with the parameters (the store after them: it would order their loads after it)
-            for m in range(j * per_thread, wp.min((j + 1) * per_thread, body.shape[1])):
-                if pack == PACK_ALL:
-                    body[w, m] = pack_mover(params, w, m)
-                elif pack == PACK_LIMITS:  # pack_body copies them: the same bits, without the row's other accesses
-                    body[w, m].v_max = params.v_max[w, m]
-                    body[w, m].a_max = params.a_max[w, m]
-                    body[w, m].j_max = params.j_max[w, m]
-            if j == 0:
-                counter[w] = c + 1
+    w, j = wp.tid()
+    if not drawn(all_worlds, mask, w):
+        return
+    count = counter[w]  # loaded with the parameters (the store after them: it would order their loads after it)
+    for m in range(j * per_thread, wp.min((j + 1) * per_thread, body.shape[1])):
+        if pack == PACK_ALL:
+            body[w, m] = pack_mover(params, w, m)
+        elif pack == PACK_LIMITS:  # pack_body copies them: the same bits, without the row's other loads and stores
+            body[w, m].v_max = params.v_max[w, m]
+            body[w, m].a_max = params.a_max[w, m]
+            body[w, m].j_max = params.j_max[w, m]
+    if j == 0:
+        counter[w] = count + 1
