@@ -225,16 +225,6 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
           --env magwarp/TrajectoryPlanningB0-v0 --settings terms,full --kernel-times 65536 --items-per-thread $ipt \
           --json "$OUT/randomization_fire_ipt${ipt}_gpu.json" 2>&1 | grep -E "^  cuda.*num_envs|launches" | tail -8
       done ;;
-    fire_list)
-      # #24: the terms' reset firing over the listed worlds (the default) against the masked sweep, 65,536 B0 envs
-      for mode in listed sweep; do
-        extra=""; [ $mode = sweep ] && extra="--sweep-resets"
-        timeout 200 python3 benchmarks/randomization.py --device cuda:0 --num-envs 65536 \
-          --env magwarp/TrajectoryPlanningB0-v0 --settings terms,full --kernel-times 65536 $extra \
-          --json "$OUT/randomization_fire_${mode}_gpu.json" 2>&1 | grep -E "^  cuda.*num_envs|launches" | tail -6
-      done
-      timeout 200 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_planar_randomization.py \
-        -k "listed or no_host_sync" 2>&1 | tail -3 ;;
     robustness)
       # #24: the shipped B0 policy, the shipped randomisation-trained one (pretrained:b0_ppo_sim2real) and any
       # randomisation-trained runs in /tmp/runs (paper.py runs b0_ppo_dr and b0_ppo_dr_ft, trained by the suite
