@@ -14,7 +14,7 @@ One step (after the host-side input check and the copy of the action into the si
    delays for the worlds that finished;
 4. for those worlds (the kernel's ``done`` flags as the mask, on the device): the sensor model's new biases (in
    step 3's kernel) and the reset-mode randomisation terms
-   (:meth:`~magwarp.envs.planar_randomization.PlanarRandomizer.reset_in_step`: one kernel, the torch step's too);
+   (:meth:`~magwarp.envs.planar_randomization.PlanarRandomizer.reset_in_step`: two kernels, the torch step's too);
    the simulator's reset kernels;
 5. :func:`magwarp.kernels.task.trajectory_obs`: the returned observation; the sensor model keeps it (what a dropped
    reading repeats); the next step's clock (env steps and draw clock: two device rows that the two alternating step
