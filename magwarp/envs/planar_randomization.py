@@ -70,7 +70,8 @@ OP_CODES = {"set": krand.OP_SET, "scale": krand.OP_SCALE, "add": krand.OP_ADD}
 #: :func:`~magwarp.kernels.randomize.apply_terms`' items per thread for each target a thread takes (a GPU's: one target
 #: per thread): 1, the firing's latency is one item's draw; more, fewer threads that exit at once for the worlds not
 #: drawn for, each drawing that many items in turn (the draws do not depend on it; benchmarks/randomization.py
-#: ``--items-per-thread`` sets it)
+#: ``--items-per-thread`` sets it; on the H100, 65,536 B0 worlds: 17.0 us per reset firing at 1, 20.1 at 3,
+#: randomization_fire_ipt*_gpu.json)
 ITEMS_PER_THREAD = 1
 
 
