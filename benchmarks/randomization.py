@@ -213,22 +213,18 @@ def main(argv=None) -> int:
     unknown = [s for s in wanted if s not in ("off", "terms", "full", "latency", "sensors")]
     if unknown:
         p.error(f"--settings: unknown setting(s) {', '.join(unknown)} (known: off, terms, full, latency, sensors)")
+    from magwarp.envs import planar_randomization
     from magwarp.kernels import options as kernel_options
 
-    if args.register_rows is not None:
-        kernel_options.REGISTER_ROWS = args.register_rows
-    if args.small_world_kernel is not None:
-        kernel_options.SMALL_WORLD_KERNEL = args.small_world_kernel
-    if args.small_world_block is not None:
-        kernel_options.SMALL_WORLD_BLOCK = args.small_world_block
-    if args.small_world_maxreg is not None:
-        kernel_options.SMALL_WORLD_MAXREG = args.small_world_maxreg
-    if args.small_world_rows is not None:
-        kernel_options.SMALL_WORLD_ROWS = args.small_world_rows
-    from magwarp.envs import planar_randomization
-
-    if args.items_per_thread is not None:
-        planar_randomization.ITEMS_PER_THREAD = args.items_per_thread
+    # the tuning knobs given on the command line (each default: the library's)
+    for value, module, name in ((args.register_rows, kernel_options, "REGISTER_ROWS"),
+                                (args.small_world_kernel, kernel_options, "SMALL_WORLD_KERNEL"),
+                                (args.small_world_block, kernel_options, "SMALL_WORLD_BLOCK"),
+                                (args.small_world_maxreg, kernel_options, "SMALL_WORLD_MAXREG"),
+                                (args.small_world_rows, kernel_options, "SMALL_WORLD_ROWS"),
+                                (args.items_per_thread, planar_randomization, "ITEMS_PER_THREAD")):
+        if value is not None:
+            setattr(module, name, value)
     if args.env is not None and args.env not in ENVS:
         p.error(f"--env must be one of {', '.join(ENVS)}, got {args.env!r}")
     info, devices = start_run(args.device)
