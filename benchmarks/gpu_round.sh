@@ -7,8 +7,9 @@
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
-# small_world_kernels and small_world (#24: the one-thread-per-mover fused step),
-# compare (B0 env throughput of an older tree beside this one).
+# small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile, fire and
+# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), magnetics_variants (#17),
+# swarm_fused (#18), compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
