@@ -201,8 +201,12 @@ def test_wall_clearance_matches_float64_geometry(layout_name, shape, rng):
     poses, size = random_cases(rng, tiles, shape, n)
     out = CollisionQuery(tiles, shape, offset_wall=OFFSET_WALL, device="cpu")(poses, size)
     got, valid = out.wall_clearance.numpy(), out.wall_valid.numpy()
-    squares = missing_squares(tiles)
     tile = 0.24
+    # the outside as missing squares far enough out to hold every mover (a normal tail put one 0.57 m beyond the layout,
+    # past a ring of two squares: the reference then saw no wall near it)
+    ext = np.array(tiles.shape) * tile
+    overshoot = max(0.0, float(np.max(-poses[..., :2])), float(np.max(poses[..., :2] - ext)))
+    squares = missing_squares(tiles, ring=2 + int(np.ceil(overshoot / tile)))
     for k in range(n):
         for i in range(M):
             p, grown = poses[k, i], size[k, i] + OFFSET_WALL
