@@ -6,9 +6,9 @@ every world as a single Warp graph replay, on CPU or GPU. State is exposed zero-
 Launch shapes (see :mod:`magwarp.kernels.step`): small worlds run *fused*, all cycles in one launch: on CUDA up to
 ``REGISTER_MAX_MOVERS`` movers one thread per mover, several worlds a block (:mod:`magwarp.kernels.step_blocks`;
 ``MAGWARP_SMALL_WORLD_KERNEL=registers`` or an actuator: one thread per world), on the CPU one thread per world with
-the whole world in registers up to ``REGISTER_MAX_MOVERS`` movers; larger worlds run two or three kernels per cycle, with a uniform-grid broad phase
-above 32 movers. Per-cycle hooks (e.g. metrics) force the per-cycle shape so that they can run between cycles, still
-inside the same graph. Action latency (:meth:`Simulator.set_latency`, per-world delays of whole cycles) runs inside
+the whole world in registers up to ``REGISTER_MAX_MOVERS`` movers; larger worlds run two or three kernels per cycle,
+with a uniform-grid broad phase above 32 movers. Per-cycle hooks (e.g. metrics) force the per-cycle shape so that
+they can run between cycles, still inside the same graph. Action latency (:meth:`Simulator.set_latency`, per-world delays of whole cycles) runs inside
 the same kernels, compiled in only once it is turned on.
 """
 

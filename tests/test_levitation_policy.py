@@ -221,7 +221,8 @@ def test_verdicts_ask_for_a_margin_of_energy():
 
 
 def test_residual_env_scripted_policy_is_the_zero_correction():
-    """``magwarp eval LevitationResidual --policy scripted`` runs the PD alone (not the PD as a correction to itself)."""
+    """``magwarp eval LevitationResidual --policy scripted`` runs the PD alone (not the PD as a correction to
+    itself)."""
     from magwarp.envs.levitation_residual import LevitationResidualEnv
 
     env = LevitationResidualEnv(2, magnetics=MAG, device="cpu", seed=0)

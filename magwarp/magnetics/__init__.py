@@ -6,8 +6,8 @@ Modules: :mod:`.geometry` (parameters and layouts of magnets and coils), :mod:`.
 :mod:`.exact` (w = Gamma(q) i, the wrench matrix), :mod:`.commutation`, :mod:`.fast` (the cached field table),
 :mod:`.table` (the wrench-table model of the control cycle), :mod:`.cycle` (its look-up and the
 commutation in one launch, a block of threads per mover), :mod:`.thread_cycle` (the same with one thread per mover,
-float64 or float32: what the simulator's drive runs inside its step kernels), :mod:`.reference` (float64 numpy references, the test
-oracles), :mod:`.cache` (the on-disk cache), :mod:`.drive` (the magnetic drive in the simulator:
+float64 or float32: what the simulator's drive runs inside its step kernels), :mod:`.reference` (float64 numpy
+references, the test oracles), :mod:`.cache` (the on-disk cache), :mod:`.drive` (the magnetic drive in the simulator:
 ``Simulator(force_model="magnetic")`` or ``MagneticModel(...)``), :mod:`.actuator` (coil currents as the
 simulator's input: the Levitation env's actuator).
 """

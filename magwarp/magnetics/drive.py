@@ -7,8 +7,8 @@
 (by hand: ``Simulator(..., force_model=magnetic_force, force_aux_dim=AUX_DIM)``, then ``MagneticDrive(sim)``).
 
 Every cycle (inside the step kernels, or a pre-cycle hook: see below; no host sync): the wrench the ideal model
-would apply at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation, the x/y drive
-of the command, the impedance hold) is the wanted wrench; the wrench-table model (:mod:`~magwarp.magnetics.table`)
+would apply at the cycle's starting state (:func:`~magwarp.kernels.impedance.default_force`: gravity compensation,
+the x/y drive of the command, the impedance hold) is the wanted wrench; the wrench-table model (:mod:`~magwarp.magnetics.table`)
 gives each mover's Gamma(q); the commutation gives the least-loss currents within the limits; the realised wrench
 Gamma i acts on the mover and goes into ``force_aux[w, m, 0:6]`` (float32; the hook's :func:`magnetic_force`
 returns it to the integrator). When
@@ -25,8 +25,8 @@ Two ways to run it:
   :class:`~magwarp.kernels.step.Actuator` (:meth:`~magwarp.sim.Simulator.set_actuator`): every cycle of every mover,
   the force model (:func:`~magwarp.kernels.impedance.default_force`) gives the wanted wrench and the one-thread cycle
   (:mod:`~magwarp.magnetics.thread_cycle`, float64 arithmetic by default, float32 columns) the realised one, in the
-  same thread. The step stays the fused one-launch kernel (B0's worlds of 3 movers: one thread per world runs all 40 cycles),
-  captured in the env's graph. ``force_aux`` and the energy follow every cycle; the per-slot currents and coil ids
+  same thread. The step stays the fused one-launch kernel (B0's worlds of 3 movers: one thread per world runs all 40
+  cycles), captured in the env's graph. ``force_aux`` and the energy follow every cycle; the per-slot currents and coil ids
   are written in a step's last cycle (a world that halts early on a collision keeps those of its last full step).
 * ``in_step=False`` (the default): a pre-cycle hook (float64, one block of threads per mover, below).
 

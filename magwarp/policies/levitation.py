@@ -84,7 +84,8 @@ def _clip_norm(x: torch.Tensor, limit: float) -> torch.Tensor:
 class LevitationPD:
     """``policy(obs) -> action`` for a :class:`~magwarp.envs.levitation.LevitationEnv` (batched, on its device)."""
 
-    def __init__(self, env, frequency: float = 15.0, damping: float = 1.0, max_acc: tuple[float, float] = DEFAULT_MAX_ACC):
+    def __init__(self, env, frequency: float = 15.0, damping: float = 1.0,
+                 max_acc: tuple[float, float] = DEFAULT_MAX_ACC):
         self.env = getattr(env, "unwrapped", env)
         try:
             max_acc = tuple(float(v) for v in max_acc)
