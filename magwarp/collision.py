@@ -36,6 +36,7 @@ import torch
 import warp as wp
 
 from magwarp._checks import warp_device
+from magwarp._streams import torch_stream
 from magwarp.kernels import collision as kcol
 from magwarp.layout import Layout
 from magwarp.types import SHAPE_BOX, SHAPE_CIRCLE, Collision
@@ -168,7 +169,7 @@ class CollisionQuery:
             wp_r = wp.from_torch(radius)
             wp_h = wp.from_torch(half, dtype=wp.vec2)
             wp_pair, wp_clear = wp.from_torch(pair, dtype=wp.bool), wp.from_torch(clear)
-            stream = wp.stream_from_torch(torch.cuda.current_stream(dev)) if self.device.is_cuda else None
+            stream = torch_stream(dev) if self.device.is_cuda else None
             with wp.ScopedStream(stream) if stream is not None else contextlib.nullcontext():
                 wp.launch(kcol.query_poses, dim=(n, m), device=self.device,
                           inputs=[self._tiles, col, wp_poses, wp_r, wp_h],

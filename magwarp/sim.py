@@ -23,6 +23,7 @@ import torch
 import warp as wp
 
 from magwarp._checks import as_count, as_finite, check_magnitude, init_warp, stiffness_limit, warp_device
+from magwarp._streams import torch_stream
 from magwarp.kernels import collision as kcol
 from magwarp.kernels import guard as kguard
 from magwarp.kernels import options as kernel_options
@@ -180,7 +181,7 @@ class Simulator:
         self._graphs: dict[int, wp.Graph] = {}
         # On CUDA, Warp launches on torch's current stream so that kernels and torch ops on the state are ordered
         # without any host synchronisation.
-        self._stream = wp.stream_from_torch(torch.cuda.current_stream(self.torch_device)) if self.device.is_cuda else None
+        self._stream = torch_stream(self.torch_device) if self.device.is_cuda else None
 
         start = self._start_arrays(num_movers, start_xy, start_yaw, start_pose)
         self.num_movers = start.shape[1]

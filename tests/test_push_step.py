@@ -165,6 +165,25 @@ def test_time_to_success_freezes_after_the_same_time_at_two_ms():
     assert env.metrics.t["streak"].item() == 75
 
 
+@pytest.mark.skipif(not wp.is_cuda_available() or not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_push_t_step_is_recorded_as_a_graph():
+    """Push-T's task work launches the coverage kernel on torch's stream: the capture must end on a registered stream
+    (a temporary ``wp.stream_from_torch`` wrapper, once collected, unregistered it: "unknown capture stream")."""
+    import warnings
+
+    from magwarp._streams import torch_stream
+    from magwarp.envs.push import PushTEnv
+
+    assert torch_stream("cuda:0") is torch_stream("cuda:0")
+    env = PushTEnv(8, device="cuda:0", seed=0)
+    env.reset(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        for act in _random_actions(env, 3):
+            env.step(act)
+    assert env._task_graph is not None and env._task_graph.graph is not None and not env._task_graph.failed
+
+
 def test_task_graph_outputs_are_fresh_copies_and_cuda_only():
     from magwarp.envs.step_graph import TaskGraph, clone_outputs
 

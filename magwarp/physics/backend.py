@@ -19,6 +19,7 @@ import torch
 import warp as wp
 
 from magwarp._checks import MAGNITUDE_MAX
+from magwarp._streams import torch_stream
 from magwarp.physics.control import (
     YawDrive,
     copy_rows_masked_kernel,
@@ -186,7 +187,7 @@ class MjwBackend:
         # On CUDA, launch on torch's current stream so Warp kernels and torch ops on the views are ordered without
         # host synchronisation (the same convention as magwarp.sim).
         self._stream = (
-            wp.stream_from_torch(torch.cuda.current_stream(torch.device(str(self.device)))) if self.device.is_cuda else None
+            torch_stream(str(self.device)) if self.device.is_cuda else None
         )
 
         self.mjm = xml if isinstance(xml, mujoco.MjModel) else mujoco.MjModel.from_xml_string(xml)

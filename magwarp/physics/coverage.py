@@ -20,6 +20,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp._streams import torch_stream
 __all__ = ["ShapeTable", "coverage", "shape_parts"]
 
 vec8 = wp.types.vector(length=8, dtype=float)
@@ -188,7 +189,7 @@ def coverage(achieved: torch.Tensor, desired: torch.Tensor, obj, shape_index: to
         index = wp.from_torch(idx)
     out = torch.empty(a.shape[0], dtype=torch.float32, device=a.device)
     if a.shape[0]:
-        stream = wp.stream_from_torch(torch.cuda.current_stream(a.device)) if a.device.type == "cuda" else None
+        stream = torch_stream(a.device) if a.device.type == "cuda" else None
         wp.launch(coverage_kernel, dim=a.shape[0],
                   inputs=[table.parts, table.radius, table.area, index, wp.from_torch(a, dtype=wp.vec3),
                           wp.from_torch(g, dtype=wp.vec3)],

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp._streams import torch_stream
 from magwarp.layout import MoverSpec
 from magwarp.render import colors
 from magwarp.render.arrays import as_tensor, per_world, to_numpy_image, warp_device
@@ -253,7 +254,7 @@ class CoilCurrentRenderer:
                   self.border, float(self.px_per_m), half, self.current_limit, self._anchors, self._palette,
                   wp.from_torch(cur), wp.from_torch(movers, dtype=wp.vec4)]
         if self.device.is_cuda:
-            with wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(td))):
+            with wp.ScopedStream(torch_stream(td)):
                 wp.launch(draw_coil_currents, dim=(self.height, self.width), inputs=inputs, outputs=[self._image],
                           device=self.device)
         else:

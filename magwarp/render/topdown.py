@@ -22,6 +22,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp._streams import torch_stream
 from magwarp.layout import Layout, MoverSpec
 from magwarp.render import colors
 from magwarp.render import kernels as K
@@ -400,7 +401,7 @@ class TopDownRenderer:
         self._keep = (pos_t, rot_t, flags_t, radii_t, half_t, goals_t, obj_t, objg_t, obst_t, shape_t, state_t)
         if self.device.is_cuda:
             # Launch on torch's current stream so the frame is ordered with the caller's torch work.
-            with wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(td))):
+            with wp.ScopedStream(torch_stream(td)):
                 self._launch(inputs, pos_t, goals_t, bins)
         else:
             self._launch(inputs, pos_t, goals_t, bins)

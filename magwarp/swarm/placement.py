@@ -25,6 +25,7 @@ import torch
 import warp as wp
 from scipy import ndimage
 
+from magwarp._streams import torch_stream
 from magwarp.kernels import placement as kpl
 from magwarp.kernels.collision import footprints_on_tiles
 from magwarp.layout import Layout, LayoutError, MoverSpec
@@ -54,7 +55,7 @@ def torch_stream(device):
     device = wp.get_device(device)
     if not device.is_cuda:
         return contextlib.nullcontext()
-    return wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(torch.device("cuda", device.ordinal))))
+    return wp.ScopedStream(torch_stream(torch.device("cuda", device.ordinal)))
 
 
 def _collision(layout: Layout, mover: MoverSpec) -> Collision:

@@ -1,0 +1,34 @@
+"""Warp's view of torch's current CUDA stream, one wrapper per CUDA stream for the whole process.
+
+magwarp launches Warp kernels on torch's current stream, so that they are ordered with the torch operations on the
+same tensors without host synchronisation. ``wp.stream_from_torch`` makes a new, non-owning ``wp.Stream`` at each
+call, and when such a wrapper is garbage collected Warp unregisters its CUDA stream from its stream table (keyed by the
+CUDA handle, whichever wrapper registered it). A temporary wrapper of the stream a CUDA graph is being captured on
+thus makes the capture's end fail ("Warp error: unknown capture stream"), and one of torch's default stream drops the
+registration that a long-lived wrapper (a simulator's) relies on. :func:`torch_stream` returns Warp's current stream
+when it is torch's (inside a capture, :func:`magwarp.envs.step_graph.record_cuda_graph` makes it so), else one cached
+wrapper per CUDA stream that lives as long as the process.
+"""
+
+from __future__ import annotations
+
+import torch
+import warp as wp
+
+__all__ = ["torch_stream"]
+
+_WRAPPERS: dict[tuple[int, int], wp.Stream] = {}
+
+
+def torch_stream(device) -> wp.Stream:
+    """The ``wp.Stream`` of torch's current stream on the CUDA ``device`` (a torch device, or its name)."""
+    stream = torch.cuda.current_stream(torch.device(device))
+    wdev = wp.device_from_torch(stream.device)
+    current = wdev.stream
+    if current.cuda_stream == stream.cuda_stream:
+        return current
+    key = (wdev.ordinal, int(stream.cuda_stream))
+    wrapper = _WRAPPERS.get(key)
+    if wrapper is None:
+        wrapper = _WRAPPERS[key] = wp.stream_from_torch(stream)
+    return wrapper
