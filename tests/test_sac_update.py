@@ -144,3 +144,35 @@ def test_a_two_mlp_run_resumes_with_the_ensemble(tmp_path):
     resumed = torch.load(path, weights_only=False)
     assert "net.0.weight" in resumed["critic"] and resumed["args"]["critic_impl"] == "ensemble"
     assert resumed["updates"] > ckpt["updates"]
+
+
+def test_compiled_losses_follow_the_eager_ones():
+    """``--compile on`` (torch.compile of both losses; the actor's noise from torch's generator as eagerly)."""
+    eager, compiled = _learner("--policy-delay", "2"), _learner("--policy-delay", "2", "--compile", "on")
+    a, b = _train(eager, range(2)), _train(compiled, range(2))
+    for x, y in zip(a, b):
+        assert y == pytest.approx(x, rel=1e-5, abs=1e-6)
+    for k, v in _pair_weights(eager).items():
+        torch.testing.assert_close(_pair_weights(compiled)[k], v, rtol=1e-5, atol=1e-6, msg=k)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
+@pytest.mark.parametrize("options", [("--critic-impl", "pair", "--adam", "foreach"), ("--amp", "bf16")])
+def test_graphed_updates_match_eager_ones_for_every_option(options):
+    """As ``test_training.py``'s graphed test (the defaults), for the other critic and optimiser and for bf16."""
+    weights = {}
+    for mode in ("off", "on"):
+        args = sac_her.resolve_args(sac_her.parse_args(["--env-id", TINY_ENV, "--device", "cuda", "--total-steps", "1",
+                                                        "--hidden", "32,32", "--cuda-graph", mode, *options]))
+        torch.manual_seed(0)
+        learner = sac_her.SacLearner(N_OBS, N_ACT, args, torch.device("cuda"))
+        assert learner.graphed == (mode == "on")
+        torch.manual_seed(1)
+        for seed in range(3):  # the first call captures, the later ones replay on freshly staged minibatches
+            sample = {k: v.cuda() for k, v in _sample(8 * 64, seed).items()}
+            losses = learner.learn(sample, 8)
+        torch.cuda.synchronize()
+        weights[mode] = {k: v.cpu() for k, v in _pair_weights(learner).items()}
+        assert all(torch.isfinite(v) for v in losses.values())
+    for k, v in weights["off"].items():
+        torch.testing.assert_close(weights["on"][k], v, atol=1e-4, rtol=1e-3, msg=k)

@@ -52,7 +52,7 @@ PRESETS = {
     "default": dict(num_envs=4096, buffer_steps=1000, batch_size=4096, updates_per_step=64, learning_starts=10,
                     gamma=0.95, tau=0.01, lr=5e-4, lr_schedule="linear", init_alpha=0.1, her_ratio=0.8,
                     hidden="256,256,256", policy_delay=1, demo_episodes=0, demo_share=0.0,
-                    demo_bc=0.0, critic_impl="ensemble", adam="fused", amp="off"),
+                    demo_bc=0.0, critic_impl="ensemble", adam="fused", amp="off", compile="off"),
     "TrajectoryPlanning": dict(gamma=0.99, her_ratio=0.5),
 }
 
@@ -89,6 +89,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="Adam implementation: fused (one kernel per optimiser step) or foreach")
     p.add_argument("--amp", choices=("off", "bf16"), default=None,
                    help="bf16 autocast of the networks' matmuls in the updates and the rollout (outputs in float32)")
+    p.add_argument("--compile", choices=("off", "on"), default=None,
+                   help="torch.compile the update's losses (forward and backward; the compilation counts against "
+                        "the budget)")
     p.add_argument("--cuda-graph", choices=("auto", "on", "off"), default="auto",
                    help="replay each update as a captured CUDA graph (auto: on CUDA devices, off under torchrun)")
     return p.parse_args(argv)
@@ -200,7 +203,8 @@ class SacLearner:
     captured graph replayed ``U / policy_delay`` times: no Python or kernel-launch cost per update beyond the replay
     call. An update is latency-bound at the preset's sizes (many small kernels), so the options that matter cut
     kernels: ``--critic-impl ensemble`` (both Q heads in one batched matmul per layer), ``--adam fused`` (one kernel
-    per optimiser step instead of a dozen foreach ones); ``--amp bf16`` runs the networks' matmuls in bf16.
+    per optimiser step instead of a dozen foreach ones); ``--amp bf16`` runs the networks' matmuls in bf16,
+    ``--compile on`` compiles the losses (their small ops fused).
     ``benchmarks/sac_update.py`` times them.
     """
 
@@ -228,6 +232,13 @@ class SacLearner:
         self.actor_opt, self.critic_opt, self.alpha_opt = self.optimizers = [
             torch.optim.Adam(p, lr=args.lr, fused=self.fused_adam) for p in params]
         self._configure_optimizers()
+        self.compiled = (getattr(args, "compile", None) or "off") == "on"
+        if self.compiled:
+            import torch._inductor.config as inductor_config
+
+            inductor_config.fallback_random = True  # the actor's noise from torch's generator, as eager draws it
+        compile_fn = torch.compile if self.compiled else (lambda f: f)
+        self._critic_loss_fn, self._actor_losses_fn = compile_fn(self._critic_loss), compile_fn(self._actor_losses)
         self.stage = torch.zeros(0, device=device)  # [U, batch, columns]: the staged minibatches (see _columns)
         self._columns: dict[str, slice | int] = {}
         self.cursor = torch.zeros(1, dtype=torch.int64, device=device)
@@ -301,14 +312,32 @@ class SacLearner:
         self.cursor.add_(1)
         return {k: row[:, c] for k, c in self._columns.items()}  # column views: no copies
 
-    def _critic_step(self, mb: dict) -> torch.Tensor:
-        alpha = self.log_alpha.exp().detach()
+    def _critic_loss(self, mb: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The clipped double-Q regression loss of the minibatch (``--compile on`` compiles this function)."""
         with torch.no_grad():
+            alpha = self.log_alpha.exp()
             a2, logp2 = self.actor(mb["x2"])
             q_next = q_min(self.critic_target(torch.cat([mb["x2"], a2], -1)))
             target = mb["reward"] + self.args.gamma * mb["not_done"] * (q_next - alpha * logp2)
-        q_loss = q_regression_loss(self.critic(mb["xa"]), target)
-        self.critic_opt.zero_grad(set_to_none=False)  # in place: a captured graph keeps its gradient buffers
+        return q_regression_loss(self.critic(mb["xa"]), target)
+
+    def _actor_losses(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """The policy loss (through the critic, whose weights the caller freezes) and the temperature's loss
+        (``--compile on`` compiles this function)."""
+        x = mb["x"]
+        a, logp = self.actor(x)
+        q_pi = q_min(self.critic(torch.cat([x, a], -1)))
+        pi_loss = (self.log_alpha.exp().detach() * logp - q_pi).mean()
+        if self.args.demo_bc > 0:
+            pi_loss = pi_loss + self.args.demo_bc * self._bc_loss(x, mb, q_pi.detach())
+        alpha_loss = -(self.log_alpha * (logp.detach() + self.target_entropy)).mean()
+        return pi_loss, alpha_loss
+
+    def _critic_step(self, mb: dict[str, torch.Tensor]) -> torch.Tensor:
+        q_loss = self._critic_loss_fn(mb)
+        # Gradients set to None, not zeroed: the backward pass then writes them (no zero and accumulate kernels); a
+        # captured graph allocates them from its pool and every replay writes the same buffers.
+        self.critic_opt.zero_grad(set_to_none=True)
         q_loss.backward()
         dist.average_gradients(self.critic.parameters())  # torchrun: the mean over all ranks' minibatches
         self.critic_opt.step()
@@ -320,16 +349,10 @@ class SacLearner:
         """The policy and the temperature from one backward pass: the policy loss reaches the actor only (the critic's
         weights are frozen, the temperature detached), the temperature's loss only ``log_alpha`` (the log-probability
         detached), so the sum's gradients are each loss's own."""
-        x = mb["x"]
         self.critic.requires_grad_(False)  # the policy loss differentiates through Q into the actor only
-        a, logp = self.actor(x)
-        q_pi = q_min(self.critic(torch.cat([x, a], -1)))
-        pi_loss = (self.log_alpha.exp().detach() * logp - q_pi).mean()
-        if self.args.demo_bc > 0:
-            pi_loss = pi_loss + self.args.demo_bc * self._bc_loss(x, mb, q_pi.detach())
-        alpha_loss = -(self.log_alpha * (logp.detach() + self.target_entropy)).mean()
-        self.actor_opt.zero_grad(set_to_none=False)
-        self.alpha_opt.zero_grad(set_to_none=False)
+        pi_loss, alpha_loss = self._actor_losses_fn(mb)
+        self.actor_opt.zero_grad(set_to_none=True)
+        self.alpha_opt.zero_grad(set_to_none=True)
         (pi_loss + alpha_loss).backward()
         dist.average_gradients([*self.actor.parameters(), self.log_alpha])
         self.actor_opt.step()
