@@ -368,7 +368,7 @@ class SacLearner:
         if "demo" not in mb:
             raise ValueError("--demo-bc needs demonstrations in the replay buffer (--demo-episodes or --demo-share)")
         with torch.no_grad():
-            keep = mb["demo"] * (q_min(self.critic(mb["xa"])) > q_pi).float()
+            keep = mb["demo"] * (q_min(self.critic(x, mb["action"])) > q_pi).float()
         mean_action = self.actor(x, deterministic=True)[0]
         err = (mean_action - mb["action"]).square().sum(-1)
         return (keep * err).sum() / mb["demo"].sum().clamp_min(1.0)

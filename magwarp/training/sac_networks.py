@@ -74,7 +74,8 @@ def _q_mlp(n_in: int, hidden: list[int]) -> nn.Sequential:
 
 
 class Critic(nn.Module):
-    """Two Q networks (clipped double Q) as two MLPs. ``forward([x, a]) -> (q1, q2)``, each ``[B]``."""
+    """Two Q networks (clipped double Q) as two MLPs. ``forward([x, a]) -> (q1, q2)``, each ``[B]``; ``forward(x, a)``
+    the same."""
 
     def __init__(self, n_in: int, hidden: list[int], amp: str = "off"):
         super().__init__()
@@ -82,7 +83,9 @@ class Critic(nn.Module):
         self.q2 = _q_mlp(n_in, hidden)
         self.amp = amp
 
-    def forward(self, xa: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, xa: torch.Tensor, a: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Q values of ``[x, a]`` (given joined, or as ``x`` and ``a``)."""
+        xa = xa if a is None else torch.cat([xa, a], -1)
         with autocast(xa.device, self.amp):
             return self.q1(xa).float().squeeze(-1), self.q2(xa).float().squeeze(-1)
 
@@ -151,7 +154,9 @@ class EnsembleCritic(nn.Module):
         self.net = nn.Sequential(*layers)
         self.amp = amp
 
-    def forward(self, xa: torch.Tensor) -> torch.Tensor:
+    def forward(self, xa: torch.Tensor, a: torch.Tensor | None = None) -> torch.Tensor:
+        """Q values ``[2, B]`` of ``[x, a]`` (given joined, or as ``x`` and ``a``)."""
+        xa = xa if a is None else torch.cat([xa, a], -1)
         with autocast(xa.device, self.amp):
             return self.net(xa).float().squeeze(-1)
 
