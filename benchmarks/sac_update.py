@@ -11,7 +11,8 @@ their summed device time against the wall time per update (on CUDA: kernels laun
 summed time far below the wall time means the update is latency-bound, not FLOP-bound). On the CPU the count is of
 leaf ATen ops (an eager update's op count, what would be kernels on a GPU).
 
-    python benchmarks/sac_update.py --device cuda:0 --json sac_update_gpu.json     # the defaults below, one H100
+    python benchmarks/sac_update.py --device cuda:0 --json sac_update_gpu.json     # every variant and batch size
+    python benchmarks/sac_update.py --device cuda:0 --variants base,default,compile@4096 --json sac_update_gpu.json
     python benchmarks/sac_update.py --smoke                                          # CPU check, small sizes
 
 Network sizes: Push-Box (``magwarp/PushBox-v0``, one mover without rotation or jerk): observation 4, achieved and
@@ -160,7 +161,9 @@ def measure(variant: str, batch: int, args: argparse.Namespace, device: str) -> 
         losses = learner.learn(sample, args.minibatches)
     _sync(device)
     ms = 1000.0 * (time.perf_counter() - t) / (args.rounds * args.minibatches)
-    row = {"device": device, "task": args.task, "variant": variant, **VARIANTS[variant], "batch": batch,
+    row = {"device": device, "task": args.task, "variant": variant, "critic_impl": learner.critic_impl,
+           "adam": "fused" if learner.fused_adam else "foreach", "amp": learner.actor.amp,
+           "compile": "on" if learner.compiled else "off", "batch": batch,
            "minibatches": args.minibatches, "hidden": args.hidden, "graphed": learner.graphed,
            "rounds": args.rounds, "first_call_s": first_s, "ms_per_update": ms, "updates_per_s": 1000.0 / ms,
            "loss_q": float(losses["loss_q"]), "loss_pi": float(losses["loss_pi"]),
@@ -181,7 +184,7 @@ def main(argv=None) -> int:
                    help=f"comma separated, of {sorted(VARIANTS)} (default: all; --smoke: those the CPU runs fast)")
     p.add_argument("--minibatches", type=int, default=64, help="updates per learn() call (the preset's U)")
     p.add_argument("--hidden", default="256,256,256")
-    p.add_argument("--rounds", type=int, default=10, help="timed learn() calls per (variant, batch)")
+    p.add_argument("--rounds", type=int, default=5, help="timed learn() calls per (variant, batch)")
     p.add_argument("--no-profile", dest="profile", action="store_false", help="no kernel counts")
     p.add_argument("--smoke", action="store_true", help="CPU check: small sizes (overrides the sizes above)")
     p.add_argument("--json", default=None)
@@ -189,19 +192,22 @@ def main(argv=None) -> int:
     if args.smoke:
         args.device, args.batch_sizes, args.minibatches, args.hidden, args.rounds = "cpu", "64,256", 4, "64,64", 2
         args.variants = args.variants or "base,ensemble,fused,default,bf16"
-    variants = args.variants.split(",") if args.variants else list(VARIANTS)
-    unknown = [v for v in variants if v not in VARIANTS]
-    if unknown:
-        raise SystemExit(f"unknown variants {unknown}: choose from {sorted(VARIANTS)}")
     batches = [int(b) for b in args.batch_sizes.split(",")]
+    # "name" runs at every batch size, "name@4096/8192" at those only (compiling costs tens of seconds per size)
+    variants: list[tuple[str, list[int]]] = []
+    for spec in args.variants.split(",") if args.variants else list(VARIANTS):
+        name, _, only = spec.partition("@")
+        if name not in VARIANTS:
+            raise SystemExit(f"unknown variant {name!r}: choose from {sorted(VARIANTS)}")
+        variants.append((name, [int(b) for b in only.split("/")] if only else batches))
     info, devices = start_run(args.device)
     rows = []
     for device in devices:
         if device.startswith("cuda"):
             torch.set_float32_matmul_precision("high")  # what training sets on CUDA (make_env): TF32 matmuls
-        for batch in batches:
-            for variant in variants:
-                if "cuda_graph" in VARIANTS[variant] and not device.startswith("cuda"):
+        for batch in sorted({b for _, sizes in variants for b in sizes}):
+            for variant, sizes in variants:
+                if batch not in sizes or ("cuda_graph" in VARIANTS[variant] and not device.startswith("cuda")):
                     continue  # eager is what the CPU runs anyway
                 rows.append(measure(variant, batch, args, device))
                 print(f"  {device} {variant:>14} batch {batch:>5}: {rows[-1]['ms_per_update']:.3f} ms/update",
