@@ -36,9 +36,10 @@ from common import finish, start_run  # noqa: E402
 
 # (observation, achieved goal, desired goal, actions) per task: see the module docstring
 TASK_DIMS = {"pushbox": (4, 2, 2, 2), "pusht": (6, 4, 4, 2)}
-# name -> SacLearner options (the command-line names of magwarp.training.sac_her); "base" is the update's networks
-# and optimiser before the ensemble (two MLPs, foreach Adam), "default" the preset's
+# name -> SacLearner options (the command-line names of magwarp.training.sac_her); "main" is main's update before
+# this work, "base" today's update with main's networks and optimiser (two MLPs, foreach Adam), "default" the preset
 VARIANTS = {
+    "main": {"critic_impl": "pair", "adam": "foreach", "amp": "off"},  # main's update (see _main_learner_class)
     "base": {"critic_impl": "pair", "adam": "foreach", "amp": "off"},
     "ensemble": {"critic_impl": "ensemble", "adam": "foreach", "amp": "off"},
     "fused": {"critic_impl": "pair", "adam": "fused", "amp": "off"},
@@ -46,7 +47,7 @@ VARIANTS = {
     "bf16": {"critic_impl": "ensemble", "adam": "fused", "amp": "bf16"},
     "compile": {"critic_impl": "ensemble", "adam": "fused", "amp": "off", "compile": "on"},
     "default-eager": {"critic_impl": "ensemble", "adam": "fused", "amp": "off", "cuda_graph": "off"},
-    "base-eager": {"critic_impl": "pair", "adam": "foreach", "amp": "off", "cuda_graph": "off"},
+    "main-eager": {"critic_impl": "pair", "adam": "foreach", "amp": "off", "cuda_graph": "off"},
 }
 COLUMNS = ["device", "variant", "batch", "graphed", ("first_call_s", "first call s"), ("ms_per_update", "ms/update"), ("updates_per_s", "updates/s"),
            ("kernels_per_update", "kernels/update"), ("kernel_ms_per_update", "kernel ms/update"),
@@ -56,6 +57,66 @@ COLUMNS = ["device", "variant", "batch", "graphed", ("first_call_s", "first call
 def _sync(device: str) -> None:
     if device.startswith("cuda"):
         torch.cuda.synchronize(device)
+
+
+def _main_learner_class():
+    """``SacLearner`` with main's update as of commit 3b4b43c (before this benchmark's options), for the ``main``
+    variant: every staged key picked by its own ``index_select``, the observations normalised in every update, the
+    gradients zeroed and accumulated, the temperature from its own backward pass (with two MLPs and foreach Adam)."""
+    import torch.nn.functional as F
+
+    from magwarp.training import sac_her
+    from magwarp.training.common import OBS_KEYS
+
+    class MainLearner(sac_her.SacLearner):
+        def _stage(self, sample, num_minibatches):
+            if not isinstance(self.stage, dict):
+                self.stage = {}
+            for k, v in sample.items():
+                v = v.reshape(num_minibatches, -1, *v.shape[1:])
+                if k in self.stage and self.stage[k].shape == v.shape:
+                    self.stage[k].copy_(v)
+                else:
+                    self.stage[k], self._graph = v.clone(), None
+
+        def _next_minibatch(self):
+            mb = {k: v.index_select(0, self.cursor)[0] for k, v in self.stage.items()}
+            self.cursor.add_(1)
+            return mb
+
+        def _update_unit(self):
+            for _ in range(self.args.policy_delay):
+                mb = self._next_minibatch()
+                x = self.norm({k: mb[k] for k in OBS_KEYS})
+                x2 = self.norm({k: mb["next_" + k] for k in OBS_KEYS})
+                alpha = self.log_alpha.exp().detach()
+                with torch.no_grad():
+                    a2, logp2 = self.actor(x2)
+                    q1t, q2t = self.critic_target(x2, a2)
+                    not_done = (~mb["terminated"]).float()
+                    target = mb["reward"] + self.args.gamma * not_done * (torch.min(q1t, q2t) - alpha * logp2)
+                q1, q2 = self.critic(x, mb["action"])
+                q_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
+                self.critic_opt.zero_grad(set_to_none=False)
+                q_loss.backward()
+                self.critic_opt.step()
+                with torch.no_grad():
+                    torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()),
+                                         self.args.tau)
+            self.critic.requires_grad_(False)
+            a, logp = self.actor(x)
+            pi_loss = (self.log_alpha.exp().detach() * logp - torch.min(*self.critic(x, a))).mean()
+            self.actor_opt.zero_grad(set_to_none=False)
+            pi_loss.backward()
+            self.actor_opt.step()
+            self.critic.requires_grad_(True)
+            alpha_loss = -(self.log_alpha * (logp.detach() + self.target_entropy)).mean()
+            self.alpha_opt.zero_grad(set_to_none=False)
+            alpha_loss.backward()
+            self.alpha_opt.step()
+            return {"loss_q": q_loss.detach(), "loss_pi": pi_loss.detach()}
+
+    return MainLearner
 
 
 def make_learner(variant: str, batch: int, hidden: str, dims: tuple[int, ...], device: str):
@@ -70,7 +131,8 @@ def make_learner(variant: str, batch: int, hidden: str, dims: tuple[int, ...], d
     args = sac_her.resolve_args(sac_her.parse_args(argv))
     torch.manual_seed(0)
     n_obs = dims[0] + dims[1] + dims[2]
-    return sac_her.SacLearner(n_obs, dims[3], args, torch.device(device))
+    cls = _main_learner_class() if variant.startswith("main") else sac_her.SacLearner
+    return cls(n_obs, dims[3], args, torch.device(device))
 
 
 def make_sample(n: int, dims: tuple[int, ...], device: str, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -191,7 +253,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.smoke:
         args.device, args.batch_sizes, args.minibatches, args.hidden, args.rounds = "cpu", "64,256", 4, "64,64", 2
-        args.variants = args.variants or "base,ensemble,fused,default,bf16"
+        args.variants = args.variants or "main,base,ensemble,fused,default,bf16"
     batches = [int(b) for b in args.batch_sizes.split(",")]
     # "name" runs at every batch size, "name@4096/8192" at those only (compiling costs tens of seconds per size)
     variants: list[tuple[str, list[int]]] = []
