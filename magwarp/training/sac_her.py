@@ -1,4 +1,5 @@
-"""SAC + hindsight experience replay (HER) on a batched magwarp env, torch-native and CleanRL-style (one file).
+"""SAC + hindsight experience replay (HER) on a batched magwarp env, torch-native and CleanRL-style (one file, its
+networks in :mod:`magwarp.training.sac_networks`).
 
 The replay buffer lives on the env's device as ``[time, env]`` rings. HER uses the *future* strategy over the episode
 storage: a sampled transition of env ``e`` at time ``t`` gets, with probability ``--her-ratio``, the goal achieved at a
