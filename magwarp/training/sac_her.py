@@ -260,7 +260,7 @@ class SacLearner:
     def load_state_dict(self, ckpt: dict) -> None:
         """A checkpoint's networks and optimisers; a critic saved in the other layout (``--critic-impl``: a
         checkpoint written before the ensemble has two MLPs ``q1``/``q2``) is converted, its Adam moments too."""
-        where = self.args.resume or "the checkpoint"
+        where = getattr(self.args, "resume", None) or "the checkpoint"
         try:
             have = critic_layout(ckpt["critic"])
             if have != self.critic_impl:
