@@ -49,7 +49,8 @@ VARIANTS = {
     "default-eager": {"critic_impl": "ensemble", "adam": "fused", "amp": "off", "cuda_graph": "off"},
     "main-eager": {"critic_impl": "pair", "adam": "foreach", "amp": "off", "cuda_graph": "off"},
 }
-COLUMNS = ["device", "variant", "batch", "graphed", ("first_call_s", "first call s"), ("ms_per_update", "ms/update"), ("updates_per_s", "updates/s"),
+COLUMNS = ["device", "variant", "batch", "graphed", ("first_call_s", "first call s"), ("ms_per_update", "ms/update"),
+           ("updates_per_s", "updates/s"),
            ("kernels_per_update", "kernels/update"), ("kernel_ms_per_update", "kernel ms/update"),
            ("busy_share", "kernel time/wall"), ("eager_kernels_per_update", "eager kernels"), ("loss_q", "loss_q")]
 
