@@ -392,18 +392,23 @@ class PhaseTimer:
                 for k, v in self.seconds.items()}
 
 
-def configure_adam(optimizers, graphed: bool, device) -> None:
+def configure_adam(optimizers, graphed: bool, device, fused: bool = False) -> None:
     """Capturable Adam (device step counters, a tensor lr that a captured graph reads) when ``graphed``; plain floats
-    otherwise. Also after loading a state saved the other way (a run may resume graphed or eager)."""
+    otherwise; the fused implementation (one kernel per step, its step counters on the device) when ``fused``. Also
+    after loading a state saved another way (a run may resume graphed or eager; a loaded state's options win over the
+    optimiser's own, so they are set again here)."""
     device = torch.device(device)
     for opt in optimizers:
         for group in opt.param_groups:
             lr = float(group["lr"])
             group["capturable"] = graphed
             group["lr"] = torch.tensor(lr, device=device) if graphed else lr
+            group["fused"] = bool(fused)
+            if fused:
+                group["foreach"] = None  # fused and foreach exclude each other
         for state in opt.state.values():
             if "step" in state:
-                state["step"] = state["step"].to(device if graphed else "cpu", torch.float32)
+                state["step"] = state["step"].to(device if graphed or fused else "cpu", torch.float32)
 
 
 def set_lr(optimizers, value: float) -> None:

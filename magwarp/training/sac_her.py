@@ -1,4 +1,5 @@
-"""SAC + hindsight experience replay (HER) on a batched magwarp env, torch-native and CleanRL-style (one file).
+"""SAC + hindsight experience replay (HER) on a batched magwarp env, torch-native and CleanRL-style (one file, its
+networks in :mod:`magwarp.training.sac_networks`).
 
 The replay buffer lives on the env's device as ``[time, env]`` rings. HER uses the *future* strategy over the episode
 storage: a sampled transition of env ``e`` at time ``t`` gets, with probability ``--her-ratio``, the goal achieved at a
@@ -30,16 +31,15 @@ import os
 import sys
 
 import torch
-import torch.nn.functional as F
-from torch import nn
-
 
 from magwarp.training import distributed as dist
 from magwarp.training.common import (OBS_KEYS, RunningMeanStd, configure_adam, flatten_obs, load_checkpoint,
                                      save_checkpoint, set_lr)
 from magwarp.training.demos import ScriptedDemos
 from magwarp.training.loop import Session, add_run_args, entry_point, open_env, resolve_run_args, run_training
-from magwarp.training.policy import mlp, save_policy
+from magwarp.training.policy import save_policy
+from magwarp.training.sac_networks import (CRITIC_IMPLS, Actor, convert_critic_optimizer, convert_critic_state,
+                                           critic_layout, make_critic, q_min, q_regression_loss)
 
 DEFAULT_ENV = "magwarp/PushBox-v0"
 
@@ -53,7 +53,7 @@ PRESETS = {
     "default": dict(num_envs=4096, buffer_steps=1000, batch_size=4096, updates_per_step=64, learning_starts=10,
                     gamma=0.95, tau=0.01, lr=5e-4, lr_schedule="linear", init_alpha=0.1, her_ratio=0.8,
                     hidden="256,256,256", policy_delay=1, demo_episodes=0, demo_share=0.0,
-                    demo_bc=0.0),
+                    demo_bc=0.0, critic_impl="ensemble", adam="fused", amp="off", compile="off"),
     "TrajectoryPlanning": dict(gamma=0.99, her_ratio=0.5),
 }
 
@@ -83,6 +83,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--demo-bc", type=float, default=None,
                    help="weight of a Q-filtered behaviour-cloning term on the demonstrations in the actor loss "
                         "(0: none; needs --demo-episodes or --demo-share)")
+    p.add_argument("--critic-impl", choices=CRITIC_IMPLS, default=None,
+                   help="the twin critics as one ensemble network (both Q heads in one batched matmul per layer) or "
+                        "as two MLPs (the same maths; checkpoints of either layout load into the other)")
+    p.add_argument("--adam", choices=("fused", "foreach"), default=None,
+                   help="Adam implementation: fused (one kernel per optimiser step) or foreach")
+    p.add_argument("--amp", choices=("off", "bf16"), default=None,
+                   help="bf16 autocast of the networks' matmuls in the updates and the rollout (outputs in float32)")
+    p.add_argument("--compile", choices=("off", "on"), default=None,
+                   help="torch.compile the update's losses (forward and backward; the compilation counts against "
+                        "the budget)")
     p.add_argument("--cuda-graph", choices=("auto", "on", "off"), default="auto",
                    help="replay each update as a captured CUDA graph (auto: on CUDA devices, off under torchrun)")
     return p.parse_args(argv)
@@ -184,64 +194,30 @@ class HerReplayBuffer:
         return out
 
 
-# ------------------------------------------------------------------------------------------------ networks
-class Actor(nn.Module):
-    def __init__(self, n_obs: int, n_act: int, hidden: list[int]):
-        super().__init__()
-        self.net = mlp(n_obs, hidden, 2 * n_act, act=nn.ReLU)
-        self.n_act = n_act
-
-    def forward(self, x: torch.Tensor, deterministic: bool = False):
-        mu, log_std = self.net(x).split(self.n_act, dim=-1)
-        log_std = log_std.clamp(-5.0, 2.0)
-        if deterministic:
-            return torch.tanh(mu), None
-        eps = torch.randn_like(mu)
-        u = mu + log_std.exp() * eps
-        a = torch.tanh(u)
-        logp = (-0.5 * eps.square() - log_std - 0.9189385332046727).sum(-1)
-        logp = logp - (2 * (0.6931471805599453 - u - F.softplus(-2 * u))).sum(-1)  # tanh correction
-        return a, logp
-
-    def mean_net(self) -> nn.Sequential:
-        """A copy that outputs only the pre-tanh mean (what the exported policy runs)."""
-        net = copy.deepcopy(self.net)
-        last = net[-1]
-        head = nn.Linear(last.in_features, self.n_act)
-        with torch.no_grad():
-            head.weight.copy_(last.weight[: self.n_act])
-            head.bias.copy_(last.bias[: self.n_act])
-        net[-1] = head
-        return net
-
-
-class Critic(nn.Module):
-    """Two Q networks (clipped double Q), with layer norm for stability at large batches."""
-
-    def __init__(self, n_obs: int, n_act: int, hidden: list[int]):
-        super().__init__()
-        self.q1 = mlp(n_obs + n_act, hidden, 1, act=nn.ReLU, layer_norm=True)
-        self.q2 = mlp(n_obs + n_act, hidden, 1, act=nn.ReLU, layer_norm=True)
-
-    def forward(self, x, a):
-        xa = torch.cat([x, a], -1)
-        return self.q1(xa).squeeze(-1), self.q2(xa).squeeze(-1)
-
-
 class SacLearner:
     """The networks, their optimisers and the SAC update (clipped double Q, auto-tuned entropy temperature).
 
-    :meth:`learn` takes one relabelled sample of ``U x batch_size`` transitions, stages it as ``U`` minibatches, and
-    runs ``U`` critic updates (an actor and temperature update after every ``policy_delay`` of them). Each update
-    picks its minibatch through a device counter, so the same code runs eagerly or, on CUDA, as one captured graph
-    replayed ``U / policy_delay`` times: no Python or kernel-launch cost per update beyond the replay call.
+    :meth:`learn` takes one relabelled sample of ``U x batch_size`` transitions, normalises its observations once
+    (the normaliser does not move while it learns), stages it as ``U`` minibatches packed in one tensor, and runs
+    ``U`` critic updates (an actor and temperature update after every ``policy_delay`` of them). Each update picks its
+    minibatch through a device counter (one ``index_select``), so the same code runs eagerly or, on CUDA, as one
+    captured graph replayed ``U / policy_delay`` times: no Python or kernel-launch cost per update beyond the replay
+    call. An update is latency-bound at the preset's sizes (many small kernels), so the options that matter cut
+    kernels: ``--critic-impl ensemble`` (both Q heads in one batched matmul per layer), ``--adam fused`` (one kernel
+    per optimiser step instead of a dozen foreach ones); ``--amp bf16`` runs the networks' matmuls in bf16,
+    ``--compile on`` compiles the losses (their small ops fused).
+    ``benchmarks/sac_update.py`` times them.
     """
 
     def __init__(self, n_obs: int, n_act: int, args: argparse.Namespace, device: torch.device):
         hidden = [int(h) for h in str(args.hidden).split(",")]
         self.args, self.device = args, device
-        self.actor = Actor(n_obs, n_act, hidden).to(device)
-        self.critic = Critic(n_obs, n_act, hidden).to(device)
+        self.n_obs, self.n_act = n_obs, n_act
+        amp = getattr(args, "amp", None) or "off"
+        self.critic_impl = getattr(args, "critic_impl", None) or "ensemble"
+        self.fused_adam = (getattr(args, "adam", None) or "fused") == "fused"
+        self.actor = Actor(n_obs, n_act, hidden, amp).to(device)
+        self.critic = make_critic(self.critic_impl, n_obs + n_act, hidden, amp).to(device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.log_alpha = torch.full((), float(args.init_alpha), device=device).log().requires_grad_(True)
         self.target_entropy = -float(n_act)
@@ -254,10 +230,18 @@ class SacLearner:
             raise ValueError("--cuda-graph on is not supported under torchrun (gradients are all-reduced between "
                              "updates): use --cuda-graph auto or off")
         params = (self.actor.parameters(), self.critic.parameters(), [self.log_alpha])
-        self.actor_opt, self.critic_opt, self.alpha_opt = self.optimizers = [torch.optim.Adam(p, lr=args.lr)
-                                                                             for p in params]
+        self.actor_opt, self.critic_opt, self.alpha_opt = self.optimizers = [
+            torch.optim.Adam(p, lr=args.lr, fused=self.fused_adam) for p in params]
         self._configure_optimizers()
-        self.stage: dict[str, torch.Tensor] = {}
+        self.compiled = (getattr(args, "compile", None) or "off") == "on"
+        if self.compiled:
+            import torch._inductor.config as inductor_config
+
+            inductor_config.fallback_random = True  # the actor's noise from torch's generator, as eager draws it
+        compile_fn = torch.compile if self.compiled else (lambda f: f)
+        self._critic_loss_fn, self._actor_losses_fn = compile_fn(self._critic_loss), compile_fn(self._actor_losses)
+        self.stage = torch.zeros(0, device=device)  # [U, batch, columns]: the staged minibatches (see _columns)
+        self._columns: dict[str, slice | int] = {}
         self.cursor = torch.zeros(1, dtype=torch.int64, device=device)
         self._graph = None  # (torch.cuda.CUDAGraph, its static loss outputs) once captured
 
@@ -274,16 +258,27 @@ class SacLearner:
                 "alpha_opt": self.alpha_opt.state_dict(), "obs_rms": self.obs_rms.state_dict()}
 
     def load_state_dict(self, ckpt: dict) -> None:
-        for name in ("actor", "critic", "critic_target", "obs_rms"):
-            getattr(self, name).load_state_dict(ckpt[name])
+        """A checkpoint's networks and optimisers; a critic saved in the other layout (``--critic-impl``: a
+        checkpoint written before the ensemble has two MLPs ``q1``/``q2``) is converted, its Adam moments too."""
+        where = getattr(self.args, "resume", None) or "the checkpoint"
+        try:
+            have = critic_layout(ckpt["critic"])
+            if have != self.critic_impl:
+                ckpt = {**ckpt, "critic": convert_critic_state(ckpt["critic"], self.critic_impl),
+                        "critic_target": convert_critic_state(ckpt["critic_target"], self.critic_impl),
+                        "critic_opt": convert_critic_optimizer(ckpt["critic_opt"], have, self.critic_impl)}
+            for name in ("actor", "critic", "critic_target", "obs_rms"):
+                getattr(self, name).load_state_dict(ckpt[name])
+        except (KeyError, ValueError, RuntimeError) as e:
+            raise ValueError(f"cannot load the SAC networks of {where}: {type(e).__name__}: {e}") from None
         with torch.no_grad():
             self.log_alpha.copy_(ckpt["log_alpha"])
         for name in ("actor_opt", "critic_opt", "alpha_opt"):
             getattr(self, name).load_state_dict(ckpt[name])
-        self._configure_optimizers()  # the saved run may have been eager, or graphed
+        self._configure_optimizers()  # the saved run may have been eager or graphed, its Adam fused or not
 
     def _configure_optimizers(self) -> None:
-        configure_adam(self.optimizers, self.graphed, self.device)
+        configure_adam(self.optimizers, self.graphed, self.device, fused=self.fused_adam)
 
     def set_lr(self, value: float) -> None:
         set_lr(self.optimizers, value)
@@ -292,47 +287,78 @@ class SacLearner:
         return self.obs_rms.normalize(torch.cat([o[k] for k in OBS_KEYS], -1))
 
     # ---- the update
-    def _next_minibatch(self) -> dict[str, torch.Tensor]:
-        mb = {k: v.index_select(0, self.cursor)[0] for k, v in self.stage.items()}
-        self.cursor.add_(1)
-        return mb
+    def _stage(self, sample: dict[str, torch.Tensor], num_minibatches: int) -> None:
+        """Normalise and pack ``sample`` as ``[U, batch, columns]``: ``[x | action]`` (the critic's input, ``x`` the
+        normalised observation), ``x2`` (the next one), reward, not-done and (with demonstrations) demo flags."""
+        x = self.norm({k: sample[k] for k in OBS_KEYS})
+        x2 = self.norm({k: sample["next_" + k] for k in OBS_KEYS})
+        cols = [x, sample["action"].to(x.dtype), x2, sample["reward"].to(x.dtype)[:, None],
+                (~sample["terminated"].bool()).to(x.dtype)[:, None]]
+        o, a = self.n_obs, self.n_act
+        self._columns = {"xa": slice(0, o + a), "x": slice(0, o), "action": slice(o, o + a),
+                         "x2": slice(o + a, 2 * o + a), "reward": 2 * o + a, "not_done": 2 * o + a + 1}
+        if "demo" in sample:
+            self._columns["demo"] = 2 * o + a + 2
+            cols.append(sample["demo"].to(x.dtype)[:, None])
+        width = sum(c.shape[-1] for c in cols)
+        shape = (num_minibatches, x.shape[0] // num_minibatches, width)
+        if self.stage.shape == shape:
+            torch.cat(cols, -1, out=self.stage.view(-1, width))  # same storage: what a captured graph reads
+        else:
+            self.stage = torch.cat(cols, -1).view(shape)
+            self._graph = None
 
-    def _critic_step(self, mb: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        x = self.norm({k: mb[k] for k in OBS_KEYS})
-        x2 = self.norm({k: mb["next_" + k] for k in OBS_KEYS})
-        alpha = self.log_alpha.exp().detach()
+    def _next_minibatch(self) -> dict[str, torch.Tensor]:
+        row = self.stage.index_select(0, self.cursor)[0]
+        self.cursor.add_(1)
+        return {k: row[:, c] for k, c in self._columns.items()}  # column views: no copies
+
+    def _critic_loss(self, mb: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The clipped double-Q regression loss of the minibatch (``--compile on`` compiles this function)."""
         with torch.no_grad():
-            a2, logp2 = self.actor(x2)
-            q1t, q2t = self.critic_target(x2, a2)
-            not_done = (~mb["terminated"]).float()
-            target = mb["reward"] + self.args.gamma * not_done * (torch.min(q1t, q2t) - alpha * logp2)
-        q1, q2 = self.critic(x, mb["action"])
-        q_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
-        self.critic_opt.zero_grad(set_to_none=False)  # in place: a captured graph keeps its gradient buffers
+            alpha = self.log_alpha.exp()
+            a2, logp2 = self.actor(mb["x2"])
+            q_next = q_min(self.critic_target(torch.cat([mb["x2"], a2], -1)))
+            target = mb["reward"] + self.args.gamma * mb["not_done"] * (q_next - alpha * logp2)
+        return q_regression_loss(self.critic(mb["xa"]), target)
+
+    def _actor_losses(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """The policy loss (through the critic, whose weights the caller freezes) and the temperature's loss
+        (``--compile on`` compiles this function)."""
+        x = mb["x"]
+        a, logp = self.actor(x)
+        q_pi = q_min(self.critic(torch.cat([x, a], -1)))
+        pi_loss = (self.log_alpha.exp().detach() * logp - q_pi).mean()
+        if self.args.demo_bc > 0:
+            pi_loss = pi_loss + self.args.demo_bc * self._bc_loss(x, mb, q_pi.detach())
+        alpha_loss = -(self.log_alpha * (logp.detach() + self.target_entropy)).mean()
+        return pi_loss, alpha_loss
+
+    def _critic_step(self, mb: dict[str, torch.Tensor]) -> torch.Tensor:
+        q_loss = self._critic_loss_fn(mb)
+        # Gradients set to None, not zeroed: the backward pass then writes them (no zero and accumulate kernels); a
+        # captured graph allocates them from its pool and every replay writes the same buffers.
+        self.critic_opt.zero_grad(set_to_none=True)
         q_loss.backward()
         dist.average_gradients(self.critic.parameters())  # torchrun: the mean over all ranks' minibatches
         self.critic_opt.step()
         with torch.no_grad():  # Polyak averaging of the target critic, one fused call
             torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), self.args.tau)
-        return q_loss.detach(), x
+        return q_loss.detach()
 
-    def _actor_step(self, x: torch.Tensor, mb: dict[str, torch.Tensor]) -> torch.Tensor:
+    def _actor_step(self, mb: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The policy and the temperature from one backward pass: the policy loss reaches the actor only (the critic's
+        weights are frozen, the temperature detached), the temperature's loss only ``log_alpha`` (the log-probability
+        detached), so the sum's gradients are each loss's own."""
         self.critic.requires_grad_(False)  # the policy loss differentiates through Q into the actor only
-        a, logp = self.actor(x)
-        q_pi = torch.min(*self.critic(x, a))
-        pi_loss = (self.log_alpha.exp().detach() * logp - q_pi).mean()
-        if self.args.demo_bc > 0:
-            pi_loss = pi_loss + self.args.demo_bc * self._bc_loss(x, mb, q_pi.detach())
-        self.actor_opt.zero_grad(set_to_none=False)
-        pi_loss.backward()
-        dist.average_gradients(self.actor.parameters())
+        pi_loss, alpha_loss = self._actor_losses_fn(mb)
+        self.actor_opt.zero_grad(set_to_none=True)
+        self.alpha_opt.zero_grad(set_to_none=True)
+        (pi_loss + alpha_loss).backward()
+        dist.average_gradients([*self.actor.parameters(), self.log_alpha])
         self.actor_opt.step()
-        self.critic.requires_grad_(True)
-        alpha_loss = -(self.log_alpha * (logp.detach() + self.target_entropy)).mean()
-        self.alpha_opt.zero_grad(set_to_none=False)
-        alpha_loss.backward()
-        dist.average_gradients([self.log_alpha])
         self.alpha_opt.step()
+        self.critic.requires_grad_(True)
         return pi_loss.detach()
 
     def _bc_loss(self, x: torch.Tensor, mb: dict[str, torch.Tensor], q_pi: torch.Tensor) -> torch.Tensor:
@@ -343,7 +369,7 @@ class SacLearner:
         if "demo" not in mb:
             raise ValueError("--demo-bc needs demonstrations in the replay buffer (--demo-episodes or --demo-share)")
         with torch.no_grad():
-            keep = mb["demo"] * (torch.min(*self.critic(x, mb["action"])) > q_pi).float()
+            keep = mb["demo"] * (q_min(self.critic(x, mb["action"])) > q_pi).float()
         mean_action = self.actor(x, deterministic=True)[0]
         err = (mean_action - mb["action"]).square().sum(-1)
         return (keep * err).sum() / mb["demo"].sum().clamp_min(1.0)
@@ -352,8 +378,8 @@ class SacLearner:
         """``policy_delay`` critic updates on consecutive minibatches, then one actor and temperature update."""
         for _ in range(self.args.policy_delay):
             mb = self._next_minibatch()
-            q_loss, x = self._critic_step(mb)
-        return {"loss_q": q_loss, "loss_pi": self._actor_step(x, mb)}
+            q_loss = self._critic_step(mb)
+        return {"loss_q": q_loss, "loss_pi": self._actor_step(mb)}
 
     def _capture(self) -> None:
         """Record one update unit as a CUDA graph (PyTorch's whole-network capture recipe): eager warm-up units on a
@@ -395,13 +421,10 @@ class SacLearner:
         """``num_minibatches`` updates on ``sample`` split into equal minibatches; the last losses (device tensors)."""
         if num_minibatches % self.args.policy_delay:
             raise ValueError(f"{num_minibatches} minibatches is not a multiple of policy_delay {self.args.policy_delay}")
-        for k, v in sample.items():
-            v = v.reshape(num_minibatches, -1, *v.shape[1:])
-            if k in self.stage and self.stage[k].shape == v.shape:
-                self.stage[k].copy_(v)  # same storage: what a captured graph reads
-            else:
-                self.stage[k] = v.clone()
-                self._graph = None
+        if sample["action"].shape[0] % num_minibatches:
+            raise ValueError(f"a sample of {sample['action'].shape[0]} transitions does not split into "
+                             f"{num_minibatches} equal minibatches")
+        self._stage(sample, num_minibatches)
         if self.graphed and self._graph is None:
             self._capture()
         self.cursor.zero_()
