@@ -79,7 +79,7 @@ PROFILES = (
 _SMOKE = {"ppo": ["--num-envs", "16", "--num-steps", "8", "--hidden", "32,32", "--eval-every", "1", "--eval-envs", "8"],
           "sac-her": ["--num-envs", "8", "--batch-size", "64", "--updates-per-step", "2", "--buffer-steps", "64",
                       "--hidden", "32,32", "--learning-starts", "2", "--eval-every", "1", "--eval-envs", "4"]}
-PHASES = ("env", "policy", "update", "buffer", "eval", "log")
+PHASES = ("env", "policy", "update", "buffer", "sample", "eval", "log")
 
 
 def phase_profile(run_name: str, options: list[str], device: str, seconds: float, smoke: bool, out: str) -> dict:

@@ -262,8 +262,10 @@ class TargetEval:
     def run(self, act: Callable, timer, global_step: int) -> dict[str, float]:
         """Evaluate ``act`` now; record the first crossing of the target. Returns the evaluation's statistics."""
         self.next_at = timer.elapsed + self.every
+        t = time.perf_counter()
         ev = evaluate(self.env, act, self.steps, seed=self.seed)
-        row = {"process_s": round(time.perf_counter() - PROCESS_START, 2), "wall_s": round(timer.total, 2),
+        now = time.perf_counter()
+        row = {"process_s": round(now - PROCESS_START, 2), "eval_s": round(now - t, 2), "wall_s": round(timer.total, 2),
                "global_step": int(global_step), "success_rate": ev["success_rate"],
                "collisions_per_episode": ev["collisions_per_episode"],
                "collisions_per_1k_goals": ev["collisions_per_1k_goals"], "episodes": ev["episodes"]}
@@ -338,7 +340,7 @@ class Session:
         self.total = None if args.total_steps is None else int(args.total_steps)
         self.bar = ProgressBar(args, self.timer, self.total, self.algo)
         self.last_log = self.last_ckpt = time.perf_counter()
-        self.steps_at_log = global_step
+        self.steps_at_log = self.start_step = global_step
         (done,) = dist.agree(self._spent(global_step))
         return done
 
@@ -386,18 +388,29 @@ class Session:
         self.bar.show(global_step, timer, self.stats["success_rate"])
 
     def finish(self, env, act: Callable, global_step: int, seed: int, save_all: Callable[[dict], None],
-               title: str) -> dict:
+               title: str, extra: dict | None = None) -> dict:
         """The final deterministic evaluation on the training env, the last checkpoint and policy, ``run.json`` and
-        the curve; returns the run's summary."""
+        the curve; returns the run's summary (with the session's env steps per second and ``extra``, the algorithm's
+        own fields)."""
         args, target = self.args, self.target
         self.bar.close()
+        elapsed = self.timer.elapsed
         summary = {"success_rate": self.stats["success_rate"], "global_step": global_step,
-                   "wall_s": round(self.timer.total, 1), **target.summary()}
+                   "wall_s": round(self.timer.total, 1),
+                   "env_steps_per_s": round((global_step - self.start_step) / max(elapsed, 1e-9), 1),
+                   **(extra or {}), **target.summary()}
         if self.phases.enabled:
             summary["profile"] = self.phases.summary()
             if dist.is_main():
                 print("profile: " + ", ".join(f"{k} {v['s']:.2f} s ({100 * v['share']:.0f}%)"
                                               for k, v in summary["profile"].items()))
+            o = self.phases.overlap
+            if o:  # overlapping streams: each stream's busy time against the iterations' wall time
+                summary["profile_overlap"] = {k: round(v, 4) for k, v in o.items()}
+                if dist.is_main():
+                    print(f"profile (overlapping streams, device synchronised once per iteration): "
+                          f"{o['iterations']:.0f} iterations, {o['iteration_s']:.2f} s; env stream busy "
+                          f"{o['env_stream_s']:.2f} s, learner stream busy {o['learner_stream_s']:.2f} s")
         if args.eval_steps > 0:  # the deterministic policy (what policy.pt runs), from fresh episodes
             ev = evaluate(env, act, args.eval_steps, seed=seed + 10_000)
             summary.update({f"eval_{k}": v for k, v in ev.items()})

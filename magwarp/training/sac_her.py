@@ -28,6 +28,7 @@ import copy
 import math
 import os
 import sys
+import time
 
 import torch
 import torch.nn.functional as F
@@ -35,11 +36,12 @@ from torch import nn
 
 
 from magwarp.training import distributed as dist
-from magwarp.training.common import (OBS_KEYS, RunningMeanStd, configure_adam, flatten_obs, load_checkpoint,
-                                     save_checkpoint, set_lr)
+from magwarp.training.common import (OBS_KEYS, PROCESS_START, RunningMeanStd, configure_adam, flatten_obs,
+                                     load_checkpoint, save_checkpoint, set_lr)
 from magwarp.training.demos import ScriptedDemos
 from magwarp.training.loop import Session, add_run_args, entry_point, open_env, resolve_run_args, run_training
 from magwarp.training.policy import mlp, save_policy
+from magwarp.training.streams import StreamPair
 
 DEFAULT_ENV = "magwarp/PushBox-v0"
 
@@ -85,6 +87,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "(0: none; needs --demo-episodes or --demo-share)")
     p.add_argument("--cuda-graph", choices=("auto", "on", "off"), default="auto",
                    help="replay each update as a captured CUDA graph (auto: on CUDA devices, off under torchrun)")
+    p.add_argument("--overlap", choices=("auto", "on", "off"), default="auto",
+                   help="run the env step of iteration t and the updates on the steps up to t - 1 at once, on two "
+                        "CUDA streams (one-step-stale samples; auto: on for one CUDA device, off on the CPU and under "
+                        "torchrun; on, on the CPU: the same schedule, serially)")
     return p.parse_args(argv)
 
 
@@ -158,9 +164,22 @@ class HerReplayBuffer:
         self.g += 1
 
     @torch.no_grad()
-    def sample(self, batch: int, her_ratio: float, compute_reward):
-        size = self.size
-        g0 = self.g - size  # global step of the oldest stored slot
+    def sample(self, batch: int, her_ratio: float, compute_reward, upto: int | None = None):
+        """``batch`` transitions drawn uniformly over (env, step), goals relabelled with ``her_ratio``.
+
+        ``upto``: sample only global steps ``< upto`` (default: all added), the future goals included; the oldest
+        step still stored (``g - capacity``) bounds the window from below. With an add in flight on another stream
+        (``--overlap``), ``upto = g - 1`` keeps the sample off the slot it writes (which held step ``g - 1 -
+        capacity``, outside the window) and off the step it writes. What the sample reads of the in-flight add's
+        episode bookkeeping reads the same either side of the write: ``ep_end`` of the running episode changes from
+        "running" to its last step ``g - 1``, both clamped to ``upto - 1``; the column the add clears belongs to an
+        episode id no sampled step carries (ids of at most ``capacity`` steps, ``capacity + 1`` columns)."""
+        upto = self.g if upto is None else int(upto)
+        g0 = self.g - self.size  # global step of the oldest stored slot
+        size = upto - g0
+        if not (0 < size and upto <= self.g):
+            raise ValueError(f"cannot sample steps [{g0}, {upto}) of a buffer holding [{g0}, {self.g}): "
+                             "nothing committed there")
         gt = g0 + torch.randint(size, (batch,), device=self.device)
         e = torch.randint(self.N, (batch,), device=self.device)
         i = gt % self.T
@@ -168,7 +187,7 @@ class HerReplayBuffer:
         reward, terminated = self.reward[i, e], self.terminated[i, e]
         flags = {k: v[i, e] for k, v in self.flags.items()}
         # Future strategy: a later step of the same episode (up to its end, or the newest step while it runs).
-        end = self.ep_end[e, self.ep_id[i, e] % (self.T + 1)].clamp(max=self.g - 1)
+        end = self.ep_end[e, self.ep_id[i, e] % (self.T + 1)].clamp(max=upto - 1)
         span = (end - gt + 1).clamp(min=1)
         fut = gt + (torch.rand(batch, device=self.device) * span).long().clamp(max=span - 1)
         new_goal = self.data["next_achieved_goal"][fut % self.T, e]
@@ -414,12 +433,33 @@ class SacLearner:
         return self._graph[1] if self._graph is not None else out
 
 
+def overlap_enabled(args: argparse.Namespace, device: torch.device) -> bool:
+    """``--overlap``: auto is on for one CUDA device, off on the CPU and under torchrun; on runs the overlapped schedule
+    (serially on the CPU); on under torchrun is refused (every update all-reduces its gradients)."""
+    if args.overlap == "on" and dist.world_size() > 1:
+        raise ValueError("--overlap on is not supported under torchrun (the updates all-reduce gradients between "
+                         "the ranks): use --overlap auto or off")
+    on = args.overlap == "on" or (args.overlap == "auto" and device.type == "cuda" and dist.world_size() == 1)
+    if on and args.buffer_steps < 2:
+        raise ValueError(f"--overlap needs --buffer-steps >= 2 (one slot is written while the learner samples the "
+                         f"others), got {args.buffer_steps}")
+    return on
+
+
 def _train(args: argparse.Namespace) -> dict:
     main_rank, world = dist.is_main(), dist.world_size()
+    startup: dict[str, float] = {}  # seconds since the process started at each point of the start-up (run.json)
+
+    def mark(name: str) -> None:
+        startup.setdefault(name, round(time.perf_counter() - PROCESS_START, 3))
+
+    mark("imports")
     seed, env, base, n_obs, n_act, action_scale = open_env(args)
     device = base.device  # the env's device, with its index (cuda -> cuda:0)
     N = args.num_envs
     space = base.single_observation_space
+    overlap = overlap_enabled(args, device)
+    mark("train_env")
 
     learner = SacLearner(n_obs, n_act, args, device)
     actor, norm = learner.actor, learner.norm
@@ -432,6 +472,7 @@ def _train(args: argparse.Namespace) -> dict:
         if main_rank:
             print(f"resumed from {args.resume} at step {global_step:,} ({updates:,} updates)")
     dist.broadcast_(learner.tensors())  # every rank starts from rank 0's weights
+    mark("learner")
 
     obs, info = env.reset(seed=seed)
     # Collision flags the env's compute_reward reads: keep them with every transition (learned from one step, which
@@ -440,6 +481,7 @@ def _train(args: argparse.Namespace) -> dict:
              if k.endswith("collision") and isinstance(v, torch.Tensor)}
     flag_keys = sorted(probe)
     obs, _ = env.reset(seed=seed)
+    mark("first_env_step")
     dims = {}
     for k in OBS_KEYS:
         dims[k] = dims["next_" + k] = int(space[k].shape[0])
@@ -450,11 +492,16 @@ def _train(args: argparse.Namespace) -> dict:
 
     session = Session(args, "sac-her", device, target_state, num_agents=N - demos.worlds)
     tracker = session.tracker
+    mark("eval_env")
+    # --overlap: the env step of iteration t and the updates on steps <= t - 1 run on two CUDA streams at once
+    streams = StreamPair(device, overlap, session.phases)
 
-    def act(o):  # the deterministic policy (what policy.pt runs)
+    def act(o):  # the deterministic policy (what policy.pt runs), after the learner's last update
+        streams.join()
         return actor(norm(o), deterministic=True)[0] * action_scale
 
     def save_all(summary: dict | None = None) -> None:
+        streams.join()
         dist.check_in_sync(learner.tensors())  # torchrun: every rank holds rank 0's
         if not main_rank:
             return
@@ -473,6 +520,7 @@ def _train(args: argparse.Namespace) -> dict:
     # A resumed run has trained networks: it acts with them at once and learns as soon as the buffer has a few steps.
     warmup = min(args.learning_starts, 5) if args.resume else args.learning_starts
     def tail() -> dict:  # the log row's end (read only when a row is written)
+        streams.join()
         row = {"alpha": float(learner.log_alpha.detach().exp()), **{k: float(v) for k, v in losses.items()}}
         if demos.enabled:
             row["demo_share"] = demos.share_at(env_steps)
@@ -481,45 +529,54 @@ def _train(args: argparse.Namespace) -> dict:
         return row
 
     stop = session.start(wall_before, global_step)
+    mark("clock_start")
     timer, total = session.timer, session.total
-    phase = session.phases
+    streams.start_clock()
+    # One iteration, no host sync (the log, evaluation and checkpoint sync when due): the action of step t (after the
+    # updates of iteration t - 1), the env step t and its buffer add, then the updates on steps <= t - streams.lag
+    # (t with --overlap off; t - 1 with it, while the env steps: a one-step-stale schedule, as asynchronous off-policy
+    # learners run). The normaliser learns step t's observation after acting on it, before the updates.
     while not stop:
         with torch.no_grad():
-            with phase("policy"):
+            with streams.act("policy"):
                 if env_steps < warmup and not args.resume:
                     action = torch.rand(N, n_act, device=device) * 2 - 1
                 else:
                     action, _ = actor(norm(obs))
                 if demos.enabled:
                     action = demos(obs, action, env_steps)
-            with phase("env"):
+                learner.obs_rms.update(flatten_obs(obs))
+            with streams.env("env"):
                 next_obs, reward, terminated, truncated, info = env.step(action * action_scale)
-            with phase("buffer"):
+            with streams.env("buffer"):
                 done = terminated | truncated
                 buffer.add(obs, action, reward, info["final_obs"], terminated, done, info,
                            demos.acting(env_steps) if demos.enabled else None)
-                learner.obs_rms.update(flatten_obs(obs))
                 tracker.update(rows(reward), rows(terminated), rows(truncated), {k: rows(v) for k, v in info.items()})
             obs = next_obs
         env_steps += 1
         global_step += N * world
-        if env_steps >= warmup:
-            if args.lr_schedule == "linear":  # the paper's schedule: lr falls linearly to 0 over the budget
-                done_frac = global_step / total if total else (timer.total / (timer.already + timer.limit)
-                                                              if timer.limit else 0.0)
-                (done_frac,) = dist.agree(done_frac)  # rank 0's clock
-                learner.set_lr(args.lr * max(1.0 - done_frac, 0.0))
+        committed = buffer.g - streams.lag  # steps the learner may sample (an add in flight: not the newest)
+        if committed >= max(warmup, 1):
             U = args.updates_per_step  # one relabelling call for all of this step's minibatches
-            with phase("buffer"):
-                sample = buffer.sample(U * args.batch_size, args.her_ratio, base.compute_reward)
-            with phase("update"):
+            with streams.learn("sample"):
+                if args.lr_schedule == "linear":  # the paper's schedule: lr falls linearly to 0 over the budget
+                    done_frac = global_step / total if total else (timer.total / (timer.already + timer.limit)
+                                                                  if timer.limit else 0.0)
+                    (done_frac,) = dist.agree(done_frac)  # rank 0's clock
+                    learner.set_lr(args.lr * max(1.0 - done_frac, 0.0))
+                sample = buffer.sample(U * args.batch_size, args.her_ratio, base.compute_reward, upto=committed)
+            with streams.learn("update"):
                 losses = learner.learn(sample, U)
             updates += U
-
+            mark("first_update")
+        streams.end_iteration()
         stop, checkpoint = session.step_done(global_step, act, {"updates": updates}, tail)
         if checkpoint:
             save_all()
-    summary = session.finish(env, act, global_step, seed, save_all, "SAC+HER")
+    streams.join()
+    summary = session.finish(env, act, global_step, seed, save_all, "SAC+HER",
+                             extra={"updates": updates, "overlap": overlap, "startup_s": startup})
     env.close()
     return summary
 

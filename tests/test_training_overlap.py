@@ -1,0 +1,161 @@
+"""SAC + HER with ``--overlap``: the learner of iteration t samples only steps <= t - 1 (never the slot the concurrent
+buffer add writes, nor a future goal from it), the serial schedule is unchanged, and an overlapped run on the CPU (the
+same schedule, serially) trains and writes its summary. The two CUDA streams themselves are exercised on a GPU
+(``benchmarks/gpu_levers.sh``; the CUDA test below runs where a GPU is)."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+import torch
+
+from magwarp.training import sac_her as sac
+
+TINY_ENV = "magwarp/TrajectoryPlanning-v0"
+TINY_KWARGS = '{"layout": [[1, 1, 1], [1, 1, 1], [1, 1, 1]], "num_movers": 1}'
+TINY = ["--env-id", TINY_ENV, "--env-kwargs", TINY_KWARGS, "--seed", "0", "--num-envs", "16", "--batch-size", "128",
+        "--hidden", "32,32", "--learning-starts", "4", "--buffer-steps", "64", "--updates-per-step", "8",
+        "--no-progress", "--log-every", "1000", "--eval-steps", "0", "--total-steps", "320"]
+
+
+def _filled_buffer(T: int, N: int, steps: int, seed: int) -> sac.HerReplayBuffer:
+    """A buffer whose every stored value encodes its (global step, env): observation = (step, env), achieved goal
+    after the step = (episode id * 10 + env, step)."""
+    dims = {k: 2 for k in ("observation", "achieved_goal", "desired_goal")}
+    dims.update({"next_" + k: 2 for k in list(dims)}, action=1)
+    buf = sac.HerReplayBuffer(T, N, dims, ["mover_collision"], "cpu")
+    gen = torch.Generator().manual_seed(seed)
+    episode = torch.zeros(N, dtype=torch.int64)
+    envs = torch.arange(N).float()
+    for g in range(steps):
+        done = torch.rand(N, generator=gen) < 0.25
+        ag = torch.stack([episode * 10 + envs, torch.full((N,), float(g))], -1)
+        obs = {"observation": torch.stack([torch.full((N,), float(g)), envs], -1), "achieved_goal": ag,
+               "desired_goal": torch.zeros(N, 2)}
+        nxt = {**obs, "achieved_goal": ag}
+        buf.add(obs, torch.full((N, 1), float(g)), torch.full((N,), float(g)), nxt,
+                torch.zeros(N, dtype=torch.bool), done, {"mover_collision": torch.zeros(N, dtype=torch.bool)})
+        episode += done.long()
+    return buf
+
+
+def _reward(achieved, desired, info):
+    return (achieved == desired).all(-1).float()
+
+
+@pytest.mark.parametrize("steps", [5, 8, 9, 30])  # before, at and after the ring's first wrap-around
+def test_sample_upto_reads_only_committed_steps_and_future_goals(steps):
+    T, N = 8, 3
+    buf = _filled_buffer(T, N, steps, seed=steps)
+    upto = buf.g - 1  # the newest step's add still in flight (--overlap)
+    out = buf.sample(4096, 1.0, _reward, upto=upto)
+    step, env = out["observation"][:, 0], out["observation"][:, 1]
+    lowest = max(0, steps - T)
+    assert int(step.min()) == lowest and int(step.max()) == upto - 1, "the window is [g - capacity, upto)"
+    assert torch.equal(out["action"][:, 0], step) and torch.equal(out["next_observation"][:, 0], step)
+    goal, ach = out["desired_goal"], out["next_achieved_goal"]
+    assert torch.equal(goal[:, 0], ach[:, 0]), "relabelled goal from another env or episode"
+    assert bool((goal[:, 1] >= step).all()) and bool((goal[:, 1] <= upto - 1).all()), "future goal beyond upto - 1"
+    assert torch.equal(ach[:, 0] % 10, env)
+
+
+@pytest.mark.parametrize("steps", [6, 8, 9, 21])
+def test_sample_upto_is_the_same_before_and_after_the_add_in_flight(steps):
+    """With the newest add in flight, the device holds anything between the buffer before it and after it: the
+    sample of steps < g - 1 reads the same either way (same random numbers)."""
+    T, N = 8, 3
+    after = _filled_buffer(T, N, steps, seed=1)
+    before = _filled_buffer(T, N, steps - 1, seed=1)  # the same first steps - 1 adds (same generator draws)
+    before.g = after.g  # the host counted the add when it issued it
+    i = (steps - 1) % T
+    for v in before.data.values():
+        v[i] = float("nan")  # whatever the slot in flight holds must not be read
+    torch.manual_seed(3)
+    a = after.sample(2048, 0.8, _reward, upto=steps - 1)
+    torch.manual_seed(3)
+    b = before.sample(2048, 0.8, _reward, upto=steps - 1)
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+
+
+def test_sample_default_is_upto_every_added_step_and_refuses_an_empty_window():
+    buf = _filled_buffer(8, 3, 11, seed=0)
+    torch.manual_seed(0)
+    a = buf.sample(512, 0.5, _reward)
+    torch.manual_seed(0)
+    b = buf.sample(512, 0.5, _reward, upto=buf.g)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError, match=r"steps \[3, 3\)"):
+        buf.sample(8, 0.5, _reward, upto=3)  # step 2 was overwritten: nothing below 3 is stored
+    with pytest.raises(ValueError, match=r"steps \[3, 12\)"):
+        buf.sample(8, 0.5, _reward, upto=12)  # not added yet
+    empty = _filled_buffer(8, 3, 1, seed=0)
+    with pytest.raises(ValueError, match="nothing committed"):
+        empty.sample(8, 0.5, _reward, upto=0)
+
+
+def _record_samples(monkeypatch) -> list[tuple[int, int]]:
+    """Record ``(steps added, upto)`` of every sample the training loop draws."""
+    calls: list[tuple[int, int]] = []
+    sample = sac.HerReplayBuffer.sample
+
+    def recording(self, batch, her_ratio, compute_reward, upto=None):
+        calls.append((self.g, self.g if upto is None else upto))
+        return sample(self, batch, her_ratio, compute_reward, upto)
+
+    monkeypatch.setattr(sac.HerReplayBuffer, "sample", recording)
+    return calls
+
+
+@pytest.mark.parametrize("overlap", ["off", "on"])
+def test_overlap_learner_samples_steps_up_to_the_previous_one(tmp_path, monkeypatch, overlap):
+    """Iteration t (steps 0..t added): serially the learner samples steps <= t; overlapped, steps <= t - 1, from the
+    first iteration with --learning-starts of them on. On the CPU the overlapped schedule runs serially and trains."""
+    calls = _record_samples(monkeypatch)
+    summary = sac.train(sac.parse_args([*TINY, "--device", "cpu", "--overlap", overlap, "--out", str(tmp_path),
+                                        "--profile"]))
+    lag = 1 if overlap == "on" else 0
+    iterations = 320 // 16
+    assert [g for g, _ in calls] == list(range(4 + lag, iterations + 1))
+    assert all(upto == g - lag for g, upto in calls)
+    assert summary["overlap"] is (overlap == "on")
+    assert summary["updates"] == 8 * len(calls) and summary["global_step"] == 320
+    assert summary["env_steps_per_s"] > 0
+    startup = summary["startup_s"]
+    assert list(startup) == ["imports", "train_env", "learner", "first_env_step", "eval_env", "clock_start",
+                             "first_update"]
+    assert all(b >= a for a, b in zip(startup.values(), list(startup.values())[1:]))
+    assert {"policy", "env", "buffer", "sample", "update"} <= set(summary["profile"])
+    assert summary["profile"]["update"]["calls"] == len(calls)
+    ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert ckpt["updates"] == summary["updates"]
+    assert all(bool(torch.isfinite(v).all()) for v in ckpt["actor"].values())
+
+
+def test_overlap_options_are_checked():
+    args = argparse.Namespace(overlap="on", buffer_steps=1)
+    with pytest.raises(ValueError, match="--buffer-steps >= 2"):
+        sac.overlap_enabled(args, torch.device("cpu"))
+    assert sac.overlap_enabled(argparse.Namespace(overlap="auto", buffer_steps=8), torch.device("cpu")) is False
+    assert sac.overlap_enabled(argparse.Namespace(overlap="auto", buffer_steps=8), torch.device("cuda:0")) is True
+    assert sac.overlap_enabled(argparse.Namespace(overlap="off", buffer_steps=8), torch.device("cuda:0")) is False
+
+
+def test_overlap_on_is_refused_under_torchrun(monkeypatch):
+    monkeypatch.setattr(sac.dist, "world_size", lambda: 2)
+    with pytest.raises(ValueError, match="not supported under torchrun"):
+        sac.overlap_enabled(argparse.Namespace(overlap="on", buffer_steps=8), torch.device("cuda:0"))
+    assert sac.overlap_enabled(argparse.Namespace(overlap="auto", buffer_steps=8), torch.device("cuda:0")) is False
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_overlapped_cuda_run_trains_on_two_streams(tmp_path, monkeypatch):
+    calls = _record_samples(monkeypatch)
+    summary = sac.train(sac.parse_args([*TINY, "--device", "cuda", "--overlap", "on", "--out", str(tmp_path),
+                                        "--profile"]))
+    assert summary["overlap"] is True and all(upto == g - 1 for g, upto in calls)
+    overlap = summary["profile_overlap"]
+    assert overlap["iterations"] == 320 // 16 and overlap["env_stream_s"] > 0 and overlap["learner_stream_s"] > 0
+    ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert all(bool(torch.isfinite(v).all()) for v in ckpt["actor"].values())
