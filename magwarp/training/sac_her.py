@@ -8,6 +8,14 @@ Episode ends are tracked per env without scanning the buffer, so sampling is O(b
 ``--demo-share`` mix the env's scripted baseline into the collection (:mod:`magwarp.training.demos`), for tasks whose
 success random exploration never shows (CoopPush).
 
+``--overlap`` (auto: on for one CUDA device) runs an iteration's env step and its updates at once, on two CUDA streams
+(:mod:`magwarp.training.streams`): while the env steps the actions of iteration ``t``, the learner relabels and trains
+on the steps up to ``t - 1``, the usual one-step-stale schedule of asynchronous off-policy learners. The action of
+step ``t`` comes from the actor after the updates of iteration ``t - 1``, before those of ``t``; the buffer's step
+``t`` is written before any sample may read it (the sample is bounded by what is committed, future goals included).
+No host synchronisation in an iteration (the log, evaluation and checkpoint synchronise when due; ``--profile`` once
+per iteration). With ``--overlap off`` (and on the CPU) the updates follow the env step and sample it too, as before.
+
     python -m magwarp.training.sac_her --env-id magwarp/PushBox-v0 --device cuda --minutes 15 --out runs/pushbox_sac
     python -m magwarp.training.sac_her --resume runs/pushbox_sac --minutes 5
     magwarp train magwarp/PushBox-v0 --algo sac-her --minutes 15
