@@ -159,3 +159,108 @@ def test_overlapped_cuda_run_trains_on_two_streams(tmp_path, monkeypatch):
     assert overlap["iterations"] == 320 // 16 and overlap["env_stream_s"] > 0 and overlap["learner_stream_s"] > 0
     ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
     assert all(bool(torch.isfinite(v).all()) for v in ckpt["actor"].values())
+
+
+class _FakeCuda:
+    """Stand-ins for torch.cuda's streams and events that log what is issued where (the CPU does the work)."""
+
+    def __init__(self):
+        self.log: list[tuple[str, ...]] = []
+        self.current = _FakeCuda.Stream(self, "env")
+
+    class Stream:
+        def __init__(self, cuda, name="learner"):
+            self.cuda, self.name = cuda, name
+
+        def wait_event(self, event):
+            self.cuda.log.append(("wait", event.name, self.name))
+
+    class Event:
+        def __init__(self, cuda):
+            self.cuda, self.name = cuda, "?"
+
+        def record(self, stream=None):
+            self.cuda.log.append(("record", self.name, (stream or self.cuda.current).name))
+
+    def patch(self, monkeypatch):
+        import contextlib
+
+        @contextlib.contextmanager
+        def stream(s):
+            before, self.current = self.current, s
+            try:
+                yield
+            finally:
+                self.current = before
+
+        monkeypatch.setattr(torch.cuda, "current_stream", lambda device=None: self.current)
+        monkeypatch.setattr(torch.cuda, "Stream", lambda device=None: _FakeCuda.Stream(self))
+        monkeypatch.setattr(torch.cuda, "Event", lambda **kw: _FakeCuda.Event(self))
+        monkeypatch.setattr(torch.cuda, "stream", stream)
+
+    def note(self, what: str) -> None:
+        self.log.append((what, self.current.name))
+
+
+def test_overlapped_schedule_issues_each_block_on_its_stream_behind_its_events(tmp_path, monkeypatch):
+    """The two-stream wiring, device independent (fake streams and events log what the loop issues where): the action
+    and the updates on the learner's stream, after the env's last work; the env step's buffer add on the env's stream,
+    after the action; evaluations and log rows read the learner's state after a join."""
+    from magwarp.training import streams as streams_mod
+    from magwarp.training.common import SuccessTracker
+
+    fake = _FakeCuda()
+    fake.patch(monkeypatch)
+
+    def pair(device, enabled, phases=None):
+        sp = streams_mod.StreamPair(torch.device("cuda:0"), enabled, phases)  # the CUDA path, on fakes
+        for name in ("action_ready", "env_mark", "learn_mark"):
+            getattr(sp, name).name = name
+        return sp
+
+    monkeypatch.setattr(sac, "StreamPair", pair)
+
+    def noting(cls, attr, what):
+        fn = getattr(cls, attr)
+
+        def wrapped(self, *a, **k):
+            fake.note(what(a, k) if callable(what) else what)
+            return fn(self, *a, **k)
+
+        monkeypatch.setattr(cls, attr, wrapped)
+
+    noting(sac.HerReplayBuffer, "add", "add")
+    noting(sac.HerReplayBuffer, "sample", "sample")
+    noting(sac.SacLearner, "learn", "learn")
+    noting(SuccessTracker, "update", "count")
+    noting(sac.Actor, "forward", lambda a, k: "act_eval" if k.get("deterministic", a[1:2] == (True,)) else "act")
+    sac.train(sac.parse_args([*TINY, "--device", "cpu", "--overlap", "on", "--out", str(tmp_path), "--log-every", "0",
+                              "--target", "0.99", "--eval-every", "1e-6", "--eval-envs", "4",
+                              "--target-eval-steps", "2", "--eval-steps", "2", "--learning-starts", "0"]))
+    log = fake.log
+    where = {}
+    for entry in log:
+        if entry[0] in ("add", "sample", "learn", "act", "act_eval"):
+            where.setdefault(entry[0], set()).add(entry[1])
+    assert where == {"add": {"env"}, "sample": {"learner"}, "learn": {"learner"}, "act": {"learner"},
+                     "act_eval": {"env"}}
+    ready = waited = joined = False
+    for i, entry in enumerate(log):
+        if entry == ("record", "action_ready", "learner"):
+            ready, waited = True, False
+        elif entry == ("wait", "action_ready", "env"):
+            assert ready, "the env waited for an action not yet marked"
+            waited = True
+        elif entry == ("wait", "env_mark", "learner"):
+            assert log[i - 1] == ("record", "env_mark", "env"), "the learner waited for an old mark of the env"
+            ready = False
+        elif entry[0] == "add":
+            assert waited, "a buffer add issued before the env waited for the action"
+        elif entry == ("wait", "learn_mark", "env"):
+            assert log[i - 1] == ("record", "learn_mark", "learner")
+            joined = True
+        elif entry[0] in ("sample", "learn", "act"):
+            joined = False  # new learner work: a reader on the env's stream must join again
+        elif entry[0] == "act_eval":
+            assert joined, "an evaluation read the actor without joining the learner's stream"
+    assert sum(e[0] == "act_eval" for e in log) >= 2 * 20 + 2 and sum(e[0] == "learn" for e in log) == 19

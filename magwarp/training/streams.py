@@ -66,35 +66,36 @@ class StreamPair:
     @contextlib.contextmanager
     def act(self, name: str = "policy"):
         """The learner's stream, after everything issued on the env's stream so far; the action is ready on exit."""
-        if not self.cuda:
-            with self._serial(name):
-                yield
-            return
-        self.env_mark.record(self.env_stream)
-        self.learn_stream.wait_event(self.env_mark)
-        with torch.cuda.stream(self.learn_stream), self._events(name, "learner"):
+        if self.cuda:
+            self.env_mark.record(self.env_stream)
+            self.learn_stream.wait_event(self.env_mark)
+        with self._block(name, "learner"):
             yield
-        self.action_ready.record(self.learn_stream)
+        if self.cuda:
+            self.action_ready.record(self.learn_stream)
 
     @contextlib.contextmanager
     def env(self, name: str = "env"):
         """The env's stream, after the action (:meth:`act`)."""
-        if not self.cuda:
-            with self._serial(name):
-                yield
-            return
-        self.env_stream.wait_event(self.action_ready)
-        with torch.cuda.stream(self.env_stream), self._events(name, "env"):
+        if self.cuda:
+            self.env_stream.wait_event(self.action_ready)
+        with self._block(name, "env"):
             yield
 
-    @contextlib.contextmanager
     def learn(self, name: str = "update"):
         """The learner's stream (after its own earlier work)."""
+        return self._block(name, "learner")
+
+    @contextlib.contextmanager
+    def _block(self, name: str, which: str):
+        """Torch's current stream is the env's or the learner's (``which``) inside; timed as phase ``name`` with
+        ``--profile``. A plain block (a phase of the serial profile) without two streams."""
         if not self.cuda:
-            with self._serial(name):
+            with self.phases(name) if self.profiling else contextlib.nullcontext():
                 yield
             return
-        with torch.cuda.stream(self.learn_stream), self._events(name, "learner"):
+        stream = self.env_stream if which == "env" else self.learn_stream
+        with torch.cuda.stream(stream), self._events(name, which):
             yield
 
     def join(self) -> None:
@@ -105,9 +106,6 @@ class StreamPair:
             torch.cuda.current_stream(self.device).wait_event(self.learn_mark)
 
     # ---- profiling
-    def _serial(self, name: str):
-        return self.phases(name) if self.profiling else contextlib.nullcontext()
-
     def _event(self) -> torch.cuda.Event:
         return self._pool.pop() if self._pool else torch.cuda.Event(enable_timing=True)
 
