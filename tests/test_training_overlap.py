@@ -6,6 +6,8 @@ same schedule, serially) trains and writes its summary. The two CUDA streams the
 from __future__ import annotations
 
 import argparse
+import json
+import math
 
 import pytest
 import torch
@@ -140,6 +142,8 @@ def test_overlap_options_are_checked():
     assert sac.overlap_enabled(argparse.Namespace(overlap="auto", buffer_steps=8), torch.device("cpu")) is False
     assert sac.overlap_enabled(argparse.Namespace(overlap="auto", buffer_steps=8), torch.device("cuda:0")) is True
     assert sac.overlap_enabled(argparse.Namespace(overlap="off", buffer_steps=8), torch.device("cuda:0")) is False
+    with pytest.raises(ValueError, match="--async-eval on .* needs --overlap on"):
+        sac.overlap_enabled(argparse.Namespace(overlap="auto", buffer_steps=8, async_eval="on"), torch.device("cpu"))
 
 
 def test_overlap_on_is_refused_under_torchrun(monkeypatch):
@@ -150,11 +154,16 @@ def test_overlap_on_is_refused_under_torchrun(monkeypatch):
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-def test_overlapped_cuda_run_trains_on_two_streams(tmp_path, monkeypatch):
+@pytest.mark.parametrize("async_eval", ["off", "on"])
+def test_overlapped_cuda_run_trains_on_two_streams(tmp_path, monkeypatch, async_eval):
     calls = _record_samples(monkeypatch)
     summary = sac.train(sac.parse_args([*TINY, "--device", "cuda", "--overlap", "on", "--out", str(tmp_path),
-                                        "--profile"]))
+                                        "--profile", "--async-eval", async_eval, "--target", "0.99",
+                                        "--eval-every", "1e-6", "--eval-envs", "4", "--target-eval-steps", "2"]))
     assert summary["overlap"] is True and all(upto == g - 1 for g, upto in calls)
+    evals = json.loads((tmp_path / "run.json").read_text())["evals"]
+    assert len(evals) >= (1 if async_eval == "on" else 320 // 16)
+    assert all(0.0 <= e["success_rate"] <= 1.0 or math.isnan(e["success_rate"]) for e in evals)
     overlap = summary["profile_overlap"]
     assert overlap["iterations"] == 320 // 16 and overlap["env_stream_s"] > 0 and overlap["learner_stream_s"] > 0
     ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
@@ -182,6 +191,9 @@ class _FakeCuda:
         def record(self, stream=None):
             self.cuda.log.append(("record", self.name, (stream or self.cuda.current).name))
 
+        def query(self):
+            return True
+
     def patch(self, monkeypatch):
         import contextlib
 
@@ -202,10 +214,12 @@ class _FakeCuda:
         self.log.append((what, self.current.name))
 
 
-def test_overlapped_schedule_issues_each_block_on_its_stream_behind_its_events(tmp_path, monkeypatch):
+@pytest.mark.parametrize("async_eval", ["off", "on"])
+def test_overlapped_schedule_issues_each_block_on_its_stream_behind_its_events(tmp_path, monkeypatch, async_eval):
     """The two-stream wiring, device independent (fake streams and events log what the loop issues where): the action
     and the updates on the learner's stream, after the env's last work; the env step's buffer add on the env's stream,
-    after the action; evaluations and log rows read the learner's state after a join."""
+    after the action; evaluations and log rows read the learner's state after a join (--async-eval: the evaluation
+    runs on a third stream, on a copy that the learner's next work waits for)."""
     from magwarp.training import streams as streams_mod
     from magwarp.training.common import SuccessTracker
 
@@ -214,8 +228,10 @@ def test_overlapped_schedule_issues_each_block_on_its_stream_behind_its_events(t
 
     def pair(device, enabled, phases=None):
         sp = streams_mod.StreamPair(torch.device("cuda:0"), enabled, phases)  # the CUDA path, on fakes
-        for name in ("action_ready", "env_mark", "learn_mark"):
+        for name in ("action_ready", "env_mark", "learn_mark", "reader_mark"):
             getattr(sp, name).name = name
+        side = sp.side_stream
+        sp.side_stream = lambda: setattr(stream := side(), "name", "eval") or stream
         return sp
 
     monkeypatch.setattr(sac, "StreamPair", pair)
@@ -234,17 +250,24 @@ def test_overlapped_schedule_issues_each_block_on_its_stream_behind_its_events(t
     noting(sac.SacLearner, "learn", "learn")
     noting(SuccessTracker, "update", "count")
     noting(sac.Actor, "forward", lambda a, k: "act_eval" if k.get("deterministic", a[1:2] == (True,)) else "act")
-    sac.train(sac.parse_args([*TINY, "--device", "cpu", "--overlap", "on", "--out", str(tmp_path), "--log-every", "0",
-                              "--target", "0.99", "--eval-every", "1e-6", "--eval-envs", "4",
-                              "--target-eval-steps", "2", "--eval-steps", "2", "--learning-starts", "0"]))
+    summary = sac.train(sac.parse_args([*TINY, "--device", "cpu", "--overlap", "on", "--out", str(tmp_path),
+                                        "--log-every", "0", "--target", "0.99", "--eval-every", "1e-6",
+                                        "--eval-envs", "4", "--target-eval-steps", "2", "--eval-steps", "2",
+                                        "--learning-starts", "0", "--async-eval", async_eval]))
     log = fake.log
     where = {}
     for entry in log:
         if entry[0] in ("add", "sample", "learn", "act", "act_eval"):
             where.setdefault(entry[0], set()).add(entry[1])
+    periodic = "eval" if async_eval == "on" else "env"
     assert where == {"add": {"env"}, "sample": {"learner"}, "learn": {"learner"}, "act": {"learner"},
-                     "act_eval": {"env"}}
-    ready = waited = joined = False
+                     "act_eval": {"env", periodic}}
+    evals = json.loads((tmp_path / "run.json").read_text())["evals"]
+    assert len(evals) == 320 // 16  # each periodic evaluation recorded (launched ones when done)
+    assert summary["time_to_target_s"] in (None, *(e["process_s"] for e in evals))
+    ready = waited = False
+    joined = {"env": False, "eval": False}
+    released = True
     for i, entry in enumerate(log):
         if entry == ("record", "action_ready", "learner"):
             ready, waited = True, False
@@ -256,11 +279,16 @@ def test_overlapped_schedule_issues_each_block_on_its_stream_behind_its_events(t
             ready = False
         elif entry[0] == "add":
             assert waited, "a buffer add issued before the env waited for the action"
-        elif entry == ("wait", "learn_mark", "env"):
+        elif entry[:2] == ("wait", "learn_mark"):
             assert log[i - 1] == ("record", "learn_mark", "learner")
-            joined = True
+            joined[entry[2]] = True
+            released = released and entry[2] != "eval"
+        elif entry == ("wait", "reader_mark", "learner"):
+            assert log[i - 1] == ("record", "reader_mark", "eval")
+            released = True
         elif entry[0] in ("sample", "learn", "act"):
-            joined = False  # new learner work: a reader on the env's stream must join again
+            assert released, "the learner changed its state before the evaluation's copy of it was released"
+            joined = {"env": False, "eval": False}  # new learner work: a reader on another stream must join again
         elif entry[0] == "act_eval":
-            assert joined, "an evaluation read the actor without joining the learner's stream"
+            assert joined[entry[1]], "an evaluation read the actor without joining the learner's stream"
     assert sum(e[0] == "act_eval" for e in log) >= 2 * 20 + 2 and sum(e[0] == "learn" for e in log) == 19

@@ -18,8 +18,8 @@ import torch
 
 from magwarp.training import distributed as dist
 
-__all__ = ["OBS_KEYS", "make_env", "evaluate", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
-           "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything",
+__all__ = ["OBS_KEYS", "make_env", "evaluate", "evaluate_steps", "flatten_obs", "obs_dim", "RunningMeanStd",
+           "SuccessTracker", "CsvLogger", "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything",
            "parse_env_kwargs", "Timer", "PhaseTimer", "configure_adam", "set_lr", "autocast"]
 
 #: order in which a goal-dict observation is flattened (the exported policy's input layout): sorted key order, as
@@ -197,13 +197,19 @@ class SuccessTracker:
 def evaluate(env, act, steps: int, seed: int = 12345) -> dict[str, float]:
     """Run ``act(obs) -> action`` (deterministic) for ``steps`` batched steps from a fresh reset of ``env``; the
     :class:`SuccessTracker` statistics of those steps (the env is reset again by the caller if it keeps training)."""
+    return evaluate_steps(env, act, steps, seed).pop()
+
+
+@torch.no_grad()
+def evaluate_steps(env, act, steps: int, seed: int = 12345) -> "SuccessTracker":
+    """:func:`evaluate`'s steps, issued without reading their statistics (no host sync): the tracker to pop."""
     base = getattr(env, "unwrapped", env)
     tracker = SuccessTracker(base.num_envs, base.device)
     obs, _ = env.reset(seed=seed)
     for _ in range(int(steps)):
         obs, reward, terminated, truncated, info = env.step(act(obs))
         tracker.update(reward, terminated, truncated, info)
-    return tracker.pop()
+    return tracker
 
 
 class CsvLogger:

@@ -99,6 +99,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="run the env step of iteration t and the updates on the steps up to t - 1 at once, on two "
                         "CUDA streams (one-step-stale samples; auto: on for one CUDA device, off on the CPU and under "
                         "torchrun; on, on the CPU: the same schedule, serially)")
+    p.add_argument("--async-eval", choices=("on", "off"), default="off",
+                   help="with --overlap: run the periodic evaluation on a CUDA stream of its own beside training, on a "
+                        "copy of the policy, and record it when done (its process seconds: when its result is read)")
     return p.parse_args(argv)
 
 
@@ -451,7 +454,28 @@ def overlap_enabled(args: argparse.Namespace, device: torch.device) -> bool:
     if on and args.buffer_steps < 2:
         raise ValueError(f"--overlap needs --buffer-steps >= 2 (one slot is written while the learner samples the "
                          f"others), got {args.buffer_steps}")
+    if getattr(args, "async_eval", "off") == "on" and not on:
+        raise ValueError("--async-eval on runs beside the overlapped streams: it needs --overlap on (or auto on one "
+                         "CUDA device)")
     return on
+
+
+def _policy_snapshot(learner: SacLearner, streams: StreamPair, action_scale: torch.Tensor):
+    """``--async-eval``: a function that copies the actor and normaliser on the current stream (the evaluation's),
+    behind the learner's updates so far and ahead of its next ones, and returns the deterministic policy of the copy."""
+    actor = copy.deepcopy(learner.actor).requires_grad_(False)
+    rms = copy.deepcopy(learner.obs_rms)
+    dst = [*actor.parameters(), *rms.buffers()]
+    src = [*learner.actor.parameters(), *learner.obs_rms.buffers()]
+
+    def snapshot():
+        streams.join()  # the copy follows the learner's last update
+        with torch.no_grad():
+            torch._foreach_copy_(dst, src)
+        streams.release()  # the learner's next update follows the copy
+        return lambda o: actor(rms.normalize(flatten_obs(o)), deterministic=True)[0] * action_scale
+
+    return snapshot
 
 
 def _train(args: argparse.Namespace) -> dict:
@@ -498,11 +522,15 @@ def _train(args: argparse.Namespace) -> dict:
     rows = demos.learner_rows  # the learner's worlds (all without a demo share): what the statistics count
     buffer = HerReplayBuffer(args.buffer_steps, N, dims, flag_keys, device, track_demos=demos.enabled)
 
-    session = Session(args, "sac-her", device, target_state, num_agents=N - demos.worlds)
-    tracker = session.tracker
-    mark("eval_env")
     # --overlap: the env step of iteration t and the updates on steps <= t - 1 run on two CUDA streams at once
-    streams = StreamPair(device, overlap, session.phases)
+    streams = StreamPair(device, overlap)
+    async_eval = args.async_eval == "on"  # the periodic evaluation on a third stream (its env is built there)
+    session = Session(args, "sac-her", device, target_state, num_agents=N - demos.worlds,
+                      eval_stream=streams.side_stream() if async_eval else None)
+    tracker = session.tracker
+    streams.time_in(session.phases)
+    snapshot = _policy_snapshot(learner, streams, action_scale) if async_eval else None
+    mark("eval_env")
 
     def act(o):  # the deterministic policy (what policy.pt runs), after the learner's last update
         streams.join()
@@ -579,7 +607,7 @@ def _train(args: argparse.Namespace) -> dict:
             updates += U
             mark("first_update")
         streams.end_iteration()
-        stop, checkpoint = session.step_done(global_step, act, {"updates": updates}, tail)
+        stop, checkpoint = session.step_done(global_step, act, {"updates": updates}, tail, snapshot)
         if checkpoint:
             save_all()
     streams.join()

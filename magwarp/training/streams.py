@@ -50,8 +50,7 @@ class StreamPair:
         self.cuda = self.enabled and self.device.type == "cuda"
         #: steps whose buffer add may still run when the learner samples: what the sample must leave out
         self.lag = 1 if self.enabled else 0
-        self.phases = phases
-        self.profiling = phases is not None and phases.enabled
+        self.time_in(phases)
         self._timed: list[tuple[str, str, torch.cuda.Event, torch.cuda.Event]] = []
         self._pool: list[torch.cuda.Event] = []
         self._last = time.perf_counter()
@@ -61,6 +60,7 @@ class StreamPair:
             self.action_ready = torch.cuda.Event()  # the action of step t: the env may step
             self.env_mark = torch.cuda.Event()  # what the env's stream issued before an act
             self.learn_mark = torch.cuda.Event()  # what the learner's stream issued before a join
+            self.reader_mark = torch.cuda.Event()  # what a reader of the learner's state issued before a release
 
     # ---- the three blocks of an iteration
     @contextlib.contextmanager
@@ -104,6 +104,22 @@ class StreamPair:
         if self.cuda:
             self.learn_mark.record(self.learn_stream)
             torch.cuda.current_stream(self.device).wait_event(self.learn_mark)
+
+    def side_stream(self):
+        """A third CUDA stream (an evaluation's own, ``--async-eval``), or None without two streams."""
+        return torch.cuda.Stream(self.device) if self.cuda else None
+
+    def time_in(self, phases) -> None:
+        """Time the blocks in ``phases`` (a :class:`~magwarp.training.common.PhaseTimer`, ``--profile``)."""
+        self.phases = phases
+        self.profiling = phases is not None and phases.enabled
+
+    def release(self) -> None:
+        """The learner's stream waits for torch's current stream (no host sync): after reading the learner's state on
+        a stream that the next act does not wait for (an evaluation's own), before the learner changes it."""
+        if self.cuda:
+            self.reader_mark.record()
+            self.learn_stream.wait_event(self.reader_mark)
 
     # ---- profiling
     def _event(self) -> torch.cuda.Event:
