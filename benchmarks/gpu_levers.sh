@@ -5,9 +5,11 @@
 # options, e.g. --profile, --cuda-graph on, --overlap off) and prints its log lines, profile, periodic evaluations and
 # summary (env-steps/s, updates, start-up milestones in seconds since the process started). The run's kernels are
 # compiled into the cache first (WARM=0 skips it), so that no run's budget pays for a cold compile. E.g. SAC + HER on
-# Push-Box with and without the env step overlapping the updates, 90 s each (about 4 minutes with a cold cache):
+# Push-Box with and without the env step overlapping the updates, and with the periodic evaluation on a stream of its
+# own too, 90 s each (about 7.5 minutes with a cold kernel cache, 5 with a warm one):
 #   bash benchmarks/gpu_levers.sh pushbox_sac "off:90:--overlap off --eval-every 15 --eval-envs 256" \
-#     "on:90:--overlap on --eval-every 15 --eval-envs 256"
+#     "on:90:--overlap on --eval-every 15 --eval-envs 256" \
+#     "async:90:--overlap on --async-eval on --eval-every 15 --eval-envs 256"
 set -u
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"

@@ -262,7 +262,16 @@ class TargetEval:
         self.steps = int(args.target_eval_steps or _episode_steps(base))
 
     def _on_stream(self):
-        return torch.cuda.stream(self.stream) if self.stream is not None else contextlib.nullcontext()
+        """Torch's and Warp's current stream are the evaluation's own (if any): what the env's construction and steps
+        issue (its graphs, and Warp's allocations and memsets too) stays in that stream's order."""
+        stack = contextlib.ExitStack()
+        if self.stream is not None:
+            stack.enter_context(torch.cuda.stream(self.stream))
+            if hasattr(self.stream, "cuda_stream"):  # a torch CUDA stream
+                import warp as wp
+
+                stack.enter_context(wp.ScopedStream(wp.stream_from_torch(self.stream)))  # waits for Warp's previous
+        return stack
 
     def due(self, timer) -> bool:
         return self.enabled and self.pending is None and timer.elapsed >= self.next_at
