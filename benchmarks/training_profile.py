@@ -1,8 +1,10 @@
 """Where a training iteration's time goes: PPO on B0 and SAC+HER on Push-Box, before (the settings of the earlier
 round) and after (today's presets and time-to-target levers), in the same run: env steps/s and each phase's share of
 the time (env, policy forward and rollout bookkeeping, update, replay buffer and HER relabelling, periodic evaluation,
-logging; ``--profile``: the device is synchronised around each phase). ``--sizes`` adds the env step at several world
-counts and the SAC update (one minibatch) eager and as a replayed CUDA graph at several batch sizes.
+logging; ``--profile``: the device is synchronised around each phase; with SAC's ``--overlap``, the default on CUDA,
+the phases are timed on their streams with CUDA events and the device is synchronised once per iteration, so their
+shares are of the streams' busy time). ``--sizes`` adds the env step at several world counts and the SAC update (one
+minibatch) eager and as a replayed CUDA graph at several batch sizes.
 
     python benchmarks/training_profile.py --device cuda:0 --json training_profile.json
     python benchmarks/training_profile.py --device cuda:0 --sizes --json training_profile.json   # also the sizes
@@ -73,13 +75,13 @@ PROFILES = (
     ("B0 PPO", "before", "b0_ppo_starts40", ["--num-envs", "4096", "--num-steps", "32", "--num-minibatches", "4",
                                              "--cuda-graph", "off", "--eval-every", "10", "--eval-envs", "1024"]),
     ("B0 PPO", "after", "b0_ppo_starts40", ["--eval-every", "5", "--eval-envs", "2048"]),
-    ("Push-Box SAC+HER", "before", "pushbox_sac", ["--eval-every", "10", "--eval-envs", "1024"]),
+    ("Push-Box SAC+HER", "before", "pushbox_sac", ["--eval-every", "10", "--eval-envs", "1024", "--overlap", "off"]),
     ("Push-Box SAC+HER", "after", "pushbox_sac", ["--eval-every", "10", "--eval-envs", "256"]),
 )
 _SMOKE = {"ppo": ["--num-envs", "16", "--num-steps", "8", "--hidden", "32,32", "--eval-every", "1", "--eval-envs", "8"],
           "sac-her": ["--num-envs", "8", "--batch-size", "64", "--updates-per-step", "2", "--buffer-steps", "64",
                       "--hidden", "32,32", "--learning-starts", "2", "--eval-every", "1", "--eval-envs", "4"]}
-PHASES = ("env", "policy", "update", "buffer", "eval", "log")
+PHASES = ("env", "policy", "update", "buffer", "sample", "eval", "log")
 
 
 def phase_profile(run_name: str, options: list[str], device: str, seconds: float, smoke: bool, out: str) -> dict:
@@ -101,6 +103,8 @@ def phase_profile(run_name: str, options: list[str], device: str, seconds: float
     row = {"env_steps_per_s": summary["global_step"] / max(summary["wall_s"], 1e-9), "profiled_s": total,
            "env_steps": summary["global_step"]}
     row.update({f"{k}_pct": 100 * prof[k]["share"] if k in prof else 0.0 for k in PHASES})
+    # --overlap (SAC on CUDA): the phases ran on two streams at once; each stream's busy seconds and the iterations'
+    row.update({f"overlap_{k}": v for k, v in summary.get("profile_overlap", {}).items()})
     return row
 
 

@@ -126,8 +126,9 @@ def test_a_broken_critic_state_names_the_file():
 
 
 def test_a_two_mlp_run_resumes_with_the_ensemble(tmp_path):
-    """A run written with ``--critic-impl pair`` (the layout of checkpoints before the ensemble), its option removed
-    from the checkpoint as an old one lacks it: ``--resume`` converts it and trains on."""
+    """A run written with ``--critic-impl pair`` (the layout of checkpoints before the option), its option removed
+    from the checkpoint as an old one lacks it: ``--resume`` with ``--critic-impl ensemble`` converts it and trains
+    on."""
     common = ["--env-id", TINY_ENV, "--env-kwargs", TINY_KWARGS, "--device", "cpu", "--num-envs", "8",
               "--batch-size", "32", "--hidden", "16,16", "--learning-starts", "2", "--buffer-steps", "16",
               "--updates-per-step", "2", "--no-progress", "--eval-steps", "0", "--log-every", "1000"]
@@ -139,7 +140,8 @@ def test_a_two_mlp_run_resumes_with_the_ensemble(tmp_path):
     for k in ("critic_impl", "adam", "amp"):
         del ckpt["args"][k]
     torch.save(ckpt, path)
-    summary = sac_her.train(sac_her.parse_args(["--resume", str(tmp_path), "--total-steps", "96", "--no-progress"]))
+    summary = sac_her.train(sac_her.parse_args(["--resume", str(tmp_path), "--total-steps", "96", "--no-progress",
+                                                        "--critic-impl", "ensemble"]))
     assert summary["global_step"] == 96
     resumed = torch.load(path, weights_only=False)
     assert "net.0.weight" in resumed["critic"] and resumed["args"]["critic_impl"] == "ensemble"

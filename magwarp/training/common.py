@@ -18,8 +18,8 @@ import torch
 
 from magwarp.training import distributed as dist
 
-__all__ = ["OBS_KEYS", "make_env", "evaluate", "flatten_obs", "obs_dim", "RunningMeanStd", "SuccessTracker", "CsvLogger",
-           "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything",
+__all__ = ["OBS_KEYS", "make_env", "evaluate", "evaluate_steps", "flatten_obs", "obs_dim", "RunningMeanStd",
+           "SuccessTracker", "CsvLogger", "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything",
            "parse_env_kwargs", "Timer", "PhaseTimer", "configure_adam", "set_lr", "autocast"]
 
 #: order in which a goal-dict observation is flattened (the exported policy's input layout): sorted key order, as
@@ -197,13 +197,19 @@ class SuccessTracker:
 def evaluate(env, act, steps: int, seed: int = 12345) -> dict[str, float]:
     """Run ``act(obs) -> action`` (deterministic) for ``steps`` batched steps from a fresh reset of ``env``; the
     :class:`SuccessTracker` statistics of those steps (the env is reset again by the caller if it keeps training)."""
+    return evaluate_steps(env, act, steps, seed).pop()
+
+
+@torch.no_grad()
+def evaluate_steps(env, act, steps: int, seed: int = 12345) -> "SuccessTracker":
+    """:func:`evaluate`'s steps, issued without reading their statistics (no host sync): the tracker to pop."""
     base = getattr(env, "unwrapped", env)
     tracker = SuccessTracker(base.num_envs, base.device)
     obs, _ = env.reset(seed=seed)
     for _ in range(int(steps)):
         obs, reward, terminated, truncated, info = env.step(act(obs))
         tracker.update(reward, terminated, truncated, info)
-    return tracker.pop()
+    return tracker
 
 
 class CsvLogger:
@@ -316,8 +322,23 @@ def load_checkpoint(path: str, device, *, trusted: bool | None = None) -> dict[s
     return load_checkpoint_file(path, device, trusted=_TRUST_CHECKPOINTS if trusted is None else trusted)
 
 
-#: when this process imported magwarp.training (for --stop-after, a limit on the whole process)
-PROCESS_START = time.perf_counter()
+def _process_age() -> float:
+    """Seconds since the OS started this process (Linux: ``/proc``; elsewhere 0, i.e. since this module's import)."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime (ticks since boot)
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        age = uptime - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return 0.0
+    return age if 0.0 <= age < 60.0 else 0.0  # imported a minute or more after the start (a notebook): from the import
+
+
+#: when this process started (``time.perf_counter`` scale; the interpreter's start and the torch import included where
+#: the OS tells and this module is imported within the process's first minute, else its import): what --stop-after,
+#: the time to target and the start-up milestones count from
+PROCESS_START = time.perf_counter() - _process_age()
 
 
 class Timer:
@@ -349,7 +370,9 @@ class Timer:
 class PhaseTimer:
     """Where a training iteration's time goes (``--profile``): ``with phases("env"): ...`` adds the wall time of the
     block, the device synchronised before and after it (so asynchronous GPU work is charged to the phase that
-    launched it). Disabled (the default), a phase is a no-op context: no synchronisation, nothing recorded."""
+    launched it). Disabled (the default), a phase is a no-op context: no synchronisation, nothing recorded.
+    Phases timed elsewhere (CUDA events on overlapping streams: :mod:`magwarp.training.streams`) come in through
+    :meth:`add`; ``overlap`` then holds the streams' busy seconds and the iterations' wall seconds."""
 
     def __init__(self, device, enabled: bool = False):
         import contextlib
@@ -359,7 +382,13 @@ class PhaseTimer:
         self.device = torch.device(device)
         self.seconds: dict[str, float] = {}
         self.calls: dict[str, int] = {}
+        self.overlap: dict[str, float] = {}
         self._null = contextlib.nullcontext()
+
+    def add(self, name: str, seconds: float) -> None:
+        """Add ``seconds`` (measured elsewhere) and one call to phase ``name``."""
+        self.seconds[name] = self.seconds.get(name, 0.0) + float(seconds)
+        self.calls[name] = self.calls.get(name, 0) + 1
 
     def _sync(self) -> None:
         if self.cuda:
@@ -380,9 +409,7 @@ class PhaseTimer:
 
         def __exit__(self, *exc):
             self.owner._sync()
-            o = self.owner
-            o.seconds[self.name] = o.seconds.get(self.name, 0.0) + time.perf_counter() - self.t
-            o.calls[self.name] = o.calls.get(self.name, 0) + 1
+            self.owner.add(self.name, time.perf_counter() - self.t)
             return False
 
     def summary(self) -> dict[str, dict[str, float]]:

@@ -14,6 +14,7 @@ resumed run included) and env steps. It is printed and written to ``OUT/run.json
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -24,7 +25,8 @@ import torch
 
 from magwarp.training import distributed as dist
 from magwarp.training.common import (PROCESS_START, CsvLogger, PhaseTimer, SuccessTracker, Timer, evaluate,
-                                     load_checkpoint, make_env, obs_dim, parse_env_kwargs, plot_curve, seed_everything)
+                                     evaluate_steps, load_checkpoint, make_env, obs_dim, parse_env_kwargs, plot_curve,
+                                     seed_everything)
 
 __all__ = ["PAPER_TARGETS", "PAPER_COLLISIONS", "default_target", "default_target_collisions", "add_run_args",
            "resolve_run_args", "run_training", "entry_point",
@@ -232,8 +234,10 @@ class TargetEval:
     Off without a target or with ``--eval-every 0``. Under torchrun every rank evaluates its own worlds (seeds
     differ per rank) and the success counts are summed over the ranks, so all ranks see the same result."""
 
-    def __init__(self, args: argparse.Namespace, device, saved: dict | None = None):
+    def __init__(self, args: argparse.Namespace, device, saved: dict | None = None, stream=None):
         self.target = args.target
+        self.stream = stream  # a CUDA stream of the evaluation's own (:meth:`launch`): its env is built and run there
+        self.pending: tuple | None = None  # a launched evaluation: (tracker, done event, start, wall_s, global_step)
         limit = getattr(args, "target_collisions", None)  # checkpoints of earlier versions lack it
         self.max_collisions = float(limit) if limit is not None and limit > 0 else None
         self.every = float(args.eval_every or 0.0)
@@ -253,17 +257,64 @@ class TargetEval:
         if n < 1:
             raise ValueError(f"--eval-envs must be a positive integer, got {n}")
         self.seed = dist.rank_seed(args.seed) + 20_000
-        self.env, base = make_env(args.env_id, n, str(device), self.seed, kwargs)
+        with self._on_stream():  # the env's graphs launch on the stream current at its construction
+            self.env, base = make_env(args.env_id, n, str(device), self.seed, kwargs)
         self.steps = int(args.target_eval_steps or _episode_steps(base))
 
+    def _on_stream(self):
+        """Torch's and Warp's current stream are the evaluation's own (if any): what the env's construction and steps
+        issue (its graphs, and Warp's allocations and memsets too) stays in that stream's order."""
+        stack = contextlib.ExitStack()
+        if self.stream is not None:
+            stack.enter_context(torch.cuda.stream(self.stream))
+            if hasattr(self.stream, "cuda_stream"):  # a torch CUDA stream
+                import warp as wp
+
+                stack.enter_context(wp.ScopedStream(wp.stream_from_torch(self.stream)))  # waits for Warp's previous
+        return stack
+
     def due(self, timer) -> bool:
-        return self.enabled and timer.elapsed >= self.next_at
+        return self.enabled and self.pending is None and timer.elapsed >= self.next_at
 
     def run(self, act: Callable, timer, global_step: int) -> dict[str, float]:
         """Evaluate ``act`` now; record the first crossing of the target. Returns the evaluation's statistics."""
         self.next_at = timer.elapsed + self.every
+        t = time.perf_counter()
         ev = evaluate(self.env, act, self.steps, seed=self.seed)
-        row = {"process_s": round(time.perf_counter() - PROCESS_START, 2), "wall_s": round(timer.total, 2),
+        return self._record(ev, t, timer.total, global_step)
+
+    def launch(self, snapshot: Callable[[], Callable], timer, global_step: int) -> None:
+        """Start an evaluation without waiting for it (``--async-eval``): on the evaluation's stream, ``snapshot()``
+        returns the policy to evaluate (a copy of the learner's, made there) and the evaluation's steps are issued
+        behind it; :meth:`poll` records the result once the device is done (no host sync before). Without a stream
+        (the CPU) the evaluation runs now and the next :meth:`poll` records it."""
+        self.next_at = timer.elapsed + self.every
+        t = time.perf_counter()
+        with self._on_stream():
+            tracker = evaluate_steps(self.env, snapshot(), self.steps, seed=self.seed)
+            done = None
+            if self.stream is not None:
+                done = torch.cuda.Event()
+                done.record(self.stream)
+        self.pending = (tracker, done, t, timer.total, global_step)
+
+    def poll(self, block: bool = False) -> dict[str, float] | None:
+        """Record a launched evaluation if the device has finished it (``block``: wait for it); its statistics, or
+        None (none pending, or not done). Its row holds the training seconds and env steps of the policy it evaluated
+        and the process seconds of when its result was read (``eval_s``: since its launch)."""
+        if self.pending is None:
+            return None
+        tracker, done, t, wall_s, global_step = self.pending
+        if done is not None and not block and not done.query():
+            return None
+        self.pending = None
+        with self._on_stream():
+            ev = tracker.pop()
+        return self._record(ev, t, wall_s, global_step)
+
+    def _record(self, ev: dict[str, float], start: float, wall_s: float, global_step: int) -> dict[str, float]:
+        now = time.perf_counter()
+        row = {"process_s": round(now - PROCESS_START, 2), "eval_s": round(now - start, 2), "wall_s": round(wall_s, 2),
                "global_step": int(global_step), "success_rate": ev["success_rate"],
                "collisions_per_episode": ev["collisions_per_episode"],
                "collisions_per_1k_goals": ev["collisions_per_1k_goals"], "episodes": ev["episodes"]}
@@ -322,12 +373,12 @@ class Session:
     step (SAC), and :meth:`finish` at the end."""
 
     def __init__(self, args: argparse.Namespace, algo: str, device, target_state: dict | None,
-                 num_agents: int | None = None):
+                 num_agents: int | None = None, eval_stream=None):
         self.args, self.algo = args, algo
         # agents per rank: the worlds, or (agent views: swarms) every mover of every world
         self.tracker = SuccessTracker(num_agents or args.num_envs, device)
         self.logger = CsvLogger(args.out, args.tensorboard, resume=bool(args.resume)) if dist.is_main() else None
-        self.target = TargetEval(args, device, target_state)
+        self.target = TargetEval(args, device, target_state, eval_stream)
         self.phases = PhaseTimer(device, getattr(args, "profile", False))
         self.stats: dict[str, float] = {"success_rate": float("nan")}
 
@@ -338,17 +389,19 @@ class Session:
         self.total = None if args.total_steps is None else int(args.total_steps)
         self.bar = ProgressBar(args, self.timer, self.total, self.algo)
         self.last_log = self.last_ckpt = time.perf_counter()
-        self.steps_at_log = global_step
+        self.steps_at_log = self.start_step = global_step
         (done,) = dist.agree(self._spent(global_step))
         return done
 
     def _spent(self, global_step: int) -> bool:
         return self.timer.expired or (self.total is not None and global_step >= self.total)
 
-    def step_done(self, global_step: int, act: Callable, head: dict, tail: Callable[[], dict]) -> tuple[bool, bool]:
+    def step_done(self, global_step: int, act: Callable, head: dict, tail: Callable[[], dict],
+                  snapshot: Callable[[], Callable] | None = None) -> tuple[bool, bool]:
         """Evaluate, log and report as due; returns (stop, checkpoint now). A log row is ``global_step``, ``head``
         (e.g. the iteration), wall seconds, steps/s, the success statistics, then ``tail()`` (losses: read only
-        when a row is written)."""
+        when a row is written). With ``snapshot`` (one process only), the periodic evaluation is launched on its own
+        stream (:meth:`TargetEval.launch`) and recorded by a later call once done."""
         args, timer, target = self.args, self.timer, self.target
         now = time.perf_counter()
         stop, log_now, ckpt_now, eval_now = dist.agree(
@@ -356,7 +409,14 @@ class Session:
             now - self.last_ckpt >= args.checkpoint_every, target.due(timer))
         if eval_now:
             with self.phases("eval"):
-                target.run(act, timer, global_step)
+                if snapshot is not None:
+                    target.launch(snapshot, timer, global_step)
+                else:
+                    target.run(act, timer, global_step)
+        if target.pending is not None:
+            with self.phases("eval"):
+                eval_now = target.poll() is not None
+        if eval_now:
             if not getattr(args, "past_target", 0.0):  # else the next step's agreed check stops (same on all ranks)
                 stop = stop or (args.stop_at_target and target.hit)
         with self.phases("log"):
@@ -386,18 +446,30 @@ class Session:
         self.bar.show(global_step, timer, self.stats["success_rate"])
 
     def finish(self, env, act: Callable, global_step: int, seed: int, save_all: Callable[[dict], None],
-               title: str) -> dict:
+               title: str, extra: dict | None = None) -> dict:
         """The final deterministic evaluation on the training env, the last checkpoint and policy, ``run.json`` and
-        the curve; returns the run's summary."""
+        the curve; returns the run's summary (with the session's env steps per second and ``extra``, the algorithm's
+        own fields)."""
         args, target = self.args, self.target
         self.bar.close()
+        elapsed = self.timer.elapsed
+        target.poll(block=True)  # a launched evaluation: its result
         summary = {"success_rate": self.stats["success_rate"], "global_step": global_step,
-                   "wall_s": round(self.timer.total, 1), **target.summary()}
+                   "wall_s": round(self.timer.total, 1),
+                   "env_steps_per_s": round((global_step - self.start_step) / max(elapsed, 1e-9), 1),
+                   **(extra or {}), **target.summary()}
         if self.phases.enabled:
             summary["profile"] = self.phases.summary()
             if dist.is_main():
                 print("profile: " + ", ".join(f"{k} {v['s']:.2f} s ({100 * v['share']:.0f}%)"
                                               for k, v in summary["profile"].items()))
+            o = self.phases.overlap
+            if o:  # overlapping streams: each stream's busy time against the iterations' wall time
+                summary["profile_overlap"] = {k: round(v, 4) for k, v in o.items()}
+                if dist.is_main():
+                    print(f"profile (overlapping streams, device synchronised once per iteration): "
+                          f"{o['iterations']:.0f} iterations, {o['iteration_s']:.2f} s; env stream busy "
+                          f"{o['env_stream_s']:.2f} s, learner stream busy {o['learner_stream_s']:.2f} s")
         if args.eval_steps > 0:  # the deterministic policy (what policy.pt runs), from fresh episodes
             ev = evaluate(env, act, args.eval_steps, seed=seed + 10_000)
             summary.update({f"eval_{k}": v for k, v in ev.items()})

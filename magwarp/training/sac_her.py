@@ -9,6 +9,14 @@ Episode ends are tracked per env without scanning the buffer, so sampling is O(b
 ``--demo-share`` mix the env's scripted baseline into the collection (:mod:`magwarp.training.demos`), for tasks whose
 success random exploration never shows (CoopPush).
 
+``--overlap`` (auto: on for one CUDA device) runs an iteration's env step and its updates at once, on two CUDA streams
+(:mod:`magwarp.training.streams`): while the env steps the actions of iteration ``t``, the learner relabels and trains
+on the steps up to ``t - 1``, the usual one-step-stale schedule of asynchronous off-policy learners. The action of
+step ``t`` comes from the actor after the updates of iteration ``t - 1``, before those of ``t``; the buffer's step
+``t`` is written before any sample may read it (the sample is bounded by what is committed, future goals included).
+No host synchronisation in an iteration (the log, evaluation and checkpoint synchronise when due; ``--profile`` once
+per iteration). With ``--overlap off`` (and on the CPU) the updates follow the env step and sample it too, as before.
+
     python -m magwarp.training.sac_her --env-id magwarp/PushBox-v0 --device cuda --minutes 15 --out runs/pushbox_sac
     python -m magwarp.training.sac_her --resume runs/pushbox_sac --minutes 5
     magwarp train magwarp/PushBox-v0 --algo sac-her --minutes 15
@@ -29,17 +37,19 @@ import copy
 import math
 import os
 import sys
+import time
 
 import torch
 
 from magwarp.training import distributed as dist
-from magwarp.training.common import (OBS_KEYS, RunningMeanStd, configure_adam, flatten_obs, load_checkpoint,
-                                     save_checkpoint, set_lr)
+from magwarp.training.common import (OBS_KEYS, PROCESS_START, RunningMeanStd, configure_adam, flatten_obs,
+                                     load_checkpoint, save_checkpoint, set_lr)
 from magwarp.training.demos import ScriptedDemos
 from magwarp.training.loop import Session, add_run_args, entry_point, open_env, resolve_run_args, run_training
 from magwarp.training.policy import save_policy
 from magwarp.training.sac_networks import (CRITIC_IMPLS, Actor, convert_critic_optimizer, convert_critic_state,
                                            critic_layout, make_critic, q_min, q_regression_loss)
+from magwarp.training.streams import StreamPair
 
 DEFAULT_ENV = "magwarp/PushBox-v0"
 
@@ -48,12 +58,15 @@ DEFAULT_ENV = "magwarp/PushBox-v0"
 # ratio of 128 sampled transitions per collected one), lr 1e-3 decaying linearly to 0, gamma 0.95. Here 4096 envs
 # collect at once (a mujoco-warp step costs little more than at 1024: 173 vs 132 ms for Push-Box on an H200) and
 # ``updates_per_step`` minibatches of ``batch_size`` sample each transition 64 times (64 x 4096 / 4096); on CUDA
-# each update is one replayed CUDA graph (1.6 ms at batch 4096 on an H200, 8.9 ms eager).
+# each update is one replayed CUDA graph. Its kernels (benchmarks/sac_update.py on one H100, batch 4096): 1.30 ms per
+# update with fused Adam and the two critic MLPs (the defaults), 2.44 ms before (foreach Adam), 1.43 ms with the
+# ensemble critic (its batched matmuls are slower than two plain ones at this size), 0.85 ms with --compile on (whose
+# first call takes 20 s).
 PRESETS = {
     "default": dict(num_envs=4096, buffer_steps=1000, batch_size=4096, updates_per_step=64, learning_starts=10,
                     gamma=0.95, tau=0.01, lr=5e-4, lr_schedule="linear", init_alpha=0.1, her_ratio=0.8,
                     hidden="256,256,256", policy_delay=1, demo_episodes=0, demo_share=0.0,
-                    demo_bc=0.0, critic_impl="ensemble", adam="fused", amp="off", compile="off"),
+                    demo_bc=0.0, critic_impl="pair", adam="fused", amp="off", compile="off"),
     "TrajectoryPlanning": dict(gamma=0.99, her_ratio=0.5),
 }
 
@@ -95,6 +108,13 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "the budget)")
     p.add_argument("--cuda-graph", choices=("auto", "on", "off"), default="auto",
                    help="replay each update as a captured CUDA graph (auto: on CUDA devices, off under torchrun)")
+    p.add_argument("--overlap", choices=("auto", "on", "off"), default="auto",
+                   help="run the env step of iteration t and the updates on the steps up to t - 1 at once, on two "
+                        "CUDA streams (one-step-stale samples; auto: on for one CUDA device, off on the CPU and under "
+                        "torchrun; on, on the CPU: the same schedule, serially)")
+    p.add_argument("--async-eval", choices=("on", "off"), default="off",
+                   help="with --overlap: run the periodic evaluation on a CUDA stream of its own beside training, on a "
+                        "copy of the policy, and record it when done (its process seconds: when its result is read)")
     return p.parse_args(argv)
 
 
@@ -168,9 +188,22 @@ class HerReplayBuffer:
         self.g += 1
 
     @torch.no_grad()
-    def sample(self, batch: int, her_ratio: float, compute_reward):
-        size = self.size
-        g0 = self.g - size  # global step of the oldest stored slot
+    def sample(self, batch: int, her_ratio: float, compute_reward, upto: int | None = None):
+        """``batch`` transitions drawn uniformly over (env, step), goals relabelled with ``her_ratio``.
+
+        ``upto``: sample only global steps ``< upto`` (default: all added), the future goals included; the oldest
+        step still stored (``g - capacity``) bounds the window from below. With an add in flight on another stream
+        (``--overlap``), ``upto = g - 1`` keeps the sample off the slot it writes (which held step ``g - 1 -
+        capacity``, outside the window) and off the step it writes. What the sample reads of the in-flight add's
+        episode bookkeeping reads the same either side of the write: ``ep_end`` of the running episode changes from
+        "running" to its last step ``g - 1``, both clamped to ``upto - 1``; the column the add clears belongs to an
+        episode id no sampled step carries (ids of at most ``capacity`` steps, ``capacity + 1`` columns)."""
+        upto = self.g if upto is None else int(upto)
+        g0 = self.g - self.size  # global step of the oldest stored slot
+        size = upto - g0
+        if not (0 < size and upto <= self.g):
+            raise ValueError(f"cannot sample steps [{g0}, {upto}) of a buffer holding [{g0}, {self.g}): "
+                             "nothing committed there")
         gt = g0 + torch.randint(size, (batch,), device=self.device)
         e = torch.randint(self.N, (batch,), device=self.device)
         i = gt % self.T
@@ -178,7 +211,7 @@ class HerReplayBuffer:
         reward, terminated = self.reward[i, e], self.terminated[i, e]
         flags = {k: v[i, e] for k, v in self.flags.items()}
         # Future strategy: a later step of the same episode (up to its end, or the newest step while it runs).
-        end = self.ep_end[e, self.ep_id[i, e] % (self.T + 1)].clamp(max=self.g - 1)
+        end = self.ep_end[e, self.ep_id[i, e] % (self.T + 1)].clamp(max=upto - 1)
         span = (end - gt + 1).clamp(min=1)
         fut = gt + (torch.rand(batch, device=self.device) * span).long().clamp(max=span - 1)
         new_goal = self.data["next_achieved_goal"][fut % self.T, e]
@@ -437,12 +470,54 @@ class SacLearner:
         return self._graph[1] if self._graph is not None else out
 
 
+def overlap_enabled(args: argparse.Namespace, device: torch.device) -> bool:
+    """``--overlap``: auto is on for one CUDA device, off on the CPU and under torchrun; on runs the overlapped schedule
+    (serially on the CPU); on under torchrun is refused (every update all-reduces its gradients)."""
+    if args.overlap == "on" and dist.world_size() > 1:
+        raise ValueError("--overlap on is not supported under torchrun (the updates all-reduce gradients between "
+                         "the ranks): use --overlap auto or off")
+    on = args.overlap == "on" or (args.overlap == "auto" and device.type == "cuda" and dist.world_size() == 1)
+    if on and args.buffer_steps < 2:
+        raise ValueError(f"--overlap needs --buffer-steps >= 2 (one slot is written while the learner samples the "
+                         f"others), got {args.buffer_steps}")
+    if getattr(args, "async_eval", "off") == "on" and not on:
+        raise ValueError("--async-eval on runs beside the overlapped streams: it needs --overlap on (or auto on one "
+                         "CUDA device)")
+    return on
+
+
+def _policy_snapshot(learner: SacLearner, streams: StreamPair, action_scale: torch.Tensor):
+    """``--async-eval``: a function that copies the actor and normaliser on the current stream (the evaluation's),
+    behind the learner's updates so far and ahead of its next ones, and returns the deterministic policy of the copy."""
+    actor = copy.deepcopy(learner.actor).requires_grad_(False)
+    rms = copy.deepcopy(learner.obs_rms)
+    dst = [*actor.parameters(), *rms.buffers()]
+    src = [*learner.actor.parameters(), *learner.obs_rms.buffers()]
+
+    def snapshot():
+        streams.join()  # the copy follows the learner's last update
+        with torch.no_grad():
+            torch._foreach_copy_(dst, src)
+        streams.release()  # the learner's next update follows the copy
+        return lambda o: actor(rms.normalize(flatten_obs(o)), deterministic=True)[0] * action_scale
+
+    return snapshot
+
+
 def _train(args: argparse.Namespace) -> dict:
     main_rank, world = dist.is_main(), dist.world_size()
+    startup: dict[str, float] = {}  # seconds since the process started at each point of the start-up (run.json)
+
+    def mark(name: str) -> None:
+        startup.setdefault(name, round(time.perf_counter() - PROCESS_START, 3))
+
+    mark("imports")
     seed, env, base, n_obs, n_act, action_scale = open_env(args)
     device = base.device  # the env's device, with its index (cuda -> cuda:0)
     N = args.num_envs
     space = base.single_observation_space
+    overlap = overlap_enabled(args, device)
+    mark("train_env")
 
     learner = SacLearner(n_obs, n_act, args, device)
     actor, norm = learner.actor, learner.norm
@@ -455,6 +530,7 @@ def _train(args: argparse.Namespace) -> dict:
         if main_rank:
             print(f"resumed from {args.resume} at step {global_step:,} ({updates:,} updates)")
     dist.broadcast_(learner.tensors())  # every rank starts from rank 0's weights
+    mark("learner")
 
     obs, info = env.reset(seed=seed)
     # Collision flags the env's compute_reward reads: keep them with every transition (learned from one step, which
@@ -463,6 +539,7 @@ def _train(args: argparse.Namespace) -> dict:
              if k.endswith("collision") and isinstance(v, torch.Tensor)}
     flag_keys = sorted(probe)
     obs, _ = env.reset(seed=seed)
+    mark("first_env_step")
     dims = {}
     for k in OBS_KEYS:
         dims[k] = dims["next_" + k] = int(space[k].shape[0])
@@ -471,13 +548,22 @@ def _train(args: argparse.Namespace) -> dict:
     rows = demos.learner_rows  # the learner's worlds (all without a demo share): what the statistics count
     buffer = HerReplayBuffer(args.buffer_steps, N, dims, flag_keys, device, track_demos=demos.enabled)
 
-    session = Session(args, "sac-her", device, target_state, num_agents=N - demos.worlds)
+    # --overlap: the env step of iteration t and the updates on steps <= t - 1 run on two CUDA streams at once
+    streams = StreamPair(device, overlap)
+    async_eval = args.async_eval == "on"  # the periodic evaluation on a third stream (its env is built there)
+    session = Session(args, "sac-her", device, target_state, num_agents=N - demos.worlds,
+                      eval_stream=streams.side_stream() if async_eval else None)
     tracker = session.tracker
+    streams.time_in(session.phases)
+    snapshot = _policy_snapshot(learner, streams, action_scale) if async_eval else None
+    mark("eval_env")
 
-    def act(o):  # the deterministic policy (what policy.pt runs)
+    def act(o):  # the deterministic policy (what policy.pt runs), after the learner's last update
+        streams.join()
         return actor(norm(o), deterministic=True)[0] * action_scale
 
     def save_all(summary: dict | None = None) -> None:
+        streams.join()
         dist.check_in_sync(learner.tensors())  # torchrun: every rank holds rank 0's
         if not main_rank:
             return
@@ -496,6 +582,7 @@ def _train(args: argparse.Namespace) -> dict:
     # A resumed run has trained networks: it acts with them at once and learns as soon as the buffer has a few steps.
     warmup = min(args.learning_starts, 5) if args.resume else args.learning_starts
     def tail() -> dict:  # the log row's end (read only when a row is written)
+        streams.join()
         row = {"alpha": float(learner.log_alpha.detach().exp()), **{k: float(v) for k, v in losses.items()}}
         if demos.enabled:
             row["demo_share"] = demos.share_at(env_steps)
@@ -504,45 +591,54 @@ def _train(args: argparse.Namespace) -> dict:
         return row
 
     stop = session.start(wall_before, global_step)
+    mark("clock_start")
     timer, total = session.timer, session.total
-    phase = session.phases
+    streams.start_clock()
+    # One iteration, no host sync (the log, evaluation and checkpoint sync when due): the action of step t (after the
+    # updates of iteration t - 1), the env step t and its buffer add, then the updates on steps <= t - streams.lag
+    # (t with --overlap off; t - 1 with it, while the env steps: a one-step-stale schedule, as asynchronous off-policy
+    # learners run). The normaliser learns step t's observation after acting on it, before the updates.
     while not stop:
         with torch.no_grad():
-            with phase("policy"):
+            with streams.act("policy"):
                 if env_steps < warmup and not args.resume:
                     action = torch.rand(N, n_act, device=device) * 2 - 1
                 else:
                     action, _ = actor(norm(obs))
                 if demos.enabled:
                     action = demos(obs, action, env_steps)
-            with phase("env"):
+                learner.obs_rms.update(flatten_obs(obs))
+            with streams.env("env"):
                 next_obs, reward, terminated, truncated, info = env.step(action * action_scale)
-            with phase("buffer"):
+            with streams.env("buffer"):
                 done = terminated | truncated
                 buffer.add(obs, action, reward, info["final_obs"], terminated, done, info,
                            demos.acting(env_steps) if demos.enabled else None)
-                learner.obs_rms.update(flatten_obs(obs))
                 tracker.update(rows(reward), rows(terminated), rows(truncated), {k: rows(v) for k, v in info.items()})
             obs = next_obs
         env_steps += 1
         global_step += N * world
-        if env_steps >= warmup:
-            if args.lr_schedule == "linear":  # the paper's schedule: lr falls linearly to 0 over the budget
-                done_frac = global_step / total if total else (timer.total / (timer.already + timer.limit)
-                                                              if timer.limit else 0.0)
-                (done_frac,) = dist.agree(done_frac)  # rank 0's clock
-                learner.set_lr(args.lr * max(1.0 - done_frac, 0.0))
+        committed = buffer.g - streams.lag  # steps the learner may sample (an add in flight: not the newest)
+        if committed >= max(warmup, 1):
             U = args.updates_per_step  # one relabelling call for all of this step's minibatches
-            with phase("buffer"):
-                sample = buffer.sample(U * args.batch_size, args.her_ratio, base.compute_reward)
-            with phase("update"):
+            with streams.learn("sample"):
+                if args.lr_schedule == "linear":  # the paper's schedule: lr falls linearly to 0 over the budget
+                    done_frac = global_step / total if total else (timer.total / (timer.already + timer.limit)
+                                                                  if timer.limit else 0.0)
+                    (done_frac,) = dist.agree(done_frac)  # rank 0's clock
+                    learner.set_lr(args.lr * max(1.0 - done_frac, 0.0))
+                sample = buffer.sample(U * args.batch_size, args.her_ratio, base.compute_reward, upto=committed)
+            with streams.learn("update"):
                 losses = learner.learn(sample, U)
             updates += U
-
-        stop, checkpoint = session.step_done(global_step, act, {"updates": updates}, tail)
+            mark("first_update")
+        streams.end_iteration()
+        stop, checkpoint = session.step_done(global_step, act, {"updates": updates}, tail, snapshot)
         if checkpoint:
             save_all()
-    summary = session.finish(env, act, global_step, seed, save_all, "SAC+HER")
+    streams.join()
+    summary = session.finish(env, act, global_step, seed, save_all, "SAC+HER",
+                             extra={"updates": updates, "overlap": overlap, "startup_s": startup})
     env.close()
     return summary
 
