@@ -220,15 +220,22 @@ def run_seed(name: str, task: Task, seed: int, args, device: str, work: Path) ->
                                               "collisions_per_1k_goals")} for e in data["evals"]])
     episodes = args.episodes or task.episodes
     row.update(confirm(str(out / "policy.pt"), run.env_id, device, episodes, args.repeats))
-    ok = row["eval_success_pct"] >= 100 * (row["target"] or 0)
-    if row.get("target_collisions") and "eval_collisions_per_1k" in row:
-        ok = ok and row["eval_collisions_per_1k"] < row["target_collisions"]
-    row["confirmed"] = bool(ok and row["time_to_target_s"] is not None)
+    row["met_at_budget"] = meets_target(row)
+    row["confirmed"] = bool(row["met_at_budget"] and row["time_to_target_s"] is not None)
     ttt = row["time_to_target_s"]
     print(f"    time to target {'-' if ttt is None else f'{ttt:.1f} s'}, eval {row['eval_success_pct']:.2f}%"
           + (f", {row['eval_collisions_per_1k']:.2f} collisions/1000 goals" if "eval_collisions_per_1k" in row else "")
           + f" -> {'confirmed' if row['confirmed'] else 'NOT confirmed'}", flush=True)
     return row
+
+
+def meets_target(row: dict) -> bool:
+    """Whether the saved policy (the run's last, saved within its budget) meets the target in the confirming
+    evaluation, whether or not a periodic evaluation crossed it first (its 256 worlds read a point or two low)."""
+    ok = row["eval_success_pct"] >= 100 * (row.get("target") or 0)
+    if row.get("target_collisions") and "eval_collisions_per_1k" in row:
+        ok = ok and row["eval_collisions_per_1k"] < row["target_collisions"]
+    return bool(ok)
 
 
 def summary_rows(rows: list[dict]) -> list[dict]:
@@ -243,6 +250,7 @@ def summary_rows(rows: list[dict]) -> list[dict]:
         finite = [t for t in times if t != float("inf")]
         med = statistics.median(times)
         row = {"task": task, "seeds": len(rs), "confirmed": f"{len(finite)}/{len(rs)}",
+               "met_at_budget": f"{sum(meets_target(r) for r in rs)}/{len(rs)}",
                "median_ttt_s": med if med != float("inf") else None,
                "ttt_min_max_s": f"{min(finite):.0f}-{max(finite):.0f}" if finite else "-",
                "budget_s": rs[0]["budget_s"],
@@ -256,12 +264,14 @@ def summary_rows(rows: list[dict]) -> list[dict]:
     return out
 
 
-COLUMNS = [("task", "task"), ("seeds", "seeds"), ("confirmed", "confirmed"), ("median_ttt_s", "median TTT (s)"),
+COLUMNS = [("task", "task"), ("seeds", "seeds"), ("confirmed", "confirmed"), ("met_at_budget", "policy at end meets"),
+           ("median_ttt_s", "median TTT (s)"),
            ("ttt_min_max_s", "TTT min-max (s)"), ("budget_s", "budget (s)"), ("eval_success_pct", "eval success %"),
            ("eval_success_min_max", "min-max %"), ("eval_collisions_per_1k", "collisions /1000 goals")]
 SEED_COLUMNS = [("task", "task"), ("seed", "seed"), ("time_to_target_s", "TTT (s)"), ("global_step", "env steps"),
                 ("train_s", "train (s)"), ("eval_success_pct", "eval success %"),
-                ("eval_collisions_per_1k", "collisions /1000 goals"), ("confirmed", "confirmed")]
+                ("eval_collisions_per_1k", "collisions /1000 goals"), ("confirmed", "confirmed"),
+                ("met_at_budget", "policy at end meets")]
 
 
 def plot(rows: list[dict], path: str) -> None:
@@ -307,7 +317,11 @@ def report(rows: list[dict], args) -> None:
 def main(argv=None) -> int:
     args = parse_args(argv)
     if args.report:
-        report([r for path in args.report for r in read_json(path)], args)
+        rows = [r for path in args.report for r in read_json(path)]
+        for r in rows:  # files written before the column: computed from the confirmation
+            if "eval_success_pct" in r:
+                r.setdefault("met_at_budget", meets_target(r))
+        report(rows, args)
         return 0
     names = [t.strip() for t in args.tasks.split(",") if t.strip()]
     unknown = [t for t in names if t not in TASKS]

@@ -175,8 +175,13 @@ def test_time_to_target_benchmark_plumbing(tmp_path):
     assert "--stop-at-target" in cmd and cmd[-2:] == ["--num-envs", "8"]
     assert "--stop-at-target" not in ttt.training_command(ttt.TASKS["b0"], 0, 90.0, "cpu", tmp_path, [], False, False)
     rows = [{"task": "b0", "exit": 0, "budget_s": 90, "confirmed": ok, "time_to_target_s": t, "eval_success_pct": p,
-             "eval_collisions_per_1k": c} for ok, t, p, c in ((True, 52.0, 99.5, 1.4), (True, 70.0, 99.3, 1.9),
-                                                               (False, None, 98.9, 2.5))]
+             "eval_collisions_per_1k": c, "target": 0.99, "target_collisions": 2.14}
+            for ok, t, p, c in ((True, 52.0, 99.5, 1.4), (True, 70.0, 99.3, 1.9), (False, None, 98.9, 2.5),
+                                (False, None, 99.2, 2.0))]  # the last: no periodic crossing, the policy meets it
+    (row,) = ttt.summary_rows(rows)
+    assert row["confirmed"] == "2/4" and row["met_at_budget"] == "3/4"
+    assert [ttt.meets_target(r) for r in rows] == [True, True, False, True]
+    rows.pop()
     (row,) = ttt.summary_rows(rows)
     assert row["confirmed"] == "2/3" and row["median_ttt_s"] == 70.0 and row["ttt_min_max_s"] == "52-70"
     assert row["eval_success_pct"] == 99.3 and row["eval_collisions_per_1k"] == 1.9
