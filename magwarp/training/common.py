@@ -19,8 +19,8 @@ import torch
 from magwarp.training import distributed as dist
 
 __all__ = ["OBS_KEYS", "make_env", "evaluate", "evaluate_steps", "flatten_obs", "obs_dim", "RunningMeanStd",
-           "SuccessTracker", "CsvLogger", "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints", "seed_everything",
-           "parse_env_kwargs", "Timer", "PhaseTimer", "configure_adam", "set_lr", "autocast"]
+           "SuccessTracker", "CsvLogger", "plot_curve", "save_checkpoint", "load_checkpoint", "trust_checkpoints",
+           "seed_everything", "parse_env_kwargs", "Timer", "PhaseTimer", "configure_adam", "set_lr", "autocast"]
 
 #: order in which a goal-dict observation is flattened (the exported policy's input layout): sorted key order, as
 #: gymnasium's Dict space, SB3 and ``magwarp eval`` flatten it
