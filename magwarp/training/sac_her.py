@@ -246,9 +246,12 @@ class SacLearner:
         hidden = [int(h) for h in str(args.hidden).split(",")]
         self.args, self.device = args, device
         self.n_obs, self.n_act = n_obs, n_act
-        amp = getattr(args, "amp", None) or "off"
-        self.critic_impl = getattr(args, "critic_impl", None) or "ensemble"
-        self.fused_adam = (getattr(args, "adam", None) or "fused") == "fused"
+        def option(name: str):  # options a run saved before they existed fall back to the preset's defaults
+            return getattr(args, name, None) or PRESETS["default"][name]
+
+        amp = option("amp")
+        self.critic_impl = option("critic_impl")
+        self.fused_adam = option("adam") == "fused"
         self.actor = Actor(n_obs, n_act, hidden, amp).to(device)
         self.critic = make_critic(self.critic_impl, n_obs + n_act, hidden, amp).to(device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
@@ -266,7 +269,7 @@ class SacLearner:
         self.actor_opt, self.critic_opt, self.alpha_opt = self.optimizers = [
             torch.optim.Adam(p, lr=args.lr, fused=self.fused_adam) for p in params]
         self._configure_optimizers()
-        self.compiled = (getattr(args, "compile", None) or "off") == "on"
+        self.compiled = option("compile") == "on"
         if self.compiled:
             import torch._inductor.config as inductor_config
 
