@@ -267,10 +267,14 @@ class TargetEval:
         stack = contextlib.ExitStack()
         if self.stream is not None:
             stack.enter_context(torch.cuda.stream(self.stream))
-            if hasattr(self.stream, "cuda_stream"):  # a torch CUDA stream
+            if hasattr(self.stream, "cuda_stream"):  # a torch CUDA stream, now torch's current one
                 import warp as wp
 
-                stack.enter_context(wp.ScopedStream(wp.stream_from_torch(self.stream)))  # waits for Warp's previous
+                from magwarp._streams import torch_stream
+
+                # Warp's one wrapper of that stream (a temporary one would unregister it when collected); entering
+                # waits for Warp's previous stream
+                stack.enter_context(wp.ScopedStream(torch_stream(self.stream.device)))
         return stack
 
     def due(self, timer) -> bool:
