@@ -72,7 +72,7 @@ def test_ensemble_critic_starts_as_the_pair_and_its_state_converts_both_ways():
 
 @pytest.mark.parametrize("demo", [False, True])
 def test_ensemble_critic_and_fused_adam_follow_the_pair_with_foreach_adam(demo):
-    """The old update (two MLPs, foreach Adam) and the new defaults (ensemble, fused), from the same weights and the
+    """The old update (two MLPs, foreach Adam) and the ensemble with fused Adam, from the same weights and the
     same noise: the same losses and weights after 8 updates (2 with the actor and temperature each) within float32
     rounding; every option combination too."""
     bc = ("--demo-bc", "0.5", "--demo-episodes", "1") if demo else ()
