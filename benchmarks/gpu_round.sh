@@ -179,6 +179,11 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # #18: the fused swarm env step at many worlds (FUSED_MOVERS, default 100; 1024-16384 worlds), split by phase
       timeout 560 python3 benchmarks/swarm.py --device cuda:0 --fused-sweep --fused-movers ${FUSED_MOVERS:-100} \
         --json "$OUT/swarm_fused_gpu_${FUSED_MOVERS:-100}.json" 2>&1 | grep -v "^Module" | tail -24 ;;
+    rand_gaps)
+      # #24: B0's randomisation cost by setting at 16,384 and 65,536 envs: env step, graph replay alone, kernel time and
+      # the gaps between kernels (full_nofire: full with the reset firing left out of the step)
+      timeout 400 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536,16384 --steps 200 \
+        --json "$OUT/rand_gaps_gpu.json" 2>&1 | grep -v "^Module" | tail -16 ;;
     rand_profile)
       # #24: B0's randomisation cost at 4096/16384/65536 envs with each setting's per-kernel CUDA time at 65,536
       timeout 400 python3 benchmarks/randomization.py --device cuda:0 --num-envs 4096,16384,65536 \
