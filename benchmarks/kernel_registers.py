@@ -97,13 +97,13 @@ def kernel_figures(kernel, arch: int) -> dict[str, int]:
 
 
 def randomize_figures(arch: int, json_path: str | None) -> int:
-    """Registers and stack of the randomisation firing kernels (:func:`magwarp.kernels.randomize.apply_terms`,
-    :func:`~magwarp.kernels.randomize.pack_rows`): they do not depend on the mover count."""
+    """Registers and stack of the randomisation firing kernel (:func:`magwarp.kernels.randomize.fire_terms`): it does
+    not depend on the mover count."""
     from magwarp.kernels import randomize as krand
 
     info, _ = start_run("cpu")
     results = []
-    for kernel in (krand.apply_terms, krand.pack_rows):
+    for kernel in (krand.fire_terms,):
         fig = kernel_figures(kernel, arch)
         results.append({"arch": f"sm_{arch}", "kernel": kernel.key, **fig})
         print(f"  sm_{arch} {kernel.key}: {fig.get('registers')} registers, {fig.get('stack')} B stack", flush=True)
@@ -119,7 +119,7 @@ def main(argv=None) -> int:
     p.add_argument("--rows", default="shared,registers", help="comma-separated: the movers shape's body rows")
     p.add_argument("--register-rows", default=None, help="the register kernel's rows (default: the library's)")
     p.add_argument("--randomize", action="store_true",
-                   help="the domain-randomisation firing kernels (magwarp.kernels.randomize) instead of the step's")
+                   help="the domain-randomisation firing kernel (magwarp.kernels.randomize) instead of the step's")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     if args.randomize:

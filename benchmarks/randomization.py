@@ -203,17 +203,12 @@ def main(argv=None) -> int:
     p.add_argument("--settings", default="off,terms,full",
                    help="comma-separated settings (off, terms, full; latency and sensors: the terms with that part of "
                         "full alone); off is always run first, as the base of the cost")
-    p.add_argument("--items-per-thread", type=int, default=None,
-                   help="the planar firing's items per GPU thread (planar_randomization.ITEMS_PER_THREAD, >= 1)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
-    if args.items_per_thread is not None and args.items_per_thread < 1:
-        p.error(f"--items-per-thread must be >= 1, got {args.items_per_thread}")
     wanted = ["off"] + [s for s in args.settings.split(",") if s and s != "off"]
     unknown = [s for s in wanted if s not in ("off", "terms", "full", "latency", "sensors")]
     if unknown:
         p.error(f"--settings: unknown setting(s) {', '.join(unknown)} (known: off, terms, full, latency, sensors)")
-    from magwarp.envs import planar_randomization
     from magwarp.kernels import options as kernel_options
 
     # the tuning knobs given on the command line (each default: the library's)
@@ -221,8 +216,7 @@ def main(argv=None) -> int:
                                 (args.small_world_kernel, kernel_options, "SMALL_WORLD_KERNEL"),
                                 (args.small_world_block, kernel_options, "SMALL_WORLD_BLOCK"),
                                 (args.small_world_maxreg, kernel_options, "SMALL_WORLD_MAXREG"),
-                                (args.small_world_rows, kernel_options, "SMALL_WORLD_ROWS"),
-                                (args.items_per_thread, planar_randomization, "ITEMS_PER_THREAD")):
+                                (args.small_world_rows, kernel_options, "SMALL_WORLD_ROWS")):
         if value is not None:
             setattr(module, name, value)
     if args.env is not None and args.env not in ENVS:
@@ -267,7 +261,6 @@ def main(argv=None) -> int:
                                  "small_world_block": kernel_options.SMALL_WORLD_BLOCK,
                                  "small_world_maxreg": kernel_options.SMALL_WORLD_MAXREG,
                                  "small_world_rows": kernel_options.SMALL_WORLD_ROWS,
-                                 "items_per_thread": planar_randomization.ITEMS_PER_THREAD,
                                  "kernel_us": times.get(name) if n == args.kernel_times else None,
                                  "kernel_launches": launch_stats.get(name) if n == args.kernel_times else None})
                     path = f", step path: {res['path']}" if "path" in res else ""

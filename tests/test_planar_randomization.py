@@ -456,8 +456,8 @@ class _Stream:
         return float(np.sqrt(np.float32(-2.0) * np.log(u1)) * np.cos(np.float32(2.0 * np.pi) * u2))
 
 
-def test_apply_terms_matches_numpy(rng):
-    """magwarp.kernels.randomize.apply_terms (through the randomiser's reset) on random terms, targets and mask vs a
+def test_fire_terms_matches_numpy(rng):
+    """magwarp.kernels.randomize.fire_terms (through the randomiser's reset) on random terms, targets and mask vs a
     numpy reference of its draws, operations and writes; worlds outside the mask keep their rows and counters."""
     lo = rng.uniform(0.8, 1.0, 4)
     terms = [EventTerm("mover_mass", LogUniform(lo[0], lo[0] + 0.3), op="scale", targets=(0, 2)),
@@ -482,17 +482,17 @@ def test_apply_terms_matches_numpy(rng):
         if not mask[w]:
             for k, v in before.items():
                 assert torch.equal(r.values[k][w], v[w]), k
-            assert int(r._counter[w]) == counter[w]
+            assert np.array_equal(r._counter[w].numpy(), counter[w])
             assert same(env.sim.model.body.numpy()[w], body0[w])
             continue
-        assert int(r._counter[w]) == counter[w] + 1
+        assert np.array_equal(r._counter[w].numpy(), counter[w] + 1)  # every target's copy advanced by one
         ref = {k: v[w].clone().double().numpy() for k, v in before.items()}
         for i, t in enumerate(terms):
             field, count = t.field, r._targets[t.field]
             nom = r.nominal[field].double().numpy().reshape(count, -1)
             for m in (t.targets if t.targets is not None else range(count)):
                 for k in range(nom.shape[1]):
-                    s = _Stream(key, int(counter[w]), w, (i * env.sim.num_movers + m) * 3 + k)
+                    s = _Stream(key, int(counter[w, 0]), w, (i * env.sim.num_movers + m) * 3 + k)
                     d = t.dist
                     if isinstance(d, Gaussian):
                         v = float(np.clip(d.mean + d.std * s.randn(), *d.clip))
@@ -596,14 +596,11 @@ def test_item_plan_matches_the_last_writer_rule(rng):
             assert got == _last_writers(terms, targets, "interval", steps, interval), (terms, targets, steps)
 
 
-@pytest.mark.parametrize("items_per_thread", [1, 2])
-def test_one_item_per_thread_gives_the_same_bits(monkeypatch, items_per_thread):
-    """The GPU's layout (one (term, target) item per thread, or ITEMS_PER_THREAD; one mover per packing thread)
-    against the CPU's (all of a world's in one thread): the same values, bit for bit, with both margins of a world
-    drawn by two items at once (each writes its own component), competing terms and interval terms of two periods."""
-    from magwarp.envs import planar_randomization
-
-    monkeypatch.setattr(planar_randomization, "ITEMS_PER_THREAD", items_per_thread)
+@pytest.mark.parametrize("per_thread", [1, 2])
+def test_targets_per_thread_give_the_same_bits(per_thread):
+    """The GPU's layout (one target per thread: its items, its mover's packing, its counter copy; or two, the last
+    thread holding one) against the CPU's (all of a world's in one thread): the same values, bit for bit, with both
+    margins of a world drawn (target 0's thread), competing terms and interval terms of two periods."""
     terms = [EventTerm("mover_mass", LogUniform(0.8, 1.25), op="scale"),
              EventTerm("mover_mass", Uniform(2.0, 2.5), targets=(1,)),
              EventTerm("collision_margin", Uniform(0.001, 0.002), mode="reset"),
@@ -614,7 +611,7 @@ def test_one_item_per_thread_gives_the_same_bits(monkeypatch, items_per_thread):
              EventTerm("a_max", Uniform(5.0, 6.0), mode="interval", interval_steps=3, targets=(0,)),
              EventTerm("wall_margin", Uniform(0.004, 0.005), mode="interval", interval_steps=3)]
     a, b = make(5, terms, seed=11), make(5, terms, seed=11)
-    b.randomizer._per_thread = 1
+    b.randomizer._per_thread = per_thread
     mask = torch.tensor([True, False, True, True, False])
     for env in (a, b):
         before = env.sim.margins.clone()

@@ -30,9 +30,8 @@ Fields, one draw per target (movers; the margins: one per world), ``dim`` compon
   the env with the largest size you draw (``collision_size``, ``safety_margin``) to keep starts collision free.
   Worlds of more than 32 movers (grid broad phase, its cells sized at build) refuse sizes above the built ones.
 
-Every firing is two kernel launches (:func:`magwarp.kernels.randomize.apply_terms`, over (world, item) threads, an item
-a (term, target) pair: the draws, the operations and the writes for the targeted worlds and movers;
-:func:`~magwarp.kernels.randomize.pack_rows`, over (world, mover) threads: the packing of their body rows), from the
+Every firing is one kernel launch (:func:`magwarp.kernels.randomize.fire_terms`, over (world, mover) threads: the
+draws, the operations and the writes for the targeted worlds and movers, then the packing of their body rows), from the
 torch step and from inside the fused step's graph alike. The draws come from Warp's counter-based generator keyed by the
 env's seed (the one it was built with, then ``reset(seed=...)``'s), a per-world count of firings, and the term, mover
 and component (each component its own generator state), not from the env's torch generator: the same seed reproduces
@@ -67,12 +66,6 @@ FIELD_CODES = {"mover_mass": krand.MOVER_MASS, "mover_inertia": krand.MOVER_INER
                "wall_margin": krand.WALL_MARGIN}
 MODE_CODES = {"startup": krand.MODE_STARTUP, "reset": krand.MODE_RESET, "interval": krand.MODE_INTERVAL}
 OP_CODES = {"set": krand.OP_SET, "scale": krand.OP_SCALE, "add": krand.OP_ADD}
-#: :func:`~magwarp.kernels.randomize.apply_terms`' items per thread for each target a thread takes (a GPU's: one target
-#: per thread): 1, the firing's latency is one item's draw; more, fewer threads that exit at once for the worlds not
-#: drawn for, each drawing that many items in turn (the draws do not depend on it; benchmarks/randomization.py
-#: ``--items-per-thread`` sets it; on the H100, 65,536 B0 worlds: 17.0 us per reset firing at 1, 20.1 at 3,
-#: randomization_fire_ipt*_gpu.json)
-ITEMS_PER_THREAD = 1
 
 
 def rng_key(seed: int) -> int:
@@ -113,7 +106,7 @@ def _term_row(t: EventTerm, dim: int):
 
 
 def pack_level(fields: set[str]) -> int:
-    """How a firing that draws ``fields`` packs the body rows (:func:`magwarp.kernels.randomize.pack_rows`): not at
+    """How a firing that draws ``fields`` packs the body rows (:func:`magwarp.kernels.randomize.fire_terms`): not at
     all without a body field, only the limits (copied verbatim into the rows) when it draws only those, else whole.
     (The rows hold the parameters as last packed: writes into them from outside the terms need
     :meth:`PlanarRandomizer.commit`.)"""
@@ -221,23 +214,32 @@ class PlanarRandomizer(EventRunner):
             targets.append(list(t.targets) if t.targets is not None else list(range(count)))
             nom = self.nominal[t.field].detach().cpu().numpy().astype(np.float64).reshape(count, -1)
             rows.append((_term_row(t, nom.shape[1]), nom))
-        self._items = {}
+        self._items, self._first = {}, {}
         for mode, plan in item_plan([(t.field, t.mode) for t in self.terms], targets).items():
+            # by target (stable: a field's items of one target keep their order), ``later`` renumbered to match
+            order = sorted(range(len(plan)), key=lambda q: plan[q][1])
+            where = {q: r for r, q in enumerate(order)}
             items = []
-            for i, m, later in plan:
+            for q in order:
+                i, m, later = plan[q]
                 row, nom = rows[i]
                 it = krand.Item()
-                it.t, it.target, it.stream, it.later = row, m, 3 * (i * width + m), later
+                it.t, it.target, it.stream = row, m, 3 * (i * width + m)
+                it.later = where[later] if later >= 0 else -1
                 it.nominal = wp.vec3d(*nom[m], *([0.0] * (3 - nom.shape[1])))
                 items.append(it)
             self._items[mode] = (wp.array(items, dtype=krand.Item, device=dev) if items
                                  else wp.empty(0, dtype=krand.Item, device=dev))
-        # targets (movers) and items per thread: one on a GPU (the firing's latency is one item's draw, one mover's
-        # packing), all of a world's on the CPU (a thread's setup dominates there); the draws do not depend on it
+            counts = np.bincount([plan[q][1] for q in order], minlength=width)
+            self._first[mode] = wp.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32), dtype=wp.int32,
+                                         device=dev)
+        # targets per thread: one on a GPU (a firing's latency is one target's items and one mover's packing), all of
+        # a world's on the CPU (a thread's setup dominates there); the draws do not depend on it
         self._per_thread = 1 if sim.device.is_cuda else width
         self._key = torch.tensor([rng_key(self.env._generator.initial_seed())], dtype=torch.int32,
                                  device=self.device)
-        self._counter = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
+        # the firings drawn per world, one copy per target (the thread that fires a target advances its copy)
+        self._counter = torch.zeros(self.num_worlds, width, dtype=torch.int32, device=self.device)
         self._all = wp.ones(1, dtype=wp.bool, device=dev)  # the mask placeholder when every world fires
         self._body = any(t.field in BODY_KEYS for t in self.terms)
         # terms of the collision sizes only: empty parameter arrays (the kernel writes no body field then)
@@ -250,7 +252,7 @@ class PlanarRandomizer(EventRunner):
 
     # ------------------------------------------------------------------ firing
     def _fire(self, mode: str, mask: torch.Tensor | None, current_stream: bool = False) -> bool:
-        """Launch the kernels for the terms of ``mode`` due now (interval: their period divides the step count), for the
+        """Launch the kernel for the terms of ``mode`` due now (interval: their period divides the step count), for the
         worlds in ``mask`` (all if None); nothing when none is due. ``current_stream``: on Warp's current stream (inside
         a captured env step), else on the simulator's."""
         due = [t for t in self.terms if t.mode == mode and (mode != "interval" or self.steps % t.interval_steps == 0)]
@@ -260,22 +262,14 @@ class PlanarRandomizer(EventRunner):
         params = sim.mover_param_struct(self._scale_inertia()) if self._body else self._empty_params
         m = sim.model
         mask_wp = self._all if mask is None else wp.from_torch(mask, dtype=wp.bool)
-        counter = wp.from_torch(self._counter)
-        items = self._items[mode]
         pack = pack_level({t.field for t in due})
-        movers = max(1, sim.num_movers) if pack != krand.PACK_NONE else 1
-        # per thread (see _term_table): as many items as targets, all of a world's when a thread takes all its targets
-        whole = self._per_thread >= max(1, sim.num_movers)
-        per_item = max(1, items.shape[0]) if whole else self._per_thread * ITEMS_PER_THREAD
-        per_mover = min(self._per_thread, movers)
+        width = self._counter.shape[1]
         with contextlib.nullcontext() if current_stream else sim._on_stream():
-            wp.launch(krand.apply_terms, dim=(self.num_worlds, -(-items.shape[0] // per_item)), device=sim.device,
-                      inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, per_item, items,
-                              wp.from_torch(self._key), counter],
-                      outputs=[params, m.radius, m.half_size, m.margins])
-            wp.launch(krand.pack_rows, dim=(self.num_worlds, -(-movers // per_mover)), device=sim.device,
-                      inputs=[int(mask is None), mask_wp, per_mover, pack, params, counter],
-                      outputs=[m.body])
+            wp.launch(krand.fire_terms, dim=(self.num_worlds, -(-width // self._per_thread)), device=sim.device,
+                      inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, self._per_thread, pack,
+                              self._items[mode], self._first[mode], wp.from_torch(self._key),
+                              wp.from_torch(self._counter)],
+                      outputs=[params, m.radius, m.half_size, m.margins, m.body])
         return True
 
     def _scale_inertia(self) -> bool:
@@ -283,11 +277,11 @@ class PlanarRandomizer(EventRunner):
         return "mover_mass" in used and "mover_inertia" not in used
 
     def reset(self, mask: torch.Tensor) -> None:
-        """Reset-mode terms for the worlds in ``mask`` (``[W]`` bool on the device): two launches, no host sync."""
+        """Reset-mode terms for the worlds in ``mask`` (``[W]`` bool on the device): one launch, no host sync."""
         self._fire("reset", mask)
 
     def step(self) -> None:
-        """Count an env step; interval terms whose period divides the count fire (all worlds, two launches)."""
+        """Count an env step; interval terms whose period divides the count fire (all worlds, one launch)."""
         self.steps += 1
         self._fire("interval", None)
 

@@ -1,27 +1,28 @@
-"""Domain randomisation of the planar simulator in two launches: :func:`apply_terms` fires every event term whose time
-has come, drawn per world and target with Warp's counter-based generator and written into the per-world parameter
-rows; :func:`pack_rows` then packs the body rows of the worlds drawn for and advances their counters
-(:mod:`magwarp.envs.planar_randomization` builds the term table; the torch step and the fused step graph both launch
-these kernels, so they draw the same numbers).
+"""Domain randomisation of the planar simulator in one launch: :func:`fire_terms` fires every event term whose time
+has come, drawn per world and target with Warp's counter-based generator, written into the per-world parameter rows,
+then packs the body rows of the worlds drawn for and advances their counters (:mod:`magwarp.envs.planar_randomization`
+builds the term table; the torch step and the fused step graph both launch this kernel, so they draw the same
+numbers).
 
-:func:`apply_terms` runs one thread per world and item on a GPU, an item a (term, target) pair of the firing's mode
-(:class:`Item`, one load: the term, the target's built value and the component streams; the per-world fields: target
-0), or per world and ``per_thread`` items (on the CPU, where a thread's cost is mostly its setup: all of a world's).
-Of the items that fire in one launch the last one in the table of a field and target sets it (a payload term also its
+:func:`fire_terms` runs one thread per world and target on a GPU (a target: a mover; the per-world fields are target
+0's), or one per world on the CPU (where a thread's cost is mostly its setup). A thread fires its targets' items
+(:class:`Item`: a (term, target) pair, one load: the term, the target's built value and the component streams), packs
+its movers' rows and advances its targets' copies of the world's firing counter: nothing it reads is written by
+another thread, so one launch does what took two (the draws, then the packing) until #24's fourth cost pass. Of the
+items that fire in one launch the last one in the table of a field and target sets it (a payload term also its
 offset and ``known``): the startup and reset lists hold only those (every term of those modes fires), an interval item
-checks the later ones of its field and target (``later``). So the items of a firing write disjoint values and need no
-order: a thread's latency is one item's draw, not a chain of dependent loads and stores over the terms. The scale and
-add operations use the built value. :func:`pack_rows` runs one thread per world and mover (the CPU: ``per_thread``).
-A world that is not drawn for exits first thing.
+checks the later ones of its field and target (``later``). The scale and add operations use the built value. A world
+that is not drawn for exits first thing.
 
 Draws: world ``w``'s seed for one firing is ``rand_init(rand_init(key, counter[w]), w)``: the key follows the env's
 seed, ``counter[w]`` counts the firings that drew for world ``w`` (so a world that is not reset draws nothing and
-keeps its stream). Component ``k`` of target ``m`` of term ``i`` draws from its own state
-``rand_init(seed, 3 (i n + m) + k)`` (``n``: the target table's width, the simulator's movers), so the draws do not
-depend on the order the threads run in: uniform ``lo + u (hi - lo)``, log-uniform
-``exp(log lo + u (log hi - log lo))`` (``u``: ``wp.randf``, 24 bits), Gaussian ``mean + std z`` (``z``: ``wp.randn``),
-clipped where asked. (Until #24's second cost pass one thread per world drew every term, target and component in turn
-from one state: the values for a given seed changed then. The third pass, one thread per item, kept the draws.)
+keeps its stream; every target keeps its own copy, all equal). Component ``k`` of target ``m`` of term ``i`` draws from
+its own state ``rand_init(seed, 3 (i n + m) + k)`` (``n``: the target table's width, the simulator's movers), so the
+draws do not depend on the order the threads run in or on how targets are shared among threads: uniform
+``lo + u (hi - lo)``, log-uniform ``exp(log lo + u (log hi - log lo))`` (``u``: ``wp.randf``, 24 bits), Gaussian
+``mean + std z`` (``z``: ``wp.randn``), clipped where asked. (Until #24's second cost pass one thread per world drew
+every term, target and component in turn from one state: the values for a given seed changed then. The later passes
+kept the draws.)
 """
 
 from __future__ import annotations
@@ -209,64 +210,52 @@ def fire_item(it: Item, seed: int, w: int, params: MoverParams, radius: wp.array
 
 
 @wp.kernel
-def apply_terms(
+def fire_terms(
     mode: int,
     steps: int,  # MODE_INTERVAL: the env step count
     all_worlds: int,  # 1: every world (startup, interval), 0: the worlds in mask
     mask: wp.array(dtype=wp.bool),
-    per_thread: int,  # items per thread: thread (w, j) draws items [j per_thread, (j + 1) per_thread)
+    per_thread: int,  # targets per thread: thread (w, j) takes targets [j per_thread, (j + 1) per_thread)
+    pack: int,  # PACK_ALL: pack the body rows of the thread's movers; PACK_LIMITS: only their limits; PACK_NONE
     # Model:
-    items: wp.array(dtype=Item),  # the mode's (term, target) pairs (startup, reset: their winners only)
+    items: wp.array(dtype=Item),  # the mode's (term, target) pairs by target (startup, reset: their winners only)
+    first: wp.array(dtype=wp.int32),  # [targets + 1]: target t's items are items[first[t]:first[t + 1]]
     key: wp.array(dtype=wp.int32),  # [1]: the generator key (the env's seed)
-    # State in:
-    counter: wp.array(dtype=wp.int32),  # [W] firings drawn per world
+    # State in/out:
+    counter: wp.array2d(dtype=wp.int32),  # [W, targets] firings drawn per world (a copy per target, all equal)
     # State out:
     params: MoverParams,
     radius: wp.array2d(dtype=float),
     half_size: wp.array2d(dtype=wp.vec2),
     margins: wp.array(dtype=wp.vec2),
-):
-    """Fire the items of ``mode`` for world ``w`` that thread ``j`` holds: each (term, target) pair draws its
-    components (each from its own generator state, see the module doc) and writes its field when it is the last of
-    its field and target that fires now. The items write disjoint values (a margin: its own component of
-    ``margins[w]``), so they need no order: on a GPU one item per thread, and a thread's latency is one item's draw.
-    :func:`pack_rows` then packs the rows and advances the counters."""
-    w, j = wp.tid()
-    if not drawn(all_worlds, mask, w):
-        return
-    seed = world_seed(key[0], counter[w], w)
-    for q in range(j * per_thread, wp.min((j + 1) * per_thread, items.shape[0])):
-        it = items[q]
-        if wins(it, items, mode, steps):
-            fire_item(it, seed, w, params, radius, half_size, margins)
-
-
-@wp.kernel
-def pack_rows(
-    all_worlds: int,
-    mask: wp.array(dtype=wp.bool),
-    per_thread: int,
-    pack: int,  # PACK_ALL: pack the body rows of the worlds drawn for; PACK_LIMITS: only their limits; PACK_NONE
-    # State in:
-    params: MoverParams,
-    # State in/out:
-    counter: wp.array(dtype=wp.int32),  # [W] firings drawn per world
-    # State out:
     body: wp.array2d(dtype=Body),
 ):
-    """After :func:`apply_terms` (the same worlds; launched only when a term is due, as it is): the worlds it drew for
-    advance their counter (thread 0) and (``pack``) pack the body rows of the thread's movers
-    (:func:`~magwarp.kernels.params.pack_mover`; a firing of the limits only: those fields of the rows)."""
+    """Fire the items of ``mode`` for the targets of world ``w`` that thread ``j`` holds: each (term, target) pair
+    draws its components (each from its own generator state, see the module doc) and writes its field when it is
+    the last of its field and target that fires now; then (``pack``) the thread packs the body rows of its movers
+    (:func:`~magwarp.kernels.params.pack_mover`; a firing of the limits only: those fields of the rows) and advances
+    their counters. A target's items, its row and its counter belong to one thread (the per-world fields are target
+    0's; the two margins are components of one ``margins[w]``, both written by that thread), so no thread reads what
+    another writes: one launch, and a thread's latency is its target's items, not the world's."""
     w, j = wp.tid()
     if not drawn(all_worlds, mask, w):
         return
-    count = counter[w]  # loaded with the parameters (the store after them: it would order their loads after it)
-    for m in range(j * per_thread, wp.min((j + 1) * per_thread, body.shape[1])):
-        if pack == PACK_ALL:
-            body[w, m] = pack_mover(params, w, m)
-        elif pack == PACK_LIMITS:  # pack_body copies them: the same bits, without the row's other loads and stores
-            body[w, m].v_max = params.v_max[w, m]
-            body[w, m].a_max = params.a_max[w, m]
-            body[w, m].j_max = params.j_max[w, m]
-    if j == 0:
-        counter[w] = count + 1
+    t0 = j * per_thread
+    t1 = wp.min(t0 + per_thread, counter.shape[1])
+    if t0 >= t1:
+        return
+    count = counter[w, t0]
+    seed = world_seed(key[0], count, w)
+    for t in range(t0, t1):
+        for q in range(first[t], first[t + 1]):
+            it = items[q]
+            if wins(it, items, mode, steps):
+                fire_item(it, seed, w, params, radius, half_size, margins)
+        if t < body.shape[1]:
+            if pack == PACK_ALL:
+                body[w, t] = pack_mover(params, w, t)
+            elif pack == PACK_LIMITS:  # pack_body copies them: the same bits, without the row's other loads and stores
+                body[w, t].v_max = params.v_max[w, t]
+                body[w, t].a_max = params.a_max[w, t]
+                body[w, t].j_max = params.j_max[w, t]
+        counter[w, t] = count + 1
