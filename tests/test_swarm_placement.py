@@ -156,18 +156,18 @@ def test_world_scan_places_as_the_grid_does(rng, shape):
     spots and leaves the same movers as the grid's lists, bit for bit, with and without ``hold``, over back-to-back
     calls; so does a checked ``place``. A few tries per round on a crowded layout with holes: rounds reject
     candidates for walls, placed movers, held spots and lower-indexed winners alike."""
-    layout = random_layout(rng, 7, 7, holes=0.15)
+    layout = random_layout(rng, 8, 8, holes=0.15)
     mover = MoverSpec(collision_shape=shape)
     seed = int(rng.integers(1 << 20))
     runs = []
     for search in ("grid", "world"):
-        placer = Placer(layout, 24, 5, mover=mover, device="cpu", seed=seed, search=search)
+        placer = Placer(layout, 16, 5, mover=mover, device="cpu", seed=seed, search=search)
         xy = placer.sample()
         placer.tries = 2
         out = [xy.clone()]
         calls = np.random.default_rng(seed)
         for hold in (True, False, True, True):
-            mask = torch.from_numpy(calls.random((5, 24)) < 0.4)
+            mask = torch.from_numpy(calls.random((5, 16)) < 0.4)
             mask[3] = False
             left = placer.place_async(xy, mask, rounds=2, hold=hold)
             out += [xy.clone(), left.clone()]
