@@ -429,6 +429,21 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
 
         row[f"{key}_env_ms"], row[f"{key}_env_std_ms"] = _time(step, device, steps)
         row[f"{key}_motion_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
+        if fused and device.startswith("cuda"):  # the motion alone without the tiled kernel's register cap
+            from magwarp.swarm.fused import max_registers
+
+            row["fused_max_registers"] = max_registers()
+            saved = os.environ.get("MAGWARP_SWARM_MAX_REGISTERS")
+            os.environ["MAGWARP_SWARM_MAX_REGISTERS"] = "0"
+            env.sim._graphs.clear()  # recaptured with the uncapped kernel
+            try:
+                row["fused_motion_uncapped_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
+            finally:
+                if saved is None:
+                    del os.environ["MAGWARP_SWARM_MAX_REGISTERS"]
+                else:
+                    os.environ["MAGWARP_SWARM_MAX_REGISTERS"] = saved
+                env.sim._graphs.clear()
         if fused:  # the env step's split: physics, observations, rewards/resets, rest
             row.update(step_split(env, device, steps, row["fused_env_ms"]))
             row.update(obs_searches(env, device, steps))
@@ -477,6 +492,10 @@ def run_fused_sweep(args) -> list[dict]:
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
                   f"ms ({row['fused_agent_steps_per_s']:.3g} agent-steps/s, {row['fused_of_floor']:.2f} of the "
                   f"floor)", flush=True)
+            if "fused_motion_uncapped_ms" in row:
+                print(f"    motion alone: {row['fused_motion_ms']:.3f} ms with the kernel capped at "
+                      f"{row['fused_max_registers']} registers, {row['fused_motion_uncapped_ms']:.3f} ms uncapped",
+                      flush=True)
             print(f"    split: physics {row['physics_ms']:.3f} ms (motion alone {row['fused_motion_ms']:.3f}), "
                   f"observations {row['obs_ms']:.3f}, rewards/resets {row['task_ms']:.3f}, rest {row['rest_ms']:.3f} "
                   f"(policy {row['policy_ms']:.3f} aside): {row['env_only_agent_steps_per_s']:.3g} agent-steps/s "

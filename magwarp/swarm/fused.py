@@ -95,8 +95,9 @@ class FusedSwarmStep:
                 s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list, self.stopped]
         if self.tiled:
             if not dev.is_cuda and sim.num_movers != 1 and not wp.config.enable_cpu_blocks:
-                raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks (Warp's "
-                                 f"cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} movers")
+                raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks "
+                                 f"(Warp's cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} "
+                                 f"movers")
             block = world_block_dim(sim.num_movers)
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block,
                                           max_registers() if dev.is_cuda else 0)
