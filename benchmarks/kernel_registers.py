@@ -5,6 +5,7 @@ EIATTR_MIN_STACK_SIZE, 0x12: the per-thread stack frame, spills included).
     python benchmarks/kernel_registers.py                        # sm_90, 3 movers, both shapes, three variants
     python benchmarks/kernel_registers.py --arch 90 --movers 3,8 --json kernel_registers.json
     python benchmarks/kernel_registers.py --randomize            # the randomisation firing kernels instead
+    python benchmarks/kernel_registers.py --swarm                # the swarm env's step kernels (#18), register caps
 
 Shapes: ``registers`` (:func:`magwarp.kernels.step.make_register_kernel`, one thread per world, the register-row
 variant given by ``--register-rows``) and ``movers`` (:func:`magwarp.kernels.step_blocks.make_movers_kernel`, one
@@ -110,6 +111,36 @@ def randomize_figures(arch: int, json_path: str | None) -> int:
     return finish(results, ["arch", "kernel", "registers", ("stack", "stack B/thread")], info, json_path)
 
 
+def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
+    """Registers and stack of the swarm env's step kernels (#18): the fused step (tiled shape, 64/128/256 threads per
+    block, without and with latency, under each register cap; 0: none), the staged observation kernel and the
+    placement rounds."""
+    from magwarp.kernels import neighbors as knb
+    from magwarp.kernels import placement as kpl
+    from magwarp.kernels import swarm_step as kss
+    from magwarp.swarm import SwarmEnv
+
+    info, _ = start_run("cpu")
+    sim = SwarmEnv(1, num_movers=8, device="cpu", seed=0, check_inputs=False).sim
+    rows = []
+    for block in (64, 128, 256):
+        for latency in (False, True):
+            for cap in caps:
+                k = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block, cap)
+                rows.append({"kernel": f"swarm_step/{block}" + ("+latency" if latency else ""), "cap": cap,
+                             **kernel_figures(k, arch)})
+        rows.append({"kernel": f"observe_staged/{block}", "cap": 0,
+                     **kernel_figures(knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True),
+                                      arch)})
+    for k in (kpl.propose, kpl.resolve):
+        rows.append({"kernel": k.key, "cap": 0, **kernel_figures(k, arch)})
+    for r in rows:
+        r["arch"] = f"sm_{arch}"
+        print(f"  sm_{arch} {r['kernel']} cap {r['cap']}: {r.get('registers')} registers, {r.get('stack')} B stack",
+              flush=True)
+    return finish(rows, ["arch", "kernel", "cap", "registers", ("stack", "stack B/thread")], info, json_path)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--arch", type=int, default=90)
@@ -120,10 +151,15 @@ def main(argv=None) -> int:
     p.add_argument("--register-rows", default=None, help="the register kernel's rows (default: the library's)")
     p.add_argument("--randomize", action="store_true",
                    help="the domain-randomisation firing kernel (magwarp.kernels.randomize) instead of the step's")
+    p.add_argument("--swarm", action="store_true", help="the swarm env's step kernels instead (#18), under the "
+                   "register caps of --swarm-caps")
+    p.add_argument("--swarm-caps", default="0,128,112,96", help="comma-separated register caps of the swarm step")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     if args.randomize:
         return randomize_figures(args.arch, args.json)
+    if args.swarm:
+        return swarm_figures(args.arch, [int(c) for c in args.swarm_caps.split(",")], args.json)
     from magwarp.kernels import options as kernel_options
     from magwarp.kernels import step as kstep
     from magwarp.kernels import step_blocks

@@ -36,7 +36,8 @@ outcome kernel, goal streams, respawns), the rest (action check, NaN guard, info
 (``policy_ms``, which ``fused_env_ms`` includes; ``env_only_agent_steps_per_s`` leaves it out: the issue's target of
 5e8 agent-steps/s is about the env). It also times the observation alone with each neighbour search (``obs_grid_ms``,
 ``obs_world_ms``, on CUDA ``obs_world_staged_ms``) and checks that they write the same rows bit for bit
-(``obs_searches_match``); ``--obs-search`` picks the one the timed envs use.
+(``obs_searches_match``); ``--obs-search`` picks the one the timed envs use. Likewise the respawn placement alone
+with each search of the placers (``place_grid_ms``, ``place_world_ms``, ``place_searches_match``; ``--place-search``).
 
 ``--fused-sweep``: the training regime (many worlds of 64, 100 and 256 movers, 1024 to 16384 worlds): agent-steps/s
 of the env with the per-cycle step (``fused=False``: three or four launches per cycle, then the stop hook) and with
@@ -370,8 +371,44 @@ def obs_searches(env, device: str, steps: int) -> dict:
     return out
 
 
+def place_searches(env, device: str, steps: int) -> dict:
+    """The respawn placement alone (what the step's ``_respawn`` places: the movers that want a respawn, two rounds,
+    their spots held) with each search of :class:`~magwarp.swarm.Placer` from the env's current state, on copies:
+    ``place_<search>_ms``, ``place_movers`` (movers asked per call) and ``place_searches_match`` (the same spots and
+    the same movers left, bit for bit; every call starts from the same random streams)."""
+    from magwarp.swarm.placement import SEARCHES
+
+    placer = env.respawn_placer
+    if placer is None:
+        return {}
+    want = env._want_respawn.clone()
+    start = env.sim.pos[..., :2].contiguous()
+    default, calls, out, results = placer.search, placer._calls, {}, {}
+    try:
+        for search in SEARCHES:
+            placer.search = search
+            xy = start.clone()
+
+            def place():
+                placer._calls = calls  # the same random streams every call
+                xy.copy_(start)
+                placer.place_async(xy, want, rounds=env.config.respawn_rounds, hold=True)
+
+            out[f"place_{search}_ms"], _ = _time(place, device, steps)
+            place()
+            results[search] = (xy.clone(), wp.to_torch(placer._todo).clone())
+    finally:
+        placer.search, placer._calls = default, calls
+    first = next(iter(results.values()))
+    out["place_searches_match"] = all(torch.equal(r[0], first[0]) and torch.equal(r[1], first[1])
+                                      for r in results.values())
+    out["place_search"] = default
+    out["place_movers"] = int(want.sum())
+    return out
+
+
 def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float,
-                    breakdown: bool = False, obs_search: str | None = None) -> dict:
+                    breakdown: bool = False, obs_search: str | None = None, place_search: str | None = None) -> dict:
     from magwarp.swarm import SwarmEnv
 
     row: dict = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps}
@@ -381,6 +418,10 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
                        fused=fused)
         if obs_search is not None:
             env.local.search, env.local.staged = obs_search.split("_")[0], obs_search.endswith("_staged")
+        if place_search is not None:
+            for placer in (env.placer, env.respawn_placer):
+                if placer is not None:
+                    placer.search = place_search
         key = "fused" if fused else "old"
 
         def step():
@@ -388,9 +429,25 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
 
         row[f"{key}_env_ms"], row[f"{key}_env_std_ms"] = _time(step, device, steps)
         row[f"{key}_motion_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
+        if fused and device.startswith("cuda"):  # the motion alone without the tiled kernel's register cap
+            from magwarp.swarm.fused import max_registers
+
+            row["fused_max_registers"] = max_registers()
+            saved = os.environ.get("MAGWARP_SWARM_MAX_REGISTERS")
+            os.environ["MAGWARP_SWARM_MAX_REGISTERS"] = "0"
+            env.sim._graphs.clear()  # recaptured with the uncapped kernel
+            try:
+                row["fused_motion_uncapped_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
+            finally:
+                if saved is None:
+                    del os.environ["MAGWARP_SWARM_MAX_REGISTERS"]
+                else:
+                    os.environ["MAGWARP_SWARM_MAX_REGISTERS"] = saved
+                env.sim._graphs.clear()
         if fused:  # the env step's split: physics, observations, rewards/resets, rest
             row.update(step_split(env, device, steps, row["fused_env_ms"]))
             row.update(obs_searches(env, device, steps))
+            row.update(place_searches(env, device, steps))
             if breakdown and device.startswith("cuda"):
                 try:
                     row["fused_kernels"] = kernel_breakdown(step)
@@ -429,12 +486,16 @@ def run_fused_sweep(args) -> list[dict]:
         for worlds in worlds_list:
             steps = args.steps or (20 if device.startswith("cuda") else 3)
             row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1],
-                                  obs_search=args.obs_search)
+                                  obs_search=args.obs_search, place_search=args.place_search)
             row.update(check)
             rows.append(row)
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
                   f"ms ({row['fused_agent_steps_per_s']:.3g} agent-steps/s, {row['fused_of_floor']:.2f} of the "
                   f"floor)", flush=True)
+            if "fused_motion_uncapped_ms" in row:
+                print(f"    motion alone: {row['fused_motion_ms']:.3f} ms with the kernel capped at "
+                      f"{row['fused_max_registers']} registers, {row['fused_motion_uncapped_ms']:.3f} ms uncapped",
+                      flush=True)
             print(f"    split: physics {row['physics_ms']:.3f} ms (motion alone {row['fused_motion_ms']:.3f}), "
                   f"observations {row['obs_ms']:.3f}, rewards/resets {row['task_ms']:.3f}, rest {row['rest_ms']:.3f} "
                   f"(policy {row['policy_ms']:.3f} aside): {row['env_only_agent_steps_per_s']:.3g} agent-steps/s "
@@ -443,6 +504,10 @@ def run_fused_sweep(args) -> list[dict]:
                               if f"obs_{k}_ms" in row)
             print(f"    observation alone by search: {alone} (env uses {row['obs_search']}; same rows: "
                   f"{row['obs_searches_match']})", flush=True)
+            if "place_search" in row:
+                print(f"    respawn placement alone ({row['place_movers']} movers) by search: grid "
+                      f"{row['place_grid_ms']:.3f} ms, world {row['place_world_ms']:.3f} ms (env uses "
+                      f"{row['place_search']}; same spots: {row['place_searches_match']})", flush=True)
     return rows
 
 
@@ -504,6 +569,9 @@ def main(argv=None) -> None:
                    "observation's neighbour search in the timed envs (default: LocalObservations' choice: world, up to "
                    "256 movers per world on CUDA and 128 on the CPU, else grid; world_staged: CUDA's block per world "
                    "with its rows staged in shared memory); every row also times the observation alone with each")
+    p.add_argument("--place-search", choices=("grid", "world"), help="--fused-sweep: the placers' search in the timed "
+                   "envs (default: Placer's choice: world up to 256 movers per world on CUDA and 64 on the CPU, else "
+                   "grid); every row also times the respawn placement alone with each")
     p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json, "
                    "swarm_fused_<cpu|gpu>.json with --fused-sweep)")
     args = p.parse_args(argv)

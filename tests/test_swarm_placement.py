@@ -118,8 +118,8 @@ def test_hold_keeps_the_spots_of_movers_still_to_place(rng):
     check_placement(layout, MoverSpec(), 0.0, xy.numpy(), rng)  # the unplaced ones kept their (valid) spots
 
 
-@pytest.mark.parametrize("hold", [False, True])
-def test_rounds_do_not_depend_on_the_order_of_the_listed_movers(rng, hold):
+@pytest.mark.parametrize("hold,search", [(False, "grid"), (True, "grid"), (True, "world")])
+def test_rounds_do_not_depend_on_the_order_of_the_listed_movers(rng, hold, search):
     """The rounds run a thread per mover to place, listed at the call's start in whatever order the device's atomics
     give (on CUDA: any): placing from the list reversed gives the same spots and the same movers left, bit for bit
     (each mover draws from its own random stream; claims and acceptance go by index)."""
@@ -129,7 +129,7 @@ def test_rounds_do_not_depend_on_the_order_of_the_listed_movers(rng, hold):
     mask[1] = False  # a world with nothing to place
     results = []
     for reverse in (False, True):
-        placer = Placer(layout, 30, 3, device="cpu", seed=seed)
+        placer = Placer(layout, 30, 3, device="cpu", seed=seed, search=search)
         xy = placer.sample()
         placer.tries = 1  # one candidate per round: some movers are left
         pos = placer._begin(xy, mask, hold)
@@ -148,3 +148,34 @@ def test_rounds_do_not_depend_on_the_order_of_the_listed_movers(rng, hold):
     assert (left == 0).any() and (left == 1).any(), f"{rng}: {left.sum()} of {left.size} left (the test needs both)"
     if hold:  # the unplaced movers kept their spots, which nothing was placed onto
         check_placement(layout, MoverSpec(), 0.0, results[0][0].numpy(), rng)
+
+
+@pytest.mark.parametrize("shape", ["circle", "box"])
+def test_world_scan_places_as_the_grid_does(rng, shape):
+    """``search="world"`` (each candidate checked against every mover of its world, no cell lists) places the same
+    spots and leaves the same movers as the grid's lists, bit for bit, with and without ``hold``, over back-to-back
+    calls; so does a checked ``place``. A few tries per round on a crowded layout with holes: rounds reject
+    candidates for walls, placed movers, held spots and lower-indexed winners alike."""
+    layout = random_layout(rng, 8, 8, holes=0.15)
+    mover = MoverSpec(collision_shape=shape)
+    seed = int(rng.integers(1 << 20))
+    runs = []
+    for search in ("grid", "world"):
+        placer = Placer(layout, 16, 5, mover=mover, device="cpu", seed=seed, search=search)
+        xy = placer.sample()
+        placer.tries = 2
+        out = [xy.clone()]
+        calls = np.random.default_rng(seed)
+        for hold in (True, False, True, True):
+            mask = torch.from_numpy(calls.random((5, 16)) < 0.4)
+            mask[3] = False
+            left = placer.place_async(xy, mask, rounds=2, hold=hold)
+            out += [xy.clone(), left.clone()]
+        runs.append(out)
+    grid, world = runs
+    assert all(torch.equal(a, b) for a, b in zip(grid, world)), f"{rng}: the searches placed differently"
+    left = torch.stack(grid[2::2])
+    assert left.any() and (~left).any(), f"{rng}: the test needs movers placed and movers left"
+    check_placement(layout, mover, 0.0, grid[1].numpy(), rng)
+    with pytest.raises(ValueError, match="'ring'"):
+        Placer(layout, 3, device="cpu", search="ring")

@@ -94,12 +94,13 @@ def test_command_unless_stopped_matches_numpy(rng):
     np.testing.assert_array_equal(cmd.numpy(), np.where(stopped[..., None] != 0, 0.0, action), err_msg=str(rng))
 
 
-def test_placer_leaves_its_grid_clean_and_places_only_where_asked(rng):
+@pytest.mark.parametrize("search", ["grid", "world"])
+def test_placer_leaves_its_grid_clean_and_places_only_where_asked(rng, search):
     """A call empties the cells it filled (no per-cell clearing) and leaves its claims to be beaten by later rounds'
     so back-to-back calls place as a placer with a cleared grid does; worlds with nothing to place are left alone."""
     layout = Layout(np.ones((6, 6), dtype=np.int32))
     w, m = 4, 12
-    placers = [Placer(layout, m, w, device="cpu", seed=int(rng.integers(1 << 20))) for _ in range(2)]
+    placers = [Placer(layout, m, w, device="cpu", seed=int(rng.integers(1 << 20)), search=search) for _ in range(2)]
     xy = placers[0].sample()
     for hold in (False, True, True):
         mask = torch.tensor(rng.random((w, m)) < 0.3)

@@ -208,6 +208,21 @@ def clear_of_placed(g: PlaceGrid, w: int, p: wp.vec2, skip: int, pos: wp.array2d
     return True
 
 
+@wp.func
+def clear_in_world(g: PlaceGrid, w: int, m: int, p: wp.vec2, hold: int, pos: wp.array2d(dtype=wp.vec2),
+                   todo: wp.array2d(dtype=wp.int32)) -> bool:
+    """:func:`clear_of_placed`'s verdicts of a :func:`propose` try from a scan of the world's movers instead of the
+    grid's lists (:attr:`~magwarp.swarm.Placer.search` ``"world"``): the lists hold the movers placed or fixed
+    (``todo == 0``) at their positions and, with ``hold``, the movers still to place at theirs (a mover placed in an
+    earlier round is found in both at its new position): so no mover other than ``m`` conflicts with ``p`` among those
+    placed (every mover with ``hold``). The same verdict bit for bit (the grid's reach covers every conflict)."""
+    for j in range(todo.shape[1]):
+        if j != m and (hold != 0 or todo[w, j] == 0):
+            if conflict(g, p - pos[w, j]):
+                return False
+    return True
+
+
 @wp.kernel
 def propose(
     # Model:
@@ -221,6 +236,7 @@ def propose(
     tries: int,
     hold: int,
     round_id: wp.int64,
+    scan: int,  # 1: check against the world's movers (clear_in_world), not the grid's lists (unused then)
     # State in:
     pos: wp.array2d(dtype=wp.vec2),
     todo: wp.array2d(dtype=wp.int32),
@@ -256,6 +272,13 @@ def propose(
         p = wp.vec2((float(t[0]) + wp.randf(rng)) * size, (float(t[1]) + wp.randf(rng)) * size)
         if hits_wall_cs(tiles, col, p, wp.vec2(1.0, 0.0), radius, half):
             continue
+        if scan != 0:
+            if not clear_in_world(g, w, m, p, hold, pos, todo):
+                continue
+            cand[w, m] = p
+            cand_ok[w, m] = 1
+            wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
+            return
         if not clear_of_placed(g, w, p, -1, pos, head, next_in_cell):
             continue
         if hold != 0 and not clear_of_placed(g, w, p, m, pos, head_old, next_old):
@@ -271,6 +294,7 @@ def resolve(
     # Model:
     g: PlaceGrid,
     round_id: wp.int64,
+    scan: int,  # 1: look for lower-indexed winners among the world's movers, keep no cell lists
     # State in:
     cand: wp.array2d(dtype=wp.vec2),
     cand_ok: wp.array2d(dtype=wp.int32),
@@ -284,7 +308,8 @@ def resolve(
     next_in_cell: wp.array2d(dtype=wp.int32),
 ):
     """Accept the cell winners that no lower-indexed nearby winner of this round conflicts with (one thread per listed
-    mover, as :func:`propose`)."""
+    mover, as :func:`propose`); with ``scan`` the winners are looked for among the world's movers and the accepted
+    ones are not pushed onto cell lists (the same verdicts)."""
     i = wp.tid()
     if i >= count[0]:
         return
@@ -295,6 +320,19 @@ def resolve(
     c = place_cell(g, p)
     own = cell_index(g, w, c)
     if claimant(claim[own], round_id) != m:
+        return
+    if scan != 0:
+        # the cell winners of this round are the movers whose claim holds the cell of their candidate (a stale
+        # candidate of an earlier call or round holds no claim of this round); the grid's cells within reach hold
+        # every conflicting one
+        for j in range(m):
+            if cand_ok[w, j] != 0:
+                q = cand[w, j]
+                if conflict(g, p - q):
+                    if claimant(claim[cell_index(g, w, place_cell(g, q))], round_id) == j:
+                        return
+        pos[w, m] = p
+        todo[w, m] = 0
         return
     for dy in range(-g.reach, g.reach + 1):
         for dx in range(-g.reach, g.reach + 1):

@@ -168,19 +168,22 @@ def _mover_cycle(force_fn, latency: bool, nominal: bool):
 
 
 @functools.cache
-def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int):
+def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max_registers: int = 0):
     """The fused swarm step for ``force_fn``. ``block_dim`` > 0: the CUDA shape,
     ``wp.launch_tiled(kernel, dim=num_worlds, block_dim=block_dim)`` with ``block_dim`` >= the movers per world; lanes
     past the last mover mirror it (same work, no writes) so that every lane reaches every tile operation.
     ``block_dim`` 0: the CPU shape, one thread per world (``dim=num_worlds``), the state in memory, the same
     candidate and partner functions; ``start_xy`` (vec2), ``snap`` (vec4), ``cand_list`` (:data:`Candidates`) and
-    ``cand_count`` (int32), all ``[W, M]``, are its scratch."""
+    ``cand_count`` (int32), all ``[W, M]``, are its scratch. ``max_registers`` > 0 (CUDA): a cap on the registers per
+    thread (``__maxnreg__``; more blocks per SM, maybe spills; the same arithmetic), 0: the compiler's choice."""
     mover_cycle = _mover_cycle(force_fn, latency, nominal)
     TILED = int(block_dim) > 0
     BLOCK = max(int(block_dim), 1)
     options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
 
-    @wp.kernel(module="unique", enable_backward=False, module_options=options)
+    caps = {"cuda_max_registers": int(max_registers)} if int(max_registers) > 0 else {}
+
+    @wp.kernel(module="unique", enable_backward=False, module_options=options, **caps)
     def swarm_step(
         num_cycles: int,
         travel: float,  # m: the candidate lists' travel budget

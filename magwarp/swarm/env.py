@@ -43,9 +43,10 @@ per-cycle path's results bit for bit; larger worlds, MagBotSim's rule and furthe
 The rest of a step is a few launches over the movers, none of them a host sync: the command (stopped movers
 zeroed), one kernel for every mover's outcome (flags, reward, goal and job counts, what it asks of the placers,
 :func:`~magwarp.kernels.swarm.evaluate_movers`), the goal and respawn placers (a thread per mover to place in their
-rounds), one kernel that applies the respawns, and the observation (one kernel writing each row straight into the
-returned tensor, with the NaN guard's per-world check; each mover scans its world's movers, on CUDA a thread block per
-world with its movers in shared memory; above 256 movers per world, 128 on the CPU, grid binning first).
+rounds, each candidate checked against its world's movers: no cell lists up to 256 movers per world on CUDA), one
+kernel that applies the respawns, and the observation (one kernel writing each row straight into the returned tensor,
+with the NaN guard's per-world check; each mover scans its world's movers, on CUDA a thread block per world with its
+movers in shared memory; above 256 movers per world, 128 on the CPU, grid binning first).
 
 Every option is a field of :class:`SwarmConfig`; the constructor takes a config and/or the same names as keywords.
 """

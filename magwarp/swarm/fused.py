@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import os
+
 import warp as wp
 
 from magwarp.kernels import swarm_step as kss
@@ -24,6 +26,21 @@ __all__ = ["FusedSwarmStep", "fused_applies", "MAX_FUSED_MOVERS"]
 
 MAX_FUSED_MOVERS = kss.MAX_BLOCK
 TRAVEL_SLACK = 1.01  # the travel budget's room over the speed cap's distance (rounding; the guard covers the rest)
+#: the tiled (CUDA) kernel's cap on registers per thread: the compiler's choice for sm_90 is 130, where 128 fit with
+#: no more spill (64 B of stack either way: the candidate list; ``benchmarks/kernel_registers.py --swarm``), so a
+#: multiprocessor (65,536 registers) holds 8 blocks of 64 movers instead of 7, 4 of 128 instead of 3 and 2 of 256
+#: instead of 1. The same arithmetic. ``MAGWARP_SWARM_MAX_REGISTERS`` overrides it (0: no cap), for tuning.
+MAX_REGISTERS = 128
+
+
+def max_registers() -> int:
+    """The tiled kernel's register cap (:data:`MAX_REGISTERS`, or ``MAGWARP_SWARM_MAX_REGISTERS``)."""
+    value = os.environ.get("MAGWARP_SWARM_MAX_REGISTERS", "").strip()
+    if not value:
+        return MAX_REGISTERS
+    if not value.isdigit():
+        raise ValueError(f"MAGWARP_SWARM_MAX_REGISTERS must be an integer >= 0, got {value!r}")
+    return int(value)
 
 
 def fused_applies(num_movers: int, on_collision: str) -> str | None:
@@ -78,10 +95,12 @@ class FusedSwarmStep:
                 s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list, self.stopped]
         if self.tiled:
             if not dev.is_cuda and sim.num_movers != 1 and not wp.config.enable_cpu_blocks:
-                raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks (Warp's "
-                                 f"cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} movers")
+                raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks "
+                                 f"(Warp's cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} "
+                                 f"movers")
             block = world_block_dim(sim.num_movers)
-            kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block)
+            kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block,
+                                          max_registers() if dev.is_cuda else 0)
             wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=[*args, *self._scratch], block_dim=block, device=dev)
         else:
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, 0)

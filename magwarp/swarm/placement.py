@@ -43,6 +43,11 @@ MAX_AREA_POINTS = 4_000_000
 BOUND_SLACK = 1.03
 #: densest packing of equal discs (hexagonal): fraction of the plane covered
 HEX_DENSITY = math.pi / (2.0 * math.sqrt(3.0))
+#: how placement checks a candidate against the other movers (:class:`Placer`'s ``search``)
+SEARCHES = ("grid", "world")
+#: the most movers per world for which the default search scans the world (CUDA, CPU)
+WORLD_SCAN_CUDA = 256
+WORLD_SCAN_CPU = 64
 
 
 class PlacementError(LayoutError):
@@ -77,12 +82,17 @@ class Placer:
     ``offset``: sampling safety offset added to every shape (MagBotSim's ``collision_params["offset"]``): two placed
     movers keep ``2 * (size + margin + offset)`` apart and every footprint grown by ``offset + wall_margin`` lies on
     the tiles. ``radius`` / ``half_size`` override the mover's collision size (use the largest of per-mover sizes).
-    ``tries``: candidates per mover and round. ``seed``: base seed of the device random streams.
+    ``tries``: candidates per mover and round. ``seed``: base seed of the device random streams. ``search``: how a
+    candidate is checked against the other movers (:data:`SEARCHES`; the same spots either way, bit for bit):
+    ``"grid"`` (the neighbouring cells' lists, built and emptied by each call: work per mover near the candidate) or
+    ``"world"`` (every mover of its world, no lists: for small worlds, where the lists' binning, emptying and
+    scattered cell reads cost more than the scan); None: ``"world"`` up to :data:`WORLD_SCAN_CUDA` movers per world
+    on CUDA and :data:`WORLD_SCAN_CPU` on the CPU, else ``"grid"``.
     """
 
     def __init__(self, layout: Layout | np.ndarray, num_movers: int, num_worlds: int = 1, *,
                  mover: MoverSpec | None = None, offset: float = 0.0, radius: float | None = None,
-                 half_size=None, tries: int = 8, device=None, seed: int = 0):
+                 half_size=None, tries: int = 8, device=None, seed: int = 0, search: str | None = None):
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
         self.mover = mover or MoverSpec()
         if int(num_movers) < 1 or int(num_worlds) < 1:
@@ -95,6 +105,10 @@ class Placer:
         self.offset = float(offset)
         self.device = wp.get_device(device)
         self.torch_device = torch.device(wp.device_to_torch(self.device))
+        if search is None:
+            search = "world" if self.num_movers <= (WORLD_SCAN_CUDA if self.device.is_cuda else WORLD_SCAN_CPU) \
+                else "grid"
+        self.search = search
         self._seed = int(seed) & 0x3FFFFFFF
         self._calls = 0
         self.col = _collision(self.layout, self.mover)
@@ -150,6 +164,17 @@ class Placer:
             raise PlacementError(
                 f"no valid position on this layout for a mover of collision size {self._size_text()} with wall margin "
                 f"{self.col.wall_margin:g} m and sampling offset {self.offset:g} m: reduce the size or the margins")
+
+    @property
+    def search(self) -> str:
+        """How a candidate is checked against the other movers (:data:`SEARCHES`); settable between calls."""
+        return self._search
+
+    @search.setter
+    def search(self, value: str) -> None:
+        if value not in SEARCHES:
+            raise ValueError(f"search must be None or one of {SEARCHES}, got {value!r}")
+        self._search = value
 
     # ------------------------------------------------------------------ geometry of the request
     def _size_text(self) -> str:
@@ -241,16 +266,20 @@ class Placer:
         self._count.zero_()
         wp.launch(kpl.begin_todo, dim=dim, inputs=[wp.from_torch(mask.to(torch.bool).contiguous(), dtype=wp.bool)],
                   outputs=[self._todo, self._active, self._listed, self._count], device=dev)
+        self._hold = int(hold)
+        self._scan = int(self.search == "world")  # this call's search (the setter may change it before the next)
+        if self._scan:  # no lists: the rounds scan the world's movers
+            return pos
         wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo, self._active],
                   outputs=[self._head, self._next, self._head_old, self._next_old, self._old_cell], device=dev)
-        self._hold = int(hold)
         return pos
 
     def _end(self, pos: wp.array) -> None:
         """Empty the cells this call filled (the next call finds the grid clean without clearing every cell)."""
-        wp.launch(kpl.unbin, dim=(self.num_worlds, self.num_movers), device=self.device,
-                  inputs=[self.grid, pos, self._todo, self._active, self._old_cell],
-                  outputs=[self._head, self._head_old])
+        if not self._scan:
+            wp.launch(kpl.unbin, dim=(self.num_worlds, self.num_movers), device=self.device,
+                      inputs=[self.grid, pos, self._todo, self._active, self._old_cell],
+                      outputs=[self._head, self._head_old])
         self._grid_clean = True
 
     def _rounds(self, pos: wp.array, rounds: int) -> None:
@@ -259,13 +288,13 @@ class Placer:
         for _ in range(rounds):
             wp.launch(kpl.propose, dim=dim, device=dev,
                       inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
-                              self._next_seed(), self.tries, self._hold, self._round + 1, pos, self._todo, self._head,
-                              self._next, self._head_old, self._next_old, self._listed, self._count],
+                              self._next_seed(), self.tries, self._hold, self._round + 1, self._scan, pos, self._todo,
+                              self._head, self._next, self._head_old, self._next_old, self._listed, self._count],
                       outputs=[self._cand, self._cand_ok, self._claim])
             self._round += 1
             wp.launch(kpl.resolve, dim=dim, device=dev,
-                      inputs=[g, self._round, self._cand, self._cand_ok, self._claim, self._listed, self._count,
-                              self._todo, pos, self._head, self._next])
+                      inputs=[g, self._round, self._scan, self._cand, self._cand_ok, self._claim, self._listed,
+                              self._count, self._todo, pos, self._head, self._next])
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
                     hold: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
