@@ -167,7 +167,7 @@ def lean_solve(a: mat66d, rhs: vec6d, reg: wp.float64):
 
 
 @functools.cache
-def make_fast_cycle(slots: int, lanes: int, tiles: bool = False):
+def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: int = 0):
     """``(mover_func, kernel, first_kernel, rest_kernel)`` of the cycle for a window of ``slots`` slots with ``lanes``
     threads per mover (see the module docstring). ``tiles``: reduce over a block of ``lanes`` threads with
     ``wp.tile_sum`` (a CPU with ``warp.config.enable_cpu_blocks``; launch one block per mover) instead of warp shuffles.
@@ -178,7 +178,8 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False):
     float64 pose arrays, thread ``m * lanes + lane``. The split cycle: ``first_kernel`` (every mover: the fast path;
     a mover with a coil past its limit at the first solve is listed instead) then ``rest_kernel`` (the listed movers'
     whole cycle): the same results, and the register-hungry active-set loop (its columns, matrix and step state live
-    across a loop) stays out of the kernel every mover runs (sm_90, 8 lanes: 216 B of stack against 1.9 KB)."""
+    across a loop) stays out of the kernel every mover runs (sm_90, 8 lanes, 255 registers: 360 B of stack against
+    1.9 KB). ``max_registers`` > 0 caps the registers per thread of the kernels (more threads per SM, more spills)."""
     if lanes not in LANE_CHOICES:
         raise MagneticsError(f"lanes per mover must be one of {LANE_CHOICES}, got {lanes!r}")
     S = int(slots)
@@ -188,6 +189,7 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False):
     Ints = wp.types.vector(length=P, dtype=wp.int32)
     # (Warp unrolls the per-lane slot loops, up to 16 slots a lane: the columns stay in registers on a GPU)
     options = {"enable_backward": False}
+    caps = {"cuda_max_registers": int(max_registers)} if max_registers > 0 else {}
 
     @wp.func
     def reduce_packed(a: mat66d) -> mat66d:
@@ -261,8 +263,9 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False):
                 yv, regd = lean_solve(a, rhs, c.reg)
                 if regd:
                     flag = flag | FLAG_REGULARISED
-                # How far toward the free coils' optimum the limits allow. On the first solve (every coil free) also the
-                # currents (written), the delivered wrench and the loss: if no coil passes its limit, that is the answer.
+                # How far toward the free coils' optimum the limits allow. On the first solve (every coil free) also
+                # the currents (written), the delivered wrench and the loss: if no coil passes its limit, that is the
+                # answer.
                 first = it == 1
                 part = vec8d()
                 part[7] = ONE
@@ -359,7 +362,7 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False):
     fast_mover = make_mover(False)
     first_mover = make_mover(True)
 
-    @wp.kernel(module="unique", module_options=options)
+    @wp.kernel(module="unique", module_options=options, **caps)
     def fast_cycle_kernel(
         # Model:
         c: CycleParams,
@@ -376,7 +379,7 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False):
         p = pos[m]
         fast_mover(c, m, i % L, float(p[0]), float(p[1]), float(p[2]), quat_yaw(quat[m]), wanted[m], o)
 
-    @wp.kernel(module="unique", module_options=options)
+    @wp.kernel(module="unique", module_options=options, **caps)
     def first_kernel(
         # Model:
         c: CycleParams,
@@ -399,7 +402,7 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False):
         if flag < 0 and lane == 0:
             rest[wp.atomic_add(rest_count, 0, 1)] = m
 
-    @wp.kernel(module="unique", module_options=options)
+    @wp.kernel(module="unique", module_options=options, **caps)
     def rest_kernel(
         # Model:
         c: CycleParams,
@@ -431,7 +434,8 @@ class FastCycle:
     GPU) the fast path of every mover, then the active-set steps of the movers it left (3 launches with the
     counter's zeroing, no host sync: graph-capturable)."""
 
-    def __init__(self, model: TableModel, commutation, lanes: int | None = None, split: bool | None = None):
+    def __init__(self, model: TableModel, commutation, lanes: int | None = None, split: bool | None = None,
+                 max_registers: int = 0):
         self.params = cycle_params(model, commutation)
         self.model, self.commutation = model, commutation
         dev = model.device
@@ -451,8 +455,10 @@ class FastCycle:
         #: Two launches (the fast path of every mover, then the full steps of those a limit stopped): see
         #: :func:`make_fast_cycle`.
         self.split = bool(split)
-        self.mover_func, self.kernel, self.first_kernel, self.rest_kernel = make_fast_cycle(model.max_active,
-                                                                                             self.lanes, self.tiles)
+        if int(max_registers) != max_registers or max_registers < 0:
+            raise MagneticsError(f"FastCycle max_registers must be a non-negative integer, got {max_registers!r}")
+        self.mover_func, self.kernel, self.first_kernel, self.rest_kernel = make_fast_cycle(
+            model.max_active, self.lanes, self.tiles, int(max_registers))
         self._rest = self._rest_count = None
 
     def run(self, pos: wp.array, quat: wp.array, wanted: wp.array, out: CommutationResult,
