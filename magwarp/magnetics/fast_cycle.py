@@ -26,9 +26,11 @@ rounding (``tests/test_magnetics_fast_cycle.py``), in another launch shape:
 
 The cost per mover (default window, 8 lanes): the look-up's 16 float16 corner reads per coil (about 28 coils),
 21 + 13 float64 multiply-adds per coil, one float64 6 x 6 scaled Cholesky solve per step shared by the mover's 8 lanes
-(four movers' solves run side by side in a warp), 2 reductions of 36 float64 values (3 shuffle rounds each) on the
-fast path; the writes are the currents (float64) and saturation flags per slot and the mover's wrench, residual,
-loss, flags and count.
+(four movers' solves run side by side in a warp), two reductions on the fast path (28 and 8 float64 values, 3 shuffle
+rounds each); the writes are the currents (float64) and saturation flags per slot and the mover's wrench, residual,
+loss, flags and count. On a GPU the cycle is split by default (:func:`make_fast_cycle`): every mover's fast path, then
+the active-set steps of the movers it listed (about 22% in ``benchmarks/magnetics.py``'s wrenches), so the
+register-hungry loop stays out of the kernel every mover runs.
 
 On a CPU the default is one lane per mover (no reduction at all). ``lanes > 1`` on a CPU emulates the GPU's lane
 groups with one block of ``lanes`` threads per mover and ``wp.tile_sum`` reductions (``warp.config.enable_cpu_blocks``
