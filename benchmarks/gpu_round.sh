@@ -8,7 +8,8 @@
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
 # small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile, fire and
-# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), magnetics_variants (#17),
+# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), magnetics_variants and
+# magnetics_fast (#17),
 # swarm_fused (#18), compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
@@ -46,6 +47,15 @@ for stage in "$@"; do
       timeout 590 python3 benchmarks/magnetics.py --device cuda:0 --accuracy-poses 8 --magpylib-movers 0 --limits '' \
         --fast-sizes '' --exact-sizes '' --table-variants default,yaw24_gap25_55 --per-cycle \
         --drive-variants ${DRIVES:-hook} --env-steps 10 --json "$OUT/magnetics_cycle_gpu.json" 2>&1 | grep -v "^Module" | tail -40 ;;
+    magnetics_fast)
+      # #17: the block cycle beside the fast cycle (magwarp/magnetics/fast_cycle.py: 8 lanes per mover, the fast path,
+      # then the active-set steps of the movers it left) and its variants at 1e3/1e5/1e6 movers, with their current
+      # differences; then the fast cycle's GPU tests
+      timeout 420 python3 benchmarks/magnetics.py --device cuda:0 --fast-cycle-only \
+        --fast-cycle-sizes 1000,100000,1000000 --json "$OUT/magnetics_fast_cycle_gpu.json" 2>&1 | grep -v "^Module" \
+        | tail -16
+      timeout 150 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_magnetics_fast_cycle.py 2>&1 \
+        | tail -4 ;;
     magnetics_sweep)
       # #17: the shipped B0 policy driven magnetically (the in-step drive) as the current limit falls; not timed
       timeout 590 python3 benchmarks/magnetics.py --device cuda:0 --sizes '' --fast-sizes '' --exact-sizes '' \

@@ -19,6 +19,8 @@ Per device and mover count (movers at random poses over an 8 x 8-tile layout, 3-
   step kernels in float64 / float32, or the pre-cycle hook; the first is reported as ``magnetic``), and each one's
   share of the ideal speed; ``env``: the same for the ``magwarp/TrajectoryPlanningB0-v0`` env's env-steps/s (the
   issue's >= 25%);
+* ``fast_cycle`` (``--fast-cycle-sizes``): the block cycle beside the fast cycle (:mod:`magwarp.magnetics.fast_cycle`:
+  a few lanes per mover, the no-saturation answer first) and its variants, with their current differences;
 * ``sweep``: the shipped B0 policy's success rate and copper energy per goal with the ideal model and with the
   magnetic model as the coil current limit falls (``--limits``; ``magwarp eval`` with ``force_model``).
 Also: the table and fast models' largest column error as a share of the peak force and torque against the exact
@@ -33,6 +35,8 @@ per mover, the ratio, and how far the two wrenches differ.
     python benchmarks/magnetics.py --device cuda:0 --accuracy-poses 8 --magpylib-movers 0 --limits '' \
         --fast-sizes '' --exact-sizes '' --table-variants default,yaw24,gap25_55,yaw24_gap25_55 --per-cycle \
         --env-steps 10 --json benchmarks/results/magnetics_cycle_gpu.json   # the control cycle's variants (#17)
+    python benchmarks/magnetics.py --device cuda:0 --fast-cycle-only --fast-cycle-sizes 1000,100000,1000000 \
+        --json benchmarks/results/magnetics_fast_cycle_gpu.json   # the block cycle beside the fast cycle (#17)
 """
 
 from __future__ import annotations
@@ -266,6 +270,86 @@ def table_variant_rows(args, device: str, params) -> list[dict]:
               f"{row['thread_float32_cycle_ms']:.3f} ms, float64 {row['thread_float64_cycle_ms']:.3f} ms"
               + (f", force error {row['force_error_share']:.3%}, torque error {row['torque_error_share']:.3%}"
                  if "force_error_share" in row else ""), flush=True)
+    return rows
+
+
+#: The fast cycle's variants timed beside the block cycle (``--fast-cycle-sizes``): (name, FastCycle options, write
+#: coil ids and columns).
+FAST_VARIANTS = [("fast", {}, False), ("fast_ids_cols", {}, True), ("fast_r128", {"max_registers": 128}, False),
+                 ("fast_l16", {"lanes": 16}, False)]
+
+
+def fast_cycle_rows(args, device: str, params) -> list[dict]:
+    """The block cycle (:class:`~magwarp.magnetics.cycle.ControlCycle`, one block of 32 threads per mover, coil ids
+    and columns written) beside the fast cycle (:class:`~magwarp.magnetics.fast_cycle.FastCycle`: 8 lanes per mover,
+    the fast path, then the active-set steps of the movers it left) and its variants, at each of
+    ``--fast-cycle-sizes`` movers (the speed rows' poses and wrenches): ms per cycle, the largest current difference
+    from the block cycle (all movers, unregularised ones), equal saturations and flags, the movers sent on to the
+    active-set steps. Every kernel is compiled first, in parallel."""
+    from magwarp.layout import Layout
+    from magwarp.magnetics.commutation import Commutation, CommutationResult, vec6f
+    from magwarp.magnetics.cycle import ControlCycle
+    from magwarp.magnetics.exact import vec6d
+    from magwarp.magnetics.fast_cycle import FastCycle
+    from magwarp.magnetics.table import TableModel
+
+    gpu = device.startswith("cuda")
+    table = TableModel(Layout.grid(args.tiles, args.tiles), params, args.table_spec, device=device)
+    com = Commutation(table.coilset, device=device)
+    variants = FAST_VARIANTS if gpu else [v for v in FAST_VARIANTS if not v[1]]
+    cycles = {name: FastCycle(table, com, **opts) for name, opts, _ in variants}
+    block = ControlCycle(table, com)
+    from magwarp.magnetics.cycle import cycle_kernel
+
+    kernels = [cycle_kernel] + [k for c in cycles.values() for k in ((c.first_kernel, c.rest_kernel) if c.split
+                                                                      else (c.kernel,))]
+    t0 = time.perf_counter()
+    wp.force_load(device, modules=list({id(k.module): k.module for k in kernels}.values()), max_workers=8)
+    print(f"  fast cycle: kernels compiled in {time.perf_counter() - t0:.1f} s", flush=True)
+    bottom = float(params.magnets.bounds[0, 2])
+    rows = []
+    sync = lambda: wp.synchronize_device(device)  # noqa: E731
+    for n in args.fast_cycle_sizes:
+        rng = np.random.default_rng(0)
+        pos, quat = table.as_arrays(random_poses(rng, n, args.tiles, bottom))
+        w_in = wp.array(wanted_wrench(rng, n), dtype=vec6d, device=device)
+        slots = table.max_active
+        ids, count = wp.empty((n, slots), dtype=wp.int32, device=device), wp.empty(n, dtype=wp.int32, device=device)
+        gamma = wp.empty((n, slots), dtype=vec6f, device=device)
+        ref = CommutationResult.zeros(n, slots, device)
+        row = {"device": device, "movers": n, "slots": slots, "gpu_lanes": cycles["fast"].lanes}
+        row["block_cycle_ms"] = time_call(lambda: block.run(pos, quat, w_in, ids, gamma, count, ref), args.repeats,
+                                          warmup=1, sync=sync)[2]
+        flags = ref.flags.numpy()
+        regd = (flags & 1) != 0
+        row.update(saturated_movers=int(ref.saturated.numpy().any(axis=1).sum()), regularised_movers=int(regd.sum()))
+        for name, _, with_cols in variants:
+            cyc, res = cycles[name], CommutationResult.zeros(n, slots, device)
+            f_ids = wp.empty_like(ids) if with_cols else None
+            f_gamma = wp.empty_like(gamma) if with_cols else None
+            row[f"{name}_ms"] = time_call(lambda c=cyc, r=res, i=f_ids, g=f_gamma: c.run(pos, quat, w_in, r, count, i,
+                                                                                          g), args.repeats, warmup=1,
+                                          sync=sync)[2]
+            diff = np.abs(res.currents.numpy() - ref.currents.numpy()).max(axis=1)
+            row[f"{name}_max_current_diff_a"] = float(diff.max())
+            row[f"{name}_max_current_diff_unregularised_a"] = float(diff[~regd].max()) if (~regd).any() else 0.0
+            row[f"{name}_same_flags"] = bool(np.array_equal(res.flags.numpy(), flags))
+            row[f"{name}_same_saturated"] = bool(np.array_equal(res.saturated.numpy(), ref.saturated.numpy()))
+            if cyc.split:
+                row[f"{name}_rest_movers"] = cyc.rest_movers
+        row["fast_speedup"] = row["block_cycle_ms"] / row["fast_ms"]
+        rows.append(row)
+        print(f"  {device} fast cycle, {n} movers: block {row['block_cycle_ms']:.3f} ms, "
+              + ", ".join(f"{v[0]} {row[f'{v[0]}_ms']:.3f} ms" for v in variants)
+              + f" (x{row['fast_speedup']:.1f}; max current diff {row['fast_max_current_diff_a']:.1e} A, unregularised "
+              f"{row['fast_max_current_diff_unregularised_a']:.1e} A, same flags {row['fast_same_flags']}, same "
+              f"saturations {row['fast_same_saturated']}; {row.get('fast_rest_movers', '-')} movers to the active-set "
+              f"steps, {row['saturated_movers']} saturated, {row['regularised_movers']} regularised)", flush=True)
+    print(f"\n  | movers | block cycle ms | " + " | ".join(f"{v[0]} ms" for v in variants) + " | speedup |")
+    print("  |---" * (len(variants) + 3) + "|")
+    for r in rows:
+        print(f"  | {r['movers']:,} | {r['block_cycle_ms']:.3f} | "
+              + " | ".join(f"{r[f'{v[0]}_ms']:.3f}" for v in variants) + f" | {r['fast_speedup']:.1f}x |")
     return rows
 
 
@@ -584,6 +668,9 @@ def main(argv=None) -> int:
     parser.add_argument("--sweep-episodes", type=int, default=None, help="worlds per repeat (GPU 1024, CPU 8)")
     parser.add_argument("--sweep-repeats", type=int, default=None, help="repeats (GPU 10, CPU 1)")
     parser.add_argument("--sweep-steps", type=int, default=250, help="env steps per world (250: 10 s)")
+    parser.add_argument("--fast-cycle-sizes", type=sizes, default=sizes(""),
+                        help="movers: the block cycle beside the fast cycle (magwarp/magnetics/fast_cycle.py)")
+    parser.add_argument("--fast-cycle-only", action="store_true", help="only the --fast-cycle-sizes rows")
     parser.add_argument("--json", default=None, help="default: benchmarks/results/magnetics_<cpu|gpu>.json")
     args = parser.parse_args(argv)
 
@@ -598,8 +685,15 @@ def main(argv=None) -> int:
     unknown = [v for v in args.table_variants if v not in TABLE_VARIANTS]
     if unknown:
         parser.error(f"unknown --table-variants {unknown}; known: {sorted(TABLE_VARIANTS)}")
-    speed, accuracy, footprint, magpylib, sim, env, tables = [], [], [], [], [], [], []
+    speed, accuracy, footprint, magpylib, sim, env, tables, fast = [], [], [], [], [], [], [], []
+    if args.fast_cycle_only:
+        args.accuracy_poses = args.magpylib_movers = 0
+        args.limits = []
     for device in devices:
+        if args.fast_cycle_sizes:
+            fast += fast_cycle_rows(args, device, params)
+        if args.fast_cycle_only:
+            continue
         speed += speed_rows(args, device, params, spec)
         if args.table_variants:
             tables += table_variant_rows(args, device, params)
@@ -625,12 +719,13 @@ def main(argv=None) -> int:
             + [{"kind": "env", **r} for r in env] + [{"kind": "table_variant", **r} for r in tables]
             + [{"kind": "accuracy", **r} for r in accuracy]
             + [{"kind": "footprint", **r} for r in footprint] + [{"kind": "magpylib", **r} for r in magpylib]
-            + [{"kind": "sweep", **r} for r in sweep]
+            + [{"kind": "sweep", **r} for r in sweep] + [{"kind": "fast_cycle", **r} for r in fast]
             + [{"kind": "options", **options, "table_spec": repr(args.table_spec)}])
     finish([r for r in rows if r["kind"] != "options"],
            ["kind", "device", "model", "movers", "worlds", "num_envs", ("gamma_ms", "Gamma ms"),
             ("commutation_ms", "commutation ms"), ("cycle_ms", "cycle ms"),
-            ("fused_cycle_ms", "fused cycle ms"), ("thread_f32_cycle_ms", "1-thread f32 ms"),
+            ("fused_cycle_ms", "fused cycle ms"), ("block_cycle_ms", "block cycle ms"), ("fast_ms", "fast cycle ms"),
+            ("thread_f32_cycle_ms", "1-thread f32 ms"),
             ("thread_f64_cycle_ms", "1-thread f64 ms"), "table_variant", ("table_mb", "table MB"),
             ("thread_float32_cycle_ms", "variant f32 ms"), ("active_coils_mean", "coils/mover"),
             ("ideal_step_ms", "ideal ms/step"), ("magnetic_step_ms", "magnetic ms/step"),
