@@ -180,7 +180,7 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # worlds), split by phase; the observation and the respawn placement alone by search; the motion uncapped
       timeout 560 python3 benchmarks/swarm.py --device cuda:0 --fused-sweep --fused-movers ${FUSED_MOVERS:-100} \
         --fused-worlds ${FUSED_WORLDS:-1024 4096 8192 16384} --json "$OUT/swarm_fused_gpu_${FUSED_MOVERS:-100}.json" \
-        2>&1 | grep -v "^Module" | tail -32 ;;
+        2>&1 | grep -v "^Module" | tail -40 ;;
     rand_gaps)
       # #24: B0's randomisation cost by setting at 16,384 and 65,536 envs: env step, graph replay alone, kernel time and
       # the gaps between kernels (full_nofire: full with the reset firing left out of the step)
