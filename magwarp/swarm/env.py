@@ -60,7 +60,9 @@ graphs alternate, so the tensors a step returns are the graph's own outputs: val
 overwritten by the one after it (clone what you keep longer). :attr:`SwarmEnv.step_path` says which path runs;
 ``graph=False``, the CPU, benchmark metrics and hooks replaced on the instance run the same launches eagerly, with
 the same results bit for bit (fresh tensors each step). The random streams are the ones the host counters gave
-before: the eager step's results are unchanged.
+before, so the eager step's results are unchanged, but for the world's reward, now summed in mover order by
+``finish_worlds`` (torch's sum before): the same for the default rewards (integers), within float32 rounding for
+others.
 
 Every option is a field of :class:`SwarmConfig`; the constructor takes a config and/or the same names as keywords.
 """
