@@ -8,9 +8,9 @@
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
 # small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile, fire and
-# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), magnetics_variants and
-# magnetics_fast (#17),
-# swarm_fused (#18), compare (B0 env throughput of an older tree beside this one).
+# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps (#24),
+# magnetics_variants and magnetics_fast (#17), swarm_fused and tests18 (#18), compare (B0 env throughput of an older
+# tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -31,6 +31,11 @@ for stage in "$@"; do
         tests/test_sensor_draws.py tests/test_sim2real_models.py tests/test_planar_randomization.py \
         > "$OUT/pytest24_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest24_gpu.log" | tail -25 ;;
+    tests18)
+      # #18: the swarm env's step as one CUDA graph against the same launches eagerly (bit for bit), the fused step
+      timeout 300 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings tests/test_swarm_graph.py \
+        tests/test_swarm_fused.py tests/test_swarm_task_kernels.py > "$OUT/pytest18_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest18_gpu.log" | tail -25 ;;
     queries)
       timeout 400 python3 benchmarks/collision_queries.py --devices cpu cuda:0 --max-poses-cpu 1e5 \
         --json "$OUT/collision_queries_gpu.json" 2>&1 | tail -40 ;;
@@ -190,7 +195,7 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # worlds), split by phase; the observation and the respawn placement alone by search; the motion uncapped
       timeout 560 python3 benchmarks/swarm.py --device cuda:0 --fused-sweep --fused-movers ${FUSED_MOVERS:-100} \
         --fused-worlds ${FUSED_WORLDS:-1024 4096 8192 16384} --json "$OUT/swarm_fused_gpu_${FUSED_MOVERS:-100}.json" \
-        2>&1 | grep -v "^Module" | tail -32 ;;
+        2>&1 | grep -v "^Module" | tail -40 ;;
     rand_gaps)
       # #24: B0's randomisation cost by setting at 16,384 and 65,536 envs: env step, graph replay alone, kernel time and
       # the gaps between kernels (full_nofire: full with the reset firing left out of the step)

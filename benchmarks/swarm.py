@@ -29,7 +29,14 @@ collide as in a run), computed on the device.
     python benchmarks/swarm.py --device cuda:0 --fused-sweep --json benchmarks/results/swarm_fused_gpu.json
     python benchmarks/swarm.py --device cpu --fused-sweep --small       # the same rows at CPU sizes (smoke check)
 
-Each fused row also splits the env step (``step_split``, each phase between device synchronisations inside real
+The fused env step is timed two ways on the same env: as one CUDA graph replay (``fused_env_ms``, the default on
+CUDA: :attr:`~magwarp.swarm.SwarmEnv.step_path` ``"graph"``) and with the same launches issued one by one from Python
+(``fused_eager_env_ms``, ``graph=False``); on the CPU both are the eager step. Before timing, a graph env and an
+eager env step the same worlds with the same actions and every output and state field is compared
+(``graph_match``: bit for bit). ``fused_env_ms`` minus the steering rule (``env_only_ms``) gives
+``env_only_agent_steps_per_s``, the issue's number; the ``old`` (per-cycle) env runs eagerly, as in earlier rows.
+
+Each fused row also splits the eager env step (``step_split``, each phase between device synchronisations inside real
 steps): physics (stop mask, command copy, the fused motion's graph), observations (one kernel scanning each world's
 movers: on CUDA a block per world; grid binning first above 256 movers, 128 on the CPU), rewards/resets (per-mover
 outcome kernel, goal streams, respawns), the rest (action check, NaN guard, info) and the steering rule's own time
@@ -279,6 +286,48 @@ def compare_fused(movers: int, worlds: int, device: str, steps: int = COMPARE_ST
             "compare_flags_differing": flag_diff}
 
 
+def _tensors(out, prefix: str = "") -> dict:
+    """The tensors of a step's returns (nested dicts flattened), by name."""
+    if isinstance(out, torch.Tensor):
+        return {prefix: out}
+    if isinstance(out, dict):
+        items = out.items()
+    elif isinstance(out, (tuple, list)):
+        items = enumerate(out)
+    else:
+        return {}
+    found = {}
+    for k, v in items:
+        found.update(_tensors(v, f"{prefix}/{k}"))
+    return found
+
+
+def compare_graph(movers: int, worlds: int, device: str, steps: int = COMPARE_STEPS + 4) -> dict:
+    """Step a graph env and an eager env (``graph=False``) on the same worlds with the same actions; compare every
+    returned tensor and state field bit for bit (``graph_match``; ``graph_path``: the graph env's step path)."""
+    from magwarp.swarm import SwarmEnv
+
+    envs = [SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False,
+                     graph=g) for g in (False, True)]
+    names = ("pos", "quat", "vel", "omega", "acc", "cmd", "flags_any")
+    match, first_diff, respawned = True, None, 0
+    for t in range(steps):
+        action = seek_goals(envs[0])
+        outs = [_tensors(env.step(action.clone())) for env in envs]
+        state = [{**{n: getattr(env.sim, n) for n in names}, "goals": env.goals, "stopped": env.stopped,
+                  "pending": env.respawn_pending} for env in envs]
+        for a, b in ((outs[0], outs[1]), (state[0], state[1])):
+            for key in a:
+                if not torch.equal(a[key], b[key]):
+                    match = False
+                    first_diff = first_diff or f"step {t}: {key}"
+        respawned += int(outs[0]["/4/agent_terminated"].sum())
+    path = envs[1].step_path
+    del envs
+    return {"graph_match": match, "graph_first_diff": first_diff, "graph_compare_steps": steps,
+            "graph_compare_respawns": respawned, "graph_path": path}
+
+
 def kernel_breakdown(step, steps: int = 5, top: int = 12) -> list[dict]:
     """CUDA time per env step of the ``top`` costliest kernels and copies (torch's profiler, which sees Warp's
     kernels too, graph replays included): where the env step's time goes."""
@@ -414,8 +463,9 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
     row: dict = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps}
     for fused in (False, True):
         gc.collect()
+        # the per-cycle ("old") env eagerly, as in earlier rows; the fused env by graph replay (CUDA) and eagerly
         env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False,
-                       fused=fused)
+                       fused=fused, graph=fused)
         if obs_search is not None:
             env.local.search, env.local.staged = obs_search.split("_")[0], obs_search.endswith("_staged")
         if place_search is not None:
@@ -428,6 +478,10 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
             env.step(seek_goals(env))
 
         row[f"{key}_env_ms"], row[f"{key}_env_std_ms"] = _time(step, device, steps)
+        if fused:  # the same env, the same launches issued one by one (graph=False)
+            row["fused_step_path"] = env.step_path
+            env.graph = False
+            row["fused_eager_env_ms"], row["fused_eager_env_std_ms"] = _time(step, device, steps)
         row[f"{key}_motion_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
         if fused and device.startswith("cuda"):  # the motion alone without the tiled kernel's register cap
             from magwarp.swarm.fused import max_registers
@@ -444,12 +498,15 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
                 else:
                     os.environ["MAGWARP_SWARM_MAX_REGISTERS"] = saved
                 env.sim._graphs.clear()
-        if fused:  # the env step's split: physics, observations, rewards/resets, rest
-            row.update(step_split(env, device, steps, row["fused_env_ms"]))
+        if fused:  # the eager env step's split: physics, observations, rewards/resets, rest
+            row.update(step_split(env, device, steps, row["fused_eager_env_ms"]))
             row.update(obs_searches(env, device, steps))
             row.update(place_searches(env, device, steps))
+            env.graph = True  # the profile of the graph step (a capture first, then replays)
             if breakdown and device.startswith("cuda"):
                 try:
+                    step()
+                    step()
                     row["fused_kernels"] = kernel_breakdown(step)
                 except Exception as exc:  # noqa: BLE001 - a profiler missing on the machine must not end the sweep
                     row["fused_kernels"] = [{"error": repr(exc)}]
@@ -459,7 +516,12 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
     for key in ("old", "fused"):
         row[f"{key}_agent_steps_per_s"] = agents / (row[f"{key}_env_ms"] * 1e-3)
         row[f"{key}_motion_agent_steps_per_s"] = agents / (row[f"{key}_motion_ms"] * 1e-3)
+    row["fused_eager_agent_steps_per_s"] = agents / (row["fused_eager_env_ms"] * 1e-3)
+    row["graph_speedup"] = row["fused_eager_env_ms"] / row["fused_env_ms"]
+    row["eager_env_only_ms"] = row["env_only_ms"]  # step_split's: the eager step less the policy
+    row["env_only_ms"] = row["fused_env_ms"] - row["policy_ms"]  # the graph step less the policy
     row["env_only_agent_steps_per_s"] = agents / (row["env_only_ms"] * 1e-3)
+    row["eager_env_only_agent_steps_per_s"] = agents / (row["eager_env_only_ms"] * 1e-3)
     row["speedup"] = row["old_env_ms"] / row["fused_env_ms"]
     row["bandwidth_gb_s"] = bandwidth / 1e9
     row["floor_agent_steps_per_s"] = bandwidth / row["floor_bytes_per_agent_step"]
@@ -483,6 +545,11 @@ def run_fused_sweep(args) -> list[dict]:
         print(f"  {device} {movers} movers: fused matches per-cycle: {check['match']} "
               f"(max |dpos| {check['max_pos_diff']:.3g} m, {check['compare_flagged']} collision flags, "
               f"{check['compare_flags_differing']} differing)", flush=True)
+        check.update(compare_graph(movers, min(worlds_list[0], 256), device))
+        print(f"  {device} {movers} movers: graph step ({check['graph_path']}) matches the eager step: "
+              f"{check['graph_match']} ({check['graph_compare_steps']} steps, {check['graph_compare_respawns']} "
+              f"respawns{'; first difference ' + check['graph_first_diff'] if check['graph_first_diff'] else ''})",
+              flush=True)
         for worlds in worlds_list:
             steps = args.steps or (20 if device.startswith("cuda") else 3)
             row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1],
@@ -490,16 +557,18 @@ def run_fused_sweep(args) -> list[dict]:
             row.update(check)
             rows.append(row)
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
-                  f"ms ({row['fused_agent_steps_per_s']:.3g} agent-steps/s, {row['fused_of_floor']:.2f} of the "
-                  f"floor)", flush=True)
+                  f"ms ({row['fused_step_path']}; {row['fused_agent_steps_per_s']:.3g} agent-steps/s, "
+                  f"{row['env_only_agent_steps_per_s']:.3g} without the policy, {row['fused_of_floor']:.2f} of the "
+                  f"floor), fused eager {row['fused_eager_env_ms']:.3f} ms ({row['graph_speedup']:.2f}x)",
+                  flush=True)
             if "fused_motion_uncapped_ms" in row:
                 print(f"    motion alone: {row['fused_motion_ms']:.3f} ms with the kernel capped at "
                       f"{row['fused_max_registers']} registers, {row['fused_motion_uncapped_ms']:.3f} ms uncapped",
                       flush=True)
-            print(f"    split: physics {row['physics_ms']:.3f} ms (motion alone {row['fused_motion_ms']:.3f}), "
+            print(f"    eager split: physics {row['physics_ms']:.3f} ms (motion alone {row['fused_motion_ms']:.3f}), "
                   f"observations {row['obs_ms']:.3f}, rewards/resets {row['task_ms']:.3f}, rest {row['rest_ms']:.3f} "
-                  f"(policy {row['policy_ms']:.3f} aside): {row['env_only_agent_steps_per_s']:.3g} agent-steps/s "
-                  f"without the policy", flush=True)
+                  f"(policy {row['policy_ms']:.3f} aside): {row['eager_env_only_agent_steps_per_s']:.3g} "
+                  f"agent-steps/s without the policy", flush=True)
             alone = ", ".join(f"{k} {row[f'obs_{k}_ms']:.3f} ms" for k in ("grid", "world", "world_staged")
                               if f"obs_{k}_ms" in row)
             print(f"    observation alone by search: {alone} (env uses {row['obs_search']}; same rows: "
@@ -590,7 +659,8 @@ def main(argv=None) -> None:
                     print(f"    {r['worlds']} x {r['movers']}: {e['ms_per_step']:.3f} ms/step ({e['share']:.0%}) "
                           f"x{e['calls_per_step']:.0f} {e['name']}")
         print_table(rows, ["device", "worlds", "movers", "agents", ("old_env_ms", "old ms"),
-                           ("fused_env_ms", "fused ms"), ("speedup", "speedup"),
+                           ("fused_env_ms", "fused graph ms"), ("fused_eager_env_ms", "fused eager ms"),
+                           ("graph_speedup", "graph speedup"), ("speedup", "speedup"),
                            ("old_agent_steps_per_s", "old agent-steps/s"),
                            ("fused_agent_steps_per_s", "fused agent-steps/s"),
                            ("fused_motion_agent_steps_per_s", "fused motion agent-steps/s"),
@@ -599,8 +669,9 @@ def main(argv=None) -> None:
                            ("obs_world_ms", "obs world ms"), ("obs_world_staged_ms", "obs staged ms"),
                            ("obs_searches_match", "obs same"),
                            ("env_only_agent_steps_per_s", "env agent-steps/s (no policy)"),
+                           ("eager_env_only_agent_steps_per_s", "eager env agent-steps/s (no policy)"),
                            ("floor_agent_steps_per_s", "floor agent-steps/s"), ("fused_of_floor", "fused/floor"),
-                           ("match", "match")])
+                           ("match", "match"), ("graph_match", "graph match")])
         default = "gpu" if any(r["device"].startswith("cuda") for r in rows) else "cpu"
         path = args.json or os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
                                          f"swarm_fused_{default}.json")

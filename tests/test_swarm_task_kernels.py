@@ -31,12 +31,15 @@ def test_evaluate_movers_matches_numpy(rng, stations):
     if not stations:
         outs[5] = torch.zeros(0, 0, dtype=torch.bool)
     collected, jobs = t(collected0, torch.int64), t(jobs0, torch.int64)
+    collected_out, xy_out = torch.full((w, m), -7, dtype=torch.int64), torch.zeros(w, m, 2)
     f = wp.from_torch
     wp.launch(evaluate_movers, dim=(w, m), device="cpu",
               inputs=[rule, wp.array(flags.astype(np.int32), dtype=wp.int32, device="cpu"), pos,
                       f(goals_t, dtype=wp.vec2), f(t(pending, torch.bool)), f(t(goal_pending, torch.bool)),
                       f(t(carrying, torch.bool))],
-              outputs=[f(o) for o in outs] + [f(collected), f(jobs)])
+              outputs=[f(o) for o in outs] + [f(collected), f(jobs), f(collected_out), f(xy_out, dtype=wp.vec2)])
+    assert torch.equal(collected_out, collected), f"{rng}: info's copy of the goal counts"
+    np.testing.assert_array_equal(xy_out.numpy(), xy.astype(np.float32), err_msg=f"{rng}: the respawn positions")
     p32, g32 = xy.astype(np.float32), goals_t.numpy()
     dist = np.linalg.norm(p32.astype(np.float64) - g32, axis=-1)
     clear = np.abs(dist - thr) > 1e-5
@@ -69,9 +72,11 @@ def test_apply_respawns_matches_numpy(rng):
     arr = lambda a, dt: wp.array(a, dtype=dt, device="cpu")  # noqa: E731
     pos, vel, acc, cmd = arr(pos0, wp.vec3), arr(vel0, wp.vec3), arr(acc0, wp.vec2), arr(cmd0, wp.vec2)
     stopped, pending = arr(stopped0, wp.int32), arr(rng.random((w, m)) < 0.5, wp.bool)
+    pending_out = arr(np.zeros((w, m), dtype=bool), wp.bool)
+    todo = left.astype(np.int32) * rng.integers(1, 3, (w, m))  # the placer's marks: any nonzero is unplaced
     wp.launch(apply_respawns, dim=(w, m), device="cpu",
-              inputs=[arr(want, wp.bool), arr(left, wp.bool), arr(xy, wp.vec2)],
-              outputs=[pos, vel, acc, cmd, stopped, pending])
+              inputs=[arr(want, wp.bool), arr(todo.astype(np.int32), wp.int32), arr(xy, wp.vec2)],
+              outputs=[pos, vel, acc, cmd, stopped, pending, pending_out])
     moved = want & ~left
     want_pos = pos0.copy()
     want_pos[moved, :2] = xy[moved]
@@ -81,6 +86,7 @@ def test_apply_respawns_matches_numpy(rng):
     np.testing.assert_array_equal(cmd.numpy(), np.where(moved[..., None], 0.0, cmd0))
     np.testing.assert_array_equal(stopped.numpy(), np.where(moved, 0, stopped0))
     np.testing.assert_array_equal(pending.numpy(), want & left)
+    np.testing.assert_array_equal(pending_out.numpy(), want & left)
 
 
 def test_command_unless_stopped_matches_numpy(rng):
@@ -88,10 +94,12 @@ def test_command_unless_stopped_matches_numpy(rng):
     stopped = rng.integers(0, 2, (w, m)).astype(np.int32)
     action = rng.normal(0, 5, (w, m, 2)).astype(np.float32)
     cmd = wp.array(rng.normal(size=(w, m, 2)).astype(np.float32), dtype=wp.vec2, device="cpu")
+    steps = wp.array([41], dtype=wp.int64, device="cpu")
     wp.launch(command_unless_stopped, dim=(w, m), device="cpu",
               inputs=[wp.array(stopped, dtype=wp.int32, device="cpu"), wp.array(action, dtype=wp.vec2, device="cpu")],
-              outputs=[cmd])
+              outputs=[cmd, steps])
     np.testing.assert_array_equal(cmd.numpy(), np.where(stopped[..., None] != 0, 0.0, action), err_msg=str(rng))
+    assert steps.numpy().tolist() == [42], "the env's device step count advances once per launch"
 
 
 @pytest.mark.parametrize("search", ["grid", "world"])

@@ -21,6 +21,13 @@ which also holds *fixed* movers that are not being placed (e.g. the other movers
 ``hold``, the movers being placed keep their current spots blocked (second lists) until the call ends: a mover
 that is respawned stays where it is until it is placed, so no other may be placed onto it. Expected work
 is O(movers) per round; no sort, no scan, no host synchronisation.
+
+The random streams and round numbers come from a device counter (``counter``: int64 ``[seed, calls, round]``), not
+from the host: :func:`begin_todo` advances it by the call's rounds and each round's kernels read it back with their
+offset ``back`` (the rounds still to come after it), so that a call recorded in a CUDA graph draws fresh numbers at
+every replay. Round ``r`` of ``R`` draws from the seed :func:`round_seed` gives for ``calls`` (after the advance)
+``- back`` with ``back = R - 1 - r``: the same seeds as the host counter gave before (``(seed * 1000003 + calls *
+7919) & 0x3FFFFFFF``, ``calls`` counting rounds from the last reseed), so placements are unchanged bit for bit.
 """
 
 import warp as wp
@@ -48,6 +55,36 @@ def claimant(claim: wp.int64, round_id: wp.int64) -> int:
     if (claim >> wp.int64(32)) != round_id:
         return -1
     return 0x7FFFFFFF - int(claim & INDEX_BITS)
+
+
+#: columns of a placer's device counter
+COUNTER_SEED, COUNTER_CALLS, COUNTER_ROUND = wp.constant(0), wp.constant(1), wp.constant(2)
+SEED_MASK = wp.constant(wp.int64(0x3FFFFFFF))
+
+
+@wp.func
+def round_seed(counter: wp.array(dtype=wp.int64), back: int) -> int:
+    """The random seed of the round ``back`` rounds before the last one the counter was advanced to."""
+    calls = counter[COUNTER_CALLS] - wp.int64(back)
+    return int((counter[COUNTER_SEED] * wp.int64(1000003) + calls * wp.int64(7919)) & SEED_MASK)
+
+
+@wp.func
+def round_number(counter: wp.array(dtype=wp.int64), back: int) -> wp.int64:
+    """The number (claims' high bits) of the round ``back`` rounds before the last one the counter was advanced to."""
+    return counter[COUNTER_ROUND] - wp.int64(back)
+
+
+@wp.kernel
+def advance_counter(
+    # Model:
+    rounds: int,
+    # State out:
+    counter: wp.array(dtype=wp.int64),
+):
+    """Advance a placer's counter by ``rounds`` rounds (one thread; :func:`begin_todo` does it for whole calls)."""
+    counter[COUNTER_CALLS] = counter[COUNTER_CALLS] + wp.int64(rounds)
+    counter[COUNTER_ROUND] = counter[COUNTER_ROUND] + wp.int64(rounds)
 
 
 @wp.struct
@@ -104,6 +141,8 @@ def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32
 
 @wp.kernel
 def begin_todo(
+    # Model:
+    advance: int,
     # State in:
     mask: wp.array2d(dtype=wp.bool),
     # State out:
@@ -111,11 +150,17 @@ def begin_todo(
     active: wp.array(dtype=wp.int32),
     listed: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
+    counter: wp.array(dtype=wp.int64),
 ):
     """``todo``: the movers to place (``mask``); ``active[w]`` (zeroed before): world ``w`` has one; ``listed``: the
     flat indices ``w * M + m`` of the movers to place, ``count[0]`` (zeroed before) of them, in any order (the rounds
-    launch a thread per listed mover: threads of one warp work on movers to place, not on a few among many others)."""
+    launch a thread per listed mover: threads of one warp work on movers to place, not on a few among many others).
+    Thread (0, 0) advances the placer's ``counter`` by the call's ``advance`` rounds (no kernel of this launch reads
+    it; :func:`advance_counter` folded in)."""
     w, m = wp.tid()
+    if w == 0 and m == 0 and advance != 0:
+        counter[COUNTER_CALLS] = counter[COUNTER_CALLS] + wp.int64(advance)
+        counter[COUNTER_ROUND] = counter[COUNTER_ROUND] + wp.int64(advance)
     t = int(0)
     if mask[w, m]:
         t = 1
@@ -232,12 +277,12 @@ def propose(
     radius: float,
     half: wp.vec2,
     tile_list: wp.array(dtype=wp.vec2i),
-    seed: int,
     tries: int,
     hold: int,
-    round_id: wp.int64,
+    back: int,  # this round is the counter's last one less back (round_seed, round_number)
     scan: int,  # 1: check against the world's movers (clear_in_world), not the grid's lists (unused then)
     # State in:
+    counter: wp.array(dtype=wp.int64),
     pos: wp.array2d(dtype=wp.vec2),
     todo: wp.array2d(dtype=wp.int32),
     head: wp.array(dtype=wp.int32),
@@ -256,7 +301,8 @@ def propose(
     ``radius`` / ``half``: the footprint (circle radius or box half sizes) grown by the sampling offset; the wall
     margin is added by the wall rule itself. With ``hold``, candidates also keep clear of the spots the other movers
     to place still hold (their positions before this call; a mover placed in an earlier round keeps both). One thread
-    per mover of ``listed`` (:func:`begin_todo`; threads past ``count[0]`` exit)."""
+    per mover of ``listed`` (:func:`begin_todo`; threads past ``count[0]`` exit). The seed and the round's number
+    come from the placer's device ``counter`` (:func:`round_seed`, :func:`round_number`)."""
     i = wp.tid()
     if i >= count[0]:
         return
@@ -264,7 +310,8 @@ def propose(
     cand_ok[w, m] = 0
     if todo[w, m] == 0:
         return
-    rng = wp.rand_init(seed, w * todo.shape[1] + m)
+    rng = wp.rand_init(round_seed(counter, back), w * todo.shape[1] + m)
+    round_id = round_number(counter, back)
     size = col.tile_size
     ntiles = tile_list.shape[0]
     for _t in range(tries):
@@ -293,9 +340,10 @@ def propose(
 def resolve(
     # Model:
     g: PlaceGrid,
-    round_id: wp.int64,
+    back: int,  # as propose's
     scan: int,  # 1: look for lower-indexed winners among the world's movers, keep no cell lists
     # State in:
+    counter: wp.array(dtype=wp.int64),
     cand: wp.array2d(dtype=wp.vec2),
     cand_ok: wp.array2d(dtype=wp.int32),
     claim: wp.array(dtype=wp.int64),
@@ -316,6 +364,7 @@ def resolve(
     w, m = listed_mover(i, listed, todo.shape[1])
     if cand_ok[w, m] == 0:
         return
+    round_id = round_number(counter, back)
     p = cand[w, m]
     c = place_cell(g, p)
     own = cell_index(g, w, c)

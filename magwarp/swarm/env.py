@@ -41,12 +41,28 @@ With the respawn rule and up to 256 movers per world (the training regime), the 
 stops run as one launch (``fused``, :mod:`magwarp.swarm.fused`: one thread block per world on CUDA), with the
 per-cycle path's results bit for bit; larger worlds, MagBotSim's rule and further cycle hooks run per cycle.
 The rest of a step is a few launches over the movers, none of them a host sync: the command (stopped movers
-zeroed), one kernel for every mover's outcome (flags, reward, goal and job counts, what it asks of the placers,
-:func:`~magwarp.kernels.swarm.evaluate_movers`), the goal and respawn placers (a thread per mover to place in their
-rounds, each candidate checked against its world's movers: no cell lists up to 256 movers per world on CUDA), one
-kernel that applies the respawns, and the observation (one kernel writing each row straight into the returned tensor,
-with the NaN guard's per-world check; each mover scans its world's movers, on CUDA a thread block per world with its
-movers in shared memory; above 256 movers per world, 128 on the CPU, grid binning first).
+zeroed; the env's device step count), one kernel for every mover's outcome (flags, reward, goal and job counts, what
+it asks of the placers, :func:`~magwarp.kernels.swarm.evaluate_movers`), the goal and respawn placers (a thread per
+mover to place in their rounds, each candidate checked against its world's movers: no cell lists up to 256 movers
+per world on CUDA), one kernel that applies the respawns, the observation (one kernel writing each row straight into
+the returned tensor, flagging non-finite rows; each mover scans its world's movers, on CUDA a thread block per world
+with its movers in shared memory; above 256 movers per world, 128 on the CPU, grid binning first) and one kernel per
+world for its reward, flags and NaN guard (:func:`~magwarp.kernels.swarm.finish_worlds`).
+
+The whole step as one CUDA graph (``graph=True``, the default, on CUDA): after the host's input check and the copy of
+the action into a fixed buffer, the step above (physics, task work, respawns, observation, autoreset) is replayed as
+one captured graph (:func:`~magwarp.envs.step_graph.record_cuda_graph`, as the trajectory env's step), with no host
+sync and no Python beyond the replay. Everything a step used to take from the host comes from the device: the
+placers' seeds and round numbers (their device counters), the env's step count (the NaN guard's step), and the
+stations' draws come from the env's torch generator, registered with the graph (each replay draws fresh numbers).
+The first step of each of two graphs runs eagerly (it loads the kernels) and the graph is recorded after it; the two
+graphs alternate, so the tensors a step returns are the graph's own outputs: valid through the next step,
+overwritten by the one after it (clone what you keep longer). :attr:`SwarmEnv.step_path` says which path runs;
+``graph=False``, the CPU, benchmark metrics and hooks replaced on the instance run the same launches eagerly, with
+the same results bit for bit (fresh tensors each step). The random streams are the ones the host counters gave
+before, so the eager step's results are unchanged, but for the world's reward, now summed in mover order by
+``finish_worlds`` (torch's sum before): the same for the default rewards (integers), within float32 rounding for
+others.
 
 Every option is a field of :class:`SwarmConfig`; the constructor takes a config and/or the same names as keywords.
 """
@@ -55,7 +71,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -64,17 +80,28 @@ import warp as wp
 
 from magwarp._checks import as_count, as_flag, warp_device
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.step_graph import RecordedGraph, record_cuda_graph
 from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers,
-                                   stop_collided)
+                                   finish_worlds, stop_collided)
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
-from magwarp.swarm.fused import FusedSwarmStep, fused_applies
+from magwarp.swarm.fused import FusedSwarmStep, fused_applies, max_registers
 from magwarp.swarm.observations import LocalObservations
 from magwarp.swarm.placement import Placer, torch_stream
 
 __all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
 
 COLLISION_MODES = ("respawn", "end")
+#: the step's hooks: one replaced on the instance (e.g. a benchmark timing each phase) makes the step run eagerly
+STEP_HOOKS = ("_apply_action", "_evaluate", "_end_step", "_get_obs", "_finish", "_reset_envs", "_respawn")
+
+
+class _StepGraph(NamedTuple):
+    """One recorded env step: the graph (:class:`~magwarp.envs.step_graph.RecordedGraph`: its outputs are the step's
+    returns) and the local observation's views of its observation tensor (``rel_pos``, ``rel_vel``, ``walls``)."""
+
+    recorded: RecordedGraph
+    views: tuple
 
 
 @dataclass(frozen=True)
@@ -92,7 +119,8 @@ class SwarmConfig:
     layout) or ``{"pickup": (P, 2), "dropoff": (D, 2)}`` positions; None: free goals (goal streams).
     ``fused``: run each step's control cycles and collision stops as one launch (:mod:`magwarp.swarm.fused`; the
     per-cycle path's results): None (default) where it applies (the respawn rule, up to 256 movers per world), True
-    to insist (an error where it does not apply), False for the per-cycle path."""
+    to insist (an error where it does not apply), False for the per-cycle path. ``graph``: on CUDA, record the whole
+    env step as one CUDA graph and replay it (the module docstring); False: the same launches, eagerly."""
 
     num_movers: int = 64
     layout: Any = None
@@ -125,6 +153,7 @@ class SwarmConfig:
     stations: Any = None
     num_stations: int = 4
     fused: bool | None = None
+    graph: bool = True
 
     def __post_init__(self):
         m = self.num_movers
@@ -148,6 +177,8 @@ class SwarmConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if not isinstance(self.graph, (bool, np.bool_)):
+            raise ValueError(f"graph must be True or False, got {self.graph!r}")
         if self.fused not in (None, True, False):
             raise ValueError(f"fused must be None, True or False, got {self.fused!r}")
         if self.fused:
@@ -241,7 +272,6 @@ class SwarmEnv(MagwarpVecEnv):
         self._xy = torch.zeros(n, m, 2, device=dev)  # contiguous scratch positions for the placer
         self._xy_wp = wp.from_torch(self._xy, dtype=wp.vec2)
         self._goals_wp = wp.from_torch(self.goals, dtype=wp.vec2)
-        self._left = torch.zeros(n, m, dtype=torch.bool, device=dev)  # movers a respawn left unplaced
         self._no_flags = torch.zeros(0, 0, dtype=torch.bool, device=dev)  # job_done without stations
         rule = SwarmRewards()
         rule.threshold, rule.reward_goal = float(cfg.threshold_pos), float(cfg.reward_goal)
@@ -265,6 +295,18 @@ class SwarmEnv(MagwarpVecEnv):
         self._task_wp = [wp.from_torch(t) for t in (self.respawn_pending, self.goal_pending, self.carrying,
                                                      self._want_goal, self._want_respawn, self.collected_goals,
                                                      self.jobs)]
+        # the step's fixed input and device counters (a recorded step graph reads and advances them in place)
+        self._action = torch.zeros(n, m, 2, device=dev)
+        self._action_wp = wp.from_torch(self._action, dtype=wp.vec2)
+        self._env_steps = torch.zeros(1, dtype=torch.int64, device=dev)  # env steps since construction, on the device
+        self._env_steps_wp = wp.from_torch(self._env_steps)
+        self._num_steps_wp = wp.from_torch(self.num_steps)
+        self._none_vec2 = wp.empty((0, 0), dtype=wp.vec2, device=wdev)
+        self.graph = bool(cfg.graph)  # settable: False runs the same launches eagerly
+        self._graphs: list[_StepGraph | None] = [None, None]
+        self._graph_key_value = None
+        self._slot = 0
+        self._in_capture = False
         # own state: velocity, goal relative to the mover, (acceleration), (carrying a job)
         self.own_dim = (6 if self.learn_jerk else 4) + (1 if self.stations is not None else 0)
         limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
@@ -293,25 +335,126 @@ class SwarmEnv(MagwarpVecEnv):
             self._checked_reset = False
 
     def step(self, action):
-        """Simulate, reward, then stream goals and respawn collided movers; the observation shows the result."""
+        """Simulate, reward, then stream goals and respawn collided movers; the observation shows the result.
+
+        On CUDA with ``graph`` (:attr:`step_path` ``"graph"``) the step after the input check and the action's copy is
+        one CUDA graph replay, and the returned tensors are that graph's outputs: valid through the next step,
+        overwritten by the one after it (two graphs alternate). Elsewhere the same launches run eagerly and return
+        fresh tensors."""
         action = self._check_action(action)
-        self._apply_action(action)
+        with torch.inference_mode(False):  # the env's buffers are updated in place in and outside inference mode
+            self._action.copy_(action)
+            out = self._graph_step() if self._graph_blocker() is None else self._launch_step()
         self._step_count += 1
+        return out
+
+    @property
+    def step_path(self) -> str:
+        """Which step :meth:`step` runs now: ``"graph"`` (CUDA: one graph replay) or ``"eager (REASON)"`` (the same
+        launches one by one: ``graph=False``, the CPU, benchmark metrics, a step hook replaced on the instance or a
+        capture that failed)."""
+        why = self._graph_blocker()
+        return "graph" if why is None else f"eager ({why})"
+
+    def _graph_blocker(self) -> str | None:
+        if not self.graph:
+            return "graph=False"
+        if not self.sim.device.is_cuda:
+            return "the CPU"
+        if self.benchmark_metrics is not None:
+            return "benchmark metrics"
+        replaced = next((h for h in STEP_HOOKS if h in vars(self)), None)
+        if replaced is not None:
+            return f"{replaced} replaced on the instance"
+        return None
+
+    def _launch_step(self):
+        """Every launch of one env step (the action already in ``_action``), on the current streams, no host sync:
+        run eagerly, or recorded once as the step's CUDA graph (:meth:`_graph_step`)."""
+        self._apply_action(self._action)
         reward, terminated, truncated, info = self._evaluate(None)
         self._end_step(None, info)
         obs = self._get_obs()
-        # NaN guard: a non-finite world is flagged (info["nonfinite"]), rewarded 0 and terminated (with respawns and
-        # no time limit, worlds never end: it stays flagged)
-        reward, terminated = self._guard_nonfinite(obs, reward, terminated, info, action)
+        # the world's reward and flags, and the NaN guard: a non-finite world is flagged (info["nonfinite"]), rewarded
+        # 0 and terminated (with respawns and no time limit, worlds never end: it stays flagged)
+        done = self._finish(obs, reward, terminated, truncated, info)
         if self.benchmark_metrics is not None:
             info["metrics"] = self.benchmark_metrics.on_step(obs, info, terminated, truncated)
         if self.autoreset and self._can_end:
-            done = terminated | truncated
             info["final_obs"] = obs
             info["_final_obs"] = done
             self._reset_envs(done)
             obs = torch.where(done[:, None, None], self._get_obs(), obs)
         return obs, reward, terminated, truncated, info
+
+    def _graph_key(self) -> tuple:
+        """What the recorded launches depend on beyond the arrays they update in place: a change (new kernels,
+        replaced arrays, another search or launch shape) records the graphs anew."""
+        sim, fs, rp, local = self.sim, self.fused_step, self.respawn_placer, self.local
+        m = sim.model
+        return (id(sim.state), sim._motion, tuple(sim._hooks), tuple(sim._pre_hooks), id(sim._actuator),
+                id(sim._delay), id(sim._prev_cmd), sim._latency_bound, sim.nan_guard, sim._fused,
+                id(sim._fused_kernel), id(sim._advance_kernel), id(m.body), id(m.radius), id(m.half_size),
+                id(m.margins), None if fs is None else (fs.tiled, max_registers()), self.placer.search,
+                None if rp is None else rp.search, local.search, local.staged, local.tiled, local.unrolled,
+                self.autoreset, self._can_end, id(self._generator), self.num_cycles)
+
+    def _graph_step(self):
+        """One step by graph replay (slot 0 and 1 alternate); a slot's first step runs eagerly, then is recorded."""
+        key = self._graph_key()
+        if key != self._graph_key_value:
+            self._graphs = [None, None]
+            self._graph_key_value = key
+        slot = self._slot
+        rec = self._graphs[slot]
+        if rec is None:
+            out = self._launch_step()  # a real step, eagerly: loads every kernel before the capture
+            local = self.local
+            views = (local.rel_pos, local.rel_vel, local.walls)
+            try:
+                self._graphs[slot] = self._capture()
+                self._slot = slot ^ 1
+            except Exception as e:  # noqa: BLE001 - any capture failure: report it and run eagerly
+                import warnings
+
+                warnings.warn(f"SwarmEnv: the step could not be captured as a CUDA graph ({type(e).__name__}: {e}); "
+                              "it runs the same launches eagerly (graph=False)", RuntimeWarning, stacklevel=3)
+                self.graph = False
+                self._graphs = [None, None]
+                self._replace_generator()
+            finally:
+                local.rel_pos, local.rel_vel, local.walls = views  # the capture pointed them at its own tensor
+            return out
+        for callback in self.sim._step_callbacks:  # as sim.step runs them (host work before the step)
+            callback()
+        rec.recorded.graph.replay()
+        self.local.rel_pos, self.local.rel_vel, self.local.walls = rec.views
+        self._slot = slot ^ 1
+        obs, reward, terminated, truncated, info = rec.recorded.outputs
+        return obs, reward, terminated, truncated, dict(info)
+
+    def _capture(self) -> _StepGraph:
+        """Record :meth:`_launch_step` as one CUDA graph (nothing runs); the env's generator (the stations' draws) is
+        registered with it, so each replay draws fresh numbers."""
+        gens = (self._generator,) if self.stations is not None else ()
+        self._in_capture = True
+        try:
+            recorded = record_cuda_graph(self._launch_step, self.device, generators=gens)
+        finally:
+            self._in_capture = False
+        local = self.local
+        return _StepGraph(recorded, (local.rel_pos, local.rel_vel, local.walls))
+
+    def _replace_generator(self) -> None:
+        """A new env generator that continues from the old one's state (a failed capture may leave the old one
+        registered with a dead graph, where torch refuses later draws outside a capture)."""
+        old = self._generator
+        fresh = torch.Generator(device=old.device)
+        try:
+            fresh.set_state(old.get_state())
+        except RuntimeError:
+            fresh.manual_seed(int(old.initial_seed()) + 1)
+        self._generator = fresh
 
     # ------------------------------------------------------------------ task hooks
     def _place(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int, hold: bool = False,
@@ -331,7 +474,7 @@ class SwarmEnv(MagwarpVecEnv):
         self._xy.copy_(start[..., :2])
         left = self._place(self._xy, movers, self.config.reset_rounds)
         start[..., :2] = self._xy
-        self.sim.reset(mask)
+        self._reset_sim(mask)
         if self.stations is not None:
             self.carrying.masked_fill_(movers, False)
             self.jobs.masked_fill_(movers, 0)
@@ -348,61 +491,66 @@ class SwarmEnv(MagwarpVecEnv):
         if self.benchmark_metrics is not None:
             self.benchmark_metrics.episode_reset(mask)
 
+    def _reset_sim(self, mask: torch.Tensor) -> None:
+        """The simulator's reset of the worlds in ``mask`` (``[W]`` bool) on the current streams (``sim.reset``
+        launches on the simulator's own stream, which a capture cannot follow): the same kernels."""
+        sim = self.sim
+        sim._t(sim._reset_mask).copy_(mask)
+        with torch_stream(sim.device):
+            sim._launch_reset()
+
     def _apply_action(self, action: torch.Tensor) -> None:
         # stopped movers (pending respawns) ignore their command; the stop hook keeps them still
         sim = self.sim
+        act = self._action_wp if action is self._action else wp.from_torch(action.contiguous(), dtype=wp.vec2)
         with torch_stream(sim.device):
             wp.launch(command_unless_stopped, dim=(self.num_envs, self.num_movers), device=sim.device,
-                      inputs=[self._stopped, wp.from_torch(action.contiguous(), dtype=wp.vec2)],
-                      outputs=[sim.state.cmd])
-        sim.step(self.num_cycles)
+                      inputs=[self._stopped, act], outputs=[sim.state.cmd, self._env_steps_wp])
+            if self._in_capture:  # the simulator's launches into the env's graph (sim.step replays its own graph)
+                sim._launch_step(self.num_cycles)
+        if not self._in_capture:
+            sim.step(self.num_cycles)
 
     def _get_obs(self) -> torch.Tensor:
         sim = self.sim
         obs = torch.empty(self.num_envs, self.num_movers, self.own_dim + self.local.dim, device=self.device)
-        self._obs_rows = self.local.observe(sim.state.pos, sim.state.vel, obs, goals=self.goals,
-                                            acc=sim.acc if self.learn_jerk else None,
-                                            carrying=self.carrying if self.stations is not None else None)
-        return obs
+        return self.local.observe(sim.state.pos, sim.state.vel, obs, goals=self.goals,
+                                  acc=sim.acc if self.learn_jerk else None,
+                                  carrying=self.carrying if self.stations is not None else None)
 
     def _nonfinite_worlds(self, obs) -> torch.Tensor:
-        sim_bad = self.sim.nonfinite_step >= 0
-        if obs is getattr(self, "_obs_rows", None):  # the observation kernel flagged its non-finite rows
-            return sim_bad | (self.local.nonfinite != 0)
-        return sim_bad | super()._nonfinite_worlds(obs)
+        """The NaN guard's worlds for an observation of :meth:`_get_obs` (the step itself uses
+        :func:`~magwarp.kernels.swarm.finish_worlds`)."""
+        return (self.sim.nonfinite_step >= 0) | (self.local.nonfinite != 0)
 
     def _evaluate(self, obs) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         """The step's outcome per mover in one kernel (:func:`~magwarp.kernels.swarm.evaluate_movers`), which also
-        counts the goals (and jobs) and marks the movers that want a new goal or a respawn, for :meth:`_end_step`."""
+        counts the goals (and jobs), marks the movers that want a new goal or a respawn, for :meth:`_end_step`, and
+        copies the positions the respawn placer starts from. The world's ``reward``, ``terminated`` and ``truncated``
+        are returned unfilled: :meth:`_finish` writes them after the observation (with the NaN guard)."""
         cfg = self.config
         n, m, dev = self.num_envs, self.num_movers, self.device
 
-        def flags():
-            return torch.empty(n, m, dtype=torch.bool, device=dev)
+        def flags(*shape):
+            return torch.empty(*shape, dtype=torch.bool, device=dev)
 
         agent_reward = torch.empty(n, m, device=dev)
-        mover_col, wall_col, collided, reached = flags(), flags(), flags(), flags()
-        job_done = flags() if self.stations is not None else self._no_flags
+        mover_col, wall_col, collided, reached = flags(n, m), flags(n, m), flags(n, m), flags(n, m)
+        job_done = flags(n, m) if self.stations is not None else self._no_flags
+        collected = torch.empty(n, m, dtype=torch.int64, device=dev)
+        xy = self._xy_wp if cfg.on_collision == "respawn" else self._none_vec2
         w = wp.from_torch
         with torch_stream(self.sim.device):
             wp.launch(evaluate_movers, dim=(n, m), device=self.sim.device,
                       inputs=[self._rule, self.sim.state.flags_any, self.sim.state.pos, self._goals_wp,
                               *self._task_wp[:3]],
                       outputs=[w(agent_reward), w(mover_col), w(wall_col), w(collided), w(reached), w(job_done),
-                               *self._task_wp[3:]])
-        reward = agent_reward.sum(dim=1)
-        if cfg.on_collision == "end":
-            terminated = collided.any(dim=1)
-            agent_terminated = collided | terminated[:, None]
-        else:
-            terminated = torch.zeros(n, dtype=torch.bool, device=dev)
-            agent_terminated = collided
-        if self.max_episode_steps is None:
-            truncated = torch.zeros_like(terminated)
-        else:
-            truncated = (self.num_steps + 1 >= self.max_episode_steps) & ~terminated
+                               *self._task_wp[3:], w(collected), xy])
+        reward, terminated, truncated = torch.empty(n, device=dev), flags(n), flags(n)
+        agent_terminated = collided | collided.any(dim=1, keepdim=True) if cfg.on_collision == "end" else collided
         info = {"agent_reward": agent_reward, "mover_collision": mover_col, "wall_collision": wall_col,
-                "agent_terminated": agent_terminated, "goal_reached": reached, "collided": collided}
+                "agent_terminated": agent_terminated, "goal_reached": reached, "collided": collided,
+                "collected_goals": collected}
         if self.stations is not None:
             info["job_done"] = job_done
         return reward, terminated, truncated, info
@@ -411,7 +559,6 @@ class SwarmEnv(MagwarpVecEnv):
         """Goal streams (or stations) and respawns for the movers :meth:`_evaluate` marked (its kernel already
         counted the goals and jobs)."""
         cfg = self.config
-        self.num_steps += 1
         reached = info["goal_reached"]
         if self.stations is not None:
             # material flow: a pick-up loads a job (next: a drop-off), a drop-off delivers it (next: a pick-up)
@@ -424,21 +571,44 @@ class SwarmEnv(MagwarpVecEnv):
             self.placer.place_async(self.goals, self._want_goal, rounds=cfg.goal_rounds, hold=True,
                                     out=self.goal_pending)
         if cfg.on_collision == "respawn":
-            self._respawn(self._want_respawn)
-        info["collected_goals"] = self.collected_goals.clone()
-        info["respawn_pending"] = self.respawn_pending.clone()
+            info["respawn_pending"] = self._respawn(self._want_respawn)
+        else:
+            info["respawn_pending"] = self.respawn_pending.clone()
 
-    def _respawn(self, want: torch.Tensor) -> None:
-        """Re-place the movers in ``want`` at free spots (clear of every other mover) and restart them at rest."""
+    def _respawn(self, want: torch.Tensor) -> torch.Tensor:
+        """Re-place the movers in ``want`` at free spots (clear of every other mover) and restart them at rest, from
+        the positions :meth:`_evaluate`'s kernel copied into ``_xy``; returns a copy of the new pending respawns
+        (``info["respawn_pending"]``, written by the same kernel)."""
         sim = self.sim
-        self._xy.copy_(sim.pos[..., :2])
-        left = self.respawn_placer.place_async(self._xy, want, rounds=self.config.respawn_rounds, hold=True,
-                                               out=self._left)
+        left = self.respawn_placer.place_device(self._xy, want, rounds=self.config.respawn_rounds, hold=True)
+        pending = torch.empty(self.num_envs, self.num_movers, dtype=torch.bool, device=self.device)
         s, w = sim.state, wp.from_torch
         with torch_stream(sim.device):
             wp.launch(apply_respawns, dim=(self.num_envs, self.num_movers), device=sim.device,
-                      inputs=[w(want), w(left), self._xy_wp],
-                      outputs=[s.pos, s.vel, s.acc, s.cmd, self._stopped, self._task_wp[0]])
+                      inputs=[w(want), left, self._xy_wp],
+                      outputs=[s.pos, s.vel, s.acc, s.cmd, self._stopped, self._task_wp[0], w(pending)])
+        return pending
+
+    def _finish(self, obs, reward, terminated, truncated, info) -> torch.Tensor:
+        """The world's ``reward``, ``terminated`` and ``truncated`` (filled in place), its episode's step count and
+        the NaN guard (``info["nonfinite"]``, ``info["nonfinite_step"]``) in one kernel over the worlds
+        (:func:`~magwarp.kernels.swarm.finish_worlds`; it reads the observation kernel's non-finite flags, so it runs
+        after :meth:`_get_obs`). Returns ``done`` (terminated or truncated), the autoreset's mask."""
+        n, dev, sim = self.num_envs, self.device, self.sim
+        nonfinite = torch.empty(n, dtype=torch.bool, device=dev)
+        nonfinite_step = torch.empty(n, dtype=torch.int64, device=dev)
+        done = torch.empty(n, dtype=torch.bool, device=dev)
+        w = wp.from_torch
+        limit = 0 if self.max_episode_steps is None else int(self.max_episode_steps)
+        with torch_stream(sim.device):
+            wp.launch(finish_worlds, dim=n, device=sim.device,
+                      inputs=[int(self.config.on_collision == "end"), limit, w(info["agent_reward"]),
+                              w(info["collided"]), sim._nonfinite, self.local._nonfinite, self._env_steps_wp],
+                      outputs=[self._num_steps_wp, w(reward), w(terminated), w(truncated), w(nonfinite),
+                               w(nonfinite_step), w(done)])
+        info["nonfinite"] = nonfinite
+        info["nonfinite_step"] = nonfinite_step
+        return done
 
     def agent_view(self):
         """The flat parameter-shared view of this env (:class:`~magwarp.swarm.FlatSwarmEnv`): every mover of every

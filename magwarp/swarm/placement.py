@@ -8,7 +8,10 @@ with the simulator's margins plus a sampling offset. Work is O(movers) per round
   batches of rounds with one host check after each batch, and raises :class:`PlacementError` with the density asked
   and the density possible when a request cannot be met;
 * :meth:`Placer.place_async` (step time): a fixed number of rounds with no host synchronisation; movers that found
-  no room stay marked and can try again later.
+  no room stay marked and can try again later. Its launches can be recorded in a CUDA graph: the random streams and
+  round numbers come from a device counter (``[seed, calls, round]``, advanced by the call's first kernel), not from
+  the host, so each replay draws fresh spots; the seeds are the ones the host counter gave before (same spots, bit for
+  bit, for the same seed and calls).
 
 A request is refused at once when it exceeds the densest packing of the exclusion shapes over the valid area
 (hexagonal for circles, square tiling for axis-aligned boxes), and reported after the rounds when random
@@ -109,8 +112,12 @@ class Placer:
             search = "world" if self.num_movers <= (WORLD_SCAN_CUDA if self.device.is_cuda else WORLD_SCAN_CPU) \
                 else "grid"
         self.search = search
-        self._seed = int(seed) & 0x3FFFFFFF
-        self._calls = 0
+        # the device counter [base seed, rounds since the reseed, rounds ever (claims of older rounds lose)]: the
+        # rounds' kernels read their seeds and round numbers from it (kpl.round_seed), so that a call recorded in a
+        # CUDA graph draws fresh numbers at every replay
+        self._counter = wp.array(np.array([int(seed) & 0x3FFFFFFF, 0, 0], dtype=np.int64), dtype=wp.int64,
+                                 device=self.device)
+        self._counter_t = wp.to_torch(self._counter)
         self.col = _collision(self.layout, self.mover)
         self.circle = self.col.shape == SHAPE_CIRCLE
         r = float(self.mover.collision_radius if radius is None else radius)
@@ -145,7 +152,6 @@ class Placer:
         shape = (self.num_worlds, self.num_movers)
         self._head = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
         self._claim = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int64, device=self.device)
-        self._round = 0  # the last round's number (claims of older rounds lose to newer ones: no clearing)
         self._head_old = wp.zeros(self.num_worlds * self.num_cells, dtype=wp.int32, device=self.device)
         self._next = wp.zeros(shape, dtype=wp.int32, device=self.device)
         self._next_old = wp.zeros(shape, dtype=wp.int32, device=self.device)
@@ -237,9 +243,24 @@ class Placer:
         return f"{movers / tiles:.3f} movers per tile ({movers:.0f} movers on {tiles} tiles)"
 
     # ------------------------------------------------------------------ placement
-    def _next_seed(self) -> int:
-        self._calls += 1
-        return (self._seed * 1000003 + self._calls * 7919) & 0x3FFFFFFF
+    @property
+    def _seed(self) -> int:
+        """The base seed of the random streams (on the device: reading it synchronises)."""
+        return int(self._counter.numpy()[kpl.COUNTER_SEED])
+
+    @_seed.setter
+    def _seed(self, value: int) -> None:
+        self._counter_t[kpl.COUNTER_SEED].fill_(int(value) & 0x3FFFFFFF)
+
+    @property
+    def _calls(self) -> int:
+        """Rounds run since the last reseed (on the device: reading it synchronises); with :attr:`_seed`, the next
+        round's random stream."""
+        return int(self._counter.numpy()[kpl.COUNTER_CALLS])
+
+    @_calls.setter
+    def _calls(self, value: int) -> None:
+        self._counter_t[kpl.COUNTER_CALLS].fill_(int(value))
 
     def _check(self, xy: torch.Tensor, mask: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         shape = (self.num_worlds, self.num_movers)
@@ -255,7 +276,9 @@ class Placer:
                              f"{mask.device}")
         return xy, mask
 
-    def _begin(self, xy: torch.Tensor, mask: torch.Tensor, hold: bool) -> wp.array:
+    def _begin(self, xy: torch.Tensor, mask: torch.Tensor, hold: bool, advance: int = 0) -> wp.array:
+        """Start a call: list the movers to place and bin the others; ``advance``: the call's rounds, by which
+        :func:`~magwarp.kernels.placement.begin_todo` advances the counter (0: each batch of :meth:`_rounds` does)."""
         pos = wp.from_torch(xy, dtype=wp.vec2)
         dev, dim = self.device, (self.num_worlds, self.num_movers)
         if not self._grid_clean:  # the first call (or one after a failed call): empty every cell
@@ -264,8 +287,9 @@ class Placer:
         self._grid_clean = False
         self._active.zero_()
         self._count.zero_()
-        wp.launch(kpl.begin_todo, dim=dim, inputs=[wp.from_torch(mask.to(torch.bool).contiguous(), dtype=wp.bool)],
-                  outputs=[self._todo, self._active, self._listed, self._count], device=dev)
+        wp.launch(kpl.begin_todo, dim=dim,
+                  inputs=[int(advance), wp.from_torch(mask.to(torch.bool).contiguous(), dtype=wp.bool)],
+                  outputs=[self._todo, self._active, self._listed, self._count, self._counter], device=dev)
         self._hold = int(hold)
         self._scan = int(self.search == "world")  # this call's search (the setter may change it before the next)
         if self._scan:  # no lists: the rounds scan the world's movers
@@ -282,18 +306,21 @@ class Placer:
                       outputs=[self._head, self._head_old])
         self._grid_clean = True
 
-    def _rounds(self, pos: wp.array, rounds: int) -> None:
+    def _rounds(self, pos: wp.array, rounds: int, advanced: bool = False) -> None:
+        """``rounds`` rounds; ``advanced``: :meth:`_begin` advanced the counter by them (else one launch does)."""
         # a thread per listed mover (the count stays on the device: threads past it exit)
         dev, dim, g = self.device, self.num_worlds * self.num_movers, self.grid
-        for _ in range(rounds):
+        if not advanced:
+            wp.launch(kpl.advance_counter, dim=1, inputs=[int(rounds)], outputs=[self._counter], device=dev)
+        for r in range(rounds):
+            back = rounds - 1 - r  # the counter stands at the last round
             wp.launch(kpl.propose, dim=dim, device=dev,
                       inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
-                              self._next_seed(), self.tries, self._hold, self._round + 1, self._scan, pos, self._todo,
-                              self._head, self._next, self._head_old, self._next_old, self._listed, self._count],
+                              self.tries, self._hold, back, self._scan, self._counter, pos, self._todo, self._head,
+                              self._next, self._head_old, self._next_old, self._listed, self._count],
                       outputs=[self._cand, self._cand_ok, self._claim])
-            self._round += 1
             wp.launch(kpl.resolve, dim=dim, device=dev,
-                      inputs=[g, self._round, self._scan, self._cand, self._cand_ok, self._claim, self._listed,
+                      inputs=[g, back, self._scan, self._counter, self._cand, self._cand_ok, self._claim, self._listed,
                               self._count, self._todo, pos, self._head, self._next])
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
@@ -311,11 +338,22 @@ class Placer:
                              f"{getattr(out, 'dtype', type(out))} {tuple(getattr(out, 'shape', ()))} on "
                              f"{getattr(out, 'device', None)}")
         with torch_stream(self.device):
-            pos = self._begin(xy, mask, hold)
-            self._rounds(pos, int(rounds))
-            self._end(pos)
-            todo = wp.to_torch(self._todo)
+            todo = wp.to_torch(self.place_device(xy, mask, rounds, hold=hold, checked=True))
             return todo.bool() if out is None else torch.ne(todo, 0, out=out)
+
+    def place_device(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int = 2, *, hold: bool = False,
+                     checked: bool = False) -> wp.array:
+        """:meth:`place_async` without the conversion of its result: returns the placer's own ``[W, M]`` int32
+        array of the movers still unplaced (nonzero), valid until its next call (the swarm env's respawn kernel
+        reads it directly: one launch less per step). ``checked``: ``xy`` and ``mask`` were checked already."""
+        if not checked:
+            xy, mask = self._check(xy, mask)
+        rounds = int(rounds)
+        with torch_stream(self.device):
+            pos = self._begin(xy, mask, hold, advance=rounds)
+            self._rounds(pos, rounds, advanced=True)
+            self._end(pos)
+        return self._todo
 
     def place(self, xy: torch.Tensor, mask: torch.Tensor | None = None, *, rounds_per_check: int = 16,
               max_rounds: int = 256) -> torch.Tensor:
@@ -362,6 +400,7 @@ class Placer:
         return self.place(xy, **kwargs)
 
     def reseed(self, seed: int) -> None:
-        """Restart the device random streams from ``seed`` (what ``reset(seed=...)`` of an env calls)."""
-        self._seed = int(seed) & 0x3FFFFFFF
+        """Restart the device random streams from ``seed`` (what ``reset(seed=...)`` of an env calls): written into
+        the device counter in place (no synchronisation), so recorded CUDA graphs follow it."""
+        self._seed = seed
         self._calls = 0
