@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from magnetics_helpers import cpu_blocks  # noqa: F401  (a fixture; tests/ is on sys.path)
+from magnetics_helpers import CYCLE_PARAMS as PARAMS, CYCLE_SPEC as SPEC  # the coarse table (tests/ is on sys.path)
+from magnetics_helpers import cpu_blocks, cycle_model  # noqa: F401  (fixtures)
 
 from magwarp.layout import Layout
 from magwarp.magnetics import reference as ref
@@ -16,23 +17,15 @@ from magwarp.magnetics.commutation import (FLAG_NO_COILS, FLAG_NOT_CONVERGED, FL
                                            CommutationResult, vec6f)
 from magwarp.magnetics.cycle import ControlCycle
 from magwarp.magnetics.exact import vec6d
-from magwarp.magnetics.fast import FieldTableSpec
 from magwarp.magnetics.fast_cycle import FastCycle
-from magwarp.magnetics.geometry import MagneticParams, MagneticsError, Quadrature
-from magwarp.magnetics.table import TableModel, WrenchTableSpec
-
-# The coarse table of tests/test_magnetics_cycle.py (seconds to build on a CPU).
-PARAMS = MagneticParams(quadrature=Quadrature(order=2, max_interval=0.01), active_radius=0.2)
-SPEC = WrenchTableSpec(step=0.003, yaw_steps=24, z_step=0.001, gap=(0.003, 0.005),
-                       field=FieldTableSpec(step=0.002, z_step=0.001, margin=0.08))
+from magwarp.magnetics.geometry import MagneticsError
+from magwarp.magnetics.table import TableModel
 
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("MAGWARP_CACHE_DIR", str(tmp_path_factory.mktemp("magnetics_cache")))
-    yield TableModel(Layout.grid(3, 2), PARAMS, SPEC, device="cpu")
-    mp.undo()
+def model(cycle_model):
+    """The coarse table model (magnetics_helpers.cycle_model)."""
+    return cycle_model
 
 
 def movers(rng, n: int, acc: float = 12.0, off: int = 2):

@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 import torch
 import warp as wp
 
-__all__ = ["RecordedGraph", "TaskGraph", "clone_outputs", "record_cuda_graph"]
+__all__ = ["RecordedGraph", "TaskGraph", "clone_outputs", "continued_generator", "record_cuda_graph"]
 
 
 def clone_outputs(out: Any) -> Any:
@@ -43,6 +43,18 @@ def clone_outputs(out: Any) -> Any:
     if isinstance(out, (tuple, list)):
         return type(out)(clone_outputs(v) for v in out)
     return out
+
+
+def continued_generator(old: torch.Generator) -> torch.Generator:
+    """A new generator that continues from ``old``'s state (a fresh seed from it where its state cannot be read): a
+    CUDA graph capture that failed may leave ``old`` registered with the dead graph, where torch refuses every later
+    draw outside a capture."""
+    fresh = torch.Generator(device=old.device)
+    try:
+        fresh.set_state(old.get_state())
+    except RuntimeError:
+        fresh.manual_seed(int(old.initial_seed()) + 1)
+    return fresh
 
 
 class RecordedGraph(NamedTuple):

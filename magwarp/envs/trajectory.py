@@ -37,6 +37,7 @@ from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.planar_randomization import SIZE_FIELDS, PlanarRandomizer
 from magwarp.envs.sampling import PoseSampler
 from magwarp.envs.sim2real import ActuationConfig, DrawClock, Latency, SensorConfig, SensorModel
+from magwarp.envs.step_graph import continued_generator
 from magwarp.envs.trajectory_fused import FusedTrajectoryStep, fused_step_blocker
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
@@ -335,16 +336,10 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         })
 
     def _replace_generator(self) -> None:
-        """Give the env's draws (goals, starts) a new generator that continues from the old one's
-        state (a fresh seed from it where its state cannot be read): a CUDA graph capture that failed may leave the
-        old generator registered with the dead graph, where torch refuses every later draw outside a capture."""
-        old = self._generator
-        fresh = torch.Generator(device=old.device)
-        try:
-            fresh.set_state(old.get_state())
-        except RuntimeError:
-            fresh.manual_seed(int(old.initial_seed()) + 1)
-        self._generator = self.sampler.generator = fresh
+        """Give the env's draws (goals, starts) a new generator that continues from the old one
+        (:func:`~magwarp.envs.step_graph.continued_generator`: a failed CUDA graph capture may leave the old one
+        registered with the dead graph)."""
+        self._generator = self.sampler.generator = continued_generator(self._generator)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """See :meth:`MagwarpVecEnv.reset`; the sensor model remembers the returned readings (for dropped ones)."""

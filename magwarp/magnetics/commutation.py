@@ -91,6 +91,28 @@ def add_outer_lower(a: Any, g: Any, s: Any):
     return out
 
 
+@wp.func
+def add_fixed(a: mat66d, gi: vec6d):
+    """A coil fixed at its limit, packed into the upper triangle of a lower-triangle matrix (one reduction sums both):
+    its wrench ``gi`` (``g`` times its current) into ``a[0, 1..5]`` and ``a[1, 2]``, one more fixed coil into
+    ``a[2, 3]`` (:func:`fixed_of` reads them back)."""
+    out = a
+    out[0, 1] = out[0, 1] + gi[0]
+    out[0, 2] = out[0, 2] + gi[1]
+    out[0, 3] = out[0, 3] + gi[2]
+    out[0, 4] = out[0, 4] + gi[3]
+    out[0, 5] = out[0, 5] + gi[4]
+    out[1, 2] = out[1, 2] + gi[5]
+    out[2, 3] = out[2, 3] + ONE
+    return out
+
+
+@wp.func
+def fixed_of(a: mat66d):
+    """The fixed coils' wrench and count packed by :func:`add_fixed` (after the reduction)."""
+    return vec6d(a[0, 1], a[0, 2], a[0, 3], a[0, 4], a[0, 5], a[1, 2]), int(a[2, 3])
+
+
 def make_scaled_solver(real=wp.float64, refine: bool = False):
     """``solve_scaled(a, rhs, reg) -> (y, regularised)`` (a ``@wp.func``) in ``real`` arithmetic: y with A y = rhs from
     A's lower triangle (a 6 x 6 matrix of ``real``), scaled to a unit diagonal and factorised by Cholesky;
@@ -309,19 +331,13 @@ def make_commutation_func(col_type):
                                 i = wp.sign(t) * limit[k]
                                 currents[m, j] = i
                                 saturated[m, j] = 1
-                                gi = g * i
-                                a[0, 1] = a[0, 1] + gi[0]
-                                a[0, 2] = a[0, 2] + gi[1]
-                                a[0, 3] = a[0, 3] + gi[2]
-                                a[0, 4] = a[0, 4] + gi[3]
-                                a[0, 5] = a[0, 5] + gi[4]
-                                a[1, 2] = a[1, 2] + gi[5]
-                                a[2, 3] = a[2, 3] + ONE
+                                a = add_fixed(a, g * i)
                             else:
                                 a = add_outer_lower(a, g, r_inv)
                 a = block_sum(a)
-                rhs = rhs - vec6d(a[0, 1], a[0, 2], a[0, 3], a[0, 4], a[0, 5], a[1, 2])
-                n_free = n_free - int(a[2, 3])
+                fixed, n_fixed = fixed_of(a)
+                rhs = rhs - fixed
+                n_free = n_free - n_fixed
                 big_y = big_y + alpha * (y - big_y)
         if not converged:
             flag = flag | 2

@@ -45,8 +45,8 @@ import functools
 import warp as wp
 
 from magwarp.magnetics.commutation import (FLAG_NO_COILS, FLAG_NOT_CONVERGED, FLAG_REGULARISED, CommutationResult,
-                                           add_outer_lower, as_vec6d, block_sum, mat66d, step_reach,
-                                           vec6f)
+                                           add_fixed, add_outer_lower, as_vec6d, block_sum, fixed_of, mat66d,
+                                           step_reach, vec6f)
 from magwarp.magnetics.cuboid import ONE, ZERO
 from magwarp.magnetics.cycle import CycleParams, check_arrays, cycle_params
 from magwarp.magnetics.exact import vec6d
@@ -310,19 +310,13 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
                             t, reach = step_reach(g, yv, big_y, r_inv, c.limit[k])
                             if reach <= hit:
                                 sat[s] = int(wp.sign(t))
-                                gi = g * (wp.sign(t) * c.limit[k])
-                                a[0, 1] = a[0, 1] + gi[0]
-                                a[0, 2] = a[0, 2] + gi[1]
-                                a[0, 3] = a[0, 3] + gi[2]
-                                a[0, 4] = a[0, 4] + gi[3]
-                                a[0, 5] = a[0, 5] + gi[4]
-                                a[1, 2] = a[1, 2] + gi[5]
-                                a[2, 3] = a[2, 3] + ONE
+                                a = add_fixed(a, g * (wp.sign(t) * c.limit[k]))
                             else:
                                 a = add_outer_lower(a, g, r_inv)
                     a = reduce_packed(a)
-                    rhs = rhs - vec6d(a[0, 1], a[0, 2], a[0, 3], a[0, 4], a[0, 5], a[1, 2])
-                    n_free = n_free - int(a[2, 3])
+                    fixed, n_fixed = fixed_of(a)
+                    rhs = rhs - fixed
+                    n_free = n_free - n_fixed
                     big_y = big_y + alpha * (yv - big_y)
             if deferred:
                 return vec6d(), ZERO, int(-1)

@@ -80,7 +80,7 @@ import warp as wp
 
 from magwarp._checks import as_count, as_flag, warp_device
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.step_graph import RecordedGraph, record_cuda_graph
+from magwarp.envs.step_graph import RecordedGraph, continued_generator, record_cuda_graph
 from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers,
                                    finish_worlds, stop_collided)
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
@@ -446,15 +446,9 @@ class SwarmEnv(MagwarpVecEnv):
         return _StepGraph(recorded, (local.rel_pos, local.rel_vel, local.walls))
 
     def _replace_generator(self) -> None:
-        """A new env generator that continues from the old one's state (a failed capture may leave the old one
-        registered with a dead graph, where torch refuses later draws outside a capture)."""
-        old = self._generator
-        fresh = torch.Generator(device=old.device)
-        try:
-            fresh.set_state(old.get_state())
-        except RuntimeError:
-            fresh.manual_seed(int(old.initial_seed()) + 1)
-        self._generator = fresh
+        """A new env generator that continues from the old one (:func:`~magwarp.envs.step_graph.continued_generator`:
+        a failed capture may leave the old one registered with a dead graph)."""
+        self._generator = continued_generator(self._generator)
 
     # ------------------------------------------------------------------ task hooks
     def _place(self, xy: torch.Tensor, mask: torch.Tensor, rounds: int, hold: bool = False,
