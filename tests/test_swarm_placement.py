@@ -179,3 +179,20 @@ def test_world_scan_places_as_the_grid_does(rng, shape):
     check_placement(layout, mover, 0.0, grid[1].numpy(), rng)
     with pytest.raises(ValueError, match="'ring'"):
         Placer(layout, 3, device="cpu", search="ring")
+
+
+def test_on_torch_stream_uses_the_shared_stream_wrapper(monkeypatch):
+    """On a CUDA device the placers' stream context wraps torch's current stream through
+    :func:`magwarp._streams.torch_stream` (it once called itself with a torch device, which Warp refused: every swarm
+    placement on CUDA failed; a CPU run never reaches that branch, so the CUDA device is faked here)."""
+    import types
+
+    from magwarp.swarm import placement
+
+    seen = []
+    fake = types.SimpleNamespace(is_cuda=True, ordinal=3)
+    monkeypatch.setattr(placement.wp, "get_device", lambda d: fake)
+    monkeypatch.setattr(placement, "_torch_stream", lambda d: seen.append(d) or "the wrapper")
+    monkeypatch.setattr(placement.wp, "ScopedStream", lambda s: ("scoped", s))
+    assert placement.on_torch_stream("cuda:3") == ("scoped", "the wrapper")
+    assert seen == [torch.device("cuda", 3)]

@@ -87,7 +87,7 @@ from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwa
 from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies, max_registers
 from magwarp.swarm.observations import LocalObservations
-from magwarp.swarm.placement import Placer, torch_stream
+from magwarp.swarm.placement import Placer, on_torch_stream
 
 __all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
 
@@ -490,14 +490,14 @@ class SwarmEnv(MagwarpVecEnv):
         launches on the simulator's own stream, which a capture cannot follow): the same kernels."""
         sim = self.sim
         sim._t(sim._reset_mask).copy_(mask)
-        with torch_stream(sim.device):
+        with on_torch_stream(sim.device):
             sim._launch_reset()
 
     def _apply_action(self, action: torch.Tensor) -> None:
         # stopped movers (pending respawns) ignore their command; the stop hook keeps them still
         sim = self.sim
         act = self._action_wp if action is self._action else wp.from_torch(action.contiguous(), dtype=wp.vec2)
-        with torch_stream(sim.device):
+        with on_torch_stream(sim.device):
             wp.launch(command_unless_stopped, dim=(self.num_envs, self.num_movers), device=sim.device,
                       inputs=[self._stopped, act], outputs=[sim.state.cmd, self._env_steps_wp])
             if self._in_capture:  # the simulator's launches into the env's graph (sim.step replays its own graph)
@@ -534,7 +534,7 @@ class SwarmEnv(MagwarpVecEnv):
         collected = torch.empty(n, m, dtype=torch.int64, device=dev)
         xy = self._xy_wp if cfg.on_collision == "respawn" else self._none_vec2
         w = wp.from_torch
-        with torch_stream(self.sim.device):
+        with on_torch_stream(self.sim.device):
             wp.launch(evaluate_movers, dim=(n, m), device=self.sim.device,
                       inputs=[self._rule, self.sim.state.flags_any, self.sim.state.pos, self._goals_wp,
                               *self._task_wp[:3]],
@@ -577,7 +577,7 @@ class SwarmEnv(MagwarpVecEnv):
         left = self.respawn_placer.place_device(self._xy, want, rounds=self.config.respawn_rounds, hold=True)
         pending = torch.empty(self.num_envs, self.num_movers, dtype=torch.bool, device=self.device)
         s, w = sim.state, wp.from_torch
-        with torch_stream(sim.device):
+        with on_torch_stream(sim.device):
             wp.launch(apply_respawns, dim=(self.num_envs, self.num_movers), device=sim.device,
                       inputs=[w(want), left, self._xy_wp],
                       outputs=[s.pos, s.vel, s.acc, s.cmd, self._stopped, self._task_wp[0], w(pending)])
@@ -594,7 +594,7 @@ class SwarmEnv(MagwarpVecEnv):
         done = torch.empty(n, dtype=torch.bool, device=dev)
         w = wp.from_torch
         limit = 0 if self.max_episode_steps is None else int(self.max_episode_steps)
-        with torch_stream(sim.device):
+        with on_torch_stream(sim.device):
             wp.launch(finish_worlds, dim=n, device=sim.device,
                       inputs=[int(self.config.on_collision == "end"), limit, w(info["agent_reward"]),
                               w(info["collided"]), sim._nonfinite, self.local._nonfinite, self._env_steps_wp],

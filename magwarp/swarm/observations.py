@@ -29,7 +29,7 @@ from magwarp.kernels import neighbors as knb
 from magwarp.kernels.collision import bin_movers
 from magwarp.kernels.options import world_block_dim
 from magwarp.layout import Layout
-from magwarp.swarm.placement import torch_stream
+from magwarp.swarm.placement import on_torch_stream
 from magwarp.types import Grid
 
 __all__ = ["LocalObservations", "ray_directions"]
@@ -175,7 +175,7 @@ class LocalObservations:
                              f"movers")
         kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block, self.unrolled,
                                               bool(block) and self.staged)
-        with torch_stream(dev):
+        with on_torch_stream(dev):
             self.nonfinite.zero_()
             if self.k > 0 and grid:
                 wp.launch(knb.clear_heads, dim=self._head.shape[0], inputs=[self._head], device=dev)

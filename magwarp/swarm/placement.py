@@ -28,7 +28,7 @@ import torch
 import warp as wp
 from scipy import ndimage
 
-from magwarp._streams import torch_stream
+from magwarp._streams import torch_stream as _torch_stream
 from magwarp.kernels import placement as kpl
 from magwarp.kernels.collision import footprints_on_tiles
 from magwarp.layout import Layout, LayoutError, MoverSpec
@@ -57,13 +57,15 @@ class PlacementError(LayoutError):
     """A placement request that cannot be met (too many movers for the valid area)."""
 
 
-def torch_stream(device):
-    """A context that makes Warp launch on torch's current stream of ``device`` (CUDA), so that kernels and torch
-    ops on the same tensors are ordered without a host synchronisation; a no-op on the CPU."""
+def on_torch_stream(device):
+    """A context that makes Warp launch on torch's current stream of ``device`` (CUDA; its one wrapper per stream,
+    :func:`magwarp._streams.torch_stream`), so that kernels and torch ops on the same tensors are ordered without a
+    host synchronisation; a no-op on the CPU. (Until 2026-12-06 this context was called ``torch_stream`` too and
+    called itself instead of that helper, with a torch device Warp refused: every swarm placement on CUDA failed.)"""
     device = wp.get_device(device)
     if not device.is_cuda:
         return contextlib.nullcontext()
-    return wp.ScopedStream(torch_stream(torch.device("cuda", device.ordinal)))
+    return wp.ScopedStream(_torch_stream(torch.device("cuda", device.ordinal)))
 
 
 def _collision(layout: Layout, mover: MoverSpec) -> Collision:
@@ -218,7 +220,7 @@ class Placer:
         flat = pts.reshape(-1, 2).contiguous()
         ok = torch.zeros(flat.shape[0], dtype=torch.int32, device=self.torch_device)
         if flat.shape[0]:
-            with torch_stream(self.device):
+            with on_torch_stream(self.device):
                 wp.launch(footprints_on_tiles, dim=flat.shape[0], device=self.device,
                           inputs=[self._tiles, self.col, self.foot_radius - self.offset,
                                   wp.vec2(*(self.foot_half - self.offset)), self.offset,
@@ -337,7 +339,7 @@ class Placer:
             raise ValueError(f"out must be a bool tensor of shape {tuple(mask.shape)} on {self.torch_device}, got "
                              f"{getattr(out, 'dtype', type(out))} {tuple(getattr(out, 'shape', ()))} on "
                              f"{getattr(out, 'device', None)}")
-        with torch_stream(self.device):
+        with on_torch_stream(self.device):
             todo = wp.to_torch(self.place_device(xy, mask, rounds, hold=hold, checked=True))
             return todo.bool() if out is None else torch.ne(todo, 0, out=out)
 
@@ -349,7 +351,7 @@ class Placer:
         if not checked:
             xy, mask = self._check(xy, mask)
         rounds = int(rounds)
-        with torch_stream(self.device):
+        with on_torch_stream(self.device):
             pos = self._begin(xy, mask, hold, advance=rounds)
             self._rounds(pos, rounds, advanced=True)
             self._end(pos)
@@ -368,7 +370,7 @@ class Placer:
                 f"{self._density(self.max_movers)} (densest packing of collision {self._size_text()}, safety margin "
                 f"{self.mover.margin:g} m, sampling offset {self.offset:g} m over {self.valid_area:.3f} m^2 of valid "
                 f"centres): choose fewer movers, more tiles or smaller margins")
-        with torch_stream(self.device):
+        with on_torch_stream(self.device):
             pos = self._begin(xy, mask, False)
             done = 0
             while done < max_rounds:
