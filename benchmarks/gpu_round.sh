@@ -55,7 +55,8 @@ for stage in "$@"; do
     magnetics_fast)
       # #17: the block cycle beside the fast cycle (magwarp/magnetics/fast_cycle.py: 8 lanes per mover, the fast path,
       # then the active-set steps of the movers it left) and its variants at 1e3/1e5/1e6 movers, with their current
-      # differences; then the fast cycle's GPU tests
+      # differences; then the fast cycle's GPU tests (about 6 minutes on a cold machine: the first H100 call, 2026-12-06,
+      # compiled for 39 s and was cut at 130 s before its first row)
       timeout 420 python3 benchmarks/magnetics.py --device cuda:0 --fast-cycle-only \
         --fast-cycle-sizes 1000,100000,1000000 --json "$OUT/magnetics_fast_cycle_gpu.json" 2>&1 | grep -v "^Module" \
         | tail -16

@@ -32,6 +32,11 @@ loss, flags and count. On a GPU the cycle is split by default (:func:`make_fast_
 the active-set steps of the movers it listed (about 22% in ``benchmarks/magnetics.py``'s wrenches), so the
 register-hungry loop stays out of the kernel every mover runs.
 
+Status (2026-12-06): the CPU paths are tested against the block cycle and the float64 reference; the GPU path (the
+shuffle reductions) has compiled for sm_90 on an H100, but its first timed run was cut off before a result, so it is
+neither measured nor the default of :class:`~magwarp.magnetics.cycle.ControlCycle` or the drive yet
+(``bash benchmarks/gpu_round.sh magnetics_fast`` runs its CUDA tests and times it beside the block cycle).
+
 On a CPU the default is one lane per mover (no reduction at all). ``lanes > 1`` on a CPU emulates the GPU's lane
 groups with one block of ``lanes`` threads per mover and ``wp.tile_sum`` reductions (``warp.config.enable_cpu_blocks``
 must be set; the tests do, to run the lane logic without a GPU); on a GPU the groups are reduced with
