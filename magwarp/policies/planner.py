@@ -30,18 +30,36 @@ is tracked by a jerk command (no safety guarantee then).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-if TYPE_CHECKING:  # the env builds its scripted planner lazily (scripted_policy): no import at run time
-    from magwarp.envs.trajectory import TrajectoryPlanningEnv
+if TYPE_CHECKING:
+    from magwarp.layout import Layout
+    from magwarp.sim import Simulator
+
+
+class PlannedEnv(Protocol):
+    """What the planner reads of a batched trajectory-planning env (structurally: the planner imports no env module,
+    so that envs -> policies stays one way; :class:`~magwarp.envs.trajectory.TrajectoryPlanningEnv` is one)."""
+
+    sim: Simulator
+    layout: Layout
+    device: torch.device
+    num_envs: int
+    num_movers: int
+    num_cycles: int
+    learn_jerk: bool
+    goals: torch.Tensor
+    num_steps: torch.Tensor
+    last_goal_step: torch.Tensor
 
 
 class GoalSeekingPlanner:
-    """``planner(obs) -> action`` for a :class:`TrajectoryPlanningEnv` (batched, torch in and out).
+    """``planner(obs) -> action`` for a :class:`~magwarp.envs.trajectory.TrajectoryPlanningEnv` (any
+    :class:`PlannedEnv`; batched, torch in and out).
 
     Args:
         env: the batched env (the planner reads layout, limits, collision sizes and the exact state from it).
@@ -62,7 +80,7 @@ class GoalSeekingPlanner:
         seed: seed of the escape sampling.
     """
 
-    def __init__(self, env: TrajectoryPlanningEnv, cruise_speed: float = 2.0, brake: float = 6.0,
+    def __init__(self, env: PlannedEnv, cruise_speed: float = 2.0, brake: float = 6.0,
                  buffer: float = 0.006, horizon: float = 0.3, sidestep: float = 2.0, leader_share: float = 0.35,
                  wall_resolution: float = 0.005, arrive_speed: float = 0.5, rounds: int = 1,
                  detour_margin: float = 0.03, ttc_margin: float = 0.01, wall_buffer: float = 0.003,
