@@ -6,8 +6,13 @@ one's end per step (span - sum: the gaps between kernels in the graph).
     python benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 --json rand_gaps_gpu.json
 
 Settings: those of randomization.py (off, terms, latency, sensors, full) plus ``full_nofire``: full with the reset-mode
-terms' firing left out of the step (what the two firing launches cost in the env step; the draws then do not
-happen, so it is a measurement, not an env configuration).
+terms' firing left out of the step (what the firing costs in the env step; the draws then do not happen, so it is a
+measurement, not an env configuration).
+
+The reset work (the firing, the sensors' new biases, the new starts and goals) scales with the share of worlds that
+finish in a step: ``reset %`` is that share under the timed random actions (uniform over the action space, as
+env_throughput.py and randomization.py step), and ``--planner-resets`` also prints it under the env's scripted
+planner (a policy that reaches its goals: the regime of a trained policy and of evaluation), untimed.
 """
 
 from __future__ import annotations
@@ -43,7 +48,19 @@ def profile_span(env, actions, steps: int) -> dict:
     return {"kernel_us": busy, "span_us": span, "gap_us": span - busy, "kernels_per_step": len(events) / steps}
 
 
-def row(device: str, num_envs: int, name: str, steps: int) -> dict:
+def reset_share(env, act, steps: int = 50) -> float:
+    """The mean share of worlds that finish per step over ``steps`` steps of ``act(obs, i)`` (untimed)."""
+    import torch
+
+    obs, done = env._last_obs, []
+    for i in range(steps):
+        obs, _, terminated, truncated, _ = env.step(act(obs, i))
+        done.append((terminated | truncated).float().mean())
+    env._last_obs = obs
+    return float(torch.stack(done).mean())
+
+
+def row(device: str, num_envs: int, name: str, steps: int, planner: bool = False) -> dict:
     import gymnasium as gym
     import torch
 
@@ -56,7 +73,7 @@ def row(device: str, num_envs: int, name: str, steps: int) -> dict:
         PlanarRandomizer.reset_in_step = lambda self, mask: None
     try:
         env = gym.make_vec(ENV_ID, num_envs=num_envs, device=device, check_inputs=False, **kwargs).unwrapped
-        env.reset(seed=0)
+        env._last_obs, _ = env.reset(seed=0)
         gen = torch.Generator(device=env.device).manual_seed(0)
         shape = (8, num_envs, *env.single_action_space.shape)
         actions = torch.rand(shape, generator=gen, device=env.device) * 2 - 1
@@ -74,6 +91,10 @@ def row(device: str, num_envs: int, name: str, steps: int) -> dict:
             res["replay_ms"] = time_steps(replay, actions, steps, device)["step_ms"]
         if device != "cpu":
             res.update(profile_span(env, actions, min(steps, 50)))
+        res["reset_pct"] = 100.0 * reset_share(env, lambda obs, i: actions[i % len(actions)])
+        if planner:
+            policy = env.scripted_policy()
+            res["planner_reset_pct"] = 100.0 * reset_share(env, lambda obs, i: policy(obs))
         return res
     finally:
         PlanarRandomizer.reset_in_step = original
@@ -85,6 +106,8 @@ def main(argv=None) -> int:
     p.add_argument("--num-envs", default="65536")
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--settings", default="off,terms,latency,sensors,full,full_nofire")
+    p.add_argument("--planner-resets", action="store_true",
+                   help="also the share of worlds finishing per step under the env's scripted planner (untimed)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     info, devices = start_run(args.device)
@@ -93,7 +116,7 @@ def main(argv=None) -> int:
         for n in [int(s) for s in args.num_envs.split(",")]:
             base = None
             for name in args.settings.split(","):
-                r = row(device, n, name, args.steps)
+                r = row(device, n, name, args.steps, args.planner_resets)
                 base = r if name == "off" else base
                 if base is not None:
                     r["cost_pct"] = 100.0 * (r["step_ms"] / base["step_ms"] - 1.0)
@@ -102,7 +125,8 @@ def main(argv=None) -> int:
                                        for k, v in r.items()), flush=True)
     columns = ["device", "num_envs", "setting", ("step_ms", "env ms/step"), ("cost_pct", "cost %"),
                ("replay_ms", "graph replay ms"), ("kernel_us", "kernel us/step"), ("span_us", "span us/step"),
-               ("gap_us", "gaps us/step"), ("kernels_per_step", "kernels/step")]
+               ("gap_us", "gaps us/step"), ("kernels_per_step", "kernels/step"), ("reset_pct", "reset %"),
+               ("planner_reset_pct", "reset % (planner)")]
     return finish(rows, columns, info, args.json)
 
 
