@@ -14,8 +14,13 @@ from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.geometry import MagneticsError
 from magwarp.magnetics.thread_cycle import ThreadCycle
 
-# The coarse table of tests/test_magnetics_cycle.py (seconds to build on a CPU) and its module fixture.
-from test_magnetics_cycle import model  # noqa: E402, F401  (a fixture; tests/ is on sys.path)
+from magnetics_helpers import cycle_model  # noqa: E402, F401  (a fixture; tests/ is on sys.path)
+
+
+@pytest.fixture(scope="module")
+def model(cycle_model):  # noqa: F811
+    """The coarse table model of the cycle tests (magnetics_helpers.cycle_model: seconds to build on a CPU)."""
+    return cycle_model
 
 
 def random_case(model, rng, n: int, acc_max: float):
