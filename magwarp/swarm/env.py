@@ -512,11 +512,6 @@ class SwarmEnv(MagwarpVecEnv):
                                   acc=sim.acc if self.learn_jerk else None,
                                   carrying=self.carrying if self.stations is not None else None)
 
-    def _nonfinite_worlds(self, obs) -> torch.Tensor:
-        """The NaN guard's worlds for an observation of :meth:`_get_obs` (the step itself uses
-        :func:`~magwarp.kernels.swarm.finish_worlds`)."""
-        return (self.sim.nonfinite_step >= 0) | (self.local.nonfinite != 0)
-
     def _evaluate(self, obs) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         """The step's outcome per mover in one kernel (:func:`~magwarp.kernels.swarm.evaluate_movers`), which also
         counts the goals (and jobs), marks the movers that want a new goal or a respawn, for :meth:`_end_step`, and
