@@ -75,6 +75,13 @@ def round_number(counter: wp.array(dtype=wp.int64), back: int) -> wp.int64:
     return counter[COUNTER_ROUND] - wp.int64(back)
 
 
+@wp.func
+def advance_rounds(counter: wp.array(dtype=wp.int64), rounds: int):
+    """A placer's counter advanced by ``rounds`` rounds (one thread)."""
+    counter[COUNTER_CALLS] = counter[COUNTER_CALLS] + wp.int64(rounds)
+    counter[COUNTER_ROUND] = counter[COUNTER_ROUND] + wp.int64(rounds)
+
+
 @wp.kernel
 def advance_counter(
     # Model:
@@ -83,8 +90,7 @@ def advance_counter(
     counter: wp.array(dtype=wp.int64),
 ):
     """Advance a placer's counter by ``rounds`` rounds (one thread; :func:`begin_todo` does it for whole calls)."""
-    counter[COUNTER_CALLS] = counter[COUNTER_CALLS] + wp.int64(rounds)
-    counter[COUNTER_ROUND] = counter[COUNTER_ROUND] + wp.int64(rounds)
+    advance_rounds(counter, rounds)
 
 
 @wp.struct
@@ -159,8 +165,7 @@ def begin_todo(
     it; :func:`advance_counter` folded in)."""
     w, m = wp.tid()
     if w == 0 and m == 0 and advance != 0:
-        counter[COUNTER_CALLS] = counter[COUNTER_CALLS] + wp.int64(advance)
-        counter[COUNTER_ROUND] = counter[COUNTER_ROUND] + wp.int64(advance)
+        advance_rounds(counter, advance)
     t = int(0)
     if mask[w, m]:
         t = 1
