@@ -7,7 +7,7 @@
 # (scaling and B0 env throughput), magbots, distributed, sim2real (latency/sensor models' cost), randomization,
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
-# small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile, fire and
+# small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile and
 # tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps (#24),
 # magnetics_variants and magnetics_fast (#17), swarm_fused and tests18 (#18), compare (B0 env throughput of an older
 # tree beside this one).
@@ -251,13 +251,6 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
           --small-world-kernel $k --small-world-block "${SMALL_BLOCK:-96}" \
           --small-world-maxreg "${SMALL_MAXREG:-168}" \
           --json "$OUT/randomization_small_world_${k}_gpu.json" 2>&1 | grep -E "^  cuda" | tail -12
-      done ;;
-    fire)
-      # #24: the terms' reset firing (apply_terms, pack_rows) at 65,536 B0 envs, one and three items per thread
-      for ipt in 1 3; do
-        timeout 250 python3 benchmarks/randomization.py --device cuda:0 --num-envs 16384,65536 \
-          --env magwarp/TrajectoryPlanningB0-v0 --settings terms,full --kernel-times 65536 --items-per-thread $ipt \
-          --json "$OUT/randomization_fire_ipt${ipt}_gpu.json" 2>&1 | grep -E "^  cuda.*num_envs|launches" | tail -8
       done ;;
     robustness)
       # #24: the shipped B0 policy, the shipped randomisation-trained one (pretrained:b0_ppo_sim2real) and any
