@@ -115,6 +115,33 @@ def test_drive_with_blocks_of_threads_matches_one_thread(cache, rng, cpu_blocks)
     assert np.array_equal(f8, f1) and np.abs(c1).max() > 1.0, rng
 
 
+def test_fast_cycle_hook_matches_the_block_cycle(cache, rng):
+    """``cycle="fast"`` (the GPU's default: the wanted wrenches, :class:`FastCycle`, the store) moves the movers as
+    the block cycle's one launch does, with the same currents (to rounding), coil ids, flags and energy; coils
+    saturate (2 A, up to 8 m/s^2)."""
+    cmd = rng.uniform(-8.0, 8.0, (2, 1, 2))
+    out = []
+    for cycle in ("block", "fast"):
+        sim = make(magnetic_force, AUX_DIM)
+        drive = MagneticDrive(sim, params(limit=2.0), SPEC, cycle=cycle)
+        assert drive.cycle == cycle
+        p, v = run(sim, cmd, 10)
+        out.append((p, v, drive.currents.numpy().copy(), drive.coil_ids.numpy().copy(), drive.flags.numpy().copy(),
+                    drive.energy.numpy().copy()))
+    (p0, v0, c0, i0, f0, e0), (p1, v1, c1, i1, f1, e1) = out
+    assert np.abs(c0).max() >= 2.0 - 1e-9, rng  # saturated: the active-set steps ran
+    np.testing.assert_allclose(p1, p0, atol=1e-7, err_msg=str(rng))
+    np.testing.assert_allclose(v1, v0, atol=1e-6, err_msg=str(rng))
+    np.testing.assert_allclose(c1, c0, rtol=0, atol=1e-6, err_msg=str(rng))
+    np.testing.assert_allclose(e1, e0, rtol=1e-6, err_msg=str(rng))
+    assert np.array_equal(i1, i0) and np.array_equal(f1, f0), rng
+
+
+def test_unknown_cycle_is_refused(cache):
+    with pytest.raises(MagneticsError, match="'fastest'"):
+        MagneticDrive(make(magnetic_force, AUX_DIM), params(limit=7.0), SPEC, cycle="fastest")
+
+
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_in_step_drive_matches_the_hook(cache, rng, precision):
     """The drive inside the step kernels (one thread per mover, one launch for a step of 10 cycles) moves the movers
@@ -160,14 +187,15 @@ def test_in_step_drive_saturates(cache, rng):
     assert cur.max() <= 2.0 and (cur >= 2.0 - 1e-9).any(), rng
 
 
-def test_actuator_wrench_mode_cycle_matches_commutate(cache, rng):
+@pytest.mark.parametrize("cycle", ["block", "fast"])
+def test_actuator_wrench_mode_cycle_matches_commutate(cache, rng, cycle):
     """``CoilActuator(mode="wrench")`` runs its cycle in one launch (look-up, commutation, store): the currents it
     applies are those of :meth:`CoilActuator.commutate` (the two launches) at the cycle's start, within the limits,
     and the realised wrench is their Gamma i."""
     from magwarp.magnetics.actuator import CoilActuator
 
     sim = make(magnetic_force, AUX_DIM)
-    act = CoilActuator(sim, params(limit=2.5), SPEC, mode="wrench")
+    act = CoilActuator(sim, params(limit=2.5), SPEC, mode="wrench", cycle=cycle)
     wrench = np.zeros((2, 1, 6))
     wrench[..., :2] = rng.uniform(-15.0, 15.0, (2, 1, 2))
     wrench[..., 2] = 1.24 * 9.81
@@ -176,7 +204,8 @@ def test_actuator_wrench_mode_cycle_matches_commutate(cache, rng):
     act.wanted.copy_(wrench)
     sim.step(1)
     got = act.applied_currents.numpy()
-    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, err_msg=str(rng))
+    tol = 1e-12 if cycle == "block" else 1e-9  # the fast cycle: the same algorithm, other summation orders
+    np.testing.assert_allclose(got, want, rtol=tol, atol=tol, err_msg=str(rng))
     assert np.all(np.abs(got) <= 2.5 + 1e-12) and np.abs(got).max() > 1.0
     gamma = act._gamma.numpy().astype(np.float64).reshape(2, 1, act.slots, 6)
     np.testing.assert_allclose(act.wrench.numpy(), np.einsum("wmsk,wms->wmk", gamma, got), rtol=1e-5, atol=1e-5)

@@ -15,7 +15,9 @@ integrator; gravity is the integrator's), the copper loss (W) into ``[..., 6]``;
 
 ``mode="wrench"``: the input is a wanted wrench per mover (:attr:`wanted`, ``[W, M, 6]``, force N and torque N m
 about the mover's centre, world frame) that the commutation (:mod:`~magwarp.magnetics.commutation`) turns into
-currents every cycle (one launch per cycle: look-up, commutation and store, :func:`wrench_cycle_kernel`).
+currents every cycle: ``cycle="block"`` one launch per cycle (look-up, commutation and store,
+:func:`wrench_cycle_kernel`; the default on a CPU) or ``cycle="fast"`` (the default on a GPU: the float64 poses and
+wrenches, :class:`~magwarp.magnetics.fast_cycle.FastCycle`, the store; 2.3-2.8x faster on an H100).
 :meth:`commutate` runs the same commutation once, outside the step, at the current state.
 """
 
@@ -28,6 +30,7 @@ from magwarp.magnetics.commutation import Commutation, CommutationOptions, vec6f
 from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_buffers, cycle_mover
 from magwarp.magnetics.drive import AUX_DIM, store_wrench, store_wrench_kernel
 from magwarp.magnetics.exact import vec6d
+from magwarp.magnetics.fast_cycle import FastCycle, resolve_cycle
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
 from magwarp.magnetics.table import TableModel, WrenchTableSpec
 
@@ -144,7 +147,8 @@ class CoilActuator:
     docstring."""
 
     def __init__(self, sim, params: MagneticParams | None = None, table: WrenchTableSpec | None = None,
-                 mode: str = "currents", options: CommutationOptions | None = None, use_cache: bool = True):
+                 mode: str = "currents", options: CommutationOptions | None = None, use_cache: bool = True,
+                 cycle: str | None = None):
         if mode not in ("currents", "wrench"):
             raise MagneticsError(f"CoilActuator mode must be 'currents' or 'wrench', got {mode!r}")
         aux = sim.state.force_aux
@@ -167,6 +171,8 @@ class CoilActuator:
         self._dt = float(sim.model.limits.dt)
         self._ids, self._count, self._gamma, self._res, self._cycle, self._outputs = cycle_buffers(
             self.model, self.commutation, n)
+        self.cycle = resolve_cycle(cycle, dev)
+        self._fast = FastCycle(self.model, self.commutation).reserve(n) if self.cycle == "fast" else None
         sim.add_cycle_hook(self._before_cycle, before=True)
 
     def _columns(self) -> None:
@@ -181,6 +187,17 @@ class CoilActuator:
         self.commutation.solve(self._gamma, self._ids, self._count, self._wanted_d, self._res)
 
     def _before_cycle(self, sim) -> None:
+        if self.mode == "wrench" and self._fast is not None:  # poses and wrenches in float64, the fast cycle, store
+            s = sim.state
+            wp.launch(pose64_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device, inputs=[s.pos, s.quat],
+                      outputs=[self._pos, self._quat, self._count])
+            wp.launch(wanted64_kernel, dim=self._wanted.shape[0], device=sim.device, inputs=[self._wanted],
+                      outputs=[self._wanted_d])
+            self._fast.run(self._pos, self._quat, self._wanted_d, self._res, self._count, self._ids, self._gamma)
+            wp.launch(store_wrench_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device,
+                      inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
+                      outputs=[s.force_aux, self._energy])
+            return
         if self.mode == "wrench":  # one launch: look-up, commutation, store
             wp.launch_tiled(wrench_cycle_kernel, dim=[self._wanted.shape[0]], block_dim=self.commutation.block_dim,
                             device=sim.device, inputs=[self._cycle, self._dt, sim.state.pos, sim.state.quat,

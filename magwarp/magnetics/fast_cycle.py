@@ -1,7 +1,7 @@
 """The magnetic control cycle with a few lanes per mover: wrench-table look-up and commutation, the no-saturation answer
 first.
 
-    cycle = FastCycle(table_model, commutation)       # lanes: 8 per mover on a GPU, 1 on a CPU
+    cycle = FastCycle(table_model, commutation)       # lanes: 16 per mover on a GPU, 1 on a CPU
     cycle.run(pos, quat, wanted, result, count=None, coil_ids=None, gamma=None)  # ids, columns: written when given
 
 The same problem, algorithm and float64 arithmetic as :mod:`~magwarp.magnetics.cycle` (the block cycle: one block of
@@ -9,7 +9,7 @@ The same problem, algorithm and float64 arithmetic as :mod:`~magwarp.magnetics.c
 rounding (``tests/test_magnetics_fast_cycle.py``), in another launch shape:
 
 * ``lanes`` adjacent threads per mover (a GPU warp holds 32 / lanes movers); lane ``l`` takes the window slots
-  ``l, l + lanes, ...`` (6 of the default 42 at 8 lanes), looks their columns up once
+  ``l, l + lanes, ...`` (6 of the default 42 at 8 lanes, 2 or 3 at the GPU's default 16), looks their columns up once
   (:func:`~magwarp.magnetics.table.slot_coil`, :func:`~magwarp.magnetics.table.table_column_at`; the height cell and
   the yaw samples once per mover) and keeps them, their coil ids and saturation signs in registers for the whole
   commutation (no column is read back from memory);
@@ -24,7 +24,7 @@ rounding (``tests/test_magnetics_fast_cycle.py``), in another launch shape:
   reach it, re-solve) and a last pass, exactly as in the block cycle;
 * the coil ids and columns are written only when asked (24 bytes per slot and mover, 1 GB at 1M movers).
 
-The cost per mover (default window, 8 lanes): the look-up's 16 float16 corner reads per coil (about 28 coils),
+The cost per mover (default window, at 8 lanes): the look-up's 16 float16 corner reads per coil (about 28 coils),
 21 + 13 float64 multiply-adds per coil, one float64 6 x 6 scaled Cholesky solve per step shared by the mover's 8 lanes
 (four movers' solves run side by side in a warp), two reductions on the fast path (28 and 8 float64 values, 3 shuffle
 rounds each); the writes are the currents (float64) and saturation flags per slot and the mover's wrench, residual,
@@ -32,10 +32,11 @@ loss, flags and count. On a GPU the cycle is split by default (:func:`make_fast_
 the active-set steps of the movers it listed (about 22% in ``benchmarks/magnetics.py``'s wrenches), so the
 register-hungry loop stays out of the kernel every mover runs.
 
-Status (2026-12-06): the CPU paths are tested against the block cycle and the float64 reference; the GPU path (the
-shuffle reductions) has compiled for sm_90 on an H100, but its first timed run was cut off before a result, so it is
-neither measured nor the default of :class:`~magwarp.magnetics.cycle.ControlCycle` or the drive yet
-(``bash benchmarks/gpu_round.sh magnetics_fast`` runs its CUDA tests and times it beside the block cycle).
+Status (2026-12-06): measured on an H100 (``bash benchmarks/gpu_round.sh magnetics_fast``,
+``benchmarks/results/magnetics_fast_cycle_s34_gpu.json``): 25.6 ms per cycle of 1M movers at 16 lanes (31.0 at 8)
+against the block cycle's 72.7 ms, 2.8 ms against 7.6 at 1e5 movers, with the same currents to 3e-8 A and the same
+flags and saturations; its seven CUDA tests pass. It is the magnetic drive's and the wrench-mode actuator's cycle on
+a GPU (``cycle="fast"``, :func:`resolve_cycle`); the issue's 2 ms per cycle of 1M movers stays missed by 13x.
 
 On a CPU the default is one lane per mover (no reduction at all). ``lanes > 1`` on a CPU emulates the GPU's lane
 groups with one block of ``lanes`` threads per mover and ``wp.tile_sum`` reductions (``warp.config.enable_cpu_blocks``
@@ -59,12 +60,27 @@ from magwarp.magnetics.geometry import MagneticsError
 from magwarp.magnetics.table import TableModel, column_context, quat_yaw, slot_coil, table_column_at
 from magwarp.magnetics.thread_cycle import ThreadOutputs, thread_outputs
 
-__all__ = ["FastCycle", "GPU_LANES", "LANE_CHOICES", "make_fast_cycle"]
+__all__ = ["CYCLES", "FastCycle", "GPU_LANES", "LANE_CHOICES", "make_fast_cycle", "resolve_cycle"]
 
-#: Lanes per mover on a GPU (4 movers per warp; 6 of the default 42 slots per lane).
-GPU_LANES = 8
+#: Lanes per mover on a GPU (2 movers per warp; 2 or 3 of the default 42 slots per lane). On an H100 (2026-12-06,
+#: ``benchmarks/results/magnetics_fast_cycle_s34_gpu.json``) 16 lanes took 25.6 ms per cycle of 1M movers, 8 lanes
+#: 31.0 ms and the block cycle 72.7 ms; 0.32 / 0.38 / 0.44 ms at 1,000 movers.
+GPU_LANES = 16
 #: The lane counts a cycle may use (a power of two: the groups are aligned within a warp).
 LANE_CHOICES = (1, 2, 4, 8, 16, 32)
+#: The control cycle's launch shapes (the magnetic drive's and the wrench-mode actuator's ``cycle``): ``"block"``
+#: (:mod:`~magwarp.magnetics.cycle`, one launch, a block of threads per mover) and ``"fast"`` (:class:`FastCycle`).
+CYCLES = ("block", "fast")
+
+
+def resolve_cycle(cycle: str | None, device) -> str:
+    """``cycle`` checked against :data:`CYCLES`; None: ``"fast"`` on a GPU (2.3-2.8x the block cycle's speed on an
+    H100 at 1e5-1e6 movers, the same currents to rounding), ``"block"`` on a CPU (the same time there)."""
+    if cycle is None:
+        return "fast" if wp.get_device(device).is_cuda else "block"
+    if cycle not in CYCLES:
+        raise MagneticsError(f"cycle must be one of {CYCLES} (or None for the device's default), got {cycle!r}")
+    return cycle
 
 vec8d = wp.types.vector(length=8, dtype=wp.float64)
 
@@ -462,6 +478,14 @@ class FastCycle:
             model.max_active, self.lanes, self.tiles, int(max_registers))
         self._rest = self._rest_count = None
 
+    def reserve(self, n: int) -> "FastCycle":
+        """Allocate the split cycle's list of ``n`` movers now (before a CUDA graph capture runs :meth:`run`)."""
+        if self._rest is None or self._rest.shape[0] < n:
+            dev = self.model.device
+            self._rest = wp.empty(max(int(n), 1), dtype=wp.int32, device=dev)
+            self._rest_count = wp.zeros(1, dtype=wp.int32, device=dev)
+        return self
+
     def run(self, pos: wp.array, quat: wp.array, wanted: wp.array, out: CommutationResult,
             count: wp.array | None = None, coil_ids: wp.array | None = None,
             gamma: wp.array | None = None) -> CommutationResult:
@@ -482,16 +506,14 @@ class FastCycle:
         check_arrays("FastCycle.run", shapes, arrays, dev)
         if n == 0:
             return out
-        # CUDA: 128 threads a block (16 movers at 8 lanes; a group never straddles a warp); a CPU: one block per mover
+        # CUDA: 128 threads a block (8 movers at 16 lanes; a group never straddles a warp); a CPU: one block per mover
         block = self.lanes if self.tiles else (1 if dev.is_cpu else 128)
         o = thread_outputs(out, count, coil_ids, gamma)
         if not self.split:
             wp.launch(self.kernel, dim=n * self.lanes, block_dim=block, device=dev,
                       inputs=[self.params, pos, quat, wanted], outputs=[o])
             return out
-        if self._rest is None or self._rest.shape[0] < n:
-            self._rest = wp.empty(n, dtype=wp.int32, device=dev)
-            self._rest_count = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.reserve(n)
         self._rest_count.zero_()
         wp.launch(self.first_kernel, dim=n * self.lanes, block_dim=block, device=dev,
                   inputs=[self.params, pos, quat, wanted], outputs=[o, self._rest, self._rest_count])
