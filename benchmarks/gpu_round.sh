@@ -8,7 +8,7 @@
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
 # small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile and
-# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps (#24),
+# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps and fire_cost (#24),
 # magnetics_variants and magnetics_fast (#17), swarm_fused and tests18 (#18), compare (B0 env throughput of an older
 # tree beside this one).
 set -u
@@ -212,6 +212,12 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # the gaps between kernels (full_nofire: full with the reset firing left out of the step)
       timeout 400 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536,16384 --steps 200 \
         --json "$OUT/rand_gaps_gpu.json" 2>&1 | grep -v "^Module" | tail -16 ;;
+    fire_cost)
+      # #24: the B0 reset firing alone (one graph of 20 firings) at 65,536 and 16,384 envs, masks of 0-100 % of the
+      # worlds: each candidate way of firing (checked bit for bit against today's on the device first: same_bits) and
+      # the diagnostic kernels that split its time
+      timeout 200 python3 benchmarks/fire_cost.py --device cuda:0 --json "$OUT/fire_cost_gpu.json" 2>&1 \
+        | grep -v "^Module" | tail -30 ;;
     rand_profile)
       # #24: B0's randomisation cost at 4096/16384/65536 envs with each setting's per-kernel CUDA time at 65,536
       timeout 400 python3 benchmarks/randomization.py --device cuda:0 --num-envs 4096,16384,65536 \

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import struct
 import sys
 import tempfile
@@ -91,20 +92,22 @@ def kernel_figures(kernel, arch: int) -> dict[str, int]:
         cubins = [str(p) for p in paths if str(p).endswith(".cubin")]
         if not cubins:
             raise RuntimeError(f"no cubin written for {kernel.key} (got {[str(p) for p in paths]})")
-        found = {k: v for c in cubins for k, v in cubin_attributes(c).items() if kernel.key in k}
+        entry = re.compile(rf"{re.escape(kernel.key)}_[0-9a-f]+_cuda_kernel_forward")  # not another key's prefix
+        found = {k: v for c in cubins for k, v in cubin_attributes(c).items() if entry.fullmatch(k)}
     if len(found) != 1:
         raise RuntimeError(f"expected one {kernel.key} entry in the cubin, found {sorted(found)}")
     return next(iter(found.values()))
 
 
 def randomize_figures(arch: int, json_path: str | None) -> int:
-    """Registers and stack of the randomisation firing kernel (:func:`magwarp.kernels.randomize.fire_terms`): it does
-    not depend on the mover count."""
+    """Registers and stack of the randomisation firing kernel (:func:`magwarp.kernels.randomize.fire_terms`) and of
+    #24's candidates beside it (benchmarks/fire_cost.py): they do not depend on the mover count."""
     from magwarp.kernels import randomize as krand
 
     info, _ = start_run("cpu")
     results = []
-    for kernel in (krand.fire_terms,):
+    for kernel in (krand.fire_terms, krand.fire_terms_lean, krand.list_worlds, krand.fire_listed,
+                   krand.fire_listed_lean, krand.draw_listed, krand.pack_listed):
         fig = kernel_figures(kernel, arch)
         results.append({"arch": f"sm_{arch}", "kernel": kernel.key, **fig})
         print(f"  sm_{arch} {kernel.key}: {fig.get('registers')} registers, {fig.get('stack')} B stack", flush=True)

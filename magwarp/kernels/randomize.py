@@ -27,10 +27,12 @@ kept the draws.)
 
 from __future__ import annotations
 
+import functools
+
 import warp as wp
 
 from magwarp.kernels.options import MODULE_OPTIONS
-from magwarp.kernels.params import MoverParams, pack_mover
+from magwarp.kernels.params import MoverParams, pack_mover, pack_values
 from magwarp.types import Body
 
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
@@ -190,16 +192,24 @@ def wins(it: Item, items: wp.array(dtype=Item), mode: int, steps: int) -> bool:
 
 
 @wp.func
+def draw_item(it: Item, seed: int) -> wp.vec3d:
+    """Item ``it``'s value for a firing's ``seed``: its ``t.dim`` components drawn and put through its operation."""
+    t = it.t
+    v = wp.vec3d()
+    for k in range(3):
+        if k < t.dim:
+            v[k] = apply_op(t.op, it.nominal[k], draw(t, seed, it.stream + k))
+    return v
+
+
+@wp.func
 def fire_item(it: Item, seed: int, w: int, params: MoverParams, radius: wp.array2d(dtype=float),
               half_size: wp.array2d(dtype=wp.vec2), margins: wp.array(dtype=wp.vec2)):
     """Draw item ``it`` for world ``w`` (its firing's ``seed``) and write its field (a payload: also its offset and
     ``known``)."""
     t = it.t
     m = it.target
-    v = wp.vec3d()
-    for k in range(3):
-        if k < t.dim:
-            v[k] = apply_op(t.op, it.nominal[k], draw(t, seed, it.stream + k))
+    v = draw_item(it, seed)
     write_field(t.field, w, m, v, params, radius, half_size, margins)
     if t.field == PAYLOAD_MASS:
         params.offset[w, m] = t.offset
@@ -240,22 +250,348 @@ def fire_terms(
     w, j = wp.tid()
     if not drawn(all_worlds, mask, w):
         return
+    fire_targets(w, j, mode, steps, per_thread, pack, items, first, key, counter, params, radius, half_size, margins,
+                 body)
+
+
+@wp.func
+def fire_targets(w: int, j: int, mode: int, steps: int, per_thread: int, pack: int, items: wp.array(dtype=Item),
+                 first: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.int32), counter: wp.array2d(dtype=wp.int32),
+                 params: MoverParams, radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2),
+                 margins: wp.array(dtype=wp.vec2), body: wp.array2d(dtype=Body)):
+    """:func:`fire_terms`' work for world ``w`` and thread column ``j`` (its targets ``[j per_thread, (j + 1)
+    per_thread)``): each item drawn and written as it comes, then the rows packed from the parameter arrays."""
     t0 = j * per_thread
     t1 = wp.min(t0 + per_thread, counter.shape[1])
-    if t0 >= t1:
+    if t0 < t1:
+        count = counter[w, t0]
+        seed = world_seed(key[0], count, w)
+        for t in range(t0, t1):
+            for q in range(first[t], first[t + 1]):
+                it = items[q]
+                if wins(it, items, mode, steps):
+                    fire_item(it, seed, w, params, radius, half_size, margins)
+            if t < body.shape[1]:
+                if pack == PACK_ALL:
+                    body[w, t] = pack_mover(params, w, t)
+                elif pack == PACK_LIMITS:  # pack_body copies them: the same bits, without the row's other loads
+                    body[w, t].v_max = params.v_max[w, t]
+                    body[w, t].a_max = params.a_max[w, t]
+                    body[w, t].j_max = params.j_max[w, t]
+            counter[w, t] = count + 1
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# #24's fire-cost candidates (benchmarks/fire_cost.py times them; magwarp.envs.planar_randomization's ``fire`` options
+# pick one). Every one draws the same numbers and writes the same bits as fire_terms (tests/test_fire_variants.py):
+# the draws depend only on (key, world, counter, item), not on the thread that makes them.
+#
+# * lean (fire_target_lean): one target's firing with its row's parameters loaded first, the items' values kept in
+#   registers and every store after the last draw (no item load waits behind a store that might alias it), the row
+#   packed from the values at hand (pack_values) instead of reloading what was just stored; the reset and startup
+#   lists hold only winners, so their items skip ``wins``.
+# * compact (list_worlds, then fire_listed): the masked worlds listed in the graph (an atomic count; the list's
+#   order varies from run to run, the draws do not), then a fixed grid whose thread i takes list entry i // cols and
+#   column i % cols (dense: only the listed worlds' threads, ~1 wave), a grid-stride loop past the grid.
+# * split (list_worlds, draw_listed, pack_listed): one thread per (listed world, item), then one per (listed world,
+#   target) packing the row and advancing the counter.
+# ---------------------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def fire_target_lean(w: int, t: int, seed: int, mode: int, steps: int, pack: int, items: wp.array(dtype=Item),
+                     first: wp.array(dtype=wp.int32), params: MoverParams, radius: wp.array2d(dtype=float),
+                     half_size: wp.array2d(dtype=wp.vec2), margins: wp.array(dtype=wp.vec2),
+                     body: wp.array2d(dtype=Body)):
+    """Target ``t`` of world ``w``: :func:`fire_targets`' draws, writes and packing in another order (the row's
+    parameters loaded before any store, the drawn values held, stored after the last draw, the row packed from the
+    values): the same bits."""
+    zero = wp.float64(0.0)
+    mw = zero
+    iw = wp.vec3d()
+    pay = zero
+    off = wp.vec3d()
+    known = zero
+    kl = wp.vec3d()
+    kr = wp.vec3d()
+    vm = zero
+    am = zero
+    jm = zero
+    row = t < body.shape[1]
+    if row and pack == PACK_ALL:  # (a firing without a body field: the parameter arrays may be empty)
+        mw = params.mass[w, t]
+        iw = params.inertia[w, t]
+        pay = params.payload[w, t]
+        off = params.offset[w, t]
+        known = params.known[w, t]
+        kl = params.k_lin[w, t]
+        kr = params.k_rot[w, t]
+    if row and pack != PACK_NONE:
+        vm = params.v_max[w, t]
+        am = params.a_max[w, t]
+        jm = params.j_max[w, t]
+    rad = wp.float32(0.0)
+    hs = wp.vec2()
+    mg0 = wp.float32(0.0)
+    mg1 = wp.float32(0.0)
+    dirty = int(0)  # bit f: field code f drawn
+    for q in range(first[t], first[t + 1]):
+        it = items[q]
+        fires = True
+        if mode == MODE_INTERVAL:  # the other modes' lists hold only winners, all due
+            fires = wins(it, items, mode, steps)
+        if fires:
+            v = draw_item(it, seed)
+            f = it.t.field
+            dirty = dirty | (1 << f)
+            if f == MOVER_MASS:
+                mw = v[0]
+            elif f == MOVER_INERTIA:
+                iw = v
+            elif f == PAYLOAD_MASS:
+                pay = v[0]
+                off = it.t.offset
+                known = zero
+                if it.t.known != 0:
+                    known = v[0]
+            elif f == STIFFNESS_LIN:
+                kl = v
+            elif f == STIFFNESS_ROT:
+                kr = v
+            elif f == V_MAX:
+                vm = v[0]
+            elif f == A_MAX:
+                am = v[0]
+            elif f == J_MAX:
+                jm = v[0]
+            elif f == COLLISION_RADIUS:
+                rad = wp.float32(v[0])
+            elif f == COLLISION_HALF_SIZE:
+                hs = wp.vec2(wp.float32(v[0]), wp.float32(v[1]))
+            elif f == COLLISION_MARGIN:
+                mg0 = wp.float32(v[0])
+            elif f == WALL_MARGIN:
+                mg1 = wp.float32(v[0])
+    if dirty != 0:
+        if dirty & (1 << MOVER_MASS) != 0:
+            params.mass[w, t] = mw
+        if dirty & (1 << MOVER_INERTIA) != 0:
+            params.inertia[w, t] = iw
+        if dirty & (1 << PAYLOAD_MASS) != 0:
+            params.payload[w, t] = pay
+            params.offset[w, t] = off
+            params.known[w, t] = known
+        if dirty & (1 << STIFFNESS_LIN) != 0:
+            params.k_lin[w, t] = kl
+        if dirty & (1 << STIFFNESS_ROT) != 0:
+            params.k_rot[w, t] = kr
+        if dirty & (1 << V_MAX) != 0:
+            params.v_max[w, t] = vm
+        if dirty & (1 << A_MAX) != 0:
+            params.a_max[w, t] = am
+        if dirty & (1 << J_MAX) != 0:
+            params.j_max[w, t] = jm
+        if dirty & (1 << COLLISION_RADIUS) != 0:
+            radius[w, t] = rad
+        if dirty & (1 << COLLISION_HALF_SIZE) != 0:
+            half_size[w, t] = hs
+        if dirty & (1 << COLLISION_MARGIN) != 0:
+            margins[w][0] = mg0
+        if dirty & (1 << WALL_MARGIN) != 0:
+            margins[w][1] = mg1
+    if row:
+        if pack == PACK_ALL:
+            body[w, t] = pack_values(params, mw, iw, pay, off, known, kl, kr, vm, am, jm)
+        elif pack == PACK_LIMITS:
+            body[w, t].v_max = vm
+            body[w, t].a_max = am
+            body[w, t].j_max = jm
+
+
+@wp.func
+def fire_targets_lean(w: int, j: int, mode: int, steps: int, per_thread: int, pack: int, items: wp.array(dtype=Item),
+                      first: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.int32),
+                      counter: wp.array2d(dtype=wp.int32), params: MoverParams, radius: wp.array2d(dtype=float),
+                      half_size: wp.array2d(dtype=wp.vec2), margins: wp.array(dtype=wp.vec2),
+                      body: wp.array2d(dtype=Body)):
+    """:func:`fire_targets` through :func:`fire_target_lean`."""
+    t0 = j * per_thread
+    t1 = wp.min(t0 + per_thread, counter.shape[1])
+    if t0 < t1:
+        count = counter[w, t0]
+        seed = world_seed(key[0], count, w)
+        for t in range(t0, t1):
+            fire_target_lean(w, t, seed, mode, steps, pack, items, first, params, radius, half_size, margins, body)
+            counter[w, t] = count + 1
+
+
+@wp.kernel
+def fire_terms_lean(
+    mode: int,
+    steps: int,
+    all_worlds: int,
+    mask: wp.array(dtype=wp.bool),
+    per_thread: int,
+    pack: int,
+    items: wp.array(dtype=Item),
+    first: wp.array(dtype=wp.int32),
+    key: wp.array(dtype=wp.int32),
+    counter: wp.array2d(dtype=wp.int32),
+    params: MoverParams,
+    radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2),
+    margins: wp.array(dtype=wp.vec2),
+    body: wp.array2d(dtype=Body),
+):
+    """:func:`fire_terms` (same arguments, same bits) through :func:`fire_targets_lean`."""
+    w, j = wp.tid()
+    if not drawn(all_worlds, mask, w):
         return
-    count = counter[w, t0]
-    seed = world_seed(key[0], count, w)
-    for t in range(t0, t1):
-        for q in range(first[t], first[t + 1]):
-            it = items[q]
-            if wins(it, items, mode, steps):
-                fire_item(it, seed, w, params, radius, half_size, margins)
+    fire_targets_lean(w, j, mode, steps, per_thread, pack, items, first, key, counter, params, radius, half_size,
+                      margins, body)
+
+
+@wp.kernel
+def list_worlds(
+    mask: wp.array(dtype=wp.bool),
+    # State in/out (zeroed before the launch):
+    count: wp.array(dtype=wp.int32),  # [1]: the worlds listed
+    # State out:
+    ids: wp.array(dtype=wp.int32),  # [W]: ids[:count] the worlds in mask, in no fixed order
+):
+    """The worlds in ``mask``, listed: one atomic per masked world (no host sync: the firing reads ``count``)."""
+    w = wp.tid()
+    if mask[w]:
+        ids[wp.atomic_add(count, 0, 1)] = w
+
+
+def _listed_kernel(lean: bool):
+    fire = fire_targets_lean if lean else fire_targets
+
+    def kernel(
+        mode: int,
+        steps: int,
+        count: wp.array(dtype=wp.int32),  # [1]: the listed worlds (list_worlds)
+        ids: wp.array(dtype=wp.int32),
+        cols: int,  # thread columns per world (targets / per_thread, rounded up)
+        threads: int,  # this launch's threads: thread i takes entries i, i + threads, ... (of count cols)
+        per_thread: int,
+        pack: int,
+        items: wp.array(dtype=Item),
+        first: wp.array(dtype=wp.int32),
+        key: wp.array(dtype=wp.int32),
+        counter: wp.array2d(dtype=wp.int32),
+        params: MoverParams,
+        radius: wp.array2d(dtype=float),
+        half_size: wp.array2d(dtype=wp.vec2),
+        margins: wp.array(dtype=wp.vec2),
+        body: wp.array2d(dtype=Body),
+    ):
+        i = wp.tid()
+        n = count[0] * cols
+        while i < n:
+            e = i // cols
+            w = ids[e]
+            fire(w, i - e * cols, mode, steps, per_thread, pack, items, first, key, counter, params, radius,
+                 half_size, margins, body)
+            i += threads
+
+    kernel.__doc__ = (f":func:`fire_terms` for the listed worlds (through :func:`{fire.key}`) over a fixed grid: "
+                      "entry ``i`` (of ``count[0] cols``) is column ``i % cols`` of world ``ids[i // cols]``.")
+    return wp.kernel(kernel, name="fire_listed_lean" if lean else "fire_listed")
+
+
+fire_listed = _listed_kernel(False)
+fire_listed_lean = _listed_kernel(True)
+
+
+@wp.kernel
+def draw_listed(
+    mode: int,
+    steps: int,
+    count: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    threads: int,
+    items: wp.array(dtype=Item),
+    key: wp.array(dtype=wp.int32),
+    counter: wp.array2d(dtype=wp.int32),  # read only here (pack_listed advances it)
+    params: MoverParams,
+    radius: wp.array2d(dtype=float),
+    half_size: wp.array2d(dtype=wp.vec2),
+    margins: wp.array(dtype=wp.vec2),
+):
+    """The split firing's draws: entry ``i`` (of ``count[0] n``, ``n`` the mode's items) is item ``i % n`` of world
+    ``ids[i // n]``, drawn and written when it wins (the two margins: components of one ``margins[w]``, each its own
+    store)."""
+    i = wp.tid()
+    n_items = items.shape[0]
+    n = count[0] * n_items
+    while i < n:
+        e = i // n_items
+        w = ids[e]
+        it = items[i - e * n_items]
+        if wins(it, items, mode, steps):
+            fire_item(it, world_seed(key[0], counter[w, it.target], w), w, params, radius, half_size, margins)
+        i += threads
+
+
+@wp.kernel
+def pack_listed(
+    count: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    threads: int,
+    pack: int,
+    params: MoverParams,
+    counter: wp.array2d(dtype=wp.int32),
+    body: wp.array2d(dtype=Body),
+):
+    """The split firing's packing: entry ``i`` (of ``count[0] targets``) packs target ``i % targets`` of world
+    ``ids[i // targets]`` (its row from the parameter arrays, as :func:`fire_targets`) and advances its counter."""
+    i = wp.tid()
+    cols = counter.shape[1]
+    n = count[0] * cols
+    while i < n:
+        e = i // cols
+        w = ids[e]
+        t = i - e * cols
         if t < body.shape[1]:
             if pack == PACK_ALL:
                 body[w, t] = pack_mover(params, w, t)
-            elif pack == PACK_LIMITS:  # pack_body copies them: the same bits, without the row's other loads and stores
+            elif pack == PACK_LIMITS:
                 body[w, t].v_max = params.v_max[w, t]
                 body[w, t].a_max = params.a_max[w, t]
                 body[w, t].j_max = params.j_max[w, t]
-        counter[w, t] = count + 1
+        counter[w, t] = counter[w, t] + 1
+        i += threads
+
+
+@functools.cache
+def fire_terms_capped(max_registers: int):
+    """:func:`fire_terms` (same arguments, same bits; its work through :func:`fire_targets`) compiled with at most
+    ``max_registers`` registers per thread on CUDA (``__maxnreg__``; its own module): more warps resident per SM."""
+
+    def kernel(
+        mode: int,
+        steps: int,
+        all_worlds: int,
+        mask: wp.array(dtype=wp.bool),
+        per_thread: int,
+        pack: int,
+        items: wp.array(dtype=Item),
+        first: wp.array(dtype=wp.int32),
+        key: wp.array(dtype=wp.int32),
+        counter: wp.array2d(dtype=wp.int32),
+        params: MoverParams,
+        radius: wp.array2d(dtype=float),
+        half_size: wp.array2d(dtype=wp.vec2),
+        margins: wp.array(dtype=wp.vec2),
+        body: wp.array2d(dtype=Body),
+    ):
+        w, j = wp.tid()
+        if not drawn(all_worlds, mask, w):
+            return
+        fire_targets(w, j, mode, steps, per_thread, pack, items, first, key, counter, params, radius, half_size,
+                     margins, body)
+
+    return wp.kernel(kernel, name=f"fire_terms_r{int(max_registers)}", module="unique", enable_backward=False,
+                     module_options=dict(MODULE_OPTIONS), cuda_max_registers=int(max_registers))
