@@ -57,7 +57,9 @@ class LocalObservations:
         for name, value in (("radius", radius), ("max_range", max_range)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        if not np.isfinite(np.float32(radius) * np.float32(radius)):
+        with np.errstate(over="ignore"):
+            r2 = np.float32(radius) * np.float32(radius)  # the kernels' radius squared
+        if not np.isfinite(r2):
             raise ValueError(f"radius squared must be a finite float32, got radius {radius!r}")
         self.k, self.num_rays = int(k), int(num_rays)
         self.radius, self.max_range = float(radius), float(max_range)
