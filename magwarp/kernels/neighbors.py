@@ -12,7 +12,8 @@
   sorted list walked by an unrolled compare-and-swap chain, so it stays in registers;
 * for each of a few ray directions, the distance from its centre to the first point off the tiles (a hole or the
   layout's edge), capped at ``max_range``, by stepping tile by tile along the ray (at most ``max_range / tile_size``
-  steps per ray: :func:`ray_to_wall`).
+  steps per ray: :func:`ray_to_wall`), or on a layout with every tile present in closed form, the same distances bit
+  for bit (:func:`ray_to_rect`: no tile read).
 
 It writes the rows straight into the caller's ``[W, M, D]`` array (no copies), the neighbours' indices beside them,
 and a per-world flag for any non-finite entry.
