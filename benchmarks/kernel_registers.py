@@ -135,6 +135,9 @@ def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
         rows.append({"kernel": f"observe_staged/{block}", "cap": 0,
                      **kernel_figures(knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True),
                                       arch)})
+        rows.append({"kernel": f"observe_staged_merge_rect/{block}", "cap": 0,
+                     **kernel_figures(knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True,
+                                                                  True, True), arch)})
     for k in (kpl.propose, kpl.resolve):
         rows.append({"kernel": k.key, "cap": 0, **kernel_figures(k, arch)})
     for r in rows:

@@ -293,3 +293,53 @@ def test_search_option_errors():
     obs.tiled = True
     with pytest.raises(ValueError, match="enable_cpu_blocks"):
         obs.compute(*_sim_arrays(np.zeros((1, 4, 2)), np.zeros((1, 4, 2))))
+
+
+@pytest.mark.parametrize("tiled,staged", [(False, False), (True, False), (True, True)])
+def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tiled, staged):
+    """The world search's branch-free merge into the slots and the closed-form rays of a full rectangle
+    (:func:`~magwarp.kernels.neighbors.ray_to_rect`) write the same rows bit for bit as the chain and the tile walk:
+    movers on tile boundaries and the layout's edges, off the layout, a cluster, a NaN mover; rays shorter and
+    longer than the layout; a hole turns the closed form off (and asking for it is an error)."""
+    import torch
+
+    nx, ny = int(rng.integers(1, 12)), int(rng.integers(1, 12))
+    layout = Layout(np.ones((nx, ny), dtype=np.int32))
+    size, ext = layout.tile.size, np.asarray(layout.extent)
+    w, m = 3, 45
+    xy = rng.random((w, m, 2)) * ext * 1.2 - 0.1 * ext
+    xy[0, :8, 0] = rng.integers(0, nx + 1, 8) * size  # on tile boundaries (and the edges)
+    xy[0, 8:16, 1] = rng.integers(0, ny + 1, 8) * size
+    xy[1, :3] = 0.0
+    xy[1, 3:6] = ext * (1 - 1e-7)
+    xy[2, :12] = 0.2 + rng.random((12, 2)) * 0.1  # a cluster: more candidates than slots, near-ties
+    xy[2, 12] = np.nan
+    xy = xy.astype(np.float32).astype(np.float64)
+    vel = rng.normal(size=(w, m, 2))
+    goals = torch.tensor(rng.random((w, m, 2)), dtype=torch.float32)
+    pos3, vel3 = _sim_arrays(xy, vel)
+    for max_range in (0.3, float(ext.max()) * 1.5):
+        kw = dict(k=6, radius=0.5, num_rays=7, max_range=max_range)
+        ref = _search_obs(layout, w, m, "grid", False, monkeypatch, unrolled=True, **kw)
+        ref.rect = False
+        obs = _search_obs(layout, w, m, "world", tiled, monkeypatch, unrolled=True, staged=staged, **kw)
+        assert obs.rect and not obs.merge  # the defaults: closed-form rays on a full layout, the chain
+        obs.merge = True
+        rows = [torch.full((w, m, 4 + ref.dim), 7.0) for _ in range(2)]
+        for o, out in zip((ref, obs), rows):
+            o.observe(pos3, vel3, out, goals=goals)
+        np.testing.assert_array_equal(rows[1].numpy(), rows[0].numpy(), err_msg=str(rng))
+        np.testing.assert_array_equal(obs.index.numpy(), ref.index.numpy(), err_msg=str(rng))
+        assert obs.nonfinite.tolist() == ref.nonfinite.tolist() == [0, 0, 1]
+        walls = rows[1][..., 4 + 5 * 6:].numpy()
+        assert (walls[:2] < max_range).any()  # edges within reach (longer range: every ray ends at an edge)
+        assert (walls[:2] == max_range).any() or max_range > 1.0 or max(nx, ny) < 3
+    holed = np.ones((4, 4), dtype=np.int32)
+    holed[1, 2] = 0
+    obs = LocalObservations(Layout(holed), 1, 4, device="cpu")
+    assert not obs.rect
+    obs.rect = True
+    with pytest.raises(ValueError, match="every tile of its rectangle"):
+        obs.compute(*_sim_arrays(np.full((1, 4, 2), 0.1), np.zeros((1, 4, 2))))
+    with pytest.raises(ValueError, match="radius squared"):
+        LocalObservations(np.ones((3, 3)), 1, 4, radius=1e20, device="cpu")

@@ -12,7 +12,8 @@
   sorted list walked by an unrolled compare-and-swap chain, so it stays in registers;
 * for each of a few ray directions, the distance from its centre to the first point off the tiles (a hole or the
   layout's edge), capped at ``max_range``, by stepping tile by tile along the ray (at most ``max_range / tile_size``
-  steps per ray: :func:`ray_to_wall`).
+  steps per ray: :func:`ray_to_wall`), or on a layout with every tile present in closed form, the same distances bit
+  for bit (:func:`ray_to_rect`: no tile read).
 
 It writes the rows straight into the caller's ``[W, M, D]`` array (no copies), the neighbours' indices beside them,
 and a per-world flag for any non-finite entry.
@@ -93,6 +94,51 @@ def ray_to_wall(tiles: wp.array2d(dtype=wp.int32), size: float, p: wp.vec2, d: w
     return max_range
 
 
+@wp.func
+def ray_to_rect(nx: int, ny: int, size: float, p: wp.vec2, d: wp.vec2, max_range: float) -> float:
+    """:func:`ray_to_wall` on a layout with every tile of its ``nx`` x ``ny`` rectangle present, bit for bit: the
+    walk leaves at its first crossing out of the rectangle, which is the earlier of the x and y exits, each the walk's
+    own running sum (the first crossing plus one tile step per tile crossed: the same float additions in the same
+    order), or ``max_range`` if that comes first. No tile is read, and each sum stops once past ``max_range``
+    (the sums only grow), so a ray costs at most ``max_range / size`` additions per axis."""
+    i = int(wp.floor(p[0] / size))
+    j = int(wp.floor(p[1] / size))
+    if i < 0 or j < 0 or i >= nx or j >= ny:
+        return 0.0
+    t_x = float(BIG)
+    t_y = float(BIG)
+    dt_x = float(BIG)
+    dt_y = float(BIG)
+    n_x = int(0)  # tile steps along x before the step that leaves the rectangle
+    n_y = int(0)
+    if d[0] > 0.0:
+        t_x = (float(i + 1) * size - p[0]) / d[0]
+        dt_x = size / d[0]
+        n_x = nx - 1 - i
+    elif d[0] < 0.0:
+        t_x = (float(i) * size - p[0]) / d[0]
+        dt_x = -size / d[0]
+        n_x = i
+    if d[1] > 0.0:
+        t_y = (float(j + 1) * size - p[1]) / d[1]
+        dt_y = size / d[1]
+        n_y = ny - 1 - j
+    elif d[1] < 0.0:
+        t_y = (float(j) * size - p[1]) / d[1]
+        dt_y = -size / d[1]
+        n_y = j
+    while n_x > 0 and t_x < max_range:
+        t_x += dt_x
+        n_x -= 1
+    while n_y > 0 and t_y < max_range:
+        t_y += dt_y
+        n_y -= 1
+    t = wp.min(t_x, t_y)
+    if t >= max_range:
+        return max_range
+    return t
+
+
 #: parts of the mover's own state that the observation kernels write first (bit flags)
 OWN_STATE = 1  # x/y velocity, then the goal relative to the mover (4 columns)
 OWN_ACC = 2  # x/y acceleration (2 columns, after the state)
@@ -113,7 +159,8 @@ WORLD_SEARCH_CUDA = 64
 
 
 @functools.cache
-def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
+def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, merge: bool = False,
+               rect: bool = False):
     """The pieces of a mover's observation row (see :func:`make_observation_kernel`): ``own_state``, ``nearest``
     (the k nearest within the radius, by ``search``), ``write_slots`` and ``write_rays``."""
     K, R = int(k), int(num_rays)
@@ -123,6 +170,8 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
     WITH_STATE, WITH_ACC, WITH_CARRY = bool(own & OWN_STATE), bool(own & OWN_ACC), bool(own & OWN_CARRY)
     BASE = 4 * int(WITH_STATE) + 2 * int(WITH_ACC) + int(WITH_CARRY)
     GRID, UNROLLED = search == "grid", bool(unrolled)
+    MERGE = bool(merge) and not GRID  # candidates come in index order: a branch-free merge (see nearest)
+    RECT = bool(rect)
 
     @wp.func
     def own_state(
@@ -161,6 +210,36 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
         all of the world's."""
         D = Dists()
         I = Ids()
+        if wp.static(MERGE):
+            # the world's movers in index order, every candidate merged into the slots with no branch: a new one
+            # has the highest index yet, so it goes after every kept one of an equal distance, before the first
+            # of a greater one (strict <); a slot moves down one where the candidate goes before its upper
+            # neighbour. Empty slots hold +inf, a rejected candidate (itself, outside the radius, not finite) a NaN
+            # (no compare holds): the same slots as the chain while the radius squared is finite (checked by
+            # LocalObservations), as every accepted distance then is.
+            for s in range(KK):
+                D[s] = wp.inf
+                I[s] = -1
+            nan = wp.nan
+            for j in range(num_movers):
+                q = rows[j]
+                ex = q[0] - p[0]
+                ey = q[1] - p[1]
+                d2 = ex * ex + ey * ey
+                key = wp.where(d2 <= r2 and j != m, d2, nan)
+                before = bool(False)  # the candidate goes before the slot above
+                up_d = float(0.0)
+                up_i = int(0)
+                for s in range(wp.static(KK)):
+                    here = key < D[s]
+                    old_d = D[s]
+                    old_i = I[s]
+                    D[s] = wp.where(here, wp.where(before, up_d, key), old_d)
+                    I[s] = wp.where(here, wp.where(before, up_i, j), old_i)
+                    before = here
+                    up_d = old_d
+                    up_i = old_i
+            return D, I
         for s in range(KK):
             D[s] = BIG
             I[s] = -1
@@ -245,7 +324,10 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
         finite = bool(True)
         p2 = wp.vec2(p[0], p[1])
         for r in range(R):
-            d = ray_to_wall(tiles, tile_size, p2, dirs[r], max_range)
+            if wp.static(RECT):
+                d = ray_to_rect(tiles.shape[0], tiles.shape[1], tile_size, p2, dirs[r], max_range)
+            else:
+                d = ray_to_wall(tiles, tile_size, p2, dirs[r], max_range)
             out[row, BASE + 5 * K + r] = d
             finite = finite and wp.isfinite(d)
         return finite
@@ -255,7 +337,7 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool):
 
 @functools.cache
 def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid", block_dim: int = 0,
-                           unrolled: bool = True, staged: bool = False):
+                           unrolled: bool = True, staged: bool = False, merge: bool = False, rect: bool = False):
     """The fused observation kernel for fixed ``k``, ``num_rays`` and own-state parts ``own`` (bits of
     :data:`OWN_STATE`, :data:`OWN_ACC`, :data:`OWN_CARRY`). Row of a mover: its own state, then per neighbour slot
     (relative x, y, relative vx, vy, mask; nearest first, ties by the lower index; zeros in padded slots), then
@@ -277,11 +359,18 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
 
     ``unrolled``: how a candidate enters the sorted slots: an unrolled compare-and-swap chain (constant indices: the
     slots stay in registers on CUDA) or a shift from the back (fewer steps where the slots sit in a cache: the CPU);
-    the same slots either way."""
+    the same slots either way. ``merge`` (world search only; the grid ignores it): every candidate (they come in
+    index order) is merged into the slots with no branch (a compare and two selects per slot), instead of a branch to
+    the chain or shift taken by whichever lane keeps it (on CUDA nearly every candidate for some lane of a warp); the
+    same slots while the radius squared is finite.
+
+    ``rect``: the layout has every tile of its rectangle (``tiles`` all ones): the rays by :func:`ray_to_rect` (no
+    tile read, no walk), the same distances bit for bit."""
     if search not in SEARCHES:
         raise ValueError(f"search must be one of {SEARCHES}, got {search!r}")
     K, R = int(k), int(num_rays)
-    own_state, nearest, write_slots, write_rays, DIM = _row_funcs(K, R, int(own), search, bool(unrolled))
+    own_state, nearest, write_slots, write_rays, DIM = _row_funcs(K, R, int(own), search, bool(unrolled),
+                                                                  bool(merge), bool(rect))
     KK = max(K, 1)
     TILED = search == "world" and int(block_dim) > 0
     STAGED = TILED and bool(staged)

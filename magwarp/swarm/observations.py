@@ -57,6 +57,10 @@ class LocalObservations:
         for name, value in (("radius", radius), ("max_range", max_range)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        with np.errstate(over="ignore"):
+            r2 = np.float32(radius) * np.float32(radius)  # the kernels' radius squared
+        if not np.isfinite(r2):
+            raise ValueError(f"radius squared must be a finite float32, got radius {radius!r}")
         self.k, self.num_rays = int(k), int(num_rays)
         self.radius, self.max_range = float(radius), float(max_range)
         self.num_worlds, self.num_movers = int(num_worlds), int(num_movers)
@@ -77,6 +81,15 @@ class LocalObservations:
         #: observation of 16,384 worlds x 64 movers took 0.75 ms staged against 1.23 ms not (benchmarks/swarm.py,
         #: swarm_fused_gpu_64.json, 2026-11-25)
         self.staged = True
+        #: the world search merges every candidate into the sorted slots with no branch (they come in index order;
+        #: the same slots as the chain or the shift, see make_observation_kernel); off: the chain or the shift
+        #: (``unrolled``), entered by a branch only for a kept candidate. benchmarks/swarm_obs.py times both
+        self.merge = False
+        #: the layout has every tile of its rectangle: the wall rays in closed form (neighbors.ray_to_rect: each axis's
+        #: exit as the tile walk's own running sum, no tile read), the same distances bit for bit; settable (off: the
+        #: tile walk, which any layout may use)
+        self._full = bool((self.layout.tiles == 1).all())
+        self.rect = self._full
         ext = self.layout.extent
         g = Grid()
         # no more cells than about 4 per mover: a large radius on a sparse world scans a few more cells instead
@@ -173,8 +186,10 @@ class LocalObservations:
             raise ValueError(f"the block-per-world observation kernel runs on the CPU only with "
                              f"warp.config.enable_cpu_blocks (Warp's cooperative CPU blocks), got {self.num_movers} "
                              f"movers")
+        if self.rect and not self._full:
+            raise ValueError("rect rays need a layout with every tile of its rectangle")
         kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block, self.unrolled,
-                                              bool(block) and self.staged)
+                                              bool(block) and self.staged, bool(self.merge), bool(self.rect))
         with on_torch_stream(dev):
             self.nonfinite.zero_()
             if self.k > 0 and grid:
