@@ -10,7 +10,7 @@
 # small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile and
 # tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps and fire_cost (#24),
 # magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs and tests18 (#18), compare (B0 env throughput of
-# tree beside this one).
+# an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
