@@ -60,7 +60,7 @@ def reset_share(env, act, steps: int = 50) -> float:
     return float(torch.stack(done).mean())
 
 
-def row(device: str, num_envs: int, name: str, steps: int, planner: bool = False) -> dict:
+def row(device: str, num_envs: int, name: str, steps: int, planner: bool = False, fire: str | None = None) -> dict:
     import gymnasium as gym
     import torch
 
@@ -73,11 +73,15 @@ def row(device: str, num_envs: int, name: str, steps: int, planner: bool = False
         PlanarRandomizer.reset_in_step = lambda self, mask: None
     try:
         env = gym.make_vec(ENV_ID, num_envs=num_envs, device=device, check_inputs=False, **kwargs).unwrapped
+        if fire is not None and getattr(env, "randomizer", None) is not None:
+            from fire_cost import CANDIDATES, apply
+
+            apply(env.randomizer, CANDIDATES[fire])  # before the first step: the step graph captures it
         env._last_obs, _ = env.reset(seed=0)
         gen = torch.Generator(device=env.device).manual_seed(0)
         shape = (8, num_envs, *env.single_action_space.shape)
         actions = torch.rand(shape, generator=gen, device=env.device) * 2 - 1
-        res = {"env": ENV_ID, "device": device, "num_envs": num_envs, "setting": name}
+        res = {"env": ENV_ID, "device": device, "num_envs": num_envs, "setting": name, "fire": fire or "grid"}
         res["step_ms"] = time_steps(env.step, actions, steps, device)["step_ms"]
         fused = env._fused_step
         graphs = [g for g in getattr(fused, "_graphs", []) if g is not None]
@@ -108,6 +112,9 @@ def main(argv=None) -> int:
     p.add_argument("--settings", default="off,terms,latency,sensors,full,full_nofire")
     p.add_argument("--planner-resets", action="store_true",
                    help="also the share of worlds finishing per step under the env's scripted planner (untimed)")
+    p.add_argument("--fire", default=None,
+                   help="the reset firing's candidate (benchmarks/fire_cost.py's CANDIDATES, e.g. compact; default: the "
+                        "library's)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     info, devices = start_run(args.device)
@@ -116,14 +123,14 @@ def main(argv=None) -> int:
         for n in [int(s) for s in args.num_envs.split(",")]:
             base = None
             for name in args.settings.split(","):
-                r = row(device, n, name, args.steps, args.planner_resets)
+                r = row(device, n, name, args.steps, args.planner_resets, args.fire)
                 base = r if name == "off" else base
                 if base is not None:
                     r["cost_pct"] = 100.0 * (r["step_ms"] / base["step_ms"] - 1.0)
                 rows.append(r)
                 print("  " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                        for k, v in r.items()), flush=True)
-    columns = ["device", "num_envs", "setting", ("step_ms", "env ms/step"), ("cost_pct", "cost %"),
+    columns = ["device", "num_envs", "setting", "fire", ("step_ms", "env ms/step"), ("cost_pct", "cost %"),
                ("replay_ms", "graph replay ms"), ("kernel_us", "kernel us/step"), ("span_us", "span us/step"),
                ("gap_us", "gaps us/step"), ("kernels_per_step", "kernels/step"), ("reset_pct", "reset %"),
                ("planner_reset_pct", "reset % (planner)")]

@@ -457,7 +457,8 @@ def place_searches(env, device: str, steps: int) -> dict:
 
 
 def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float,
-                    breakdown: bool = False, obs_search: str | None = None, place_search: str | None = None) -> dict:
+                    breakdown: bool = False, obs_search: str | None = None, place_search: str | None = None,
+                    obs_merge: bool = False) -> dict:
     from magwarp.swarm import SwarmEnv
 
     row: dict = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps}
@@ -468,6 +469,7 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
                        fused=fused, graph=fused)
         if obs_search is not None:
             env.local.search, env.local.staged = obs_search.split("_")[0], obs_search.endswith("_staged")
+        env.local.merge = env.local.merge or obs_merge
         if place_search is not None:
             for placer in (env.placer, env.respawn_placer):
                 if placer is not None:
@@ -553,7 +555,8 @@ def run_fused_sweep(args) -> list[dict]:
         for worlds in worlds_list:
             steps = args.steps or (20 if device.startswith("cuda") else 3)
             row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1],
-                                  obs_search=args.obs_search, place_search=args.place_search)
+                                  obs_search=args.obs_search, place_search=args.place_search,
+                                  obs_merge=args.obs_merge)
             row.update(check)
             rows.append(row)
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
@@ -638,6 +641,8 @@ def main(argv=None) -> None:
                    "observation's neighbour search in the timed envs (default: LocalObservations' choice: world, up to "
                    "256 movers per world on CUDA and 128 on the CPU, else grid; world_staged: CUDA's block per world "
                    "with its rows staged in shared memory); every row also times the observation alone with each")
+    p.add_argument("--obs-merge", action="store_true", help="--fused-sweep: the world search merges candidates into "
+                   "the slots with no branch (LocalObservations.merge) in the timed envs")
     p.add_argument("--place-search", choices=("grid", "world"), help="--fused-sweep: the placers' search in the timed "
                    "envs (default: Placer's choice: world up to 256 movers per world on CUDA and 64 on the CPU, else "
                    "grid); every row also times the respawn placement alone with each")
