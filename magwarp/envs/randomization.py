@@ -60,10 +60,9 @@ noise, not model fields: :class:`magwarp.envs.sim2real.SensorConfig` (``sensors=
 the trajectory env with the same draws for the same seed; on the push envs in another order).
 
 The planar simulator (trajectory planning) takes the same terms over its own fields
-(:mod:`magwarp.envs.planar_randomization`), each firing two Warp kernels (the draws, then the packing of the body rows)
+(:mod:`magwarp.envs.planar_randomization`), each firing one Warp kernel (the draws and the packing of the body rows)
 with Warp's counter-based generator keyed by the env's seed (not the torch generator: other draws than the push envs'
-for the same seed); :data:`PRESETS` names sets
-of terms per backend (``randomization="sim2real"``).
+for the same seed); :data:`PRESETS` names sets of terms per backend (``randomization="sim2real"``).
 
 Plain mappings work too (``--env-kwargs`` JSON): ``{"field": "object_mass", "dist": {"type": "uniform", "lo": 0.2,
 "hi": 0.4}, "op": "set", "mode": "reset"}``, or the distribution as ``{"uniform": [0.2, 0.4]}``,
