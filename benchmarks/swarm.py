@@ -642,7 +642,8 @@ def main(argv=None) -> None:
                    "256 movers per world on CUDA and 128 on the CPU, else grid; world_staged: CUDA's block per world "
                    "with its rows staged in shared memory); every row also times the observation alone with each")
     p.add_argument("--obs-merge", action="store_true", help="--fused-sweep: the world search merges candidates into "
-                   "the slots with no branch (LocalObservations.merge) in the timed envs")
+                   "the slots with no branch (LocalObservations.merge) in the timed envs (the CUDA default since "
+                   "2026-12-06; this forces it on the CPU too)")
     p.add_argument("--place-search", choices=("grid", "world"), help="--fused-sweep: the placers' search in the timed "
                    "envs (default: Placer's choice: world up to 256 movers per world on CUDA and 64 on the CPU, else "
                    "grid); every row also times the respawn placement alone with each")

@@ -323,7 +323,7 @@ def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tile
         ref = _search_obs(layout, w, m, "grid", False, monkeypatch, unrolled=True, **kw)
         ref.rect = False
         obs = _search_obs(layout, w, m, "world", tiled, monkeypatch, unrolled=True, staged=staged, **kw)
-        assert obs.rect and not obs.merge  # the defaults: closed-form rays on a full layout, the chain
+        assert obs.rect and not obs.merge  # CPU defaults: closed-form rays, the chain (CUDA: the merge)
         obs.merge = True
         rows = [torch.full((w, m, 4 + ref.dim), 7.0) for _ in range(2)]
         for o, out in zip((ref, obs), rows):
