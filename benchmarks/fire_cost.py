@@ -13,14 +13,15 @@ Timing on CUDA: ``--graph-firings`` (20) firings captured in one CUDA graph (``w
 the same firings timed eagerly (wall clock). The firings advance the counters (each draws new numbers: the cost is
 the same).
 
-Candidates (magwarp.envs.planar_randomization's ``fire*`` options; see magwarp.kernels.randomize): ``grid`` (today's
-default: fire_terms over (world, mover), Warp's 256 threads a block), ``grid/bN`` (N threads a block), ``grid/world``
+Candidates (magwarp.envs.planar_randomization's ``fire*`` options; see magwarp.kernels.randomize): ``grid`` (the
+default until 2026-12-06: fire_terms over (world, mover), Warp's 256 threads a block), ``grid/bN`` (N threads a
+block; ``grid/b64``: the default on CUDA since), ``grid/world``
 (one thread per world, all its movers), ``grid/r64`` (a 64-register cap), ``grid_lean`` (the lean thread body),
 ``compact`` (the masked worlds listed in the graph, then a dense grid over the list), ``compact/b64``,
 ``compact_lean``, ``compact/gQ`` (the compact grid sized for 1/Q of the worlds, a grid-stride loop past it),
 ``split`` (the list, then a thread per (world, item) drawing and one per (world, mover) packing). Before it is timed,
-each candidate is checked on the device against ``grid``: from the same state, one firing for the 1, 6 and 100 %
-masks must write the same bits (parameters, sizes, margins, body rows, counters): column ``same_bits``.
+each candidate is checked on the device against the default firing: from the same state, one firing for the 1, 6 and
+100 % masks must write the same bits (parameters, sizes, margins, body rows, counters): column ``same_bits``.
 
 Diagnostics (timing only, over the grid of (world, mover) threads with 256 a block, each a kernel of this script):
 ``d:empty`` (a launch of one thread: the graph's per-kernel floor), ``d:mask`` (read the mask, exit), ``d:counter``
@@ -53,7 +54,7 @@ CHECK_PCTS = (1, 6, 100)
 #: candidate -> PlanarRandomizer attributes (``_per_thread`` "world": all of a world's targets in one thread); "/gQ":
 #: fire_grid_worlds = num_envs // Q
 CANDIDATES = {
-    "grid": {},
+    "grid": {"fire_block": 0},
     "grid/b128": {"fire_block": 128},
     "grid/b64": {"fire_block": 64},
     "grid/b32": {"fire_block": 32},
@@ -238,7 +239,7 @@ def state_bytes(snap) -> list[bytes]:
 
 
 def same_bits(env, attrs: dict, masks: dict) -> bool:
-    """One firing of the candidate (``attrs``) against one of ``grid``, from the same state, for each mask."""
+    """One firing of the candidate (``attrs``) against one of the default, from the same state, for each mask."""
     r = env.randomizer
     snap = snapshot(env)
     ok = True
@@ -292,7 +293,7 @@ def main(argv=None) -> int:
                 attrs = dict(CANDIDATES[name])
                 if "fire_grid_worlds" in attrs:
                     attrs["fire_grid_worlds"] = max(1, n // attrs["fire_grid_worlds"])
-                row["same_bits"] = same_bits(env, attrs, masks) if name != "grid" else True
+                row["same_bits"] = same_bits(env, attrs, masks)
                 old = apply(r, attrs)
                 try:
                     for pct in PCTS:

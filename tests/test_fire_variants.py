@@ -142,5 +142,12 @@ def test_unknown_layout_is_refused():
 
 def test_module_defaults_are_todays():
     """The defaults a new randomizer takes: today's firing (the one-line switch to a candidate is these constants)."""
-    assert (pr.FIRE, pr.FIRE_LEAN, pr.FIRE_BLOCK, pr.FIRE_MAX_REGISTERS, pr.FIRE_GRID_WORLDS) == ("grid", False, 0, 0,
-                                                                                                  0)
+    assert (pr.FIRE, pr.FIRE_LEAN, pr.FIRE_BLOCK, pr.FIRE_MAX_REGISTERS, pr.FIRE_GRID_WORLDS) == ("grid", False, None,
+                                                                                                  0, 0)
+
+
+def test_default_block_size():
+    """64 threads a block on CUDA (benchmarks/results/fire_cost_s34_gpu.json), Warp's default (0) on the CPU."""
+    assert pr.default_fire_block(True) == 64
+    assert pr.default_fire_block(False) == 0
+    assert make(SIZES_ONLY, None).randomizer.fire_block == 0

@@ -62,16 +62,30 @@ __all__ = ["PlanarRandomizer"]
 #: dense fixed grid over the list: ``list_worlds`` + ``fire_listed``) or ``"split"`` (the list, then one thread per
 #: (listed world, item) drawing and one per (listed world, target) packing); the all-worlds firings (startup,
 #: interval) take the grid. ``FIRE_LEAN``: the lean thread body (row loaded first, stores after the last draw, packed
-#: from the values held). ``FIRE_BLOCK``: threads per block of the firing's launches (0: Warp's default, 256).
+#: from the values held). ``FIRE_BLOCK``: threads per block of the firing's launches (0: Warp's default, 256; None:
+#: :func:`default_fire_block`, 64 on CUDA).
 #: ``FIRE_MAX_REGISTERS``: the grid kernel compiled under that register cap (0: none). ``FIRE_GRID_WORLDS``: compact and
 #: split: the fixed grid's size in worlds (0: every world, one pass whatever the mask; fewer: a grid-stride loop
 #: past it).
 FIRE = "grid"
 FIRE_LEAN = False
-FIRE_BLOCK = 0
+FIRE_BLOCK = None
 FIRE_MAX_REGISTERS = 0
 FIRE_GRID_WORLDS = 0
 FIRE_LAYOUTS = ("grid", "compact", "split")
+#: Threads per block of a firing's launch on CUDA (:attr:`PlanarRandomizer.fire_block`). Measured on an H100
+#: (``python benchmarks/fire_cost.py --device cuda:0``, benchmarks/results/fire_cost_s34_gpu.json), us per reset
+#: firing at 65,536 B0 envs with 6 % of the worlds resetting: 26.1 with Warp's 256 a block, 24.0 with 128, 20.0 with
+#: 64, 20.2 with 32 (1 %: 16.3 against 10.95 with 64; 100 %: 78.4 against 77.4); in the B0 env step
+#: (``benchmarks/rand_gaps.py --fire grid/b64``) full randomisation's cost fell from +27.98 % to +26.04 %.
+FIRE_BLOCK_CUDA = 64
+
+
+def default_fire_block(cuda: bool) -> int:
+    """A firing's threads per block on a CUDA device (``cuda``): :data:`FIRE_BLOCK_CUDA`; on the CPU 0, Warp's default
+    (a CPU launch runs its threads in a loop: a block size means little there)."""
+    return FIRE_BLOCK_CUDA if cuda else 0
+
 
 #: the body fields and their :attr:`magwarp.sim.Simulator.mover_params` keys
 BODY_KEYS = {"mover_mass": "mass", "mover_inertia": "inertia", "payload_mass": "payload", "stiffness_lin": "k_lin",
@@ -164,7 +178,8 @@ class PlanarRandomizer(EventRunner):
 
     def __init__(self, env, terms):
         self.sim = env.sim
-        self.fire, self.fire_lean, self.fire_block = FIRE, FIRE_LEAN, FIRE_BLOCK
+        self.fire, self.fire_lean = FIRE, FIRE_LEAN
+        self.fire_block = default_fire_block(self.sim.device.is_cuda) if FIRE_BLOCK is None else FIRE_BLOCK
         self.fire_max_registers, self.fire_grid_worlds = FIRE_MAX_REGISTERS, FIRE_GRID_WORLDS
         super().__init__(env, terms, self.sim.num_worlds, self.sim.torch_device)
         self.sim.add_step_callback(self.step)
