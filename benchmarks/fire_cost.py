@@ -1,5 +1,5 @@
 """Cost of the B0 env's reset firing alone (#24: ~30 us of the +29 % that full randomisation costs at 65,536 envs on an
-H100): one :meth:`~magwarp.envs.planar_randomization.PlanarRandomizer.reset_in_step` (the launch(es) the fused step's
+H100): one :meth:`~magwarp.envs.planar_randomization.PlanarRandomizer.reset_in_step` (the launch the fused step's
 graph holds) timed by itself, in us per firing, for masks of 0, 1, 6, 25 and 100 % of the worlds (random, fixed seed),
 for each candidate way of firing and for diagnostic kernels that split the time into its parts.
 
@@ -13,14 +13,17 @@ Timing on CUDA: ``--graph-firings`` (20) firings captured in one CUDA graph (``w
 the same firings timed eagerly (wall clock). The firings advance the counters (each draws new numbers: the cost is
 the same).
 
-Candidates (magwarp.envs.planar_randomization's ``fire*`` options; see magwarp.kernels.randomize): ``grid`` (today's
-default: fire_terms over (world, mover), Warp's 256 threads a block), ``grid/bN`` (N threads a block), ``grid/world``
-(one thread per world, all its movers), ``grid/r64`` (a 64-register cap), ``grid_lean`` (the lean thread body),
-``compact`` (the masked worlds listed in the graph, then a dense grid over the list), ``compact/b64``,
-``compact_lean``, ``compact/gQ`` (the compact grid sized for 1/Q of the worlds, a grid-stride loop past it),
-``split`` (the list, then a thread per (world, item) drawing and one per (world, mover) packing). Before it is timed,
-each candidate is checked on the device against ``grid``: from the same state, one firing for the 1, 6 and 100 %
-masks must write the same bits (parameters, sizes, margins, body rows, counters): column ``same_bits``.
+Candidates (the ``PlanarRandomizer``'s launch of :func:`magwarp.kernels.randomize.fire_terms` over (world, mover)
+threads): ``grid`` (Warp's 256 threads a block, the default until 2026-12-06), ``grid/bN`` (N threads a block;
+``grid/b64`` is the default on CUDA since), ``grid/world`` (one thread per world, all its movers; the default block).
+Before it is timed, each candidate is checked on the device against the default firing: from the same state, one
+firing for the 1, 6 and 100 % masks must write the same bits (parameters, sizes, margins, body rows, counters):
+column ``same_bits``. The compact (the masked worlds listed in the graph, then a dense grid over the list), split (the
+list, then a thread per (world, item) drawing and one per (world, mover) packing), lean (row loaded first, stores
+after the last draw) and register-capped (64) variants were measured on 2026-12-06 (an H100,
+benchmarks/results/fire_cost_s34_gpu.json) and removed: at 65,536 envs and 6 % resetting, 24.4 (compact), 20.2
+(compact, 64 a block), 30.9 (compact, lean), 22.9 (compact, an eighth of the grid), 25.5 (split), 64.2 (grid, lean)
+and 23.0 (grid, 64 registers) us per firing against grid's 26.1 and grid/b64's 20.0.
 
 Diagnostics (timing only, over the grid of (world, mover) threads with 256 a block, each a kernel of this script):
 ``d:empty`` (a launch of one thread: the graph's per-kernel floor), ``d:mask`` (read the mask, exit), ``d:counter``
@@ -50,21 +53,13 @@ ENV_ID = "magwarp/TrajectoryPlanningB0-v0"
 PCTS = (0, 1, 6, 25, 100)
 CHECK_PCTS = (1, 6, 100)
 
-#: candidate -> PlanarRandomizer attributes (``_per_thread`` "world": all of a world's targets in one thread); "/gQ":
-#: fire_grid_worlds = num_envs // Q
+#: candidate -> PlanarRandomizer attributes (``_per_thread`` "world": all of a world's targets in one thread)
 CANDIDATES = {
-    "grid": {},
+    "grid": {"fire_block": 0},
     "grid/b128": {"fire_block": 128},
     "grid/b64": {"fire_block": 64},
     "grid/b32": {"fire_block": 32},
     "grid/world": {"_per_thread": "world"},
-    "grid/r64": {"fire_max_registers": 64},
-    "grid_lean": {"fire_lean": True},
-    "compact": {"fire": "compact"},
-    "compact/b64": {"fire": "compact", "fire_block": 64},
-    "compact_lean": {"fire": "compact", "fire_lean": True},
-    "compact/g8": {"fire": "compact", "fire_grid_worlds": 8},
-    "split": {"fire": "split"},
 }
 DIAGNOSTICS = ("d:empty", "d:mask", "d:counter", "d:pack", "d:draws", "d:draws_write")
 
@@ -238,7 +233,7 @@ def state_bytes(snap) -> list[bytes]:
 
 
 def same_bits(env, attrs: dict, masks: dict) -> bool:
-    """One firing of the candidate (``attrs``) against one of ``grid``, from the same state, for each mask."""
+    """One firing of the candidate (``attrs``) against one of the default, from the same state, for each mask."""
     r = env.randomizer
     snap = snapshot(env)
     ok = True
@@ -290,9 +285,7 @@ def main(argv=None) -> int:
                    "kind": "candidate" if name in CANDIDATES else "diagnostic", "same_bits": None}
             if name in CANDIDATES:
                 attrs = dict(CANDIDATES[name])
-                if "fire_grid_worlds" in attrs:
-                    attrs["fire_grid_worlds"] = max(1, n // attrs["fire_grid_worlds"])
-                row["same_bits"] = same_bits(env, attrs, masks) if name != "grid" else True
+                row["same_bits"] = same_bits(env, attrs, masks)
                 old = apply(r, attrs)
                 try:
                     for pct in PCTS:

@@ -100,14 +100,13 @@ def kernel_figures(kernel, arch: int) -> dict[str, int]:
 
 
 def randomize_figures(arch: int, json_path: str | None) -> int:
-    """Registers and stack of the randomisation firing kernel (:func:`magwarp.kernels.randomize.fire_terms`) and of
-    #24's candidates beside it (benchmarks/fire_cost.py): they do not depend on the mover count."""
+    """Registers and stack of the randomisation firing kernel (:func:`magwarp.kernels.randomize.fire_terms`, the one
+    kernel benchmarks/fire_cost.py's candidates launch): it does not depend on the mover count."""
     from magwarp.kernels import randomize as krand
 
     info, _ = start_run("cpu")
     results = []
-    for kernel in (krand.fire_terms, krand.fire_terms_lean, krand.list_worlds, krand.fire_listed,
-                   krand.fire_listed_lean, krand.draw_listed, krand.pack_listed):
+    for kernel in (krand.fire_terms,):
         fig = kernel_figures(kernel, arch)
         results.append({"arch": f"sm_{arch}", "kernel": kernel.key, **fig})
         print(f"  sm_{arch} {kernel.key}: {fig.get('registers')} registers, {fig.get('stack')} B stack", flush=True)

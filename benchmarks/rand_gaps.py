@@ -81,7 +81,7 @@ def row(device: str, num_envs: int, name: str, steps: int, planner: bool = False
         gen = torch.Generator(device=env.device).manual_seed(0)
         shape = (8, num_envs, *env.single_action_space.shape)
         actions = torch.rand(shape, generator=gen, device=env.device) * 2 - 1
-        res = {"env": ENV_ID, "device": device, "num_envs": num_envs, "setting": name, "fire": fire or "grid"}
+        res = {"env": ENV_ID, "device": device, "num_envs": num_envs, "setting": name, "fire": fire or "default"}
         res["step_ms"] = time_steps(env.step, actions, steps, device)["step_ms"]
         fused = env._fused_step
         graphs = [g for g in getattr(fused, "_graphs", []) if g is not None]
@@ -113,8 +113,8 @@ def main(argv=None) -> int:
     p.add_argument("--planner-resets", action="store_true",
                    help="also the share of worlds finishing per step under the env's scripted planner (untimed)")
     p.add_argument("--fire", default=None,
-                   help="the reset firing's candidate (benchmarks/fire_cost.py's CANDIDATES, e.g. compact; default: the "
-                        "library's)")
+                   help="the reset firing's candidate (benchmarks/fire_cost.py's CANDIDATES, e.g. grid: Warp's 256 "
+                        "threads a block; default: the library's, 64 a block on CUDA)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     info, devices = start_run(args.device)

@@ -1,9 +1,10 @@
-"""#24's fire-cost candidates (magwarp.envs.planar_randomization's ``fire*`` options, magwarp.kernels.randomize): every
-layout, body and launch option draws and writes the same bits as the default firing (fire_terms over the grid):
-parameters, collision sizes, both margins, body rows and counters, over reset firings of random masks (none, some,
-all), interval firings of two periods and competing terms, each thread layout (all of a world's targets in one thread,
-the CPU's; one or two, the GPU's). CPU only (the draws depend on (key, world, counter, item), not on the device's
-thread order; benchmarks/fire_cost.py checks the same on CUDA)."""
+"""The reset firing's launch options (magwarp.envs.planar_randomization, benchmarks/fire_cost.py times them): every
+block size and thread layout (all of a world's targets in one thread, the CPU's; one or two, the GPU's) draws and writes
+the same bits as the default firing: parameters, collision sizes, both margins, body rows and counters, over reset
+firings of random masks (none, some, all), interval firings of two periods and competing terms. CPU only (the draws
+depend on (key, world, counter, item), not on the device's thread order; a block size is compiled into the CPU module
+too, but only CUDA schedules by it: benchmarks/fire_cost.py checks the same bits on CUDA). And the default block size:
+64 on CUDA, Warp's on the CPU."""
 
 from __future__ import annotations
 
@@ -41,17 +42,15 @@ BOX_TERMS = [
 SIZES_ONLY = [EventTerm("collision_radius", Uniform(-0.005, 0.0), op="add"),
               EventTerm("wall_margin", Uniform(0.0, 0.002), mode="interval", interval_steps=2)]
 
-#: (name, PlanarRandomizer attributes) of each candidate
+#: (name, PlanarRandomizer attributes) of each launch option against the default firing (thread layout: one target a
+#: thread, the GPU's; the CPU's default block size)
 VARIANTS = {
-    "grid_lean": {"fire_lean": True},
-    "grid_block32": {"fire_block": 32},
-    "grid_capped": {"fire_max_registers": 64},  # (the cap is CUDA's: on the CPU, fire_terms_capped's code path)
-    "compact": {"fire": "compact"},
-    "compact_lean": {"fire": "compact", "fire_lean": True},
-    "compact_stride": {"fire": "compact", "fire_grid_worlds": 2},  # a grid of 2 worlds: the grid-stride loop
-    "compact_lean_stride": {"fire": "compact", "fire_lean": True, "fire_grid_worlds": 3},
-    "split": {"fire": "split"},
-    "split_stride": {"fire": "split", "fire_grid_worlds": 2},
+    "block32": {"fire_block": 32},
+    "block64": {"fire_block": 64},
+    "block128": {"fire_block": 128},
+    "two_targets": {"_per_thread": 2},
+    "world": {"_per_thread": "world"},  # one thread per world, all its targets (the CPU's layout)
+    "world_block64": {"_per_thread": "world", "fire_block": 64},
 }
 
 N = 7
@@ -102,45 +101,26 @@ def masks(seed: int) -> list[torch.Tensor]:
     return [torch.zeros(N, dtype=torch.bool), *ms, torch.ones(N, dtype=torch.bool), ms[0]]
 
 
-@pytest.mark.parametrize("per_thread", [None, 1, 2])  # None: the CPU's (a world's 3 targets in one thread)
 @pytest.mark.parametrize("terms,kw", [(CIRCLE_TERMS, {}),
                                       (BOX_TERMS, {"collision_shape": "box", "collision_size": (0.06, 0.06)}),
                                       (SIZES_ONLY, {})], ids=["circle", "box", "sizes_only"])
-def test_variants_give_the_default_firings_bits(terms, kw, per_thread):
-    ref_env = make(terms, per_thread, **kw)
-    assert ref_env.randomizer.fire == "grid" and not ref_env.randomizer.fire_lean  # today's default
-    ref = run(ref_env, masks(per_thread or 0))
+def test_launch_options_give_the_default_firings_bits(terms, kw):
+    ref_env = make(terms, 1, **kw)
+    assert ref_env.randomizer.fire_block == 0  # the CPU's default
+    ref = run(ref_env, masks(0))
     assert any(not np.array_equal(ref[0]["counter"], s["counter"]) for s in ref)  # the firings drew something
     for name, attrs in VARIANTS.items():
-        env = make(terms, per_thread, **kw)
+        env = make(terms, 1, **kw)
+        r = env.randomizer
         for k, v in attrs.items():
-            setattr(env.randomizer, k, v)
-        got = run(env, masks(per_thread or 0))
+            setattr(r, k, r._counter.shape[1] if v == "world" else v)
+        got = run(env, masks(0))
         for i, (a, b) in enumerate(zip(ref, got)):
             assert_same(a, b, f"{name} firing {i}")
 
 
-def test_compact_lists_exactly_the_masked_worlds():
-    """list_worlds: the masked worlds, each once (in some order), and their count; zeroed again by each firing."""
-    env = make(CIRCLE_TERMS, 1)
-    r = env.randomizer
-    r.fire = "compact"
-    for mask in masks(7):
-        r.reset(mask)
-        n = int(r._list_count.numpy()[0])
-        assert n == int(mask.sum())
-        assert sorted(r._list_ids.numpy()[:n].tolist()) == torch.nonzero(mask).flatten().tolist()
-
-
-def test_unknown_layout_is_refused():
-    env = make(CIRCLE_TERMS, None)
-    env.randomizer.fire = "sparse"
-    with pytest.raises(ValueError, match="fire must be one of"):
-        env.randomizer.reset(torch.ones(N, dtype=torch.bool))
-    env.randomizer.step()  # an all-worlds firing takes the grid whatever the layout (interval: step 1, nothing due)
-
-
-def test_module_defaults_are_todays():
-    """The defaults a new randomizer takes: today's firing (the one-line switch to a candidate is these constants)."""
-    assert (pr.FIRE, pr.FIRE_LEAN, pr.FIRE_BLOCK, pr.FIRE_MAX_REGISTERS, pr.FIRE_GRID_WORLDS) == ("grid", False, 0, 0,
-                                                                                                  0)
+def test_default_block_size():
+    """64 threads a block on CUDA (benchmarks/results/fire_cost_s34_gpu.json), Warp's default (0) on the CPU."""
+    assert pr.default_fire_block(True) == 64
+    assert pr.default_fire_block(False) == 0
+    assert make(SIZES_ONLY, None).randomizer.fire_block == 0

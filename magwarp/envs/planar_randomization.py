@@ -54,24 +54,19 @@ from magwarp.kernels.params import MoverParams
 
 __all__ = ["PlanarRandomizer"]
 
-#: How a firing runs on the device (#24's fire-cost candidates, :mod:`magwarp.kernels.randomize`; benchmarks/
-#: fire_cost.py times them; every one draws and writes the same bits, tests/test_fire_variants.py). A
-#: :class:`PlanarRandomizer` takes these as its ``fire*`` attributes at construction (set them on it to switch):
-#: ``FIRE``, the layout of a masked (reset) firing: ``"grid"`` (:func:`~magwarp.kernels.randomize.fire_terms` over
-#: every (world, column), the masked ones working), ``"compact"`` (the masked worlds listed in the graph, then a
-#: dense fixed grid over the list: ``list_worlds`` + ``fire_listed``) or ``"split"`` (the list, then one thread per
-#: (listed world, item) drawing and one per (listed world, target) packing); the all-worlds firings (startup,
-#: interval) take the grid. ``FIRE_LEAN``: the lean thread body (row loaded first, stores after the last draw, packed
-#: from the values held). ``FIRE_BLOCK``: threads per block of the firing's launches (0: Warp's default, 256).
-#: ``FIRE_MAX_REGISTERS``: the grid kernel compiled under that register cap (0: none). ``FIRE_GRID_WORLDS``: compact and
-#: split: the fixed grid's size in worlds (0: every world, one pass whatever the mask; fewer: a grid-stride loop
-#: past it).
-FIRE = "grid"
-FIRE_LEAN = False
-FIRE_BLOCK = 0
-FIRE_MAX_REGISTERS = 0
-FIRE_GRID_WORLDS = 0
-FIRE_LAYOUTS = ("grid", "compact", "split")
+#: Threads per block of a firing's launch on CUDA (:attr:`PlanarRandomizer.fire_block`). Measured on an H100
+#: (``python benchmarks/fire_cost.py --device cuda:0``, benchmarks/results/fire_cost_s34_gpu.json), us per reset
+#: firing at 65,536 B0 envs with 6 % of the worlds resetting: 26.1 with Warp's 256 a block, 24.0 with 128, 20.0 with
+#: 64, 20.2 with 32 (1 %: 16.3 against 10.95 with 64; 100 %: 78.4 against 77.4); in the B0 env step
+#: (``benchmarks/rand_gaps.py --fire grid/b64``) full randomisation's cost fell from +27.98 % to +26.04 %.
+FIRE_BLOCK_CUDA = 64
+
+
+def default_fire_block(cuda: bool) -> int:
+    """A firing's threads per block on a CUDA device (``cuda``): :data:`FIRE_BLOCK_CUDA`; on the CPU 0, Warp's default
+    (a CPU launch runs its threads in a loop: a block size means little there)."""
+    return FIRE_BLOCK_CUDA if cuda else 0
+
 
 #: the body fields and their :attr:`magwarp.sim.Simulator.mover_params` keys
 BODY_KEYS = {"mover_mass": "mass", "mover_inertia": "inertia", "payload_mass": "payload", "stiffness_lin": "k_lin",
@@ -164,8 +159,9 @@ class PlanarRandomizer(EventRunner):
 
     def __init__(self, env, terms):
         self.sim = env.sim
-        self.fire, self.fire_lean, self.fire_block = FIRE, FIRE_LEAN, FIRE_BLOCK
-        self.fire_max_registers, self.fire_grid_worlds = FIRE_MAX_REGISTERS, FIRE_GRID_WORLDS
+        #: threads per block of the firing's launch (0: Warp's default); set it to switch (before a step graph is
+        #: captured: the graph keeps the launch it captured)
+        self.fire_block = default_fire_block(self.sim.device.is_cuda)
         super().__init__(env, terms, self.sim.num_worlds, self.sim.torch_device)
         self.sim.add_step_callback(self.step)
 
@@ -262,9 +258,6 @@ class PlanarRandomizer(EventRunner):
         # the firings drawn per world, one copy per target (the thread that fires a target advances its copy)
         self._counter = torch.zeros(self.num_worlds, width, dtype=torch.int32, device=self.device)
         self._all = wp.ones(1, dtype=wp.bool, device=dev)  # the mask placeholder when every world fires
-        # the compact and split firings' list of the masked worlds (list_worlds) and its length
-        self._list_count = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._list_ids = wp.zeros(self.num_worlds, dtype=wp.int32, device=dev)
         self._body = any(t.field in BODY_KEYS for t in self.terms)
         # terms of the collision sizes only: empty parameter arrays (the kernel writes no body field then)
         self._empty_params = None if self._body else _empty_mover_params(dev)
@@ -288,43 +281,13 @@ class PlanarRandomizer(EventRunner):
         mask_wp = self._all if mask is None else wp.from_torch(mask, dtype=wp.bool)
         pack = pack_level({t.field for t in due})
         width = self._counter.shape[1]
-        cols = -(-width // self._per_thread)
-        if self.fire not in FIRE_LAYOUTS:
-            raise ValueError(f"fire must be one of {', '.join(FIRE_LAYOUTS)}, got {self.fire!r}")
-        block = int(self.fire_block) or None
-        key, counter = wp.from_torch(self._key), wp.from_torch(self._counter)
-        items, first = self._items[mode], self._first[mode]
-        outputs = [params, m.radius, m.half_size, m.margins, m.body]
         with contextlib.nullcontext() if current_stream else sim._on_stream():
-            if mask is None or self.fire == "grid":
-                kernel = (krand.fire_terms_lean if self.fire_lean else
-                          krand.fire_terms_capped(int(self.fire_max_registers)) if self.fire_max_registers else
-                          krand.fire_terms)
-                wp.launch(kernel, dim=(self.num_worlds, cols), device=sim.device, block_dim=block,
-                          inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, self._per_thread,
-                                  pack, items, first, key, counter],
-                          outputs=outputs)
-                return True
-            count, ids = self._list_count, self._list_ids
-            worlds = min(int(self.fire_grid_worlds) or self.num_worlds, self.num_worlds)
-            count.zero_()
-            wp.launch(krand.list_worlds, dim=self.num_worlds, device=sim.device, block_dim=block,
-                      inputs=[mask_wp, count], outputs=[ids])
-            if self.fire == "compact":
-                threads = worlds * cols
-                wp.launch(krand.fire_listed_lean if self.fire_lean else krand.fire_listed, dim=threads,
-                          device=sim.device, block_dim=block,
-                          inputs=[MODE_CODES[mode], int(self.steps), count, ids, cols, threads, self._per_thread,
-                                  pack, items, first, key, counter],
-                          outputs=outputs)
-            else:  # split
-                threads = worlds * max(1, items.shape[0])
-                wp.launch(krand.draw_listed, dim=threads, device=sim.device, block_dim=block,
-                          inputs=[MODE_CODES[mode], int(self.steps), count, ids, threads, items, key, counter],
-                          outputs=outputs[:4])
-                threads = worlds * width
-                wp.launch(krand.pack_listed, dim=threads, device=sim.device, block_dim=block,
-                          inputs=[count, ids, threads, pack, params], outputs=[counter, m.body])
+            wp.launch(krand.fire_terms, dim=(self.num_worlds, -(-width // self._per_thread)), device=sim.device,
+                      block_dim=int(self.fire_block) or None,
+                      inputs=[MODE_CODES[mode], int(self.steps), int(mask is None), mask_wp, self._per_thread, pack,
+                              self._items[mode], self._first[mode], wp.from_torch(self._key),
+                              wp.from_torch(self._counter)],
+                      outputs=[params, m.radius, m.half_size, m.margins, m.body])
         return True
 
     def _scale_inertia(self) -> bool:

@@ -110,23 +110,6 @@ class MoverParams:
 
 
 @wp.func
-def pack_values(p: MoverParams, mass: wp.float64, inertia: wp.vec3d, payload: wp.float64, offset: wp.vec3d,
-                known: wp.float64, k_lin: wp.vec3d, k_rot: wp.vec3d, v_max: wp.float64, a_max: wp.float64,
-                j_max: wp.float64) -> Body:
-    """:func:`pack_mover` from a row's parameters already at hand (``p``: only its configured mover and
-    ``scale_inertia``): the same operations in the same order, so the same bits (pack_mover keeps its own copy: through
-    this function its kernel took 8 registers more on sm_90)."""
-    mw = mass
-    iw = inertia
-    if p.scale_inertia != 0:
-        iw = iw * (mw / p.m_ctrl)
-    com = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(0.0))
-    if payload != wp.float64(0.0):
-        mw, iw, com = with_payload(mw, iw, payload, offset)
-    return pack_body(p.m_ctrl + known, p.i_ctrl, mw, iw, k_lin, k_rot, com, v_max, a_max, j_max)
-
-
-@wp.func
 def pack_mover(p: MoverParams, w: int, m: int) -> Body:
     """Mover ``m`` of world ``w``'s body row: its own mass and inertia (``p.scale_inertia``: the configured inertia
     scaled with the mass, uniform density) plus a point payload (:func:`with_payload`; none when it is 0), then
