@@ -455,8 +455,9 @@ def make_lane_kernels(lanes: int, per_lane: int, tiles: bool = False, registers:
     shape (see above) for groups of ``lanes`` threads and worlds of at most ``lanes * per_lane`` movers. ``tiles``:
     vote over a block of ``lanes`` threads with ``wp.tile_sum`` (a CPU with ``warp.config.enable_cpu_blocks``; launch
     blocks of ``lanes`` threads) instead of warp votes. ``registers``: keep the lane's world movers in registers
-    (None: when ``per_lane`` is at most :data:`MAX_PER_LANE`), else read them at every try. Both kernels take, after :func:`propose`'s or
-    :func:`resolve`'s inputs less ``scan``, ``groups``: the groups in the launch (``groups * lanes`` threads)."""
+    (None: when ``per_lane`` is at most :data:`MAX_PER_LANE`), else read them at every try. Both kernels take, after
+    :func:`propose`'s or :func:`resolve`'s inputs less ``scan``, ``groups``: the groups in the launch (``groups *
+    lanes`` threads)."""
     if lanes not in LANE_CHOICES:
         raise ValueError(f"lanes must be one of {LANE_CHOICES}, got {lanes!r}")
     L, P = int(lanes), int(per_lane)
@@ -551,7 +552,7 @@ def make_lane_kernels(lanes: int, per_lane: int, tiles: bool = False, registers:
         cand_ok: wp.array2d(dtype=wp.int32),
         claim: wp.array(dtype=wp.int64),
     ):
-        """:func:`propose` (``scan``) by groups of ``lanes`` threads walking the list (see :func:`make_lane_kernels`)."""
+        """:func:`propose` (``scan``) by groups of ``lanes`` threads walking the list (:func:`make_lane_kernels`)."""
         tid = wp.tid()
         lane = tid % L
         i = tid / L
