@@ -9,8 +9,8 @@
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
 # small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile and
 # tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps and fire_cost (#24),
-# magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs and tests18 (#18), compare (B0 env throughput of
-# an older tree beside this one).
+# magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs, swarm_place and tests18 (#18), compare (B0 env
+# throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -195,6 +195,11 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # #18: the observation kernel alone at 16,384 worlds x 64 and x 100 movers, by variant (chain/merge into the
       # slots, tile walk/closed-form rays, grid) and by part (full, no rays, no neighbours, own state only)
       timeout 200 python3 benchmarks/swarm_obs.py --device cuda:0 --json "$OUT/swarm_obs_gpu.json" 2>&1 \
+        | grep -v "^Module" | tail -30 ;;
+    swarm_place)
+      # #18: the placement alone at 16384 x 64 and x 100 by launch shape of its rounds (Placer.lanes), with a
+      # bit-for-bit check of the spots against the default shape (match)
+      timeout 200 python3 benchmarks/swarm_place.py --device cuda:0 --json "$OUT/swarm_place_gpu.json" 2>&1 \
         | grep -v "^Module" | tail -30 ;;
     swarm_fused)
       # #18: the fused swarm env step at many worlds (FUSED_MOVERS, default 100; FUSED_WORLDS, default 1024-16384

@@ -6,6 +6,7 @@ EIATTR_MIN_STACK_SIZE, 0x12: the per-thread stack frame, spills included).
     python benchmarks/kernel_registers.py --arch 90 --movers 3,8 --json kernel_registers.json
     python benchmarks/kernel_registers.py --randomize            # the randomisation firing kernels instead
     python benchmarks/kernel_registers.py --swarm                # the swarm env's step kernels (#18), register caps
+    python benchmarks/kernel_registers.py --place                # the placement rounds (default and lane shapes)
 
 Shapes: ``registers`` (:func:`magwarp.kernels.step.make_register_kernel`, one thread per world, the register-row
 variant given by ``--register-rows``) and ``movers`` (:func:`magwarp.kernels.step_blocks.make_movers_kernel`, one
@@ -113,6 +114,30 @@ def randomize_figures(arch: int, json_path: str | None) -> int:
     return finish(results, ["arch", "kernel", "registers", ("stack", "stack B/thread")], info, json_path)
 
 
+def place_rows(arch: int) -> list[dict]:
+    """Registers and stack of the placement rounds' kernels: the default shape and the lane shape
+    (:func:`magwarp.kernels.placement.make_lane_kernels`) at 64, 100 and 256 movers per world."""
+    from magwarp.kernels import placement as kpl
+
+    rows = [{"kernel": k.key, "cap": 0, **kernel_figures(k, arch)} for k in (kpl.propose, kpl.resolve)]
+    for movers in (64, 100, 256):
+        for lanes in kpl.LANE_CHOICES:
+            per_lane = -(-movers // lanes)
+            for k in kpl.make_lane_kernels(lanes, per_lane, False, per_lane <= kpl.MAX_PER_LANE):
+                rows.append({"kernel": f"{k.key}/{movers}m/{lanes}l", "cap": 0, **kernel_figures(k, arch)})
+    return rows
+
+
+def place_figures(arch: int, json_path: str | None) -> int:
+    """The placement rounds' kernels alone (:func:`place_rows`)."""
+    info, _ = start_run("cpu")
+    rows = place_rows(arch)
+    for r in rows:
+        r["arch"] = f"sm_{arch}"
+        print(f"  sm_{arch} {r['kernel']}: {r.get('registers')} registers, {r.get('stack')} B stack", flush=True)
+    return finish(rows, ["arch", "kernel", "registers", ("stack", "stack B/thread")], info, json_path)
+
+
 def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
     """Registers and stack of the swarm env's step kernels (#18): the fused step (tiled shape, 64/128/256 threads per
     block, without and with latency, under each register cap; 0: none), the staged observation kernel and the
@@ -137,8 +162,7 @@ def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
         rows.append({"kernel": f"observe_staged_merge_rect/{block}", "cap": 0,
                      **kernel_figures(knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True,
                                                                   True, True), arch)})
-    for k in (kpl.propose, kpl.resolve):
-        rows.append({"kernel": k.key, "cap": 0, **kernel_figures(k, arch)})
+    rows += place_rows(arch)
     for r in rows:
         r["arch"] = f"sm_{arch}"
         print(f"  sm_{arch} {r['kernel']} cap {r['cap']}: {r.get('registers')} registers, {r.get('stack')} B stack",
@@ -156,6 +180,7 @@ def main(argv=None) -> int:
     p.add_argument("--register-rows", default=None, help="the register kernel's rows (default: the library's)")
     p.add_argument("--randomize", action="store_true",
                    help="the domain-randomisation firing kernel (magwarp.kernels.randomize) instead of the step's")
+    p.add_argument("--place", action="store_true", help="the placement rounds' kernels only (default and lane shapes)")
     p.add_argument("--swarm", action="store_true", help="the swarm env's step kernels instead (#18), under the "
                    "register caps of --swarm-caps")
     p.add_argument("--swarm-caps", default="0,128,112,96", help="comma-separated register caps of the swarm step")
@@ -163,6 +188,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.randomize:
         return randomize_figures(args.arch, args.json)
+    if args.place:
+        return place_figures(args.arch, args.json)
     if args.swarm:
         return swarm_figures(args.arch, [int(c) for c in args.swarm_caps.split(",")], args.json)
     from magwarp.kernels import options as kernel_options

@@ -30,6 +30,8 @@ every replay. Round ``r`` of ``R`` draws from the seed :func:`round_seed` gives 
 7919) & 0x3FFFFFFF``, ``calls`` counting rounds from the last reseed), so placements are unchanged bit for bit.
 """
 
+import functools
+
 import warp as wp
 
 from magwarp.kernels.collision import hits_wall_cs
@@ -407,3 +409,213 @@ def count_todo(todo: wp.array2d(dtype=wp.int32), per_world: wp.array(dtype=wp.in
     w, m = wp.tid()
     if todo[w, m] != 0:
         wp.atomic_add(per_world, w, 1)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The rounds' lane shape (:attr:`~magwarp.swarm.Placer.lanes`, ``search="world"``): a group of ``lanes`` adjacent
+# threads per listed mover, in a fixed grid of groups that walk the list (group ``g`` takes the listed movers ``g, g +
+# groups, ...`` up to ``count[0]``: the count stays on the device, no host sync, and the launch does not grow with the
+# worlds' movers). Lane ``l`` holds the world's movers ``l, l + lanes, ...`` that a candidate is checked against in
+# registers (loaded once per listed mover, not once per try; a mover that does not count sits at FAR), every lane draws
+# the same candidates from the mover's one random stream (the same draws as :func:`propose`), checks its movers
+# without an early exit, and the group votes (a warp's ``__any_sync`` over the group's lanes on CUDA, a block's
+# ``wp.tile_sum`` with ``warp.config.enable_cpu_blocks`` on a CPU). The first valid try wins, so the same spots are
+# chosen bit for bit. :func:`make_lane_kernels` builds the kernels.
+
+#: lane counts of a group (a power of two: the groups are aligned within a warp)
+LANE_CHOICES = (1, 2, 4, 8, 16, 32)
+#: the most world movers a lane keeps in registers (more: it reads them from memory at every try)
+MAX_PER_LANE = 32
+#: where a mover that does not count sits for the register checks (conflicts with nothing on the tiles)
+FAR = wp.constant(1.0e18)
+
+# a group's lane mask within its warp (lanes a power of two, the group aligned in the warp); as fast_cycle's
+_GROUP_MASK = """
+#if defined(__CUDA_ARCH__)
+    const unsigned lane_id = threadIdx.x & 31u;
+    const unsigned group_mask = lanes >= 32 ? 0xffffffffu
+                                            : (((1u << lanes) - 1u) << (lane_id & ~((unsigned)lanes - 1u)));
+"""
+
+
+@wp.func_native(_GROUP_MASK + """
+    return __any_sync(group_mask, v != 0) ? 1 : 0;
+#endif
+    return v;
+""")
+def group_any(v: int, lanes: int) -> int:
+    """1 on every lane of the group if ``v`` is nonzero on any of them, else 0 (CUDA; a CPU thread is a group of
+    one)."""
+    ...
+
+
+@functools.cache
+def make_lane_kernels(lanes: int, per_lane: int, tiles: bool = False, registers: bool | None = None):
+    """``(propose_lanes, resolve_lanes)``: :func:`propose` and :func:`resolve` with ``search="world"`` in the lane
+    shape (see above) for groups of ``lanes`` threads and worlds of at most ``lanes * per_lane`` movers. ``tiles``:
+    vote over a block of ``lanes`` threads with ``wp.tile_sum`` (a CPU with ``warp.config.enable_cpu_blocks``; launch
+    blocks of ``lanes`` threads) instead of warp votes. ``registers``: keep the lane's world movers in registers
+    (None: when ``per_lane`` is at most :data:`MAX_PER_LANE`), else read them at every try. Both kernels take, after
+    :func:`propose`'s or :func:`resolve`'s inputs less ``scan``, ``groups``: the groups in the launch (``groups *
+    lanes`` threads)."""
+    if lanes not in LANE_CHOICES:
+        raise ValueError(f"lanes must be one of {LANE_CHOICES}, got {lanes!r}")
+    L, P = int(lanes), int(per_lane)
+    cache = P <= MAX_PER_LANE if registers is None else bool(registers)  # the lane's world movers in registers
+    S = P if cache else 1
+    Slots = wp.types.matrix(shape=(S, 2), dtype=wp.float32)
+    opts = {"enable_backward": False, **MODULE_OPTIONS, "max_unroll": max(16, S)}
+
+    @wp.func
+    def lanes_any(v: int) -> int:
+        if wp.static(L == 1):
+            return v
+        if wp.static(tiles):
+            s = wp.tile_sum(wp.tile(v))
+            return wp.where(s[0] > 0, 1, 0)
+        return group_any(v, L)
+
+    @wp.func
+    def propose_one(g: PlaceGrid, tiles: wp.array2d(dtype=wp.int32), col: Collision, radius: float, half: wp.vec2,
+                    tile_list: wp.array(dtype=wp.vec2i), tries: int, hold: int, back: int,
+                    counter: wp.array(dtype=wp.int64), pos: wp.array2d(dtype=wp.vec2),
+                    todo: wp.array2d(dtype=wp.int32), w: int, m: int, lane: int, cand: wp.array2d(dtype=wp.vec2),
+                    cand_ok: wp.array2d(dtype=wp.int32), claim: wp.array(dtype=wp.int64)):
+        num = todo.shape[1]
+        if lane == 0:
+            cand_ok[w, m] = 0
+        if todo[w, m] == 0:
+            return
+        # the movers this lane checks (clear_in_world's: all but m with hold, else those placed or fixed)
+        q = Slots()
+        if wp.static(cache):
+            for k in range(P):
+                j = lane + k * L
+                x = float(FAR)
+                y = float(FAR)
+                if j < num and j != m:
+                    if hold != 0 or todo[w, j] == 0:
+                        v = pos[w, j]
+                        x = v[0]
+                        y = v[1]
+                q[k, 0] = x
+                q[k, 1] = y
+        rng = wp.rand_init(round_seed(counter, back), w * num + m)
+        round_id = round_number(counter, back)
+        size = col.tile_size
+        ntiles = tile_list.shape[0]
+        for _t in range(tries):
+            t = tile_list[int(wp.randu(rng) % wp.uint32(ntiles))]
+            p = wp.vec2((float(t[0]) + wp.randf(rng)) * size, (float(t[1]) + wp.randf(rng)) * size)
+            if hits_wall_cs(tiles, col, p, wp.vec2(1.0, 0.0), radius, half):
+                continue  # the same on every lane
+            hit = int(0)
+            if wp.static(cache):
+                for k in range(P):
+                    if conflict(g, p - wp.vec2(q[k, 0], q[k, 1])):
+                        hit = 1
+            else:
+                for j in range(lane, num, L):
+                    if j != m and (hold != 0 or todo[w, j] == 0):
+                        if conflict(g, p - pos[w, j]):
+                            hit = 1
+                            break
+            if lanes_any(hit) != 0:
+                continue
+            if lane == 0:
+                cand[w, m] = p
+                cand_ok[w, m] = 1
+                wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
+            return
+
+    @wp.kernel(module="unique", module_options=opts)
+    def propose_lanes(
+        # Model:
+        g: PlaceGrid,
+        tiles: wp.array2d(dtype=wp.int32),
+        col: Collision,
+        radius: float,
+        half: wp.vec2,
+        tile_list: wp.array(dtype=wp.vec2i),
+        tries: int,
+        hold: int,
+        back: int,
+        # State in:
+        counter: wp.array(dtype=wp.int64),
+        pos: wp.array2d(dtype=wp.vec2),
+        todo: wp.array2d(dtype=wp.int32),
+        listed: wp.array(dtype=wp.int32),
+        count: wp.array(dtype=wp.int32),
+        groups: int,
+        # State out:
+        cand: wp.array2d(dtype=wp.vec2),
+        cand_ok: wp.array2d(dtype=wp.int32),
+        claim: wp.array(dtype=wp.int64),
+    ):
+        """:func:`propose` (``scan``) by groups of ``lanes`` threads walking the list (:func:`make_lane_kernels`)."""
+        tid = wp.tid()
+        lane = tid % L
+        i = tid / L
+        n = count[0]
+        num = todo.shape[1]
+        while i < n:
+            wm = listed[i]
+            w = wm / num
+            propose_one(g, tiles, col, radius, half, tile_list, tries, hold, back, counter, pos, todo, w,
+                        wm - w * num, lane, cand, cand_ok, claim)
+            i = i + groups
+
+    @wp.func
+    def resolve_one(g: PlaceGrid, back: int, counter: wp.array(dtype=wp.int64), cand: wp.array2d(dtype=wp.vec2),
+                    cand_ok: wp.array2d(dtype=wp.int32), claim: wp.array(dtype=wp.int64), w: int, m: int, lane: int,
+                    todo: wp.array2d(dtype=wp.int32), pos: wp.array2d(dtype=wp.vec2)):
+        if cand_ok[w, m] == 0:
+            return
+        round_id = round_number(counter, back)
+        p = cand[w, m]
+        if claimant(claim[cell_index(g, w, place_cell(g, p))], round_id) != m:
+            return
+        hit = int(0)
+        for j in range(lane, m, L):
+            if cand_ok[w, j] != 0:
+                qj = cand[w, j]
+                if conflict(g, p - qj):
+                    if claimant(claim[cell_index(g, w, place_cell(g, qj))], round_id) == j:
+                        hit = 1
+        if lanes_any(hit) != 0:
+            return
+        if lane == 0:
+            pos[w, m] = p
+            todo[w, m] = 0
+
+    @wp.kernel(module="unique", module_options=opts)
+    def resolve_lanes(
+        # Model:
+        g: PlaceGrid,
+        back: int,
+        # State in:
+        counter: wp.array(dtype=wp.int64),
+        cand: wp.array2d(dtype=wp.vec2),
+        cand_ok: wp.array2d(dtype=wp.int32),
+        claim: wp.array(dtype=wp.int64),
+        listed: wp.array(dtype=wp.int32),
+        count: wp.array(dtype=wp.int32),
+        groups: int,
+        # State out:
+        todo: wp.array2d(dtype=wp.int32),
+        pos: wp.array2d(dtype=wp.vec2),
+    ):
+        """:func:`resolve` (``scan``) by groups of ``lanes`` threads walking the list: the winners of lower index that
+        conflict are looked for by the group's lanes together (lane ``l``: the movers ``l, l + lanes, ...``)."""
+        tid = wp.tid()
+        lane = tid % L
+        i = tid / L
+        n = count[0]
+        num = todo.shape[1]
+        while i < n:
+            wm = listed[i]
+            w = wm / num
+            resolve_one(g, back, counter, cand, cand_ok, claim, w, wm - w * num, lane, todo, pos)
+            i = i + groups
+
+    return propose_lanes, resolve_lanes

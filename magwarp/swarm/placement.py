@@ -51,6 +51,9 @@ SEARCHES = ("grid", "world")
 #: the most movers per world for which the default search scans the world (CUDA, CPU)
 WORLD_SCAN_CUDA = 256
 WORLD_SCAN_CPU = 64
+#: the threads of a round's launch in the lane shape (:class:`Placer`'s ``lanes``): its groups walk the list of movers
+#: to place (an H100 holds 132 * 2048 resident threads)
+LANE_GRID_THREADS = 1 << 18
 
 
 class PlacementError(LayoutError):
@@ -92,12 +95,18 @@ class Placer:
     ``"grid"`` (the neighbouring cells' lists, built and emptied by each call: work per mover near the candidate) or
     ``"world"`` (every mover of its world, no lists: for small worlds, where the lists' binning, emptying and
     scattered cell reads cost more than the scan); None: ``"world"`` up to :data:`WORLD_SCAN_CUDA` movers per world
-    on CUDA and :data:`WORLD_SCAN_CPU` on the CPU, else ``"grid"``.
+    on CUDA and :data:`WORLD_SCAN_CPU` on the CPU, else ``"grid"``. ``lanes``: the rounds' launch shape with
+    ``search="world"`` (:func:`~magwarp.kernels.placement.make_lane_kernels`; the same spots, bit for bit): None (the
+    default) one thread per mover of every world, threads past the list's count exiting at once; 1-32 (a power of two)
+    that many threads per listed mover in a fixed grid of :data:`LANE_GRID_THREADS` threads whose groups walk the
+    list, the world's movers split over the lanes (in registers) and a vote per try. More than 1 on a CPU needs
+    ``warp.config.enable_cpu_blocks`` (a block per group, ``wp.tile_sum`` votes). Settable between calls.
     """
 
     def __init__(self, layout: Layout | np.ndarray, num_movers: int, num_worlds: int = 1, *,
                  mover: MoverSpec | None = None, offset: float = 0.0, radius: float | None = None,
-                 half_size=None, tries: int = 8, device=None, seed: int = 0, search: str | None = None):
+                 half_size=None, tries: int = 8, device=None, seed: int = 0, search: str | None = None,
+                 lanes: int | None = None):
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
         self.mover = mover or MoverSpec()
         if int(num_movers) < 1 or int(num_worlds) < 1:
@@ -114,6 +123,7 @@ class Placer:
             search = "world" if self.num_movers <= (WORLD_SCAN_CUDA if self.device.is_cuda else WORLD_SCAN_CPU) \
                 else "grid"
         self.search = search
+        self.lanes = lanes
         # the device counter [base seed, rounds since the reseed, rounds ever (claims of older rounds lose)]: the
         # rounds' kernels read their seeds and round numbers from it (kpl.round_seed), so that a call recorded in a
         # CUDA graph draws fresh numbers at every replay
@@ -183,6 +193,30 @@ class Placer:
         if value not in SEARCHES:
             raise ValueError(f"search must be None or one of {SEARCHES}, got {value!r}")
         self._search = value
+
+    @property
+    def lanes(self) -> int | None:
+        """The rounds' launch shape with ``search="world"`` (see the class): None or threads per listed mover."""
+        return self._lanes
+
+    @lanes.setter
+    def lanes(self, value: int | None) -> None:
+        if value is not None:
+            if value not in kpl.LANE_CHOICES:
+                raise ValueError(f"lanes must be None or one of {kpl.LANE_CHOICES}, got {value!r}")
+            if self.device.is_cpu and value > 1 and not wp.config.enable_cpu_blocks:
+                raise ValueError(f"lanes={value} on a CPU needs warp.config.enable_cpu_blocks (the lanes' votes are "
+                                 "emulated by blocks there)")
+            value = int(value)
+        self._lanes = value
+
+    def _lane_kernels(self):
+        """The lane shape's kernels for this placer's lanes and worlds, and its groups per launch."""
+        L = self._lanes
+        per_lane = -(-self.num_movers // L)
+        groups = max(1, min(self.num_worlds * self.num_movers, LANE_GRID_THREADS // L))
+        return (*kpl.make_lane_kernels(L, per_lane, bool(self.device.is_cpu and L > 1), per_lane <= kpl.MAX_PER_LANE),
+                groups)
 
     # ------------------------------------------------------------------ geometry of the request
     def _size_text(self) -> str:
@@ -314,8 +348,22 @@ class Placer:
         dev, dim, g = self.device, self.num_worlds * self.num_movers, self.grid
         if not advanced:
             wp.launch(kpl.advance_counter, dim=1, inputs=[int(rounds)], outputs=[self._counter], device=dev)
+        lanes = self._lanes if self._scan else None
+        if lanes is not None:
+            propose, resolve, groups = self._lane_kernels()
+            block = lanes if dev.is_cpu else 256  # a CPU block is a group (its votes); a CUDA warp holds 32 / lanes
         for r in range(rounds):
             back = rounds - 1 - r  # the counter stands at the last round
+            if lanes is not None:
+                wp.launch(propose, dim=groups * lanes, block_dim=block, device=dev,
+                          inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
+                                  self._tile_list, self.tries, self._hold, back, self._counter, pos, self._todo,
+                                  self._listed, self._count, groups],
+                          outputs=[self._cand, self._cand_ok, self._claim])
+                wp.launch(resolve, dim=groups * lanes, block_dim=block, device=dev,
+                          inputs=[g, back, self._counter, self._cand, self._cand_ok, self._claim, self._listed,
+                                  self._count, groups], outputs=[self._todo, pos])
+                continue
             wp.launch(kpl.propose, dim=dim, device=dev,
                       inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
                               self.tries, self._hold, back, self._scan, self._counter, pos, self._todo, self._head,
