@@ -458,7 +458,7 @@ def place_searches(env, device: str, steps: int) -> dict:
 
 def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float,
                     breakdown: bool = False, obs_search: str | None = None, place_search: str | None = None,
-                    obs_merge: bool = False) -> dict:
+                    obs_merge: bool = False, place_lanes: int | None = None) -> dict:
     from magwarp.swarm import SwarmEnv
 
     row: dict = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps}
@@ -470,10 +470,11 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
         if obs_search is not None:
             env.local.search, env.local.staged = obs_search.split("_")[0], obs_search.endswith("_staged")
         env.local.merge = env.local.merge or obs_merge
-        if place_search is not None:
-            for placer in (env.placer, env.respawn_placer):
-                if placer is not None:
-                    placer.search = place_search
+        for placer in (env.placer, env.respawn_placer):
+            if placer is not None and place_search is not None:
+                placer.search = place_search
+            if placer is not None and place_lanes is not None:
+                placer.lanes = place_lanes
         key = "fused" if fused else "old"
 
         def step():
@@ -556,7 +557,7 @@ def run_fused_sweep(args) -> list[dict]:
             steps = args.steps or (20 if device.startswith("cuda") else 3)
             row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1],
                                   obs_search=args.obs_search, place_search=args.place_search,
-                                  obs_merge=args.obs_merge)
+                                  obs_merge=args.obs_merge, place_lanes=args.place_lanes)
             row.update(check)
             rows.append(row)
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
@@ -644,6 +645,8 @@ def main(argv=None) -> None:
     p.add_argument("--obs-merge", action="store_true", help="--fused-sweep: the world search merges candidates into "
                    "the slots with no branch (LocalObservations.merge) in the timed envs (the CUDA default since "
                    "2026-12-06; this forces it on the CPU too)")
+    p.add_argument("--place-lanes", type=int, default=None, help="--fused-sweep: the placers' rounds in the lane "
+                   "shape with this many lanes per listed mover (Placer.lanes; benchmarks/swarm_place.py times them)")
     p.add_argument("--place-search", choices=("grid", "world"), help="--fused-sweep: the placers' search in the timed "
                    "envs (default: Placer's choice: world up to 256 movers per world on CUDA and 64 on the CPU, else "
                    "grid); every row also times the respawn placement alone with each")
