@@ -250,6 +250,30 @@ def time_call(fn: Callable[[], Any], repeats: int, warmup: int = 0,
     return summarize_ms(wall)
 
 
+def sync_device(device: str) -> None:
+    """Wait for a CUDA device's queued torch/Warp work (Warp launches on torch's stream here); nothing on the CPU."""
+    if device.startswith("cuda"):
+        import torch
+
+        torch.cuda.synchronize(torch.device(device))
+
+
+def batched_ms(fn: Callable[[], Any], device: str, calls: int, samples: int = 5, warmup: int = 3) -> float:
+    """Median over ``samples`` of the wall-clock ms per call of ``calls`` back-to-back calls of ``fn`` (the device
+    synchronised once per sample, not after each call: the launches' own cost, not the host's round trips)."""
+    for _ in range(warmup):
+        fn()
+    sync_device(device)
+    out = []
+    for _ in range(samples):
+        t = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        sync_device(device)
+        out.append((time.perf_counter() - t) / calls * 1e3)
+    return statistics.median(out)
+
+
 def markdown_header(info: dict[str, Any]) -> str:
     """Device/date/versions/command block that heads every section of benchmarks/RESULTS.md."""
     versions = ", ".join(f"{name} {ver}" for name, ver in info.get("versions", {}).items() if ver)

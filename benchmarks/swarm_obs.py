@@ -26,13 +26,12 @@ import argparse
 import math
 import os
 import sys
-import time
 
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from common import finish, start_run  # noqa: E402
+from common import batched_ms, finish, start_run  # noqa: E402
 
 OCCUPANCY = 0.25  # movers per tile (benchmarks/swarm.py)
 VARIANTS = {  # name: (search, merge, rect)
@@ -51,27 +50,6 @@ def _layout(movers: int):
 
     side = int(math.ceil(math.sqrt(movers / OCCUPANCY)))
     return Layout.grid(side, side)
-
-
-def _sync(device: str) -> None:
-    import torch
-
-    if device.startswith("cuda"):
-        torch.cuda.synchronize(torch.device(device))
-
-
-def _time(fn, device: str, calls: int) -> float:
-    for _ in range(3):
-        fn()
-    _sync(device)
-    samples = []
-    for _ in range(5):
-        t = time.perf_counter()
-        for _ in range(calls):
-            fn()
-        _sync(device)
-        samples.append((time.perf_counter() - t) / calls * 1e3)
-    return float(np.median(samples))
 
 
 def bench(worlds: int, movers: int, device: str, calls: int) -> list[dict]:
@@ -105,7 +83,7 @@ def bench(worlds: int, movers: int, device: str, calls: int) -> list[dict]:
             def call():
                 obs.observe(pos_wp, vel_wp, out, goals=goals)
 
-            ms = _time(call, device, calls)
+            ms = batched_ms(call, device, calls, warmup=3)
             got = (out.clone(), obs.index.clone())
             first = ref.setdefault(part, got)
             match = bool(torch.equal(got[0], first[0]) and torch.equal(got[1], first[1]))

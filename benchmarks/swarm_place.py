@@ -30,35 +30,10 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from common import finish, start_run  # noqa: E402
+from common import batched_ms, finish, start_run, sync_device  # noqa: E402
 
 #: the rounds' shapes compared (None: the default)
 LANES = (None, 1, 2, 4, 8, 16, 32)
-
-
-def _sync(device: str) -> None:
-    import torch
-
-    if device.startswith("cuda"):
-        torch.cuda.synchronize(torch.device(device))
-
-
-def _time(fn, device: str, calls: int) -> float:
-    import time
-
-    import numpy as np
-
-    for _ in range(2):
-        fn()
-    _sync(device)
-    samples = []
-    for _ in range(5):
-        t = time.perf_counter()
-        for _ in range(calls):
-            fn()
-        _sync(device)
-        samples.append((time.perf_counter() - t) / calls * 1e3)
-    return float(np.median(samples))
 
 
 def _requests(worlds: int, movers: int, device: str, args) -> list[tuple[str, object, object, object]]:
@@ -114,9 +89,9 @@ def bench(worlds: int, movers: int, device: str, calls: int, lanes_list, args) -
                 xy.copy_(start)
                 return placer.place_device(xy, mask, rounds=2, hold=True)
 
-            ms = _time(place, device, calls)
+            ms = batched_ms(place, device, calls, warmup=2)
             todo = wp.to_torch(place()).clone()
-            _sync(device)
+            sync_device(device)
             got = (xy.clone(), todo)
             if ref is None:
                 ref = got
