@@ -10,11 +10,16 @@ ray range 1 m: the env's defaults). Variants (the rows of one part are compared 
 * ``world+rect``: the rays in closed form (:func:`~magwarp.kernels.neighbors.ray_to_rect`: the layout is full);
 * ``world+merge``: the branch-free merge of every candidate into the slots;
 * ``world+merge+rect``: both;
+* ``world+merge+rect+vec``: with the vector staging (``LocalObservations.staging = "vector"``: each lane's row
+  built in registers, the block's rows assigned to the staging tiles at once: 4 block barriers per call on sm_90
+  against 70 element by element);
 * ``grid``: the grid search (binning included, three launches), the tile walk.
 
-Parts (``world`` and ``world+merge+rect`` only): ``full``; ``no_rays`` (num_rays 0); ``no_nbrs`` (k 0: own state and
+Parts (``world``, ``world+merge+rect`` and ``world+merge+rect+vec`` only): ``full``; ``no_rays`` (num_rays 0); ``no_nbrs`` (k 0: own state and
 rays); ``own`` (k 0, no rays: the row writes and the launch, a floor). Each time is the median of 5 batches of
-``--calls`` back-to-back calls (one synchronisation per batch), per call.
+``--calls`` back-to-back calls (one synchronisation per batch), per call; on CUDA also ``graph_ms``, the
+same call recorded as one CUDA graph and replayed back to back (the kernel's device time, without the host's
+per-call work that the eager time may be bound by).
 
     python benchmarks/swarm_obs.py --device cuda:0 --json benchmarks/results/swarm_obs_gpu.json   # 16,384 worlds
     python benchmarks/swarm_obs.py --device cpu                                                   # smoke: 8 worlds
@@ -34,15 +39,16 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import batched_ms, finish, start_run  # noqa: E402
 
 OCCUPANCY = 0.25  # movers per tile (benchmarks/swarm.py)
-VARIANTS = {  # name: (search, merge, rect)
-    "world": ("world", False, False),
-    "world+rect": ("world", False, True),
-    "world+merge": ("world", True, False),
-    "world+merge+rect": ("world", True, True),
-    "grid": ("grid", False, False),
+VARIANTS = {  # name: (search, merge, rect, staging)
+    "world": ("world", False, False, "barrier"),
+    "world+rect": ("world", False, True, "barrier"),
+    "world+merge": ("world", True, False, "barrier"),
+    "world+merge+rect": ("world", True, True, "barrier"),
+    "world+merge+rect+vec": ("world", True, True, "vector"),
+    "grid": ("grid", False, False, "barrier"),
 }
 PARTS = {"full": (8, 8), "no_rays": (8, 0), "no_nbrs": (0, 8), "own": (0, 0)}  # (k, num_rays)
-PART_VARIANTS = ("world", "world+merge+rect")
+PART_VARIANTS = ("world", "world+merge+rect", "world+merge+rect+vec")
 
 
 def _layout(movers: int):
@@ -50,6 +56,25 @@ def _layout(movers: int):
 
     side = int(math.ceil(math.sqrt(movers / OCCUPANCY)))
     return Layout.grid(side, side)
+
+
+def _graph_ms(call, device: str, calls: int, out, want) -> float | None:
+    """ms per call of ``call`` recorded as one CUDA graph and replayed back to back: the kernel's device time without
+    the host's per-call work (argument conversion, launch), which the eager ``ms`` may be bound by (at 16,384 x 64 the
+    ``own`` part, 16 MB of rows, took as long as ``full``, 208 MB: swarm_obs_s34_gpu.json). None if the capture fails
+    or a replay writes other rows than the eager call (NaN if so)."""
+    import torch
+
+    from magwarp.envs.step_graph import record_cuda_graph
+
+    try:
+        rec = record_cuda_graph(call, torch.device(device))
+    except Exception as e:  # noqa: BLE001 - the eager time stands; say why the graph one is missing
+        print(f"    graph capture failed: {type(e).__name__}: {e}", flush=True)
+        return None
+    out.fill_(float("nan"))
+    ms = batched_ms(rec.graph.replay, device, calls, warmup=3)
+    return ms if torch.equal(out, want) else float("nan")
 
 
 def bench(worlds: int, movers: int, device: str, calls: int) -> list[dict]:
@@ -70,14 +95,14 @@ def bench(worlds: int, movers: int, device: str, calls: int) -> list[dict]:
     goals = torch.as_tensor(rng.random((worlds, movers, 2)) * ext, dtype=torch.float32, device=tdev)
     rows, ref = [], {}
     for part, (k, rays) in PARTS.items():
-        for name, (search, merge, rect) in VARIANTS.items():
+        for name, (search, merge, rect, staging) in VARIANTS.items():
             if part != "full" and name not in PART_VARIANTS:
                 continue
             if search == "grid" and part != "full":
                 continue
             obs = LocalObservations(layout, worlds, movers, k=k, num_rays=rays, radius=1.0, max_range=1.0,
                                     search=search, device=device)
-            obs.merge, obs.rect = merge, rect
+            obs.merge, obs.rect, obs.staging = merge, rect, staging
             out = torch.empty(worlds, movers, 4 + obs.dim, device=tdev)
 
             def call():
@@ -85,14 +110,16 @@ def bench(worlds: int, movers: int, device: str, calls: int) -> list[dict]:
 
             ms = batched_ms(call, device, calls, warmup=3)
             got = (out.clone(), obs.index.clone())
+            graph_ms = _graph_ms(call, device, calls, out, got[0]) if device.startswith("cuda") else None
             first = ref.setdefault(part, got)
             match = bool(torch.equal(got[0], first[0]) and torch.equal(got[1], first[1]))
             row = {"device": device, "worlds": worlds, "movers": movers, "part": part, "variant": name,
                    "tiled": bool(obs.tiled and search == "world"), "ms": ms,
                    "agent_steps_per_s_obs": worlds * movers / (ms * 1e-3), "match": match,
-                   "out_mb": out.numel() * 4 / 2**20}
+                   "graph_ms": graph_ms, "out_mb": out.numel() * 4 / 2**20}
             rows.append(row)
-            print(f"  {device} {worlds} x {movers} {part:8s} {name:18s} {ms:8.4f} ms  match {match}", flush=True)
+            gtxt = "" if graph_ms is None else f"  graph {graph_ms:8.4f} ms"
+            print(f"  {device} {worlds} x {movers} {part:8s} {name:20s} {ms:8.4f} ms{gtxt}  match {match}", flush=True)
             del obs, out
     return rows
 
@@ -117,6 +144,7 @@ def main(argv=None) -> int:
     if bad:
         print(f"MISMATCH: {len(bad)} variant(s) wrote other rows than the first of their part", flush=True)
     return finish(rows, ["device", "worlds", "movers", "part", "variant", "tiled", ("ms", "ms/call"),
+                         ("graph_ms", "graph ms/call"),
                          ("agent_steps_per_s_obs", "agent-steps/s"), "match"], info, args.json) or int(bool(bad))
 
 
