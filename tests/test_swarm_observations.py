@@ -343,3 +343,53 @@ def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tile
         obs.compute(*_sim_arrays(np.full((1, 4, 2), 0.1), np.zeros((1, 4, 2))))
     with pytest.raises(ValueError, match="radius squared"):
         LocalObservations(np.ones((3, 3)), 1, 4, radius=1e20, device="cpu")
+
+
+@pytest.mark.parametrize("m", [64, 100])
+@pytest.mark.parametrize("k,rays,own", [(8, 8, "goals"), (6, 7, "all"), (0, 8, "goals"), (5, 0, "none"), (1, 3, "all")])
+def test_vector_staging_matches_the_barrier_staging(rng, monkeypatch, m, k, rays, own):
+    """The block-per-world kernel's vector staging (each lane's row built in registers, the block's rows assigned to
+    padded column-major staging tiles at once) writes the same rows, indices and non-finite flags bit for bit as the
+    element-by-element staging (Warp's cooperative CPU blocks): a full block (64 movers) and one with idle lanes (100
+    in a block of 128), with and without neighbours, rays and the own-state parts, the merge and the chain, the closed
+    form and the tile walk, a NaN mover, a cluster with more candidates than slots."""
+    import torch
+
+    layout = Layout(np.ones((10, 8), dtype=np.int32))
+    ext = np.asarray(layout.extent)
+    w = 3
+    xy = rng.random((w, m, 2)) * ext * 1.1 - 0.05 * ext
+    xy[0, :12] = 0.4 + rng.random((12, 2)) * 0.1
+    xy[1, 7] = np.nan
+    xy = xy.astype(np.float32).astype(np.float64)
+    pos3, vel3 = _sim_arrays(xy, rng.normal(size=(w, m, 2)))
+    kwargs = {}
+    if own != "none":
+        kwargs["goals"] = torch.tensor(rng.random((w, m, 2)) * ext, dtype=torch.float32)
+    if own == "all":
+        kwargs["acc"] = torch.tensor(rng.normal(size=(w, m, 2)), dtype=torch.float32)
+        kwargs["carrying"] = torch.tensor(rng.random((w, m)) < 0.5)
+    width = {"none": 0, "goals": 4, "all": 7}[own]
+    for merge, rect in ((True, True), (False, False)):
+        got = []
+        for staging in ("barrier", "vector"):
+            obs = _search_obs(layout, w, m, "world", True, monkeypatch, unrolled=True, staged=True, k=k, radius=0.7,
+                              num_rays=rays, max_range=0.9)
+            obs.merge, obs.rect, obs.staging = merge, rect, staging
+            out = torch.full((w, m, width + obs.dim), 7.0)
+            obs.observe(pos3, vel3, out, **kwargs)
+            got.append((out.numpy().view(np.int32), obs.index.numpy().copy(), obs.nonfinite.tolist()))
+        np.testing.assert_array_equal(got[1][0], got[0][0], err_msg=f"{rng} merge {merge} rect {rect}")
+        np.testing.assert_array_equal(got[1][1], got[0][1], err_msg=f"{rng} merge {merge} rect {rect}")
+        # the NaN mover's row is not finite where it has own-state columns or rays (its slots stay empty: zeros)
+        flagged = [0, 1, 0] if own != "none" or rays else [0, 0, 0]
+        assert got[1][2] == got[0][2] == flagged, f"{rng}"
+        if k:
+            assert (got[0][1][0] >= 0).all(-1).any(), f"{rng}: no mover with every slot filled"
+
+
+def test_vector_staging_option_errors():
+    from magwarp.kernels import neighbors as knb
+
+    with pytest.raises(ValueError, match="staging must be one of"):
+        knb.make_observation_kernel(2, 2, knb.OWN_STATE, "world", 32, True, True, staging="shuffle")
