@@ -100,6 +100,17 @@ def kernel_figures(kernel, arch: int) -> dict[str, int]:
     return next(iter(found.values()))
 
 
+def ptx_barriers(kernel, arch: int) -> int:
+    """``bar.sync`` / ``barrier.sync`` instructions in the PTX of ``kernel``'s module for ``sm_<arch>`` (block
+    barriers as written, before ptxas; a barrier in a loop counts once)."""
+    import warp as wp
+
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = wp.compile_aot_module(kernel.module, arch=arch, module_dir=tmp, use_ptx=True)
+        ptx = "".join(open(p).read() for p in map(str, paths) if p.endswith(".ptx"))
+    return len(re.findall(r"\b(?:bar|barrier)\.sync\b", ptx))
+
+
 def randomize_figures(arch: int, json_path: str | None) -> int:
     """Registers and stack of the randomisation firing kernel (:func:`magwarp.kernels.randomize.fire_terms`, the one
     kernel benchmarks/fire_cost.py's candidates launch): it does not depend on the mover count."""
@@ -140,8 +151,8 @@ def place_figures(arch: int, json_path: str | None) -> int:
 
 def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
     """Registers and stack of the swarm env's step kernels (#18): the fused step (tiled shape, 64/128/256 threads per
-    block, without and with latency, under each register cap; 0: none), the staged observation kernel and the
-    placement rounds."""
+    block, without and with latency, under each register cap; 0: none), the staged observation kernel (with the
+    merge and the closed-form rays: both stagings, with their PTX block barriers) and the placement rounds."""
     from magwarp.kernels import neighbors as knb
     from magwarp.kernels import placement as kpl
     from magwarp.kernels import swarm_step as kss
@@ -159,15 +170,18 @@ def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
         rows.append({"kernel": f"observe_staged/{block}", "cap": 0,
                      **kernel_figures(knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True),
                                       arch)})
-        rows.append({"kernel": f"observe_staged_merge_rect/{block}", "cap": 0,
-                     **kernel_figures(knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True,
-                                                                  True, True), arch)})
+        for staging in knb.STAGINGS:
+            k = knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True, True, True, staging)
+            rows.append({"kernel": f"observe_staged_merge_rect/{block}" + ("" if staging == "barrier" else "+vec"),
+                         "cap": 0, **kernel_figures(k, arch), "bar_sync": ptx_barriers(k, arch)})
     rows += place_rows(arch)
     for r in rows:
         r["arch"] = f"sm_{arch}"
-        print(f"  sm_{arch} {r['kernel']} cap {r['cap']}: {r.get('registers')} registers, {r.get('stack')} B stack",
-              flush=True)
-    return finish(rows, ["arch", "kernel", "cap", "registers", ("stack", "stack B/thread")], info, json_path)
+        bars = f", {r['bar_sync']} bar.sync" if "bar_sync" in r else ""
+        print(f"  sm_{arch} {r['kernel']} cap {r['cap']}: {r.get('registers')} registers, {r.get('stack')} B stack"
+              f"{bars}", flush=True)
+    return finish(rows, ["arch", "kernel", "cap", "registers", ("stack", "stack B/thread"), "bar_sync"], info,
+                  json_path)
 
 
 def main(argv=None) -> int:
