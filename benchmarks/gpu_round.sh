@@ -193,9 +193,10 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         2>&1 | tail -20 ;;
     swarm_obs)
       # #18: the observation kernel alone at 16,384 worlds x 64 and x 100 movers, by variant (chain/merge into the
-      # slots, tile walk/closed-form rays, grid) and by part (full, no rays, no neighbours, own state only)
-      timeout 200 python3 benchmarks/swarm_obs.py --device cuda:0 --json "$OUT/swarm_obs_gpu.json" 2>&1 \
-        | grep -v "^Module" | tail -30 ;;
+      # slots, tile walk/closed-form rays, barrier/vector staging, grid) and by part (full, no rays, no neighbours, own
+      # state only), each also as a replayed CUDA graph (graph_ms: device time without the host's per-call work)
+      timeout 300 python3 benchmarks/swarm_obs.py --device cuda:0 --json "$OUT/swarm_obs_gpu.json" 2>&1 \
+        | grep -v "^Module" | tail -70 ;;
     swarm_place)
       # #18: the placement alone at 16384 x 64 and x 100 by launch shape of its rounds (Placer.lanes), with a
       # bit-for-bit check of the spots against the default shape (match)
