@@ -209,13 +209,11 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         --fused-worlds ${FUSED_WORLDS:-1024 4096 8192 16384} --json "$OUT/swarm_fused_gpu_${FUSED_MOVERS:-100}.json" \
         2>&1 | grep -v "^Module" | tail -40 ;;
     followup)
-      # What the device time of 2026-12-06 did not cover: the fast magnetic cycle (#17), the reset firing's kernel
-      # profile at 65,536 B0 envs (#24: fire_terms' launch time beside the step's kernels), the swarm step at 100 and
-      # 256 movers per world (#18); about 12 minutes in all: run it as two calls (magnetics_fast alone first)
-      timeout 200 python3 benchmarks/randomization.py --device cuda:0 --num-envs 65536 \
-        --env magwarp/TrajectoryPlanningB0-v0 --settings full --kernel-times 65536 \
-        --json "$OUT/randomization_fire_terms_gpu.json" 2>&1 | grep -v "^Module" | tail -8
-      for movers in 100 256; do
+      # What the device time of 2026-12-06 did not cover (about 10 minutes): the placement's lane shape (#18:
+      # Placer.lanes) and the observation's vector staging (LocalObservations.staging) against today's defaults,
+      # bit for bit; then the swarm step at 64, 100 and 256 movers per world with the defaults of the day
+      bash "$0" swarm_place swarm_obs
+      for movers in 64 100 256; do
         FUSED_MOVERS=$movers FUSED_WORLDS=16384 bash "$0" swarm_fused
       done ;;
     rand_gaps)
