@@ -168,8 +168,8 @@ class SwarmPlanner:
                  buffer: float | None = None, yield_share: float = 0.5, shield: float | None = None,
                  margin: float = 0.005, greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3,
                  relax: float = 0.0, reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5,
-                 commit_brake: float = COMMIT_BRAKE, safe_margin: float = SAFE_MARGIN, safe_k: int = SAFE_K, traffic: str = "auto",
-                 lane_pitch: int = 4):
+                 commit_brake: float = COMMIT_BRAKE, safe_margin: float = SAFE_MARGIN, safe_k: int = SAFE_K,
+                 traffic: str = "auto", lane_pitch: int = 4):
         # defaults by mode: with the safety filter the steering may be bolder (measured on 64 movers at 25%, 2 seeds,
         # before the filter's slack sharing: 68 / 81 goals in 4 s against 45 / 64 with the unfiltered planner's
         # settings, none colliding)
