@@ -155,6 +155,9 @@ def test_registered_and_gymnasium_checker():
     assert "magwarp/Swarm-v0" in gym.registry
     env = gym.make("magwarp/Swarm-v0", num_movers=5, layout=np.ones((4, 4)), k=2, num_rays=4, device="cpu")
     check_env(env.unwrapped, skip_render_check=True)
+    shielded = gym.make("magwarp/Swarm-v0", num_movers=5, layout=np.ones((4, 4)), k=2, num_rays=4, device="cpu",
+                        shield=True)
+    check_env(shielded.unwrapped, skip_render_check=True)
     obs, _ = env.reset(seed=1)
     assert obs.shape == (5, 4 + 5 * 2 + 4) and obs.dtype == np.float32
     vec = gym.make_vec("magwarp/Swarm-v0", num_envs=3, num_movers=5, layout=np.ones((4, 4)), device="cpu")

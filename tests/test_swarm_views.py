@@ -1,5 +1,5 @@
 """Multi-agent views of the swarm env: the flat parameter-shared VectorEnv, TorchRL's ``check_env_specs`` and
-PettingZoo's ``parallel_api_test`` on small instances."""
+PettingZoo's ``parallel_api_test`` on small instances (with and without the shield)."""
 
 from __future__ import annotations
 
@@ -33,13 +33,14 @@ def test_flat_view_matches_the_world_env(rng):
         flat.step(torch.zeros(3, 5, 2))
 
 
-def test_torchrl_check_env_specs_and_rollout():
+@pytest.mark.parametrize("shield", [False, True])
+def test_torchrl_check_env_specs_and_rollout(shield):
     pytest.importorskip("torchrl")
     from torchrl.envs.utils import check_env_specs
 
     from magwarp.swarm import SwarmTorchRLEnv
 
-    env = SwarmTorchRLEnv(num_envs=2, max_episode_steps=3, **SMALL)
+    env = SwarmTorchRLEnv(num_envs=2, max_episode_steps=3, shield=shield, **SMALL)
     check_env_specs(env, seed=0)
     td = env.rollout(5, break_when_any_done=False)
     assert td["next", "agents", "reward"].shape == (2, 5, 5, 1)
@@ -47,13 +48,14 @@ def test_torchrl_check_env_specs_and_rollout():
     assert td["next", "truncated"][:, 2].all()  # third step: the step limit ends every world
 
 
-def test_pettingzoo_parallel_api_test():
+@pytest.mark.parametrize("shield", [False, True])
+def test_pettingzoo_parallel_api_test(shield):
     pytest.importorskip("pettingzoo")
     from pettingzoo.test import parallel_api_test
 
     from magwarp.swarm import SwarmParallelEnv
 
-    env = SwarmParallelEnv(max_episode_steps=6, **SMALL)
+    env = SwarmParallelEnv(max_episode_steps=6, shield=shield, **SMALL)
     parallel_api_test(env, num_cycles=20)
     obs, _ = env.reset(seed=1)
     assert set(obs) == {f"mover_{i}" for i in range(5)} and obs["mover_0"].shape == (18,)

@@ -30,6 +30,21 @@ Per env step (``num_cycles`` control cycles at 1 ms, each mover's x/y command he
   its per-world counters;
 * rendering (``render_mode="rgb_array"``): the whole world or a window of it, movers coloured by state, legible at
   thousands of movers (:meth:`SwarmEnv.set_render_view`, :mod:`magwarp.render.swarm`);
+* shield (``shield=True``; safe RL): each step passes every mover's action through the planner's provably
+  collision-free safety filter (:class:`~magwarp.swarm.SafetyFilter`, built as
+  :class:`~magwarp.swarm.SwarmPlanner` builds it: :func:`~magwarp.swarm.safety.build_safety`) before the simulator
+  sees it: the acceleration (norm-clipped at ``a_max``) becomes the velocity it reaches after one step, the filter
+  replaces it by the safe velocity nearest to it (its own ``k`` = 24 nearest movers within its reach radius, and the
+  cells off the tiles), and that velocity becomes the acceleration that reaches it within the step (at most
+  ``a_max``), as the planner's last step does. An action whose velocity the filter keeps passes unchanged, bit for
+  bit. Every mover then stays collision-free (with movers, holes and edges) whatever the policy asks, so training
+  only has to learn throughput. The filter's options are the planner's defaults: speed cap ``shield_speed`` (1.5
+  m/s, the planner's ``cruise``; movers go no faster), committed braking 0.95 ``a_max``, margin 0.002 m, 24
+  neighbour slots. ``info["shield_active"]`` (bool ``[N, M]``) flags the movers whose action the shield changed,
+  ``info["shield_delta"]`` (``[N, M]``, m/s^2) the norm of the change (against the action clipped at ``a_max``);
+  both are false / 0 for stopped movers (pending respawns). Acceleration control only (``learn_jerk=False``); the
+  filter models the plain planar dynamics (no actuator, latency or randomised limits set on the simulator later).
+  All torch operations and Warp launches on the device: it runs inside the step's CUDA graph;
 * truncation: after ``max_episode_steps`` steps (default None: worlds run on; goals stream, collided movers respawn).
 
 Starts and goals are drawn by :class:`~magwarp.swarm.Placer` on the device (O(movers)). ``reset()`` checks that
@@ -88,6 +103,7 @@ from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies, max_registers
 from magwarp.swarm.observations import LocalObservations
 from magwarp.swarm.placement import Placer, on_torch_stream
+from magwarp.swarm.safety import SAFE_SPEED, build_safety
 
 __all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
 
@@ -120,7 +136,9 @@ class SwarmConfig:
     ``fused``: run each step's control cycles and collision stops as one launch (:mod:`magwarp.swarm.fused`; the
     per-cycle path's results): None (default) where it applies (the respawn rule, up to 256 movers per world), True
     to insist (an error where it does not apply), False for the per-cycle path. ``graph``: on CUDA, record the whole
-    env step as one CUDA graph and replay it (the module docstring); False: the same launches, eagerly."""
+    env step as one CUDA graph and replay it (the module docstring); False: the same launches, eagerly.
+    ``shield``: pass each action through the planner's safety filter (the module docstring; acceleration control
+    only), with the speed cap ``shield_speed`` (m/s, at most ``v_max``; the planner's default cruise)."""
 
     num_movers: int = 64
     layout: Any = None
@@ -154,6 +172,8 @@ class SwarmConfig:
     num_stations: int = 4
     fused: bool | None = None
     graph: bool = True
+    shield: bool = False
+    shield_speed: float = SAFE_SPEED
 
     def __post_init__(self):
         m = self.num_movers
@@ -179,6 +199,17 @@ class SwarmConfig:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
         if not isinstance(self.graph, (bool, np.bool_)):
             raise ValueError(f"graph must be True or False, got {self.graph!r}")
+        if not isinstance(self.shield, (bool, np.bool_)):
+            raise ValueError(f"shield must be True or False, got {self.shield!r}")
+        if self.shield:
+            if self.learn_jerk:
+                raise ValueError("shield=True needs acceleration control (the safety filter commands accelerations): "
+                                 "learn_jerk must be False, got learn_jerk=True")
+            sp = self.shield_speed
+            if isinstance(sp, bool) or not isinstance(sp, (int, float, np.integer, np.floating)) or not (
+                    np.isfinite(sp) and 0 < sp <= self.v_max):
+                raise ValueError(f"shield_speed must be a positive speed (m/s) at most v_max ({self.v_max!r}) with "
+                                 f"shield=True, got shield_speed={sp!r}")
         if self.fused not in (None, True, False):
             raise ValueError(f"fused must be None, True or False, got {self.fused!r}")
         if self.fused:
@@ -254,6 +285,12 @@ class SwarmEnv(MagwarpVecEnv):
                                      device=wdev, seed=1 if seed is None else int(seed) + 1) if respawn else None
         self.local = LocalObservations(self.layout, n, m, k=cfg.k, radius=cfg.obs_radius, num_rays=cfg.num_rays,
                                        max_range=cfg.ray_range, device=wdev)
+        #: the shield's safety filter and its neighbour view (``shield=True``), else None
+        self.shield_filter = self.shield_near = None
+        if cfg.shield:
+            self.shield_filter, self.shield_near = build_safety(
+                self, v_cap=float(cfg.shield_speed), what=("shield_speed", "commit_brake", "safe_margin", "safe_k"))
+        self._shield_info: dict[str, torch.Tensor] = {}
         self._stopped = wp.zeros((n, m), dtype=wp.int32, device=wdev)
         self.stopped = wp.to_torch(self._stopped)
         self.fused_step = None
@@ -373,6 +410,8 @@ class SwarmEnv(MagwarpVecEnv):
         run eagerly, or recorded once as the step's CUDA graph (:meth:`_graph_step`)."""
         self._apply_action(self._action)
         reward, terminated, truncated, info = self._evaluate(None)
+        if self.shield_filter is not None:
+            info.update(self._shield_info)
         self._end_step(None, info)
         obs = self._get_obs()
         # the world's reward and flags, and the NaN guard: a non-finite world is flagged (info["nonfinite"]), rewarded
@@ -397,7 +436,12 @@ class SwarmEnv(MagwarpVecEnv):
                 id(sim._fused_kernel), id(sim._advance_kernel), id(m.body), id(m.radius), id(m.half_size),
                 id(m.margins), None if fs is None else (fs.tiled, max_registers()), self.placer.search,
                 None if rp is None else rp.search, local.search, local.staged, local.tiled, local.unrolled,
-                self.autoreset, self._can_end, id(self._generator), self.num_cycles)
+                self.autoreset, self._can_end, id(self._generator), self.num_cycles,
+                None if self.shield_near is None else self._search_key(self.shield_near))
+
+    @staticmethod
+    def _search_key(local: LocalObservations) -> tuple:
+        return (local.search, local.staged, local.tiled, local.unrolled, local.merge, local.rect, local.staging)
 
     def _graph_step(self):
         """One step by graph replay (slot 0 and 1 alternate); a slot's first step runs eagerly, then is recorded."""
@@ -493,9 +537,33 @@ class SwarmEnv(MagwarpVecEnv):
         with on_torch_stream(sim.device):
             sim._launch_reset()
 
+    def _shield(self, action: torch.Tensor) -> torch.Tensor:
+        """The shield (``shield=True``, the module docstring): ``action`` through the safety filter, as
+        :class:`~magwarp.swarm.SwarmPlanner`'s last steps; sets ``_shield_info`` (what the step's info gets). Torch
+        operations and Warp launches on the current stream, no host sync (it runs inside the step's graph)."""
+        sim, safety, near = self.sim, self.shield_filter, self.shield_near
+        pos, vel = sim.pos[..., :2], sim.vel[..., :2]
+        a_max, step = safety.a_max, safety.step
+        # the velocity after one step of the action as the simulator applies it (norm-clipped at a_max)
+        norm = action.norm(dim=-1, keepdim=True)
+        acc = torch.where(norm > a_max, action * (a_max / norm.clamp_min(1e-9)), action)
+        wanted = vel + step * acc
+        near.compute(sim.state.pos, sim.state.vel)
+        safe, passes = safety.choose(vel, wanted, near.rel_pos, near.rel_vel, near.mask, pos)
+        # the acceleration that reaches the safe velocity within the step, within the limit (the planner's step 4)
+        cmd = (safe - vel) / step
+        norm = cmd.norm(dim=-1, keepdim=True)
+        cmd = torch.where(norm > a_max, cmd * (a_max / norm.clamp_min(1e-9)), cmd)
+        active = ~passes & (self.stopped == 0)
+        delta = torch.where(active, (cmd - acc).norm(dim=-1), 0.0)
+        self._shield_info = {"shield_active": active, "shield_delta": delta}
+        return torch.where(active[..., None], cmd, action).contiguous()
+
     def _apply_action(self, action: torch.Tensor) -> None:
         # stopped movers (pending respawns) ignore their command; the stop hook keeps them still
         sim = self.sim
+        if self.shield_filter is not None:
+            action = self._shield(action)
         act = self._action_wp if action is self._action else wp.from_torch(action.contiguous(), dtype=wp.vec2)
         with on_torch_stream(sim.device):
             wp.launch(command_unless_stopped, dim=(self.num_envs, self.num_movers), device=sim.device,

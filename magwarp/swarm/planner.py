@@ -54,8 +54,8 @@ import math
 import torch
 
 from magwarp.swarm.env import SwarmEnv
-from magwarp.swarm.observations import LocalObservations, ray_directions
-from magwarp.swarm.safety import SafetyFilter
+from magwarp.swarm.observations import ray_directions
+from magwarp.swarm.safety import COMMIT_BRAKE, SAFE_K, SAFE_MARGIN, SAFE_SPEED, build_safety, collision_distances
 from magwarp.swarm.traffic import LaneField, lanes_fit
 
 __all__ = ["SwarmPlanner", "TRAFFIC", "orca_lines", "solve_lines", "stop_speed"]
@@ -168,12 +168,12 @@ class SwarmPlanner:
                  buffer: float | None = None, yield_share: float = 0.5, shield: float | None = None,
                  margin: float = 0.005, greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3,
                  relax: float = 0.0, reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5,
-                 commit_brake: float = 0.95, safe_margin: float = 0.002, safe_k: int = 24, traffic: str = "auto",
-                 lane_pitch: int = 4):
+                 commit_brake: float = COMMIT_BRAKE, safe_margin: float = SAFE_MARGIN, safe_k: int = SAFE_K,
+                 traffic: str = "auto", lane_pitch: int = 4):
         # defaults by mode: with the safety filter the steering may be bolder (measured on 64 movers at 25%, 2 seeds,
         # before the filter's slack sharing: 68 / 81 goals in 4 s against 45 / 64 with the unfiltered planner's
         # settings, none colliding)
-        cruise = (1.5 if safe else 1.0) if cruise is None else cruise
+        cruise = (SAFE_SPEED if safe else 1.0) if cruise is None else cruise
         buffer = (0.02 if safe else 0.06) if buffer is None else buffer
         shield = (0.0 if safe else 0.4) if shield is None else shield
         if env.learn_jerk:
@@ -195,33 +195,20 @@ class SwarmPlanner:
         self.shield, self.margin, self.greedy = float(shield), float(margin), bool(greedy)
         self.relax, self.reachable = float(relax), bool(reachable)
         sim = env.sim
-        col = sim.model.collision
-        reach = float(sim._radii_np.max()) if col.shape == 0 else float(math.hypot(*sim._half_np.max(axis=0)))
-        self.contact = 2.0 * (reach + float(col.margin))  # the simulator's collision distance
+        # the simulator's collision distance, and how close a centre may come to a wall (goals may lie this close to
+        # a wall: no buffer)
+        self.contact, self.wall_reach = collision_distances(sim)
         self.safe = self.contact + float(buffer)
-        self.wall_reach = reach + float(col.wall_margin)  # goals may lie this close to a wall: no buffer
         self.a_max = float(env.config.a_max)
         self.step_time = env.num_cycles * float(sim.model.limits.dt)
         self.separate = max(float(separate), self.step_time)
         dev = env.device
         self.safety = None
         if safe:
-            if not 0.0 < commit_brake <= 1.0:
-                raise ValueError(f"commit_brake must be in (0, 1], got {commit_brake!r}")
-            v_max = float(sim.model.limits.v_max)
-            if self.cruise > v_max:
-                raise ValueError(f"cruise ({self.cruise}) must be at most the movers' v_max ({v_max}) with safe=True "
-                                 f"(a speed capped by the simulator would leave the committed path)")
-            self.safety = SafetyFilter(contact=self.contact, wall_reach=self.wall_reach, a_max=self.a_max,
-                                       step=self.step_time, dt=float(sim.model.limits.dt),
-                                       a_brake=commit_brake * self.a_max, margin=safe_margin, v_cap=self.cruise,
-                                       tiles=env.layout.tiles, tile_size=float(env.layout.tile.size), device=dev)
-            if isinstance(safe_k, bool) or not isinstance(safe_k, int) or safe_k < 1:
-                raise ValueError(f"safe_k must be an integer >= 1, got {safe_k!r}")
-            # the filter's own neighbour search: the safe_k nearest within the reach radius (a list full of movers
-            # within reach restricts the mover to a small ball: 8 slots were full for most movers of a dense crowd)
-            self.near = LocalObservations(env.layout, env.num_envs, env.num_movers, k=safe_k,
-                                          radius=self.safety.reach_radius, num_rays=0, device=sim.device)
+            # the filter and its own neighbour search: the safe_k nearest within the reach radius (the env's shield
+            # builds the same, :func:`~magwarp.swarm.safety.build_safety`)
+            self.safety, self.near = build_safety(env, v_cap=self.cruise, commit_brake=commit_brake,
+                                                  margin=safe_margin, k=safe_k)
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
         if isinstance(patience, bool) or not isinstance(patience, int) or patience < 0:

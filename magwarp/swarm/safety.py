@@ -59,7 +59,16 @@ import math
 import numpy as np
 import torch
 
-__all__ = ["SafetyFilter", "segment_closest_points", "stop_length"]
+__all__ = ["SafetyFilter", "build_safety", "collision_distances", "segment_closest_points", "stop_length",
+           "SAFE_SPEED", "COMMIT_BRAKE", "SAFE_MARGIN", "SAFE_K"]
+
+#: the defaults of the planner's filter (:class:`~magwarp.swarm.SwarmPlanner` with ``safe=True``: its ``cruise``,
+#: ``commit_brake``, ``safe_margin``, ``safe_k``), which the env's shield (``SwarmConfig.shield``) uses too: the speed
+#: cap ``v_cap`` (m/s), the committed braking (x ``a_max``), the extra distance kept (m), the neighbour slots
+SAFE_SPEED = 1.5
+COMMIT_BRAKE = 0.95
+SAFE_MARGIN = 0.002
+SAFE_K = 24
 
 
 def stop_length(speed: torch.Tensor | float, a_brake: float, step: float):
@@ -95,6 +104,52 @@ def segment_closest_points(p1: torch.Tensor, d1: torch.Tensor, p2: torch.Tensor,
     t = torch.where(a_ok, t, (f / safe_e).clamp(0.0, 1.0))
     s = torch.where(a_ok, s, torch.zeros_like(s))
     return s, t
+
+
+def collision_distances(sim) -> tuple[float, float]:
+    """``(contact, wall_reach)`` (m) of a :class:`~magwarp.sim.Simulator`'s movers: the collision distance between two
+    centres (both shapes' reach, with the collision margin) and the closest a centre may come to the edge of the tiles
+    (the reach and the wall margin). A box counts as the circle around it; per-mover sizes as the largest."""
+    col = sim.model.collision
+    reach = float(sim._radii_np.max()) if col.shape == 0 else float(math.hypot(*sim._half_np.max(axis=0)))
+    return 2.0 * (reach + float(col.margin)), reach + float(col.wall_margin)
+
+
+def build_safety(env, *, v_cap: float = SAFE_SPEED, commit_brake: float = COMMIT_BRAKE, margin: float = SAFE_MARGIN,
+                 k: int = SAFE_K, what: tuple[str, str, str, str] = ("cruise", "commit_brake", "safe_margin", "safe_k")
+                 ):
+    """The safety filter of a :class:`~magwarp.swarm.SwarmEnv` ``env`` (acceleration control; its simulator, layout,
+    ``a_max`` and step) and its own neighbour view: ``(SafetyFilter, LocalObservations)``, the view holding the ``k``
+    nearest movers within the filter's :attr:`~SafetyFilter.reach_radius` (no rays: the filter finds the cells off
+    the tiles itself). What :class:`~magwarp.swarm.SwarmPlanner` (``safe=True``) and the env's shield both build.
+    ``v_cap``: the speed cap (at most the simulator's ``v_max``: a speed capped by the simulator would leave the
+    committed path), ``commit_brake`` (in (0, 1], x ``a_max``): the committed braking, ``margin`` (m): the extra
+    distance kept. ``what``: the caller's names of these four options, for the error messages."""
+    from magwarp.swarm.observations import LocalObservations
+
+    sim = env.sim
+    n_cap, n_brake, n_margin, n_k = what
+    v_max = float(sim.model.limits.v_max)
+    if not (math.isfinite(v_cap) and 0 < v_cap <= v_max):
+        raise ValueError(f"{n_cap} ({v_cap!r}) must be a positive speed at most the movers' v_max ({v_max}) with the "
+                         f"safety filter (a speed capped by the simulator would leave the committed path)")
+    if not 0.0 < commit_brake <= 1.0:
+        raise ValueError(f"{n_brake} must be in (0, 1], got {commit_brake!r}")
+    if not (math.isfinite(margin) and margin >= 0):
+        raise ValueError(f"{n_margin} must be a number >= 0 (m), got {margin!r}")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise ValueError(f"{n_k} must be an integer >= 1, got {k!r}")
+    contact, wall_reach = collision_distances(sim)
+    a_max = float(env.config.a_max)
+    dt = float(sim.model.limits.dt)
+    safety = SafetyFilter(contact=contact, wall_reach=wall_reach, a_max=a_max, step=env.num_cycles * dt, dt=dt,
+                          a_brake=commit_brake * a_max, margin=margin, v_cap=float(v_cap), tiles=env.layout.tiles,
+                          tile_size=float(env.layout.tile.size), device=env.device)
+    # the filter's own neighbour search: the k nearest within the reach radius (a list full of movers within reach
+    # restricts the mover to a small ball: 8 slots were full for most movers of a dense crowd)
+    near = LocalObservations(env.layout, env.num_envs, env.num_movers, k=int(k), radius=safety.reach_radius,
+                             num_rays=0, device=sim.device)
+    return safety, near
 
 
 class SafetyFilter:
@@ -263,10 +318,19 @@ class SafetyFilter:
                  mask: torch.Tensor, pos: torch.Tensor | None = None) -> torch.Tensor:
         """The safe velocity for the end of the step ``[..., 2]`` closest to ``wanted`` among the candidates
         (braking where no other is safe)."""
+        return self.choose(vel, wanted, rel_pos, rel_vel, mask, pos)[0]
+
+    def choose(self, vel: torch.Tensor, wanted: torch.Tensor, rel_pos: torch.Tensor, rel_vel: torch.Tensor,
+               mask: torch.Tensor, pos: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`__call__`'s safe velocity and ``[...]`` bool: where ``wanted`` itself passes, i.e. it is no faster
+        than ``v_cap`` and its candidate (the first after braking: ``wanted``, moved within one step's reach of
+        ``vel``, which is ``a_max T (1 - 1e-5)``) is safe; there the safe velocity is at least as close to ``wanted``
+        as that candidate."""
         normals, base, ball = self.constraints(vel, rel_pos, rel_vel, mask, pos)
         cand = self.candidates(vel, wanted)
         bad = (self.violation(cand, normals, base) > 0) | (self.path_reach_of(vel, cand) > ball[..., None])
         bad[..., 0] = False  # braking is always safe (recursive feasibility)
         cost = ((cand - wanted[..., None, :]) ** 2).sum(-1).masked_fill(bad, math.inf)
         best = cost.argmin(-1, keepdim=True)
-        return cand.gather(-2, best[..., None].expand(*best.shape, 2)).squeeze(-2)
+        passes = ~bad[..., 1] & (wanted.norm(dim=-1) <= self.v_cap)
+        return cand.gather(-2, best[..., None].expand(*best.shape, 2)).squeeze(-2), passes

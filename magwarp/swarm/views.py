@@ -32,7 +32,7 @@ __all__ = ["FlatSwarmEnv", "SwarmTorchRLEnv", "SwarmParallelEnv"]
 
 #: per-mover info entries the flat view flattens to ``[N * M]``
 AGENT_INFO = ("agent_reward", "agent_terminated", "goal_reached", "mover_collision", "wall_collision",
-              "collected_goals", "respawn_pending")
+              "collected_goals", "respawn_pending", "shield_active", "shield_delta")
 
 
 def _agent_space(env: SwarmEnv) -> tuple[gym.spaces.Box, gym.spaces.Box]:
