@@ -95,6 +95,28 @@ def ray_to_wall(tiles: wp.array2d(dtype=wp.int32), size: float, p: wp.vec2, d: w
 
 
 @wp.func
+def axis_exit(p: float, d: float, i: int, n: int, size: float, max_range: float) -> float:
+    """One axis of :func:`ray_to_rect`: the distance at which a ray from ``p`` (in tile ``i`` of ``n``) with direction
+    component ``d`` crosses out of the rectangle, summed as the tile walk sums it (the first crossing, then one tile
+    step per tile crossed) and stopped once past ``max_range``; BIG when ``d`` is 0."""
+    t = float(BIG)
+    dt = float(BIG)
+    steps = int(0)  # tile steps along the axis before the step that leaves the rectangle
+    if d > 0.0:
+        t = (float(i + 1) * size - p) / d
+        dt = size / d
+        steps = n - 1 - i
+    elif d < 0.0:
+        t = (float(i) * size - p) / d
+        dt = -size / d
+        steps = i
+    while steps > 0 and t < max_range:
+        t += dt
+        steps -= 1
+    return t
+
+
+@wp.func
 def ray_to_rect(nx: int, ny: int, size: float, p: wp.vec2, d: wp.vec2, max_range: float) -> float:
     """:func:`ray_to_wall` on a layout with every tile of its ``nx`` x ``ny`` rectangle present, bit for bit: the
     walk leaves at its first crossing out of the rectangle, which is the earlier of the x and y exits, each the walk's
@@ -105,34 +127,8 @@ def ray_to_rect(nx: int, ny: int, size: float, p: wp.vec2, d: wp.vec2, max_range
     j = int(wp.floor(p[1] / size))
     if i < 0 or j < 0 or i >= nx or j >= ny:
         return 0.0
-    t_x = float(BIG)
-    t_y = float(BIG)
-    dt_x = float(BIG)
-    dt_y = float(BIG)
-    n_x = int(0)  # tile steps along x before the step that leaves the rectangle
-    n_y = int(0)
-    if d[0] > 0.0:
-        t_x = (float(i + 1) * size - p[0]) / d[0]
-        dt_x = size / d[0]
-        n_x = nx - 1 - i
-    elif d[0] < 0.0:
-        t_x = (float(i) * size - p[0]) / d[0]
-        dt_x = -size / d[0]
-        n_x = i
-    if d[1] > 0.0:
-        t_y = (float(j + 1) * size - p[1]) / d[1]
-        dt_y = size / d[1]
-        n_y = ny - 1 - j
-    elif d[1] < 0.0:
-        t_y = (float(j) * size - p[1]) / d[1]
-        dt_y = -size / d[1]
-        n_y = j
-    while n_x > 0 and t_x < max_range:
-        t_x += dt_x
-        n_x -= 1
-    while n_y > 0 and t_y < max_range:
-        t_y += dt_y
-        n_y -= 1
+    t_x = axis_exit(p[0], d[0], i, nx, size, max_range)
+    t_y = axis_exit(p[1], d[1], j, ny, size, max_range)
     t = wp.min(t_x, t_y)
     if t >= max_range:
         return max_range
