@@ -65,13 +65,19 @@ def clear_pairs(xy: np.ndarray, others: np.ndarray, dist: float) -> bool:
     return bool((np.linalg.norm(xy[:, None] - others[None], axis=-1) > dist).all())
 
 
+@pytest.mark.parametrize("progress", [False, True])
 @pytest.mark.parametrize("mode", ["respawn", "end"])
-def test_rewards_and_collisions_match_numpy(rng, mode):
+def test_rewards_and_collisions_match_numpy(rng, mode, progress):
+    """``progress``: a random nonzero ``reward_progress`` (the distance closed to the step-start goal, from the
+    step-start position, added to ``reward_per_step``), with a wider goal threshold so that goals are reached (new
+    goals placed at a step's end count as no progress); else the sparse reward, bit for bit."""
+    prog = float(rng.uniform(0.5, 5.0)) if progress else 0.0
     cfg = SwarmConfig(num_movers=7, layout=holed_layout(), on_collision=mode, num_cycles=20, k=3, num_rays=4,
-                      safety_margin=0.005, collision_offset_wall=0.01, respawn_clearance=0.0)
+                      safety_margin=0.005, collision_offset_wall=0.01, respawn_clearance=0.0, reward_progress=prog,
+                      threshold_pos=0.25 if progress else 0.1)
     env = SwarmEnv(2, cfg, device="cpu", seed=int(rng.integers(1 << 30)))
     n, m = env.num_envs, env.num_movers
-    compared = collisions = respawned = 0
+    compared = collisions = respawned = goals_reached = 0
     heading = rng.normal(0, 8, (n, m, 2))  # held drift, so that movers travel far enough to meet
     for _ in range(16):
         before = env_state(env)
@@ -93,14 +99,24 @@ def test_rewards_and_collisions_match_numpy(rng, mode):
                               for r in (lo, hi))
         ambiguous = (np.abs(dist - cfg.threshold_pos) < 1e-4) | (reach_lo != reach_hi)
         reached = (dist <= cfg.threshold_pos) & active & ~collided & ~before["goal_pending"]
-        want = np.where(collided, cfg.reward_collision, np.where(reached, cfg.reward_goal, cfg.reward_per_step))
+        goals_reached += int(reached[~ambiguous].sum())
+        step_reward = np.full((n, m), cfg.reward_per_step)
+        if progress:  # the goal distance closed during the step: from the step's start to its end, to the same goal
+            d_before = np.linalg.norm(before["pos"] - before["goals"], axis=-1)
+            step_reward = step_reward + prog * (d_before - dist)
+        want = np.where(collided, cfg.reward_collision, np.where(reached, cfg.reward_goal, step_reward))
         want = np.where(active, want, 0.0)
         got = info["agent_reward"].numpy()
-        assert np.array_equal(got[~ambiguous], want[~ambiguous]), f"{rng}: per-mover rewards differ"
+        if progress:
+            np.testing.assert_allclose(got[~ambiguous], want[~ambiguous], rtol=0, atol=1e-3 * prog,
+                                       err_msg=f"{rng}: per-mover rewards differ")
+        else:
+            assert np.array_equal(got[~ambiguous], want[~ambiguous]), f"{rng}: per-mover rewards differ"
         assert np.array_equal(info["mover_collision"].numpy(), (flags & 1) != 0), f"{rng}: mover collision flags"
         assert np.array_equal(info["wall_collision"].numpy(), (flags & 2) != 0), f"{rng}: wall collision flags"
         if not ambiguous.any():
-            assert np.allclose(reward.numpy(), want.sum(axis=1)), f"{rng}: world rewards differ"
+            assert np.allclose(reward.numpy(), want.sum(axis=1), atol=1e-2 * max(prog, 1.0)), f"{rng}: world rewards"
+
         after = env_state(env)
         if mode == "end":
             assert np.array_equal(terminated.numpy(), collided.any(axis=1)), f"{rng}: terminations differ"
@@ -127,6 +143,8 @@ def test_rewards_and_collisions_match_numpy(rng, mode):
     assert collisions > 0, f"{rng}: the random actions never collided: the test checked nothing about collisions"
     if mode == "respawn":
         assert respawned > 0
+    if progress:
+        assert goals_reached > 0, f"{rng}: no goal reached: the progress term's goal switches were not checked"
 
 
 def test_goal_streams(rng):
@@ -173,6 +191,10 @@ def test_bad_options_and_infeasible_density():
         SwarmEnv(1, num_movers=40, layout=np.ones((4, 4)), device="cpu")
     with pytest.raises(ValueError, match="respawn_clearance"):
         SwarmConfig(respawn_clearance=-0.1)
+    for bad in (float("nan"), float("inf"), "1.0", True):
+        with pytest.raises(ValueError, match=f"reward_progress must be finite.*got {bad!r}"):
+            SwarmConfig(reward_progress=bad)
+    assert SwarmConfig(reward_progress=2).reward_progress == 2
     env = SwarmEnv(1, num_movers=3, layout=np.ones((3, 3)), device="cpu", respawn_clearance=0.1)
     assert abs(env.respawn_placer.excl - env.placer.excl - 0.1) < 1e-5  # respawns keep 0.1 m more between centres
     with pytest.raises(ValueError, match=r"action must have shape \(1, 3, 2\)"):

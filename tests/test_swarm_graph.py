@@ -123,7 +123,8 @@ def _run_twins(rng, steps: int, worlds: int, reseed_at: int | None = None, **opt
         for name in STATE:
             a, b = (getattr(env.sim, name) for env in envs)
             assert torch.equal(a, b), f"{rng}: step {t}: sim.{name} differs"
-        for name in ("goals", "stopped", "respawn_pending", "goal_pending", "collected_goals", "num_steps"):
+        for name in ("goals", "stopped", "respawn_pending", "goal_pending", "collected_goals", "num_steps",
+                     "goal_dist"):
             a, b = (getattr(env, name) for env in envs)
             assert torch.equal(a, b), f"{rng}: step {t}: env.{name} differs"
         # the local observation's views follow the replayed graph's observation
@@ -140,7 +141,7 @@ def _run_twins(rng, steps: int, worlds: int, reseed_at: int | None = None, **opt
 
 @pytest.mark.skipif(not CUDA, reason="needs CUDA")
 def test_graph_step_matches_eager_with_respawns_and_goal_streams(rng):
-    counts = _run_twins(rng, 12, 16, reseed_at=8, num_movers=48, occupancy=0.5)
+    counts = _run_twins(rng, 12, 16, reseed_at=8, num_movers=48, occupancy=0.5, reward_progress=3.0)
     assert counts["respawns"] > 0, f"{rng}: no respawn: the comparison covered none"
 
 
@@ -157,7 +158,8 @@ def test_graph_step_matches_eager_with_stations_and_grid_search(rng):
 def test_graph_step_matches_eager_with_autoresets(rng, mode):
     """Episodes that end inside the graph (a collision in "end" mode, the step limit): the autoreset's placement,
     the simulator's reset kernels and the new episodes' observations, all replayed."""
-    counts = _run_twins(rng, 12, 8, num_movers=24, occupancy=0.5, on_collision=mode, max_episode_steps=4)
+    counts = _run_twins(rng, 12, 8, num_movers=24, occupancy=0.5, on_collision=mode, max_episode_steps=4,
+                        reward_progress=2.5)  # the progress reward's goal distances refreshed in the graph's resets
     assert counts["done"] > 0
 
 

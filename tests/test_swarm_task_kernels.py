@@ -13,8 +13,9 @@ from magwarp.layout import Layout
 from magwarp.swarm.placement import Placer
 
 
+@pytest.mark.parametrize("progress", [False, True])
 @pytest.mark.parametrize("stations", [False, True])
-def test_evaluate_movers_matches_numpy(rng, stations):
+def test_evaluate_movers_matches_numpy(rng, stations, progress):
     w, m, thr = 4, 37, 0.1
     flags = rng.integers(0, 4, (w, m)) * (rng.random((w, m)) < 0.4)
     xy = rng.random((w, m, 2)) * 2
@@ -24,6 +25,9 @@ def test_evaluate_movers_matches_numpy(rng, stations):
     jobs0 = rng.integers(0, 9, (w, m))
     rule = SwarmRewards()
     rule.threshold, rule.reward_goal, rule.reward_collision, rule.reward_per_step = thr, 20.0, -20.0, -1.0
+    prog = float(rng.uniform(0.5, 10.0)) if progress else 0.0
+    rule.reward_progress = prog
+    d_before = (rng.random((w, m)) * 2).astype(np.float32)
     t = lambda a, dt=torch.float32: torch.tensor(np.asarray(a), dtype=dt)  # noqa: E731
     pos = wp.array(np.concatenate([xy, np.zeros((w, m, 1))], -1).astype(np.float32), dtype=wp.vec3, device="cpu")
     goals_t = t(goals)
@@ -36,7 +40,7 @@ def test_evaluate_movers_matches_numpy(rng, stations):
     wp.launch(evaluate_movers, dim=(w, m), device="cpu",
               inputs=[rule, wp.array(flags.astype(np.int32), dtype=wp.int32, device="cpu"), pos,
                       f(goals_t, dtype=wp.vec2), f(t(pending, torch.bool)), f(t(goal_pending, torch.bool)),
-                      f(t(carrying, torch.bool))],
+                      f(t(carrying, torch.bool)), f(t(d_before))],
               outputs=[f(o) for o in outs] + [f(collected), f(jobs), f(collected_out), f(xy_out, dtype=wp.vec2)])
     assert torch.equal(collected_out, collected), f"{rng}: info's copy of the goal counts"
     np.testing.assert_array_equal(xy_out.numpy(), xy.astype(np.float32), err_msg=f"{rng}: the respawn positions")
@@ -46,9 +50,13 @@ def test_evaluate_movers_matches_numpy(rng, stations):
     active = ~pending
     hit = (flags != 0) & active
     reached = (dist <= thr) & active & ~hit & ~goal_pending
-    reward = np.where(active, np.where(hit, -20.0, np.where(reached, 20.0, -1.0)), 0.0)
+    step = -1.0 + prog * (d_before - dist) if progress else -1.0  # the progress term: distance closed
+    reward = np.where(active, np.where(hit, -20.0, np.where(reached, 20.0, step)), 0.0)
     got = [o.numpy() for o in outs]
-    np.testing.assert_array_equal(got[0][clear], reward[clear], err_msg=str(rng))
+    if progress:
+        np.testing.assert_allclose(got[0][clear], reward[clear], rtol=1e-5, atol=1e-5, err_msg=str(rng))
+    else:
+        np.testing.assert_array_equal(got[0][clear], reward[clear], err_msg=str(rng))
     assert np.array_equal(got[1], (flags & 1) != 0) and np.array_equal(got[2], (flags & 2) != 0), f"{rng}"
     assert np.array_equal(got[3], hit), f"{rng}: collided"
     assert np.array_equal(got[4][clear], reached[clear]), f"{rng}: reached"

@@ -8,7 +8,8 @@ Around the simulator's step, one launch each over every mover: :func:`command_un
 for stopped movers; it also counts the env's steps on the device), :func:`evaluate_movers` (collision flags, reward,
 goal and job counts, the movers that want a new goal or a respawn, the positions the respawn placer starts from and
 the goal counts ``info`` returns) and :func:`apply_respawns` (the placed movers moved to their spots, at rest; the
-pending respawns ``info`` returns), then one over the worlds, :func:`finish_worlds` (the world's reward, flags, NaN
+pending respawns ``info`` returns), with the progress reward :func:`goal_distances` (each mover's distance to its
+goal once the step's goals and respawns are placed, and at resets: the next step's ``d_before``), then one over the worlds, :func:`finish_worlds` (the world's reward, flags, NaN
 guard and step count). Every per-step counter lives on the device, so the whole env step can be one CUDA graph
 (:mod:`magwarp.swarm.env`); the copies and torch ops these kernels replace (the positions' copy, ``info``'s clones,
 the reward's sum, the NaN guard's five ops) were folded in for that step (fewer nodes per replay, fewer launches
@@ -52,6 +53,7 @@ class SwarmRewards:
     reward_goal: float
     reward_collision: float
     reward_per_step: float
+    reward_progress: float  # per metre of goal distance closed during the step (0: off, the sparse reward)
 
 
 @wp.kernel
@@ -65,6 +67,7 @@ def evaluate_movers(
     respawn_pending: wp.array2d(dtype=wp.bool),
     goal_pending: wp.array2d(dtype=wp.bool),
     carrying: wp.array2d(dtype=wp.bool),
+    d_before: wp.array2d(dtype=wp.float32),
     # State out:
     agent_reward: wp.array2d(dtype=wp.float32),
     mover_col: wp.array2d(dtype=wp.bool),
@@ -81,7 +84,9 @@ def evaluate_movers(
 ):
     """One mover's step outcome: its collision flags (bit 1 mover, bit 2 wall), ``collided`` (a flag while not
     waiting to respawn), ``reached`` (within ``threshold`` of its goal, active, not collided, no goal pending), its
-    reward (collision, else goal, else per step; 0 while waiting), its goal count (and with stations, where
+    reward (collision, else goal, else per step, plus with a nonzero ``reward_progress`` that many times the goal
+    distance closed during the step, ``d_before`` (:func:`goal_distances` at the step's start) minus its distance now;
+    0 while waiting), its goal count (and with stations, where
     ``job_done`` has rows, the delivered job and its job count), and what it asks of the placers: a new goal
     (``reached`` or a goal still pending) and a respawn (``collided`` or still pending). ``collected_out`` (where it
     has rows): a copy of the new goal count (``info["collected_goals"]``); ``xy`` (where it has rows): the mover's
@@ -97,6 +102,8 @@ def evaluate_movers(
     dist = wp.length(wp.vec2(p[0] - g[0], p[1] - g[1]))
     got = dist <= rule.threshold and active and not hit and not goal_pending[w, m]
     r = rule.reward_per_step
+    if rule.reward_progress != 0.0:  # off: the sparse reward, bit for bit
+        r = r + rule.reward_progress * (d_before[w, m] - dist)
     if hit:
         r = rule.reward_collision
     elif got:
@@ -123,6 +130,22 @@ def evaluate_movers(
         job_done[w, m] = done
         if done:
             jobs[w, m] = jobs[w, m] + wp.int64(1)
+
+
+@wp.kernel
+def goal_distances(
+    # State in:
+    pos: wp.array2d(dtype=wp.vec3),
+    goals: wp.array2d(dtype=wp.vec2),
+    # State out:
+    dist: wp.array2d(dtype=wp.float32),
+):
+    """Each mover's x/y distance to its goal (as :func:`evaluate_movers` measures it): the next step's ``d_before``
+    for the progress reward, refreshed after the step's new goals and respawns and at every reset."""
+    w, m = wp.tid()
+    p = pos[w, m]
+    g = goals[w, m]
+    dist[w, m] = wp.length(wp.vec2(p[0] - g[0], p[1] - g[1]))
 
 
 @wp.kernel

@@ -10,7 +10,13 @@ Per env step (``num_cycles`` control cycles at 1 ms, each mover's x/y command he
   the walls along ``num_rays`` rays. Per-mover work is O(k), not O(movers);
 * per-mover reward (``info["agent_reward"]``): ``reward_collision`` if the mover collided (with a mover or a wall)
   during the step, else ``reward_goal`` if it is within ``threshold_pos`` of its goal at the end of the step, else
-  ``reward_per_step``. The returned ``reward`` ``[num_envs]`` is their sum over the world's movers;
+  ``reward_per_step``. The returned ``reward`` ``[num_envs]`` is their sum over the world's movers. A dense,
+  potential-based progress term (``reward_progress``, per metre; default 0: off, the rewards bit for bit the sparse
+  ones) adds ``reward_progress * (d_before - d_after)`` to ``reward_per_step``: ``d_before`` is the mover's distance
+  to its goal at the step's start (from its position then), ``d_after`` the distance to that same goal at the step's
+  end, so new goals and respawns placed at a step's end count as no progress (each mover's ``d_before`` is refreshed
+  after them and at every reset, one small kernel, :func:`~magwarp.kernels.swarm.goal_distances`, inside the step's
+  graph);
 * goal streams: a mover that reaches its goal gets a new one at once (after the reward), placed clear of the other
   movers' goals (every goal set is a collision-free configuration, so all goals can be held at once);
 * collisions (``on_collision``):
@@ -97,7 +103,7 @@ from magwarp._checks import as_count, as_flag, warp_device
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.step_graph import RecordedGraph, continued_generator, record_cuda_graph
 from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers,
-                                   finish_worlds, stop_collided)
+                                   finish_worlds, goal_distances, stop_collided)
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies, max_registers
@@ -138,7 +144,12 @@ class SwarmConfig:
     to insist (an error where it does not apply), False for the per-cycle path. ``graph``: on CUDA, record the whole
     env step as one CUDA graph and replay it (the module docstring); False: the same launches, eagerly.
     ``shield``: pass each action through the planner's safety filter (the module docstring; acceleration control
-    only), with the speed cap ``shield_speed`` (m/s, at most ``v_max``; the planner's default cruise)."""
+    only), with the speed cap ``shield_speed`` (m/s, at most ``v_max``; the planner's default cruise).
+    Rewards (finite numbers): ``reward_collision``, ``reward_goal``, ``reward_per_step`` (the module docstring) and
+    ``reward_progress``, the dense progress term: reward per metre of goal distance closed during the step (from the
+    mover's position at the step's start to its goal then, against its distance to that goal at the step's end),
+    added to ``reward_per_step`` for an active mover that neither collided nor reached its goal; 0 (default): off,
+    the sparse reward bit for bit."""
 
     num_movers: int = 64
     layout: Any = None
@@ -158,6 +169,7 @@ class SwarmConfig:
     reward_goal: float = 20.0
     reward_collision: float = -20.0
     reward_per_step: float = -1.0
+    reward_progress: float = 0.0
     on_collision: str = "respawn"
     max_episode_steps: int | None = None
     k: int = 8
@@ -219,9 +231,11 @@ class SwarmConfig:
         m = self.max_episode_steps
         if m is not None and (isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1):
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {m!r}")
-        for name in ("reward_goal", "reward_collision", "reward_per_step"):
-            if not np.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+        for name in ("reward_goal", "reward_collision", "reward_per_step", "reward_progress"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not (
+                    np.isfinite(value)):
+                raise ValueError(f"{name} must be finite (a number), got {value!r}")
 
     def make_layout(self) -> Layout:
         if self.layout is None:
@@ -313,7 +327,11 @@ class SwarmEnv(MagwarpVecEnv):
         rule = SwarmRewards()
         rule.threshold, rule.reward_goal = float(cfg.threshold_pos), float(cfg.reward_goal)
         rule.reward_collision, rule.reward_per_step = float(cfg.reward_collision), float(cfg.reward_per_step)
+        rule.reward_progress = float(cfg.reward_progress)
         self._rule = rule
+        # the progress reward's d_before: each mover's goal distance at the step's start (refreshed only when on)
+        self.goal_dist = torch.zeros(n, m, device=dev)
+        self._goal_dist_wp = wp.from_torch(self.goal_dist)
         self.stations = None
         if cfg.stations is not None:
             from magwarp.swarm.stations import Stations
@@ -526,6 +544,7 @@ class SwarmEnv(MagwarpVecEnv):
         self.goal_pending.copy_(torch.where(movers, goal_left, self.goal_pending))
         self.num_steps.masked_fill_(mask, 0)
         self.collected_goals.masked_fill_(mask[:, None], 0)
+        self._refresh_goal_dist()
         if self.benchmark_metrics is not None:
             self.benchmark_metrics.episode_reset(mask)
 
@@ -600,7 +619,7 @@ class SwarmEnv(MagwarpVecEnv):
         with on_torch_stream(self.sim.device):
             wp.launch(evaluate_movers, dim=(n, m), device=self.sim.device,
                       inputs=[self._rule, self.sim.state.flags_any, self.sim.state.pos, self._goals_wp,
-                              *self._task_wp[:3]],
+                              *self._task_wp[:3], self._goal_dist_wp],
                       outputs=[w(agent_reward), w(mover_col), w(wall_col), w(collided), w(reached), w(job_done),
                                *self._task_wp[3:], w(collected), xy])
         reward, terminated, truncated = torch.empty(n, device=dev), flags(n), flags(n)
@@ -631,6 +650,18 @@ class SwarmEnv(MagwarpVecEnv):
             info["respawn_pending"] = self._respawn(self._want_respawn)
         else:
             info["respawn_pending"] = self.respawn_pending.clone()
+        self._refresh_goal_dist()
+
+    def _refresh_goal_dist(self) -> None:
+        """The progress reward's ``d_before`` (``goal_dist``): every mover's distance to its goal now, after the
+        step's new goals and respawns or a reset (one launch on the current stream; none with ``reward_progress``
+        0)."""
+        if self._rule.reward_progress == 0.0:
+            return
+        sim = self.sim
+        with on_torch_stream(sim.device):
+            wp.launch(goal_distances, dim=(self.num_envs, self.num_movers), device=sim.device,
+                      inputs=[sim.state.pos, self._goals_wp], outputs=[self._goal_dist_wp])
 
     def _respawn(self, want: torch.Tensor) -> torch.Tensor:
         """Re-place the movers in ``want`` at free spots (clear of every other mover) and restart them at rest, from
