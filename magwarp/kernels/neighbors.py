@@ -293,6 +293,19 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, mer
         return D, I
 
     @wp.func
+    def neighbour_slot(j: int, rows_pos: Any, rows_vel: Any, p: wp.vec3, v: wp.vec3):
+        """Slot of neighbour ``j`` (-1: none): its x/y position and velocity relative to the mover, and its mask flag
+        (zeros and 0 for none)."""
+        slot = wp.vec4(0.0)
+        flag = float(0.0)
+        if j >= 0:
+            q = rows_pos[j]
+            u = rows_vel[j]
+            slot = wp.vec4(q[0] - p[0], q[1] - p[1], u[0] - v[0], u[1] - v[1])
+            flag = 1.0
+        return slot, flag
+
+    @wp.func
     def write_slots(
         w: int, m: int, p: wp.vec3, v: wp.vec3, I: Any, rows_pos: Any, rows_vel: Any,
         out: Any, index: Any, row: int,
@@ -304,13 +317,7 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, mer
             j = I[s]
             index[row, s] = j
             col = BASE + 5 * s
-            slot = wp.vec4(0.0)
-            flag = float(0.0)
-            if j >= 0:
-                q = rows_pos[j]
-                u = rows_vel[j]
-                slot = wp.vec4(q[0] - p[0], q[1] - p[1], u[0] - v[0], u[1] - v[1])
-                flag = 1.0
+            slot, flag = neighbour_slot(j, rows_pos, rows_vel, p, v)
             for e in range(4):
                 out[row, col + e] = slot[e]
                 finite = finite and wp.isfinite(slot[e])
@@ -366,13 +373,7 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, mer
         if wp.static(K > 0):
             for s in range(wp.static(K)):
                 j = I[s]
-                slot = wp.vec4(0.0)
-                flag = float(0.0)
-                if j >= 0:
-                    q = rows_pos[j]
-                    u = rows_vel[j]
-                    slot = wp.vec4(q[0] - p[0], q[1] - p[1], u[0] - v[0], u[1] - v[1])
-                    flag = 1.0
+                slot, flag = neighbour_slot(j, rows_pos, rows_vel, p, v)
                 for e in range(wp.static(4)):
                     row[BASE + 5 * s + e] = slot[e]
                     finite = finite and wp.isfinite(slot[e])
