@@ -37,14 +37,18 @@ def _runs(layout, mover, movers, worlds, seed, lanes, density, tries, calls_seed
 @pytest.mark.parametrize("shape", ["circle", "box"])
 @pytest.mark.parametrize("density", [0.1, 0.6])
 def test_lanes_place_as_the_default_shape(rng, cpu_blocks, shape, density):  # noqa: F811
-    layout = random_layout(rng, 8, 8, holes=0.15)
     mover = MoverSpec(collision_shape=shape)
-    seed = int(rng.integers(1 << 20))
-    movers = int(rng.choice([13, 16, 21]))
-    args = (layout, mover, movers, 4, seed)
-    want = _runs(*args, None, density, 2, seed)
-    left = torch.stack(want[2::2])
-    assert left.any() and (~left).any(), f"{rng}: the test needs movers placed and movers left"
+    for _ in range(8):  # a draw where some requests are placed and some are left (a sparse one may place them all)
+        layout = random_layout(rng, 8, 8, holes=0.15)
+        seed = int(rng.integers(1 << 20))
+        movers = int(rng.choice([13, 16, 21]))
+        args = (layout, mover, movers, 4, seed)
+        want = _runs(*args, None, density, 2, seed)
+        left = torch.stack(want[2::2])
+        if left.any() and (~left).any():
+            break
+    else:
+        pytest.fail(f"{rng}: 8 draws without both placed and left movers")
     check_placement(layout, mover, 0.0, want[1].numpy(), rng)  # after the first call (hold)
     for lanes in (1, 2, 4, 8, 32):
         got = _runs(*args, lanes, density, 2, seed)
