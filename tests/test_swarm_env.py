@@ -98,6 +98,12 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
         reach_lo, reach_hi = (np.linalg.norm(r["pos"] - before["goals"], axis=-1) <= cfg.threshold_pos
                               for r in (lo, hi))
         ambiguous = (np.abs(dist - cfg.threshold_pos) < 1e-4) | (reach_lo != reach_hi)
+        # "end": a world the two sizes stop at different cycles may stop at either with the nominal size, with
+        # different movers flagged in its last cycle (seed 1956064393938339179): undecidable, not compared
+        split = np.zeros(n, dtype=bool)
+        if mode == "end":
+            split = np.abs(lo["pos"] - hi["pos"]).max(axis=(1, 2)) > 1e-6
+            ambiguous = ambiguous | split[:, None]
         reached = (dist <= cfg.threshold_pos) & active & ~collided & ~before["goal_pending"]
         goals_reached += int(reached[~ambiguous].sum())
         step_reward = np.full((n, m), cfg.reward_per_step)
@@ -112,15 +118,16 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
                                        err_msg=f"{rng}: per-mover rewards differ")
         else:
             assert np.array_equal(got[~ambiguous], want[~ambiguous]), f"{rng}: per-mover rewards differ"
-        assert np.array_equal(info["mover_collision"].numpy(), (flags & 1) != 0), f"{rng}: mover collision flags"
-        assert np.array_equal(info["wall_collision"].numpy(), (flags & 2) != 0), f"{rng}: wall collision flags"
+        ok = ~split
+        assert np.array_equal(info["mover_collision"].numpy()[ok], (flags[ok] & 1) != 0), f"{rng}: mover flags"
+        assert np.array_equal(info["wall_collision"].numpy()[ok], (flags[ok] & 2) != 0), f"{rng}: wall flags"
         if not ambiguous.any():
             assert np.allclose(reward.numpy(), want.sum(axis=1), atol=1e-2 * max(prog, 1.0)), f"{rng}: world rewards"
 
         after = env_state(env)
         if mode == "end":
-            assert np.array_equal(terminated.numpy(), collided.any(axis=1)), f"{rng}: terminations differ"
-            assert np.array_equal(info["agent_terminated"].numpy(), collided | terminated.numpy()[:, None])
+            assert np.array_equal(terminated.numpy()[ok], collided.any(axis=1)[ok]), f"{rng}: terminations differ"
+            assert np.array_equal(info["agent_terminated"].numpy()[ok], (collided | terminated.numpy()[:, None])[ok])
         else:
             assert not terminated.any() and not truncated.any()
             assert np.array_equal(info["agent_terminated"].numpy(), collided), f"{rng}: agent terminations differ"
