@@ -109,7 +109,7 @@ from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies, max_registers
 from magwarp.swarm.observations import LocalObservations
 from magwarp.swarm.placement import Placer, on_torch_stream
-from magwarp.swarm.safety import SAFE_SPEED, build_safety
+from magwarp.swarm.safety import SAFE_SPEED, build_safety, clip_norm
 
 __all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
 
@@ -564,15 +564,12 @@ class SwarmEnv(MagwarpVecEnv):
         pos, vel = sim.pos[..., :2], sim.vel[..., :2]
         a_max, step = safety.a_max, safety.step
         # the velocity after one step of the action as the simulator applies it (norm-clipped at a_max)
-        norm = action.norm(dim=-1, keepdim=True)
-        acc = torch.where(norm > a_max, action * (a_max / norm.clamp_min(1e-9)), action)
+        acc = clip_norm(action, a_max)
         wanted = vel + step * acc
         near.compute(sim.state.pos, sim.state.vel)
         safe, passes = safety.choose(vel, wanted, near.rel_pos, near.rel_vel, near.mask, pos)
         # the acceleration that reaches the safe velocity within the step, within the limit (the planner's step 4)
-        cmd = (safe - vel) / step
-        norm = cmd.norm(dim=-1, keepdim=True)
-        cmd = torch.where(norm > a_max, cmd * (a_max / norm.clamp_min(1e-9)), cmd)
+        cmd = clip_norm((safe - vel) / step, a_max)
         active = ~passes & (self.stopped == 0)
         delta = torch.where(active, (cmd - acc).norm(dim=-1), 0.0)
         self._shield_info = {"shield_active": active, "shield_delta": delta}

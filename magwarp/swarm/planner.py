@@ -55,7 +55,8 @@ import torch
 
 from magwarp.swarm.env import SwarmEnv
 from magwarp.swarm.observations import ray_directions
-from magwarp.swarm.safety import COMMIT_BRAKE, SAFE_K, SAFE_MARGIN, SAFE_SPEED, build_safety, collision_distances
+from magwarp.swarm.safety import (COMMIT_BRAKE, SAFE_K, SAFE_MARGIN, SAFE_SPEED, build_safety, clip_norm,
+                                  collision_distances)
 from magwarp.swarm.traffic import LaneField, lanes_fit
 
 __all__ = ["SwarmPlanner", "TRAFFIC", "orca_lines", "solve_lines", "stop_speed"]
@@ -113,8 +114,7 @@ def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float,
     program (constraints added one by one; when the new one is violated, the best point on its line that keeps the
     earlier ones). Where the lines have no common point, the last feasible velocity is kept and ``ok`` is false.
     O(len(lines)^2) tensor operations, each over every mover at once."""
-    n = v_pref.norm(dim=-1, keepdim=True)
-    v = torch.where(n > max_speed, v_pref * (max_speed / n.clamp_min(1e-9)), v_pref)
+    v = clip_norm(v_pref, max_speed)
     ok = torch.ones(v.shape[:-1], dtype=torch.bool, device=v.device)
     lines = list(lines)
     for i, (p_i, d_i, live_i) in enumerate(lines):
@@ -331,6 +331,4 @@ class SwarmPlanner:
             near.compute(sim.state.pos, sim.state.vel)
             v = self.safety(vel, v, near.rel_pos, near.rel_vel, near.mask, pos)
         # 4. the acceleration that reaches v within one env step, within the limit
-        acc = (v - vel) / self.step_time
-        n = acc.norm(dim=-1, keepdim=True)
-        return torch.where(n > self.a_max, acc * (self.a_max / n.clamp_min(1e-9)), acc)
+        return clip_norm((v - vel) / self.step_time, self.a_max)
