@@ -28,7 +28,7 @@ import warp as wp
 
 from magwarp.magnetics.commutation import Commutation, CommutationOptions, vec6f
 from magwarp.magnetics.cycle import CycleOutputs, CycleParams, cycle_buffers, cycle_mover
-from magwarp.magnetics.drive import AUX_DIM, store_wrench, store_wrench_kernel
+from magwarp.magnetics.drive import AUX_DIM, launch_store, store_wrench
 from magwarp.magnetics.exact import vec6d
 from magwarp.magnetics.fast_cycle import FastCycle, resolve_cycle
 from magwarp.magnetics.geometry import MagneticParams, MagneticsError
@@ -175,42 +175,42 @@ class CoilActuator:
         self._fast = FastCycle(self.model, self.commutation).reserve(n) if self.cycle == "fast" else None
         sim.add_cycle_hook(self._before_cycle, before=True)
 
-    def _columns(self) -> None:
-        s, dev = self.sim.state, self.sim.device
-        wp.launch(pose64_kernel, dim=(self.sim.num_worlds, self.sim.num_movers), device=dev,
+    def _pose64(self) -> None:
+        """The poses into the flat float64 arrays of the wrench model; the coil counts zeroed."""
+        s = self.sim.state
+        wp.launch(pose64_kernel, dim=(self.sim.num_worlds, self.sim.num_movers), device=self.sim.device,
                   inputs=[s.pos, s.quat], outputs=[self._pos, self._quat, self._count])
+
+    def _wanted64(self) -> None:
+        wp.launch(wanted64_kernel, dim=self._wanted.shape[0], device=self.sim.device, inputs=[self._wanted],
+                  outputs=[self._wanted_d])
+
+    def _columns(self) -> None:
+        self._pose64()
         self.model.columns(self._pos, self._quat, self._ids, self._gamma, self._count, zero_count=False)
 
     def _solve_wanted(self) -> None:
-        wp.launch(wanted64_kernel, dim=self._wanted.shape[0], device=self.sim.device, inputs=[self._wanted],
-                  outputs=[self._wanted_d])
+        self._wanted64()
         self.commutation.solve(self._gamma, self._ids, self._count, self._wanted_d, self._res)
 
     def _before_cycle(self, sim) -> None:
-        if self.mode == "wrench" and self._fast is not None:  # poses and wrenches in float64, the fast cycle, store
-            s = sim.state
-            wp.launch(pose64_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device, inputs=[s.pos, s.quat],
-                      outputs=[self._pos, self._quat, self._count])
-            wp.launch(wanted64_kernel, dim=self._wanted.shape[0], device=sim.device, inputs=[self._wanted],
-                      outputs=[self._wanted_d])
-            self._fast.run(self._pos, self._quat, self._wanted_d, self._res, self._count, self._ids, self._gamma)
-            wp.launch(store_wrench_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device,
-                      inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
-                      outputs=[s.force_aux, self._energy])
-            return
-        if self.mode == "wrench":  # one launch: look-up, commutation, store
+        if self.mode == "wrench" and self._fast is None:  # one launch: look-up, commutation, store
             wp.launch_tiled(wrench_cycle_kernel, dim=[self._wanted.shape[0]], block_dim=self.commutation.block_dim,
                             device=sim.device, inputs=[self._cycle, self._dt, sim.state.pos, sim.state.quat,
                                                        self._wanted],
                             outputs=[self._outputs, sim.state.force_aux, self._energy])
             return
-        self._columns()
-        wp.launch(apply_currents_kernel, dim=self._command.shape[0], device=sim.device,
-                  inputs=[self.commutation.resistance, self.commutation.limit, self._gamma, self._ids, self._command],
-                  outputs=[self._res.currents, self._res.saturated, self._res.delivered, self._res.loss])
-        wp.launch(store_wrench_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device,
-                  inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
-                  outputs=[sim.state.force_aux, self._energy])
+        if self.mode == "wrench":  # poses and wrenches in float64, the fast cycle
+            self._pose64()
+            self._wanted64()
+            self._fast.run(self._pos, self._quat, self._wanted_d, self._res, self._count, self._ids, self._gamma)
+        else:
+            self._columns()
+            wp.launch(apply_currents_kernel, dim=self._command.shape[0], device=sim.device,
+                      inputs=[self.commutation.resistance, self.commutation.limit, self._gamma, self._ids,
+                              self._command],
+                      outputs=[self._res.currents, self._res.saturated, self._res.delivered, self._res.loss])
+        launch_store(sim, self._dt, self._res, self._energy)
 
     def refresh(self) -> None:
         """Find the windows and columns at the current poses now (e.g. after a reset), so that :attr:`coil_ids`

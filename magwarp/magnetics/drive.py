@@ -212,6 +212,13 @@ def store_wrench_kernel(
     store_wrench(w, m, dt, delivered[i], loss[i], flags[i], force_aux, energy)
 
 
+def launch_store(sim, dt: float, res, energy: wp.array) -> None:
+    """:func:`store_wrench_kernel` over ``sim``'s movers: the commutation result ``res``'s realised wrench, loss and
+    flags into ``force_aux``, the loss into ``energy``."""
+    wp.launch(store_wrench_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device,
+              inputs=[dt, res.delivered, res.loss, res.flags], outputs=[sim.state.force_aux, energy])
+
+
 @wp.struct
 class DriveParams:
     """The in-step drive's parameters (the step kernels' actuator argument): the cycle's model and outputs, the
@@ -305,9 +312,7 @@ class MagneticDrive:
                               s.quat, s.vel, s.omega, s.acc],
                       outputs=[self._pos, self._quat, self._wanted])
             self._fast.run(self._pos, self._quat, self._wanted, self._res, self._count, self._ids)
-            wp.launch(store_wrench_kernel, dim=(sim.num_worlds, sim.num_movers), device=sim.device,
-                      inputs=[self._dt, self._res.delivered, self._res.loss, self._res.flags],
-                      outputs=[s.force_aux, self._energy])
+            launch_store(sim, self._dt, self._res, self._energy)
             return
         wp.launch_tiled(drive_cycle_kernel, dim=[sim.num_worlds * sim.num_movers], block_dim=self.commutation.block_dim,
                         device=sim.device,
