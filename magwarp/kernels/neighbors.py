@@ -150,13 +150,12 @@ MAX_WORLD_BLOCK = 256
 #: the most movers per world for which the CPU scans the whole world by default (above it the grid is faster: at 64
 #: worlds, world vs grid search 1.95 vs 2.1-2.4 ms with 64 movers, 3.2-3.3 vs 3.4 with 100, 10.3 vs 9.4 with 256)
 MAX_WORLD_SCAN_CPU = 128
-#: the world search's default limit on CUDA. On the H100 with the branch-free slot merge and the closed-form rays (the
-#: CUDA defaults since 2026-12-06) it took 0.25 ms against the grid's 1.15 ms at 16,384 worlds x 64 movers and 0.81
-#: against 1.74 at 100 movers (``python benchmarks/swarm_obs.py --device cuda:0``, swarm_obs_s34_gpu.json); before
-#: the merge, 0.75 / 1.96 ms, and 7.13 against the grid's 4.28 at 256 movers (each lane scans every mover of its
-#: world: O(M^2) per world; swarm_fused_gpu_*.json, 2026-11-25). Above 100 movers it is not measured with the merge:
-#: the grid stays the default there.
-WORLD_SEARCH_CUDA = 100
+#: the world search's default limit on CUDA: every size the block-per-world kernel holds. On the H100 with the
+#: branch-free slot merge and the closed-form rays (the CUDA defaults since 2026-12-06) it took 0.25 ms against the
+#: grid's 1.11 ms at 16,384 worlds x 64 movers, 0.78 against 1.70 at 100 and 2.99 against 4.25 at 256, the same rows
+#: (``python benchmarks/swarm.py --device cuda:0 --fused-sweep --fused-movers 256 --fused-worlds 16384``,
+#: swarm_fused_s35_*_gpu.json); before the merge the grid won at 256 (7.13 against 4.28 ms, 2026-11-25).
+WORLD_SEARCH_CUDA = MAX_WORLD_BLOCK
 
 
 @functools.cache

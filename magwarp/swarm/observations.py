@@ -43,7 +43,7 @@ def ray_directions(num_rays: int) -> np.ndarray:
 
 class LocalObservations:
     """Neighbour and wall observations for ``num_worlds`` worlds of ``num_movers`` movers on ``layout``. ``search``:
-    ``"grid"``, ``"world"`` (up to 256 movers per world) or None (``"world"`` up to 100 movers per world on CUDA and
+    ``"grid"``, ``"world"`` (up to 256 movers per world) or None (``"world"`` up to 256 movers per world on CUDA and
     128 on the CPU, where it was measured faster, else ``"grid"``): how the k nearest are found; the rows are the
     same."""
 
@@ -66,7 +66,7 @@ class LocalObservations:
         self.num_worlds, self.num_movers = int(num_worlds), int(num_movers)
         self.device = wp.get_device(device)
         dev = self.device
-        # every mover of the world for small worlds (on CUDA up to 100: a block per world, positions in shared memory;
+        # every mover of the world for small worlds (on CUDA up to 256: a block per world, positions in shared memory;
         # on the CPU up to 128: a thread per mover), no grid to build; else the grid's neighbouring cells
         most = knb.WORLD_SEARCH_CUDA if dev.is_cuda else knb.MAX_WORLD_SCAN_CPU
         self.search = search or ("world" if self.num_movers <= most else "grid")
