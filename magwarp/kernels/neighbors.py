@@ -143,8 +143,6 @@ OWN_CARRY = 4  # carrying flag (1 column, last)
 #: how the observation kernels find the k nearest movers: the uniform grid's neighbouring cells, or every mover of
 #: the world (a block per world on CUDA, the world's positions in shared memory)
 SEARCHES = ("grid", "world")
-#: how the staged block-per-world observation kernel fills its staging tiles (see make_observation_kernel)
-STAGINGS = ("barrier", "vector")
 #: the most movers per world the block-per-world kernel holds (one lane per mover)
 MAX_WORLD_BLOCK = 256
 #: the most movers per world for which the CPU scans the whole world by default (above it the grid is faster: at 64
@@ -339,62 +337,12 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, mer
             finite = finite and wp.isfinite(d)
         return finite
 
-    DIM = BASE + 5 * K + R
-    Row = wp.types.vector(length=max(DIM, 1), dtype=wp.float32)
-
-    @wp.func
-    def row_vector(
-        w: int, m: int, p: wp.vec3, v: wp.vec3, I: Any, rows_pos: Any, rows_vel: Any,
-        acc: wp.array2d(dtype=wp.vec2), goals: wp.array2d(dtype=wp.vec2), carrying: wp.array2d(dtype=wp.bool),
-        tiles: wp.array2d(dtype=wp.int32), tile_size: float, dirs: wp.array(dtype=wp.vec2), max_range: float,
-    ):
-        """Mover ``m``'s whole row in registers (every index a constant): the values of :func:`own_state`,
-        :func:`write_slots` and :func:`write_rays` by the same float operations, and whether they are finite (the
-        same entries checked)."""
-        row = Row()
-        finite = bool(True)
-        if wp.static(WITH_STATE):
-            g = goals[w, m]
-            row4 = wp.vec4(v[0], v[1], g[0] - p[0], g[1] - p[1])
-            for e in range(wp.static(4)):
-                row[e] = row4[e]
-                finite = finite and wp.isfinite(row4[e])
-        if wp.static(WITH_ACC):
-            a = acc[w, m]
-            row[4] = a[0]
-            row[5] = a[1]
-            finite = finite and wp.isfinite(a[0]) and wp.isfinite(a[1])
-        if wp.static(WITH_CARRY):
-            cv = float(0.0)
-            if carrying[w, m]:
-                cv = 1.0
-            row[BASE - 1] = cv
-        if wp.static(K > 0):
-            for s in range(wp.static(K)):
-                j = I[s]
-                slot, flag = neighbour_slot(j, rows_pos, rows_vel, p, v)
-                for e in range(wp.static(4)):
-                    row[BASE + 5 * s + e] = slot[e]
-                    finite = finite and wp.isfinite(slot[e])
-                row[BASE + 5 * s + 4] = flag
-        if wp.static(R > 0):
-            p2 = wp.vec2(p[0], p[1])
-            for r in range(wp.static(R)):
-                if wp.static(RECT):
-                    d = ray_to_rect(tiles.shape[0], tiles.shape[1], tile_size, p2, dirs[r], max_range)
-                else:
-                    d = ray_to_wall(tiles, tile_size, p2, dirs[r], max_range)
-                row[BASE + 5 * K + r] = d
-                finite = finite and wp.isfinite(d)
-        return row, finite
-
-    return own_state, nearest, write_slots, write_rays, row_vector, DIM
+    return own_state, nearest, write_slots, write_rays, BASE + 5 * K + R
 
 
 @functools.cache
 def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid", block_dim: int = 0,
-                           unrolled: bool = True, staged: bool = False, merge: bool = False, rect: bool = False,
-                           staging: str = "barrier"):
+                           unrolled: bool = True, staged: bool = False, merge: bool = False, rect: bool = False):
     """The fused observation kernel for fixed ``k``, ``num_rays`` and own-state parts ``own`` (bits of
     :data:`OWN_STATE`, :data:`OWN_ACC`, :data:`OWN_CARRY`). Row of a mover: its own state, then per neighbour slot
     (relative x, y, relative vx, vy, mask; nearest first, ties by the lower index; zeros in padded slots), then
@@ -413,12 +361,6 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
       scanning its world's rows of ``pos`` (the CPU shape). ``staged`` (block shape only): the block's rows are
       written into shared memory first (one barrier per column) and stored to ``out`` / ``index`` together, each
       lane writing consecutive addresses, instead of each lane writing its own row (addresses a row apart).
-      ``staging`` (:data:`STAGINGS`; staged only): how the rows reach the staging tiles: ``"barrier"``, element by
-      element (each element assignment of a shared tile ends in a block barrier: about 60 per call at k = 8, 8
-      rays); ``"vector"``, each lane's whole row built in registers (a vector, constant indices), the block's rows
-      assigned at once as one register tile (``wp.tile`` of the vectors: one barrier) into a column-major staging
-      tile padded to ``block_dim + 1`` columns (lane ``t``'s element ``e`` at ``e * (block_dim + 1) + t``: no bank
-      conflict either way), stored through its transposed view (coalesced, a float per lane); the same rows.
 
     ``unrolled``: how a candidate enters the sorted slots: an unrolled compare-and-swap chain (constant indices: the
     slots stay in registers on CUDA) or a shift from the back (fewer steps where the slots sit in a cache: the CPU);
@@ -432,17 +374,12 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
     if search not in SEARCHES:
         raise ValueError(f"search must be one of {SEARCHES}, got {search!r}")
     K, R = int(k), int(num_rays)
-    if staging not in STAGINGS:
-        raise ValueError(f"staging must be one of {STAGINGS}, got {staging!r}")
-    own_state, nearest, write_slots, write_rays, row_vector, DIM = _row_funcs(K, R, int(own), search, bool(unrolled),
+    own_state, nearest, write_slots, write_rays, DIM = _row_funcs(K, R, int(own), search, bool(unrolled),
                                                                   bool(merge), bool(rect))
     KK = max(K, 1)
     TILED = search == "world" and int(block_dim) > 0
     STAGED = TILED and bool(staged)
-    VECTOR = STAGED and staging == "vector"
-    STAGED = STAGED and not VECTOR  # element by element
     BLOCK = max(int(block_dim), 1)
-    PADDED = BLOCK + 1  # the vector staging tiles' row stride (lane t's element e: bank (e + t) mod 32)
     options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
 
     @wp.kernel(module="unique", enable_backward=False, module_options=options)
@@ -483,33 +420,6 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
         p = pos[w, m]
         v = vel[w, m]
         finite = bool(True)
-        if wp.static(VECTOR):
-            # every lane (idle ones too: their rows fall past the world's and are not stored) builds its row in
-            # registers, then the block assigns them to the padded column-major staging tiles at once and stores
-            # their transposed views
-            if wp.static(K > 0):
-                # every entry assigned below: no zero fill (and its barrier)
-                rows_pos = wp.tile_empty(shape=BLOCK, dtype=wp.vec2, storage="shared")
-                rows_vel = wp.tile_empty(shape=BLOCK, dtype=wp.vec2, storage="shared")
-                wp.tile_assign(rows_pos, wp.tile(wp.vec2(p[0], p[1]), preserve_type=True))
-                wp.tile_assign(rows_vel, wp.tile(wp.vec2(v[0], v[1]), preserve_type=True))
-                D, I = nearest(rows_pos, w, m, M, p, radius * radius, grid, reach, head, next_in_cell)
-                row, finite = row_vector(w, m, p, v, I, rows_pos, rows_vel, acc, goals, carrying, tiles, tile_size,
-                                         dirs, max_range)
-            else:  # no slots: the index and the rows of positions unused
-                row, finite = row_vector(w, m, p, v, index[w, m], pos[w], vel[w], acc, goals, carrying, tiles,
-                                         tile_size, dirs, max_range)
-            if wp.static(DIM > 0):
-                cols_out = wp.tile_empty(shape=(DIM, PADDED), dtype=wp.float32, storage="shared")
-                wp.tile_assign(cols_out, wp.tile(row))
-                wp.tile_store(out[w], wp.tile_transpose(wp.tile_view(cols_out, offset=(0, 0), shape=(DIM, BLOCK))))
-            if wp.static(K > 0):
-                cols_index = wp.tile_empty(shape=(KK, PADDED), dtype=wp.int32, storage="shared")
-                wp.tile_assign(cols_index, wp.tile(I))
-                wp.tile_store(index[w], wp.tile_transpose(wp.tile_view(cols_index, offset=(0, 0), shape=(KK, BLOCK))))
-            if live and not finite:
-                nonfinite[w] = 1
-            return
         if wp.static(STAGED):
             # every lane (idle ones too: their rows fall past the world's and are not stored) writes its row into
             # the staging tiles, then the block stores them

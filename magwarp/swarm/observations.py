@@ -81,12 +81,6 @@ class LocalObservations:
         #: observation of 16,384 worlds x 64 movers took 0.75 ms staged against 1.23 ms not (benchmarks/swarm.py,
         #: swarm_fused_gpu_64.json, 2026-11-25)
         self.staged = True
-        #: how the staged kernel fills its staging tiles (:data:`~magwarp.kernels.neighbors.STAGINGS`; the same rows):
-        #: ``"barrier"``, element by element (a block barrier per element: about 60 per call at k = 8, 8 rays), or
-        #: ``"vector"``, each lane's row built in registers and the block's rows assigned at once (one barrier) to a
-        #: padded column-major staging tile. ``"barrier"`` stays the default until ``"vector"`` is timed on a GPU
-        #: (``benchmarks/swarm_obs.py``'s ``+vec`` variants)
-        self.staging = "barrier"
         #: the world search merges every candidate into the sorted slots with no branch (they come in index order;
         #: the same slots as the chain or the shift, see make_observation_kernel); off: the chain or the shift
         #: (``unrolled``), entered by a branch only for a kept candidate. On by default on CUDA: on the H100 the
@@ -198,8 +192,7 @@ class LocalObservations:
         if self.rect and not self._full:
             raise ValueError("rect rays need a layout with every tile of its rectangle")
         kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block, self.unrolled,
-                                              bool(block) and self.staged, bool(self.merge), bool(self.rect),
-                                              self.staging if block and self.staged else "barrier")
+                                              bool(block) and self.staged, bool(self.merge), bool(self.rect))
         with on_torch_stream(dev):
             self.nonfinite.zero_()
             if self.k > 0 and grid:
