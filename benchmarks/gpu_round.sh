@@ -193,7 +193,7 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         2>&1 | tail -20 ;;
     swarm_obs)
       # #18: the observation kernel alone at 16,384 worlds x 64 and x 100 movers, by variant (chain/merge into the
-      # slots, tile walk/closed-form rays, barrier/vector staging, grid) and by part (full, no rays, no neighbours, own
+      # slots, tile walk/closed-form rays, grid) and by part (full, no rays, no neighbours, own
       # state only), each also as a replayed CUDA graph (graph_ms: device time without the host's per-call work)
       timeout 300 python3 benchmarks/swarm_obs.py --device cuda:0 --json "$OUT/swarm_obs_gpu.json" 2>&1 \
         | grep -v "^Module" | tail -70 ;;
@@ -209,9 +209,8 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         --fused-worlds ${FUSED_WORLDS:-1024 4096 8192 16384} --json "$OUT/swarm_fused_gpu_${FUSED_MOVERS:-100}.json" \
         2>&1 | grep -v "^Module" | tail -40 ;;
     followup)
-      # What the device time of 2026-12-06 did not cover (about 10 minutes): the placement's lane shape (#18:
-      # Placer.lanes) and the observation's vector staging (LocalObservations.staging) against today's defaults,
-      # bit for bit; then the swarm step at 64, 100 and 256 movers per world with the defaults of the day
+      # The placement's lane shape (#18: Placer.lanes) and the observation's variants against the defaults, bit for
+      # bit; then the swarm step at 64, 100 and 256 movers per world with the defaults of the day (about 4 minutes)
       bash "$0" swarm_place swarm_obs
       for movers in 64 100 256; do
         FUSED_MOVERS=$movers FUSED_WORLDS=16384 bash "$0" swarm_fused

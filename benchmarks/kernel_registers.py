@@ -152,9 +152,8 @@ def place_figures(arch: int, json_path: str | None) -> int:
 def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
     """Registers and stack of the swarm env's step kernels (#18): the fused step (tiled shape, 64/128/256 threads per
     block, without and with latency, under each register cap; 0: none), the staged observation kernel (with the
-    merge and the closed-form rays: both stagings, with their PTX block barriers) and the placement rounds."""
+    merge and the closed-form rays, with its PTX block barriers) and the placement rounds."""
     from magwarp.kernels import neighbors as knb
-    from magwarp.kernels import placement as kpl
     from magwarp.kernels import swarm_step as kss
     from magwarp.swarm import SwarmEnv
 
@@ -170,10 +169,9 @@ def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
         rows.append({"kernel": f"observe_staged/{block}", "cap": 0,
                      **kernel_figures(knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True),
                                       arch)})
-        for staging in knb.STAGINGS:
-            k = knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True, True, True, staging)
-            rows.append({"kernel": f"observe_staged_merge_rect/{block}" + ("" if staging == "barrier" else "+vec"),
-                         "cap": 0, **kernel_figures(k, arch), "bar_sync": ptx_barriers(k, arch)})
+        k = knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True, True, True)
+        rows.append({"kernel": f"observe_staged_merge_rect/{block}", "cap": 0, **kernel_figures(k, arch),
+                     "bar_sync": ptx_barriers(k, arch)})
     rows += place_rows(arch)
     for r in rows:
         r["arch"] = f"sm_{arch}"

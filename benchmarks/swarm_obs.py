@@ -10,13 +10,10 @@ ray range 1 m: the env's defaults). Variants (the rows of one part are compared 
 * ``world+rect``: the rays in closed form (:func:`~magwarp.kernels.neighbors.ray_to_rect`: the layout is full);
 * ``world+merge``: the branch-free merge of every candidate into the slots;
 * ``world+merge+rect``: both;
-* ``world+merge+rect+vec``: with the vector staging (``LocalObservations.staging = "vector"``: each lane's row
-  built in registers, the block's rows assigned to the staging tiles at once: 4 block barriers per call on sm_90
-  against 70 element by element);
 * ``grid``: the grid search (binning included, three launches), the tile walk.
 
-Parts (``world``, ``world+merge+rect`` and ``world+merge+rect+vec`` only): ``full``; ``no_rays`` (num_rays 0); ``no_nbrs`` (k 0: own state and
-rays); ``own`` (k 0, no rays: the row writes and the launch, a floor). Each time is the median of 5 batches of
+Parts (``world`` and ``world+merge+rect`` only): ``full``; ``no_rays`` (num_rays 0); ``no_nbrs`` (k 0: own state
+and rays); ``own`` (k 0, no rays: the row writes and the launch, a floor). Each time is the median of 5 batches of
 ``--calls`` back-to-back calls (one synchronisation per batch), per call; on CUDA also ``graph_ms``, the
 same call recorded as one CUDA graph and replayed back to back (the kernel's device time, without the host's
 per-call work that the eager time may be bound by).
@@ -39,16 +36,15 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import batched_ms, finish, start_run  # noqa: E402
 
 OCCUPANCY = 0.25  # movers per tile (benchmarks/swarm.py)
-VARIANTS = {  # name: (search, merge, rect, staging)
-    "world": ("world", False, False, "barrier"),
-    "world+rect": ("world", False, True, "barrier"),
-    "world+merge": ("world", True, False, "barrier"),
-    "world+merge+rect": ("world", True, True, "barrier"),
-    "world+merge+rect+vec": ("world", True, True, "vector"),
-    "grid": ("grid", False, False, "barrier"),
+VARIANTS = {  # name: (search, merge, rect)
+    "world": ("world", False, False),
+    "world+rect": ("world", False, True),
+    "world+merge": ("world", True, False),
+    "world+merge+rect": ("world", True, True),
+    "grid": ("grid", False, False),
 }
 PARTS = {"full": (8, 8), "no_rays": (8, 0), "no_nbrs": (0, 8), "own": (0, 0)}  # (k, num_rays)
-PART_VARIANTS = ("world", "world+merge+rect", "world+merge+rect+vec")
+PART_VARIANTS = ("world", "world+merge+rect")
 
 
 def _layout(movers: int):
@@ -95,14 +91,14 @@ def bench(worlds: int, movers: int, device: str, calls: int) -> list[dict]:
     goals = torch.as_tensor(rng.random((worlds, movers, 2)) * ext, dtype=torch.float32, device=tdev)
     rows, ref = [], {}
     for part, (k, rays) in PARTS.items():
-        for name, (search, merge, rect, staging) in VARIANTS.items():
+        for name, (search, merge, rect) in VARIANTS.items():
             if part != "full" and name not in PART_VARIANTS:
                 continue
             if search == "grid" and part != "full":
                 continue
             obs = LocalObservations(layout, worlds, movers, k=k, num_rays=rays, radius=1.0, max_range=1.0,
                                     search=search, device=device)
-            obs.merge, obs.rect, obs.staging = merge, rect, staging
+            obs.merge, obs.rect = merge, rect
             out = torch.empty(worlds, movers, 4 + obs.dim, device=tdev)
 
             def call():
