@@ -5,6 +5,8 @@ Gymnasium, TorchRL and PettingZoo checks in all its views."""
 
 from __future__ import annotations
 
+import json
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -229,3 +231,15 @@ def test_registered_and_the_checkers_pass_in_every_view():
     obs, _ = pz.reset(seed=1)
     assert obs["mover_0"].shape == (20,)
 
+
+def test_ppo_preset_and_paper_run_start_at_the_planner():
+    from magwarp.training import ppo
+    from magwarp.training.paper import PAPER_RUNS
+
+    run = PAPER_RUNS["swarm_residual"]
+    assert run.env_id == "magwarp/SwarmResidual-v0" and run.algo == "ppo"
+    args = ppo.resolve_args(ppo.parse_args(["--env-id", run.env_id, "--device", "cpu", "--minutes", "1"]))
+    assert args.actor_init == "zero"  # its preset, not "Swarm"'s: the mean correction is 0 until the first update
+    train, evaluate = json.loads(run.train_json()), json.loads(run.eval_json())
+    assert train["planner"] == {"traffic": "lanes"} and "planner" not in evaluate  # see paper.py
+    SwarmResidualConfig(**{**train, "num_movers": 16})  # valid options
