@@ -1,7 +1,8 @@
 """magwarp/SwarmResidual-v0: a zero correction is the planner on the shielded swarm env bit for bit (through resets
 and autoresets), the planner runs once per step, the observation is the base env's plus the planner's action, a
 correction adds ``residual_scale * action`` before the shield, bad options are refused, and the env passes the
-Gymnasium, TorchRL and PettingZoo checks in all its views."""
+Gymnasium, TorchRL and PettingZoo checks in all its views; on CUDA the recorded step graph (the planner inside it)
+replays the eager step bit for bit."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import torch
 
 import magwarp  # noqa: F401 - registers the ids
 from magwarp.swarm import FlatSwarmEnv, SwarmEnv, SwarmPlanner, SwarmResidualConfig, SwarmResidualEnv
+from test_swarm_graph import CUDA, _run_twins  # tests/ is on sys.path
 
 SMALL = dict(num_movers=12, layout=np.ones((6, 6)), device="cpu")
 TINY = dict(num_movers=5, layout=np.ones((4, 4)), k=2, num_rays=4, num_cycles=10, device="cpu")
@@ -243,3 +245,16 @@ def test_ppo_preset_and_paper_run_start_at_the_planner():
     train, evaluate = json.loads(run.train_json()), json.loads(run.eval_json())
     assert train["planner"] == {"traffic": "lanes"} and "planner" not in evaluate  # see paper.py
     SwarmResidualConfig(**{**train, "num_movers": 16})  # valid options
+
+
+@pytest.mark.skipif(not CUDA, reason="needs CUDA")
+@pytest.mark.parametrize("ends", [False, True])
+def test_graph_step_matches_eager(rng, ends):
+    """The planner runs inside the env's recorded CUDA graph (its counters and action updated in place): random
+    corrections, the graph replay against the same launches eagerly, through autoresets (a step limit) and a
+    reseeded reset; with the shield off, through respawns too."""
+    options = dict(max_episode_steps=4, planner={"patience": 2}) if ends else dict(shield=False, residual_scale=2.0)
+    counts = _run_twins(rng, 12, 8, reseed_at=8, cls=SwarmResidualEnv, extra=("planner_action", "planner.stuck"),
+                        num_movers=24, occupancy=0.5, **options)
+    assert counts["done" if ends else "respawns"] > 0, f"{rng}"
+
