@@ -258,3 +258,41 @@ def test_graph_step_matches_eager(rng, ends):
                         num_movers=24, occupancy=0.5, **options)
     assert counts["done" if ends else "respawns"] > 0, f"{rng}"
 
+
+def _zero_policy(path: str, env_id: str, train: dict, evaluate: dict | None = None) -> str:
+    """A policy file whose action is zero (a residual policy at its start), with its env options stored."""
+    from magwarp.training.common import RunningMeanStd
+    from magwarp.training.policy import save_policy
+
+    n_obs = 4 + 5 * 8 + 8 + 2  # the default local view, and the planner's action
+    net = torch.nn.Linear(n_obs, 2)
+    torch.nn.init.zeros_(net.weight)
+    torch.nn.init.zeros_(net.bias)
+    save_policy(path, net, RunningMeanStd(n_obs, "cpu"), torch.full((2,), 10.0), squash="clip", env_id=env_id,
+                metadata={"env_kwargs": json.dumps(train), "eval_env_kwargs": evaluate and json.dumps(evaluate)})
+    return path
+
+
+def test_scaling_study_runs_a_residual_policy_on_its_env(tmp_path):
+    """examples/swarm_scaling.py --policy: the policy's env (id and evaluation options, the study's size, layout and
+    seed); a zero correction on the same worlds as the planner row reaches the same goals."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "swarm_scaling", Path(__file__).resolve().parent.parent / "examples" / "swarm_scaling.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    path = _zero_policy(str(tmp_path / "policy.pt"), "magwarp/SwarmResidual-v0",
+                        {"num_movers": 64, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
+                        {"num_movers": 64, "residual_scale": 0.4})
+    env_id, options = study.policy_env_options(path, "auto")
+    assert env_id == "magwarp/SwarmResidual-v0" and options == {"residual_scale": 0.4, "planner": {"traffic": "auto"}}
+    rows = study.study([12], 0.25, 1.2, "cpu", policy=path)
+    assert [r["controller"] for r in rows] == ["planner", "residual"]
+    assert rows[1]["goals"] == rows[0]["goals"] > 0 and rows[1]["collisions"] == 0
+    # a policy that names no env options acts on the plain swarm env
+    plain = _zero_policy(str(tmp_path / "plain.pt"), "magwarp/Swarm-v0", {})
+    assert study.policy_env_options(plain, "lanes") == ("magwarp/Swarm-v0", {})
+    with pytest.raises(SystemExit, match="not a swarm env"):
+        study.policy_env_options(_zero_policy(str(tmp_path / "b0.pt"), "magwarp/TrajectoryPlanningB0-v0", {}), "auto")
