@@ -7,22 +7,26 @@ acceleration is ``planner + residual_scale * action`` (m/s^2), the action in the
 per component, so the correction reaches ``residual_scale * a_max`` (5 m/s^2 by default: a velocity change of up
 to 0.2 m/s per 40 ms step). With the shield on (the default) the sum then passes the env's safety filter
 (:meth:`SwarmEnv._shield <magwarp.swarm.SwarmEnv>`), so no correction can add a collision: a policy only has to
-learn throughput. A zero action is the planner exactly (with the shield: the planner run on ``SwarmEnv(shield=True)``,
-bit for bit), so a policy trained from a zero-initialised actor starts at the planner's numbers;
-``magwarp eval magwarp/SwarmResidual-v0 --policy scripted`` runs the zero correction.
+learn throughput. A zero action is the planner exactly: the planner run on ``SwarmEnv(shield=True)``, bit for bit
+(the shield rarely changes one of the planner's own commands, e.g. one it cannot reach within ``a_max``; a run on the
+unshielded env is the same until it does, then parts from it), so a policy trained from a zero-initialised actor
+starts at the planner's numbers; ``magwarp eval magwarp/SwarmResidual-v0 --policy scripted`` runs the zero
+correction.
 
 Observation: the base env's per-mover observation followed by the planner's action for the current state divided by
 ``a_max`` (2 columns: the policy sees what it corrects). Reward, ends and ``info`` are the base env's.
 
 Why an env and not only a policy: the planner reads the env's state, not the observation (the simulator's positions
 and goals, its own neighbour search within the safety filter's reach), and keeps state between calls (each mover's
-deadlock counter, updated on every call), so it runs inside the env, exactly once per env step: at observation
-time, after the step's goals, respawns and autoresets, into :attr:`SwarmResidualEnv.planner_action`, which the
+deadlock counter, updated on every call), so it runs inside the env, once per env step: at observation time,
+after the step's goals and respawns, into :attr:`SwarmResidualEnv.planner_action`, which the
 observation shows and the next step adds the correction to. Resets keep it consistent: a world that is reset (by
 ``reset()``, a ``reset_mask`` or an autoreset) and a mover that respawns start with the counter of a fresh planner
-(:meth:`SwarmPlanner.reset`), and an autoreset plans only the reset worlds again (the other worlds keep the action
-and counter of the step's observation). The planner's torch operations and Warp launches run on the current stream,
-so on CUDA they are part of the env's recorded step graph.
+(:meth:`SwarmPlanner.reset`). Where worlds can end (``max_episode_steps``, ``on_collision="end"``) the step's
+autoreset plans a second time for the worlds that restart (its action and counters kept for them alone, the other
+worlds keep those of the step's observation; the step has no host sync to skip it when no world ends, so such envs
+run the planner twice a step); the training regime (respawns, no step limit) plans once. The planner's torch
+operations and Warp launches run on the current stream, so on CUDA they are part of the env's recorded step graph.
 
 Every option is a field of :class:`SwarmResidualConfig` (:class:`~magwarp.swarm.SwarmConfig`'s, plus
 ``residual_scale`` and ``planner``, the keyword options of :class:`SwarmPlanner`).
