@@ -25,6 +25,7 @@ ENV_CLASSES = {
     "PushXEnv": "magwarp.envs.push",
     "PushWithObstaclesEnv": "magwarp.envs.push_obstacles",
     "SwarmEnv": "magwarp.swarm.env",
+    "SwarmResidualEnv": "magwarp.swarm.residual",
     "PlatformPoseEnv": "magwarp.envs.platform_pose",
     "CoopPushEnv": "magwarp.envs.coop_push",
     "CoopPushResidualEnv": "magwarp.envs.coop_push_residual",
@@ -72,6 +73,7 @@ def env_ids() -> dict[str, tuple[str, dict]]:
     ids["magwarp/PushWithObstacles-v0"] = ("PushWithObstaclesEnv", {})
     ids["magwarp/Swarm-v0"] = ("SwarmEnv", {})
     ids["magwarp/SwarmMaterialFlow-v0"] = ("SwarmEnv", {"stations": "auto"})
+    ids["magwarp/SwarmResidual-v0"] = ("SwarmResidualEnv", {})
     ids["magwarp/PlatformPose-v0"] = ("PlatformPoseEnv", {})
     ids["magwarp/CoopPush-v0"] = ("CoopPushEnv", {})
     ids["magwarp/CoopPushResidual-v0"] = ("CoopPushResidualEnv", {})

@@ -159,9 +159,10 @@ def _env_ids() -> list[str]:
 
 #: one id per env class (each is built once per session and reused by the action fuzzing)
 REPRESENTATIVES = ["magwarp/TrajectoryPlanningB3-v0", "magwarp/PushBox-v0", "magwarp/PushTB5-v0", "magwarp/PushL-v0",
-                   "magwarp/PushX-v0", "magwarp/PushWithObstacles-v0", "magwarp/Swarm-v0", "magwarp/PlatformPose-v0",
-                   "magwarp/CoopPush-v0", "magwarp/CoopPushResidual-v0", "magwarp/Levitation-v0",
-                   "magwarp/LevitationResidual-v0", "magwarp/PlatformPickPlace-v0", "magwarp/GripperPickPlace-v0"]
+                   "magwarp/PushX-v0", "magwarp/PushWithObstacles-v0", "magwarp/Swarm-v0", "magwarp/SwarmResidual-v0",
+                   "magwarp/PlatformPose-v0", "magwarp/CoopPush-v0", "magwarp/CoopPushResidual-v0",
+                   "magwarp/Levitation-v0", "magwarp/LevitationResidual-v0", "magwarp/PlatformPickPlace-v0",
+                   "magwarp/GripperPickPlace-v0"]
 _ENVS: dict = {}
 
 

@@ -4,6 +4,8 @@ counters (the random streams a graph replays) and the eager path's options."""
 
 from __future__ import annotations
 
+import operator
+
 import numpy as np
 import pytest
 import torch
@@ -99,11 +101,13 @@ def _flat(out, prefix=""):
 STATE = ("pos", "quat", "vel", "omega", "acc", "cmd", "flags_any")
 
 
-def _run_twins(rng, steps: int, worlds: int, reseed_at: int | None = None, **options) -> dict:
+def _run_twins(rng, steps: int, worlds: int, reseed_at: int | None = None, cls=SwarmEnv, extra: tuple[str, ...] = (),
+               **options) -> dict:
     """A graph env and an eager env (graph=False) on CUDA with the same seed and actions: every returned tensor and
-    state field equal after every step (kept returns checked after the next step: they stay valid through it)."""
+    state field equal after every step (kept returns checked after the next step: they stay valid through it).
+    ``cls``: the env class (a SwarmEnv subclass); ``extra``: more of its state to compare (dotted attribute names)."""
     seed = int(rng.integers(1 << 20))
-    envs = [SwarmEnv(worlds, device="cuda:0", seed=seed, check_inputs=False, graph=g, **options) for g in (False, True)]
+    envs = [cls(worlds, device="cuda:0", seed=seed, check_inputs=False, graph=g, **options) for g in (False, True)]
     assert envs[1].step_path == "graph" and envs[0].step_path == "eager (graph=False)"
     counts = {"respawns": 0, "goals": 0, "done": 0}
     kept = None
@@ -124,12 +128,12 @@ def _run_twins(rng, steps: int, worlds: int, reseed_at: int | None = None, **opt
             a, b = (getattr(env.sim, name) for env in envs)
             assert torch.equal(a, b), f"{rng}: step {t}: sim.{name} differs"
         for name in ("goals", "stopped", "respawn_pending", "goal_pending", "collected_goals", "num_steps",
-                     "goal_dist"):
-            a, b = (getattr(env, name) for env in envs)
+                     "goal_dist", *extra):
+            a, b = (operator.attrgetter(name)(env) for env in envs)
             assert torch.equal(a, b), f"{rng}: step {t}: env.{name} differs"
         # the local observation's views follow the replayed graph's observation
-        local = envs[1].local
-        assert torch.equal(local.walls, outs[1]["/0"][..., -local.num_rays:]) or local.num_rays == 0
+        local, width = envs[1].local, envs[1].own_dim + envs[1].local.dim  # (a subclass may add columns after)
+        assert torch.equal(local.walls, outs[1]["/0"][..., width - local.num_rays:width]) or local.num_rays == 0
         kept = {key: (value, value.clone()) for key, value in outs[1].items()}
         counts["respawns"] += int(outs[0]["/4/agent_terminated"].sum())
         counts["goals"] += int(outs[0]["/4/goal_reached"].sum())

@@ -8,6 +8,8 @@
   multi-agent views (:mod:`magwarp.swarm.views`);
 * :class:`SwarmPlanner` (:mod:`magwarp.swarm.planner`): a scripted ORCA planner on the local view, O(k) per mover,
   made provably collision-free by :class:`SafetyFilter` (:mod:`magwarp.swarm.safety`);
+* :class:`SwarmResidualEnv` (:mod:`magwarp.swarm.residual`): the swarm env whose action is a per-mover correction
+  to the planner's (``magwarp/SwarmResidual-v0``: residual RL, the shield on);
 * :class:`SwarmMetrics` / :func:`run_policy` (:mod:`magwarp.swarm.metrics`): throughput, collisions per 1000 goals,
   deadlocked movers, makespan.
 """
@@ -17,7 +19,8 @@ from __future__ import annotations
 import importlib
 
 __all__ = ["Placer", "PlacementError", "LocalObservations", "SwarmEnv", "SwarmConfig", "FlatSwarmEnv",
-           "SwarmTorchRLEnv", "SwarmParallelEnv", "SwarmPlanner", "SafetyFilter", "SwarmMetrics", "run_policy"]
+           "SwarmTorchRLEnv", "SwarmParallelEnv", "SwarmPlanner", "SafetyFilter", "SwarmMetrics", "run_policy",
+           "SwarmResidualEnv", "SwarmResidualConfig"]
 
 _WHERE = {
     "Placer": "placement",
@@ -32,6 +35,8 @@ _WHERE = {
     "SafetyFilter": "safety",
     "SwarmMetrics": "metrics",
     "run_policy": "metrics",
+    "SwarmResidualEnv": "residual",
+    "SwarmResidualConfig": "residual",
 }
 
 

@@ -260,15 +260,20 @@ class SwarmEnv(MagwarpVecEnv):
     """Batched swarm env (see the module docstring). ``SwarmEnv(num_envs, config=None, **options)``."""
 
     benchmark_metrics = None  # a magwarp.metrics tracker, fed once per step (magwarp eval)
+    #: the options' dataclass (a subclass env with more options has its own subclass of :class:`SwarmConfig`)
+    config_type = SwarmConfig
 
     def __init__(self, num_envs: int = 1, config: SwarmConfig | None = None, *, device: str | None = None,
                  seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
                  check_inputs: bool = True, **options):
-        fields = {f.name for f in dataclasses.fields(SwarmConfig)}
+        cls = type(self).config_type
+        if config is not None and not isinstance(config, cls):
+            raise TypeError(f"config of {type(self).__name__} must be a {cls.__name__}, got {type(config).__name__}")
+        fields = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(options) - fields)
         if unknown:
-            raise TypeError(f"unknown SwarmEnv options {unknown}; SwarmConfig has {sorted(fields)}")
-        cfg = dataclasses.replace(config or SwarmConfig(), **options)
+            raise TypeError(f"unknown {type(self).__name__} options {unknown}; {cls.__name__} has {sorted(fields)}")
+        cfg = dataclasses.replace(config or cls(), **options)
         self.config = cfg
         num_envs = as_count(num_envs, "num_envs")
         self.layout = cfg.make_layout()

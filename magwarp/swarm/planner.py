@@ -225,6 +225,19 @@ class SwarmPlanner:
         self.lanes = LaneField(env.layout, self.cruise, pitch=lane_pitch, a_brake=self.a_brake) \
             if traffic == "lanes" else None
 
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Forget the deadlock counter (the planner's only state between calls) of the worlds in ``mask`` (bool
+        ``[num_envs]``), of the movers in ``mask`` (bool ``[num_envs, num_movers]``), or of every mover (None): what
+        a fresh planner has, for worlds or movers that start anew (a reset, a respawn). In place, no host sync."""
+        if mask is None:
+            self.stuck.zero_()
+            return
+        shape = tuple(self.stuck.shape)
+        if mask.dtype != torch.bool or tuple(mask.shape) not in (shape, shape[:1]):
+            raise ValueError(f"mask must be a bool tensor of shape {shape[:1]} (worlds) or {shape} (movers), got "
+                             f"{mask.dtype} {tuple(mask.shape)}")
+        self.stuck.masked_fill_(mask if mask.dim() == 2 else mask[:, None], 0)
+
     def _neighbour_lines(self, vel: torch.Tensor) -> tuple[list, list, list]:
         """ORCA lines, their slack (for ``relax``) and the braking-shield lines of the ``k`` neighbours."""
         local, T = self.env.local, self.step_time
@@ -294,8 +307,9 @@ class SwarmPlanner:
             # deadlock breaking: a mover held still away from its goal for ``patience`` steps steps aside to its
             # right (every mover the same side: two movers head-on pass each other) for ``patience`` steps
             slow = (vel.norm(dim=-1) < 0.05) & (dist[..., 0] > self.env.config.threshold_pos)
-            self.stuck = torch.where(slow | (self.stuck >= self.patience), self.stuck + 1, 0)
-            self.stuck = torch.where(self.stuck >= 2 * self.patience, 0, self.stuck)
+            # in place: the counter a recorded CUDA graph reads and updates (SwarmResidualEnv plans inside its step)
+            stuck = torch.where(slow | (self.stuck >= self.patience), self.stuck + 1, 0)
+            self.stuck.copy_(torch.where(stuck >= 2 * self.patience, 0, stuck))
             escape = (self.stuck >= self.patience)[..., None]
             right = torch.stack([v_pref[..., 1], -v_pref[..., 0]], -1)
         # 2. lines: walls, the braking shield, the neighbours' ORCA lines (nearest first)

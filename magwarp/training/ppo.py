@@ -57,7 +57,12 @@ PRESETS = {
     "CoopPushResidual": dict(num_envs=4096, num_steps=32, num_minibatches=4, gamma=0.99, hidden="256,256",
                              init_log_std=-1.6, lr=1e-4, desired_kl=0.005, actor_init="zero", critic_warmup=10),
     "Push": dict(num_envs=4096, num_steps=25, gamma=0.97, hidden="256,256,128"),
-    # swarms train on the flat agent view: num_envs worlds x num_movers agents (64 x 64 = 4096 by default)
+    # swarms train on the flat agent view: num_envs worlds x num_movers agents (64 x 64 = 4096 by default). The
+    # residual on the planner (magwarp.swarm.residual; before "Swarm", which its id also contains) starts as
+    # CoopPushResidual does: a zero actor (the planner's numbers), a critic trained alone first, noise of std 0.2 of
+    # the correction's range (1 m/s^2 at residual_scale 0.5) and small, KL-capped steps
+    "SwarmResidual": dict(num_envs=64, num_steps=32, gamma=0.98, hidden="256,256", init_log_std=-1.6, lr=1e-4,
+                          desired_kl=0.005, actor_init="zero", critic_warmup=10),
     "Swarm": dict(num_envs=64, num_steps=32, gamma=0.98, hidden="256,256"),
     # levitation (1 kHz steps, 500-step episodes): gamma 0.99 looks 0.1 s ahead (the PD's transient takes ~50 ms);
     # a small initial std, because a free 6-DoF mover 4 mm above the tiles falls or tips within ~25 ms of a bad
