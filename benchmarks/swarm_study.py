@@ -1,0 +1,52 @@
+"""The swarm scalability study (#18) as a benchmark: the scripted planner and a trained shared policy on the same
+worlds at each size (``examples/swarm_scaling.py``'s ``study``: one world of a full square grid at ``--occupancy``
+movers per tile, ``--seconds`` of simulated time from a fresh reset, the policy on the env it was trained on), with
+goals per second per mover, collisions per 1000 goals, deadlocked movers and the share of first goals reached, into
+JSON with the run's provenance and a PNG.
+
+    python benchmarks/swarm_study.py --device cuda:0 --movers 256 1024 4096 --seconds 40 \\
+        --policy /tmp/runs/swarm_residual/policy.pt --json out.json --png out.png
+    python benchmarks/swarm_study.py --device cpu --movers 16 64 --seconds 2                  # smoke: planner only
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+sys.path.insert(0, os.path.join(os.path.dirname(HERE), "examples"))
+
+from common import finish, start_run  # noqa: E402
+from swarm_scaling import plot, study  # noqa: E402
+
+COLUMNS = ("controller", "movers", "tiles", "throughput_per_mover", "throughput", "goals", "collisions_per_1000_goals",
+           "deadlocked", "wall_s")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--movers", type=int, nargs="+", default=[256, 1024])
+    p.add_argument("--occupancy", type=float, default=0.25, help="movers per tile")
+    p.add_argument("--seconds", type=float, default=40.0, help="simulated seconds per size")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--policy", default=None, help="a trained policy.pt (or run folder) beside the planner")
+    p.add_argument("--traffic", default="auto", choices=("auto", "lanes", "free"))
+    p.add_argument("--json", default=None)
+    p.add_argument("--png", default=None)
+    args = p.parse_args(argv)
+    info, _ = start_run(args.device)
+    rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy, args.traffic)
+    for r in rows:
+        r["seconds"], r["occupancy"], r["policy"] = args.seconds, args.occupancy, args.policy
+    if args.png:
+        plot(rows, args.png)
+    return finish(rows, [c for c in COLUMNS if c in rows[0]] + [k for k in rows[0] if k not in COLUMNS
+                                                               and k not in ("seconds", "occupancy", "policy")],
+                  info, args.json)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
