@@ -222,3 +222,12 @@ def test_render_draws_the_worlds():
     env = SwarmEnv(2, num_movers=4, layout=np.ones((3, 3)), k=1, num_rays=0, device="cpu", render_mode="rgb_array")
     img = env.render()
     assert img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8 and img.std() > 0
+
+
+@pytest.mark.parametrize("field,value", [("k", 65), ("num_rays", 2**31), ("k", -1), ("respawn_rounds", 2**31),
+                                         ("goal_rounds", 257), ("reset_rounds", 10**9)])
+def test_config_refuses_sizes_that_would_hang_or_exhaust_memory(field, value):
+    """An observation of 2**31 rays or a step of 2**31 placement rounds is refused by name when the config is built,
+    before anything is allocated (it ran out of memory / hung before)."""
+    with pytest.raises(ValueError, match=f"{field} must be .*got {value}"):
+        SwarmConfig(**{field: value})

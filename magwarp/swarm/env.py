@@ -107,13 +107,15 @@ from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies, max_registers
-from magwarp.swarm.observations import LocalObservations
+from magwarp.swarm.observations import LocalObservations, check_view_sizes
 from magwarp.swarm.placement import Placer, on_torch_stream
 from magwarp.swarm.safety import SAFE_SPEED, build_safety, clip_norm
 
 __all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
 
 COLLISION_MODES = ("respawn", "end")
+#: the most placement rounds of each kind a step runs (each is a launch of every step)
+MAX_ROUNDS = 256
 #: the step's hooks: one replaced on the instance (e.g. a benchmark timing each phase) makes the step run eagerly
 STEP_HOOKS = ("_apply_action", "_evaluate", "_end_step", "_get_obs", "_finish", "_reset_envs", "_respawn")
 
@@ -209,6 +211,11 @@ class SwarmConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("respawn_rounds", "goal_rounds", "reset_rounds"):  # each round is a launch of every step
+            if getattr(self, name) > MAX_ROUNDS:
+                raise ValueError(f"{name} must be at most {MAX_ROUNDS} (placement rounds run inside each step), got "
+                                 f"{getattr(self, name)!r}")
+        check_view_sizes(self.k, self.num_rays)
         if not isinstance(self.graph, (bool, np.bool_)):
             raise ValueError(f"graph must be True or False, got {self.graph!r}")
         if not isinstance(self.shield, (bool, np.bool_)):

@@ -41,6 +41,17 @@ def ray_directions(num_rays: int) -> np.ndarray:
     return np.stack([np.cos(a), np.sin(a)], axis=1)
 
 
+#: the most neighbour slots and wall rays of a row: the kernel unrolls them (each slot lives in registers)
+MAX_SLOTS = 64
+
+
+def check_view_sizes(k, num_rays) -> None:
+    """``k`` and ``num_rays`` as integers in ``[0, MAX_SLOTS]``, or a ValueError naming the bad one."""
+    for name, value in (("k", k), ("num_rays", num_rays)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= MAX_SLOTS:
+            raise ValueError(f"{name} must be an integer in [0, {MAX_SLOTS}], got {value!r}")
+
+
 class LocalObservations:
     """Neighbour and wall observations for ``num_worlds`` worlds of ``num_movers`` movers on ``layout``. ``search``:
     ``"grid"``, ``"world"`` (up to 256 movers per world) or None (``"world"`` up to 256 movers per world on CUDA and
@@ -51,9 +62,7 @@ class LocalObservations:
                  radius: float = 1.0, num_rays: int = 8, max_range: float = 1.0, search: str | None = None,
                  device=None):
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
-        for name, value in (("k", k), ("num_rays", num_rays)):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+        check_view_sizes(k, num_rays)
         for name, value in (("radius", radius), ("max_range", max_range)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
