@@ -471,7 +471,7 @@ class SwarmEnv(MagwarpVecEnv):
 
     @staticmethod
     def _search_key(local: LocalObservations) -> tuple:
-        return (local.search, local.staged, local.tiled, local.unrolled, local.merge, local.rect, local.staging)
+        return (local.search, local.staged, local.tiled, local.unrolled, local.merge, local.rect)
 
     def _graph_step(self):
         """One step by graph replay (slot 0 and 1 alternate); a slot's first step runs eagerly, then is recorded."""
