@@ -171,7 +171,9 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # the lanes' corners where, as here, the crowd is small; scale tests show whether that costs at 1024. Evaluated
     # with the planner's defaults (auto: straight paths at 64 movers, lanes from 256), the planner row's planner.
     # Dense progress reward 5 per metre: under the planner (64 movers, lanes) it is -0.93 +- 0.10 a step between
-    # goals against the goal's +20 (a goal every ~6 s per mover, further than gamma 0.98 sees)
+    # goals against the goal's +20 (a goal every ~6 s per mover, further than gamma 0.98 sees). Result (CPU, 25 min,
+    # 9.6 M agent-steps, benchmarks/swarm_study.py): +12% over the planner at 256 movers for 20 s, but it jams the
+    # crowd over time (80 s: 0.86x at 256, 0.43x at 1024 with 807 movers deadlocked; RESULTS.md): not shipped
     "swarm_residual": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                {"num_movers": 64, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
                                {"num_movers": 64}, "no paper row; the scripted planner (the zero correction)",
