@@ -173,7 +173,8 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # Dense progress reward 5 per metre: under the planner (64 movers, lanes) it is -0.93 +- 0.10 a step between
     # goals against the goal's +20 (a goal every ~6 s per mover, further than gamma 0.98 sees). Result (CPU, 25 min,
     # 9.6 M agent-steps, benchmarks/swarm_study.py): +12% over the planner at 256 movers for 20 s, but it jams the
-    # crowd over time (80 s: 0.86x at 256, 0.43x at 1024 with 807 movers deadlocked; RESULTS.md): not shipped
+    # crowd over time (80 s: 0.86x at 256, 0.43x at 1024 with 807 movers deadlocked; RESULTS.md): not shipped. With
+    # residual_scale 0.25 and gamma 0.995 (CPU, 22 min): 0.97x at 256, 0.61x at 1024 (690 deadlocked)
     "swarm_residual": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                {"num_movers": 64, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
                                {"num_movers": 64}, "no paper row; the scripted planner (the zero correction)",
