@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from magwarp._vectors import clip_norm
 from magwarp.envs.coop_push import GRAVITY, _OBJECT_OBS
 
 __all__ = ["CoopPushPolicy", "CoopPushCore", "CoopPushResidualPolicy"]
@@ -41,10 +42,6 @@ def _unit(v: torch.Tensor) -> torch.Tensor:
 
 def _perp(v: torch.Tensor) -> torch.Tensor:
     return torch.stack([-v[..., 1], v[..., 0]], dim=-1)
-
-
-def _clip_norm(v: torch.Tensor, limit: float) -> torch.Tensor:
-    return v * (limit / v.norm(p=2, dim=-1, keepdim=True).clamp_min(limit))
 
 
 class CoopPushPolicy:
@@ -216,7 +213,7 @@ class CoopPushCore(nn.Module):
         sign = torch.sign(rel[..., 0] * stage_rel[..., 1] - rel[..., 1] * stage_rel[..., 0])
         sign = torch.where(sign == 0, torch.ones_like(sign), sign)
         orbit = _perp(r_hat) * sign[..., None] * self.cruise + r_hat * ((self.radius + 0.02 - r) / self.dt)[..., None]
-        v_app = torch.where(clips[..., None], _clip_norm(orbit, self.cruise), v_app)
+        v_app = torch.where(clips[..., None], clip_norm(orbit, self.cruise), v_app)
         # keep movers apart while approaching
         diff = pos[:, :, None] - pos[:, None]  # [N, M, M, 2]
         gap = (diff.abs().amax(-1) if self.box else diff.norm(p=2, dim=-1)) + torch.eye(m, device=o.device) * 1e3
@@ -251,7 +248,7 @@ class CoopPushCore(nn.Module):
         a_long = torch.maximum(torch.minimum((v_long - (vel * d[:, None]).sum(-1)) / self.dt, room), -room)
         a_push = d[:, None] * a_long[..., None] + side[:, None] * a_lat[..., None]
         v_app = torch.where((dist < self.settle)[:, None, None], torch.zeros_like(v_app), v_app)
-        a_app = _clip_norm((self._wall_cap(pos, v_app) - vel) / self.dt, self.a_max)
+        a_app = clip_norm((self._wall_cap(pos, v_app) - vel) / self.dt, self.a_max)
         acc = torch.where(self.pushing[:, None, None], a_push, a_app)
         return acc.reshape(n, 2 * m)
 

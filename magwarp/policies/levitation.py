@@ -29,6 +29,7 @@ import math
 
 import torch
 
+from magwarp._vectors import clip_norm
 from magwarp.pendulum import rotate
 
 __all__ = ["DEFAULT_MAX_ACC", "LevitationPD"]
@@ -73,12 +74,6 @@ def _yaw_to_world(yaw: torch.Tensor):
         return torch.stack([c * rates[:, 0] - s * rates[:, 1], s * rates[:, 0] + c * rates[:, 1], rates[:, 2]], 1)
 
     return turn
-
-
-def _clip_norm(x: torch.Tensor, limit: float) -> torch.Tensor:
-    """Rows of ``x`` scaled down to norm ``limit`` where longer."""
-    n = torch.linalg.vector_norm(x, dim=1, keepdim=True)
-    return x * torch.clamp(limit / n.clamp_min(1e-12), max=1.0)
 
 
 class LevitationPD:
@@ -138,13 +133,13 @@ class LevitationPD:
         payload = part(obs, "payload_mass")
         mass = self.mass if payload is None else self.mass + payload
         lin = ref_acc[:, :3] + kp[:, :3] * (ref[:, :3] - pos) + kd[:, :3] * (ref_vel[:, :3] - vel)
-        lin = torch.cat([_clip_norm(lin[:, :2], self.max_lin), lin[:, 2:].clamp(-self.max_lin, self.max_lin)], 1)
+        lin = torch.cat([clip_norm(lin[:, :2], self.max_lin), lin[:, 2:].clamp(-self.max_lin, self.max_lin)], 1)
         force = mass * lin
         force[:, 2] += (mass * self.gravity).reshape(-1) if payload is not None else self.mass * self.gravity
         ref_rpy = torch.cat([ref_rp, ref[:, 3:4]], 1)
         err = _rotation_error(rpy, ref_rpy)
         turn = _yaw_to_world(ref[:, 3])
-        torque = self.inertia * _clip_norm(turn(ref_acc[:, 3:]) - kp[:, 3:] * err + kd[:, 3:] * (turn(ref_vel[:, 3:])
+        torque = self.inertia * clip_norm(turn(ref_acc[:, 3:]) - kp[:, 3:] * err + kd[:, 3:] * (turn(ref_vel[:, 3:])
                                                                                                  - omega), self.max_ang)
         if payload is not None:  # the payload's weight acts at the centre of mass, off the mover centre
             com = part(obs, "payload_offset") * (payload / mass)

@@ -36,6 +36,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from magwarp._vectors import clip_norm
+
 if TYPE_CHECKING:
     from magwarp.layout import Layout
     from magwarp.sim import Simulator
@@ -425,9 +427,7 @@ class GoalSeekingPlanner:
         dv = torch.cat([brake.unsqueeze(2), ideal.unsqueeze(2), (self._dv * dvm).view(1, 1, -1, 2).expand(n, m, -1, 2)],
                        dim=2)
         cand = vel.unsqueeze(2) + dv
-        cn = cand.norm(dim=-1, keepdim=True)
-        vcap = self.v_max * 0.999
-        cand = torch.where(cn > vcap, cand * (vcap / cn.clamp_min(1e-9)), cand)
+        cand = clip_norm(cand, self.v_max * 0.999)
         K = cand.shape[2]
 
         tx, ty = self._trajectories(pos, vel, cand)  # (N, M, K, S) each
@@ -464,10 +464,8 @@ class GoalSeekingPlanner:
 
         self._bookkeeping(pos, goal, length, esc)
         acc = (v_new - vel) / T
-        an = acc.norm(dim=-1, keepdim=True)
-        acc = torch.where(an > self.a_max, acc * (self.a_max / an.clamp_min(1e-9)), acc)
+        acc = clip_norm(acc, self.a_max)
         if env.learn_jerk:
             jerk = (acc - sim.acc[..., :2]) / self.T  # the acceleration reaches the choice by the step end
-            jn = jerk.norm(dim=-1, keepdim=True)
-            acc = torch.where(jn > self.j_max, jerk * (self.j_max / jn.clamp_min(1e-9)), jerk)
+            acc = clip_norm(jerk, self.j_max)
         return acc.reshape(env.num_envs, -1)

@@ -43,6 +43,8 @@ import math
 import numpy as np
 import torch
 
+from magwarp._vectors import clip_norm
+
 __all__ = ["PushHeuristic"]
 
 _INF = 1e9
@@ -347,8 +349,7 @@ class PushHeuristic:
         return torch.minimum(v, torch.sqrt(2 * self.approach_brake * room_hi))
 
     def _clip(self, acc: torch.Tensor) -> torch.Tensor:
-        nrm = acc.norm(dim=-1, keepdim=True)
-        return torch.where(nrm > self.a_max, acc * (self.a_max / nrm.clamp_min(1e-9)), acc)
+        return clip_norm(acc, self.a_max)
 
     def _wall_brake(self, pos: torch.Tensor, vel: torch.Tensor, acc: torch.Tensor) -> torch.Tensor:
         """Braking toward a wall (the sides of the area, and obstacles) takes priority over the rest of the command

@@ -100,6 +100,7 @@ import torch
 import warp as wp
 
 from magwarp._checks import as_count, as_flag, warp_device
+from magwarp._vectors import clip_norm
 from magwarp.envs.base import MagwarpVecEnv
 from magwarp.envs.step_graph import RecordedGraph, continued_generator, record_cuda_graph
 from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers,
@@ -109,7 +110,7 @@ from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies, max_registers
 from magwarp.swarm.observations import LocalObservations, check_view_sizes
 from magwarp.swarm.placement import Placer, on_torch_stream
-from magwarp.swarm.safety import SAFE_SPEED, build_safety, clip_norm
+from magwarp.swarm.safety import SAFE_SPEED, build_safety
 
 __all__ = ["SwarmConfig", "SwarmEnv", "COLLISION_MODES"]
 

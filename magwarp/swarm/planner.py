@@ -55,7 +55,8 @@ import torch
 
 from magwarp.swarm.env import SwarmEnv
 from magwarp.swarm.observations import ray_directions
-from magwarp.swarm.safety import (COMMIT_BRAKE, SAFE_K, SAFE_MARGIN, SAFE_SPEED, build_safety, clip_norm,
+from magwarp._vectors import clip_norm
+from magwarp.swarm.safety import (COMMIT_BRAKE, SAFE_K, SAFE_MARGIN, SAFE_SPEED, build_safety,
                                   collision_distances)
 from magwarp.swarm.traffic import LaneField, lanes_fit
 

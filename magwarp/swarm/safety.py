@@ -78,12 +78,6 @@ def stop_length(speed: torch.Tensor | float, a_brake: float, step: float):
     return speed * speed / (2.0 * a_brake) + 0.5 * step * speed
 
 
-def clip_norm(v: torch.Tensor, limit: float) -> torch.Tensor:
-    """The rows ``v[..., :]`` longer than ``limit`` scaled down to it; the others returned bit for bit."""
-    n = v.norm(dim=-1, keepdim=True)
-    return torch.where(n > limit, v * (limit / n.clamp_min(1e-9)), v)
-
-
 def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).sum(-1)
 

@@ -32,6 +32,7 @@ import math
 import numpy as np
 import torch
 
+from magwarp._vectors import clip_norm
 from magwarp.layout import Layout
 
 __all__ = ["LaneField", "lanes_fit"]
@@ -96,8 +97,7 @@ class LaneField:
         along_y = torch.stack([(self.gain * ex).clamp(-cruise, cruise), sy * self._slow(d[..., 1])], -1)
         on_column = ex.abs() <= self.turn_tol
         v = torch.where(on_column[..., None], along_y, along_x)
-        n = v.norm(dim=-1, keepdim=True)
-        v = torch.where(n > cruise, v * (cruise / n.clamp_min(1e-9)), v)
+        v = clip_norm(v, cruise)
         # final approach: near the goal, or at its row between its column lane and the goal
         dist = d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         direct = d / dist * torch.sqrt(2.0 * self.a_brake * dist).clamp_max(cruise)
