@@ -140,11 +140,15 @@ for stage in "$@"; do
       wait $train_pid; tail -14 /tmp/runs/suite.log
       tar czf "$OUT/suite.tgz" -C /tmp --exclude=checkpoint.pt runs ;;
     swarm_study)
-      # #18: the planner and a trained swarm policy (RUNS' first run, from the suite stage's /tmp/runs) on the same
-      # worlds at 256 / 1024 / 4096 movers (SECONDS of simulated time each, default 40): goals/s per mover, collisions
-      timeout 580 python3 benchmarks/swarm_study.py --device cuda:0 --movers ${STUDY_MOVERS:-256 1024 4096} \
-        --seconds ${SECONDS_SIM:-40} --policy "/tmp/runs/${RUNS%%,*}/policy.pt" --json "$OUT/swarm_study_gpu.json" \
-        --png "$OUT/swarm_study_gpu.png" 2>&1 | grep -v "^Module" | tail -20 ;;
+      # #18: the planner and each trained swarm policy of RUNS (from the suite stage's /tmp/runs) on the same worlds
+      # at 256 / 1024 / 4096 movers (SECONDS_SIM of simulated time each, default 40): goals/s per mover, collisions;
+      # one swarm_study_<run>_gpu.json / .png per run
+      for run in ${RUNS//,/ }; do
+        timeout $((580 / $(echo ${RUNS//,/ } | wc -w))) python3 benchmarks/swarm_study.py --device cuda:0 \
+          --movers ${STUDY_MOVERS:-256 1024 4096} --seconds ${SECONDS_SIM:-40} --policy "/tmp/runs/$run/policy.pt" \
+          --json "$OUT/swarm_study_${run}_gpu.json" --png "$OUT/swarm_study_${run}_gpu.png" 2>&1 \
+          | grep -v "^Module" | tail -8
+      done ;;
     suite_eval)
       # magwarp eval of each run of RUNS left in /tmp/runs by the suite stage, and of the task's scripted baseline
       # (200 episodes x 10 repeats, the run's eval options), all side by side; JSON into the run folders and the tarball

@@ -179,6 +179,18 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                {"num_movers": 64, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
                                {"num_movers": 64}, "no paper row; the scripted planner (the zero correction)",
                                ("--num-envs", "256")),
+    # The same residual trained where it is used: the 64-mover policies jam 1,024 movers (their corrections keep
+    # hurting with the escapes and the slow movers gated off: 2,934 goals in 80 s against the planner's 3,624, CPU),
+    # so these train on 256 movers per world (32 x 32 tiles, the smallest the planner's auto traffic puts on lanes)
+    # and on 1,024 (64 x 64): as many agents per step as swarm_residual (64 x 256, 16 x 1,024), on a GPU
+    "swarm_residual_256": PaperRun("magwarp/SwarmResidual-v0", "ppo",
+                                   {"num_movers": 256, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
+                                   {"num_movers": 256}, "no paper row; the scripted planner (the zero correction)",
+                                   ("--num-envs", "64")),
+    "swarm_residual_1024": PaperRun("magwarp/SwarmResidual-v0", "ppo",
+                                    {"num_movers": 1024, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
+                                    {"num_movers": 1024}, "no paper row; the scripted planner (the zero correction)",
+                                    ("--num-envs", "16")),
     # Levitation (issue 17; no paper row): a residual on the PD + commutation baseline (a zero action is the PD),
     # compared with the PD on energy at equal tracking error by benchmarks/levitation_policy.py
     "lev_residual": PaperRun("magwarp/LevitationResidual-v0", "ppo", {"failure_reward": -1000.0},
