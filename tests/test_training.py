@@ -49,6 +49,8 @@ def test_success_counts_goals_lost_by_collisions_and_timeouts_not_by_the_episode
     tracker.update(torch.zeros(3), torch.tensor([True, False, False]), torch.tensor([False, True, True]), ends)
     out = tracker.pop()
     assert out["success_rate"] == 3 / (3 + 2 * 2) and out["episodes"] == 3 and out["collisions_per_episode"] == 1 / 3
+    assert out["goals_per_1k_steps"] == 1000.0 * 3 / (2 * 3)  # 3 goals in 2 steps of 3 envs
+    assert math.isnan(SuccessTracker(2, "cpu").pop()["goals_per_1k_steps"])  # no step counted yet
 
 
 def _ppo_args(out, *extra):

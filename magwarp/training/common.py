@@ -137,6 +137,9 @@ class SuccessTracker:
     in success; for trajectory planning (``info["goals_reached"]``), goals reached / (goals reached + goals lost),
     where every mover's pending goal is lost when an episode ends by a collision or a timeout (the benchmark's rule),
     not when ``info["time_limit"]`` marks an episode-length cut.
+
+    Goal rate (``goals_per_1k_steps``, envs with ``info["goals_reached"]``): goals reached per 1000 env steps (per
+    1000 agent-steps on a swarm's flat agent view, where episodes never end and the success rate stays 1).
     """
 
     def __init__(self, num_envs: int, device):
@@ -147,7 +150,8 @@ class SuccessTracker:
 
     def _zero(self):
         z = lambda: torch.zeros((), device=self.device, dtype=torch.float64)  # noqa: E731
-        self.s = {k: z() for k in ("episodes", "return", "length", "success", "trials", "collisions")}
+        self.s = {k: z() for k in ("episodes", "return", "length", "success", "trials", "collisions", "goals",
+                                   "steps")}
 
     @torch.no_grad()
     def update(self, reward: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor, info: dict) -> None:
@@ -169,6 +173,8 @@ class SuccessTracker:
         elif "goals_reached" in info:
             reached = info["goals_reached"]
             s["success"] += reached.sum()
+            s["goals"] += reached.sum()
+            s["steps"] += done.numel()
             lost = done & ~info["time_limit"] if "time_limit" in info else done
             s["trials"] += reached.sum() + lost.sum() * reached.shape[-1]
         self.ep_return.masked_fill_(done, 0.0)
@@ -190,6 +196,7 @@ class SuccessTracker:
             "collisions_per_episode": v["collisions"] / eps if v["episodes"] else float("nan"),
             # per 1000 goals (trajectory planning: goals reached or lost; pushing: episodes), the paper's B0 unit
             "collisions_per_1k_goals": 1000.0 * v["collisions"] / v["trials"] if v["trials"] > 0 else float("nan"),
+            "goals_per_1k_steps": 1000.0 * v["goals"] / v["steps"] if v["steps"] > 0 else float("nan"),
         }
 
 

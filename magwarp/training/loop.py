@@ -224,8 +224,9 @@ class ProgressBar:
     def log_line(self, global_step: int, sps: float, stats: dict) -> None:
         """The log line printed instead of the bar (rank 0)."""
         if self.bar is None and dist.is_main():
+            rate = stats.get("goals_per_1k_steps", float("nan"))
             print(f"step {global_step:>12,}  {sps:>10,.0f} steps/s  success {stats['success_rate']:.3f}  "
-                  f"return {stats['ep_return']:.2f}")
+                  f"return {stats['ep_return']:.2f}" + (f"  goals/1k steps {rate:.2f}" if math.isfinite(rate) else ""))
 
 
 class TargetEval:
