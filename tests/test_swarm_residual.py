@@ -204,7 +204,7 @@ def test_bad_options_are_refused():
         SwarmResidualEnv(1, **TINY).planner.reset(torch.zeros(3, dtype=torch.bool))
     cfg = SwarmResidualConfig(num_movers=5, layout=np.ones((4, 4)), residual_scale=0.25, planner={"traffic": "free"})
     env = SwarmResidualEnv(1, config=cfg, device="cpu")
-    assert env.residual_scale == 0.25 and env.planner.traffic == "free" and env.planner_options == {"traffic": "free"}
+    assert env.residual_scale == 0.25 and env.planner.traffic == "free" and env.config.planner == {"traffic": "free"}
 
 
 def test_registered_and_the_checkers_pass_in_every_view():

@@ -94,7 +94,6 @@ class SwarmResidualEnv(ResidualAction, SwarmEnv):
         cfg = self.config
         self.planner_action = torch.zeros(self.num_envs, self.num_movers, 2, device=self.device)
         self._init_residual(SwarmPlanner(self, **(cfg.planner or {})), cfg.residual_scale)
-        self.planner_options = dict(cfg.planner or {})
         self._obs_scale = 1.0 / float(cfg.a_max)
         m = self.num_movers
         self._set_spaces(gym.spaces.Box(-np.inf, np.inf, (m, self.own_dim + self.local.dim + 2), np.float32),
