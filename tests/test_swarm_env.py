@@ -202,6 +202,9 @@ def test_bad_options_and_infeasible_density():
         with pytest.raises(ValueError, match=f"reward_progress must be finite.*got {bad!r}"):
             SwarmConfig(reward_progress=bad)
     assert SwarmConfig(reward_progress=2).reward_progress == 2
+    for bad in (-0.1, 1.5, float("nan"), "0.5", True):
+        with pytest.raises(ValueError, match=f"reward_team must be a number in \\[0, 1\\], got {bad!r}"):
+            SwarmConfig(reward_team=bad)
     env = SwarmEnv(1, num_movers=3, layout=np.ones((3, 3)), device="cpu", respawn_clearance=0.1)
     assert abs(env.respawn_placer.excl - env.placer.excl - 0.1) < 1e-5  # respawns keep 0.1 m more between centres
     with pytest.raises(ValueError, match=r"action must have shape \(1, 3, 2\)"):
@@ -231,3 +234,26 @@ def test_config_refuses_sizes_that_would_hang_or_exhaust_memory(field, value):
     before anything is allocated (it ran out of memory / hung before)."""
     with pytest.raises(ValueError, match=f"{field} must be .*got {value}"):
         SwarmConfig(**{field: value})
+
+
+def test_team_reward_mixes_in_the_world_mean(rng):
+    """``reward_team``: each mover's reward is ``(1 - t) * own + t * mean(own over its world)``, the twin env without it
+    gives ``own`` on the same random actions (collisions, goals, respawns and progress included), and the world's
+    reward and everything else are the twin's."""
+    t = float(rng.uniform(0.1, 1.0))
+    seed = int(rng.integers(1 << 30))
+    opts = dict(num_movers=9, layout=holed_layout(), num_cycles=20, k=3, num_rays=4, reward_progress=2.0,
+                threshold_pos=0.25, device="cpu", seed=seed)
+    own_env, team_env = SwarmEnv(3, **opts), SwarmEnv(3, reward_team=t, **opts)
+    assert team_env.config.reward_team == t and own_env.config.reward_team == 0.0
+    seen = 0
+    for _ in range(12):
+        action = torch.from_numpy(rng.normal(0, 8, (3, 9, 2)).astype(np.float32))
+        _, r_own, _, _, own = own_env.step(action)
+        _, r_team, _, _, team = team_env.step(action)
+        mine = own["agent_reward"].numpy().astype(np.float64)
+        want = (1 - t) * mine + t * mine.mean(axis=1, keepdims=True)
+        np.testing.assert_allclose(team["agent_reward"].numpy(), want, rtol=0, atol=1e-4, err_msg=f"{rng}")
+        assert torch.equal(r_team, r_own) and torch.equal(team["collided"], own["collided"]), f"{rng}"
+        seen += int((np.abs(want - mine) > 1e-3).any())
+    assert seen > 0, f"{rng}: the mix never changed a reward"

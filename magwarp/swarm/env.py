@@ -152,7 +152,11 @@ class SwarmConfig:
     ``reward_progress``, the dense progress term: reward per metre of goal distance closed during the step (from the
     mover's position at the step's start to its goal then, against its distance to that goal at the step's end),
     added to ``reward_per_step`` for an active mover that neither collided nor reached its goal; 0 (default): off,
-    the sparse reward bit for bit."""
+    the sparse reward bit for bit. ``reward_team`` (in [0, 1]): the share of each mover's reward replaced by the mean
+    reward of its world's movers (``(1 - reward_team) * own + reward_team * mean``; the world's ``reward`` is the
+    movers' own rewards summed, as without it), so that a correction that gains its mover a goal by costing its
+    neighbours more is not learned as a gain (parameter-shared PPO on individual rewards is selfish); 0 (default):
+    each mover its own reward, bit for bit."""
 
     num_movers: int = 64
     layout: Any = None
@@ -173,6 +177,7 @@ class SwarmConfig:
     reward_collision: float = -20.0
     reward_per_step: float = -1.0
     reward_progress: float = 0.0
+    reward_team: float = 0.0
     on_collision: str = "respawn"
     max_episode_steps: int | None = None
     k: int = 8
@@ -244,6 +249,9 @@ class SwarmConfig:
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not (
                     np.isfinite(value)):
                 raise ValueError(f"{name} must be finite (a number), got {value!r}")
+        t = self.reward_team
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not 0.0 <= t <= 1.0:
+            raise ValueError(f"reward_team must be a number in [0, 1], got {t!r}")
 
     def make_layout(self) -> Layout:
         if self.layout is None:
@@ -706,6 +714,10 @@ class SwarmEnv(MagwarpVecEnv):
                                w(nonfinite_step), w(done)])
         info["nonfinite"] = nonfinite
         info["nonfinite_step"] = nonfinite_step
+        team = float(self.config.reward_team)
+        if team > 0.0:  # after the world's reward (the own rewards' sum): each mover's share of the world's mean
+            agent_reward = info["agent_reward"]
+            agent_reward.lerp_(agent_reward.mean(dim=1, keepdim=True), team)
         return done
 
     def agent_view(self):
