@@ -34,17 +34,22 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu")
     p.add_argument("--policy", default=None, help="a trained policy.pt (or run folder) beside the planner")
     p.add_argument("--traffic", default="auto", choices=("auto", "lanes", "free"))
+    p.add_argument("--window", type=float, default=0.0,
+                   help="also the goals of each window of this many simulated seconds (goals_per_window)")
     p.add_argument("--json", default=None)
     p.add_argument("--png", default=None)
     args = p.parse_args(argv)
     info, _ = start_run(args.device)
-    rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy, args.traffic)
+    if not args.window >= 0:
+        p.error(f"--window must be >= 0 seconds, got {args.window}")
+    rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy, args.traffic, args.window)
     for r in rows:
         r["seconds"], r["occupancy"], r["policy"] = args.seconds, args.occupancy, args.policy
     if args.png:
         plot(rows, args.png)
     return finish(rows, [c for c in COLUMNS if c in rows[0]] + [k for k in rows[0] if k not in COLUMNS
-                                                               and k not in ("seconds", "occupancy", "policy")],
+                                                               and k not in ("seconds", "occupancy", "policy",
+                                                                             "goals_per_window")],
                   info, args.json)
 
 

@@ -62,7 +62,9 @@ def policy_env_options(policy: str, traffic: str) -> tuple[str, dict]:
 
 
 def study(movers: list[int], occupancy: float, seconds: float, device: str | None, policy: str | None = None,
-          traffic: str = "auto") -> list[dict]:
+          traffic: str = "auto", window: float = 0.0) -> list[dict]:
+    """One row per size and controller; ``window`` > 0 (simulated seconds): also the goals of each such window
+    (``goals_per_window``)."""
     rows = []
     net = None
     if policy is not None:
@@ -78,6 +80,7 @@ def study(movers: list[int], occupancy: float, seconds: float, device: str | Non
         side = int(math.ceil(math.sqrt(m / occupancy)))
         env = SwarmEnv(1, num_movers=m, layout=Layout.grid(side, side), device=device, seed=0, check_inputs=False)
         steps = max(1, int(round(seconds / (env.num_cycles * 1e-3))))
+        win = max(1, int(round(window / (env.num_cycles * 1e-3)))) if window > 0 else 0
         controllers = [("planner", SwarmPlanner(env, traffic=traffic), env)]
         if policy is not None:
             # the env the policy was trained on, with the planner row's size, layout and seed: the same worlds
@@ -88,10 +91,10 @@ def study(movers: list[int], occupancy: float, seconds: float, device: str | Non
         for name, ctrl, env in controllers:
             t = time.perf_counter()
             if name == "planner":
-                res = run_policy(env, lambda obs: ctrl(), steps)
+                res = run_policy(env, lambda obs: ctrl(), steps, window=win)
             else:
                 with torch.no_grad():
-                    res = run_policy(env, ctrl, steps)
+                    res = run_policy(env, ctrl, steps, window=win)
             res["wall_s"] = time.perf_counter() - t
             res["tiles"] = side * side
             res["controller"] = name

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from magwarp.swarm import SwarmEnv
@@ -52,3 +53,19 @@ def test_run_policy_with_the_planner():
     env = SwarmEnv(1, num_movers=16, layout=np.ones((8, 8)), device="cpu", seed=2)
     res = run_policy(env, lambda obs: SwarmPlanner(env)(), 60)
     assert res["steps"] == 60 and res["goals"] > 10 and res["throughput_per_mover"] > 0
+
+
+def test_run_policy_counts_goals_per_window():
+    """``window``: the goals of each run of ``window`` steps (the last one shorter), summing to the run's goals; the
+    run's other numbers are those of a run without windows on a twin env."""
+    def run(window):
+        env = SwarmEnv(2, num_movers=16, layout=np.ones((8, 8)), device="cpu", seed=5)
+        planner = SwarmPlanner(env)
+        return run_policy(env, lambda obs: planner(), 60, window=window)
+
+    plain, windowed = run(0), run(25)
+    assert "goals_per_window" not in plain and windowed["window_s"] == 25 * 0.04
+    assert len(windowed["goals_per_window"]) == 3 and sum(windowed["goals_per_window"]) == windowed["goals"]
+    assert windowed["goals"] == plain["goals"] > 10 and min(windowed["goals_per_window"]) > 0
+    with pytest.raises(ValueError, match="window must be a number of steps >= 0, got -1"):
+        run(-1)

@@ -65,12 +65,24 @@ class SwarmMetrics:
         }
 
 
-def run_policy(env: SwarmEnv, policy, steps: int, **metric_options) -> dict:
+def run_policy(env: SwarmEnv, policy, steps: int, window: int = 0, **metric_options) -> dict:
     """Run ``policy`` (called with the observation, returns ``[N, M, 2]`` actions) for ``steps`` steps from a fresh
-    reset and return the :class:`SwarmMetrics` result."""
+    reset and return the :class:`SwarmMetrics` result. ``window`` > 0: also ``goals_per_window``, the goals reached
+    in each run of ``window`` consecutive steps (summed over worlds; whether the throughput holds over time), counted
+    on the device and read once at the end."""
     metrics = SwarmMetrics(env, **metric_options)
+    window = int(window)
+    if window < 0:
+        raise ValueError(f"window must be a number of steps >= 0, got {window}")
+    per_window = torch.zeros(-(-int(steps) // window) if window else 0, dtype=torch.int64, device=env.device)
     obs, _ = env.reset()
-    for _ in range(int(steps)):
+    for i in range(int(steps)):
         obs, _, _, _, info = env.step(policy(obs))
         metrics.update(info)
-    return metrics.result()
+        if window:
+            per_window[i // window] += info["goal_reached"].sum()
+    out = metrics.result()
+    if window:
+        out["goals_per_window"] = per_window.tolist()
+        out["window_s"] = window * metrics.step_time
+    return out

@@ -191,14 +191,16 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                     {"num_movers": 1024, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
                                     {"num_movers": 1024}, "no paper row; the scripted planner (the zero correction)",
                                     ("--num-envs", "16")),
-    # swarm_residual_256 with half of each mover's reward its world's mean (reward_team 0.5): the runs above lower the
-    # training world's goal rate as they learn (GPU, 3 min: 256 movers 3.9 -> 2.5 goals per 1000 agent-steps, 1,024
-    # movers 2.2 -> 0.85; CPU, 25 min at 1,024: 2.0 -> 0.15), each mover gaining at its neighbours' cost
+    # The runs above lower the training world's goal rate as they learn (GPU, 3 min: 256 movers 3.9 -> 2.2 goals per
+    # 1000 agent-steps, 1,024 movers 2.2 -> 0.85; CPU, 25 min at 1,024: 2.0 -> 0.15). Half of each mover's reward
+    # its world's mean (reward_team 0.5) alone did not stop that (CPU, 8 min at 256: 4.0 -> 2.4); here with a longer
+    # horizon too (gamma 0.995: ~8 s; the jams build over tens of seconds) and Monte-Carlo advantages (GAE lambda 1,
+    # which stopped the levitation residual's drift)
     "swarm_residual_256_team": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                         {"num_movers": 256, "planner": {"traffic": "lanes"}, "reward_progress": 5.0,
                                          "reward_team": 0.5},
                                         {"num_movers": 256}, "no paper row; the scripted planner (the zero correction)",
-                                        ("--num-envs", "64")),
+                                        ("--num-envs", "64", "--gamma", "0.995", "--gae-lambda", "1.0")),
     # Levitation (issue 17; no paper row): a residual on the PD + commutation baseline (a zero action is the PD),
     # compared with the PD on energy at equal tracking error by benchmarks/levitation_policy.py
     "lev_residual": PaperRun("magwarp/LevitationResidual-v0", "ppo", {"failure_reward": -1000.0},
