@@ -181,6 +181,33 @@ def test_a_correction_adds_its_scaled_action_before_the_shield(rng, monkeypatch)
     assert not info["collided"].any()
 
 
+def test_the_gate_corrects_only_fast_movers_out_of_their_escape(rng, monkeypatch):
+    """``gate_speed``: the shield sees the planner's action alone for movers slower than the gate or in the planner's
+    deadlock escape, and the planner's action plus the scaled correction for the others."""
+    seen = []
+    shield = SwarmEnv._shield
+
+    def record(self, action):
+        seen.append(action.clone())
+        return shield(self, action)
+
+    monkeypatch.setattr(SwarmEnv, "_shield", record)
+    env = SwarmResidualEnv(2, seed=6, residual_scale=0.5, gate_speed=0.3, **SMALL)
+    for _ in range(4):
+        env.step(torch.zeros(2, 12, 2))
+    env.planner.stuck[0, :3] = env.planner.patience  # three movers in their escape
+    speed = env.sim.vel[..., :2].norm(dim=-1)
+    fast = (speed >= 0.3) & (env.planner.stuck < env.planner.patience)
+    assert fast.any() and (~fast).any(), f"{rng}: {speed}"
+    base = env.planner_action.clone()
+    a = torch.as_tensor(rng.uniform(-10.0, 10.0, (2, 12, 2)), dtype=torch.float32)
+    env.step(a)
+    torch.testing.assert_close(seen[-1] - base, 0.5 * a * fast[..., None], rtol=0, atol=1e-5)
+    for bad in (-0.1, float("inf"), float("nan"), True, "0.3"):
+        with pytest.raises(ValueError, match=f"gate_speed must be a finite speed >= 0 \\(m/s\\), got {bad!r}"):
+            SwarmResidualConfig(gate_speed=bad)
+
+
 @pytest.mark.parametrize("bad", [0.0, -0.5, 2.5, float("nan"), True, "0.5"])
 def test_bad_residual_scales_are_refused(bad):
     with pytest.raises(ValueError, match="residual_scale"):

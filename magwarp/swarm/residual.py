@@ -57,11 +57,16 @@ class SwarmResidualConfig(SwarmConfig):
     """Options of :class:`SwarmResidualEnv`: :class:`~magwarp.swarm.SwarmConfig`'s (``shield`` on by default), and
     ``residual_scale``: the correction's range as a share of ``a_max`` (in (0, 2], default 0.5, as
     ``magwarp/CoopPushResidual-v0``); ``planner``: keyword options of :class:`~magwarp.swarm.SwarmPlanner` (e.g.
-    ``{"traffic": "lanes"}``; None: its defaults). The names are checked here, the values by the planner."""
+    ``{"traffic": "lanes"}``; None: its defaults). The names are checked here, the values by the planner.
+    ``gate_speed`` (m/s, >= 0; 0: off): the correction moves only movers at least this fast that are not in the
+    planner's deadlock escape; the others take the planner's action alone (a correction kept on stopped movers and
+    against the escapes jams a crowd: the 256-mover policy at 1,024 movers over 80 s, 0.69x the planner's goals with
+    592 movers deadlocked, 0.96x with 1 when gated at 0.3 m/s, CPU)."""
 
     shield: bool = True
     residual_scale: float = 0.5
     planner: dict | None = None
+    gate_speed: float = 0.0
 
     def __post_init__(self):
         super().__post_init__()
@@ -72,6 +77,9 @@ class SwarmResidualConfig(SwarmConfig):
             unknown = sorted(str(k) for k in self.planner if k not in PLANNER_OPTIONS)
             if unknown:
                 raise TypeError(f"unknown planner options {unknown}; SwarmPlanner takes {list(PLANNER_OPTIONS)}")
+        g = self.gate_speed
+        if isinstance(g, bool) or not isinstance(g, (int, float, np.integer, np.floating)) or not 0.0 <= g < np.inf:
+            raise ValueError(f"gate_speed must be a finite speed >= 0 (m/s), got {g!r}")
         if self.learn_jerk:
             raise ValueError("SwarmResidualEnv corrects the planner's accelerations: learn_jerk must be False, got "
                              "learn_jerk=True")
@@ -124,6 +132,13 @@ class SwarmResidualEnv(ResidualAction, SwarmEnv):
 
     # ------------------------------------------------------------------ the base env's hooks
     def _apply_action(self, action: torch.Tensor) -> None:
+        gate = float(self.config.gate_speed)
+        if gate > 0.0:  # no correction for slow movers and the planner's deadlock escapes
+            planner = self.baseline
+            moving = self.sim.vel[..., :2].norm(dim=-1) >= gate
+            if planner.patience > 0:
+                moving = moving & (planner.stuck < planner.patience)
+            action = action.reshape(moving.shape + (2,)) * moving[..., None]
         super()._apply_action(action)  # the planner's action + residual_scale * action, through the shield
         self._replan = True  # the state moves on: the next observation plans every world once
 

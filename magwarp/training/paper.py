@@ -201,6 +201,14 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                          "reward_team": 0.5},
                                         {"num_movers": 256}, "no paper row; the scripted planner (the zero correction)",
                                         ("--num-envs", "64", "--gamma", "0.995", "--gae-lambda", "1.0")),
+    # swarm_residual_256 with the correction gated (gate_speed 0.3 m/s: none for slow movers and the planner's
+    # deadlock escapes), in training and in evaluation
+    "swarm_residual_256_gate": PaperRun("magwarp/SwarmResidual-v0", "ppo",
+                                        {"num_movers": 256, "planner": {"traffic": "lanes"}, "reward_progress": 5.0,
+                                         "gate_speed": 0.3},
+                                        {"num_movers": 256, "gate_speed": 0.3},
+                                        "no paper row; the scripted planner (the zero correction)",
+                                        ("--num-envs", "64")),
     # Levitation (issue 17; no paper row): a residual on the PD + commutation baseline (a zero action is the PD),
     # compared with the PD on energy at equal tracking error by benchmarks/levitation_policy.py
     "lev_residual": PaperRun("magwarp/LevitationResidual-v0", "ppo", {"failure_reward": -1000.0},
