@@ -36,20 +36,30 @@ def main(argv=None) -> int:
     p.add_argument("--traffic", default="auto", choices=("auto", "lanes", "free"))
     p.add_argument("--window", type=float, default=0.0,
                    help="also the goals of each window of this many simulated seconds (goals_per_window)")
+    p.add_argument("--env-kwargs", default=None,
+                   help="JSON options of the policy's env over those stored with it, e.g. '{\"gate_speed\": 0.3}'")
     p.add_argument("--json", default=None)
     p.add_argument("--png", default=None)
     args = p.parse_args(argv)
     info, _ = start_run(args.device)
     if not args.window >= 0:
         p.error(f"--window must be >= 0 seconds, got {args.window}")
-    rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy, args.traffic, args.window)
+    from magwarp.training.common import parse_env_kwargs
+
+    env_kwargs = parse_env_kwargs(args.env_kwargs)
+    if env_kwargs and args.policy is None:
+        p.error("--env-kwargs sets options of a policy's env: give --policy too")
+    rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy, args.traffic, args.window,
+                 env_kwargs)
     for r in rows:
         r["seconds"], r["occupancy"], r["policy"] = args.seconds, args.occupancy, args.policy
+        if env_kwargs:
+            r["env_kwargs"] = env_kwargs
     if args.png:
         plot(rows, args.png)
     return finish(rows, [c for c in COLUMNS if c in rows[0]] + [k for k in rows[0] if k not in COLUMNS
                                                                and k not in ("seconds", "occupancy", "policy",
-                                                                             "goals_per_window")],
+                                                                             "goals_per_window", "env_kwargs")],
                   info, args.json)
 
 

@@ -62,9 +62,9 @@ def policy_env_options(policy: str, traffic: str) -> tuple[str, dict]:
 
 
 def study(movers: list[int], occupancy: float, seconds: float, device: str | None, policy: str | None = None,
-          traffic: str = "auto", window: float = 0.0) -> list[dict]:
+          traffic: str = "auto", window: float = 0.0, env_kwargs: dict | None = None) -> list[dict]:
     """One row per size and controller; ``window`` > 0 (simulated seconds): also the goals of each such window
-    (``goals_per_window``)."""
+    (``goals_per_window``); ``env_kwargs``: options of the policy's env over those it was trained with."""
     rows = []
     net = None
     if policy is not None:
@@ -75,6 +75,7 @@ def study(movers: list[int], occupancy: float, seconds: float, device: str | Non
         from magwarp.training.policy import load_policy
 
         env_id, options = policy_env_options(policy, traffic)
+        options.update(env_kwargs or {})
         print(f"policy {policy}: on {env_id} with {options or 'its default options'}", flush=True)
     for m in movers:
         side = int(math.ceil(math.sqrt(m / occupancy)))
