@@ -147,7 +147,7 @@ for stage in "$@"; do
         timeout $((580 / $(echo ${RUNS//,/ } | wc -w))) python3 benchmarks/swarm_study.py --device cuda:0 \
           --movers ${STUDY_MOVERS:-256 1024 4096} --seconds ${SECONDS_SIM:-40} --policy "/tmp/runs/$run/policy.pt" \
           --json "$OUT/swarm_study_${run}_gpu.json" --png "$OUT/swarm_study_${run}_gpu.png" 2>&1 \
-          | grep -v "^Module" | tail -8
+          | grep --line-buffered -v "^Module"  # (no tail: a run cut by its timeout still shows its rows)
       done ;;
     suite_eval)
       # magwarp eval of each run of RUNS left in /tmp/runs by the suite stage, and of the task's scripted baseline
