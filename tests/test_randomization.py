@@ -364,12 +364,16 @@ def test_control_and_collision_fields_act_per_world(rng):
     q = b.qpos_t[:, int(b.mover_qadr[0]):]
     d = 0.2
     q[:, 0], q[:, 1], q[:, 3:7] = d, 0.48, torch.tensor([1.0, 0.0, 0.0, 0.0])
+    # the object out of the way (a reset may leave it where it would push the mover across the threshold in the
+    # step: seed 8700012028320391545 moved one world's mover 1.2 mm toward the edge)
+    b.object_qpos[:, 0, 0], b.object_qpos[:, 0, 1] = 0.55, 0.15
     b.qvel_t.zero_()
     env.checks.clear()
     b.step(torch.zeros(6, 1, 2))
     expect = (half + margin) > d
     assert 0 < int(expect.sum()) < 6, (half + margin)
     assert torch.equal(env.checks.wall_collision, expect)
+    torch.testing.assert_close(q[:, 0], torch.full((6,), d), rtol=0, atol=1e-6)  # the mover stayed put
     # a reset of some worlds redraws only theirs
     before = {f: v.clone() for f, v in r.values.items()}
     mask = torch.tensor([True, False, True, False, False, True])
