@@ -162,7 +162,8 @@ def test_observation_is_the_base_one_plus_the_planners_action():
     assert torch.equal(fobs, obs.reshape(36, -1))
 
 
-def test_a_correction_adds_its_scaled_action_before_the_shield(rng, monkeypatch):
+def _record_shield(monkeypatch) -> list:
+    """Every action the env's shield is given, from now on."""
     seen = []
     shield = SwarmEnv._shield
 
@@ -171,6 +172,11 @@ def test_a_correction_adds_its_scaled_action_before_the_shield(rng, monkeypatch)
         return shield(self, action)
 
     monkeypatch.setattr(SwarmEnv, "_shield", record)
+    return seen
+
+
+def test_a_correction_adds_its_scaled_action_before_the_shield(rng, monkeypatch):
+    seen = _record_shield(monkeypatch)
     env = SwarmResidualEnv(2, seed=4, residual_scale=0.3, **SMALL)
     for _ in range(3):
         env.step(torch.zeros(2, 12, 2))
@@ -184,14 +190,7 @@ def test_a_correction_adds_its_scaled_action_before_the_shield(rng, monkeypatch)
 def test_the_gate_corrects_only_fast_movers_out_of_their_escape(rng, monkeypatch):
     """``gate_speed``: the shield sees the planner's action alone for movers slower than the gate or in the planner's
     deadlock escape, and the planner's action plus the scaled correction for the others."""
-    seen = []
-    shield = SwarmEnv._shield
-
-    def record(self, action):
-        seen.append(action.clone())
-        return shield(self, action)
-
-    monkeypatch.setattr(SwarmEnv, "_shield", record)
+    seen = _record_shield(monkeypatch)
     env = SwarmResidualEnv(2, seed=6, residual_scale=0.5, gate_speed=0.3, **SMALL)
     for _ in range(4):
         env.step(torch.zeros(2, 12, 2))

@@ -179,9 +179,8 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                {"num_movers": 64, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
                                {"num_movers": 64}, "no paper row; the scripted planner (the zero correction)",
                                ("--num-envs", "256")),
-    # The same residual trained where it is used: the 64-mover policies jam 1,024 movers (their corrections keep
-    # hurting with the escapes and the slow movers gated off: 2,934 goals in 80 s against the planner's 3,624, CPU),
-    # so these train on 256 movers per world (32 x 32 tiles, the smallest the planner's auto traffic puts on lanes)
+    # The same residual trained where it is used: the 64-mover policies jam 1,024 movers (RESULTS.md), so these
+    # train on 256 movers per world (32 x 32 tiles, the smallest the planner's auto traffic puts on lanes)
     # and on 1,024 (64 x 64): as many agents per step as swarm_residual (64 x 256, 16 x 1,024), on a GPU
     "swarm_residual_256": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                    {"num_movers": 256, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
@@ -191,10 +190,10 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                     {"num_movers": 1024, "planner": {"traffic": "lanes"}, "reward_progress": 5.0},
                                     {"num_movers": 1024}, "no paper row; the scripted planner (the zero correction)",
                                     ("--num-envs", "16")),
-    # The runs above lower the training world's goal rate as they learn (GPU, 3 min: 256 movers 3.9 -> 2.2 goals per
-    # 1000 agent-steps, 1,024 movers 2.2 -> 0.85; CPU, 25 min at 1,024: 2.0 -> 0.15). Half of each mover's reward
-    # its world's mean (reward_team 0.5) alone did not stop that (CPU, 8 min at 256: 4.0 -> 2.4); here with a longer
-    # horizon too (gamma 0.995: ~8 s; the jams build over tens of seconds) and Monte-Carlo advantages (GAE lambda 1,
+    # The runs above lower the training world's goal rate as they learn (GPU, 3 min: 256 movers 4.14 -> 2.16 goals
+    # per 1000 agent-steps, 1,024 movers 2.19 -> 0.77; CPU, 25 min at 1,024: 2.58 -> 0.12). Half of each mover's
+    # reward its world's mean (reward_team 0.5) alone did not stop that (CPU, 8 min at 256: 4.27 -> 2.80); here with a
+    # longer horizon (gamma 0.995: ~8 s; the jams build over tens of seconds) and Monte-Carlo advantages (GAE lambda 1,
     # which stopped the levitation residual's drift)
     "swarm_residual_256_team": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                         {"num_movers": 256, "planner": {"traffic": "lanes"}, "reward_progress": 5.0,
