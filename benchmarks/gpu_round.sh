@@ -17,7 +17,7 @@ for stage in "$@"; do
   log "$stage"
   case "$stage" in
     tests)
-      timeout 420 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings tests/test_sim.py \
+      timeout 420 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_sim.py \
         tests/test_sim_starts.py tests/test_kernels_dynamics.py tests/test_kernels_collision.py \
         tests/test_collision_queries.py tests/test_swarm_placement.py tests/test_swarm_observations.py \
         tests/test_magnetics_exact.py tests/test_magnetics_commutation.py tests/test_magnetics_fast.py \
@@ -27,13 +27,13 @@ for stage in "$@"; do
       grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_gpu.log" | tail -25 ;;
     tests24)
       # #24: the randomisation, sensor and latency draws on CUDA (graph step == torch step bit for bit, no host sync)
-      timeout 400 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings tests/test_graph_step.py \
+      timeout 400 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_graph_step.py \
         tests/test_sensor_draws.py tests/test_sim2real_models.py tests/test_planar_randomization.py \
         > "$OUT/pytest24_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest24_gpu.log" | tail -25 ;;
     tests18)
       # #18: the swarm env's step as one CUDA graph against the same launches eagerly (bit for bit), the fused step
-      timeout 300 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings tests/test_swarm_graph.py \
+      timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_graph.py \
         tests/test_swarm_fused.py tests/test_swarm_task_kernels.py > "$OUT/pytest18_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest18_gpu.log" | tail -25 ;;
     queries)
@@ -60,7 +60,7 @@ for stage in "$@"; do
       timeout 420 python3 benchmarks/magnetics.py --device cuda:0 --fast-cycle-only \
         --fast-cycle-sizes 1000,100000,1000000 --json "$OUT/magnetics_fast_cycle_gpu.json" 2>&1 | grep -v "^Module" \
         | tail -16
-      timeout 150 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_magnetics_fast_cycle.py 2>&1 \
+      timeout 150 python3 -m pytest -p no:cacheprovider -p no:warnings tests/test_magnetics_fast_cycle.py 2>&1 \
         | tail -4 ;;
     magnetics_sweep)
       # #17: the shipped B0 policy driven magnetically (the in-step drive) as the current limit falls; not timed
@@ -86,7 +86,7 @@ for stage in "$@"; do
       timeout 400 python3 benchmarks/sim2real_models.py --device cuda:0 --num-envs 4096,65536,262144,1048576 \
         --json "$OUT/sim2real_models_gpu.json" 2>&1 | tail -25 ;;
     randomization)
-      timeout 120 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_randomization.py -k no_host_sync \
+      timeout 120 python3 -m pytest -p no:cacheprovider -p no:warnings tests/test_randomization.py -k no_host_sync \
         2>&1 | tail -3
       timeout 400 python3 benchmarks/randomization.py --device cuda:0 --num-envs 4096,16384,65536 \
         --json "$OUT/randomization_gpu.json" 2>&1 | tail -15 ;;
@@ -103,7 +103,7 @@ for stage in "$@"; do
       done ;;
     graph)
       # #23: the fused B0 step (one CUDA graph) against the torch step, its physics and the bare-kernel ceiling
-      timeout 300 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_graph_step.py \
+      timeout 300 python3 -m pytest -p no:cacheprovider -p no:warnings tests/test_graph_step.py \
         tests/test_kernels_task.py tests/test_ceiling.py 2>&1 | tail -4
       timeout 200 python3 benchmarks/ceiling.py --device cuda:0 --num-envs 4096,65536,1048576,2097152 \
         --json "$OUT/ceiling_gpu.json" 2>&1 | tail -8
@@ -112,7 +112,7 @@ for stage in "$@"; do
         --json "$OUT/env_throughput_b0_graph_gpu.json" 2>&1 | tail -25 ;;
     push_dt)
       # #23: the push envs' fused step and the 2 ms mode (shipped policies' success at 1 and 2 ms; env vs raw mjw)
-      timeout 300 python3 -m pytest -q -p no:cacheprovider -p no:warnings tests/test_push_step.py 2>&1 | tail -4
+      timeout 300 python3 -m pytest -p no:cacheprovider -p no:warnings tests/test_push_step.py 2>&1 | tail -4
       timeout 550 python3 benchmarks/push_physics_dt.py --device cuda:0 --num-envs 4096,65536 \
         --json "$OUT/push_physics_dt_gpu.json" 2>&1 | tail -30 ;;
     ttt_b0|ttt_pushbox)
@@ -133,7 +133,7 @@ for stage in "$@"; do
         --stop-after "$(python3 -c "print(int(${MINUTES:-5} * 60 + 80))")" --work /tmp/runs > /tmp/runs/suite.log 2>&1 &
       train_pid=$!
       if [ -n "${TESTS:-}" ]; then
-        timeout 400 python3 -X faulthandler -m pytest -q -p no:cacheprovider -p no:warnings $TESTS \
+        timeout 400 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings $TESTS \
           > /tmp/runs/pytest_gpu.log 2>&1
         grep -E "FAIL|ERROR|Fatal|passed|failed" /tmp/runs/pytest_gpu.log | tail -12
       fi
