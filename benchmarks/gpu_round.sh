@@ -8,9 +8,9 @@
 # swarm_render, graph (#23: the fused B0 step, ceiling), push_dt (#23: push envs), ttt_* (#20), planner (#18),
 # suite (paper.py training runs side by side: RUNS=b0_ppo_dr,b0_ppo_dr_ft,...), robustness (#24), lev_eval (#17),
 # small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile and
-# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps and fire_cost (#24),
-# magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs, swarm_place and tests18 (#18), compare (B0 env
-# throughput of an older tree beside this one).
+# tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps, fire_cost and
+# branches (#24), magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs, swarm_place and tests18
+# (#18), compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -230,6 +230,20 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       # the gaps between kernels (full_nofire: full with the reset firing left out of the step)
       timeout 400 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536,16384 --steps 200 \
         --json "$OUT/rand_gaps_gpu.json" 2>&1 | grep -v "^Module" | tail -16 ;;
+    branches)
+      # #24: the fused B0 step's two graph branches (MAGWARP_STEP_BRANCHES: the torch draws beside the physics, the
+      # reset firing beside the reset and observation kernels) off and on, twice each, at 65,536 envs, off / full
+      # randomisation; then the CUDA tests of the branched step (graph == torch step bit for bit)
+      timeout 200 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_side_branch.py \
+        tests/test_graph_step.py > "$OUT/pytest_branches_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Fatal|Segmentation|passed|failed" "$OUT/pytest_branches_gpu.log" | tail -12
+      for round in 1 2; do
+        for b in off on; do
+          MAGWARP_STEP_BRANCHES=$b timeout 200 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 \
+            --steps 200 --settings off,full --json "$OUT/rand_gaps_branches_${b}_${round}_gpu.json" 2>&1 \
+            | grep -v "^Module" | tail -4
+        done
+      done ;;
     fire_cost)
       # #24: the B0 reset firing alone (one graph of 20 firings) at 65,536 and 16,384 envs, masks of 0-100 % of the
       # worlds: each candidate way of firing (checked bit for bit against today's on the device first: same_bits) and

@@ -12,10 +12,12 @@ wrapper per CUDA stream that lives as long as the process.
 
 from __future__ import annotations
 
+import contextlib
+
 import torch
 import warp as wp
 
-__all__ = ["torch_stream"]
+__all__ = ["SideBranch", "torch_stream"]
 
 _WRAPPERS: dict[tuple[int, int], wp.Stream] = {}
 
@@ -32,3 +34,31 @@ def torch_stream(device) -> wp.Stream:
     if wrapper is None:
         wrapper = _WRAPPERS[key] = wp.stream_from_torch(stream)
     return wrapper
+
+
+class SideBranch:
+    """A second CUDA stream for work of a step that the step's next launches do not read: :meth:`fork` runs a block
+    on it (torch operations and Warp launches alike) after everything issued so far on the current stream, and
+    :meth:`join` makes the current stream wait for it. Inside a CUDA graph capture the block becomes a parallel
+    branch of the graph; eagerly it overlaps the launches issued on the current stream in between. On the CPU (or
+    with ``enabled=False``) both are no-ops and the block runs in order. Every :meth:`fork` needs a :meth:`join`
+    before the step ends (a capture must end joined)."""
+
+    def __init__(self, device, enabled: bool = True):
+        self.device = torch.device(device)
+        self.enabled = bool(enabled) and self.device.type == "cuda"
+        self._stream = torch.cuda.Stream(self.device) if self.enabled else None
+
+    @contextlib.contextmanager
+    def fork(self):
+        if not self.enabled:
+            yield
+            return
+        self._stream.wait_stream(torch.cuda.current_stream(self.device))
+        with torch.cuda.stream(self._stream):
+            with wp.ScopedStream(torch_stream(self.device), sync_enter=False):
+                yield
+
+    def join(self) -> None:
+        if self.enabled:
+            torch.cuda.current_stream(self.device).wait_stream(self._stream)

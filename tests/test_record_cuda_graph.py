@@ -140,10 +140,11 @@ def test_the_trajectory_fused_step_records_physics_then_task_through_it(monkeypa
     fused = object.__new__(FusedTrajectoryStep)  # only what _capture reads
     sim = SimpleNamespace(_launch_step=lambda n: cap.log.append(("physics", n)))
     fused.env = SimpleNamespace(sim=sim, num_cycles=40, device=CUDA, sampler=SimpleNamespace(generator="gen"))
+    fused._launch_draws = lambda: cap.log.append("draws")
     fused._launch_task = lambda out, slot: cap.log.append(("task", out, slot))
     rec = fused._capture("slot 0 outputs", 0)
     assert isinstance(rec, RecordedGraph) and rec.warp_graph == "warp record"
     assert cap.log[0] == ("register", "gen")
     inside = cap.log.index("stream_exit")
-    assert cap.log[inside - 2:inside] == [("physics", 40), ("task", "slot 0 outputs", 0)]
-    assert cap.log[inside - 3] == ("stream", "wstream", ("sync_enter", False))
+    assert cap.log[inside - 3:inside] == ["draws", ("physics", 40), ("task", "slot 0 outputs", 0)]
+    assert cap.log[inside - 4] == ("stream", "wstream", ("sync_enter", False))

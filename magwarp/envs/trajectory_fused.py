@@ -23,6 +23,10 @@ One step (after the host-side input check and the copy of the action into the si
 Interval-mode randomisation terms fire before the step (the simulator's step callbacks, as in the torch step: one
 launch of the randomiser's kernel when a term is due), then the graph is replayed.
 
+On CUDA, step 2's draws run on a second stream beside step 1 and step 4's firing beside the rest of steps 4 and 5
+(neither is read by what runs beside it; both are joined before the step ends), so the step's graph has two parallel
+branches (:class:`magwarp._streams.SideBranch`; ``MAGWARP_STEP_BRANCHES=off`` runs everything in order, same results).
+
 On CUDA (``graph=True``) steps 1-5 are one CUDA graph recorded with ``torch.cuda.graph`` (the env's generator is
 registered with it, so every replay draws new numbers), replayed with no host sync and no Python beyond the replay.
 The first step runs eagerly (it loads the kernels) and the graph is recorded after it. On the CPU the same kernels
@@ -40,8 +44,10 @@ import functools
 import torch
 import warp as wp
 
+from magwarp._streams import SideBranch
 from magwarp.envs.step_graph import RecordedGraph, record_cuda_graph
 from magwarp.kernels import task as ktask
+from magwarp.kernels.options import STEP_BRANCHES
 
 __all__ = ["FusedTrajectoryStep", "fused_step_blocker"]
 
@@ -190,6 +196,9 @@ class FusedTrajectoryStep:
         s.offset = sampler.offset
         self._sampler = s
         self._init_sensors(n, m)
+        # a second stream for the work the next launches do not read (kernels.options.STEP_BRANCHES)
+        self._draws = SideBranch(dev, STEP_BRANCHES == "on")
+        self._firing = SideBranch(dev, STEP_BRANCHES == "on")
 
     def _init_sensors(self, n: int, m: int) -> None:
         """The sensor model on the device (:class:`magwarp.kernels.task.SensorParams`: its biases, dropped-reading
@@ -239,16 +248,24 @@ class FusedTrajectoryStep:
         torch.rand(self._reset_u.shape, generator=g, out=self._reset_u)
         torch.randint(len(sampler.goal_pool), (n, m), generator=g, out=self._reset_fallback)
 
+    def _launch_draws(self) -> None:
+        """Step 2's torch draws, on a branch beside the physics (they read nothing the physics writes); joined by
+        :meth:`_launch_task` before its first kernel reads them."""
+        with self._draws.fork():
+            self._draw()
+
     def _launch_task(self, out: _Outputs, slot: int) -> None:
-        """Steps 2-5 (draws, task kernels, resets) on the current streams, reading clock row ``slot``. The torch draws
-        come in the torch step's order: reached goals (``_end_step``), then the autoreset's (``_reset_envs``: start,
-        goals); the reset-mode terms draw in their own kernel, the sensor and latency models in the task kernels."""
+        """Steps 3-5 (task kernels, resets) on the current streams, reading clock row ``slot``, after
+        :meth:`_launch_draws`. The torch draws come in the torch step's order: reached goals (``_end_step``), then the
+        autoreset's (``_reset_envs``: start, goals); the reset-mode terms draw in their own kernel, the sensor and
+        latency models in the task kernels. The reset firing runs on a branch beside the reset and observation
+        kernels (it writes the model's per-world rows, which only the next step's physics reads)."""
         env = self.env
         sim = env.sim
         st, delay = self._sim_arrays()
         a = self._wp
         clock, clock_next = a["clock"][slot], a["clock"][slot ^ 1]
-        self._draw()
+        self._draws.join()
         m = sim.model
         wp.launch(
             ktask.trajectory_step, dim=env.num_envs, device=sim.device,
@@ -258,9 +275,10 @@ class FusedTrajectoryStep:
                     a["last_goal_step"], a["collected"], sim._init_pos, sim._init_quat, sim._reset_mask, delay],
             outputs=out.step_outputs,
         )
-        # the finished worlds' reset-mode randomisation (torch ops on the device mask)
+        # the finished worlds' reset-mode randomisation (the kernel reads the device mask)
         if env.randomizer is not None:
-            env.randomizer.reset_in_step(out.done)
+            with self._firing.fork():
+                env.randomizer.reset_in_step(out.done)
         sim._launch_reset()
         wp.launch(
             ktask.trajectory_obs, dim=env.num_envs, device=sim.device,
@@ -268,9 +286,13 @@ class FusedTrajectoryStep:
                     out.step_outputs[-1], *out.step_outputs[:3], clock_next],
             outputs=out.obs_wp,
         )
+        if env.randomizer is not None:
+            self._firing.join()
 
     def _launch_eager(self, out: _Outputs, slot: int) -> None:
         env = self.env
+        with env.sim._on_stream():
+            self._launch_draws()
         env.sim.step(env.num_cycles)
         with env.sim._on_stream():
             self._launch_task(out, slot)
@@ -280,6 +302,7 @@ class FusedTrajectoryStep:
         env, sim = self.env, self.env.sim
 
         def launches() -> None:
+            self._launch_draws()
             sim._launch_step(env.num_cycles)
             self._launch_task(out, slot)
 

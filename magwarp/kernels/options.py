@@ -93,3 +93,11 @@ SMALL_WORLD_BLOCK: int = _env_int("MAGWARP_SMALL_WORLD_BLOCK", 96, 1, 1024)
 SMALL_WORLD_MAXREG: int = _env_int("MAGWARP_SMALL_WORLD_MAXREG", 168, 0, 255)  # 0: no cap
 SMALL_WORLD_ROWS_CHOICES = ("shared", "registers")
 SMALL_WORLD_ROWS: str = _env_choice("MAGWARP_SMALL_WORLD_ROWS", SMALL_WORLD_ROWS_CHOICES, "shared")
+
+#: Whether the trajectory env's fused step (:mod:`magwarp.envs.trajectory_fused`, CUDA) runs two parts that the
+#: step's next launches do not read on a second stream, as parallel branches of its CUDA graph: the torch draws of
+#: the goals and starts beside the physics kernel, and the reset firing of the randomisation terms beside the
+#: simulator's reset kernels and the observation kernel (``"on"``), or everything in order on one stream
+#: (``"off"``). The same results either way. ``MAGWARP_STEP_BRANCHES``, read once at import: a tuning knob for
+#: benchmarks (``benchmarks/rand_gaps.py``), not an API.
+STEP_BRANCHES: str = _env_choice("MAGWARP_STEP_BRANCHES", ("on", "off"), "on")

@@ -208,6 +208,13 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                         {"num_movers": 256, "gate_speed": 0.3},
                                         "no paper row; the scripted planner (the zero correction)",
                                         ("--num-envs", "64")),
+    # the same gate, trained on 1,024 movers per world (64 x 64 tiles), where the 256-mover gated policy gives 0.93x
+    "swarm_residual_1024_gate": PaperRun("magwarp/SwarmResidual-v0", "ppo",
+                                         {"num_movers": 1024, "planner": {"traffic": "lanes"},
+                                          "reward_progress": 5.0, "gate_speed": 0.3},
+                                         {"num_movers": 1024, "gate_speed": 0.3},
+                                         "no paper row; the scripted planner (the zero correction)",
+                                         ("--num-envs", "16")),
     # Levitation (issue 17; no paper row): a residual on the PD + commutation baseline (a zero action is the PD),
     # compared with the PD on energy at equal tracking error by benchmarks/levitation_policy.py
     "lev_residual": PaperRun("magwarp/LevitationResidual-v0", "ppo", {"failure_reward": -1000.0},
