@@ -648,7 +648,7 @@ def main(argv=None) -> None:
     p.add_argument("--place-lanes", type=int, default=None, help="--fused-sweep: the placers' rounds in the lane "
                    "shape with this many lanes per listed mover (Placer.lanes; benchmarks/swarm_place.py times them)")
     p.add_argument("--place-search", choices=("grid", "world"), help="--fused-sweep: the placers' search in the timed "
-                   "envs (default: Placer's choice: world up to 256 movers per world on CUDA and 64 on the CPU, else "
+                   "envs (default: Placer's choice: world up to 160 movers per world on CUDA and 64 on the CPU, else "
                    "grid); every row also times the respawn placement alone with each")
     p.add_argument("--json", help="output JSON (default: benchmarks/results/swarm_<cpu|gpu>.json, "
                    "swarm_fused_<cpu|gpu>.json with --fused-sweep)")

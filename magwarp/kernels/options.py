@@ -99,5 +99,6 @@ SMALL_WORLD_ROWS: str = _env_choice("MAGWARP_SMALL_WORLD_ROWS", SMALL_WORLD_ROWS
 #: the goals and starts beside the physics kernel, and the reset firing of the randomisation terms beside the
 #: simulator's reset kernels and the observation kernel (``"on"``), or everything in order on one stream
 #: (``"off"``). The same results either way. ``MAGWARP_STEP_BRANCHES``, read once at import: a tuning knob for
-#: benchmarks (``benchmarks/rand_gaps.py``), not an API.
+#: benchmarks (``benchmarks/rand_gaps.py``), not an API. On the H100 at 65,536 B0 worlds the env step took 0.275 /
+#: 0.346 ms with them (no / full randomisation) against 0.286 / 0.362 without (rand_gaps_s37_branches_*_gpu.json).
 STEP_BRANCHES: str = _env_choice("MAGWARP_STEP_BRANCHES", ("on", "off"), "on")

@@ -48,8 +48,10 @@ BOUND_SLACK = 1.03
 HEX_DENSITY = math.pi / (2.0 * math.sqrt(3.0))
 #: how placement checks a candidate against the other movers (:class:`Placer`'s ``search``)
 SEARCHES = ("grid", "world")
-#: the most movers per world for which the default search scans the world (CUDA, CPU)
-WORLD_SCAN_CUDA = 256
+#: the most movers per world for which the default search scans the world (CUDA, CPU). CUDA: the respawn placement
+#: of the swarm step at 16,384 worlds on an H100 took 0.42 / 0.75 / 3.73 ms with the scan against 0.85 / 1.12 / 2.56
+#: with the grid at 64 / 100 / 256 movers (benchmarks/results/swarm_fused_s35_*_gpu.json): the crossover is near 160
+WORLD_SCAN_CUDA = 160
 WORLD_SCAN_CPU = 64
 #: the threads of a round's launch in the lane shape (:class:`Placer`'s ``lanes``): its groups walk the list of movers
 #: to place (an H100 holds 132 * 2048 resident threads)
