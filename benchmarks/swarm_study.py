@@ -32,12 +32,14 @@ def main(argv=None) -> int:
     p.add_argument("--occupancy", type=float, default=0.25, help="movers per tile")
     p.add_argument("--seconds", type=float, default=40.0, help="simulated seconds per size")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--policy", default=None, help="a trained policy.pt (or run folder) beside the planner")
+    p.add_argument("--policy", default=None,
+                   help="a trained policy.pt (or run folder, or pretrained:NAME) beside the planner")
     p.add_argument("--traffic", default="auto", choices=("auto", "lanes", "free"))
     p.add_argument("--window", type=float, default=0.0,
                    help="also the goals of each window of this many simulated seconds (goals_per_window)")
     p.add_argument("--env-kwargs", default=None,
                    help="JSON options of the policy's env over those stored with it, e.g. '{\"gate_speed\": 0.3}'")
+    p.add_argument("--seed", type=int, default=0, help="the worlds' seed (the same for the planner and the policy)")
     p.add_argument("--json", default=None)
     p.add_argument("--png", default=None)
     args = p.parse_args(argv)
@@ -50,15 +52,15 @@ def main(argv=None) -> int:
     if env_kwargs and args.policy is None:
         p.error("--env-kwargs sets options of a policy's env: give --policy too")
     rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy, args.traffic, args.window,
-                 env_kwargs)
+                 env_kwargs, args.seed)
     for r in rows:
-        r["seconds"], r["occupancy"], r["policy"] = args.seconds, args.occupancy, args.policy
+        r["seconds"], r["occupancy"], r["policy"], r["seed"] = args.seconds, args.occupancy, args.policy, args.seed
         if env_kwargs:
             r["env_kwargs"] = env_kwargs
     if args.png:
         plot(rows, args.png)
     return finish(rows, [c for c in COLUMNS if c in rows[0]] + [k for k in rows[0] if k not in COLUMNS
-                                                               and k not in ("seconds", "occupancy", "policy",
+                                                               and k not in ("seconds", "occupancy", "policy", "seed",
                                                                              "goals_per_window", "env_kwargs")],
                   info, args.json)
 

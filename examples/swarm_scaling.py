@@ -62,12 +62,16 @@ def policy_env_options(policy: str, traffic: str) -> tuple[str, dict]:
 
 
 def study(movers: list[int], occupancy: float, seconds: float, device: str | None, policy: str | None = None,
-          traffic: str = "auto", window: float = 0.0, env_kwargs: dict | None = None) -> list[dict]:
+          traffic: str = "auto", window: float = 0.0, env_kwargs: dict | None = None, seed: int = 0) -> list[dict]:
     """One row per size and controller; ``window`` > 0 (simulated seconds): also the goals of each such window
-    (``goals_per_window``); ``env_kwargs``: options of the policy's env over those it was trained with."""
+    (``goals_per_window``); ``env_kwargs``: options of the policy's env over those it was trained with; ``seed``:
+    the worlds' seed (the same for every controller: the same starts and goal streams until they part)."""
     rows = []
     net = None
     if policy is not None:
+        from magwarp.training.pretrained import resolve_policy
+
+        policy = resolve_policy(policy)  # pretrained:NAME -> the shipped file
         import gymnasium as gym
         import torch
 
@@ -79,13 +83,13 @@ def study(movers: list[int], occupancy: float, seconds: float, device: str | Non
         print(f"policy {policy}: on {env_id} with {options or 'its default options'}", flush=True)
     for m in movers:
         side = int(math.ceil(math.sqrt(m / occupancy)))
-        env = SwarmEnv(1, num_movers=m, layout=Layout.grid(side, side), device=device, seed=0, check_inputs=False)
+        env = SwarmEnv(1, num_movers=m, layout=Layout.grid(side, side), device=device, seed=seed, check_inputs=False)
         steps = max(1, int(round(seconds / (env.num_cycles * 1e-3))))
         win = max(1, int(round(window / (env.num_cycles * 1e-3)))) if window > 0 else 0
         controllers = [("planner", SwarmPlanner(env, traffic=traffic), env)]
         if policy is not None:
             # the env the policy was trained on, with the planner row's size, layout and seed: the same worlds
-            penv = gym.make_vec(env_id, num_envs=1, device=device, seed=0, check_inputs=False, num_movers=m,
+            penv = gym.make_vec(env_id, num_envs=1, device=device, seed=seed, check_inputs=False, num_movers=m,
                                 layout=Layout.grid(side, side), **options).unwrapped
             net = net or load_policy(policy, penv.device)
             controllers.append(("residual" if isinstance(penv, ResidualAction) else "policy", net, penv))
