@@ -215,6 +215,14 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                          {"num_movers": 1024, "gate_speed": 0.3},
                                          "no paper row; the scripted planner (the zero correction)",
                                          ("--num-envs", "16")),
+    # the same, its training worlds cut every 80 s (max_episode_steps 2000, the evaluation's horizon): a world that
+    # runs on jams as it ages (benchmarks/swarm_jam.py), so the uncut run learns mostly in jammed worlds
+    "swarm_residual_1024_gate_ep": PaperRun("magwarp/SwarmResidual-v0", "ppo",
+                                            {"num_movers": 1024, "planner": {"traffic": "lanes"},
+                                             "reward_progress": 5.0, "gate_speed": 0.3, "max_episode_steps": 2000},
+                                            {"num_movers": 1024, "gate_speed": 0.3},
+                                            "no paper row; the scripted planner (the zero correction)",
+                                            ("--num-envs", "16")),
     # Levitation (issue 17; no paper row): a residual on the PD + commutation baseline (a zero action is the PD),
     # compared with the PD on energy at equal tracking error by benchmarks/levitation_policy.py
     "lev_residual": PaperRun("magwarp/LevitationResidual-v0", "ppo", {"failure_reward": -1000.0},
