@@ -40,6 +40,7 @@ def main(argv=None) -> int:
     p.add_argument("--env-kwargs", default=None,
                    help="JSON options of the policy's env over those stored with it, e.g. '{\"gate_speed\": 0.3}'")
     p.add_argument("--seed", type=int, default=0, help="the worlds' seed (the same for the planner and the policy)")
+    p.add_argument("--no-planner", action="store_true", help="the policy's rows alone (needs --policy)")
     p.add_argument("--json", default=None)
     p.add_argument("--png", default=None)
     args = p.parse_args(argv)
@@ -49,10 +50,10 @@ def main(argv=None) -> int:
     from magwarp.training.common import parse_env_kwargs
 
     env_kwargs = parse_env_kwargs(args.env_kwargs)
-    if env_kwargs and args.policy is None:
-        p.error("--env-kwargs sets options of a policy's env: give --policy too")
+    if (env_kwargs or args.no_planner) and args.policy is None:
+        p.error("--env-kwargs and --no-planner concern a policy: give --policy too")
     rows = study(args.movers, args.occupancy, args.seconds, args.device, args.policy, args.traffic, args.window,
-                 env_kwargs, args.seed)
+                 env_kwargs, args.seed, planner=not args.no_planner)
     for r in rows:
         r["seconds"], r["occupancy"], r["policy"], r["seed"] = args.seconds, args.occupancy, args.policy, args.seed
         if env_kwargs:

@@ -62,10 +62,12 @@ def policy_env_options(policy: str, traffic: str) -> tuple[str, dict]:
 
 
 def study(movers: list[int], occupancy: float, seconds: float, device: str | None, policy: str | None = None,
-          traffic: str = "auto", window: float = 0.0, env_kwargs: dict | None = None, seed: int = 0) -> list[dict]:
+          traffic: str = "auto", window: float = 0.0, env_kwargs: dict | None = None, seed: int = 0,
+          planner: bool = True) -> list[dict]:
     """One row per size and controller; ``window`` > 0 (simulated seconds): also the goals of each such window
     (``goals_per_window``); ``env_kwargs``: options of the policy's env over those it was trained with; ``seed``:
-    the worlds' seed (the same for every controller: the same starts and goal streams until they part)."""
+    the worlds' seed (the same for every controller: the same starts and goal streams until they part); ``planner``:
+    also the planner's row (False: the policy's alone, e.g. when the planner's row of that seed is at hand)."""
     rows = []
     net = None
     if policy is not None:
@@ -86,7 +88,7 @@ def study(movers: list[int], occupancy: float, seconds: float, device: str | Non
         env = SwarmEnv(1, num_movers=m, layout=Layout.grid(side, side), device=device, seed=seed, check_inputs=False)
         steps = max(1, int(round(seconds / (env.num_cycles * 1e-3))))
         win = max(1, int(round(window / (env.num_cycles * 1e-3)))) if window > 0 else 0
-        controllers = [("planner", SwarmPlanner(env, traffic=traffic), env)]
+        controllers = [("planner", SwarmPlanner(env, traffic=traffic), env)] if planner else []
         if policy is not None:
             # the env the policy was trained on, with the planner row's size, layout and seed: the same worlds
             penv = gym.make_vec(env_id, num_envs=1, device=device, seed=seed, check_inputs=False, num_movers=m,
