@@ -61,7 +61,7 @@ def test_export_command(tmp_path, rng, capsys):
     del path
 
 
-@pytest.mark.parametrize("name", ["b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac", "swarm_residual_1024_gate"])
+@pytest.mark.parametrize("name", ["b0_ppo", "pushbox_sac", "pusht_sac", "obstacles_sac", "swarm_residual_1024_gate_ep"])
 def test_shipped_policies_export(tmp_path, name):
     """The shipped policies (magwarp/pretrained/: 256-wide networks, actions up to 10 m/s^2) pass the export's own
     check."""

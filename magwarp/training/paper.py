@@ -210,7 +210,7 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                         ("--num-envs", "64")),
     # the same gate, trained on 1,024 movers per world (64 x 64 tiles), where the 256-mover gated policy gives 0.93x.
     # CPU, 25 min, one world (--num-envs 1), 10 M agent-steps: 1.001x / 1.012x / 1.102x the planner's goals at 1,024
-    # movers over 80 s, seeds 0 / 1 / 2, no collisions (RESULTS.md); shipped as pretrained:swarm_residual_1024_gate
+    # movers over 80 s, seeds 0 / 1 / 2, no collisions, but 0.79x over 400 s (RESULTS.md)
     "swarm_residual_1024_gate": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                          {"num_movers": 1024, "planner": {"traffic": "lanes"},
                                           "reward_progress": 5.0, "gate_speed": 0.3},
@@ -219,7 +219,8 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                          ("--num-envs", "16")),
     # the same, its training worlds cut every 80 s (max_episode_steps 2000, the evaluation's horizon): a world that
     # runs on jams as it ages (benchmarks/swarm_jam.py), so the uncut run learns mostly in jammed worlds. CPU, 25 min,
-    # 7.9 M agent-steps: 1.072x / 1.061x / 1.036x the planner over 80 s at 1,024 movers, seeds 0-2 (RESULTS.md)
+    # 7.9 M agent-steps: 1.072x / 1.061x / 1.036x the planner over 80 s at 1,024 movers, seeds 0-2, and 1.26x over
+    # 400 s (seed 0), no collisions (RESULTS.md); shipped as pretrained:swarm_residual_1024_gate_ep
     "swarm_residual_1024_gate_ep": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                             {"num_movers": 1024, "planner": {"traffic": "lanes"},
                                              "reward_progress": 5.0, "gate_speed": 0.3, "max_episode_steps": 2000},
