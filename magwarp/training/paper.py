@@ -63,6 +63,8 @@ _B0 = {"num_cycles": 120, "collision_shape": "box", "collision_size": [0.09, 0.0
 _B0_PUBLISHED = {**_B0, "mover_params": {"size": MOVER_113MM, "mass": 0.63}}
 _B0_FINE = {**_B0_PUBLISHED, "num_cycles": 40}
 _B0_STARTS40 = {**_B0_PUBLISHED, "max_episode_steps": 40}  # training episodes cut after 40 steps (4.8 s)
+# the residual swarm runs on 1,024 movers per world with the correction gated off slow movers (issue 18)
+_SWARM_1024_GATE = {"num_movers": 1024, "planner": {"traffic": "lanes"}, "reward_progress": 5.0, "gate_speed": 0.3}
 _PLATFORM_POSE = {"action_mode": "pose", "num_cycles": 40}
 #: Issue 24's sim2real conditions (``benchmarks/robustness.py``'s "randomised"): the planar "sim2real" preset (its
 #: ranges and where they come from: :data:`magwarp.envs.randomization.PRESETS`), an action latency of 0..5 control
@@ -211,9 +213,7 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # the same gate, trained on 1,024 movers per world (64 x 64 tiles), where the 256-mover gated policy gives 0.93x.
     # CPU, 25 min, one world (--num-envs 1), 10 M agent-steps: 1.001x / 1.012x / 1.102x the planner's goals at 1,024
     # movers over 80 s, seeds 0 / 1 / 2, no collisions, but 0.79x over 400 s (RESULTS.md)
-    "swarm_residual_1024_gate": PaperRun("magwarp/SwarmResidual-v0", "ppo",
-                                         {"num_movers": 1024, "planner": {"traffic": "lanes"},
-                                          "reward_progress": 5.0, "gate_speed": 0.3},
+    "swarm_residual_1024_gate": PaperRun("magwarp/SwarmResidual-v0", "ppo", _SWARM_1024_GATE,
                                          {"num_movers": 1024, "gate_speed": 0.3},
                                          "no paper row; the scripted planner (the zero correction)",
                                          ("--num-envs", "16")),
@@ -222,8 +222,7 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # 7.9 M agent-steps: 1.072x / 1.061x / 1.036x the planner over 80 s at 1,024 movers, seeds 0-2, and 1.26x over
     # 400 s (seed 0), no collisions (RESULTS.md); shipped as pretrained:swarm_residual_1024_gate_ep
     "swarm_residual_1024_gate_ep": PaperRun("magwarp/SwarmResidual-v0", "ppo",
-                                            {"num_movers": 1024, "planner": {"traffic": "lanes"},
-                                             "reward_progress": 5.0, "gate_speed": 0.3, "max_episode_steps": 2000},
+                                            {**_SWARM_1024_GATE, "max_episode_steps": 2000},
                                             {"num_movers": 1024, "gate_speed": 0.3},
                                             "no paper row; the scripted planner (the zero correction)",
                                             ("--num-envs", "16")),
