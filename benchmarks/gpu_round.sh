@@ -10,7 +10,7 @@
 # small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile and
 # tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps, fire_cost and
 # branches (#24), magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs, swarm_place and tests18
-# (#18), compare (B0 env throughput of an older tree beside this one).
+# and place_scan (#18), compare (B0 env throughput of an older tree beside this one).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -34,7 +34,8 @@ for stage in "$@"; do
     tests18)
       # #18: the swarm env's step as one CUDA graph against the same launches eagerly (bit for bit), the fused step
       timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_graph.py \
-        tests/test_swarm_fused.py tests/test_swarm_task_kernels.py > "$OUT/pytest18_gpu.log" 2>&1
+        tests/test_swarm_fused.py tests/test_swarm_task_kernels.py tests/test_swarm_placement.py \
+        > "$OUT/pytest18_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest18_gpu.log" | tail -25 ;;
     queries)
       timeout 400 python3 benchmarks/collision_queries.py --devices cpu cuda:0 --max-poses-cpu 1e5 \
@@ -218,6 +219,17 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       timeout 560 python3 benchmarks/swarm.py --device cuda:0 --fused-sweep --fused-movers ${FUSED_MOVERS:-100} \
         --fused-worlds ${FUSED_WORLDS:-1024 4096 8192 16384} --json "$OUT/swarm_fused_gpu_${FUSED_MOVERS:-100}.json" \
         2>&1 | grep -v "^Module" | tail -40 ;;
+    place_scan)
+      # #18: the placement's scan shapes (Placer.scan: serial, chunked, together), the lane shape and the grid alone at
+      # 16,384 worlds x 64-256 movers (CUDA graph replays, bit for bit against serial), then the fused swarm step at
+      # 64 movers with each scan shape (MAGWARP_PLACE_SCAN)
+      timeout 300 python3 benchmarks/swarm_place.py --device cuda:0 --lanes 8 --movers 64 100 160 256 \
+        --json "$OUT/swarm_place_scan_gpu.json" 2>&1 | grep -v "^Module" | tail -40
+      for shape in serial chunked together; do
+        MAGWARP_PLACE_SCAN=$shape timeout 300 python3 benchmarks/swarm.py --device cuda:0 --fused-sweep \
+          --fused-movers 64 --fused-worlds 16384 --json "$OUT/swarm_fused_scan_${shape}_64_gpu.json" 2>&1 \
+          | grep -v "^Module" | tail -6
+      done ;;
     followup)
       # The placement's lane shape (#18: Placer.lanes) and the observation's variants against the defaults, bit for
       # bit; then the swarm step at 64, 100 and 256 movers per world with the defaults of the day (about 4 minutes)

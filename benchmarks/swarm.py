@@ -458,7 +458,7 @@ def place_searches(env, device: str, steps: int) -> dict:
 
 def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth: float,
                     breakdown: bool = False, obs_search: str | None = None, place_search: str | None = None,
-                    obs_merge: bool = False, place_lanes: int | None = None) -> dict:
+                    obs_merge: bool = False, place_lanes: int | None = None, place_scan: str | None = None) -> dict:
     from magwarp.swarm import SwarmEnv
 
     row: dict = {"device": device, "movers": movers, "worlds": worlds, "agents": movers * worlds, "steps": steps}
@@ -475,6 +475,10 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
                 placer.search = place_search
             if placer is not None and place_lanes is not None:
                 placer.lanes = place_lanes
+            if placer is not None and place_scan is not None:
+                placer.scan = place_scan
+            if placer is not None:
+                row["place_scan"] = placer.scan
         key = "fused" if fused else "old"
 
         def step():
@@ -557,7 +561,8 @@ def run_fused_sweep(args) -> list[dict]:
             steps = args.steps or (20 if device.startswith("cuda") else 3)
             row = bench_fused_row(movers, worlds, device, steps, bandwidth, breakdown=worlds == worlds_list[-1],
                                   obs_search=args.obs_search, place_search=args.place_search,
-                                  obs_merge=args.obs_merge, place_lanes=args.place_lanes)
+                                  obs_merge=args.obs_merge, place_lanes=args.place_lanes,
+                                  place_scan=args.place_scan)
             row.update(check)
             rows.append(row)
             print(f"  {device} {worlds} x {movers}: old {row['old_env_ms']:.3f} ms, fused {row['fused_env_ms']:.3f} "
@@ -647,6 +652,8 @@ def main(argv=None) -> None:
                    "2026-12-06; this forces it on the CPU too)")
     p.add_argument("--place-lanes", type=int, default=None, help="--fused-sweep: the placers' rounds in the lane "
                    "shape with this many lanes per listed mover (Placer.lanes; benchmarks/swarm_place.py times them)")
+    p.add_argument("--place-scan", choices=("serial", "chunked", "together"), help="--fused-sweep: how the "
+                   "placers' rounds check their tries in the timed envs (Placer.scan; default: the device's)")
     p.add_argument("--place-search", choices=("grid", "world"), help="--fused-sweep: the placers' search in the timed "
                    "envs (default: Placer's choice: world up to 160 movers per world on CUDA and 64 on the CPU, else "
                    "grid); every row also times the respawn placement alone with each")

@@ -1,7 +1,10 @@
-"""The swarm env's placement alone (#18), by launch shape of its rounds (:attr:`magwarp.swarm.Placer.lanes`): the
-default (one thread per mover of every world, threads past the list's count exit) against the lane shape (a group of
-``lanes`` threads per listed mover in a fixed grid walking the list), with a bit-for-bit check of the spots and of
-the movers left against the default (``match``).
+"""The swarm env's placement alone (#18), by the shape of its rounds (``search="world"``): one thread per mover of
+every world (threads past the list's count exit) checking a round's tries in one of the :attr:`magwarp.swarm.
+Placer.scan` shapes (``serial``: :func:`~magwarp.kernels.placement.propose`, one try and one mover after another;
+``chunked`` and ``together``: :func:`~magwarp.kernels.placement.make_scan_propose`, the world's movers read a chunk
+at a time, tries in turn or all at once), against the lane shape (a group of ``lanes`` threads per listed mover in
+a fixed grid walking the list, :attr:`~magwarp.swarm.Placer.lanes`), and against the grid's cell lists (``search="grid"``), with a bit-for-bit check of the
+spots and of the movers left against ``serial`` (``match``).
 
 Each row is one call as the env's step makes it (:meth:`~magwarp.swarm.Placer.place_device`: the list, two rounds of
 ``propose`` and ``resolve``, ``hold``) from the same state and the same random streams every call:
@@ -13,10 +16,12 @@ Each row is one call as the env's step makes it (:meth:`~magwarp.swarm.Placer.pl
 * ``goal``: the goal placer (offset ``collision_offset``) re-placing ``--goal-fraction`` (default 0.004: 46-66 of
   16,384 per step on the CPU) of the goals among the others.
 
-Every row uses ``search="world"`` (the default on CUDA up to 256 movers per world; the lane shape needs it). State
+Every row but ``grid`` uses ``search="world"`` (the default on CUDA up to 160 movers per world). State
 (``--state``): ``random`` (default: every mover placed by the env's reset placer, the movers to place drawn at
 random) or ``env`` (the env's own respawn requests after ``--env-steps`` fused steps of ``seek_goals``: the real
-pattern, at the price of compiling the fused step). Times: the median of 5 batches of ``--calls`` calls, per call.
+pattern, at the price of compiling the fused step). Times: the median of 5 batches of ``--calls`` calls, per call,
+launched one by one (``ms``: wall clock, the host's launch cost included) and, on CUDA, replayed as one recorded
+CUDA graph (``graph_ms``: GPU time, as inside the env's step graph; the speed-up is of these).
 
     python benchmarks/swarm_place.py --device cuda:0 --json benchmarks/results/swarm_place_gpu.json   # 16,384 worlds
     python benchmarks/swarm_place.py --device cpu                                                   # smoke: 32 worlds
@@ -31,6 +36,8 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from common import batched_ms, finish, start_run, sync_device  # noqa: E402
+
+from magwarp.swarm.placement import SCAN_SHAPES  # noqa: E402
 
 #: the rounds' shapes compared (None: the default)
 LANES = (None, 1, 2, 4, 8, 16, 32)
@@ -68,20 +75,49 @@ def _requests(worlds: int, movers: int, device: str, args) -> list[tuple[str, ob
     return out
 
 
-def bench(worlds: int, movers: int, device: str, calls: int, lanes_list, args) -> list[dict]:
+def graph_ms(fn, calls: int, samples: int = 5) -> float:
+    """CUDA: the median over ``samples`` of the GPU ms per call of ``fn`` recorded once as a CUDA graph (as the swarm
+    env's step records it) and replayed ``calls`` times between two events: no host launch cost in the figure."""
+    import statistics
+
+    import torch
+
+    fn()
+    torch.cuda.synchronize()
+    graph = torch.cuda.CUDAGraph()
+    with torch.cuda.graph(graph):
+        fn()
+    graph.replay()
+    torch.cuda.synchronize()
+    out = []
+    for _ in range(samples):
+        start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+        start.record()
+        for _ in range(calls):
+            graph.replay()
+        end.record()
+        torch.cuda.synchronize()
+        out.append(start.elapsed_time(end) / calls)
+    return statistics.median(out)
+
+
+def bench(worlds: int, movers: int, device: str, calls: int, variants, args) -> list[dict]:
+    """One row per request and variant ``(name, search, lanes, scan)``; the first variant is the reference."""
+    import torch
     import warp as wp
 
     rows = []
     for name, placer, start, mask in _requests(worlds, movers, device, args):
-        calls0, default, search = placer._calls, placer.lanes, placer.search
-        placer.search = "world"  # the lanes' search (the default on CUDA up to 256 movers; on a CPU up to 64)
-        ref = None
-        for lanes in lanes_list:
+        calls0, default, search, shape = placer._calls, placer.lanes, placer.search, placer.scan
+        ref = base = None
+        for label, place_search, lanes, scan in variants:
+            placer.search = place_search
             try:
                 placer.lanes = lanes
             except ValueError as exc:  # e.g. lanes > 1 on a CPU without cpu blocks
                 print(f"  skip lanes={lanes}: {exc}", flush=True)
                 continue
+            placer.scan = scan
             xy = start.clone()
 
             def place():
@@ -90,26 +126,24 @@ def bench(worlds: int, movers: int, device: str, calls: int, lanes_list, args) -
                 return placer.place_device(xy, mask, rounds=2, hold=True)
 
             ms = batched_ms(place, device, calls, warmup=2)
+            gms = graph_ms(place, calls) if device.startswith("cuda") else None
             todo = wp.to_torch(place()).clone()
             sync_device(device)
             got = (xy.clone(), todo)
             if ref is None:
-                ref = got
-            import torch
-
+                ref, base = got, (gms or ms)
             match = bool(torch.equal(got[0], ref[0]) and torch.equal(got[1], ref[1]))
             asked = int(mask.sum())
             left = int((todo != 0)[mask].sum())
             row = {"device": device, "worlds": worlds, "movers": movers, "state": args.state, "request": name,
-                   "search": placer.search, "lanes": "default" if lanes is None else lanes, "ms": ms,
-                   "asked": asked, "left": left, "match": match}
-            if ref is got:
-                base = ms
-            row["speedup"] = base / ms
+                   "search": placer.search, "variant": label, "lanes": "default" if lanes is None else lanes,
+                   "scan": scan, "ms": ms, "graph_ms": gms, "asked": asked, "left": left,
+                   "match": match, "speedup": base / (gms or ms)}
             rows.append(row)
-            print(f"  {device} {worlds} x {movers} {name}: lanes {row['lanes']}: {ms:.4f} ms/call ({asked} asked, "
-                  f"{left} left), x{row['speedup']:.2f}, match {match}", flush=True)
-        placer.lanes, placer._calls, placer.search = default, calls0, search
+            print(f"  {device} {worlds} x {movers} {name}: {label}: {ms:.4f} ms/call eager"
+                  + (f", {gms:.4f} in a graph" if gms is not None else "")
+                  + f" ({asked} asked, {left} left), x{row['speedup']:.2f}, match {match}", flush=True)
+        placer.lanes, placer._calls, placer.search, placer.scan = default, calls0, search, shape
     return rows
 
 
@@ -118,8 +152,8 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="cuda:0 or cpu (default: cuda:0 if present, else cpu)")
     p.add_argument("--worlds", type=int, default=None, help="worlds (default 16384 on CUDA, 32 on the CPU)")
     p.add_argument("--movers", type=int, nargs="+", default=[64, 100], help="movers per world (default 64 100)")
-    p.add_argument("--lanes", default=None, help="comma-separated lane counts after the default (default "
-                   "1,2,4,8,16,32)")
+    p.add_argument("--lanes", default=None, help="comma-separated lane counts after the two one-thread shapes "
+                   "(default 1,2,4,8,16,32; '' for none)")
     p.add_argument("--calls", type=int, default=None, help="calls per timed batch (default 20 on CUDA, 2 on the CPU)")
     p.add_argument("--state", choices=("random", "env"), default="random")
     p.add_argument("--env-steps", type=int, default=30, help="fused env steps before the env state is taken")
@@ -136,15 +170,17 @@ def main(argv=None) -> int:
         wp.config.enable_cpu_blocks = True  # the lanes' votes by blocks (the GPU's warp votes' logic)
     worlds = args.worlds or (16384 if cuda else 32)
     calls = args.calls or (20 if cuda else 2)
-    lanes_list = LANES if args.lanes is None else (None, *(int(v) for v in args.lanes.split(",")))
+    lanes_list = LANES[1:] if args.lanes is None else tuple(int(v) for v in args.lanes.split(",") if v)
+    variants = [(shape, "world", None, shape) for shape in SCAN_SHAPES]
+    variants += [(f"lanes {n}", "world", n, "serial") for n in lanes_list] + [("grid", "grid", None, "serial")]
     rows = []
     for movers in args.movers:
-        rows += bench(worlds, movers, device, calls, lanes_list, args)
+        rows += bench(worlds, movers, device, calls, variants, args)
     bad = [r for r in rows if not r["match"]]
     if bad:
-        print(f"MISMATCH: {len(bad)} row(s) placed other spots than the default shape", flush=True)
-    code = finish(rows, ["device", "worlds", "movers", "request", "lanes", ("ms", "ms/call"), "asked", "left",
-                         "speedup", "match"], info, args.json)
+        print(f"MISMATCH: {len(bad)} row(s) placed other spots than the serial shape", flush=True)
+    code = finish(rows, ["device", "worlds", "movers", "request", "variant", ("ms", "ms/call"),
+                         ("graph_ms", "graph ms/call"), "asked", "left", "speedup", "match"], info, args.json)
     return code or int(bool(bad))
 
 

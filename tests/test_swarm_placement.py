@@ -12,7 +12,7 @@ import torch
 from magwarp import reference as ref
 from magwarp.layout import Layout, MoverSpec
 from magwarp.sim import Simulator
-from magwarp.swarm.placement import Placer, PlacementError
+from magwarp.swarm.placement import SCAN_SHAPES, Placer, PlacementError
 
 
 def random_layout(rng, nx: int, ny: int, holes: float) -> Layout:
@@ -150,35 +150,42 @@ def test_rounds_do_not_depend_on_the_order_of_the_listed_movers(rng, hold, searc
         check_placement(layout, MoverSpec(), 0.0, results[0][0].numpy(), rng)
 
 
-@pytest.mark.parametrize("shape", ["circle", "box"])
-def test_world_scan_places_as_the_grid_does(rng, shape):
-    """``search="world"`` (each candidate checked against every mover of its world, no cell lists) places the same
-    spots and leaves the same movers as the grid's lists, bit for bit, with and without ``hold``, over back-to-back
-    calls; so does a checked ``place``. A few tries per round on a crowded layout with holes: rounds reject
-    candidates for walls, placed movers, held spots and lower-indexed winners alike."""
+@pytest.mark.parametrize("shape,tries", [("circle", 2), ("box", 2), ("circle", 7)])
+def test_world_scan_places_as_the_grid_does(rng, devices, shape, tries):
+    """``search="world"`` (each candidate checked against every mover of its world, no cell lists), in every
+    ``scan`` shape (one try and one mover after another, tries in turn by chunks of movers, or all tries together),
+    places the same spots and leaves the same movers as the
+    grid's lists, bit for bit, with and without ``hold``, over back-to-back calls; so does a checked ``place``. A few
+    tries per round on a crowded layout with holes: rounds reject candidates for walls, placed movers, held spots and
+    lower-indexed winners alike."""
     layout = random_layout(rng, 8, 8, holes=0.15)
     mover = MoverSpec(collision_shape=shape)
     seed = int(rng.integers(1 << 20))
     runs = []
-    for search in ("grid", "world"):
-        placer = Placer(layout, 16, 5, mover=mover, device="cpu", seed=seed, search=search)
+    shapes = [("cpu", "grid", "serial")] + [(d, "world", scan) for d in devices for scan in SCAN_SHAPES]
+    for device, search, scan in shapes:
+        placer = Placer(layout, 16, 5, mover=mover, device=device, seed=seed, search=search, scan=scan)
         xy = placer.sample()
-        placer.tries = 2
-        out = [xy.clone()]
+        placer.tries = tries
+        out = [xy.to("cpu", copy=True)]
         calls = np.random.default_rng(seed)
         for hold in (True, False, True, True):
             mask = torch.from_numpy(calls.random((5, 16)) < 0.4)
             mask[3] = False
-            left = placer.place_async(xy, mask, rounds=2, hold=hold)
-            out += [xy.clone(), left.clone()]
+            left = placer.place_async(xy, mask.to(xy.device), rounds=2, hold=hold)
+            out += [xy.to("cpu", copy=True), left.to("cpu", copy=True)]
         runs.append(out)
-    grid, world = runs
-    assert all(torch.equal(a, b) for a, b in zip(grid, world)), f"{rng}: the searches placed differently"
+    grid = runs[0]
+    for run, (device, _, scan) in zip(runs[1:], shapes[1:]):
+        assert all(torch.equal(a, b) for a, b in zip(grid, run)), \
+            f"{rng}: the world scan ({scan}, {device}) placed differently from the grid"
     left = torch.stack(grid[2::2])
     assert left.any() and (~left).any(), f"{rng}: the test needs movers placed and movers left"
     check_placement(layout, mover, 0.0, grid[1].numpy(), rng)
     with pytest.raises(ValueError, match="'ring'"):
         Placer(layout, 3, device="cpu", search="ring")
+    with pytest.raises(ValueError, match="scan.*'yes'"):
+        Placer(layout, 3, device="cpu", scan="yes")
 
 
 def test_on_torch_stream_uses_the_shared_stream_wrapper(monkeypatch):

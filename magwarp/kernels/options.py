@@ -102,3 +102,11 @@ SMALL_WORLD_ROWS: str = _env_choice("MAGWARP_SMALL_WORLD_ROWS", SMALL_WORLD_ROWS
 #: benchmarks (``benchmarks/rand_gaps.py``), not an API. On the H100 at 65,536 B0 worlds the env step took 0.275 /
 #: 0.346 ms with them (no / full randomisation) against 0.286 / 0.362 without (rand_gaps_s37_branches_*_gpu.json).
 STEP_BRANCHES: str = _env_choice("MAGWARP_STEP_BRANCHES", ("on", "off"), "on")
+
+#: How the swarm placement's rounds with ``search="world"`` check a round's tries (:attr:`magwarp.swarm.Placer.scan`,
+#: :data:`magwarp.swarm.placement.SCAN_SHAPES`) when the placer is not told: ``"device"`` (the device's default,
+#: :data:`~magwarp.swarm.placement.SCAN_CUDA` / :data:`~magwarp.swarm.placement.SCAN_CPU`) or one shape for every
+#: device. ``MAGWARP_PLACE_SCAN``, read once at import: a tuning knob for benchmarks (``benchmarks/swarm.py``), not an
+#: API. The same spots whatever the shape.
+PLACE_SCAN_CHOICES = ("device", "serial", "chunked", "together")
+PLACE_SCAN: str = _env_choice("MAGWARP_PLACE_SCAN", PLACE_SCAN_CHOICES, "device")

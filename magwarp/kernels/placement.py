@@ -343,6 +343,138 @@ def propose(
         return
 
 
+#: the most tries per round the scan's round shapes (:func:`make_scan_propose`) keep in registers
+MAX_BATCHED_TRIES = 16
+#: movers the scan's round shapes read per pass of their loops (loads issued together, then checked)
+BATCH_CHUNK = 4
+#: how :func:`make_scan_propose` checks a round's tries: ``"chunked"`` one after another, ``"together"`` all at once
+SCAN_SHAPES = ("chunked", "together")
+
+
+@functools.cache
+def make_scan_propose(tries: int, shape: str):
+    """:func:`propose` with ``scan`` (``search="world"``) in another shape, the same spots bit for bit. The round's
+    ``tries`` candidates are drawn first (the same draws as :func:`propose`'s tries, in the same order) and checked
+    against the walls; then the world's movers are read :data:`BATCH_CHUNK` at a time (the loads issued together,
+    then checked: a thread waits for a chunk, not for each mover):
+
+    * ``"chunked"``: one try after another, each stopping at the chunk that holds its first conflict (the checks of
+      :func:`propose`; its dependent reads a chunk at a time);
+    * ``"together"``: one pass for all tries, each mover read once and checked against every candidate still valid,
+      the pass ending once none is left (a thread reads the world's movers once per round instead of once per try;
+      more checks per read when most tries fail at once).
+
+    The first valid candidate wins, as the first valid try of :func:`propose` does. ``tries`` at most
+    :data:`MAX_BATCHED_TRIES`. The kernel takes :func:`propose`'s inputs less ``tries``, ``scan`` and the cell
+    lists."""
+    if not 1 <= int(tries) <= MAX_BATCHED_TRIES:
+        raise ValueError(f"scan tries must be in 1..{MAX_BATCHED_TRIES}, got {tries!r}")
+    if shape not in SCAN_SHAPES:
+        raise ValueError(f"scan shape must be one of {SCAN_SHAPES}, got {shape!r}")
+    T = int(tries)
+    together = shape == "together"
+    Cands = wp.types.matrix(shape=(T, 2), dtype=wp.float32)
+    Flags = wp.types.vector(length=T, dtype=wp.int32)
+    opts = {"enable_backward": False, **MODULE_OPTIONS, "max_unroll": max(16, T * BATCH_CHUNK)}
+
+    @wp.func
+    def chunk_clear(g: PlaceGrid, w: int, m: int, j0: int, p: wp.vec2, hold: int, pos: wp.array2d(dtype=wp.vec2),
+                    todo: wp.array2d(dtype=wp.int32)) -> bool:
+        """No mover ``j0 .. j0 + BATCH_CHUNK - 1`` of the world that counts (:func:`clear_in_world`) conflicts."""
+        clear = bool(True)
+        for u in range(BATCH_CHUNK):
+            j = j0 + u
+            if j < todo.shape[1] and j != m:
+                if hold != 0 or todo[w, j] == 0:
+                    if conflict(g, p - pos[w, j]):
+                        clear = False
+        return clear
+
+    @wp.kernel(module="unique", module_options=opts)
+    def propose_scan(
+        # Model:
+        g: PlaceGrid,
+        tiles: wp.array2d(dtype=wp.int32),
+        col: Collision,
+        radius: float,
+        half: wp.vec2,
+        tile_list: wp.array(dtype=wp.vec2i),
+        hold: int,
+        back: int,
+        # State in:
+        counter: wp.array(dtype=wp.int64),
+        pos: wp.array2d(dtype=wp.vec2),
+        todo: wp.array2d(dtype=wp.int32),
+        listed: wp.array(dtype=wp.int32),
+        count: wp.array(dtype=wp.int32),
+        # State out:
+        cand: wp.array2d(dtype=wp.vec2),
+        cand_ok: wp.array2d(dtype=wp.int32),
+        claim: wp.array(dtype=wp.int64),
+    ):
+        """:func:`propose` (``scan``) in the shape of :func:`make_scan_propose`."""
+        i = wp.tid()
+        if i >= count[0]:
+            return
+        num = todo.shape[1]
+        w, m = listed_mover(i, listed, num)
+        cand_ok[w, m] = 0
+        if todo[w, m] == 0:
+            return
+        rng = wp.rand_init(round_seed(counter, back), w * num + m)
+        size = col.tile_size
+        ntiles = tile_list.shape[0]
+        c = Cands()
+        ok = Flags()
+        left = int(0)
+        for t in range(T):
+            tl = tile_list[int(wp.randu(rng) % wp.uint32(ntiles))]
+            p = wp.vec2((float(tl[0]) + wp.randf(rng)) * size, (float(tl[1]) + wp.randf(rng)) * size)
+            c[t, 0] = p[0]
+            c[t, 1] = p[1]
+            if not hits_wall_cs(tiles, col, p, wp.vec2(1.0, 0.0), radius, half):
+                ok[t] = 1
+                left += 1
+        if wp.static(together):
+            j0 = int(0)
+            while j0 < num and left > 0:
+                for u in range(BATCH_CHUNK):
+                    j = j0 + u
+                    if j < num and j != m:
+                        if hold != 0 or todo[w, j] == 0:
+                            q = pos[w, j]
+                            for t in range(T):
+                                if ok[t] != 0:
+                                    if conflict(g, wp.vec2(c[t, 0], c[t, 1]) - q):
+                                        ok[t] = 0
+                                        left -= 1
+                j0 += BATCH_CHUNK
+        else:
+            found = bool(False)
+            for t in range(T):
+                if ok[t] != 0 and not found:
+                    p = wp.vec2(c[t, 0], c[t, 1])
+                    j0 = int(0)
+                    while j0 < num and ok[t] != 0:
+                        if not chunk_clear(g, w, m, j0, p, hold, pos, todo):
+                            ok[t] = 0
+                            left -= 1
+                        j0 += BATCH_CHUNK
+                    if ok[t] != 0:
+                        found = True
+        if left == 0:
+            return
+        for t in range(T):
+            if ok[t] != 0:
+                p = wp.vec2(c[t, 0], c[t, 1])
+                cand[w, m] = p
+                cand_ok[w, m] = 1
+                wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_number(counter, back), m))
+                return
+
+    return propose_scan
+
+
 @wp.kernel
 def resolve(
     # Model:

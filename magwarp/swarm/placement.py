@@ -30,6 +30,7 @@ from scipy import ndimage
 
 from magwarp._streams import torch_stream as _torch_stream
 from magwarp.kernels import placement as kpl
+from magwarp.kernels.options import PLACE_SCAN
 from magwarp.kernels.collision import footprints_on_tiles
 from magwarp.layout import Layout, LayoutError, MoverSpec
 from magwarp.types import SHAPE_BOX, SHAPE_CIRCLE, Collision
@@ -53,6 +54,15 @@ SEARCHES = ("grid", "world")
 #: with the grid at 64 / 100 / 256 movers (benchmarks/results/swarm_fused_s35_*_gpu.json): the crossover is near 160
 WORLD_SCAN_CUDA = 160
 WORLD_SCAN_CPU = 64
+#: how the rounds of ``search="world"`` check a round's tries (:class:`Placer`'s ``scan``): ``"serial"``
+#: (:func:`~magwarp.kernels.placement.propose`: one try after another, one mover after another) or a shape of
+#: :func:`~magwarp.kernels.placement.make_scan_propose` (``"chunked"``, ``"together"``); the same spots, bit for bit
+SCAN_SHAPES = ("serial", *kpl.SCAN_SHAPES)
+#: the default ``scan`` (CUDA, CPU; ``MAGWARP_PLACE_SCAN`` sets both: :data:`magwarp.kernels.options.PLACE_SCAN`).
+#: CPU (this project's 2 cores, 256 worlds, benchmarks/swarm_place.py): the respawn call at 64 / 100 movers took
+#: 3.07 / 5.83 ms serial, 2.98 / 5.37 chunked and 4.33 / 8.23 with the tries together
+SCAN_CUDA = "together" if PLACE_SCAN == "device" else PLACE_SCAN
+SCAN_CPU = "chunked" if PLACE_SCAN == "device" else PLACE_SCAN
 #: the threads of a round's launch in the lane shape (:class:`Placer`'s ``lanes``): its groups walk the list of movers
 #: to place (an H100 holds 132 * 2048 resident threads)
 LANE_GRID_THREADS = 1 << 18
@@ -102,13 +112,17 @@ class Placer:
     default) one thread per mover of every world, threads past the list's count exiting at once; 1-32 (a power of two)
     that many threads per listed mover in a fixed grid of :data:`LANE_GRID_THREADS` threads whose groups walk the
     list, the world's movers split over the lanes (in registers) and a vote per try. More than 1 on a CPU needs
-    ``warp.config.enable_cpu_blocks`` (a block per group, ``wp.tile_sum`` votes). Settable between calls.
+    ``warp.config.enable_cpu_blocks`` (a block per group, ``wp.tile_sum`` votes). ``scan``: with ``search="world"``
+    and ``lanes`` None, how a round's tries are checked (:data:`SCAN_SHAPES`; the same spots, bit for bit; the
+    shapes of :func:`~magwarp.kernels.placement.make_scan_propose` take ``tries`` up to
+    :data:`~magwarp.kernels.placement.MAX_BATCHED_TRIES`, more go one after another); None: :data:`SCAN_CUDA` on CUDA,
+    :data:`SCAN_CPU` on the CPU. ``search``, ``lanes`` and ``scan`` are settable between calls.
     """
 
     def __init__(self, layout: Layout | np.ndarray, num_movers: int, num_worlds: int = 1, *,
                  mover: MoverSpec | None = None, offset: float = 0.0, radius: float | None = None,
                  half_size=None, tries: int = 8, device=None, seed: int = 0, search: str | None = None,
-                 lanes: int | None = None):
+                 lanes: int | None = None, scan: str | None = None):
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
         self.mover = mover or MoverSpec()
         if int(num_movers) < 1 or int(num_worlds) < 1:
@@ -126,6 +140,7 @@ class Placer:
                 else "grid"
         self.search = search
         self.lanes = lanes
+        self.scan = (SCAN_CUDA if self.device.is_cuda else SCAN_CPU) if scan is None else scan
         # the device counter [base seed, rounds since the reseed, rounds ever (claims of older rounds lose)]: the
         # rounds' kernels read their seeds and round numbers from it (kpl.round_seed), so that a call recorded in a
         # CUDA graph draws fresh numbers at every replay
@@ -195,6 +210,17 @@ class Placer:
         if value not in SEARCHES:
             raise ValueError(f"search must be None or one of {SEARCHES}, got {value!r}")
         self._search = value
+
+    @property
+    def scan(self) -> str:
+        """How the rounds of ``search="world"`` check a round's tries (:data:`SCAN_SHAPES`); settable between calls."""
+        return self._scan_shape
+
+    @scan.setter
+    def scan(self, value: str) -> None:
+        if value not in SCAN_SHAPES:
+            raise ValueError(f"scan must be None or one of {SCAN_SHAPES}, got {value!r}")
+        self._scan_shape = value
 
     @property
     def lanes(self) -> int | None:
@@ -366,11 +392,17 @@ class Placer:
                           inputs=[g, back, self._counter, self._cand, self._cand_ok, self._claim, self._listed,
                                   self._count, groups], outputs=[self._todo, pos])
                 continue
-            wp.launch(kpl.propose, dim=dim, device=dev,
-                      inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half), self._tile_list,
-                              self.tries, self._hold, back, self._scan, self._counter, pos, self._todo, self._head,
-                              self._next, self._head_old, self._next_old, self._listed, self._count],
-                      outputs=[self._cand, self._cand_ok, self._claim])
+            if self._scan and self.scan != "serial" and self.tries <= kpl.MAX_BATCHED_TRIES:
+                wp.launch(kpl.make_scan_propose(self.tries, self.scan), dim=dim, device=dev,
+                          inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
+                                  self._tile_list, self._hold, back, self._counter, pos, self._todo, self._listed,
+                                  self._count], outputs=[self._cand, self._cand_ok, self._claim])
+            else:
+                wp.launch(kpl.propose, dim=dim, device=dev,
+                          inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
+                                  self._tile_list, self.tries, self._hold, back, self._scan, self._counter, pos,
+                                  self._todo, self._head, self._next, self._head_old, self._next_old, self._listed,
+                                  self._count], outputs=[self._cand, self._cand_ok, self._claim])
             wp.launch(kpl.resolve, dim=dim, device=dev,
                       inputs=[g, back, self._scan, self._counter, self._cand, self._cand_ok, self._claim, self._listed,
                               self._count, self._todo, pos, self._head, self._next])
