@@ -365,7 +365,8 @@ def make_scan_propose(tries: int, shape: str):
       more checks per read when most tries fail at once).
 
     The first valid candidate wins, as the first valid try of :func:`propose` does. ``tries`` at most
-    :data:`MAX_BATCHED_TRIES`. The kernel takes :func:`propose`'s inputs less ``tries``, ``scan`` and the cell
+    :data:`MAX_BATCHED_TRIES`. (:class:`~magwarp.swarm.Placer` pairs both with :func:`resolve`'s ``scan=2``, which
+    reads the lower-indexed winners a chunk at a time too.) The kernel takes :func:`propose`'s inputs less ``tries``, ``scan`` and the cell
     lists."""
     if not 1 <= int(tries) <= MAX_BATCHED_TRIES:
         raise ValueError(f"scan tries must be in 1..{MAX_BATCHED_TRIES}, got {tries!r}")
@@ -480,7 +481,8 @@ def resolve(
     # Model:
     g: PlaceGrid,
     back: int,  # as propose's
-    scan: int,  # 1: look for lower-indexed winners among the world's movers, keep no cell lists
+    scan: int,  # 1: look for lower-indexed winners among the world's movers, keep no cell lists; 2: the same, read
+    # BATCH_CHUNK movers at a time
     # State in:
     counter: wp.array(dtype=wp.int64),
     cand: wp.array2d(dtype=wp.vec2),
@@ -513,12 +515,28 @@ def resolve(
         # the cell winners of this round are the movers whose claim holds the cell of their candidate (a stale
         # candidate of an earlier call or round holds no claim of this round); the grid's cells within reach hold
         # every conflicting one
-        for j in range(m):
-            if cand_ok[w, j] != 0:
-                q = cand[w, j]
-                if conflict(g, p - q):
-                    if claimant(claim[cell_index(g, w, place_cell(g, q))], round_id) == j:
-                        return
+        if scan == 2:
+            j0 = int(0)
+            while j0 < m:
+                beaten = bool(False)
+                for u in range(BATCH_CHUNK):
+                    j = j0 + u
+                    if j < m:
+                        if cand_ok[w, j] != 0:
+                            q = cand[w, j]
+                            if conflict(g, p - q):
+                                if claimant(claim[cell_index(g, w, place_cell(g, q))], round_id) == j:
+                                    beaten = True
+                if beaten:
+                    return
+                j0 += BATCH_CHUNK
+        else:
+            for j in range(m):
+                if cand_ok[w, j] != 0:
+                    q = cand[w, j]
+                    if conflict(g, p - q):
+                        if claimant(claim[cell_index(g, w, place_cell(g, q))], round_id) == j:
+                            return
         pos[w, m] = p
         todo[w, m] = 0
         return

@@ -113,7 +113,8 @@ class Placer:
     that many threads per listed mover in a fixed grid of :data:`LANE_GRID_THREADS` threads whose groups walk the
     list, the world's movers split over the lanes (in registers) and a vote per try. More than 1 on a CPU needs
     ``warp.config.enable_cpu_blocks`` (a block per group, ``wp.tile_sum`` votes). ``scan``: with ``search="world"``
-    and ``lanes`` None, how a round's tries are checked (:data:`SCAN_SHAPES`; the same spots, bit for bit; the
+    and ``lanes`` None, how a round's tries (and, but for ``"serial"``, its winners) are checked
+    (:data:`SCAN_SHAPES`; the same spots, bit for bit; the
     shapes of :func:`~magwarp.kernels.placement.make_scan_propose` take ``tries`` up to
     :data:`~magwarp.kernels.placement.MAX_BATCHED_TRIES`, more go one after another); None: :data:`SCAN_CUDA` on CUDA,
     :data:`SCAN_CPU` on the CPU. ``search``, ``lanes`` and ``scan`` are settable between calls.
@@ -404,7 +405,7 @@ class Placer:
                                   self._todo, self._head, self._next, self._head_old, self._next_old, self._listed,
                                   self._count], outputs=[self._cand, self._cand_ok, self._claim])
             wp.launch(kpl.resolve, dim=dim, device=dev,
-                      inputs=[g, back, self._scan, self._counter, self._cand, self._cand_ok, self._claim, self._listed,
+                      inputs=[g, back, self._scan * (1 if self.scan == "serial" else 2), self._counter, self._cand, self._cand_ok, self._claim, self._listed,
                               self._count, self._todo, pos, self._head, self._next])
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
