@@ -113,11 +113,10 @@ class Placer:
     that many threads per listed mover in a fixed grid of :data:`LANE_GRID_THREADS` threads whose groups walk the
     list, the world's movers split over the lanes (in registers) and a vote per try. More than 1 on a CPU needs
     ``warp.config.enable_cpu_blocks`` (a block per group, ``wp.tile_sum`` votes). ``scan``: with ``search="world"``
-    and ``lanes`` None, how a round's tries (and, but for ``"serial"``, its winners) are checked
-    (:data:`SCAN_SHAPES`; the same spots, bit for bit; the
-    shapes of :func:`~magwarp.kernels.placement.make_scan_propose` take ``tries`` up to
-    :data:`~magwarp.kernels.placement.MAX_BATCHED_TRIES`, more go one after another); None: :data:`SCAN_CUDA` on CUDA,
-    :data:`SCAN_CPU` on the CPU. ``search``, ``lanes`` and ``scan`` are settable between calls.
+    and ``lanes`` None, how a round's tries (and, but for ``"serial"``, its winners) are checked (:data:`SCAN_SHAPES`;
+    the same spots, bit for bit; the shapes of :func:`~magwarp.kernels.placement.make_scan_propose` take ``tries`` up
+    to :data:`~magwarp.kernels.placement.MAX_BATCHED_TRIES`, more go one after another); None: :data:`SCAN_CUDA` on
+    CUDA, :data:`SCAN_CPU` on the CPU. ``search``, ``lanes`` and ``scan`` are settable between calls.
     """
 
     def __init__(self, layout: Layout | np.ndarray, num_movers: int, num_worlds: int = 1, *,
