@@ -59,10 +59,11 @@ WORLD_SCAN_CPU = 64
 #: :func:`~magwarp.kernels.placement.make_scan_propose` (``"chunked"``, ``"together"``); the same spots, bit for bit
 SCAN_SHAPES = ("serial", *kpl.SCAN_SHAPES)
 #: the default ``scan`` (CUDA, CPU; ``MAGWARP_PLACE_SCAN`` sets both: :data:`magwarp.kernels.options.PLACE_SCAN`).
+#: CUDA keeps ``"serial"`` until the other shapes are timed there (``bash benchmarks/gpu_round.sh place_scan``).
 #: CPU (this project's 2 cores, 256 worlds, benchmarks/results/swarm_place_scan_s38_cpu.json): the respawn call at
 #: 64 / 100 movers took 3.18 / 5.84 ms serial, 2.95 / 5.23 chunked, 4.31 / 7.85 with the tries together and 4.16 /
 #: 6.25 with the grid
-SCAN_CUDA = "together" if PLACE_SCAN == "device" else PLACE_SCAN
+SCAN_CUDA = "serial" if PLACE_SCAN == "device" else PLACE_SCAN
 SCAN_CPU = "chunked" if PLACE_SCAN == "device" else PLACE_SCAN
 #: the threads of a round's launch in the lane shape (:class:`Placer`'s ``lanes``): its groups walk the list of movers
 #: to place (an H100 holds 132 * 2048 resident threads)
