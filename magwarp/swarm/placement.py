@@ -59,7 +59,10 @@ WORLD_SCAN_CPU = 64
 #: :func:`~magwarp.kernels.placement.make_scan_propose` (``"chunked"``, ``"together"``); the same spots, bit for bit
 SCAN_SHAPES = ("serial", *kpl.SCAN_SHAPES)
 #: the default ``scan`` (CUDA, CPU; ``MAGWARP_PLACE_SCAN`` sets both: :data:`magwarp.kernels.options.PLACE_SCAN`).
-#: CUDA keeps ``"serial"`` until the other shapes are timed there (``bash benchmarks/gpu_round.sh place_scan``).
+#: CUDA (H100, 16,384 worlds, benchmarks/results/swarm_place_scan_s38_gpu*.json): the respawn call at 100 / 160 /
+#: 256 movers took 0.71 / 1.59 / 3.86 ms serial against 0.93 / 1.99 / 4.74 chunked and 0.92 / 1.95 / 4.71 together
+#: (at 64 movers within the launches' noise: 0.42-0.74 ms either way): the rounds are throughput-bound there, and the
+#: shapes' extra draws and checks cost more than their grouped reads save. CUDA keeps ``"serial"``.
 #: CPU (this project's 2 cores, 256 worlds, benchmarks/results/swarm_place_scan_s38_cpu.json): the respawn call at
 #: 64 / 100 movers took 3.18 / 5.84 ms serial, 2.95 / 5.23 chunked, 4.31 / 7.85 with the tries together and 4.16 /
 #: 6.25 with the grid
