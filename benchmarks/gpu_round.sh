@@ -220,12 +220,12 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
         --fused-worlds ${FUSED_WORLDS:-1024 4096 8192 16384} --json "$OUT/swarm_fused_gpu_${FUSED_MOVERS:-100}.json" \
         2>&1 | grep -v "^Module" | tail -40 ;;
     place_scan)
-      # #18: the placement's scan shapes (Placer.scan: serial, chunked, together), the lane shape and the grid alone at
-      # 16,384 worlds x 64-256 movers (CUDA graph replays, bit for bit against serial), then the fused swarm step at
+      # #18: the placement's scan shapes (Placer.scan: serial, chunked), the lane shape and the grid alone at
+      # 16,384 worlds x 64-256 movers (bit for bit against serial), then the fused swarm step at
       # 64 movers with each scan shape (MAGWARP_PLACE_SCAN)
       timeout 300 python3 benchmarks/swarm_place.py --device cuda:0 --lanes 8 --movers 64 100 160 256 \
         --json "$OUT/swarm_place_scan_gpu.json" 2>&1 | grep -v "^Module" | tail -40
-      for shape in serial chunked together; do
+      for shape in serial chunked; do
         MAGWARP_PLACE_SCAN=$shape timeout 300 python3 benchmarks/swarm.py --device cuda:0 --fused-sweep \
           --fused-movers 64 --fused-worlds 16384 --json "$OUT/swarm_fused_scan_${shape}_64_gpu.json" 2>&1 \
           | grep -v "^Module" | tail -6

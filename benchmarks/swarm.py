@@ -652,7 +652,7 @@ def main(argv=None) -> None:
                    "2026-12-06; this forces it on the CPU too)")
     p.add_argument("--place-lanes", type=int, default=None, help="--fused-sweep: the placers' rounds in the lane "
                    "shape with this many lanes per listed mover (Placer.lanes; benchmarks/swarm_place.py times them)")
-    p.add_argument("--place-scan", choices=("serial", "chunked", "together"), help="--fused-sweep: how the "
+    p.add_argument("--place-scan", choices=("serial", "chunked"), help="--fused-sweep: how the "
                    "placers' rounds check their tries in the timed envs (Placer.scan; default: the device's)")
     p.add_argument("--place-search", choices=("grid", "world"), help="--fused-sweep: the placers' search in the timed "
                    "envs (default: Placer's choice: world up to 160 movers per world on CUDA and 64 on the CPU, else "

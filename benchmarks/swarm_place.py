@@ -1,8 +1,8 @@
 """The swarm env's placement alone (#18), by the shape of its rounds (``search="world"``): one thread per mover of
 every world (threads past the list's count exit) checking a round's tries in one of the :attr:`magwarp.swarm.
 Placer.scan` shapes (``serial``: :func:`~magwarp.kernels.placement.propose`, one try and one mover after another;
-``chunked`` and ``together``: :func:`~magwarp.kernels.placement.make_scan_propose`, the world's movers read a chunk
-at a time, tries in turn or all at once), against the lane shape (a group of ``lanes`` threads per listed mover in
+``chunked``: :func:`~magwarp.kernels.placement.make_scan_propose`, the world's movers read a chunk at a time),
+against the lane shape (a group of ``lanes`` threads per listed mover in
 a fixed grid walking the list, :attr:`~magwarp.swarm.Placer.lanes`) and the grid's cell lists (``search="grid"``),
 with a bit-for-bit check of the spots and of the movers left against ``serial`` (``match``).
 

@@ -153,7 +153,7 @@ def test_rounds_do_not_depend_on_the_order_of_the_listed_movers(rng, hold, searc
 @pytest.mark.parametrize("shape,tries", [("circle", 2), ("box", 2), ("circle", 7)])
 def test_world_scan_places_as_the_grid_does(rng, devices, shape, tries):
     """``search="world"`` (each candidate checked against every mover of its world, no cell lists), in every
-    ``scan`` shape (one try and one mover after another, tries in turn by chunks of movers, or all tries together),
+    ``scan`` shape (one try and one mover after another, or the movers read a chunk at a time),
     places the same spots and leaves the same movers as the
     grid's lists, bit for bit, with and without ``hold``, over back-to-back calls; so does a checked ``place``. A few
     tries per round on a crowded layout with holes: rounds reject candidates for walls, placed movers, held spots and

@@ -108,5 +108,5 @@ STEP_BRANCHES: str = _env_choice("MAGWARP_STEP_BRANCHES", ("on", "off"), "on")
 #: :data:`~magwarp.swarm.placement.SCAN_CUDA` / :data:`~magwarp.swarm.placement.SCAN_CPU`) or one shape for every
 #: device. ``MAGWARP_PLACE_SCAN``, read once at import: a tuning knob for benchmarks (``benchmarks/swarm.py``), not an
 #: API. The same spots whatever the shape.
-PLACE_SCAN_CHOICES = ("device", "serial", "chunked", "together")
+PLACE_SCAN_CHOICES = ("device", "serial", "chunked")
 PLACE_SCAN: str = _env_choice("MAGWARP_PLACE_SCAN", PLACE_SCAN_CHOICES, "device")

@@ -55,17 +55,15 @@ SEARCHES = ("grid", "world")
 WORLD_SCAN_CUDA = 160
 WORLD_SCAN_CPU = 64
 #: how the rounds of ``search="world"`` check a round's tries (:class:`Placer`'s ``scan``): ``"serial"``
-#: (:func:`~magwarp.kernels.placement.propose`: one try after another, one mover after another) or a shape of
-#: :func:`~magwarp.kernels.placement.make_scan_propose` (``"chunked"``, ``"together"``); the same spots, bit for bit
-SCAN_SHAPES = ("serial", *kpl.SCAN_SHAPES)
+#: (:func:`~magwarp.kernels.placement.propose`: one try after another, one mover after another) or ``"chunked"``
+#: (:func:`~magwarp.kernels.placement.make_scan_propose`: the world's movers read a chunk at a time); the same spots,
+#: bit for bit
+SCAN_SHAPES = ("serial", "chunked")
 #: the default ``scan`` (CUDA, CPU; ``MAGWARP_PLACE_SCAN`` sets both: :data:`magwarp.kernels.options.PLACE_SCAN`).
-#: CUDA (H100, 16,384 worlds, benchmarks/results/swarm_place_scan_s38_gpu*.json): the respawn call at 100 / 160 /
-#: 256 movers took 0.71 / 1.59 / 3.86 ms serial against 0.93 / 1.99 / 4.74 chunked and 0.92 / 1.95 / 4.71 together
-#: (at 64 movers within the launches' noise: 0.42-0.74 ms either way): the rounds are throughput-bound there, and the
-#: shapes' extra draws and checks cost more than their grouped reads save. CUDA keeps ``"serial"``.
 #: CPU (this project's 2 cores, 256 worlds, benchmarks/results/swarm_place_scan_s38_cpu.json): the respawn call at
-#: 64 / 100 movers took 3.18 / 5.84 ms serial, 2.95 / 5.23 chunked, 4.31 / 7.85 with the tries together and 4.16 /
-#: 6.25 with the grid
+#: 64 / 100 movers took 3.18 / 5.84 ms serial and 2.95 / 5.23 chunked. CUDA (H100, 16,384 worlds,
+#: benchmarks/results/swarm_place_scan_s38_gpu*.json): 0.71 / 1.59 / 3.86 ms serial against 0.93 / 1.99 / 4.74 chunked
+#: at 100 / 160 / 256 movers (at 64 within the launches' noise): the GPU's rounds are throughput-bound
 SCAN_CUDA = "serial" if PLACE_SCAN == "device" else PLACE_SCAN
 SCAN_CPU = "chunked" if PLACE_SCAN == "device" else PLACE_SCAN
 #: the threads of a round's launch in the lane shape (:class:`Placer`'s ``lanes``): its groups walk the list of movers
@@ -118,10 +116,10 @@ class Placer:
     that many threads per listed mover in a fixed grid of :data:`LANE_GRID_THREADS` threads whose groups walk the
     list, the world's movers split over the lanes (in registers) and a vote per try. More than 1 on a CPU needs
     ``warp.config.enable_cpu_blocks`` (a block per group, ``wp.tile_sum`` votes). ``scan``: with ``search="world"``
-    and ``lanes`` None, how a round's tries (and, but for ``"serial"``, its winners) are checked (:data:`SCAN_SHAPES`;
-    the same spots, bit for bit; the shapes of :func:`~magwarp.kernels.placement.make_scan_propose` take ``tries`` up
-    to :data:`~magwarp.kernels.placement.MAX_BATCHED_TRIES`, more go one after another); None: :data:`SCAN_CUDA` on
-    CUDA, :data:`SCAN_CPU` on the CPU. ``search``, ``lanes`` and ``scan`` are settable between calls.
+    and ``lanes`` None, how a round's tries and winners are checked (:data:`SCAN_SHAPES`; the same spots, bit for bit;
+    ``"chunked"`` takes ``tries`` up to :data:`~magwarp.kernels.placement.MAX_BATCHED_TRIES`, more go serially);
+    None: :data:`SCAN_CUDA` on CUDA, :data:`SCAN_CPU` on the CPU. ``search``, ``lanes`` and ``scan`` are settable
+    between calls.
     """
 
     def __init__(self, layout: Layout | np.ndarray, num_movers: int, num_worlds: int = 1, *,
@@ -398,7 +396,7 @@ class Placer:
                                   self._count, groups], outputs=[self._todo, pos])
                 continue
             if self._scan and self.scan != "serial" and self.tries <= kpl.MAX_BATCHED_TRIES:
-                wp.launch(kpl.make_scan_propose(self.tries, self.scan), dim=dim, device=dev,
+                wp.launch(kpl.make_scan_propose(self.tries), dim=dim, device=dev,
                           inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
                                   self._tile_list, self._hold, back, self._counter, pos, self._todo, self._listed,
                                   self._count], outputs=[self._cand, self._cand_ok, self._claim])
@@ -409,8 +407,9 @@ class Placer:
                                   self._todo, self._head, self._next, self._head_old, self._next_old, self._listed,
                                   self._count], outputs=[self._cand, self._cand_ok, self._claim])
             wp.launch(kpl.resolve, dim=dim, device=dev,
-                      inputs=[g, back, self._scan * (1 if self.scan == "serial" else 2), self._counter, self._cand, self._cand_ok, self._claim, self._listed,
-                              self._count, self._todo, pos, self._head, self._next])
+                      inputs=[g, back, self._scan * (1 if self.scan == "serial" else 2), self._counter, self._cand,
+                              self._cand_ok, self._claim, self._listed, self._count, self._todo, pos, self._head,
+                              self._next])
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
                     hold: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
