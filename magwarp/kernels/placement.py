@@ -344,9 +344,9 @@ def propose(
 
 
 #: the most tries per round the chunked scan (:func:`make_scan_propose`) keeps in registers
-MAX_BATCHED_TRIES = 16
+MAX_SCAN_TRIES = 16
 #: movers the chunked scan reads per pass of its loops (loads issued together, then checked)
-BATCH_CHUNK = 4
+SCAN_CHUNK = 4
 
 
 @functools.cache
@@ -354,9 +354,9 @@ def make_scan_propose(tries: int):
     """:func:`propose` with ``scan`` (``search="world"``), its reads of the world's movers grouped: the same spots, bit
     for bit. The round's ``tries`` candidates are drawn first (the same draws as :func:`propose`'s tries, in the same
     order) and checked against the walls; then one try after another is checked against the world's movers, read
-    :data:`BATCH_CHUNK` at a time (the loads issued together, then checked), each try stopping at the chunk that
+    :data:`SCAN_CHUNK` at a time (the loads issued together, then checked), each try stopping at the chunk that
     holds its first conflict. The first valid candidate wins, as the first valid try of :func:`propose` does.
-    ``tries`` at most :data:`MAX_BATCHED_TRIES`. (:class:`~magwarp.swarm.Placer` pairs it with :func:`resolve`'s
+    ``tries`` at most :data:`MAX_SCAN_TRIES`. (:class:`~magwarp.swarm.Placer` pairs it with :func:`resolve`'s
     ``scan=2``, which reads the lower-indexed winners a chunk at a time too.) The kernel takes :func:`propose`'s
     inputs less ``tries``, ``scan`` and the cell lists.
 
@@ -364,19 +364,19 @@ def make_scan_propose(tries: int):
     this project's CPU at 64-100 movers per world, 0.76-0.82x on an H100 at 100-256 (its rounds are bound by the
     tries' work, not by the reads' latency). A variant that checked all tries in one pass over the movers was slower
     on both (0.74x on the CPU, 0.78-0.82x on the H100) and was removed."""
-    if not 1 <= int(tries) <= MAX_BATCHED_TRIES:
-        raise ValueError(f"scan tries must be in 1..{MAX_BATCHED_TRIES}, got {tries!r}")
+    if not 1 <= int(tries) <= MAX_SCAN_TRIES:
+        raise ValueError(f"scan tries must be in 1..{MAX_SCAN_TRIES}, got {tries!r}")
     T = int(tries)
     Cands = wp.types.matrix(shape=(T, 2), dtype=wp.float32)
     Flags = wp.types.vector(length=T, dtype=wp.int32)
-    opts = {"enable_backward": False, **MODULE_OPTIONS, "max_unroll": max(16, T * BATCH_CHUNK)}
+    opts = {"enable_backward": False, **MODULE_OPTIONS, "max_unroll": max(16, T * SCAN_CHUNK)}
 
     @wp.func
     def chunk_clear(g: PlaceGrid, w: int, m: int, j0: int, p: wp.vec2, hold: int, pos: wp.array2d(dtype=wp.vec2),
                     todo: wp.array2d(dtype=wp.int32)) -> bool:
-        """No mover ``j0 .. j0 + BATCH_CHUNK - 1`` of the world that counts (:func:`clear_in_world`) conflicts."""
+        """No mover ``j0 .. j0 + SCAN_CHUNK - 1`` of the world that counts (:func:`clear_in_world`) conflicts."""
         clear = bool(True)
-        for u in range(BATCH_CHUNK):
+        for u in range(SCAN_CHUNK):
             j = j0 + u
             if j < todo.shape[1] and j != m:
                 if hold != 0 or todo[w, j] == 0:
@@ -438,7 +438,7 @@ def make_scan_propose(tries: int):
                     if not chunk_clear(g, w, m, j0, p, hold, pos, todo):
                         ok[t] = 0
                         left -= 1
-                    j0 += BATCH_CHUNK
+                    j0 += SCAN_CHUNK
                 if ok[t] != 0:
                     found = True
         if left == 0:
@@ -460,7 +460,7 @@ def resolve(
     g: PlaceGrid,
     back: int,  # as propose's
     scan: int,  # 1: look for lower-indexed winners among the world's movers, keep no cell lists; 2: the same, read
-    # BATCH_CHUNK movers at a time
+    # SCAN_CHUNK movers at a time
     # State in:
     counter: wp.array(dtype=wp.int64),
     cand: wp.array2d(dtype=wp.vec2),
@@ -497,7 +497,7 @@ def resolve(
             j0 = int(0)
             while j0 < m:
                 beaten = bool(False)
-                for u in range(BATCH_CHUNK):
+                for u in range(SCAN_CHUNK):
                     j = j0 + u
                     if j < m:
                         if cand_ok[w, j] != 0:
@@ -507,7 +507,7 @@ def resolve(
                                     beaten = True
                 if beaten:
                     return
-                j0 += BATCH_CHUNK
+                j0 += SCAN_CHUNK
         else:
             for j in range(m):
                 if cand_ok[w, j] != 0:

@@ -117,7 +117,7 @@ class Placer:
     list, the world's movers split over the lanes (in registers) and a vote per try. More than 1 on a CPU needs
     ``warp.config.enable_cpu_blocks`` (a block per group, ``wp.tile_sum`` votes). ``scan``: with ``search="world"``
     and ``lanes`` None, how a round's tries and winners are checked (:data:`SCAN_SHAPES`; the same spots, bit for bit;
-    ``"chunked"`` takes ``tries`` up to :data:`~magwarp.kernels.placement.MAX_BATCHED_TRIES`, more go serially);
+    ``"chunked"`` takes ``tries`` up to :data:`~magwarp.kernels.placement.MAX_SCAN_TRIES`, more go serially);
     None: :data:`SCAN_CUDA` on CUDA, :data:`SCAN_CPU` on the CPU. ``search``, ``lanes`` and ``scan`` are settable
     between calls.
     """
@@ -395,7 +395,7 @@ class Placer:
                           inputs=[g, back, self._counter, self._cand, self._cand_ok, self._claim, self._listed,
                                   self._count, groups], outputs=[self._todo, pos])
                 continue
-            if self._scan and self.scan != "serial" and self.tries <= kpl.MAX_BATCHED_TRIES:
+            if self._scan and self.scan != "serial" and self.tries <= kpl.MAX_SCAN_TRIES:
                 wp.launch(kpl.make_scan_propose(self.tries), dim=dim, device=dev,
                           inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
                                   self._tile_list, self._hold, back, self._counter, pos, self._todo, self._listed,
