@@ -275,6 +275,15 @@ def clear_in_world(g: PlaceGrid, w: int, m: int, p: wp.vec2, hold: int, pos: wp.
     return True
 
 
+@wp.func
+def claim_candidate(g: PlaceGrid, w: int, m: int, p: wp.vec2, round_id: wp.int64, cand: wp.array2d(dtype=wp.vec2),
+                    cand_ok: wp.array2d(dtype=wp.int32), claim: wp.array(dtype=wp.int64)):
+    """Mover ``m``'s valid candidate ``p`` of round ``round_id``: stored, and its grid cell claimed."""
+    cand[w, m] = p
+    cand_ok[w, m] = 1
+    wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
+
+
 @wp.kernel
 def propose(
     # Model:
@@ -329,17 +338,13 @@ def propose(
         if scan != 0:
             if not clear_in_world(g, w, m, p, hold, pos, todo):
                 continue
-            cand[w, m] = p
-            cand_ok[w, m] = 1
-            wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
+            claim_candidate(g, w, m, p, round_id, cand, cand_ok, claim)
             return
         if not clear_of_placed(g, w, p, -1, pos, head, next_in_cell):
             continue
         if hold != 0 and not clear_of_placed(g, w, p, m, pos, head_old, next_old):
             continue
-        cand[w, m] = p
-        cand_ok[w, m] = 1
-        wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
+        claim_candidate(g, w, m, p, round_id, cand, cand_ok, claim)
         return
 
 
@@ -446,9 +451,7 @@ def make_scan_propose(tries: int):
         for t in range(T):
             if ok[t] != 0:
                 p = wp.vec2(c[t, 0], c[t, 1])
-                cand[w, m] = p
-                cand_ok[w, m] = 1
-                wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_number(counter, back), m))
+                claim_candidate(g, w, m, p, round_number(counter, back), cand, cand_ok, claim)
                 return
 
     return propose_scan
@@ -651,9 +654,7 @@ def make_lane_kernels(lanes: int, per_lane: int, tiles: bool = False, registers:
             if lanes_any(hit) != 0:
                 continue
             if lane == 0:
-                cand[w, m] = p
-                cand_ok[w, m] = 1
-                wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
+                claim_candidate(g, w, m, p, round_id, cand, cand_ok, claim)
             return
 
     @wp.kernel(module="unique", module_options=opts)
