@@ -104,6 +104,11 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
         if mode == "end":
             split = np.abs(lo["pos"] - hi["pos"]).max(axis=(1, 2)) > 1e-6
             ambiguous = ambiguous | split[:, None]
+        # a mover that stops at different cycles with the two sizes ends at different places, where its wall flag may
+        # come from either stop (seed 7269931708661591116: both sizes flag a wall, at places 2.4 mm apart, and the
+        # nominal size stops where no wall is hit): undecidable, not compared
+        split_m = split[:, None] | (np.abs(lo["pos"] - hi["pos"]).max(axis=-1) > 1e-6)
+        ambiguous = ambiguous | split_m
         reached = (dist <= cfg.threshold_pos) & active & ~collided & ~before["goal_pending"]
         goals_reached += int(reached[~ambiguous].sum())
         step_reward = np.full((n, m), cfg.reward_per_step)
@@ -118,7 +123,7 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
                                        err_msg=f"{rng}: per-mover rewards differ")
         else:
             assert np.array_equal(got[~ambiguous], want[~ambiguous]), f"{rng}: per-mover rewards differ"
-        ok = ~split
+        ok = ~split_m
         assert np.array_equal(info["mover_collision"].numpy()[ok], (flags[ok] & 1) != 0), f"{rng}: mover flags"
         assert np.array_equal(info["wall_collision"].numpy()[ok], (flags[ok] & 2) != 0), f"{rng}: wall flags"
         if not ambiguous.any():
@@ -126,11 +131,14 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
 
         after = env_state(env)
         if mode == "end":
-            assert np.array_equal(terminated.numpy()[ok], collided.any(axis=1)[ok]), f"{rng}: terminations differ"
-            assert np.array_equal(info["agent_terminated"].numpy()[ok], (collided | terminated.numpy()[:, None])[ok])
+            assert np.array_equal(terminated.numpy()[~split], collided.any(axis=1)[~split]), \
+                f"{rng}: terminations differ"
+            assert np.array_equal(info["agent_terminated"].numpy()[~split],
+                                  (collided | terminated.numpy()[:, None])[~split])
         else:
             assert not terminated.any() and not truncated.any()
-            assert np.array_equal(info["agent_terminated"].numpy(), collided), f"{rng}: agent terminations differ"
+            assert np.array_equal(info["agent_terminated"].numpy()[ok], collided[ok]), \
+                f"{rng}: agent terminations differ"
             # movers that did not collide end where numpy puts them; collided ones were re-placed clear of all others
             keep = ~collided & ~before["pending"]
             np.testing.assert_allclose(after["pos"][keep], pos[keep], atol=2e-4, err_msg=str(rng))
