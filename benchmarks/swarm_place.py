@@ -2,9 +2,9 @@
 every world (threads past the list's count exit) checking a round's tries in one of the :attr:`magwarp.swarm.
 Placer.scan` shapes (``serial``: :func:`~magwarp.kernels.placement.propose`, one try and one mover after another;
 ``chunked``: :func:`~magwarp.kernels.placement.make_scan_propose`, the world's movers read a chunk at a time),
-against the lane shape (a group of ``lanes`` threads per listed mover in
-a fixed grid walking the list, :attr:`~magwarp.swarm.Placer.lanes`) and the grid's cell lists (``search="grid"``),
-with a bit-for-bit check of the spots and of the movers left against ``serial`` (``match``).
+against the lane shape (a group of ``lanes`` threads per listed mover in a fixed grid walking the list,
+:attr:`~magwarp.swarm.Placer.lanes`) and the grid's cell lists (``search="grid"``), with a bit-for-bit check of the
+spots and of the movers left against ``serial`` (``match``).
 
 Each row is one call as the env's step makes it (:meth:`~magwarp.swarm.Placer.place_device`: the list, two rounds of
 ``propose`` and ``resolve``, ``hold``) from the same state and the same random streams every call:

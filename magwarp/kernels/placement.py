@@ -424,8 +424,7 @@ def make_scan_propose(tries: int):
         size = col.tile_size
         ntiles = tile_list.shape[0]
         c = Cands()
-        ok = Flags()
-        left = int(0)
+        ok = Flags()  # 1: on the tiles
         for t in range(T):
             tl = tile_list[int(wp.randu(rng) % wp.uint32(ntiles))]
             p = wp.vec2((float(tl[0]) + wp.randf(rng)) * size, (float(tl[1]) + wp.randf(rng)) * size)
@@ -433,26 +432,17 @@ def make_scan_propose(tries: int):
             c[t, 1] = p[1]
             if not hits_wall_cs(tiles, col, p, wp.vec2(1.0, 0.0), radius, half):
                 ok[t] = 1
-                left += 1
-        found = bool(False)
-        for t in range(T):
-            if ok[t] != 0 and not found:
-                p = wp.vec2(c[t, 0], c[t, 1])
-                j0 = int(0)
-                while j0 < num and ok[t] != 0:
-                    if not chunk_clear(g, w, m, j0, p, hold, pos, todo):
-                        ok[t] = 0
-                        left -= 1
-                    j0 += SCAN_CHUNK
-                if ok[t] != 0:
-                    found = True
-        if left == 0:
-            return
         for t in range(T):
             if ok[t] != 0:
                 p = wp.vec2(c[t, 0], c[t, 1])
-                claim_candidate(g, w, m, p, round_number(counter, back), cand, cand_ok, claim)
-                return
+                clear = bool(True)
+                j0 = int(0)
+                while j0 < num and clear:
+                    clear = chunk_clear(g, w, m, j0, p, hold, pos, todo)
+                    j0 += SCAN_CHUNK
+                if clear:  # the first valid try wins
+                    claim_candidate(g, w, m, p, round_number(counter, back), cand, cand_ok, claim)
+                    return
 
     return propose_scan
 

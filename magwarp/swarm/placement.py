@@ -358,8 +358,8 @@ class Placer:
                   inputs=[int(advance), wp.from_torch(mask.to(torch.bool).contiguous(), dtype=wp.bool)],
                   outputs=[self._todo, self._active, self._listed, self._count, self._counter], device=dev)
         self._hold = int(hold)
-        self._scan = int(self.search == "world")  # this call's search (the setter may change it before the next)
-        if self._scan:  # no lists: the rounds scan the world's movers
+        self._world_scan = int(self.search == "world")  # this call's search (the setter may change it before the next)
+        if self._world_scan:  # no lists: the rounds scan the world's movers
             return pos
         wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo, self._active],
                   outputs=[self._head, self._next, self._head_old, self._next_old, self._old_cell], device=dev)
@@ -367,7 +367,7 @@ class Placer:
 
     def _end(self, pos: wp.array) -> None:
         """Empty the cells this call filled (the next call finds the grid clean without clearing every cell)."""
-        if not self._scan:
+        if not self._world_scan:
             wp.launch(kpl.unbin, dim=(self.num_worlds, self.num_movers), device=self.device,
                       inputs=[self.grid, pos, self._todo, self._active, self._old_cell],
                       outputs=[self._head, self._head_old])
@@ -379,7 +379,7 @@ class Placer:
         dev, dim, g = self.device, self.num_worlds * self.num_movers, self.grid
         if not advanced:
             wp.launch(kpl.advance_counter, dim=1, inputs=[int(rounds)], outputs=[self._counter], device=dev)
-        lanes = self._lanes if self._scan else None
+        lanes = self._lanes if self._world_scan else None
         if lanes is not None:
             propose, resolve, groups = self._lane_kernels()
             block = lanes if dev.is_cpu else 256  # a CPU block is a group (its votes); a CUDA warp holds 32 / lanes
@@ -395,7 +395,7 @@ class Placer:
                           inputs=[g, back, self._counter, self._cand, self._cand_ok, self._claim, self._listed,
                                   self._count, groups], outputs=[self._todo, pos])
                 continue
-            if self._scan and self.scan != "serial" and self.tries <= kpl.MAX_SCAN_TRIES:
+            if self._world_scan and self.scan != "serial" and self.tries <= kpl.MAX_SCAN_TRIES:
                 wp.launch(kpl.make_scan_propose(self.tries), dim=dim, device=dev,
                           inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
                                   self._tile_list, self._hold, back, self._counter, pos, self._todo, self._listed,
@@ -403,13 +403,13 @@ class Placer:
             else:
                 wp.launch(kpl.propose, dim=dim, device=dev,
                           inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
-                                  self._tile_list, self.tries, self._hold, back, self._scan, self._counter, pos,
+                                  self._tile_list, self.tries, self._hold, back, self._world_scan, self._counter, pos,
                                   self._todo, self._head, self._next, self._head_old, self._next_old, self._listed,
                                   self._count], outputs=[self._cand, self._cand_ok, self._claim])
             wp.launch(kpl.resolve, dim=dim, device=dev,
-                      inputs=[g, back, self._scan * (1 if self.scan == "serial" else 2), self._counter, self._cand,
-                              self._cand_ok, self._claim, self._listed, self._count, self._todo, pos, self._head,
-                              self._next])
+                      inputs=[g, back, self._world_scan * (1 if self.scan == "serial" else 2), self._counter,
+                              self._cand, self._cand_ok, self._claim, self._listed, self._count, self._todo, pos,
+                              self._head, self._next])
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
                     hold: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
