@@ -76,6 +76,26 @@ def test_step_path_and_graph_option():
         SwarmEnv(1, num_movers=3, layout=np.ones((3, 3)), device="cpu", graph="yes")
 
 
+def test_graph_key_follows_every_launch_shape():
+    """A recorded step is recorded anew when any launch shape it holds changes: each placer's search, lanes and scan,
+    and each of the local observation's switches (the same results, other kernels)."""
+    env = SwarmEnv(2, num_movers=6, layout=np.ones((4, 4)), k=2, num_rays=2, device="cpu", seed=0)
+    changes = [(env.placer, "scan", "serial" if env.placer.scan == "chunked" else "chunked"),
+               (env.respawn_placer, "scan", "serial" if env.respawn_placer.scan == "chunked" else "chunked"),
+               (env.placer, "search", "grid" if env.placer.search == "world" else "world"),
+               (env.respawn_placer, "search", "grid" if env.respawn_placer.search == "world" else "world"),
+               (env.local, "merge", not env.local.merge), (env.local, "staged", not env.local.staged),
+               (env.local, "unrolled", not env.local.unrolled)]
+    for obj, name, value in changes:
+        before, saved = env._graph_key(), getattr(obj, name)
+        setattr(obj, name, value)
+        assert env._graph_key() != before, f"{type(obj).__name__}.{name} = {value!r} left the graph key unchanged"
+        setattr(obj, name, saved)
+        assert env._graph_key() == before
+    env.placer._lanes = 4  # the lane setter needs CPU blocks on the CPU; the key reads the shape alone
+    assert env._graph_key() != before, "Placer.lanes left the graph key unchanged"
+
+
 def test_eager_step_counts_steps_on_the_device():
     """The NaN guard's step number comes from the env's device count (what a graph replay advances)."""
     env = SwarmEnv(2, num_movers=6, layout=np.ones((4, 4)), k=2, num_rays=2, device="cpu", seed=0)

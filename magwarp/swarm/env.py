@@ -473,9 +473,9 @@ class SwarmEnv(MagwarpVecEnv):
         return (id(sim.state), sim._motion, tuple(sim._hooks), tuple(sim._pre_hooks), id(sim._actuator),
                 id(sim._delay), id(sim._prev_cmd), sim._latency_bound, sim.nan_guard, sim._fused,
                 id(sim._fused_kernel), id(sim._advance_kernel), id(m.body), id(m.radius), id(m.half_size),
-                id(m.margins), None if fs is None else (fs.tiled, max_registers()), self.placer.search,
-                None if rp is None else rp.search, local.search, local.staged, local.tiled, local.unrolled,
-                self.autoreset, self._can_end, id(self._generator), self.num_cycles,
+                id(m.margins), None if fs is None else (fs.tiled, max_registers()), self.placer.shape,
+                None if rp is None else rp.shape, self._search_key(local), self.autoreset, self._can_end,
+                id(self._generator), self.num_cycles,
                 None if self.shield_near is None else self._search_key(self.shield_near))
 
     @staticmethod

@@ -226,6 +226,12 @@ class Placer:
         self._scan_shape = value
 
     @property
+    def shape(self) -> tuple:
+        """What the launches of a call depend on: ``(search, lanes, scan)`` (a recorded step graph holding this
+        placer's rounds is recorded anew when it changes)."""
+        return self.search, self._lanes, self.scan
+
+    @property
     def lanes(self) -> int | None:
         """The rounds' launch shape with ``search="world"`` (see the class): None or threads per listed mover."""
         return self._lanes
