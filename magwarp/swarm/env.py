@@ -90,7 +90,6 @@ Every option is a field of :class:`SwarmConfig`; the constructor takes a config 
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -102,6 +101,7 @@ import warp as wp
 from magwarp._checks import as_count, as_flag, warp_device
 from magwarp._vectors import clip_norm
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.config import resolve_config
 from magwarp.envs.step_graph import RecordedGraph, continued_generator, record_cuda_graph
 from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers,
                                    finish_worlds, goal_distances, stop_collided)
@@ -282,14 +282,7 @@ class SwarmEnv(MagwarpVecEnv):
     def __init__(self, num_envs: int = 1, config: SwarmConfig | None = None, *, device: str | None = None,
                  seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
                  check_inputs: bool = True, **options):
-        cls = type(self).config_type
-        if config is not None and not isinstance(config, cls):
-            raise TypeError(f"config of {type(self).__name__} must be a {cls.__name__}, got {type(config).__name__}")
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(options) - fields)
-        if unknown:
-            raise TypeError(f"unknown {type(self).__name__} options {unknown}; {cls.__name__} has {sorted(fields)}")
-        cfg = dataclasses.replace(config or cls(), **options)
+        cfg = resolve_config(type(self), config, options)
         self.config = cfg
         num_envs = as_count(num_envs, "num_envs")
         self.layout = cfg.make_layout()
