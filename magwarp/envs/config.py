@@ -5,8 +5,8 @@ fields, applied on top (``dataclasses.replace``). The same options as keywords a
 a config can be built, inspected, stored and varied before any env exists::
 
     cfg = TrajectoryConfig(layout="B3", threshold_pos=0.05)
-    env = TrajectoryPlanningEnv(4096, cfg, device="cuda:0")
-    env2 = TrajectoryPlanningEnv(4096, cfg, v_max=1.5)      # the same config with one field changed
+    env = TrajectoryPlanningEnv(4096, config=cfg, device="cuda:0")
+    env2 = TrajectoryPlanningEnv(4096, config=cfg, v_max=1.5)   # the same config with one field changed
 
 A subclass env with other defaults or more options has its own subclass of its parent's config type.
 """

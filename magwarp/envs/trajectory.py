@@ -30,63 +30,30 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, as_flag, check_finite, warp_device
+from magwarp._checks import as_count, warp_device
 from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv
+from magwarp.envs.config import resolve_config
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
 from magwarp.envs.planar_randomization import SIZE_FIELDS, PlanarRandomizer
 from magwarp.envs.sampling import PoseSampler
-from magwarp.envs.sim2real import ActuationConfig, DrawClock, Latency, SensorConfig, SensorModel
+from magwarp.envs.sim2real import DrawClock, Latency, SensorModel
 from magwarp.envs.step_graph import continued_generator
+from magwarp.envs.trajectory_config import TrajectoryConfig
 from magwarp.envs.trajectory_fused import FusedTrajectoryStep, fused_step_blocker
-from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
+from magwarp.layout import Layout
 from magwarp.sim import Simulator
 
-__all__ = ["TrajectoryPlanningEnv"]
-
-
-def per_mover_sizes(shape: str, size, num_movers: int) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """MagBotSim's ``collision_params["size"]`` as per-mover arrays: circle radii ``(M,)`` from one radius or ``(M,)``;
-    box half sizes ``(M, 2)`` from one number, ``(2,)`` or ``(M, 2)``. None for the default size."""
-    if size is None:
-        return None, None
-    arr = np.asarray(size, dtype=np.float64)
-    shapes = [(), (num_movers,)] if shape == "circle" else [(), (2,), (num_movers, 2)]
-    if arr.shape not in shapes or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        what = "radius or per-mover radii" if shape == "circle" else "box half sizes"
-        raise ValueError(f"collision_size for a {shape} must be a positive {what} of shape "
-                         f"{' or '.join(str(s) for s in shapes)}, got {size!r}")
-    if shape == "circle":
-        return np.broadcast_to(arr, (num_movers,)).copy(), None
-    return None, np.broadcast_to(arr, (num_movers, 2)).copy()
+__all__ = ["TrajectoryConfig", "TrajectoryPlanningEnv"]
 
 
 class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
-    """Batched trajectory planning. ``layout`` is a benchmark name ("B0".."B9"), a :class:`Layout` or a 0/1 array.
-
-    Collision options follow MagBotSim's ``collision_params``: ``collision_shape`` ("circle" or "box"),
-    ``collision_size`` (radius, or box half sizes (2,); per mover, as MagBotSim allows: radii (num_movers,) or half
-    sizes (num_movers, 2), then starts and goals are sampled with the largest), ``collision_offset`` (safety offset
-    used when sampling starts and goals), ``collision_offset_wall`` (margin added for wall checks).
-    ``safety_margin`` grows every collision shape in the per-cycle mover-mover check (MagBotSim: none); sampled
-    starts keep it as well (each shape grown by ``safety_margin + collision_offset``), so no world starts in a
-    collision. A configuration in which the
-    movers cannot be placed raises a ``ValueError`` naming these values. ``mover_params`` (MagBotSim's) sets the
-    mover body: ``{"size": half sizes (x, y, z), "mass": kg}``.
-
-    ``max_episode_steps`` (default None: MagBotSim's episodes end only on a collision or a timeout) truncates every
-    episode after that many steps. Training uses it to see episode starts often: a policy that runs thousands of steps
-    per episode rarely meets the start states (all movers at rest, three fresh goals), which the benchmark's 10 s runs
-    begin with. The benchmark metrics count a goal pending at this cut as neither reached nor failed (as at the end
-    of an evaluation run); a collision or a timeout fails it.
-
-    ``actuation`` (:class:`~magwarp.envs.sim2real.ActuationConfig`: action latency) and ``sensors``
-    (:class:`~magwarp.envs.sim2real.SensorConfig`: bias, noise and dropped readings; not together with
-    ``std_noise``) are the sim2real models of :mod:`magwarp.envs.sim2real`. The per-world state they draw is in
-    ``env.sim.latency_cycles`` and ``env.sensors.pos_bias`` / ``vel_bias``. ``randomization``: a list of
-    :class:`~magwarp.envs.randomization.EventTerm` (or mappings), or a preset's name (``"sim2real"``), over the
-    simulator's per-world mover mass, inertia, payload, impedance gains, limits and collision sizes
-    (:mod:`magwarp.envs.planar_randomization`).
+    """Batched trajectory planning: ``TrajectoryPlanningEnv(num_envs, layout, num_movers, *, config=None,
+    device=None, seed=None, **options)``. The options (layout, collisions, limits, rewards, episode cuts, sim2real
+    models, randomisation, the fused step) are the fields of :class:`~magwarp.envs.trajectory_config.TrajectoryConfig`,
+    documented there, given as a ``config``, as keywords, or both (keywords on top). A configuration in which the
+    movers cannot be placed raises a ``ValueError`` naming these values. The per-world state of the sim2real models
+    is in ``env.sim.latency_cycles`` and ``env.sensors.pos_bias`` / ``vel_bias``.
 
     Chosen episodes (e.g. a MagBotSim episode replayed): ``reset(seed=..., options={...})`` with any of
 
@@ -115,120 +82,62 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
     #: domain randomisation (``randomization``: event terms or a preset name, :mod:`magwarp.envs.planar_randomization`)
     randomizer = None
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        layout: str | Layout | np.ndarray = "B0",
-        num_movers: int | None = None,
-        *,
-        collision_shape: str = "circle",
-        collision_size: float | tuple[float, float] | np.ndarray | None = None,
-        collision_offset: float = 0.0,
-        collision_offset_wall: float = 0.0,
-        mover_params: dict | None = None,
-        safety_margin: float = 0.0,
-        learn_jerk: bool = False,
-        v_max: float = 2.0,
-        a_max: float = 10.0,
-        j_max: float = 100.0,
-        num_cycles: int = 40,
-        threshold_pos: float = 0.1,
-        reward_success: float = 20.0,
-        reward_collision: float = -20.0,
-        reward_per_step: float = -1.0,
-        timeout_steps: int | None = 50,
-        max_episode_steps: int | None = None,
-        std_noise: float = 0.0,
-        actuation: ActuationConfig | dict | None = None,
-        sensors: SensorConfig | dict | None = None,
-        randomization: Any = None,
-        device: str | None = None,
-        seed: int | None = None,
-        render_mode: str | None = None,
-        autoreset: bool = True,
-        check_inputs: bool = True,
-        nan_dump: str | None = None,
-        force_model=None,  # None (ideal), "magnetic" or a MagneticModel: passed to the Simulator
-        fused: bool = True,
-        graph: bool = True,
-    ):
+    #: the options' dataclass (:mod:`magwarp.envs.config`)
+    config_type = TrajectoryConfig
+
+    def __init__(self, num_envs: int = 1, layout: str | Layout | np.ndarray | None = None,
+                 num_movers: int | None = None, *, config: TrajectoryConfig | None = None, device: str | None = None,
+                 seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
+                 check_inputs: bool = True, nan_dump: str | None = None, **options):
+        """``TrajectoryPlanningEnv(num_envs, layout=None, num_movers=None, *, config=None, device=None, seed=None,
+        ..., **options)``: the options (:class:`~magwarp.envs.trajectory_config.TrajectoryConfig`'s fields) are
+        ``config`` (None: the defaults) with ``layout``, ``num_movers`` (positional, as MagBotSim's envs take them)
+        and ``options`` applied on top; ``layout`` and ``num_movers`` None leave the config's."""
+        if layout is not None:
+            options["layout"] = layout
+        if num_movers is not None:
+            options["num_movers"] = num_movers
+        cfg = resolve_config(type(self), config, options)
+        self.config = cfg
         num_envs = as_count(num_envs, "num_envs")
-        self.fused = as_flag(fused, "fused")
-        graph = as_flag(graph, "graph")
-        num_cycles = as_count(num_cycles, "num_cycles")
-        learn_jerk = as_flag(learn_jerk, "learn_jerk")
-        check_finite(threshold_pos=threshold_pos, reward_success=reward_success, reward_collision=reward_collision,
-                     reward_per_step=reward_per_step, collision_size=collision_size, collision_offset=collision_offset,
-                     collision_offset_wall=collision_offset_wall, safety_margin=safety_margin, std_noise=std_noise,
-                     v_max=v_max, a_max=a_max, j_max=j_max, allow_none=("collision_size",), vectors=("collision_size",))
-        if timeout_steps is not None:
-            timeout_steps = as_count(timeout_steps, "timeout_steps")
-        if isinstance(layout, str):
-            layout_obj, default_movers = benchmark_layout(layout)
-            self.layout_name = layout
-        else:
-            layout_obj = layout if isinstance(layout, Layout) else Layout(layout)
-            default_movers = None
-            self.layout_name = "custom"
-        num_movers = num_movers if num_movers is not None else default_movers
-        if num_movers is None:
-            raise ValueError(f"num_movers must be a positive integer for a custom layout, got {num_movers!r}")
-        num_movers = as_count(num_movers, "num_movers")
-        if collision_shape not in ("circle", "box"):
-            raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
-        if not threshold_pos > 0:
-            raise ValueError(f"threshold_pos must be positive, got {threshold_pos!r}")
-        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(
-                max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
-            raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_episode_steps!r}")
-        spec_kwargs: dict[str, Any] = dict(collision_shape=collision_shape, margin=safety_margin,
-                                           wall_margin=collision_offset_wall, **mover_params_kwargs(mover_params))
-        radii, halves = per_mover_sizes(collision_shape, collision_size, int(num_movers))
-        if radii is not None:
-            spec_kwargs["collision_radius"] = float(radii.max())
-        if halves is not None:
-            spec_kwargs["collision_half_size"] = tuple(halves.max(axis=0))
-        mover = MoverSpec(**spec_kwargs)
+        self.fused = cfg.fused
+        layout_obj, _, self.layout_name = cfg.resolve_layout()
+        num_movers = cfg.movers
+        radii, halves = cfg.collision_sizes()
         device = warp_device(device).alias
         # The simulator is built with placeholder starts (every mover at the first tile centre) that are never
         # validated nor simulated: the first reset below replaces them with sampled, collision-free starts, which
         # are then checked with the simulator's own rule. (Tile-centre defaults overlap once the collision size
         # exceeds half a tile, and need as many tiles as movers.)
-        placeholder = np.repeat(layout_obj.tile_centers()[:1], int(num_movers), axis=0)
+        placeholder = np.repeat(layout_obj.tile_centers()[:1], num_movers, axis=0)
         self.sim = Simulator(
-            layout_obj, int(num_movers), int(num_envs), mover=mover, control="jerk" if learn_jerk else "acceleration",
-            v_max=v_max, a_max=a_max, j_max=j_max, device=device, check_inputs=False, start_xy=placeholder,
-            validate_starts=False, collision_radii=radii, collision_half_sizes=halves, force_model=force_model,
+            layout_obj, num_movers, num_envs, mover=cfg.make_mover(),
+            control="jerk" if cfg.learn_jerk else "acceleration", v_max=cfg.v_max, a_max=cfg.a_max, j_max=cfg.j_max,
+            device=device, check_inputs=False, start_xy=placeholder, validate_starts=False, collision_radii=radii,
+            collision_half_sizes=halves, force_model=cfg.force_model,
         )
         super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs, nan_dump=nan_dump)
         self.layout = layout_obj
-        self.num_movers = int(num_movers)
-        self.learn_jerk = learn_jerk
-        if not (np.isfinite(std_noise) and std_noise >= 0):
-            raise ValueError(f"std_noise must be a non-negative number, got {std_noise!r}")
-        if sensors is not None and std_noise != 0:
-            raise ValueError(f"give std_noise or sensors, not both (got std_noise={std_noise!r}; it is "
-                             "SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise))")
-        self.std_noise = float(std_noise)
-        self.num_cycles = int(num_cycles)
-        if sensors is None:
-            sensors = SensorConfig(pos_noise_std=self.std_noise, vel_noise_std=self.std_noise)
+        self.num_movers = num_movers
+        self.learn_jerk = cfg.learn_jerk
+        self.std_noise = float(cfg.std_noise)
+        self.num_cycles = cfg.num_cycles
         #: the key and clock of the sensor and latency models' counter-based draws (they leave the generator alone)
         self.draw_clock = DrawClock(0 if seed is None else int(seed), self.device)
-        self.sensors = SensorModel(sensors, self.num_envs, int(num_movers), self.device, self.draw_clock)
-        self.latency = Latency(actuation, self.sim, self.num_cycles, self.draw_clock)
-        self.threshold_pos = float(threshold_pos)
-        self.reward_success = float(reward_success)
-        self.reward_collision = float(reward_collision)
-        self.reward_per_step = float(reward_per_step)
-        self.timeout_steps = timeout_steps
-        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self.sensors = SensorModel(cfg.sensor_config(), self.num_envs, num_movers, self.device, self.draw_clock)
+        self.latency = Latency(cfg.actuation, self.sim, self.num_cycles, self.draw_clock)
+        self.threshold_pos = float(cfg.threshold_pos)
+        self.reward_success = float(cfg.reward_success)
+        self.reward_collision = float(cfg.reward_collision)
+        self.reward_per_step = float(cfg.reward_per_step)
+        self.timeout_steps = cfg.timeout_steps
+        self.max_episode_steps = None if cfg.max_episode_steps is None else int(cfg.max_episode_steps)
         # The pools are drawn with their own generator, seeded like the per-step one: reset(seed=s) redraws them from
         # s, so that the reset seed alone fixes a run (whatever seed the env was built with).
         self._pool_generator = torch.Generator(device=self.device)
         self._pool_generator.manual_seed(0 if seed is None else int(seed))
-        self.sampler = PoseSampler(self.sim, collision_offset, self._pool_generator)
+        self.sampler = PoseSampler(self.sim, cfg.collision_offset, self._pool_generator)
         self.sampler.generator = self._generator
 
         n, m = self.num_envs, self.num_movers
@@ -237,9 +146,9 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.last_goal_step = torch.zeros(n, dtype=torch.int64, device=self.device)
         self.collected_goals = torch.zeros(n, m, dtype=torch.int64, device=self.device)
 
-        limit = j_max if learn_jerk else a_max
+        limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
         ext = np.array(layout_obj.extent * m, dtype=np.float32)
-        obs_dim = m * 2 * (2 if learn_jerk else 1)
+        obs_dim = m * 2 * (2 if cfg.learn_jerk else 1)
         self._set_spaces(
             gym.spaces.Dict({
                 "observation": gym.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32),
@@ -249,8 +158,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
             gym.spaces.Box(-limit, limit, (m * 2,), np.float32),
         )
         self._fused_step = None
-        self._graph = graph
-        self.randomizer = PlanarRandomizer(self, randomization) if randomization else None  # before the first reset
+        self._graph = cfg.graph
+        self.randomizer = PlanarRandomizer(self, cfg.randomization) if cfg.randomization else None  # before the first reset
         self.reset()
         # The sampled starts must satisfy the per-cycle rule (walls and mover-mover with the safety margin). Starts are
         # sampled with the built sizes: collision sizes or margins drawn larger than those may make them collide (the
