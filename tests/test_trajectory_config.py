@@ -18,7 +18,8 @@ def test_defaults_are_magbotsims_benchmark_b0():
     cfg = TrajectoryConfig()
     assert (cfg.layout, cfg.num_movers, cfg.movers) == ("B0", None, 3)
     assert (cfg.v_max, cfg.a_max, cfg.j_max, cfg.num_cycles) == (2.0, 10.0, 100.0, 40)
-    assert (cfg.threshold_pos, cfg.reward_success, cfg.reward_collision, cfg.reward_per_step) == (0.1, 20.0, -20.0, -1.0)
+    rewards = (cfg.reward_success, cfg.reward_collision, cfg.reward_per_step)
+    assert cfg.threshold_pos == 0.1 and rewards == (20.0, -20.0, -1.0)
     assert (cfg.timeout_steps, cfg.max_episode_steps, cfg.std_noise) == (50, None, 0.0)
     assert cfg.fused and cfg.graph and not cfg.learn_jerk
 

@@ -159,7 +159,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         )
         self._fused_step = None
         self._graph = cfg.graph
-        self.randomizer = PlanarRandomizer(self, cfg.randomization) if cfg.randomization else None  # before the first reset
+        # before the first reset
+        self.randomizer = PlanarRandomizer(self, cfg.randomization) if cfg.randomization else None
         self.reset()
         # The sampled starts must satisfy the per-cycle rule (walls and mover-mover with the safety margin). Starts are
         # sampled with the built sizes: collision sizes or margins drawn larger than those may make them collide (the
@@ -354,7 +355,8 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         if info is not None:
             for key in ("mover_collision", "wall_collision"):
                 if key in info:
-                    collision = collision | torch.as_tensor(info[key], device=achieved_goal.device).reshape(batch).bool()
+                    flag = torch.as_tensor(info[key], device=achieved_goal.device).reshape(batch).bool()
+                    collision = collision | flag
         reached = (self.goal_distance(achieved_goal, desired_goal) <= self.threshold_pos).sum(dim=-1)
         reward = torch.where(reached > 0, self.reward_success * reached.to(torch.float32),
                              torch.full(batch, self.reward_per_step, device=achieved_goal.device))
