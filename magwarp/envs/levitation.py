@@ -51,10 +51,12 @@ import torch
 
 from magwarp._checks import as_count
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.levitation_tasks import check_ranges, make_task, pair, wrap
+from magwarp.envs.config import resolve_config
+from magwarp.envs.levitation_config import LevitationConfig
+from magwarp.envs.levitation_tasks import make_task, wrap
 from magwarp.layout import Layout, MoverSpec
 
-__all__ = ["LevitationEnv"]
+__all__ = ["LevitationConfig", "LevitationEnv"]
 
 #: the observation's common columns (name, width); the task's follow
 OBS_PARTS = (("pos", 3), ("rpy", 3), ("vel", 3), ("omega", 3), ("reference", 4), ("pos_error", 3))
@@ -72,91 +74,41 @@ def _rpy(q: torch.Tensor) -> torch.Tensor:
 class LevitationEnv(MagwarpVecEnv):
     """Batched low-level levitation control (see the module docstring)."""
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        *,
-        task: str = "setpoint",
-        task_options=None,
-        action: str = "currents",
-        tiles: tuple[int, int] = (2, 2),
-        dt: float = 2.5e-4,
-        num_cycles: int = 4,
-        max_episode_steps: int = 500,
-        start_range: float = 0.03,
-        setpoint_range: float = 0.01,
-        setpoint_gap: tuple[float, float] = (0.003, 0.005),
-        setpoint_yaw: float = 0.1,
-        pos_scale: float = 0.01,
-        rot_scale: float = 0.1,
-        loss_weight: float = 1e-3,
-        failure_reward: float = -100.0,
-        fail_gap: tuple[float, float] = (0.001, 0.007),
-        fail_tilt: float = 0.05,
-        fail_distance: float = 0.05,
-        success_tol: tuple[float, float] = (1e-3, 0.01),
-        wrench_scale: tuple[float, float] = (40.0, 2.0),
-        magnetics=None,
-        device: str | None = None,
-        seed: int | None = None,
-        render_mode: str | None = None,
-        autoreset: bool = True,
-        check_inputs: bool = True,
-        nan_dump: str | None = None,
-    ):
+    #: the options' dataclass (:mod:`magwarp.envs.config`)
+    config_type = LevitationConfig
+
+    def __init__(self, num_envs: int = 1, config: LevitationConfig | None = None, *, device: str | None = None,
+                 seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
+                 check_inputs: bool = True, nan_dump: str | None = None, **options):
+        """``LevitationEnv(num_envs, config=None, *, device=None, seed=None, ..., **options)``: the options are a
+        :class:`~magwarp.envs.levitation_config.LevitationConfig` (None: the defaults) with its fields given as
+        keywords applied on top."""
         from magwarp.magnetics.actuator import CoilActuator
-        from magwarp.magnetics.drive import AUX_DIM, MagneticModel, magnetic_force
+        from magwarp.magnetics.drive import AUX_DIM, magnetic_force
         from magwarp.magnetics.table import WrenchTableSpec
         from magwarp.sim import Simulator
 
+        cfg = resolve_config(type(self), config, options)
+        self.config = cfg
         num_envs = as_count(num_envs, "num_envs")
-        if action not in ("currents", "wrench"):
-            raise ValueError(f"action must be 'currents' or 'wrench', got {action!r}")
-        # (low, high, low included): what keeps every reward, observation and pose finite and an episode possible
-        check_ranges({"dt": (dt, 0.0, 0.01, False), "pos_scale": (pos_scale, 1e-6, 1e3, True),
-                      "rot_scale": (rot_scale, 1e-6, 1e3, True), "fail_tilt": (fail_tilt, 0.0, math.pi, False),
-                      "fail_distance": (fail_distance, 0.0, 1.0, False), "start_range": (start_range, 0.0, 1.0, True),
-                      "setpoint_range": (setpoint_range, 0.0, 1.0, True),
-                      "setpoint_yaw": (setpoint_yaw, 0.0, math.pi, True),
-                      "loss_weight": (loss_weight, 0.0, 1e3, True),
-                      "failure_reward": (failure_reward, -1e6, 1e6, True)})
-        setpoint_gap, fail_gap = pair("setpoint_gap", setpoint_gap), pair("fail_gap", fail_gap)
-        if not fail_gap[0] < setpoint_gap[0] <= setpoint_gap[1] < fail_gap[1] <= 0.05:
-            raise ValueError(f"setpoint_gap {setpoint_gap} must lie inside fail_gap {fail_gap}, which must end at "
-                             f"most 0.05 m above the tiles")
-        success_tol = _tolerance(success_tol)
-        try:
-            scales = tuple(float(v) for v in wrench_scale)
-        except (TypeError, ValueError):
-            scales = ()
-        if len(scales) != 2 or not all(math.isfinite(v) and 0 < v <= 1e6 for v in scales):
-            raise ValueError(f"wrench_scale must be two numbers in (0, 1e6] (N, N m), got {wrench_scale!r}")
-        wrench_scale = scales
-        try:
-            tiles = tuple(as_count(t, "tiles") for t in tiles)
-        except TypeError:
-            raise TypeError(f"tiles must be two positive integers (nx, ny), got {tiles!r}") from None
-        if len(tiles) != 2:
-            raise ValueError(f"tiles must be two positive integers (nx, ny), got {tiles!r}")
-        magnetics = magnetics if magnetics is not None else MagneticModel()  # its table covers 2-6 mm
-        if not isinstance(magnetics, MagneticModel):
-            raise TypeError(f"magnetics must be a MagneticModel, got {type(magnetics).__name__}")
+        magnetics = cfg.make_magnetics()
+        action, dt = cfg.action, cfg.dt
         self.action_mode = action
-        self.num_cycles = as_count(num_cycles, "num_cycles")
-        self.max_episode_steps = as_count(max_episode_steps, "max_episode_steps")
-        self.start_range, self.setpoint_range, self.setpoint_yaw = start_range, setpoint_range, setpoint_yaw
-        self.setpoint_gap, self.fail_gap, self.success_tol = setpoint_gap, fail_gap, success_tol
-        self.pos_scale, self.rot_scale, self.loss_weight = pos_scale, rot_scale, loss_weight
-        self.failure_reward, self.fail_tilt, self.fail_distance = failure_reward, fail_tilt, fail_distance
-        self.wrench_scale = wrench_scale
-        self.dt = float(dt)
+        self.num_cycles = cfg.num_cycles
+        self.max_episode_steps = cfg.max_episode_steps
+        self.start_range, self.setpoint_range, self.setpoint_yaw = cfg.start_range, cfg.setpoint_range, cfg.setpoint_yaw
+        self.setpoint_gap, self.fail_gap, self.success_tol = cfg.setpoint_gap, cfg.fail_gap, cfg.success_tol
+        self.pos_scale, self.rot_scale, self.loss_weight = cfg.pos_scale, cfg.rot_scale, cfg.loss_weight
+        self.failure_reward, self.fail_tilt, self.fail_distance = cfg.failure_reward, cfg.fail_tilt, cfg.fail_distance
+        self.wrench_scale = cfg.wrench_scale
+        self.dt = dt
         self.step_dt = self.num_cycles * self.dt
-        layout = Layout.grid(*tiles)
+        layout = Layout.grid(*cfg.tiles)
         self.mover = MoverSpec()
         self.bottom = 0.5 * self.mover.size[2]
         self.centre = (0.5 * layout.shape[0] * layout.tile.size, 0.5 * layout.shape[1] * layout.tile.size)
-        self.task = task
-        self.task_terms = make_task(self, task, task_options)
+        self.task = cfg.task
+        self.task_terms = make_task(self, cfg.task, cfg.task_options)
         self.task_options = self.task_terms.options
         terms = self.task_terms
         terms.check(layout, (magnetics.table or WrenchTableSpec()).gap)
@@ -176,7 +128,7 @@ class LevitationEnv(MagwarpVecEnv):
         self.reference_vel = torch.zeros((num_envs, 6), device=dev)  # the same order, per second
         self.reference_acc = torch.zeros((num_envs, 6), device=dev)
         self.steps = torch.zeros(num_envs, dtype=torch.int64, device=dev)
-        self._xy_allow = torch.full((num_envs,), fail_distance, device=dev)
+        self._xy_allow = torch.full((num_envs,), cfg.fail_distance, device=dev)
         self._scale = torch.tensor([self.wrench_scale[0]] * 3 + [self.wrench_scale[1]] * 3, device=dev)
         self._loss = torch.zeros(num_envs, device=dev)
         self._centre = torch.tensor(self.centre, device=dev)
@@ -308,14 +260,3 @@ class LevitationEnv(MagwarpVecEnv):
         if swing is not None:
             out["pendulum_rod"], out["pendulum_rod_rate"] = (t[idx].cpu().numpy() for t in (swing.rod, swing.rod_rate))
         return out
-
-
-def _tolerance(value) -> tuple[float, float]:
-    """``success_tol``: two positive finite numbers (m, rad)."""
-    try:
-        pos, rot = (float(v) for v in value)
-    except (TypeError, ValueError):
-        pos = rot = float("nan")
-    if not all(math.isfinite(v) and 0 < v <= 1.0 for v in (pos, rot)):
-        raise ValueError(f"success_tol must be two numbers in (0, 1] (m, rad), got {value!r}")
-    return pos, rot

@@ -17,26 +17,46 @@ minutes it learns to hover but not to track (``benchmarks/levitation_policy.py``
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from magwarp.envs.levitation import LevitationEnv
+from magwarp.envs.levitation_config import LevitationConfig
 from magwarp.envs.residual import ResidualAction, check_residual_scale
 from magwarp.policies.levitation import DEFAULT_MAX_ACC, LevitationPD
 
-__all__ = ["LevitationResidualEnv"]
+__all__ = ["LevitationResidualConfig", "LevitationResidualEnv"]
+
+
+@dataclass(frozen=True)
+class LevitationResidualConfig(LevitationConfig):
+    """Options of :class:`LevitationResidualEnv`: :class:`~magwarp.envs.levitation_config.LevitationConfig`'s
+    (``action="wrench"`` by default here), and ``residual_scale``: the correction's range as a share of the action
+    range (default 0.25: 10 N and 0.5 N m with the default ``wrench_scale``); ``pd_frequency``: the baseline's natural
+    frequency (Hz); ``pd_max_acc``: its feedback acceleration limits (m/s^2 linear, rad/s^2 angular; default the
+    shipped baseline's; checked by the baseline). A softer or otherwise retuned baseline (``paper.py``'s
+    ``lev_residual_soft``) changes what the policy corrects, not what it is compared with:
+    ``benchmarks/levitation_policy.py`` measures the shipped PD."""
+
+    action: str = "wrench"
+    residual_scale: float = 0.25
+    pd_frequency: float = 15.0
+    pd_max_acc: tuple[float, float] = DEFAULT_MAX_ACC
+
+    def __post_init__(self):
+        super().__post_init__()
+        check_residual_scale(self.residual_scale)
 
 
 class LevitationResidualEnv(ResidualAction, LevitationEnv):
-    """:class:`LevitationEnv` whose action corrects the PD baseline's (see the module docstring).
+    """:class:`LevitationEnv` whose action corrects the PD baseline's (see the module docstring):
+    ``LevitationResidualEnv(num_envs, config=None, **options)`` with a :class:`LevitationResidualConfig` and/or its
+    fields as keywords."""
 
-    ``residual_scale``: the correction's range as a share of the action range (default 0.25: 10 N and 0.5 N m with
-    the default ``wrench_scale``); ``pd_frequency``: the baseline's natural frequency (Hz); ``pd_max_acc``: its
-    feedback acceleration limits (m/s^2 linear, rad/s^2 angular; default the shipped baseline's). A softer or
-    otherwise retuned baseline (``paper.py``'s ``lev_residual_soft``) changes what the policy corrects, not what
-    it is compared with: ``benchmarks/levitation_policy.py`` measures the shipped PD."""
+    config_type = LevitationResidualConfig
 
-    def __init__(self, num_envs: int = 1, *, residual_scale: float = 0.25, pd_frequency: float = 15.0,
-                 pd_max_acc: tuple[float, float] = DEFAULT_MAX_ACC, action: str = "wrench", **kwargs):
-        check_residual_scale(residual_scale)  # before the env is built
-        super().__init__(num_envs, action=action, **kwargs)
-        baseline = LevitationPD(self, frequency=pd_frequency, max_acc=pd_max_acc)
-        self._init_residual(baseline, residual_scale)
-        self.pd_frequency, self.pd_max_acc = float(pd_frequency), tuple(baseline.max_acc)
+    def __init__(self, num_envs: int = 1, config: LevitationResidualConfig | None = None, **kwargs):
+        super().__init__(num_envs, config, **kwargs)  # the config (the residual's options too) is checked first
+        cfg = self.config
+        baseline = LevitationPD(self, frequency=cfg.pd_frequency, max_acc=cfg.pd_max_acc)
+        self._init_residual(baseline, cfg.residual_scale)
+        self.pd_frequency, self.pd_max_acc = float(cfg.pd_frequency), tuple(baseline.max_acc)
