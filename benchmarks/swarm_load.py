@@ -1,0 +1,113 @@
+"""The fused swarm env step (#18) under different action loads: how much of a step is the load's own work (the
+respawns and new goals it causes), at many worlds of 64-256 movers.
+
+``benchmarks/swarm.py --fused-sweep`` times the step under ``seek_goals`` (every mover straight at its goal, no
+avoidance): a collision-heavy load, where about 18% of the movers wait to respawn at any time and every step's
+placement rounds retry them. Here the same env is timed under
+
+* ``seek``: that load;
+* ``planner``: the scripted planner's actions (:class:`~magwarp.swarm.SwarmPlanner`: lanes, ORCA and its safety
+  filter; no collisions at 25% occupancy), the load a trained policy approaches; its own time is not counted;
+* ``still``: zero actions (no collision, no goal: the step with no placement work, a floor).
+
+Each load runs ``--warm`` steps first (the planner's traffic settles, the respawn queue fills), then ``--steps``
+steps. The step's time is the device time between CUDA events recorded around ``env.step`` alone (the graph
+replay; on the CPU the wall clock), so the policy's time is never in it. Per load: ms per step, agent-steps/s, and
+per step the respawns asked (``info["respawn_pending"]`` and new collisions), goals reached and collisions.
+
+    python benchmarks/swarm_load.py --device cuda:0 --movers 64 256 --worlds 16384 --json out.json
+    python benchmarks/swarm_load.py --device cpu --movers 64 --worlds 64 --steps 5       # smoke
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from common import finish, start_run  # noqa: E402
+
+LOADS = ("seek", "planner", "still")
+
+
+def _actions(env, load: str, planner):
+    import torch
+
+    from swarm import seek_goals
+
+    if load == "seek":
+        return seek_goals(env)
+    if load == "planner":
+        return planner()
+    return torch.zeros((env.num_envs, env.num_movers, 2), device=env.device)
+
+
+def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: int) -> dict:
+    import torch
+
+    from magwarp.swarm import SwarmEnv, SwarmPlanner
+    from swarm import _layout
+
+    env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
+    planner = SwarmPlanner(env) if load == "planner" else None
+    cuda = device.startswith("cuda")
+    for _ in range(warm):
+        env.step(_actions(env, load, planner))
+    counts = {"pending": 0.0, "collided": 0.0, "goals": 0.0}
+    elapsed = 0.0
+    goals_before = int(env.collected_goals.sum())
+    for _ in range(steps):
+        action = _actions(env, load, planner)
+        if cuda:
+            start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+            start.record()
+            _, _, _, _, info = env.step(action)
+            end.record()
+            end.synchronize()
+            elapsed += start.elapsed_time(end) / 1e3
+        else:
+            t = time.perf_counter()
+            _, _, _, _, info = env.step(action)
+            elapsed += time.perf_counter() - t
+        counts["pending"] += float(info["respawn_pending"].float().sum())
+        counts["collided"] += float(info["collided"].float().sum())
+    counts["goals"] = float(int(env.collected_goals.sum()) - goals_before)
+    ms = elapsed / steps * 1e3
+    agents = movers * worlds
+    row = {"device": device, "movers": movers, "worlds": worlds, "agents": agents, "load": load, "warm": warm,
+           "steps": steps, "env_ms": ms, "agent_steps_per_s": agents / (ms * 1e-3), "step_path": env.step_path}
+    row.update({f"{k}_per_step": v / steps for k, v in counts.items()})
+    row["pending_share"] = row["pending_per_step"] / agents
+    return row
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--movers", type=int, nargs="+", default=[64])
+    p.add_argument("--worlds", type=int, default=16384)
+    p.add_argument("--loads", nargs="+", default=list(LOADS), choices=LOADS)
+    p.add_argument("--warm", type=int, default=30, help="steps before the timed ones")
+    p.add_argument("--steps", type=int, default=30)
+    p.add_argument("--json", default=None)
+    args = p.parse_args(argv)
+    info, _ = start_run(args.device)
+    rows = []
+    for movers in args.movers:
+        for load in args.loads:
+            row = bench(movers, args.worlds, args.device, load, args.warm, args.steps)
+            rows.append(row)
+            print(f"  {args.device} {args.worlds} x {movers}, {load}: {row['env_ms']:.3f} ms/step "
+                  f"({row['agent_steps_per_s']:.3g} agent-steps/s, {row['step_path']}); per step "
+                  f"{row['pending_per_step']:.0f} waiting to respawn ({100 * row['pending_share']:.1f}%), "
+                  f"{row['collided_per_step']:.0f} collided, {row['goals_per_step']:.0f} goals", flush=True)
+    finish(rows, [("load", "load"), ("movers", "movers"), ("worlds", "worlds"), ("env_ms", "ms/step"),
+                  ("agent_steps_per_s", "agent-steps/s"), ("pending_share", "share waiting"),
+                  ("collided_per_step", "collided/step"), ("goals_per_step", "goals/step")], info, args.json)
+
+
+if __name__ == "__main__":
+    main()
