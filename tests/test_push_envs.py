@@ -296,7 +296,7 @@ def test_bad_arguments_name_the_value():
     with pytest.raises(ValueError, match="curriculum_success_rate needs obstacle_mode='curriculum', got 'hard'"):
         PushWithObstaclesEnv(1, device="cpu", obstacle_mode="hard", curriculum_success_rate=0.5)
     with pytest.raises(Exception, match="hexagon"):
-        PushEnv(1, "hexagon", device="cpu")
+        PushEnv(1, object_type="hexagon", device="cpu")
     env = PushBoxEnv(2, device="cpu", seed=0)
     with pytest.raises(ValueError, match=r"shape \(2, 2\)"):
         env.step(torch.zeros(2, 3))

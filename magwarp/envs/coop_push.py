@@ -38,15 +38,18 @@ of :mod:`magwarp.envs.adapters`): for mover ``i`` (``obs_mode="flat"``)::
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gymnasium as gym
 import numpy as np
 import torch
 
 from magwarp._checks import as_count, as_flag, check_finite
 from magwarp.envs.push import PushEnv
+from magwarp.envs.push_config import PushConfig
 from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
 
-__all__ = ["CoopPushEnv", "CoopAgentObservations", "heavy_object_mass", "GRAVITY"]
+__all__ = ["CoopPushConfig", "CoopPushEnv", "CoopAgentObservations", "heavy_object_mass", "GRAVITY"]
 
 GRAVITY = 9.81  # m/s^2, MuJoCo's default gravity (the model's)
 _OBJECT_OBS = 6  # object x, y, sin yaw, cos yaw, vx, vy
@@ -62,48 +65,75 @@ def heavy_object_mass(mover_mass: float, a_max: float, friction: float, force_ra
     return float(force_ratio * mover_mass * a_max / (friction * GRAVITY))
 
 
+@dataclass(frozen=True)
+class CoopPushConfig(PushConfig):
+    """Options of :class:`CoopPushEnv`: :class:`~magwarp.envs.push_config.PushConfig`'s with the cooperative task's
+    defaults (the module docstring): ``num_movers`` 2 (2 to 4), a 6 x 6 tile layout (``layout`` None), box-shaped
+    mover collision checks of half size 0.08 m, 100 steps; ``object_width`` and ``object_height`` (None: 0.05 m per
+    mover) and ``object_mass`` (None: the mass whose sliding friction is ``force_ratio`` times one mover's largest
+    push, :func:`heavy_object_mass` from the mover mass, ``a_max`` and ``object_sliding_friction``). The movers are
+    driven in x/y only (``learn_mover_c_rotation`` stays False)."""
+
+    num_movers: int = 2
+    object_width: float | None = None
+    object_height: float | None = None
+    object_mass: float | None = None
+    max_episode_steps: int = 100
+    collision_shape: str = "box"
+    collision_size: float | tuple[float, float] | None = 0.08
+    force_ratio: float = 1.5
+
+    def __post_init__(self):
+        num_movers = as_count(self.num_movers, "num_movers")
+        if not 2 <= num_movers <= 4:
+            raise ValueError(f"CoopPush takes 2 to 4 movers, got num_movers={self.num_movers!r}")
+        check_finite(a_max=self.a_max, object_sliding_friction=self.object_sliding_friction,
+                     force_ratio=self.force_ratio, object_mass=self.object_mass, allow_none=("object_mass",))
+        for name in ("a_max", "object_sliding_friction", "force_ratio", "object_mass"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise ValueError(f"{name} must be positive, got {value!r}")
+        if as_flag(self.learn_mover_c_rotation, "learn_mover_c_rotation"):
+            raise ValueError("CoopPush drives the movers' x/y only: learn_mover_c_rotation=True is not supported")
+        super().__post_init__()
+
+    def mover_mass(self) -> float:
+        """One mover's mass (kg): ``mover_params``' or the default mover's."""
+        return float(mover_params_kwargs(self.mover_params).get("mass", MoverSpec.mass))
+
+    def heavy_mass(self) -> float:
+        """The object's mass (kg): ``object_mass``, or :func:`heavy_object_mass` of ``force_ratio``."""
+        if self.object_mass is not None:
+            return self.object_mass
+        return heavy_object_mass(self.mover_mass(), self.a_max, self.object_sliding_friction, self.force_ratio)
+
+    def as_push_config(self) -> PushConfig:
+        size = 0.05 * int(self.num_movers)  # half-size: 5 cm per mover
+        return PushConfig(**{
+            **self.push_fields(),
+            "layout": Layout(np.ones((6, 6), dtype=np.int32)) if self.layout is None else self.layout,
+            "object_width": size if self.object_width is None else self.object_width,
+            "object_height": size if self.object_height is None else self.object_height,
+            "object_mass": self.heavy_mass(),
+        })
+
+
 class CoopPushEnv(PushEnv):
     """Batched cooperative pushing of a heavy object by ``num_movers`` (2 to 4) movers; see the module docstring.
 
-    ``force_ratio`` sets the object's mass from the mover mass, ``a_max`` and ``object_sliding_friction`` (see
-    :func:`heavy_object_mass`) unless ``object_mass`` is given; ``movers_needed`` is the least number of movers whose
-    combined push exceeds the object's friction. Every other option is :class:`~magwarp.envs.push.PushEnv`'s."""
+    Options: :class:`CoopPushConfig` (a config and/or keywords). ``force_ratio`` sets the object's mass from the
+    mover mass, ``a_max`` and ``object_sliding_friction`` (see :func:`heavy_object_mass`) unless ``object_mass`` is
+    given; ``movers_needed`` is the least number of movers whose combined push exceeds the object's friction. Every
+    other option is :class:`~magwarp.envs.push.PushEnv`'s."""
 
-    def __init__(self, num_envs: int = 1, num_movers: int = 2, *, object_type: str = "square_box",
-                 layout: Layout | np.ndarray | None = None, object_width: float | None = None,
-                 object_height: float | None = None,
-                 object_mass: float | None = None, object_sliding_friction: float = 0.6, force_ratio: float = 1.5,
-                 a_max: float = 10.0, max_episode_steps: int = 100, collision_shape: str = "box",
-                 collision_size: float | tuple[float, float] | None = 0.08, learn_mover_c_rotation: bool = False,
-                 mover_params: dict | None = None, **kwargs):
-        num_movers = as_count(num_movers, "num_movers")
-        if not 2 <= num_movers <= 4:
-            raise ValueError(f"CoopPush takes 2 to 4 movers, got num_movers={num_movers!r}")
-        check_finite(a_max=a_max, object_sliding_friction=object_sliding_friction, force_ratio=force_ratio,
-                     object_mass=object_mass, allow_none=("object_mass",))
-        for name, value in (("a_max", a_max), ("object_sliding_friction", object_sliding_friction),
-                            ("force_ratio", force_ratio), ("object_mass", object_mass)):
-            if value is not None and not value > 0:
-                raise ValueError(f"{name} must be positive, got {value!r}")
-        if as_flag(learn_mover_c_rotation, "learn_mover_c_rotation"):
-            raise ValueError("CoopPush drives the movers' x/y only: learn_mover_c_rotation=True is not supported")
-        mover_mass = float(mover_params_kwargs(mover_params).get("mass", MoverSpec.mass))
-        if object_mass is None:
-            object_mass = heavy_object_mass(mover_mass, a_max, object_sliding_friction, force_ratio)
-        self.mover_force = mover_mass * float(a_max)  # N, one mover's largest push
-        self.friction_force = float(object_sliding_friction) * float(object_mass) * GRAVITY  # N
+    config_type = CoopPushConfig
+
+    def _init_options(self, opts: PushConfig) -> None:
+        super()._init_options(opts)
+        self.mover_force = self.config.mover_mass() * float(opts.a_max)  # N, one mover's largest push
+        self.friction_force = float(opts.object_sliding_friction) * float(opts.object_mass) * GRAVITY  # N
         #: the least number of movers whose combined largest push exceeds the object's sliding friction
         self.movers_needed = int(self.friction_force // self.mover_force) + 1
-        size = 0.05 * num_movers  # half-size: 5 cm per mover
-        object_width = size if object_width is None else object_width
-        object_height = size if object_height is None else object_height
-        layout = Layout(np.ones((6, 6), dtype=np.int32)) if layout is None else layout
-        super().__init__(num_envs, object_type, layout, num_movers, object_width=object_width,
-                         object_height=object_height, object_mass=object_mass,
-                         object_sliding_friction=object_sliding_friction, a_max=a_max,
-                         max_episode_steps=max_episode_steps, collision_shape=collision_shape,
-                         collision_size=collision_size, learn_mover_c_rotation=False, mover_params=mover_params,
-                         **kwargs)
 
     # ------------------------------------------------------------------ definitions
     def _init_sampling_ranges(self) -> None:

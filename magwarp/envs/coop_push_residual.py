@@ -32,28 +32,59 @@ baseline's state itself and starts a world afresh when its goal changes); PPO wr
 
 from __future__ import annotations
 
-from magwarp.envs.coop_push import CoopPushEnv
+import inspect
+from dataclasses import dataclass
+
+from magwarp.envs.coop_push import CoopPushConfig, CoopPushEnv
 from magwarp.envs.residual import ResidualAction, check_residual_scale
 
-__all__ = ["CoopPushResidualEnv"]
+__all__ = ["CoopPushResidualConfig", "CoopPushResidualEnv"]
+
+
+@dataclass(frozen=True)
+class CoopPushResidualConfig(CoopPushConfig):
+    """Options of :class:`CoopPushResidualEnv`: :class:`~magwarp.envs.coop_push.CoopPushConfig`'s (acceleration
+    control: ``learn_jerk`` stays False), and ``residual_scale``: the correction's range as a share of ``a_max`` (in
+    (0, 2], default 0.5); ``baseline_options``: keyword options of :class:`~magwarp.policies.coop_push.CoopPushPolicy`
+    (its speeds, spacing, ...; None: its defaults). The names are checked here, the values by the policy."""
+
+    residual_scale: float = 0.5
+    baseline_options: dict | None = None
+
+    def __post_init__(self):
+        check_residual_scale(self.residual_scale)
+        opts = self.baseline_options
+        if opts is not None:
+            if not isinstance(opts, dict):
+                raise TypeError(f"baseline_options must be a dict of CoopPushPolicy options, got {opts!r}")
+            from magwarp.policies.coop_push import CoopPushPolicy
+
+            known = [n for n, p in inspect.signature(CoopPushPolicy.__init__).parameters.items()
+                     if n not in ("self", "env") and p.kind is not p.VAR_KEYWORD]
+            unknown = sorted(str(k) for k in opts if k not in known)
+            if unknown:
+                raise TypeError(f"unknown baseline_options {unknown}; CoopPushPolicy takes {known}")
+        super().__post_init__()
+        if self.learn_jerk:
+            raise ValueError("CoopPushResidualEnv corrects the baseline's accelerations (CoopPushPolicy commands "
+                             "accelerations): learn_jerk must be False, got learn_jerk=True")
 
 
 class CoopPushResidualEnv(ResidualAction, CoopPushEnv):
-    """:class:`CoopPushEnv` whose action corrects the scripted baseline's (see the module docstring).
+    """:class:`CoopPushEnv` whose action corrects the scripted baseline's (see the module docstring). Options:
+    :class:`CoopPushResidualConfig` (``residual_scale``, ``baseline_options`` and every CoopPush option), as a
+    config and/or keywords; both are checked before the env is built."""
 
-    ``residual_scale``: the correction's range as a share of ``a_max`` (default 0.5); ``baseline_options``: keyword
-    options of :class:`~magwarp.policies.coop_push.CoopPushPolicy` (its speeds, spacing, ...)."""
+    config_type = CoopPushResidualConfig
 
-    def __init__(self, num_envs: int = 1, num_movers: int = 2, *, residual_scale: float = 0.5,
-                 baseline_options: dict | None = None, **kwargs):
+    def __init__(self, num_envs: int = 1, config: CoopPushResidualConfig | None = None, **kwargs):
         from magwarp.policies.coop_push import CoopPushPolicy
 
-        check_residual_scale(residual_scale)  # before the env is built
-        if baseline_options is not None and not isinstance(baseline_options, dict):
-            raise TypeError(f"baseline_options must be a dict of CoopPushPolicy options, got {baseline_options!r}")
-        super().__init__(num_envs, num_movers, **kwargs)
-        self.baseline_options = dict(baseline_options or {})
-        self._init_residual(CoopPushPolicy(self, **self.baseline_options), residual_scale)
+        # the base constructor's first reset runs before the baseline exists (its observation is not returned)
+        super().__init__(num_envs, config, **kwargs)
+        cfg = self.config
+        self.baseline_options = dict(cfg.baseline_options or {})
+        self._init_residual(CoopPushPolicy(self, **self.baseline_options), cfg.residual_scale)
 
     #: the file :meth:`write_standalone_policy` writes beside a training run's ``policy.pt``
     STANDALONE_POLICY = "policy_coop_push.pt"

@@ -2,7 +2,7 @@
 
 One or more movers push an object (box, square box, cylinder, T, L, X) to a goal position (``learn_pose=False``)
 or a goal pose (``learn_pose=True``). Per env step (``num_cycles`` control cycles of 1 ms, the same action held; the
-physics steps at ``physics_dt``, 1 ms by default, see :class:`PushEnv`):
+physics steps at ``physics_dt``, 1 ms by default, see :class:`~magwarp.envs.push_config.PushConfig`):
 
 * observation: mover x/y positions then x/y velocities (then x/y accelerations when learning jerk), each flattened
   mover by mover (with ``learn_mover_c_rotation``: x, y, sin and cos of the yaw, then x/y/yaw rates, as MagBotSim;
@@ -27,53 +27,39 @@ physically right impedance law of :mod:`magwarp.physics.control`; collisions are
 the step graph but a world is not frozen at its collision cycle (the episode ends at the step either way);
 coverage rotates the object about its body origin (MagBotSim's shapely code rotates the L about its bounding-box
 centre); jerk-mode observations use mujoco-warp's ``qacc`` as MagBotSim does.
+
+Options: every one is a field of :class:`~magwarp.envs.push_config.PushConfig` (documented there); the env takes a
+config and/or the same names as keywords: ``PushEnv(num_envs, config=None, *, device=..., seed=..., **options)``.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import warnings
-from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from magwarp._checks import as_count, as_flag, check_finite, check_magnitude, warp_device
+from magwarp._checks import as_count, as_flag, warp_device
 from magwarp.collision import CollisionQuery
 from magwarp.envs.base import MagwarpVecEnv, _where
+from magwarp.envs.config import resolve_config
 from magwarp.envs.episode import ChosenEpisodes, fmt_xy
-from magwarp.envs.object_variants import MODEL_FIELDS, build_variants, check_ranges
-from magwarp.envs.randomization import EventTerm, Randomizer, as_terms, object_ranges_from_terms
-from magwarp.envs.sim2real import ActuationConfig, PushSim2Real, SensorConfig
-from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
-from magwarp.mjcf import ObjectSpec, ObstacleSpec, generate_mjcf
-from magwarp.physics import ContactFlags, ControlParams, MjwBackend, coverage
-from magwarp.physics.backend import physics_substeps
+from magwarp.envs.object_variants import MODEL_FIELDS, build_variants
+from magwarp.envs.push_config import (PUSH_BENCHMARKS, PushBoxConfig, PushConfig, PushLConfig, PushTConfig,
+                                      PushXConfig, push_benchmark)
+from magwarp.envs.randomization import Randomizer
+from magwarp.envs.sim2real import PushSim2Real
+from magwarp.mjcf import ObjectSpec, generate_mjcf
+from magwarp.physics import ContactFlags, MjwBackend, coverage
 from magwarp.physics.coverage import ShapeTable
 from magwarp.physics.mover_checks import MoverChecks
 from magwarp.physics.push_metrics import PushMetrics
 
-__all__ = ["PUSH_BENCHMARKS", "PushEnv", "PushBoxEnv", "PushTEnv", "PushLEnv", "PushXEnv", "PushWithObstaclesEnv",
-           "push_benchmark"]
-
-# MagBotSim's pushing benchmark variants: B0 is a 3 x 3 grid with one mover; B1..B9 use the trajectory planning
-# benchmark layouts (magwarp.layout) with 1, 1, 2, 2, 2, 2, 2, 2, 2 movers.
-PUSH_BENCHMARKS = tuple(f"B{i}" for i in range(10))
-_PUSH_BENCHMARK_MOVERS = (1, 1, 1, 2, 2, 2, 2, 2, 2, 2)
-
-
-def push_benchmark(name: str) -> tuple[Layout, int]:
-    """Layout and mover count of pushing benchmark variant ``"B0"``..``"B9"``."""
-    from magwarp.layout import benchmark_layout
-
-    if name not in PUSH_BENCHMARKS:
-        raise ValueError(f"unknown pushing benchmark {name!r}; choose one of {list(PUSH_BENCHMARKS)}")
-    i = PUSH_BENCHMARKS.index(name)
-    layout = Layout(np.ones((3, 3), dtype=np.int32)) if i == 0 else benchmark_layout(name)[0]
-    return layout, _PUSH_BENCHMARK_MOVERS[i]
+__all__ = ["PUSH_BENCHMARKS", "PushConfig", "PushBoxConfig", "PushTConfig", "PushLConfig", "PushXConfig", "PushEnv",
+           "PushBoxEnv", "PushTEnv", "PushLEnv", "PushXEnv", "push_benchmark"]
 
 _CANDIDATES = 256  # start configurations drawn per env and reset; the first valid one is used. With 64, the
 # default Push-Box ranges (about 13% of candidates valid) left one env in ~8000 without a valid start per reset.
@@ -93,44 +79,13 @@ def _yaw_from_quat(q: torch.Tensor) -> torch.Tensor:
 
 
 class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
-    """Batched object pushing. ``layout`` is a :class:`Layout` or 0/1 array (default: 4 x 3 tiles); ``benchmark``
-    (``"B0"``..``"B9"``) picks MagBotSim's pushing benchmark layout and mover count instead.
-
-    ``object_type`` is one of ``box``, ``square_box``, ``cylinder``, ``t_shape``, ``l_shape``, ``plus_shape`` (or
-    ``T``, ``L``, ``X``); ``object_*`` set its half-sizes (m), mass (kg) and friction. Collision options follow
-    MagBotSim's ``collision_params``: ``collision_shape``, ``collision_size``, ``collision_offset`` (sampling
-    margin), ``collision_offset_wall`` (wall margin). ``mover_params`` (MagBotSim's) sets the mover body:
-    ``{"size": half sizes (x, y, z), "mass": kg}`` (default: the 155 mm, 1.24 kg APM4330-like box; MagBotSim's
-    published runs use 113 mm and 0.639 kg). ``object_ranges`` (MagBotSim's): ``{"width": (low, high),
-    ...}`` over ``width``, ``height``, ``depth``, ``segment_width``, ``radius`` and ``mass``; a range with low < high
-    gives every episode an object drawn from ``object_variants`` samples of the ranges
-    (:mod:`magwarp.envs.object_variants`; ``info["object_variant"]`` says which), a fixed one just sets the value.
-    ``randomization``: a list of :class:`magwarp.envs.randomization.EventTerm` (or mappings of their fields) that
-    randomise object and mover mass, a payload on the movers, object and floor friction and obstacle positions per
-    world, at startup, at each reset (reset worlds only) or every N steps, without a model rebuild
-    (:mod:`magwarp.envs.randomization`), or a preset's name (``"sim2real"``). ``actuation`` (action latency) and
-    ``sensors`` (bias, noise, dropped readings of the mover x/y positions and velocities) are the sim2real models of
-    :mod:`magwarp.envs.sim2real` (:class:`~magwarp.envs.sim2real.PushSim2Real`).
-
-    Physics: ``solver`` is MuJoCo's constraint solver for the contacts: ``"Newton"`` (MagBotSim's), ``"CG"``, or
-    ``"auto"`` (default): CG on CPU, Newton on CUDA, the faster one on each (benchmarks/RESULTS.md; on a GPU the batch
-    waits for its slowest world, and CG's many cheap iterations lose there). Both solve the same elliptic-cone contact
-    problem to MuJoCo's tolerance; only the optimiser differs. ``solver_iterations``/``ls_iterations`` cap it (MuJoCo's
-    100/50 by default; on a GPU the batch iterates until its slowest world converges, so a low cap is speed bought
-    with accuracy in the hardest contacts). ``nconmax``/``njmax`` (contacts and constraint rows
-    per world) default to the most the scene can produce: 8 contacts per colliding geom pair, 3 rows per contact.
-
-    Physics step: ``physics_dt`` (s) is mujoco-warp's timestep and the period of the mover control law; an env step
-    of ``num_cycles`` control cycles (1 ms each, MagBotSim's and the real system's cycle: 40 ms by default) runs
-    ``num_cycles * 1 ms / physics_dt`` physics steps (``substeps``). The default, 0.001, is MagBotSim's. 0.002 (20
-    steps per 40 ms env step) is an opt-in fast mode, about 2x the env-steps/s on a GPU: the x/y command law,
-    jerk/acceleration integration, velocity cap and impedance hold update every physics step instead of every 1 ms,
-    contacts resolve at that step (MuJoCo's contact time constant, 0.02 s, stays above 2 steps, so contact
-    stiffness is unchanged), and collisions and the corrective-movement metrics are checked once per physics step.
-    Episode lengths and timeouts count env steps and do not change. ``physics_dt`` must divide the env step and lie
-    in [:data:`~magwarp.physics.backend.PHYSICS_DT_MIN`, :data:`~magwarp.physics.backend.PHYSICS_DT_MAX`] (0.1 to
-    5 ms); see ``docs/push_physics_dt.md`` for what was
-    measured.
+    """Batched object pushing: ``PushEnv(num_envs, config=None, *, device=None, seed=None, render_mode=None,
+    autoreset=True, check_inputs=True, nan_dump=None, **options)``. Every option (scene, object, goals, rewards,
+    physics, randomisation, sim2real) is a field of :class:`~magwarp.envs.push_config.PushConfig`, documented there;
+    give a config, the same names as keywords (``PushEnv(8, object_type="t_shape", learn_pose=True)``), or both
+    (the keywords replace the config's fields). Unknown options and a config of another type raise a ``TypeError``,
+    bad values a ``ValueError`` naming them, before anything is built. :attr:`config` is the resolved config; a
+    subclass env (Push-Box, Push-T, ...) has its own :attr:`config_type` with its defaults.
 
     Rendering: ``render_mode="rgb_array"`` draws the worlds of :meth:`set_render_worlds` from above (tiles, movers,
     the object, its goal and obstacles); ``"rgb_array_3d"`` renders them in 3D through MuJoCo's offscreen renderer
@@ -155,178 +110,69 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
 
     metadata = {**MagwarpVecEnv.metadata, "render_modes": ["rgb_array", "rgb_array_3d"]}
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        object_type: str = "square_box",
-        layout: Layout | np.ndarray | None = None,
-        num_movers: int = 1,
-        *,
-        learn_pose: bool = False,
-        learn_jerk: bool = False,
-        learn_mover_c_rotation: bool = False,
-        p_max_c: float | None = None,
-        v_max_c: float = 122.17305,
-        a_max_c: float = 122.17305,
-        j_max_c: float = 610.86524,
-        object_width: float = 0.06,
-        object_height: float = 0.06,
-        object_depth: float = 0.02,
-        object_segment_width: float = 0.02,
-        object_radius: float = 0.05,
-        object_mass: float = 0.3,
-        object_sliding_friction: float = 0.6,
-        object_torsional_friction: float = 0.0001,
-        object_ranges: Mapping[str, tuple[float, float]] | None = None,
-        object_variants: int = 64,
-        std_noise: float = 0.0,
-        object_noise: float = 0.0,
-        v_max: float = 2.0,
-        a_max: float = 10.0,
-        j_max: float = 100.0,
-        num_cycles: int = 40,
-        physics_dt: float = 0.001,
-        max_position_err: float = 0.05,
-        min_coverage: float = 0.7,
-        use_sparse_pose_reward: bool = False,
-        collision_penalty: float = -10.0,
-        per_step_penalty: float = -0.01,
-        object_at_goal_reward: float = 1.0,
-        early_termination_steps: int | None = None,
-        max_episode_steps: int = 25,
-        collision_shape: str = "circle",
-        collision_size: float | tuple[float, float] | None = None,
-        collision_offset: float = 0.0,
-        collision_offset_wall: float = 0.0,
-        mover_params: dict | None = None,
-        initial_mover_zpos: float = 0.003,
-        obstacles: tuple[ObstacleSpec, ...] = (),
-        benchmark: str | None = None,
-        solver: str = "auto",
-        solver_iterations: int = 100,
-        ls_iterations: int = 50,
-        nconmax: int | None = None,
-        njmax: int | None = None,
-        device: str | None = None,
-        seed: int | None = None,
-        render_mode: str | None = None,
-        autoreset: bool = True,
-        check_inputs: bool = True,
-        nan_dump: str | None = None,
-        randomization: Sequence[EventTerm | Mapping[str, Any]] | str | None = None,
-        actuation: ActuationConfig | dict | None = None,
-        sensors: SensorConfig | dict | None = None,
-    ):
-        if benchmark is not None:
-            layout, num_movers = push_benchmark(benchmark)
-        layout = Layout(np.ones((4, 3), dtype=np.int32)) if layout is None else layout
-        self.layout = layout if isinstance(layout, Layout) else Layout(layout)
+    #: the options' dataclass (a subclass env with other defaults or more options has its own subclass)
+    config_type = PushConfig
+
+    def __init__(self, num_envs: int = 1, config: PushConfig | None = None, *, device: str | None = None,
+                 seed: int | None = None, render_mode: str | None = None, autoreset: bool = True,
+                 check_inputs: bool = True, nan_dump: str | None = None, **options):
+        #: the options (a :attr:`config_type`); :meth:`PushConfig.as_push_config` gives the push options it stands for
+        self.config = resolve_config(type(self), config, options)  # every option checked before anything is built
+        opts = self.config.as_push_config()
         num_envs = as_count(num_envs, "num_envs")
-        num_movers = as_count(num_movers, "num_movers")
-        if collision_shape not in ("circle", "box"):
-            raise ValueError(f"collision_shape must be 'circle' or 'box', got {collision_shape!r}")
-        num_cycles = as_count(num_cycles, "num_cycles")
-        substeps = physics_substeps(physics_dt, num_cycles)  # a bad physics_dt fails before anything is built
-        max_episode_steps = as_count(max_episode_steps, "max_episode_steps")
-        solver_iterations = as_count(solver_iterations, "solver_iterations")
-        ls_iterations = as_count(ls_iterations, "ls_iterations")
-        nconmax = None if nconmax is None else as_count(nconmax, "nconmax")
-        njmax = None if njmax is None else as_count(njmax, "njmax")
-        check_finite(p_max_c=p_max_c, v_max_c=v_max_c, a_max_c=a_max_c, j_max_c=j_max_c, object_width=object_width,
-                     object_height=object_height, object_depth=object_depth, object_segment_width=object_segment_width,
-                     object_radius=object_radius, object_mass=object_mass, v_max=v_max, a_max=a_max, j_max=j_max,
-                     object_sliding_friction=object_sliding_friction, max_position_err=max_position_err,
-                     object_torsional_friction=object_torsional_friction, min_coverage=min_coverage,
-                     collision_penalty=collision_penalty, per_step_penalty=per_step_penalty,
-                     object_at_goal_reward=object_at_goal_reward, collision_size=collision_size,
-                     collision_offset=collision_offset, collision_offset_wall=collision_offset_wall,
-                     initial_mover_zpos=initial_mover_zpos, std_noise=std_noise, object_noise=object_noise,
-                     allow_none=("p_max_c", "collision_size"),
-                     vectors=("collision_size",))
-        if not 0.0 <= min_coverage <= 1.0:
-            raise ValueError(f"min_coverage must lie in [0, 1], got {min_coverage!r}")
-        if not max_position_err > 0:
-            raise ValueError(f"max_position_err must be positive, got {max_position_err!r}")
-        if early_termination_steps is not None:
-            early_termination_steps = as_count(early_termination_steps, "early_termination_steps")
-        terms = as_terms(randomization, "push") if randomization is not None else []  # bad terms fail before the build
-        terms, size_ranges = object_ranges_from_terms(terms)
-        if size_ranges:
-            if object_ranges is not None:
-                raise ValueError(f"give object sizes as object_ranges or as randomization terms, not both "
-                                 f"object_ranges={object_ranges!r} and terms for {sorted(size_ranges)}")
-            object_ranges = size_ranges
-        self.num_movers = int(num_movers)
-        self.learn_pose = learn_pose = as_flag(learn_pose, "learn_pose")
-        self.learn_jerk = learn_jerk = as_flag(learn_jerk, "learn_jerk")
-        self.learn_mover_c_rotation = as_flag(learn_mover_c_rotation, "learn_mover_c_rotation")
-        for name, value in (("std_noise", std_noise), ("object_noise", object_noise)):  # finite: checked above
-            if value < 0:
-                raise ValueError(f"{name} must be a non-negative number, got {value!r}")
-        check_magnitude(std_noise=std_noise, object_noise=object_noise)
-        self.std_noise, self.object_noise = float(std_noise), float(object_noise)
-        self.num_cycles = int(num_cycles)  # control cycles (1 ms) per env step
-        self.physics_dt = float(physics_dt)  # mujoco-warp timestep and control period (s)
-        self.substeps = substeps  # physics steps per env step
-        self.max_position_err = float(max_position_err)
-        self.min_coverage = float(min_coverage)
-        self.use_sparse_pose_reward = as_flag(use_sparse_pose_reward, "use_sparse_pose_reward")
-        self.collision_penalty = float(collision_penalty)
-        self.per_step_penalty = float(per_step_penalty)
-        self.object_at_goal_reward = float(object_at_goal_reward)
-        self.early_termination_steps = early_termination_steps
-        self.max_episode_steps = int(max_episode_steps)
-        self.object = ObjectSpec(object_type, width=object_width, height=object_height, depth=object_depth,
-                                 segment_width=object_segment_width, radius=object_radius, mass=object_mass,
-                                 friction=(object_sliding_friction, object_torsional_friction, 0.0001))
-        ranges = check_ranges(object_ranges) if object_ranges is not None else {}
-        varying = {k: r for k, r in ranges.items() if r[0] < r[1]}
-        # Fixed ranges just set the value; varying ones build the model (and the sampling margins) with the largest
-        # object, and each world then gets one of the variants at every reset.
-        self.object = dataclasses.replace(self.object, **{k: r[1] for k, r in ranges.items()})
-        spec: dict[str, Any] = dict(hover_gap=initial_mover_zpos, collision_shape=collision_shape,
-                                    wall_margin=collision_offset_wall, **mover_params_kwargs(mover_params))
-        if collision_size is not None:
-            if collision_shape == "circle":
-                spec["collision_radius"] = float(collision_size)
-            else:
-                spec["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
-        self.mover = MoverSpec(**spec)
-        self.collision_offset = float(collision_offset)
-        if not isinstance(obstacles, (tuple, list)) or not all(isinstance(o, ObstacleSpec) for o in obstacles):
-            raise TypeError(f"obstacles must be a tuple of ObstacleSpec, got {obstacles!r}")
-        self.obstacles = tuple(obstacles)
+        self._init_options(opts)
         # Start ranges, and whether the mover and the object fit in them, before anything is built.
         self._init_sampling_ranges()
         self._check_sizes_fit()
-
-        control = ControlParams(v_max=v_max, a_max=a_max, j_max=j_max, jerk=learn_jerk, num_cycles=substeps,
-                                rotation=self.learn_mover_c_rotation, v_max_c=v_max_c, a_max_c=a_max_c,
-                                j_max_c=j_max_c, p_max_c=p_max_c)
-        self._build_backend(int(num_envs), warp_device(device).alias, control, solver=solver,
-                            solver_iterations=solver_iterations, ls_iterations=ls_iterations, nconmax=nconmax,
-                            njmax=njmax, varying=varying, object_variants=object_variants, seed=seed)
+        self._build_backend(num_envs, warp_device(device).alias, opts, seed)
         super().__init__(num_envs, self.backend.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs, nan_dump=nan_dump)
         self._init_task_state()
         self._set_spaces(self._observation_space(), self._action_space())
+        terms = opts.randomization_terms()[0]
         self.randomizer = Randomizer(self, terms) if terms else None
-        self._init_sim2real(actuation, sensors)
+        self._init_sim2real(opts.actuation, opts.sensors)
         self.reset()
 
     # ------------------------------------------------------------------ construction
-    def _build_backend(self, num_envs: int, device: str, control: ControlParams, *, solver: str,
-                       solver_iterations: int, ls_iterations: int, nconmax: int | None, njmax: int | None,
-                       varying: dict, object_variants: int, seed: int | None) -> None:
+    def _init_options(self, opts: PushConfig) -> None:
+        """The task's settings the env reads, from the (checked) push options ``opts``; a subclass adds its own (from
+        :attr:`config`) before the sampling ranges and the model are made."""
+        self.layout = opts.make_layout()
+        self.num_movers = opts.mover_count()
+        self.learn_pose = as_flag(opts.learn_pose, "learn_pose")
+        self.learn_jerk = as_flag(opts.learn_jerk, "learn_jerk")
+        self.learn_mover_c_rotation = as_flag(opts.learn_mover_c_rotation, "learn_mover_c_rotation")
+        self.std_noise, self.object_noise = float(opts.std_noise), float(opts.object_noise)
+        self.num_cycles = int(opts.num_cycles)  # control cycles (1 ms) per env step
+        self.physics_dt = float(opts.physics_dt)  # mujoco-warp timestep and control period (s)
+        self.substeps = opts.substeps()  # physics steps per env step
+        self.max_position_err = float(opts.max_position_err)
+        self.min_coverage = float(opts.min_coverage)
+        self.use_sparse_pose_reward = as_flag(opts.use_sparse_pose_reward, "use_sparse_pose_reward")
+        self.collision_penalty = float(opts.collision_penalty)
+        self.per_step_penalty = float(opts.per_step_penalty)
+        self.object_at_goal_reward = float(opts.object_at_goal_reward)
+        e = opts.early_termination_steps
+        self.early_termination_steps = None if e is None else int(e)
+        self.max_episode_steps = int(opts.max_episode_steps)
+        self.object = opts.make_object()
+        self.mover = opts.make_mover()
+        self.collision_offset = float(opts.collision_offset)
+        self.obstacles = tuple(opts.obstacles)
+
+    def _build_backend(self, num_envs: int, device: str, opts: PushConfig, seed: int | None) -> None:
         """The mujoco-warp model, built once (starts and goals change per world without a rebuild), its object
         variants, and the collision and contact checks on it."""
+        solver = opts.solver
         if solver == "auto":
             solver = "Newton" if str(device).startswith("cuda") else "CG"
 
         def scene(spec):
             return generate_mjcf(self.layout, self.num_movers, self.mover, mover_xy=self._placeholder_starts(),
-                                 objects=[spec], obstacles=self.obstacles, solver=solver, iterations=solver_iterations,
-                                 ls_iterations=ls_iterations, timestep=self.physics_dt)
+                                 objects=[spec], obstacles=self.obstacles, solver=solver,
+                                 iterations=int(opts.solver_iterations), ls_iterations=int(opts.ls_iterations),
+                                 timestep=self.physics_dt)
 
         self.xml = scene(self.object)
         # Contacts per world: up to 8 per colliding geom pair (MuJoCo's box-box and plane-box tests return at most 8):
@@ -335,12 +181,13 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
         # per world, so a tight bound is speed (Push-Box: 48 rows, not a generous 96).
         parts = max(len(self.object.rects()), 1)
         n_obs = len(self.obstacles)
-        ncon = nconmax or 8 * (parts * (1 + self.num_movers + n_obs) + self.num_movers * n_obs)
-        self.backend = MjwBackend(self.xml, num_envs, control=control, nconmax=ncon, njmax=njmax or 3 * ncon,
-                                  device=device)
+        ncon = int(opts.nconmax or 8 * (parts * (1 + self.num_movers + n_obs) + self.num_movers * n_obs))
+        self.backend = MjwBackend(self.xml, num_envs, control=opts.control_params(), nconmax=ncon,
+                                  njmax=int(opts.njmax or 3 * ncon), device=device)
         self.variants = None
+        varying = opts.varying_ranges()
         if varying:
-            self.variants = build_variants(self.object, varying, object_variants, scene,
+            self.variants = build_variants(self.object, varying, opts.object_variants, scene,
                                            np.random.default_rng(seed), self.backend.torch_device)
             self._variant_fields = self.backend.batch_model_fields(MODEL_FIELDS)
         self.checks = MoverChecks(self.backend, self.layout, self.mover)
@@ -739,7 +586,8 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
         return self._hold_obs({"observation": self._mover_obs(), "achieved_goal": achieved, "desired_goal": desired})
 
     def _collision_info(self) -> dict[str, torch.Tensor]:
-        return {"mover_collision": self.checks.mover_collision.clone(), "wall_collision": self.checks.wall_collision.clone()}
+        return {"mover_collision": self.checks.mover_collision.clone(),
+                "wall_collision": self.checks.wall_collision.clone()}
 
     def _evaluate(self, obs):
         info = self._collision_info()
@@ -797,7 +645,8 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
                 v = v.reshape(batch) if batch is not None else v
                 out = v if out is None else out | v
         if out is None:
-            out = torch.zeros(batch if batch is not None else (self.num_envs,), dtype=torch.bool, device=device or self.device)
+            out = torch.zeros(batch if batch is not None else (self.num_envs,), dtype=torch.bool,
+                              device=device or self.device)
         return out
 
     def _reward(self, reached: torch.Tensor, metric: torch.Tensor, info: dict[str, Any] | None) -> torch.Tensor:
@@ -868,30 +717,26 @@ class PushEnv(PushSim2Real, ChosenEpisodes, MagwarpVecEnv):
 
 
 class PushBoxEnv(PushEnv):
-    """Push-Box (MagBotSim ``StateBasedPushBoxEnv``): a square box to a goal position, 25 steps."""
+    """Push-Box (MagBotSim ``StateBasedPushBoxEnv``): a square box to a goal position, 25 steps
+    (:class:`~magwarp.envs.push_config.PushBoxConfig`)."""
 
-    def __init__(self, num_envs: int = 1, **kwargs):
-        kwargs.setdefault("max_episode_steps", 25)
-        super().__init__(num_envs, "square_box", learn_pose=False, **kwargs)
+    config_type = PushBoxConfig
 
 
 class PushTEnv(PushEnv):
-    """Push-T (MagBotSim ``StateBasedPushTEnv``): a T to a goal pose (coverage >= ``min_coverage``), 50 steps."""
+    """Push-T (MagBotSim ``StateBasedPushTEnv``): a T to a goal pose (coverage >= ``min_coverage``), 50 steps
+    (:class:`~magwarp.envs.push_config.PushTConfig`)."""
 
-    _shape = "t_shape"
-
-    def __init__(self, num_envs: int = 1, **kwargs):
-        kwargs.setdefault("max_episode_steps", 50)
-        super().__init__(num_envs, self._shape, learn_pose=True, **kwargs)
+    config_type = PushTConfig
 
 
 class PushLEnv(PushTEnv):
-    """Push-L: like Push-T with an L-shaped object."""
+    """Push-L: like Push-T with an L-shaped object (:class:`~magwarp.envs.push_config.PushLConfig`)."""
 
-    _shape = "l_shape"
+    config_type = PushLConfig
 
 
 class PushXEnv(PushTEnv):
-    """Push-X: like Push-T with an X (plus) shaped object."""
+    """Push-X: like Push-T with an X (plus) shaped object (:class:`~magwarp.envs.push_config.PushXConfig`)."""
 
-    _shape = "plus_shape"
+    config_type = PushXConfig

@@ -4,6 +4,8 @@ world without a model rebuild."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import gymnasium as gym
 import mujoco
 import numpy as np
@@ -14,6 +16,7 @@ from magwarp._checks import as_count
 from magwarp.envs.base import _where
 from magwarp.envs.episode import fmt_xy
 from magwarp.envs.push import _CANDIDATES, PushEnv
+from magwarp.envs.push_config import PushConfig, check_object_type
 from magwarp.mjcf import ObstacleSpec
 
 
@@ -22,6 +25,7 @@ from magwarp.mjcf import ObstacleSpec
 _OBSTACLE_HALF_Y = {"simple": 0.1, "medium": 0.115, "hard": 0.13}
 _OBSTACLE_MODES = (*_OBSTACLE_HALF_Y, "random", "curriculum")
 _MIX_MODES = (*_OBSTACLE_HALF_Y, "random")  # what a mix of modes may draw from at each reset
+WALL_X, WALL_HALF_X, LAYOUT_TOP = 0.48, 0.03, 0.72  # the walls' centre x and half thickness, the layout's top (m)
 
 
 def _mix_probabilities(mix) -> dict[str, float]:
@@ -43,13 +47,11 @@ def _mix_probabilities(mix) -> dict[str, float]:
     return {mode: w / total for mode, w in weights.items()}
 
 
-class PushWithObstaclesEnv(PushEnv):
-    """Pushing past two static obstacles (MagBotSim ``StateBasedStaticObstaclePushingEnv``), 25 steps.
-
-    4 x 3 tiles, one mover, a 7 x 7 x 4 cm box of 30 g; two walls at x = 0.48 leave a gap the box must pass to reach
-    a goal behind them. Observation adds the obstacles' corner x/y (8 numbers each). Reward: -50 on a wall
-    collision or any mover/object contact with an obstacle (and the episode terminates), 0 at the goal
-    (distance <= ``threshold_pos``), else -1.
+@dataclass(frozen=True)
+class PushWithObstaclesConfig(PushConfig):
+    """Options of :class:`PushWithObstaclesEnv`: :class:`~magwarp.envs.push_config.PushConfig`'s with MagBotSim's
+    task values as defaults (a square box of half sizes 3.5 x 3.5 x 2 cm and 30 g, hover gap 2 mm, rewards -50 / -1 /
+    0), and its own options:
 
     ``obstacle_mode`` sets the gap, as in MagBotSim: ``simple``, ``medium`` or ``hard`` (fixed walls of half length
     0.1, 0.115 or 0.13 m), ``random`` (a half length drawn uniformly from [0.1, 0.13] per world at every reset) or
@@ -66,36 +68,84 @@ class PushWithObstaclesEnv(PushEnv):
     episodes, and an untrained policy crashes within a few steps, so it can reach the hard walls before it has
     learned anything on the simple ones.
 
+    ``threshold_pos`` (m, MagBotSim's name) is the goal distance (the push envs' ``max_position_err``, which stays
+    None here: give ``threshold_pos``). The walls are the task's (from ``obstacle_mode``; ``obstacles`` stays
+    empty) and so is the object (``object_type`` stays ``"square_box"``)."""
+
+    object_width: float = 0.035
+    object_height: float = 0.035
+    object_mass: float = 0.03
+    max_position_err: float | None = None
+    collision_penalty: float = -50.0
+    per_step_penalty: float = -1.0
+    object_at_goal_reward: float = 0.0
+    initial_mover_zpos: float = 0.002
+    obstacle_mode: str | dict[str, float] = "simple"
+    threshold_pos: float = 0.05
+    curriculum_episodes: int = 800
+    curriculum_success_rate: float | None = None
+
+    def __post_init__(self):
+        mode = self.obstacle_mode
+        if self.mix() is None and mode not in _OBSTACLE_MODES:
+            raise ValueError(f"obstacle_mode must be one of {list(_OBSTACLE_MODES)}, got {mode!r}")
+        as_count(self.curriculum_episodes, "curriculum_episodes")
+        rate = self.curriculum_success_rate
+        if rate is not None:
+            if mode != "curriculum":
+                raise ValueError(f"curriculum_success_rate needs obstacle_mode='curriculum', got {mode!r}")
+            if not 0.0 <= float(rate) <= 1.0:
+                raise ValueError(f"curriculum_success_rate must lie in [0, 1], got {rate!r}")
+        if self.max_position_err is not None:
+            raise ValueError(f"PushWithObstaclesEnv's goal distance is threshold_pos (MagBotSim's name); give "
+                             f"threshold_pos={self.max_position_err!r}, not max_position_err")
+        if not isinstance(self.obstacles, (tuple, list)) or len(self.obstacles):
+            raise ValueError(f"PushWithObstaclesEnv places its own walls (obstacle_mode); obstacles must stay empty, "
+                             f"got {self.obstacles!r}")
+        super().__post_init__()
+        check_object_type(self)
+
+    def mix(self) -> dict[str, float] | None:
+        """``{mode: probability}`` of a mapping ``obstacle_mode`` (normalised; a bad key or weight raises), else
+        None."""
+        return _mix_probabilities(self.obstacle_mode) if isinstance(self.obstacle_mode, dict) else None
+
+    def walls(self) -> tuple[ObstacleSpec, ObstacleSpec]:
+        """The two walls the model is built with: ``obstacle_mode``'s, or the ``simple`` ones where resets draw them
+        (random, curriculum and mixed walls start simple)."""
+        mode = self.obstacle_mode if not isinstance(self.obstacle_mode, dict) else "simple"
+        size_y = _OBSTACLE_HALF_Y.get(mode, _OBSTACLE_HALF_Y["simple"])
+        return (ObstacleSpec((WALL_X, size_y), (WALL_HALF_X, size_y, 0.03)),
+                ObstacleSpec((WALL_X, LAYOUT_TOP - size_y), (WALL_HALF_X, size_y, 0.03)))
+
+    def as_push_config(self) -> PushConfig:
+        return PushConfig(**{**self.push_fields(), "max_position_err": self.threshold_pos, "obstacles": self.walls()})
+
+
+class PushWithObstaclesEnv(PushEnv):
+    """Pushing past two static obstacles (MagBotSim ``StateBasedStaticObstaclePushingEnv``), 25 steps.
+
+    4 x 3 tiles, one mover, a 7 x 7 x 4 cm box of 30 g; two walls at x = 0.48 leave a gap the box must pass to reach
+    a goal behind them. Observation adds the obstacles' corner x/y (8 numbers each). Reward: -50 on a wall
+    collision or any mover/object contact with an obstacle (and the episode terminates), 0 at the goal
+    (distance <= ``threshold_pos``), else -1. Options: :class:`PushWithObstaclesConfig` (``obstacle_mode``, the
+    curriculum, and every :class:`~magwarp.envs.push.PushEnv` option), as a config and/or keywords.
+
     Chosen episodes (``reset(options=...)``, see :class:`~magwarp.envs.push.PushEnv`) must also keep the movers, the
     object and the goal clear of the walls (of the longest walls where a reset draws them).
     """
 
-    def __init__(self, num_envs: int = 1, obstacle_mode: str | dict[str, float] = "simple", threshold_pos: float = 0.05,
-                 initial_mover_zpos: float = 0.002, curriculum_episodes: int = 800,
-                 curriculum_success_rate: float | None = None, **kwargs):
-        self._mix = _mix_probabilities(obstacle_mode) if isinstance(obstacle_mode, dict) else None
-        if self._mix is None and obstacle_mode not in _OBSTACLE_MODES:
-            raise ValueError(f"obstacle_mode must be one of {list(_OBSTACLE_MODES)}, got {obstacle_mode!r}")
-        curriculum_episodes = as_count(curriculum_episodes, "curriculum_episodes")
-        if curriculum_success_rate is not None:
-            if obstacle_mode != "curriculum":
-                raise ValueError(f"curriculum_success_rate needs obstacle_mode='curriculum', got {obstacle_mode!r}")
-            if not 0.0 <= float(curriculum_success_rate) <= 1.0:
-                raise ValueError(f"curriculum_success_rate must lie in [0, 1], got {curriculum_success_rate!r}")
-        self.obstacle_mode = dict(obstacle_mode) if self._mix is not None else obstacle_mode
-        self.curriculum_episodes = int(curriculum_episodes)
-        self.curriculum_success_rate = None if curriculum_success_rate is None else float(curriculum_success_rate)
-        self.obstacle_x, self.obstacle_size_x, self.layout_top = 0.48, 0.03, 0.72
-        # random, curriculum and mixed walls start simple (the first reset draws them)
-        size_y = _OBSTACLE_HALF_Y.get(obstacle_mode if self._mix is None else "simple", _OBSTACLE_HALF_Y["simple"])
-        obstacles = (ObstacleSpec((0.48, size_y), (0.03, size_y, 0.03)),
-                     ObstacleSpec((0.48, self.layout_top - size_y), (0.03, size_y, 0.03)))
-        kwargs.setdefault("max_episode_steps", 25)
-        super().__init__(num_envs, "square_box", learn_pose=False, object_width=0.035, object_height=0.035,
-                         object_depth=0.02, object_mass=0.03, object_sliding_friction=0.6,
-                         object_torsional_friction=0.0001, max_position_err=threshold_pos,
-                         initial_mover_zpos=initial_mover_zpos, obstacles=obstacles, collision_penalty=-50.0,
-                         per_step_penalty=-1.0, object_at_goal_reward=0.0, **kwargs)
+    config_type = PushWithObstaclesConfig
+
+    def _init_options(self, opts: PushConfig) -> None:
+        super()._init_options(opts)
+        cfg = self.config
+        self._mix = cfg.mix()
+        self.obstacle_mode = dict(cfg.obstacle_mode) if self._mix is not None else cfg.obstacle_mode
+        self.curriculum_episodes = int(cfg.curriculum_episodes)
+        rate = cfg.curriculum_success_rate
+        self.curriculum_success_rate = None if rate is None else float(rate)
+        self.obstacle_x, self.obstacle_size_x, self.layout_top = WALL_X, WALL_HALF_X, LAYOUT_TOP
 
     def _varying_walls(self) -> bool:
         return self._mix is not None or self.obstacle_mode in ("random", "curriculum")
@@ -134,8 +184,9 @@ class PushWithObstaclesEnv(PushEnv):
         """New wall half lengths for the worlds in ``mask``, written into the per-world obstacle geoms."""
         if not hasattr(self, "_geom_fields"):
             self._geom_fields = self.backend.batch_model_fields(["geom_pos", "geom_size", "geom_aabb", "geom_rbound"])
-            self._wall_geoms = torch.tensor([mujoco.mj_name2id(self.backend.mjm, mujoco.mjtObj.mjOBJ_GEOM, f"obstacle_geom_{k}")
-                                             for k in range(2)], device=self.device)
+            self._wall_geoms = torch.tensor(
+                [mujoco.mj_name2id(self.backend.mjm, mujoco.mjtObj.mjOBJ_GEOM, f"obstacle_geom_{k}") for k in range(2)],
+                device=self.device)
             self.curriculum_level = torch.zeros(self.num_envs, dtype=torch.int64, device=self.device)
             # -1: the reset inside the constructor is not an episode (MagBotSim counts the user's resets)
             self._episodes_at_level = torch.full((self.num_envs,), -1, dtype=torch.int64, device=self.device)
@@ -173,7 +224,8 @@ class PushWithObstaclesEnv(PushEnv):
         new_size = torch.cat([self.obstacle_boxes[:, :, 2:4], size[..., 2:]], -1)
         f["geom_pos"][:, g] = _where(mask, new_pos, pos)
         f["geom_size"][:, g] = _where(mask, new_size, size)
-        f["geom_aabb"][:, g] = _where(mask, torch.stack([torch.zeros_like(new_size), new_size], 2), f["geom_aabb"][:, g])
+        f["geom_aabb"][:, g] = _where(mask, torch.stack([torch.zeros_like(new_size), new_size], 2),
+                                      f["geom_aabb"][:, g])
         f["geom_rbound"][:, g] = _where(mask, new_size.norm(dim=-1), f["geom_rbound"][:, g])
 
     def _mixed_half_y(self, n: int) -> torch.Tensor:
@@ -198,7 +250,8 @@ class PushWithObstaclesEnv(PushEnv):
         right = float(self.layout.tile_centers()[:, 0].max() + self.layout.tile.half)
         small, obj_half = 0.1, self.object.width
         self.object_min_xy = np.full(2, c + small + 0.05)
-        self.object_max_xy = np.array([self.obstacle_x - self.obstacle_size_x - obj_half - 0.05, top - (c + small + 0.05)])
+        self.object_max_xy = np.array([self.obstacle_x - self.obstacle_size_x - obj_half - 0.05,
+                                       top - (c + small + 0.05)])
         self.min_xy = np.full(2, c + 0.05)
         self.max_xy = np.array([self.obstacle_x - self.obstacle_size_x, top]) - c - 0.05
         self.goal_min_xy = np.array([self.obstacle_x + max(self.obstacle_size_x, obj_half), 0.0]) + small
