@@ -188,7 +188,8 @@ class PushConfig:
 
     # ------------------------------------------------------------------ checks
     def _check(self) -> None:
-        """Every option, in the order the constructor once checked them (the first bad one raises)."""
+        """Every option (the first bad one raises, naming it): counts, finite numbers, ranges, flags, the object,
+        mover and layout specs, randomisation terms and the sim2real models' configs."""
         if self.benchmark is not None:
             push_benchmark(self.benchmark)
         self.make_layout()
