@@ -10,7 +10,8 @@
 # small_world_kernels and small_world (#24: the one-thread-per-mover fused step), rand_rows, rand_profile and
 # tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps, fire_cost and
 # branches (#24), magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs, swarm_place and tests18
-# and place_scan (#18), compare (B0 env throughput of an older tree beside this one).
+# and place_scan (#18), compare (B0 env throughput of an older tree beside this one), configs (the env configs'
+# CUDA tests), swarm_load (#18: the step by action load), b0_check (B0 with and without randomisation).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -93,6 +94,22 @@ for stage in "$@"; do
         --json "$OUT/randomization_gpu.json" 2>&1 | tail -15 ;;
     swarm_render)
       timeout 300 python3 benchmarks/swarm_render.py --json "$OUT/swarm_render_gpu.json" 2>&1 | tail -20 ;;
+    configs)
+      # the env config dataclasses on CUDA (trajectory, levitation, swarm graph key): the graph step tests too
+      timeout 420 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_graph_step.py \
+        tests/test_trajectory_config.py tests/test_levitation_config.py tests/test_swarm_graph.py \
+        ${EXTRA_TESTS:-} > "$OUT/pytest_configs_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_configs_gpu.log" | tail -25 ;;
+    swarm_load)
+      # #18: the fused swarm step under the seek (collision-heavy), planner and still loads, 16,384 worlds
+      for movers in ${LOAD_MOVERS:-64 256}; do
+        timeout 300 python3 benchmarks/swarm_load.py --device cuda:0 --movers $movers --worlds 16384 \
+          --json "$OUT/swarm_load_${movers}_gpu.json" 2>&1 | grep -v "^Module" | tail -8
+      done ;;
+    b0_check)
+      # B0's env step with and without full randomisation at 65,536 envs (no regression from the config refactor)
+      timeout 300 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 --steps 200 --settings off,full \
+        --json "$OUT/rand_gaps_check_gpu.json" 2>&1 | grep -v "^Module" | tail -8 ;;
     compare)
       # B0 env throughput of an older tree (REF, e.g. `git archive ae8dbf4 magwarp benchmarks | tar -x -C .devrun/old`)
       # beside this one, in the same run
