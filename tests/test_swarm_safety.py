@@ -197,3 +197,27 @@ def test_bad_options_are_refused():
         with pytest.raises(ValueError):
             SafetyFilter(**{**dict(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B,
                                    margin=MARGIN, v_cap=CRUISE, tiles=np.ones((2, 2))), **bad})
+
+
+def test_blocks_of_movers_choose_as_all_at_once(rng):
+    """For more movers than chunk_bytes holds, choose takes them a block at a time: the same velocities and passes
+    bit for bit (neighbours, walls and a leading [worlds, movers] shape)."""
+    tiles = np.ones((8, 6), dtype=bool)
+    tiles[rng.integers(0, 8, 3), rng.integers(0, 6, 3)] = False
+    f = SafetyFilter(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
+                     v_cap=CRUISE, tiles=tiles, tile_size=0.25)
+    w, m, k = 5, 7, 4
+    g = torch.Generator().manual_seed(int(rng.integers(1 << 30)))
+    vel = torch.randn(w, m, 2, generator=g) * 0.5
+    wanted = torch.randn(w, m, 2, generator=g)
+    rel_pos = torch.randn(w, m, k, 2, generator=g) * 0.4
+    rel_vel = torch.randn(w, m, k, 2, generator=g) * 0.5
+    mask = torch.rand(w, m, k, generator=g) < 0.7
+    pos = torch.rand(w, m, 2, generator=g) * torch.tensor([2.0, 1.5])
+    whole = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
+    walls = f.cell_offsets.shape[0]
+    f.chunk_bytes = 4 * f.num_candidates * (k + walls) * 3  # three movers per block: 12 blocks, the last one short
+    blocks = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
+    assert torch.equal(blocks[0], whole[0]) and torch.equal(blocks[1], whole[1]), str(rng)
+    assert blocks[0].shape == (w, m, 2) and blocks[1].shape == (w, m)
+    assert 0 < int(whole[1].sum()) < w * m, "the random states must mix passing and refused wishes"

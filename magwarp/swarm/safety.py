@@ -325,7 +325,35 @@ class SafetyFilter:
         """:meth:`__call__`'s safe velocity and ``[...]`` bool: where ``wanted`` itself passes, i.e. it is no faster
         than ``v_cap`` and its candidate (the first after braking: ``wanted``, moved within one step's reach of
         ``vel``, which is ``a_max T (1 - 1e-5)``) is safe; there the safe velocity is at least as close to ``wanted``
-        as that candidate."""
+        as that candidate.
+
+        The candidates' constraint values are a ``[..., K, C]`` tensor (K candidates, C neighbour and wall
+        constraints; about 4 KB per mover): for more movers than fit :attr:`chunk_bytes` (16,384 worlds of 256
+        movers asked 16 GiB) the movers are taken a block at a time, with the same results (each mover's choice
+        reads its own rows only)."""
+        rows = vel[..., 0].numel()
+        walls = self.cell_offsets.shape[0] if pos is not None and self.tiles is not None else 0
+        per_row = 4 * self.num_candidates * (rel_pos.shape[-2] + walls)
+        block = max(1, self.chunk_bytes // max(per_row, 1))
+        if rows <= block:
+            return self._choose(vel, wanted, rel_pos, rel_vel, mask, pos)
+        lead = vel.shape[:-1]
+        flat = [t.reshape(rows, *t.shape[len(lead):]) if t is not None else None
+                for t in (vel, wanted, rel_pos, rel_vel, mask, pos)]
+        parts = [self._choose(*(t[i:i + block] if t is not None else None for t in flat))
+                 for i in range(0, rows, block)]
+        safe = torch.cat([p[0] for p in parts]).reshape(*lead, 2)
+        return safe, torch.cat([p[1] for p in parts]).reshape(lead)
+
+    #: the largest ``[..., K, C]`` constraint tensor (bytes) :meth:`choose` makes at once
+    chunk_bytes = 1 << 31
+
+    @property
+    def num_candidates(self) -> int:
+        """K: braking, then the wanted velocity's turns at each fraction of the way (:meth:`candidates`)."""
+        return 1 + self.fractions.numel() * self.rot.shape[0]
+
+    def _choose(self, vel, wanted, rel_pos, rel_vel, mask, pos):
         normals, base, ball = self.constraints(vel, rel_pos, rel_vel, mask, pos)
         cand = self.candidates(vel, wanted)
         bad = (self.violation(cand, normals, base) > 0) | (self.path_reach_of(vel, cand) > ball[..., None])
