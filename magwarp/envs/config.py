@@ -16,6 +16,10 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import numpy as np
+
+from magwarp.layout import MoverSpec, mover_params_kwargs
+
 
 def resolve_config(env_type: type, config: Any, options: dict) -> Any:
     """``env_type``'s config (its ``config_type``) from ``config`` (an instance of it or None: its defaults) and
@@ -30,3 +34,19 @@ def resolve_config(env_type: type, config: Any, options: dict) -> Any:
     if unknown:
         raise TypeError(f"unknown {env_type.__name__} options {unknown}; {cls.__name__} has {sorted(fields)}")
     return dataclasses.replace(config, **options) if config is not None else cls(**options)
+
+
+def make_mover_spec(collision_shape: str, collision_size, *, wall_margin: float, mover_params: dict | None,
+                    **extra) -> MoverSpec:
+    """The mover an env's options describe: MagBotSim's ``mover_params`` body (``{"size": half sizes, "mass": kg}``),
+    the collision shape ``"circle"`` / ``"box"`` at ``collision_size`` (a radius, or box half sizes: one number or
+    (2,); None: the mover's default), the wall margin, and any other :class:`~magwarp.layout.MoverSpec` field in
+    ``extra`` (e.g. ``margin``, ``hover_gap``)."""
+    kwargs: dict[str, Any] = dict(collision_shape=collision_shape, wall_margin=wall_margin, **extra,
+                                  **mover_params_kwargs(mover_params))
+    if collision_size is not None:
+        if collision_shape == "circle":
+            kwargs["collision_radius"] = float(collision_size)
+        else:
+            kwargs["collision_half_size"] = tuple(np.broadcast_to(np.asarray(collision_size, float), (2,)))
+    return MoverSpec(**kwargs)

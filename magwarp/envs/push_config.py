@@ -22,10 +22,11 @@ from typing import Any
 import numpy as np
 
 from magwarp._checks import as_count, as_flag, check_finite, check_magnitude
+from magwarp.envs.config import make_mover_spec
 from magwarp.envs.object_variants import check_ranges
 from magwarp.envs.randomization import EventTerm, as_terms, object_ranges_from_terms
 from magwarp.envs.sim2real import ActuationConfig, SensorConfig, as_config
-from magwarp.layout import Layout, MoverSpec, mover_params_kwargs
+from magwarp.layout import Layout, MoverSpec
 from magwarp.mjcf import ObjectSpec, ObstacleSpec
 from magwarp.physics import ControlParams
 from magwarp.physics.backend import physics_substeps
@@ -291,14 +292,8 @@ class PushConfig:
 
     def make_mover(self) -> MoverSpec:
         """The movers' body and collision shape."""
-        spec: dict[str, Any] = dict(hover_gap=self.initial_mover_zpos, collision_shape=self.collision_shape,
-                                    wall_margin=self.collision_offset_wall, **mover_params_kwargs(self.mover_params))
-        if self.collision_size is not None:
-            if self.collision_shape == "circle":
-                spec["collision_radius"] = float(self.collision_size)
-            else:
-                spec["collision_half_size"] = tuple(np.broadcast_to(np.asarray(self.collision_size, float), (2,)))
-        return MoverSpec(**spec)
+        return make_mover_spec(self.collision_shape, self.collision_size, wall_margin=self.collision_offset_wall,
+                               mover_params=self.mover_params, hover_gap=self.initial_mover_zpos)
 
     def substeps(self) -> int:
         """Physics steps per env step (``num_cycles`` ms at ``physics_dt``)."""

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from magwarp._checks import as_count, as_flag, check_finite
+from magwarp.envs.config import make_mover_spec
 from magwarp.envs.sim2real import SensorConfig
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 
@@ -160,14 +161,10 @@ class TrajectoryConfig:
     def make_mover(self) -> MoverSpec:
         """The mover the simulator is built with: the body of ``mover_params``, the collision shape at its largest
         per-mover size, ``safety_margin`` and the wall margin."""
-        kwargs: dict[str, Any] = dict(collision_shape=self.collision_shape, margin=self.safety_margin,
-                                      wall_margin=self.collision_offset_wall, **mover_params_kwargs(self.mover_params))
         radii, halves = self.collision_sizes()
-        if radii is not None:
-            kwargs["collision_radius"] = float(radii.max())
-        if halves is not None:
-            kwargs["collision_half_size"] = tuple(halves.max(axis=0))
-        return MoverSpec(**kwargs)
+        largest = radii.max() if radii is not None else halves.max(axis=0) if halves is not None else None
+        return make_mover_spec(self.collision_shape, largest, wall_margin=self.collision_offset_wall,
+                               mover_params=self.mover_params, margin=self.safety_margin)
 
     def sensor_config(self) -> Any:
         """``sensors``, or MagBotSim's ``std_noise`` as a :class:`~magwarp.envs.sim2real.SensorConfig`."""

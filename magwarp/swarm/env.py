@@ -101,11 +101,11 @@ import warp as wp
 from magwarp._checks import as_count, as_flag, warp_device
 from magwarp._vectors import clip_norm
 from magwarp.envs.base import MagwarpVecEnv
-from magwarp.envs.config import resolve_config
+from magwarp.envs.config import make_mover_spec, resolve_config
 from magwarp.envs.step_graph import RecordedGraph, continued_generator, record_cuda_graph
 from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_stopped, evaluate_movers,
                                    finish_worlds, goal_distances, stop_collided)
-from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
+from magwarp.layout import Layout, MoverSpec, benchmark_layout
 from magwarp.sim import Simulator
 from magwarp.swarm.fused import FusedSwarmStep, fused_applies, max_registers
 from magwarp.swarm.observations import LocalObservations, check_view_sizes
@@ -262,14 +262,8 @@ class SwarmConfig:
         return self.layout if isinstance(self.layout, Layout) else Layout(np.asarray(self.layout))
 
     def make_mover(self) -> MoverSpec:
-        kwargs: dict[str, Any] = dict(collision_shape=self.collision_shape, margin=self.safety_margin,
-                                      wall_margin=self.collision_offset_wall, **mover_params_kwargs(self.mover_params))
-        if self.collision_size is not None:
-            if self.collision_shape == "circle":
-                kwargs["collision_radius"] = float(self.collision_size)
-            else:
-                kwargs["collision_half_size"] = tuple(np.broadcast_to(np.asarray(self.collision_size, float), (2,)))
-        return MoverSpec(**kwargs)
+        return make_mover_spec(self.collision_shape, self.collision_size, wall_margin=self.collision_offset_wall,
+                               mover_params=self.mover_params, margin=self.safety_margin)
 
 
 class SwarmEnv(MagwarpVecEnv):
