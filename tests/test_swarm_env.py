@@ -79,9 +79,20 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
     n, m = env.num_envs, env.num_movers
     compared = collisions = respawned = goals_reached = 0
     heading = rng.normal(0, 8, (n, m, 2))  # held drift, so that movers travel far enough to meet
+    # with the progress term, about half the movers steer for their goals, so that goals are reached and switch (with
+    # drift alone about 2% of seeds reached none: seeds 1076, 1093, 5086)
+    seeking = (rng.random((n, m)) < 0.5) if progress else np.zeros((n, m), dtype=bool)
+    if progress:  # their first goals 0.3 m away (a goal far across the layout is out of reach in 16 steps: seed 1054)
+        angle = torch.from_numpy(rng.uniform(0.0, 2.0 * np.pi, (n, m)))
+        near = env.sim.pos[..., :2] + 0.3 * torch.stack([angle.cos(), angle.sin()], -1).float()
+        env.goals.copy_(torch.where(torch.from_numpy(seeking)[..., None], near, env.goals))
+        env._refresh_goal_dist()  # the progress term's step-start distances, to the goals just set
     for _ in range(16):
         before = env_state(env)
-        action = (heading + rng.normal(0, 4, (n, m, 2))).astype(np.float32)
+        drift = heading + rng.normal(0, 4, (n, m, 2))
+        err = before["goals"] - before["pos"]
+        seek = 10.0 * err / np.maximum(np.linalg.norm(err, axis=-1, keepdims=True), 1e-9)  # full acceleration
+        action = np.where(seeking[..., None], seek, drift).astype(np.float32)
         _, reward, terminated, truncated, info = env.step(torch.from_numpy(action))
         collisions += int(info["agent_terminated"].sum())
         respawned += int((info["agent_terminated"] & ~env.respawn_pending).sum()) if mode == "respawn" else 0
@@ -108,6 +119,9 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
         # come from either stop (seed 7269931708661591116: both sizes flag a wall, at places 2.4 mm apart, and the
         # nominal size stops where no wall is hit): undecidable, not compared
         split_m = split[:, None] | (np.abs(lo["pos"] - hi["pos"]).max(axis=-1) > 1e-6)
+        # ... and so is every mover of its world: another mover may hit it where the nominal size stopped it, a place
+        # neither perturbed size has (seed 20028: a mover both sizes leave untouched collides in the env)
+        split_m = split_m | split_m.any(axis=1, keepdims=True)
         ambiguous = ambiguous | split_m
         reached = (dist <= cfg.threshold_pos) & active & ~collided & ~before["goal_pending"]
         goals_reached += int(reached[~ambiguous].sum())
@@ -122,7 +136,7 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
             np.testing.assert_allclose(got[~ambiguous], want[~ambiguous], rtol=0, atol=1e-3 * prog,
                                        err_msg=f"{rng}: per-mover rewards differ")
         else:
-            assert np.array_equal(got[~ambiguous], want[~ambiguous]), f"{rng}: per-mover rewards differ"
+            np.testing.assert_array_equal(got[~ambiguous], want[~ambiguous], err_msg=f"{rng}: per-mover rewards differ")
         ok = ~split_m
         assert np.array_equal(info["mover_collision"].numpy()[ok], (flags[ok] & 1) != 0), f"{rng}: mover flags"
         assert np.array_equal(info["wall_collision"].numpy()[ok], (flags[ok] & 2) != 0), f"{rng}: wall flags"
@@ -140,9 +154,11 @@ def test_rewards_and_collisions_match_numpy(rng, mode, progress):
             assert np.array_equal(info["agent_terminated"].numpy()[ok], collided[ok]), \
                 f"{rng}: agent terminations differ"
             # movers that did not collide end where numpy puts them; collided ones were re-placed clear of all others
-            keep = ~collided & ~before["pending"]
+            # (movers that stop at different places with the two sizes are undecidable here too: seed 1006, a mover
+            # both sizes flag, at places 0.2 mm apart, that the nominal size never hits: its partner stopped first)
+            keep = ~collided & ~before["pending"] & ok
             np.testing.assert_allclose(after["pos"][keep], pos[keep], atol=2e-4, err_msg=str(rng))
-            moved = collided & ~after["pending"]
+            moved = collided & ~after["pending"] & ok
             for w in range(n):
                 new = np.flatnonzero(moved[w])
                 others = np.delete(after["pos"][w], new, axis=0)
