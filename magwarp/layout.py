@@ -191,6 +191,16 @@ class Layout:
         tiles.setflags(write=False)
         object.__setattr__(self, "tiles", tiles)
 
+    def __eq__(self, other) -> bool:
+        """Equal tile maps (by value: the array is read-only) and tile specs; the generated dataclass comparison
+        would ask numpy for the truth value of an array and raise (so would every config holding a layout)."""
+        if not isinstance(other, Layout):
+            return NotImplemented
+        return self.tile == other.tile and bool(np.array_equal(self.tiles, other.tiles))
+
+    def __hash__(self) -> int:
+        return hash((self.tiles.shape, self.tiles.tobytes(), self.tile))
+
     @classmethod
     def grid(cls, num_tiles_x: int, num_tiles_y: int, tile: TileSpec | None = None) -> "Layout":
         """A full rectangular grid of tiles."""

@@ -97,3 +97,14 @@ def test_per_mover_sizes_and_the_built_mover():
     cfg = TrajectoryConfig(collision_size=[0.05, 0.07, 0.06], safety_margin=0.01, collision_offset_wall=0.002)
     mover = cfg.make_mover()
     assert mover.collision_radius == pytest.approx(0.07) and mover.margin == 0.01 and mover.wall_margin == 0.002
+
+
+def test_configs_with_array_layouts_compare_by_value():
+    """A layout given as an array is stored as a Layout, compared (and hashed) by its tile map and tile spec."""
+    holes = np.ones((4, 5), dtype=np.int32)
+    holes[1, 2] = 0
+    a, b = (TrajectoryConfig(layout=holes.copy(), num_movers=2) for _ in range(2))
+    assert a == b and hash(a.layout) == hash(b.layout)
+    assert a != TrajectoryConfig(layout=np.ones((4, 5)), num_movers=2)
+    assert a != dataclasses.replace(a, layout=Layout(holes, tile=dataclasses.replace(a.layout.tile, size=0.2)))
+    assert Layout(holes) != "B0" and len({Layout(holes), Layout(holes.copy()), Layout(np.ones((4, 5)))}) == 2
