@@ -256,3 +256,17 @@ def test_task_envs_keep_their_config():
     coop = CoopPushEnv(1, CoopPushConfig(num_movers=3), device="cpu", seed=0)
     assert coop.num_movers == 3 and coop.layout.shape == (6, 6) and coop.object.width == pytest.approx(0.15)
     assert coop.movers_needed == 2 and coop.friction_force == pytest.approx(1.5 * coop.mover_force)
+
+
+def test_array_layouts_are_kept_as_layouts_and_compare_by_value():
+    """A 0/1 array layout is checked and stored as a Layout, so two configs of the same options compare equal (the
+    swarm config does the same)."""
+    from magwarp.layout import Layout
+    from magwarp.swarm import SwarmConfig
+
+    tiles = np.ones((4, 3), dtype=np.int32)
+    tiles[0, 0] = 0
+    a, b = PushConfig(layout=tiles), PushConfig(layout=tiles.copy())
+    assert isinstance(a.layout, Layout) and a == b and a != PushConfig(layout=np.ones((4, 3)))
+    s = SwarmConfig(layout=tiles)
+    assert isinstance(s.layout, Layout) and s == SwarmConfig(layout=tiles.copy())

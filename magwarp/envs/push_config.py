@@ -173,6 +173,8 @@ class PushConfig:
     sensors: SensorConfig | dict | None = None
 
     def __post_init__(self):
+        if self.layout is not None and not isinstance(self.layout, Layout):  # a 0/1 array: checked, kept as a Layout
+            object.__setattr__(self, "layout", Layout(self.layout))  # (compared by value: configs stay comparable)
         push = self.as_push_config()  # a subclass's options as plain push options, checked by their own config
         if push is self:
             self._check()

@@ -196,6 +196,8 @@ class SwarmConfig:
     shield_speed: float = SAFE_SPEED
 
     def __post_init__(self):
+        if self.layout is not None and not isinstance(self.layout, (str, Layout)):  # a 0/1 array: kept as a Layout
+            object.__setattr__(self, "layout", Layout(np.asarray(self.layout)))  # (compared by value)
         m = self.num_movers
         if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
             raise ValueError(f"num_movers must be an integer >= 1, got {m!r}")
