@@ -124,27 +124,30 @@ def test_rounds_do_not_depend_on_the_order_of_the_listed_movers(rng, hold, searc
     give (on CUDA: any): placing from the list reversed gives the same spots and the same movers left, bit for bit
     (each mover draws from its own random stream; claims and acceptance go by index)."""
     layout = random_layout(rng, 8, 8, holes=0.0)
-    seed = int(rng.integers(1 << 20))
-    mask = torch.from_numpy(rng.random((3, 30)) < 0.5)
-    mask[1] = False  # a world with nothing to place
-    results = []
-    for reverse in (False, True):
-        placer = Placer(layout, 30, 3, device="cpu", seed=seed, search=search)
-        xy = placer.sample()
-        placer.tries = 1  # one candidate per round: some movers are left
-        pos = placer._begin(xy, mask, hold)
-        count = int(placer._count.numpy()[0])
-        assert count == int(mask.sum())
-        listed = placer._listed.numpy()
-        assert sorted(listed[:count].tolist()) == np.flatnonzero(mask.numpy().ravel()).tolist()
-        if reverse:
-            placer._listed.assign(np.concatenate([listed[:count][::-1], listed[count:]]))
-        placer._rounds(pos, 3)
-        placer._end(pos)
-        results.append((xy.clone(), placer._todo.numpy().copy()))
-    assert torch.equal(results[0][0], results[1][0]), f"{rng}"
-    assert np.array_equal(results[0][1], results[1][1]), f"{rng}"
-    left = results[0][1][mask.numpy()]
+    for _attempt in range(8):  # a case with movers placed and movers left (all 27 were left once in 19 runs)
+        seed = int(rng.integers(1 << 20))
+        mask = torch.from_numpy(rng.random((3, 30)) < 0.5)
+        mask[1] = False  # a world with nothing to place
+        results = []
+        for reverse in (False, True):
+            placer = Placer(layout, 30, 3, device="cpu", seed=seed, search=search)
+            xy = placer.sample()
+            placer.tries = 1  # one candidate per round: some movers are left
+            pos = placer._begin(xy, mask, hold)
+            count = int(placer._count.numpy()[0])
+            assert count == int(mask.sum())
+            listed = placer._listed.numpy()
+            assert sorted(listed[:count].tolist()) == np.flatnonzero(mask.numpy().ravel()).tolist()
+            if reverse:
+                placer._listed.assign(np.concatenate([listed[:count][::-1], listed[count:]]))
+            placer._rounds(pos, 3)
+            placer._end(pos)
+            results.append((xy.clone(), placer._todo.numpy().copy()))
+        assert torch.equal(results[0][0], results[1][0]), f"{rng}"
+        assert np.array_equal(results[0][1], results[1][1]), f"{rng}"
+        left = results[0][1][mask.numpy()]
+        if (left == 0).any() and (left == 1).any():
+            break
     assert (left == 0).any() and (left == 1).any(), f"{rng}: {left.sum()} of {left.size} left (the test needs both)"
     if hold:  # the unplaced movers kept their spots, which nothing was placed onto
         check_placement(layout, MoverSpec(), 0.0, results[0][0].numpy(), rng)
