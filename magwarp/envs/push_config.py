@@ -25,7 +25,7 @@ from magwarp._checks import as_count, as_flag, check_finite, check_magnitude
 from magwarp.envs.config import make_mover_spec
 from magwarp.envs.object_variants import check_ranges
 from magwarp.envs.randomization import EventTerm, as_terms, object_ranges_from_terms
-from magwarp.envs.sim2real import ActuationConfig, SensorConfig, as_config
+from magwarp.envs.sim2real import ActuationConfig, SensorConfig, as_config, check_noise_or_sensors
 from magwarp.layout import Layout, MoverSpec
 from magwarp.mjcf import ObjectSpec, ObstacleSpec
 from magwarp.physics import ControlParams
@@ -246,9 +246,7 @@ class PushConfig:
         if self.sensors is None:
             return
         as_config(SensorConfig, self.sensors, "sensors")
-        if self.std_noise:
-            raise ValueError(f"give std_noise or sensors, not both (got std_noise={self.std_noise!r}; it is "
-                             "SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise))")
+        check_noise_or_sensors(self.std_noise, self.sensors)
         if self.learn_mover_c_rotation:
             raise ValueError("sensors model x/y positions and velocities; not with learn_mover_c_rotation=True")
 
@@ -259,7 +257,7 @@ class PushConfig:
             return push_benchmark(self.benchmark)[0]
         if self.layout is None:
             return Layout(np.ones((4, 3), dtype=np.int32))
-        return self.layout if isinstance(self.layout, Layout) else Layout(self.layout)
+        return self.layout  # (an array was made a Layout in __post_init__)
 
     def mover_count(self) -> int:
         """The number of movers: the benchmark's, or ``num_movers``."""

@@ -152,6 +152,14 @@ class SensorConfig:
             raise ValueError(f"dropout_prob must be a probability in [0, 1], got {self.dropout_prob!r}")
 
 
+def check_noise_or_sensors(std_noise: float, sensors) -> None:
+    """MagBotSim's ``std_noise`` is ``SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise)``: an env's
+    options give it or ``sensors``, not both (a ``ValueError`` naming both values)."""
+    if sensors is not None and std_noise:
+        raise ValueError(f"give std_noise or sensors, not both (got std_noise={std_noise!r}; it is "
+                         "SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise))")
+
+
 def draw_key(seed: int) -> int:
     """The int32 key of the sim2real models' draws for an env seed (any non-negative integer; salted apart from the
     randomisation terms' key)."""
@@ -442,13 +450,8 @@ class PushSim2Real:
 
     def _init_sim2real(self, actuation, sensors) -> None:
         self.latency = BackendLatency(actuation, self.backend, self.num_cycles, self._generator)
-        if sensors is None:
+        if sensors is None:  # (with std_noise or learn_mover_c_rotation refused by the env's PushConfig)
             return
-        if self.std_noise:
-            raise ValueError(f"give std_noise or sensors, not both (got std_noise={self.std_noise!r}; it is "
-                             "SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise))")
-        if self.learn_mover_c_rotation:
-            raise ValueError("sensors model x/y positions and velocities; not with learn_mover_c_rotation=True")
         self.draw_clock = DrawClock(self._generator.initial_seed(), self.device)
         self.sensors = SensorModel(sensors, self.num_envs, self.num_movers, self.device, self.draw_clock)
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from magwarp._checks import as_count, as_flag, check_finite
 from magwarp.envs.config import make_mover_spec
-from magwarp.envs.sim2real import SensorConfig
+from magwarp.envs.sim2real import SensorConfig, check_noise_or_sensors
 from magwarp.layout import Layout, MoverSpec, benchmark_layout, mover_params_kwargs
 
 __all__ = ["TrajectoryConfig", "per_mover_sizes"]
@@ -117,7 +117,7 @@ class TrajectoryConfig:
             put("timeout_steps", as_count(self.timeout_steps, "timeout_steps"))
         if not isinstance(self.layout, (str, Layout)):
             put("layout", Layout(self.layout))  # a 0/1 array: checked (and frozen) by the Layout
-        layout, movers, _ = self.resolve_layout()
+        self.resolve_layout()  # an unknown benchmark name fails here
         if self.num_movers is not None:
             put("num_movers", as_count(self.num_movers, "num_movers"))
         if self.collision_shape not in ("circle", "box"):
@@ -129,9 +129,7 @@ class TrajectoryConfig:
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {m!r}")
         if not self.std_noise >= 0:
             raise ValueError(f"std_noise must be a non-negative number, got {self.std_noise!r}")
-        if self.sensors is not None and self.std_noise != 0:
-            raise ValueError(f"give std_noise or sensors, not both (got std_noise={self.std_noise!r}; it is "
-                             "SensorConfig(pos_noise_std=std_noise, vel_noise_std=std_noise))")
+        check_noise_or_sensors(self.std_noise, self.sensors)
         per_mover_sizes(self.collision_shape, self.collision_size, self.movers)  # a bad size fails here
         put("collision_size", _frozen(self.collision_size))
         mover_params_kwargs(self.mover_params)

@@ -261,7 +261,7 @@ class SwarmConfig:
             return Layout.grid(side, side)
         if isinstance(self.layout, str):  # a benchmark layout by name ("B0".."B9"); its mover count is not used
             return benchmark_layout(self.layout)[0]
-        return self.layout if isinstance(self.layout, Layout) else Layout(np.asarray(self.layout))
+        return self.layout  # (an array was made a Layout in __post_init__)
 
     def make_mover(self) -> MoverSpec:
         return make_mover_spec(self.collision_shape, self.collision_size, wall_margin=self.collision_offset_wall,

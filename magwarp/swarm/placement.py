@@ -63,7 +63,9 @@ SCAN_SHAPES = ("serial", "chunked")
 #: CPU (this project's 2 cores, 256 worlds, benchmarks/results/swarm_place_scan_s38_cpu.json): the respawn call at
 #: 64 / 100 movers took 3.18 / 5.84 ms serial and 2.95 / 5.23 chunked. CUDA (H100, 16,384 worlds,
 #: benchmarks/results/swarm_place_scan_s38_gpu*.json): 0.71 / 1.59 / 3.86 ms serial against 0.93 / 1.99 / 4.74 chunked
-#: at 100 / 160 / 256 movers (at 64 within the launches' noise): the GPU's rounds are throughput-bound
+#: at 100 / 160 / 256 movers (at 64 within the launches' noise): the GPU's rounds are throughput-bound. In the env
+#: step itself (benchmarks/swarm_load.py under seek, swarm_load_scan_*_s39_gpu.json) chunked is 2.5% / 4% slower at
+#: 64 / 100 movers
 SCAN_CUDA = "serial" if PLACE_SCAN == "device" else PLACE_SCAN
 SCAN_CPU = "chunked" if PLACE_SCAN == "device" else PLACE_SCAN
 #: the threads of a round's launch in the lane shape (:class:`Placer`'s ``lanes``): its groups walk the list of movers
