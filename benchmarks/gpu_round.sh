@@ -11,7 +11,9 @@
 # tests24 (#24: the randomisation's cost by part, its reset firing, its CUDA tests), rand_gaps, fire_cost and
 # branches (#24), magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs, swarm_place and tests18
 # and place_scan (#18), compare (B0 env throughput of an older tree beside this one), configs (the env configs'
-# CUDA tests), swarm_load (#18: the step by action load), b0_check (B0 with and without randomisation).
+# CUDA tests), swarm_load (#18: the step by action load), b0_check (B0 with and without randomisation), ncu (#18,
+# #24: Nsight Compute on the swarm step and B0's physics kernel), exchange, exchange_b0 and exchange_swarm (#18,
+# #24: the fused step kernels' per-cycle exchange: tests, B0, swarm).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -105,6 +107,31 @@ for stage in "$@"; do
       for movers in ${LOAD_MOVERS:-64 256}; do
         timeout 300 python3 benchmarks/swarm_load.py --device cuda:0 --movers $movers --worlds 16384 \
           --json "$OUT/swarm_load_${movers}_gpu.json" 2>&1 | grep -v "^Module" | tail -8
+      done ;;
+    exchange)
+      # #18, #24: the per-cycle exchange of the fused step kernels, Warp tiles against native barriers: their CUDA tests
+      # (bit for bit against the tiles and the per-cycle path), then the swarm step (tile: about four block barriers
+      # a cycle, native: one __syncthreads_or; MAGWARP_SWARM_EXCHANGE) at 16,384 worlds under the seek and still
+      # loads, and B0's env step without and with full randomisation at 65,536 envs (tile: four barriers a cycle,
+      # native: two; MAGWARP_SMALL_WORLD_EXCHANGE), each alternated twice
+      timeout 400 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
+        tests/test_step_blocks.py tests/test_swarm_graph.py tests/test_graph_step.py > "$OUT/pytest_exchange_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_exchange_gpu.log" | tail -25 ;;
+    exchange_b0)
+      for round in 1 2; do
+        for ex in tile native; do
+          MAGWARP_SMALL_WORLD_EXCHANGE=$ex timeout 200 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 \
+            --steps 200 --settings off,full --json "$OUT/rand_gaps_exchange_${ex}_r${round}_gpu.json" 2>&1 \
+            | grep -v "^Module" | tail -4
+        done
+      done ;;
+    exchange_swarm)
+      for round in 1 2; do
+        for ex in tile native; do
+          MAGWARP_SWARM_EXCHANGE=$ex timeout 300 python3 benchmarks/swarm_load.py --device cuda:0 \
+            --movers ${LOAD_MOVERS:-64 100 256} --worlds 16384 --loads ${LOADS:-seek still} \
+            --json "$OUT/swarm_exchange_${ex}_r${round}_gpu.json" 2>&1 | grep -v "^Module" | tail -8
+        done
       done ;;
     b0_check)
       # B0's env step with and without full randomisation at 65,536 envs (no regression from the config refactor)
@@ -254,6 +281,29 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       for movers in 64 100 256; do
         FUSED_MOVERS=$movers FUSED_WORLDS=16384 bash "$0" swarm_fused
       done ;;
+    ncu)
+      # #18 and #24: Nsight Compute on the fused swarm step kernel (16,384 worlds of 64 / 100 / 256 movers) and on
+      # B0's physics kernel and reset firing at 65,536 envs (no randomisation / full): stall reasons, occupancy,
+      # pipe utilisation, instruction mix (benchmarks/ncu_target.py drives one env; only its profiled steps count)
+      NCU=$(command -v ncu || ls /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+      SECTIONS="--section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
+        --section SchedulerStats --section ComputeWorkloadAnalysis --section InstructionStats \
+        --section MemoryWorkloadAnalysis --section SourceCounters"
+      run_ncu() {  # name, kernel regex, driver args
+        local name=$1 regex=$2; shift 2
+        timeout 300 "$NCU" --profile-from-start off --clock-control none --kernel-name "regex:$regex" \
+          --launch-count 1 $SECTIONS python3 benchmarks/ncu_target.py "$@" > "$OUT/ncu_$name.txt" 2>&1
+        echo "$name rc=$? $(grep -cE 'Section:' "$OUT/ncu_$name.txt") sections"
+        grep -E "Duration|Registers Per|Achieved Occupancy|Theoretical Occupancy|Warp Cycles Per Issued|Issued Ipc|\
+Stall|Executed Instructions  |FP64|Block Limit Reg" "$OUT/ncu_$name.txt" | head -20
+      }
+      for movers in ${NCU_MOVERS:-64 100 256}; do
+        run_ncu swarm_$movers swarm_step swarm --movers $movers --worlds 16384 --load ${NCU_LOAD:-seek}
+      done
+      for setting in off full; do
+        run_ncu b0_$setting fused_movers b0 --envs 65536 --setting $setting
+      done
+      run_ncu b0_fire fire_terms b0 --envs 65536 --setting full ;;
     rand_gaps)
       # #24: B0's randomisation cost by setting at 16,384 and 65,536 envs: env step, graph replay alone, kernel time and
       # the gaps between kernels (full_nofire: full with the reset firing left out of the step)

@@ -49,6 +49,7 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     import torch
 
     from magwarp.swarm import SwarmEnv, SwarmPlanner
+    from magwarp.swarm.fused import exchange
     from swarm import _layout
 
     env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
@@ -78,7 +79,8 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     ms = elapsed / steps * 1e3
     agents = movers * worlds
     row = {"device": device, "movers": movers, "worlds": worlds, "agents": agents, "load": load, "warm": warm,
-           "steps": steps, "env_ms": ms, "agent_steps_per_s": agents / (ms * 1e-3), "step_path": env.step_path}
+           "steps": steps, "env_ms": ms, "agent_steps_per_s": agents / (ms * 1e-3), "step_path": env.step_path,
+           "exchange": exchange() if cuda else "-"}
     row.update({f"{k}_per_step": v / steps for k, v in counts.items()})
     row["pending_share"] = row["pending_per_step"] / agents
     return row

@@ -16,8 +16,8 @@ FIELDS = ("pos", "quat", "vel", "omega", "acc", "cmd", "flags", "flags_any", "pa
           "halted", "cycles")
 
 
-def _env(fused: bool, worlds: int, movers: int, seed: int, **options) -> SwarmEnv:
-    return SwarmEnv(worlds, num_movers=movers, device="cpu", seed=seed, fused=fused, check_inputs=False, **options)
+def _env(fused: bool, worlds: int, movers: int, seed: int, device: str = "cpu", **options) -> SwarmEnv:
+    return SwarmEnv(worlds, num_movers=movers, device=device, seed=seed, fused=fused, check_inputs=False, **options)
 
 
 def _pairs(sim) -> set:
@@ -29,18 +29,19 @@ def _pairs(sim) -> set:
     return out
 
 
-def _run_both(rng, worlds: int, movers: int, steps: int, scale: float = 12.0, setup=None, **options):
+def _run_both(rng, worlds: int, movers: int, steps: int, scale: float = 12.0, setup=None, device: str = "cpu",
+              **options):
     """Step a per-cycle env and a fused env with the same random actions; assert every output and state field equal
     after every step. Returns the total count of collision flags seen (so a test can insist on collisions)."""
     seed = int(rng.integers(1 << 30))
-    envs = [_env(False, worlds, movers, seed, **options), _env(True, worlds, movers, seed, **options)]
+    envs = [_env(False, worlds, movers, seed, device, **options), _env(True, worlds, movers, seed, device, **options)]
     assert envs[0].fused_step is None and envs[1].fused_step is not None
     if setup is not None:
         for env in envs:
             setup(env)
     flagged = 0
     for k in range(steps):
-        action = torch.as_tensor(rng.uniform(-scale, scale, (worlds, movers, 2)), dtype=torch.float32)
+        action = torch.as_tensor(rng.uniform(-scale, scale, (worlds, movers, 2)), dtype=torch.float32, device=device)
         outs = [env.step(action.clone()) for env in envs]
         (obs0, r0, te0, tr0, info0), (obs1, r1, te1, tr1, info1) = outs
         for name in FIELDS:
@@ -85,6 +86,31 @@ def test_fused_candidate_overflow_and_travel_guard(rng, monkeypatch):
     assert _run_both(rng, 2, 40, 4, occupancy=0.45, v_max=10.0, a_max=200.0) > 0
     monkeypatch.setattr(fused_mod, "TRAVEL_SLACK", 0.0)
     assert _run_both(rng, 2, 40, 4, occupancy=0.45) > 0
+
+
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("exchange", ["native", "tile"])
+def test_fused_matches_per_cycle_on_cuda(rng, monkeypatch, exchange):
+    """The tiled CUDA kernel with either pose exchange (one ``__syncthreads_or`` a cycle over two shared buffers, or a
+    Warp tile and a tile reduction) against the per-cycle path, bit for bit: worlds of several warps (100 and 256
+    movers), the candidate lists' overflow, and a travel budget of zero (every world checks every pair each cycle)."""
+    monkeypatch.setenv("MAGWARP_SWARM_EXCHANGE", exchange)
+    assert _run_both(rng, 4, 100, 3, device="cuda:0") > 0
+    assert _run_both(rng, 2, 256, 2, device="cuda:0", occupancy=0.45, v_max=10.0, a_max=200.0) > 0
+    monkeypatch.setattr(fused_mod, "TRAVEL_SLACK", 0.0)
+    assert _run_both(rng, 2, 100, 3, device="cuda:0", occupancy=0.45) > 0
+
+
+def test_swarm_exchange_option(monkeypatch):
+    """MAGWARP_SWARM_EXCHANGE picks the CUDA kernel's pose exchange; an unknown value is an error that names it."""
+    monkeypatch.delenv("MAGWARP_SWARM_EXCHANGE", raising=False)
+    assert fused_mod.exchange() == fused_mod.EXCHANGE
+    for value in ("tile", "native"):
+        monkeypatch.setenv("MAGWARP_SWARM_EXCHANGE", value)
+        assert fused_mod.exchange() == value
+    monkeypatch.setenv("MAGWARP_SWARM_EXCHANGE", "shared")
+    with pytest.raises(ValueError, match="'shared'"):
+        fused_mod.exchange()
 
 
 def test_fused_steps_aside_for_other_cycle_hooks(rng):

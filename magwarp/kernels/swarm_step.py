@@ -50,6 +50,31 @@ CANDIDATE_SLACK = 1.0e-3  # m: room for float32 rounding in the candidate distan
 
 Candidates = wp.types.vector(length=MAX_CANDIDATES, dtype=wp.int32)
 
+# The CUDA exchange of the tiled step (one block barrier a cycle): a block's poses of this cycle in one of two shared
+# buffers (by the cycle's parity), written by each lane without a barrier, then one ``__syncthreads_or`` that both
+# publishes them and tells every lane whether any lane's flag is set. A buffer is written again two cycles later,
+# after the next cycle's barrier, which no lane passes before every lane has read it. ``op`` 0: write ``v`` at
+# ``lane`` of buffer ``buf``, then the barrier (returns ``(any flag, 0, 0, 0)``); ``op`` 1: entry ``lane`` of buffer
+# ``buf``. One function, so that both ops see the same (function-scope) shared array.
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    __shared__ float share_poses[2 * SHARE_BLOCK * 4];
+    float* e = share_poses + (buf * SHARE_BLOCK + lane) * 4;
+    if (op == 0) {
+        e[0] = v.c[0]; e[1] = v.c[1]; e[2] = v.c[2]; e[3] = v.c[3];
+        const int any = __syncthreads_or(flag);
+        return wp::vec4(any != 0 ? 1.0f : 0.0f, 0.0f, 0.0f, 0.0f);
+    }
+    return wp::vec4(e[0], e[1], e[2], e[3]);
+#else
+    return v;
+#endif
+""".replace("SHARE_BLOCK", "256"))
+def share_poses(op: int, buf: int, lane: int, v: wp.vec4, flag: int) -> wp.vec4:
+    """The CUDA exchange of the tiled step's poses (see above; blocks of at most 256 threads: :data:`MAX_BLOCK`)."""
+    ...
+
+
 
 @wp.func
 def bounding_radius(col: Collision, r: float, half: wp.vec2) -> float:
@@ -108,39 +133,53 @@ def find_candidates(
     return cand, count
 
 
-@wp.func
-def lowest_partner(
-    movers: Any, cand: Any, count: int, every: bool, m: int, num_movers: int, col: Collision,
-    radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, record: bool, w: int,
-    world_pairs: wp.array(dtype=wp.int32), pair_list: wp.array2d(dtype=wp.vec2i),
-) -> int:
-    """The lowest index colliding with mover ``m`` this cycle, -1 if none (``movers[j]``: x, y and heading (cos, sin)
-    of mover ``j``, from a tile or an array row): among its ``count`` candidates ``cand``, or among every mover
-    (``every``). ``record``: list the pairs (from their lower index) and count them, as the last cycle does."""
-    q = movers[m]
-    p = wp.vec2(q[0], q[1])
-    hd = wp.vec2(q[2], q[3])
-    partner = int(-1)
-    num = count
-    if every:
-        num = num_movers
-    for k in range(num):
-        j = k
-        if not every:
-            j = cand[k]
-        if j != m:
-            o = movers[j]
-            d = wp.vec2(p[0] - o[0], p[1] - o[1])
-            if movers_collide_cs(col, d, hd, radius[wr, m], half_size[wh, m], wp.vec2(o[2], o[3]), radius[wr, j],
-                                 half_size[wh, j]):
-                if partner < 0:  # in ascending order: the first hit is the lowest index
-                    partner = j
-                if record:
-                    if j > m:
-                        add_pair(w, m, j, world_pairs, pair_list)
-                else:
-                    break
-    return partner
+@functools.cache
+def make_lowest_partner(native: bool = False):
+    """:func:`lowest_partner` reading the poses from an array row or a tile (``movers[j]``) or, ``native``, from the
+    CUDA exchange's buffer ``movers`` (an int: :func:`share_poses`)."""
+
+    @wp.func
+    def pose_of(movers: Any, j: int) -> wp.vec4:
+        if wp.static(native):
+            return share_poses(1, movers, j, wp.vec4(), 0)
+        else:
+            return movers[j]
+
+    @wp.func
+    def lowest_partner(
+        movers: Any, cand: Any, count: int, every: bool, m: int, num_movers: int, col: Collision,
+        radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, record: bool,
+        w: int, world_pairs: wp.array(dtype=wp.int32), pair_list: wp.array2d(dtype=wp.vec2i),
+    ) -> int:
+        """The lowest index colliding with mover ``m`` this cycle, -1 if none (``movers``: x, y and heading (cos, sin)
+        of each mover, see :func:`pose_of`): among its ``count`` candidates ``cand``, or among every mover
+        (``every``). ``record``: list the pairs (from their lower index) and count them, as the last cycle does."""
+        q = pose_of(movers, m)
+        p = wp.vec2(q[0], q[1])
+        hd = wp.vec2(q[2], q[3])
+        partner = int(-1)
+        num = count
+        if every:
+            num = num_movers
+        for k in range(num):
+            j = k
+            if not every:
+                j = cand[k]
+            if j != m:
+                o = pose_of(movers, j)
+                d = wp.vec2(p[0] - o[0], p[1] - o[1])
+                if movers_collide_cs(col, d, hd, radius[wr, m], half_size[wh, m], wp.vec2(o[2], o[3]), radius[wr, j],
+                                     half_size[wh, j]):
+                    if partner < 0:  # in ascending order: the first hit is the lowest index
+                        partner = j
+                    if record:
+                        if j > m:
+                            add_pair(w, m, j, world_pairs, pair_list)
+                    else:
+                        break
+        return partner
+
+    return lowest_partner
 
 
 @functools.cache
@@ -168,15 +207,23 @@ def _mover_cycle(force_fn, latency: bool, nominal: bool):
 
 
 @functools.cache
-def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max_registers: int = 0):
+def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max_registers: int = 0,
+                     native: bool = False):
     """The fused swarm step for ``force_fn``. ``block_dim`` > 0: the CUDA shape,
     ``wp.launch_tiled(kernel, dim=num_worlds, block_dim=block_dim)`` with ``block_dim`` >= the movers per world; lanes
     past the last mover mirror it (same work, no writes) so that every lane reaches every tile operation.
     ``block_dim`` 0: the CPU shape, one thread per world (``dim=num_worlds``), the state in memory, the same
     candidate and partner functions; ``start_xy`` (vec2), ``snap`` (vec4), ``cand_list`` (:data:`Candidates`) and
     ``cand_count`` (int32), all ``[W, M]``, are its scratch. ``max_registers`` > 0 (CUDA): a cap on the registers per
-    thread (``__maxnreg__``; more blocks per SM, maybe spills; the same arithmetic), 0: the compiler's choice."""
+    thread (``__maxnreg__``; more blocks per SM, maybe spills; the same arithmetic), 0: the compiler's choice.
+    ``native`` (CUDA, tiled): each cycle's poses and the travel guard go through :func:`share_poses` (one block
+    barrier a cycle) instead of a Warp tile and a tile reduction (about four barriers); the same arithmetic."""
+    if native and int(block_dim) > MAX_BLOCK:
+        raise ValueError(f"the native exchange holds blocks of at most {MAX_BLOCK} threads, got {block_dim}")
     mover_cycle = _mover_cycle(force_fn, latency, nominal)
+    lowest_partner = make_lowest_partner(False)
+    lowest_native = make_lowest_partner(True)
+    NATIVE = bool(native) and int(block_dim) > 0
     TILED = int(block_dim) > 0
     BLOCK = max(int(block_dim), 1)
     options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
@@ -262,7 +309,8 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
             # Shared tiles (one entry per lane), each lane writing its own entry (tile_assign synchronises the block
             # after writing); each lane then reads any entry.
             starts = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
-            movers = wp.tile_zeros(shape=BLOCK, dtype=wp.vec4, storage="shared")
+            if wp.static(not NATIVE):
+                movers = wp.tile_zeros(shape=BLOCK, dtype=wp.vec4, storage="shared")
             wp.tile_assign(starts, wp.tile(start, preserve_type=True))
             cand, count = find_candidates(starts, m, M, col, radius, half_size, wr, wh, travel)
             F = int(0)
@@ -289,11 +337,18 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
                 # order matters: tile_assign writes without a barrier first, and the reduction's result (a shared tile
                 # written with a barrier before, from the second cycle on) holds every lane there until all have read
                 # the last cycle's entries.
-                far = wp.tile_max(wp.tile(moved_far(P, start, travel)))
-                wp.tile_assign(movers, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
-                every = far[0] != 0 or count > MAX_CANDIDATES
-                Pr = lowest_partner(movers, cand, count, every, m, M, col, radius, half_size, wr, wh,
-                                    c == last and live, w, world_pairs, pair_list)
+                if wp.static(NATIVE):
+                    buf = c % 2
+                    any_far = share_poses(0, buf, lane, wp.vec4(P[0], P[1], hd[0], hd[1]), moved_far(P, start, travel))
+                    every = any_far[0] != 0.0 or count > MAX_CANDIDATES
+                    Pr = lowest_native(buf, cand, count, every, m, M, col, radius, half_size, wr, wh,
+                                       c == last and live, w, world_pairs, pair_list)
+                else:
+                    far = wp.tile_max(wp.tile(moved_far(P, start, travel)))
+                    wp.tile_assign(movers, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
+                    every = far[0] != 0 or count > MAX_CANDIDATES
+                    Pr = lowest_partner(movers, cand, count, every, m, M, col, radius, half_size, wr, wh,
+                                        c == last and live, w, world_pairs, pair_list)
                 F = collision_flags(Pr, Wl)
                 Fa = Fa | F
                 S, V, A, U = stop_after(F, S, V, A, U)

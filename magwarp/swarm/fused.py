@@ -43,6 +43,21 @@ def max_registers() -> int:
     return int(value)
 
 
+#: how the tiled (CUDA) kernel exchanges each cycle's poses: ``"native"`` (one ``__syncthreads_or`` a cycle over two
+#: shared buffers, :func:`magwarp.kernels.swarm_step.share_poses`) or ``"tile"`` (a Warp tile and a tile reduction for
+#: the travel guard: about four block barriers a cycle). The same arithmetic and results.
+#: ``MAGWARP_SWARM_EXCHANGE`` overrides it, for tuning.
+EXCHANGE = "tile"
+
+
+def exchange() -> str:
+    """The tiled kernel's pose exchange on CUDA (:data:`EXCHANGE`, or ``MAGWARP_SWARM_EXCHANGE``)."""
+    value = os.environ.get("MAGWARP_SWARM_EXCHANGE", "").strip() or EXCHANGE
+    if value not in ("native", "tile"):
+        raise ValueError(f"MAGWARP_SWARM_EXCHANGE must be 'native' or 'tile', got {value!r}")
+    return value
+
+
 def fused_applies(num_movers: int, on_collision: str) -> str | None:
     """None where the fused swarm step applies, else why not (for the error of an explicit ``fused=True``)."""
     if on_collision != "respawn":
@@ -100,7 +115,8 @@ class FusedSwarmStep:
                                  f"movers")
             block = world_block_dim(sim.num_movers)
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block,
-                                          max_registers() if dev.is_cuda else 0)
+                                          max_registers() if dev.is_cuda else 0,
+                                          native=dev.is_cuda and exchange() == "native")
             wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=[*args, *self._scratch], block_dim=block, device=dev)
         else:
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, 0)
