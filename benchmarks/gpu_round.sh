@@ -12,8 +12,8 @@
 # branches (#24), magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs, swarm_place and tests18
 # and place_scan (#18), compare (B0 env throughput of an older tree beside this one), configs (the env configs'
 # CUDA tests), swarm_load (#18: the step by action load), b0_check (B0 with and without randomisation), ncu (#18,
-# #24: Nsight Compute on the swarm step and B0's physics kernel), exchange, exchange_b0 and exchange_swarm (#18,
-# #24: the fused step kernels' per-cycle exchange: tests, B0, swarm).
+# #24: Nsight Compute on the swarm step and B0's physics kernel), exchange and exchange_swarm (#18: the
+# swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -109,22 +109,14 @@ for stage in "$@"; do
           --json "$OUT/swarm_load_${movers}_gpu.json" 2>&1 | grep -v "^Module" | tail -8
       done ;;
     exchange)
-      # #18, #24: the per-cycle exchange of the fused step kernels, Warp tiles against native barriers: their CUDA tests
-      # (bit for bit against the tiles and the per-cycle path), then the swarm step (tile: about four block barriers
-      # a cycle, native: one __syncthreads_or; MAGWARP_SWARM_EXCHANGE) at 16,384 worlds under the seek and still
-      # loads, and B0's env step without and with full randomisation at 65,536 envs (tile: four barriers a cycle,
-      # native: two; MAGWARP_SMALL_WORLD_EXCHANGE), each alternated twice
+      # #18: the swarm step's per-cycle exchange, Warp tiles against native barriers: the CUDA tests (bit for bit
+      # against the tiles and the per-cycle path); exchange_swarm: the swarm step (tile: about four block barriers a
+      # cycle, native: one __syncthreads_or; MAGWARP_SWARM_EXCHANGE) at 16,384 worlds under the seek and still loads,
+      # alternated twice. (B0's movers kernel with two native barriers a cycle instead of four, 595ca77, was 2.8%
+      # slower: removed.)
       timeout 400 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
         tests/test_step_blocks.py tests/test_swarm_graph.py tests/test_graph_step.py > "$OUT/pytest_exchange_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_exchange_gpu.log" | tail -25 ;;
-    exchange_b0)
-      for round in 1 2; do
-        for ex in tile native; do
-          MAGWARP_SMALL_WORLD_EXCHANGE=$ex timeout 200 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 \
-            --steps 200 --settings off,full --json "$OUT/rand_gaps_exchange_${ex}_r${round}_gpu.json" 2>&1 \
-            | grep -v "^Module" | tail -4
-        done
-      done ;;
     exchange_swarm)
       for round in 1 2; do
         for ex in tile native; do
@@ -132,6 +124,19 @@ for stage in "$@"; do
             --movers ${LOAD_MOVERS:-64 100 256} --worlds 16384 --loads ${LOADS:-seek still} \
             --json "$OUT/swarm_exchange_${ex}_r${round}_gpu.json" 2>&1 | grep -v "^Module" | tail -8
         done
+      done ;;
+    caps)
+      # #18, #24: register caps per thread (occupancy against spills) of the swarm step kernel with the native exchange
+      # (MAGWARP_SWARM_MAX_REGISTERS, 16,384 worlds, seek and still) and of B0's movers kernel
+      # (MAGWARP_SMALL_WORLD_MAXREG, the env step at 65,536 envs, no / full randomisation)
+      for cap in ${SWARM_CAPS:-128 112 96 80}; do
+        MAGWARP_SWARM_EXCHANGE=native MAGWARP_SWARM_MAX_REGISTERS=$cap timeout 200 python3 benchmarks/swarm_load.py \
+          --device cuda:0 --movers ${LOAD_MOVERS:-64 100 256} --worlds 16384 --loads seek still \
+          --json "$OUT/swarm_cap${cap}_gpu.json" 2>&1 | grep -v "^Module" | tail -7
+      done
+      for cap in ${B0_CAPS:-168 144 128}; do
+        MAGWARP_SMALL_WORLD_MAXREG=$cap timeout 200 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 \
+          --steps 200 --settings off,full --json "$OUT/rand_gaps_cap${cap}_gpu.json" 2>&1 | grep -v "^Module" | tail -3
       done ;;
     b0_check)
       # B0's env step with and without full randomisation at 65,536 envs (no regression from the config refactor)

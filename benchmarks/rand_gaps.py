@@ -81,10 +81,10 @@ def row(device: str, num_envs: int, name: str, steps: int, planner: bool = False
         gen = torch.Generator(device=env.device).manual_seed(0)
         shape = (8, num_envs, *env.single_action_space.shape)
         actions = torch.rand(shape, generator=gen, device=env.device) * 2 - 1
-        from magwarp.kernels.options import SMALL_WORLD_EXCHANGE, STEP_BRANCHES
+        from magwarp.kernels.options import STEP_BRANCHES
 
         res = {"env": ENV_ID, "device": device, "num_envs": num_envs, "setting": name, "fire": fire or "default",
-               "branches": STEP_BRANCHES, "exchange": SMALL_WORLD_EXCHANGE}
+               "branches": STEP_BRANCHES}
         res["step_ms"] = time_steps(env.step, actions, steps, device)["step_ms"]
         fused = env._fused_step
         graphs = [g for g in getattr(fused, "_graphs", []) if g is not None]

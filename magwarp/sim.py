@@ -235,10 +235,9 @@ class Simulator:
         if self.num_movers <= REGISTER_MAX_MOVERS:
             if self._movers_block:
                 # Tiny worlds, one thread per mover: several worlds a block, poses exchanged through shared memory.
-                native = bool(wp.get_device(self.device).is_cuda and kernel_options.SMALL_WORLD_EXCHANGE == "native")
                 self._fused_kernel = kblocks.make_movers_kernel(self._force_model, self.num_movers, latency, nominal,
                                                                 self._movers_block, kernel_options.SMALL_WORLD_MAXREG,
-                                                                kernel_options.SMALL_WORLD_ROWS, native)
+                                                                kernel_options.SMALL_WORLD_ROWS)
             else:
                 # Tiny worlds (the RL regime): the whole world lives in registers for the whole step.
                 self._fused_kernel = kstep.make_register_kernel(self._force_model, self.num_movers, latency, nominal,

@@ -31,20 +31,18 @@ def starts(rng, num_worlds: int, num_movers: int) -> np.ndarray:
 def push(rng, sim: Simulator) -> np.ndarray:
     """Commands (unit scale): random, plus a push towards the world's centroid in even worlds (pairs, several at a
     time) and away from the layout's centre in odd ones (walls)."""
-    xy = sim.pos[..., :2].cpu().numpy().astype(np.float64)
+    xy = sim.pos[..., :2].numpy().astype(np.float64)
     out = xy - np.array([0.72, 0.48])
     out[::2] = xy[::2].mean(axis=1, keepdims=True) - xy[::2]
     out /= np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-6)
     return out + rng.uniform(-0.7, 0.7, out.shape)
 
 
-def build(monkeypatch, kernel: str, xy: np.ndarray, block: int, rows: str = "shared", device: str = "cpu",
-          exchange: str = "tile", **kw) -> Simulator:
+def build(monkeypatch, kernel: str, xy: np.ndarray, block: int, rows: str = "shared", **kw) -> Simulator:
     monkeypatch.setattr(kernel_options, "SMALL_WORLD_KERNEL", kernel)
     monkeypatch.setattr(kernel_options, "SMALL_WORLD_BLOCK", block)
     monkeypatch.setattr(kernel_options, "SMALL_WORLD_ROWS", rows)
-    monkeypatch.setattr(kernel_options, "SMALL_WORLD_EXCHANGE", exchange)
-    sim = Simulator(Layout.grid(6, 4), num_movers=xy.shape[1], num_worlds=xy.shape[0], device=device, start_xy=xy,
+    sim = Simulator(Layout.grid(6, 4), num_movers=xy.shape[1], num_worlds=xy.shape[0], device="cpu", start_xy=xy,
                     dt=0.004, **kw)
     assert (sim._movers_block == block) == (kernel == "movers")
     return sim
@@ -56,8 +54,8 @@ def randomise(sim: Simulator, rng) -> None:
     shape = p["mass"].shape
     for name, lo, hi in (("mass", 0.8, 1.3), ("k_lin", 0.7, 1.3), ("k_rot", 0.7, 1.3), ("inertia", 0.9, 1.1),
                          ("v_max", 0.8, 1.0), ("a_max", 0.8, 1.0), ("j_max", 0.8, 1.0)):
-        p[name].mul_(torch.as_tensor(rng.uniform(lo, hi, p[name].shape), dtype=p[name].dtype, device=p[name].device))
-    p["payload"].copy_(torch.as_tensor(rng.uniform(0.0, 0.5, shape)))  # copy_ moves it to the device
+        p[name].mul_(torch.as_tensor(rng.uniform(lo, hi, p[name].shape), dtype=p[name].dtype))
+    p["payload"].copy_(torch.as_tensor(rng.uniform(0.0, 0.5, shape)))
     off = torch.as_tensor(rng.uniform(-0.01, 0.01, (*shape, 3)))
     off[..., 2] = 0.01
     off[: shape[0] // 2, :, :2] = 0.0  # on the vertical axis in half the worlds
@@ -135,33 +133,6 @@ def test_movers_kernel_equals_the_register_kernel_bit_for_bit(rng, monkeypatch, 
     assert multi > 0 or num_movers < 3 or opts.get("stop_on_collision", True), "a mover in several pairs"
     if opts.get("stop_on_collision", True):
         assert halted_early > 0, "stop_on_collision must stop some world before the step's last cycle"
-
-
-@pytest.mark.skipif(not wp.is_cuda_available(), reason="needs a CUDA device")
-@pytest.mark.parametrize("case", list(CASES))
-def test_native_exchange_equals_the_tiles_on_cuda(rng, monkeypatch, case):
-    """On CUDA the movers kernel's native exchange (two block barriers a cycle, kernels.step_blocks.block_pose and
-    block_count) gives the Warp-tile exchange's results bit for bit."""
-    num_movers, num_worlds, block, opts = CASES[case]
-    opts = dict(opts)
-    random, latency = opts.pop("random", False), opts.pop("latency", False)
-    jerk = opts.get("control") == "jerk"
-    delays = torch.as_tensor(rng.integers(0, 7, num_worlds), dtype=torch.int32) if latency else None
-    xy, seed = starts(rng, num_worlds, num_movers), int(rng.integers(2**31))
-    sims = []
-    for exchange in ("tile", "native"):
-        sim = build(monkeypatch, "movers", xy, block, device="cuda:0", exchange=exchange, **opts)
-        if random:
-            randomise(sim, np.random.default_rng(seed))
-        if delays is not None:
-            sim.set_latency(delays.to("cuda:0"), bound=6)
-        sims.append(sim)
-    pairs = 0
-    for _ in range(6):
-        cmd = torch.as_tensor(push(rng, sims[0]) * (400.0 if jerk else 14.0), dtype=torch.float32, device="cuda:0")
-        step_both(sims, cmd, 10, rng)
-        pairs += int((sims[0].state.world_pairs.numpy() > 0).sum())
-    assert pairs > 0 or num_movers == 1
 
 
 @pytest.mark.parametrize("stop", [False, True])

@@ -93,10 +93,6 @@ SMALL_WORLD_BLOCK: int = _env_int("MAGWARP_SMALL_WORLD_BLOCK", 96, 1, 1024)
 SMALL_WORLD_MAXREG: int = _env_int("MAGWARP_SMALL_WORLD_MAXREG", 168, 0, 255)  # 0: no cap
 SMALL_WORLD_ROWS_CHOICES = ("shared", "registers")
 SMALL_WORLD_ROWS: str = _env_choice("MAGWARP_SMALL_WORLD_ROWS", SMALL_WORLD_ROWS_CHOICES, "shared")
-#: How the "movers" shape exchanges each cycle's poses and counts on CUDA: ``"tile"`` (Warp tiles: four block
-#: barriers a cycle) or ``"native"`` (:func:`magwarp.kernels.step_blocks.block_pose` / ``block_count``: two). The same
-#: arithmetic and results. ``MAGWARP_SMALL_WORLD_EXCHANGE``, read once at import: a tuning knob, not an API.
-SMALL_WORLD_EXCHANGE: str = _env_choice("MAGWARP_SMALL_WORLD_EXCHANGE", ("tile", "native"), "tile")
 
 #: Whether the trajectory env's fused step (:mod:`magwarp.envs.trajectory_fused`, CUDA) runs two parts that the
 #: step's next launches do not read on a second stream, as parallel branches of its CUDA graph: the torch draws of

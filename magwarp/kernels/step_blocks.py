@@ -48,53 +48,6 @@ from magwarp.types import Body, Collision, Impedance, Limits, Planar64, make_pos
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 
-#: The most threads per block the native exchange's shared arrays hold (:func:`block_pose`, :func:`block_count`).
-NATIVE_MAX_BLOCK = 256
-
-# The CUDA exchange of the movers kernel (``native``): each cycle a lane writes its pose, then one block barrier;
-# reads; its count, then one block barrier; reads. Two barriers a cycle, where the Warp tiles' ``tile_assign`` takes
-# two each (one before the writes, one after). One buffer each suffices: a lane writes the poses of the next cycle
-# only after the barrier of this cycle's counts, which no lane passes before every lane has read this cycle's poses;
-# it writes the next counts only after the next poses' barrier, which no lane passes before every lane has read this
-# cycle's counts. ``op`` 0: write ``v`` (``n``) at ``lane``, then the barrier; ``op`` 1: entry ``lane``. One function
-# per array, so that both ops see the same (function-scope) shared array.
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-    __shared__ float block_poses[NATIVE_MAX_BLOCK * 4];
-    float* e = block_poses + lane * 4;
-    if (op == 0) {
-        e[0] = v.c[0]; e[1] = v.c[1]; e[2] = v.c[2]; e[3] = v.c[3];
-        __syncthreads();
-        return v;
-    }
-    return wp::vec4(e[0], e[1], e[2], e[3]);
-#else
-    return v;
-#endif
-""".replace("NATIVE_MAX_BLOCK", str(NATIVE_MAX_BLOCK)))
-def block_pose(op: int, lane: int, v: wp.vec4) -> wp.vec4:
-    """The movers kernel's CUDA pose exchange (see above)."""
-    ...
-
-
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-    __shared__ int block_counts[NATIVE_MAX_BLOCK];
-    if (op == 0) {
-        block_counts[lane] = n;
-        __syncthreads();
-        return n;
-    }
-    return block_counts[lane];
-#else
-    return n;
-#endif
-""".replace("NATIVE_MAX_BLOCK", str(NATIVE_MAX_BLOCK)))
-def block_count(op: int, lane: int, n: int) -> int:
-    """The movers kernel's CUDA count exchange (see above)."""
-    ...
-
-
 def worlds_per_block(num_movers: int, block_dim: int) -> int:
     """Worlds of ``num_movers`` movers one block of ``block_dim`` threads holds."""
     if num_movers < 1 or block_dim < num_movers:
@@ -110,17 +63,14 @@ def num_blocks(num_worlds: int, num_movers: int, block_dim: int) -> int:
 
 @functools.cache
 def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal: bool = False,
-                       block_dim: int = 96, max_registers: int = 0, rows: str = "shared", native: bool = False):
+                       block_dim: int = 96, max_registers: int = 0, rows: str = "shared"):
     """The one-thread-per-mover fused step for ``force_fn``, specialised for ``num_movers`` and ``block_dim`` (see the
     module docstring). Same arguments as :func:`~magwarp.kernels.step.make_register_kernel`'s kernel (``act`` a
     :class:`~magwarp.kernels.step.NoActuator`), ``latency`` and ``nominal`` as there. ``max_registers`` > 0 caps the
     registers per thread on CUDA (``__maxnreg__``: more blocks per SM, spilling what does not fit). ``rows``: where
     the general variant keeps each mover's body row for the step, ``"registers"`` or ``"shared"`` (shared memory, one
     column per lane, read every cycle: about 20 registers fewer; the nominal variant reads the one shared row from
-    memory every cycle either way). ``native`` (CUDA only): the per-cycle exchange through :func:`block_pose` and
-    :func:`block_count` (two block barriers a cycle) instead of Warp tiles (four); the same arithmetic."""
-    if native and int(block_dim) > NATIVE_MAX_BLOCK:
-        raise ValueError(f"the native exchange holds blocks of at most {NATIVE_MAX_BLOCK} threads, got {block_dim}")
+    memory every cycle either way)."""
     if rows not in ("registers", "shared"):
         raise ValueError(f"rows must be 'registers' or 'shared', got {rows!r}")
     if not 1 <= int(num_movers) <= 31:  # a mover's colliding partners above it are an int32 bit mask
@@ -209,9 +159,8 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
         # block): the sizes once, then per cycle the poses (x, y, heading) and the (pairs above, wall) counts. Two
         # barriers a cycle keep a lane from overwriting an entry that another lane has yet to read.
         sizes = wp.tile_zeros(shape=B, dtype=wp.vec3, storage="shared")
-        if wp.static(not native):
-            poses = wp.tile_zeros(shape=B, dtype=wp.vec4, storage="shared")
-            counts = wp.tile_zeros(shape=B, dtype=wp.int32, storage="shared")
+        poses = wp.tile_zeros(shape=B, dtype=wp.vec4, storage="shared")
+        counts = wp.tile_zeros(shape=B, dtype=wp.int32, storage="shared")
         wp.tile_assign(sizes, wp.tile(wp.vec3(r, h[0], h[1]), preserve_type=True))
         if wp.static(shared_rows):  # the body rows, a column per lane (conflict-free reads)
             rows32 = wp.tile_zeros(shape=(20, B), dtype=wp.float32, storage="shared")
@@ -249,10 +198,7 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
                     hit = 1
                 Wl = hit
                 done += 1
-            if wp.static(native):
-                block_pose(0, lane, wp.vec4(P[0], P[1], hd[0], hd[1]))
-            else:
-                wp.tile_assign(poses, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
+            wp.tile_assign(poses, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
             above = int(0)  # colliding movers above this one: bit j set for mover j
             num_above = int(0)
             if active:
@@ -262,11 +208,7 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
                 for i in range(first, first + M):
                     j = i - first
                     if j != m:
-                        o = wp.vec4()
-                        if wp.static(native):
-                            o = block_pose(1, i, o)
-                        else:
-                            o = poses[i]
+                        o = poses[i]
                         s = sizes[i]
                         # the pair (lower index, higher index) as the register kernel evaluates it, through one call
                         # for every lane (a branch per order would run both orders in turn in a warp)
@@ -287,20 +229,13 @@ def make_movers_kernel(force_fn, num_movers: int, latency: bool = False, nominal
                                 num_above += 1
                 F = collision_flags(Pr, Wl)
                 Fa = Fa | F
-            if wp.static(native):
-                block_count(0, lane, 2 * num_above + wp.where(Wl != 0, 1, 0))
-            else:
-                wp.tile_assign(counts, wp.tile(2 * num_above + wp.where(Wl != 0, 1, 0), preserve_type=True))
+            wp.tile_assign(counts, wp.tile(2 * num_above + wp.where(Wl != 0, 1, 0), preserve_type=True))
             if active:
                 pairs = int(0)
                 walls = int(0)
                 k = int(0)  # this mover's first entry in the world's pair list
                 for i in range(first, first + M):
-                    e = int(0)
-                    if wp.static(native):
-                        e = block_count(1, i, 0)
-                    else:
-                        e = counts[i]
+                    e = counts[i]
                     pairs += e >> 1
                     walls += e & 1
                     if i - first < m:

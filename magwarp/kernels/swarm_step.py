@@ -20,7 +20,10 @@ candidates checks every other mover too.
 Two launch shapes of one kernel (:func:`make_step_kernel`) with the same arithmetic:
 
 * tiled (CUDA): one world per thread block, one thread per mover, its state in registers for the whole step; each
-  cycle the world's positions and headings are exchanged through shared memory (Warp tiles);
+  cycle the world's positions and headings are exchanged through shared memory: by default with one
+  ``__syncthreads_or`` a cycle over two buffers (:func:`share_poses`, ``native``), or through a Warp tile and a tile
+  reduction for the travel guard (about four block barriers a cycle; also the shape the CPU tests run on Warp's
+  cooperative CPU blocks);
 * per world (CPU, where a tile block is one thread wide): one thread per world, looping over its movers, the state in
   memory.
 

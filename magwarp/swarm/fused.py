@@ -45,9 +45,12 @@ def max_registers() -> int:
 
 #: how the tiled (CUDA) kernel exchanges each cycle's poses: ``"native"`` (one ``__syncthreads_or`` a cycle over two
 #: shared buffers, :func:`magwarp.kernels.swarm_step.share_poses`) or ``"tile"`` (a Warp tile and a tile reduction for
-#: the travel guard: about four block barriers a cycle). The same arithmetic and results.
-#: ``MAGWARP_SWARM_EXCHANGE`` overrides it, for tuning.
-EXCHANGE = "tile"
+#: the travel guard: about four block barriers a cycle). The same arithmetic and results. On the H100 at 16,384
+#: worlds the env step took 7-10% less with ``"native"`` under the seek load and 11-13% less with still movers, at
+#: 64, 100 and 256 movers (``benchmarks/results/swarm_exchange_*_s40_gpu.json``, 2026-12-07): the kernel is
+#: latency-bound at 25% occupancy (Nsight Compute, ``benchmarks/results/ncu/``), where every barrier idles its
+#: block. ``MAGWARP_SWARM_EXCHANGE`` overrides it, for tuning.
+EXCHANGE = "native"
 
 
 def exchange() -> str:
