@@ -13,7 +13,8 @@
 # and place_scan (#18), compare (B0 env throughput of an older tree beside this one), configs (the env configs'
 # CUDA tests), swarm_load (#18: the step by action load), b0_check (B0 with and without randomisation), ncu (#18,
 # #24: Nsight Compute on the swarm step and B0's physics kernel), exchange and exchange_swarm (#18: the
-# swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps).
+# swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps),
+# swarm_vs_ref (#18: the swarm step against an older tree).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -137,6 +138,21 @@ for stage in "$@"; do
       for cap in ${B0_CAPS:-168 144 128}; do
         MAGWARP_SMALL_WORLD_MAXREG=$cap timeout 200 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 \
           --steps 200 --settings off,full --json "$OUT/rand_gaps_cap${cap}_gpu.json" 2>&1 | grep -v "^Module" | tail -3
+      done ;;
+    swarm_vs_ref)
+      # #18: the swarm step of this tree against an older one (REF, e.g. `git archive e05f5fc magwarp benchmarks | tar
+      # -x -C .devrun/old`) in the same run: the CUDA tests of this tree's fused step (bit for bit against the
+      # per-cycle path, both exchanges), then both trees' swarm_load at 16,384 worlds, alternated twice
+      timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
+        tests/test_swarm_graph.py > "$OUT/pytest_swarm_vs_ref_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_vs_ref_gpu.log" | tail -25
+      for round in $(seq ${ROUNDS:-2}); do
+        for tree in "${REF:-.devrun/old}" .; do
+          name=$([ "$tree" = . ] && echo new || echo ref)
+          (cd "$tree" && PYTHONPATH=/tmp/site:$PWD timeout 200 python3 benchmarks/swarm_load.py --device cuda:0 \
+            --movers ${LOAD_MOVERS:-64 100 256} --worlds 16384 --loads ${LOADS:-seek planner} \
+            --json "$OUT/swarm_${name}_r${round}_gpu.json" 2>&1 | grep -v "^Module" | tail -7)
+        done
       done ;;
     b0_check)
       # B0's env step with and without full randomisation at 65,536 envs (no regression from the config refactor)
