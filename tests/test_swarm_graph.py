@@ -14,6 +14,7 @@ import warp as wp
 from magwarp.kernels.swarm import finish_worlds
 from magwarp.layout import Layout
 from magwarp.swarm import SwarmEnv
+from magwarp.swarm.fused import exchange, max_registers
 from magwarp.swarm.placement import Placer
 
 CUDA = torch.cuda.is_available() and wp.is_cuda_available()
@@ -76,7 +77,7 @@ def test_step_path_and_graph_option():
         SwarmEnv(1, num_movers=3, layout=np.ones((3, 3)), device="cpu", graph="yes")
 
 
-def test_graph_key_follows_every_launch_shape():
+def test_graph_key_follows_every_launch_shape(monkeypatch):
     """A recorded step is recorded anew when any launch shape it holds changes: each placer's search, lanes and scan,
     and each of the local observation's switches (the same results, other kernels)."""
     env = SwarmEnv(2, num_movers=6, layout=np.ones((4, 4)), k=2, num_rays=2, device="cpu", seed=0)
@@ -94,6 +95,13 @@ def test_graph_key_follows_every_launch_shape():
         assert env._graph_key() == before
     env.placer._lanes = 4  # the lane setter needs CPU blocks on the CPU; the key reads the shape alone
     assert env._graph_key() != before, "Placer.lanes left the graph key unchanged"
+    env.placer._lanes = 1
+    # the fused step kernel's tuning knobs (read at every kernel build)
+    for var, value in (("MAGWARP_SWARM_EXCHANGE", "tile" if exchange() == "native" else "native"),
+                       ("MAGWARP_SWARM_MAX_REGISTERS", "96" if max_registers() != 96 else "0")):
+        before = env._graph_key()
+        monkeypatch.setenv(var, value)
+        assert env._graph_key() != before, f"{var}={value} left the graph key unchanged"
 
 
 def test_eager_step_counts_steps_on_the_device():

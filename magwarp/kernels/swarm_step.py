@@ -72,11 +72,10 @@ Candidates = wp.types.vector(length=MAX_CANDIDATES, dtype=wp.int32)
 #else
     return v;
 #endif
-""".replace("SHARE_BLOCK", "256"))
+""".replace("SHARE_BLOCK", str(MAX_BLOCK)))
 def share_poses(op: int, buf: int, lane: int, v: wp.vec4, flag: int) -> wp.vec4:
-    """The CUDA exchange of the tiled step's poses (see above; blocks of at most 256 threads: :data:`MAX_BLOCK`)."""
+    """The CUDA exchange of the tiled step's poses (see above; blocks of at most :data:`MAX_BLOCK` threads)."""
     ...
-
 
 
 @wp.func
