@@ -189,6 +189,24 @@ def test_bad_inputs_raise_clear_errors():
         TopDownRenderer(np.ones((2, 2)))
 
 
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(px_per_tile=0, border_px=-1, min_mover_px=-1.0), "px_per_tile must be >= 1"),
+        (dict(min_mover_px=float("nan"), border_px=-1), "min_mover_px must be"),
+        (dict(border_px=-1, window=(1.0, 2.0), worlds=0), "border_px must be >= 0"),
+        (dict(window=(5.0, 5.0, 1.0, 1.0), worlds=0), "lies outside the layout"),
+        (dict(worlds=0, cols=0, state_colors=[1, 2]), "worlds must be"),
+        (dict(cols=0, state_colors=[1, 2]), "cols must be >= 1"),
+        (dict(state_colors=[[1, 2, 300]], object_shapes=[[]]), "state_colors must be"),
+        (dict(object_shapes=[[(0.0, 0.0, -1.0, 0.0)]]), "object 0: parts must be finite"),
+    ],
+)
+def test_constructor_reports_the_first_bad_option(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        TopDownRenderer(Layout.grid(2, 2), device="cpu", **kwargs)
+
+
 @pytest.mark.parametrize("width", [120, 400, 900])
 def test_legend_strip_fits_under_frames(width):
     from magwarp.render.legend import legend_strip, with_legend

@@ -117,6 +117,19 @@ class TopDownRenderer:
         min_mover_px: float = 1.0,
         device=None,
     ):
+        # The steps run in this order so that the first bad option is the one reported.
+        self._check_options(layout, mover, px_per_tile, min_mover_px, border_px, device)
+        self._cell_geometry(window, min_mover_px, goal_radius)
+        cell_worlds = self._parse_worlds(worlds)  # parsed before the style, checked after it
+        self.style = self._style_bits(grid, safety_zone, heading, goal_lines, len(cell_worlds))
+        self._mosaic_geometry(cell_worlds, worlds, cols)
+        self._palettes_and_shapes(state_colors, object_shapes)
+        row_local, col_local = self._lookup_tables()
+        self._draw_background(row_local, col_local)
+        self._frame_buffers()
+
+    def _check_options(self, layout, mover, px_per_tile, min_mover_px, border_px, device) -> None:
+        """Check the layout and the scalar options; keep them with the device and the pixel scale."""
         if not isinstance(layout, Layout):
             raise TypeError(f"layout must be a magwarp.layout.Layout, got {type(layout).__name__}")
         self.layout = layout
@@ -132,7 +145,10 @@ class TopDownRenderer:
         self.px_per_tile = int(px_per_tile)
         self.px_per_m = self.px_per_tile / layout.tile.size
         self.border = int(border_px)
-        nx, ny = layout.shape
+
+    def _cell_geometry(self, window, min_mover_px, goal_radius) -> None:
+        """What each cell shows (the window or the whole layout), its size in pixels, and the smallest dot and goal."""
+        nx, ny = self.layout.shape
         self.window = self._check_window(window)
         if self.window is None:
             self.origin = (0.0, 0.0)
@@ -143,15 +159,26 @@ class TopDownRenderer:
             self.cell_w, self.cell_h = max(1, round(ww * self.px_per_m)), max(1, round(wh * self.px_per_m))
         self.min_dot = float(min_mover_px) / self.px_per_m
         self.goal_radius = max(float(goal_radius), 2.5 / self.px_per_m)
-        cell_worlds = np.arange(int(worlds)) if np.ndim(worlds) == 0 else np.asarray(worlds, dtype=np.int64).reshape(-1)
+
+    @staticmethod
+    def _parse_worlds(worlds) -> np.ndarray:
+        """World index of each mosaic cell: ``0..n-1`` for a count ``n``, else the given indices (not yet checked)."""
+        return np.arange(int(worlds)) if np.ndim(worlds) == 0 else np.asarray(worlds, dtype=np.int64).reshape(-1)
+
+    @staticmethod
+    def _style_bits(grid, safety_zone, heading, goal_lines, num_cells: int) -> int:
+        """The kernels' ``DRAW_*`` bits; goal lines default to on for up to 4 cells."""
         if goal_lines is None:
-            goal_lines = len(cell_worlds) <= 4
-        self.style = (
+            goal_lines = num_cells <= 4
+        return (
             (K.DRAW_GRID if grid else 0)
             | (K.DRAW_SAFETY_ZONE if safety_zone else 0)
             | (K.DRAW_HEADING if heading else 0)
             | (K.DRAW_GOAL_LINES if goal_lines else 0)
         )
+
+    def _mosaic_geometry(self, cell_worlds: np.ndarray, worlds, cols) -> None:
+        """Check the worlds and columns; lay the cells out in rows and size the image."""
         if len(cell_worlds) == 0 or np.any(cell_worlds < 0):
             raise ValueError(f"worlds must be a positive count or a list of world indices >= 0, got {worlds!r}")
         self.num_cells = len(cell_worlds)
@@ -161,10 +188,12 @@ class TopDownRenderer:
         self.rows = math.ceil(self.num_cells / self.cols)
         self.height = self.rows * (self.cell_h + self.border) + self.border
         self.width = self.cols * (self.cell_w + self.border) + self.border
-
-        dev = self.device
-        self._cell_worlds = wp.array(cell_worlds.astype(np.int32), dtype=wp.int32, device=dev)
+        self._cell_worlds = wp.array(cell_worlds.astype(np.int32), dtype=wp.int32, device=self.device)
         self._cell_worlds_np = cell_worlds
+
+    def _palettes_and_shapes(self, state_colors, object_shapes) -> None:
+        """Upload the fixed, mover and (checked) state colours and the packed object shapes."""
+        dev = self.device
         fixed = [
             colors.BACKGROUND, colors.TILE, colors.TILE_LINE, colors.HOLE, colors.HOLE_HATCH, colors.OBSTACLE,
             colors.OBSTACLE_EDGE, colors.OBJECT, colors.OBJECT_EDGE, colors.OBJECT_GOAL, colors.COLLISION,
@@ -183,8 +212,11 @@ class TopDownRenderer:
         self.num_objects = parts.shape[0]
         self._parts = wp.array(parts, dtype=wp.vec4, device=dev)
 
+    def _lookup_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-row and per-column tables of cell index and world coordinate; returns the pixel indices in the cell."""
         # Per-row / per-column lookup tables: mosaic cell index (-1 on separators), pixel index inside the cell and
         # the pixel centre's world coordinate. They replace integer divisions per pixel with two loads.
+        dev = self.device
         row_cell, row_local = self._axis_tables(self.height, self.cell_h)
         col_cell, col_local = self._axis_tables(self.width, self.cell_w)
         self._row_cell = wp.array(row_cell, dtype=wp.int32, device=dev)
@@ -192,6 +224,11 @@ class TopDownRenderer:
         x0, y0 = self.origin
         self._row_y = wp.array((y0 + (self.cell_h - row_local - 0.5) / self.px_per_m).astype(np.float32), device=dev)
         self._col_x = wp.array((x0 + (col_local + 0.5) / self.px_per_m).astype(np.float32), device=dev)
+        return row_local, col_local
+
+    def _draw_background(self, row_local: np.ndarray, col_local: np.ndarray) -> None:
+        """Draw the static background (tiles, holes, grid lines, separators) once, into ``_background``."""
+        dev, layout = self.device, self.layout
         self._background = wp.zeros((self.height, self.width, 3), dtype=wp.uint8, device=dev)
         wp.launch(
             K.draw_background,
@@ -205,6 +242,10 @@ class TopDownRenderer:
             outputs=[self._background],
             device=dev,
         )
+
+    def _frame_buffers(self) -> None:
+        """Allocate the frame image, choose the pixels per thread and empty the per-frame caches."""
+        dev = self.device
         self._image = wp.zeros((self.height, self.width, 3), dtype=wp.uint8, device=dev)
         # Pixels per thread along a row: one on GPUs; on CPUs a run amortises the per-call cost of a thread.
         self.run_length = 1 if self.device.is_cuda else 64
@@ -329,7 +370,7 @@ class TopDownRenderer:
                 colour instead of its index colour (big swarms: moving, idle, collided, ...).
         Any per-world array may omit W (or have W = 1) to be shared by all worlds.
         """
-        dev, td = self.device, self.torch_device
+        td = self.torch_device
         pos_t = per_world(pos, trailing=(2,), allow_trailing=(2, 3), name="pos", device=td)
         num_worlds, num_movers = pos_t.shape[0], pos_t.shape[1]
         if rot is None:
