@@ -39,6 +39,7 @@ offsets).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -66,7 +67,8 @@ def _outline(obj) -> dict:
     lever = (np.linalg.norm(pts - com, axis=-1).mean(1) * area).sum() / area.sum()
     corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], np.float32)
     verts = (rects[:, None, :2] + corners[None] * rects[:, None, 2:]).reshape(-1, 2)
-    extent = float(np.max(np.hypot(np.abs(rects[:, 0] - com[0]) + rects[:, 2], np.abs(rects[:, 1] - com[1]) + rects[:, 3])))
+    extent = float(np.max(np.hypot(np.abs(rects[:, 0] - com[0]) + rects[:, 2],
+                                   np.abs(rects[:, 1] - com[1]) + rects[:, 3])))
     return {"rects": rects, "com": com, "c2": float(lever) ** 2, "verts": verts, "extent": extent}
 
 
@@ -121,6 +123,21 @@ def _symmetry(rects: np.ndarray) -> float:
         if np.mean(inside(pts @ np.array([[c, s], [-s, c]])) != base) < 1e-3:
             return angle
     return 2 * math.pi
+
+
+class _Candidates(NamedTuple):
+    """Candidate pushes per world ``[N, C, ...]`` (C: push directions times lateral offsets)."""
+
+    d: torch.Tensor  # push direction (unit)
+    m_c: torch.Tensor  # mover centre at contact
+    m_pre: torch.Tensor  # staging point: the mover centre a clearance short of the contact
+    point: torch.Tensor  # contact point
+    normal: torch.Tensor  # contact normal into the object
+    f: torch.Tensor  # predicted velocity of the object's centre of area per unit mover travel
+    omega: torch.Tensor  # predicted yaw rate per unit mover travel
+    amount: torch.Tensor  # mover travel that best reduces the weighted pose error
+    residual: torch.Tensor  # weighted pose error that push leaves
+    valid: torch.Tensor  # hits the object, reduces the error, and its staging point and push are clear (bool)
 
 
 class PushHeuristic:
@@ -395,26 +412,47 @@ class PushHeuristic:
         return goal, dyaw
 
     def __call__(self, obs=None) -> torch.Tensor:
-        b, env = self.backend, self.env
-        n = env.num_envs
+        """Mover accelerations ``[N, 2 * num_movers]`` for the env's current state (``obs`` is not used)."""
+        b = self.backend
+        self._sync_env()
+        pos, vel = b.mover_qpos[:, 0, :2], b.mover_qvel[:, 0, :2]
+        origin, yaw, com = self._object_pose()
+        e_p, e_w, e_norm, rest = self._pose_error(com, yaw)
+        cand = self._candidates(origin, yaw, com, e_p, e_w, e_norm)
+        choice, changed, any_valid = self._choose(self._estimated_time(pos, com, cand))
+        v = self._desired_velocity(pos, com, yaw, cand, choice, changed, rest)
+        v = torch.where(any_valid[:, None], v, torch.zeros_like(v))
+        # Settle: hold still once well inside the success threshold (the final state is scored).
+        v = torch.where(self._settled(origin, yaw)[:, None], torch.zeros_like(v), v)
+        return self._action(pos, vel, v)
+
+    def _sync_env(self) -> None:
+        """Take each world's walls and object outline from the env; forget the kept choices at episode starts."""
+        env = self.env
         if self._obstacles is not None:  # the env's walls may differ per world and episode (random, curriculum)
             self._set_walls(env.obstacle_boxes)
         if self._variants is not None:  # each world's object outline (object_ranges)
             idx = env.object_variant.long()
             v = self._variants
-            self._parts, self._com, self._c2, self._verts = v["parts"][idx], v["com"][idx], v["c2"][idx], v["verts"][idx]
+            self._parts, self._com = v["parts"][idx], v["com"][idx]
+            self._c2, self._verts = v["c2"][idx], v["verts"][idx]
         fresh = env.num_steps == 0  # first step of an episode: forget the kept choices
         self._choice = torch.where(fresh, torch.full_like(self._choice, -1), self._choice)
         self._way = torch.where(fresh[:, None], torch.zeros_like(self._way), self._way)
-        q = b.mover_qpos
-        pos, vel = q[:, 0, :2], b.mover_qvel[:, 0, :2]
-        oq = b.object_qpos[:, 0]
+
+    def _object_pose(self):
+        """The object's body origin ``[N, 2]``, yaw ``[N]`` (zero for a cylinder) and centre of area ``[N, 2]``."""
+        oq = self.backend.object_qpos[:, 0]
         w, x, y, z = oq[:, 3], oq[:, 4], oq[:, 5], oq[:, 6]
         yaw = torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
         if self._round:
             yaw = torch.zeros_like(yaw)
         origin = oq[:, :2]
         com = origin + _rot(torch.cos(yaw), torch.sin(yaw), self._com.expand_as(origin))
+        return origin, yaw, com
+
+    def _pose_error(self, com: torch.Tensor, yaw: torch.Tensor):
+        """Position and weighted pose errors to the target (waypoint or goal), their norm, the way left after it."""
         goal, dyaw = self._goal(com, yaw)
         target, rest = goal, torch.zeros_like(com[:, :1])
         if self._obstacles is not None:
@@ -422,8 +460,12 @@ class PushHeuristic:
         e_p = target - com
         e_w = torch.cat([e_p, (self.yaw_scale * dyaw)[:, None]], -1)  # (N, 3)
         e_norm = e_w.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        return e_p, e_w, e_norm, rest
 
-        # Candidates: world directions and the straight direction to the target, times lateral offsets.
+    def _candidates(self, origin, yaw, com, e_p, e_w, e_norm) -> _Candidates:
+        """Sweep the mover into the object along every candidate push line and predict each push's effect."""
+        n = self.env.num_envs
+        # world directions and the straight direction to the target, times lateral offsets
         u = _unit(e_p)
         dirs = torch.cat([self._dirs[None].expand(n, -1, -1), u[:, None]], 1)  # (N, D + 1, 2)
         nd, no = dirs.shape[1], self._offs.shape[0]
@@ -443,24 +485,35 @@ class PushHeuristic:
         residual = (e_w[:, None] - amount[..., None] * t3).norm(dim=-1)
         valid &= (dn > 0.2) & (rate > 0.02)
         m_pre = m_c - d * self.clearance
-        valid &= ((m_pre >= self._lo) & (m_pre <= self._hi)).all(-1)
+        valid &= self._feasible(com, d, m_c, m_pre, f, amount)
+        return _Candidates(d, m_c, m_pre, point, normal, f, omega, amount, residual, valid)
+
+    def _feasible(self, com, d, m_c, m_pre, f, amount) -> torch.Tensor:
+        """Candidates with the staging point in the area and off the walls, pushing neither body into a wall."""
+        ok = ((m_pre >= self._lo) & (m_pre <= self._hi)).all(-1)
         if self._obstacles is not None:
-            valid &= ~self._in_walls(m_pre, 0.004)
+            ok &= ~self._in_walls(m_pre, 0.004)
             # the push itself must not run the mover into a wall (it would brake there and stall the object)
             for s in self.path_checks:
-                valid &= ~(self._in_walls(m_c + d * s, 0.0) & (amount > s - 0.03))
+                ok &= ~(self._in_walls(m_c + d * s, 0.0) & (amount > s - 0.03))
                 if self.object_check:  # nor the object into one (its predicted path, as a disc of its extent)
                     o_s = com[:, None] + f * min(s, 0.12)
-                    valid &= ~(self._in_walls(o_s, self._extent - self._mover_half) & (amount > s - 0.03))
-        # Estimated time: the way round the object to the staging point, the push, and what it leaves undone.
-        rel_now, rel_pre = pos - com, m_pre - com[:, None]
+                    ok &= ~(self._in_walls(o_s, self._extent - self._mover_half) & (amount > s - 0.03))
+        return ok
+
+    def _estimated_time(self, pos: torch.Tensor, com: torch.Tensor, cand: _Candidates) -> torch.Tensor:
+        """Estimated time per candidate: way round to the staging point, push, error left (``_INF``: invalid)."""
+        rel_now, rel_pre = pos - com, cand.m_pre - com[:, None]
         r_now, r_pre = rel_now.norm(dim=-1, keepdim=True), rel_pre.norm(dim=-1)
         dphi = torch.remainder(torch.atan2(rel_pre[..., 1], rel_pre[..., 0])
                                - torch.atan2(rel_now[:, 1:2], rel_now[:, 0:1]) + math.pi, 2 * math.pi) - math.pi
         way = torch.maximum(r_now, r_pre) * dphi.abs() + (r_now - r_pre).abs()
-        way = torch.minimum(way, (pos[:, None] - m_pre).norm(dim=-1) * (1.0 + 2.0 * (dphi.abs() > 1.2)))
-        cost = way / self.approach_speed + amount / self.push_speed + self.residual_cost * residual
-        cost = torch.where(valid, cost, torch.full_like(cost, _INF))
+        way = torch.minimum(way, (pos[:, None] - cand.m_pre).norm(dim=-1) * (1.0 + 2.0 * (dphi.abs() > 1.2)))
+        cost = way / self.approach_speed + cand.amount / self.push_speed + self.residual_cost * cand.residual
+        return torch.where(cand.valid, cost, torch.full_like(cost, _INF))
+
+    def _choose(self, cost: torch.Tensor):
+        """The kept candidate unless another is clearly faster (updates it): ``(choice, changed, any_valid)``."""
         best_cost, best = cost.min(dim=1)
         kept = self._choice.clamp_min(0)
         kept_cost = cost.gather(1, kept[:, None])[:, 0]
@@ -469,38 +522,58 @@ class PushHeuristic:
         changed = choice != self._choice
         self._choice = torch.where(best_cost < _INF / 2, choice, torch.full_like(choice, -1))
         any_valid = best_cost < _INF / 2
+        return choice, changed, any_valid
 
+    def _desired_velocity(self, pos, com, yaw, cand: _Candidates, choice, changed, rest) -> torch.Tensor:
+        """Desired mover velocity: push, go around the object, or fly to the staging point (records ``_info``)."""
+        n = self.env.num_envs
         idx = choice[:, None, None].expand(n, 1, 2)
-        dc = d.gather(1, idx)[:, 0]
-        mc = m_c.gather(1, idx)[:, 0]
-        nc = _perp(dc)
+        dc = cand.d.gather(1, idx)[:, 0]
+        mc = cand.m_c.gather(1, idx)[:, 0]
+        need = cand.amount.gather(1, choice[:, None]).clamp_min(0.0) + rest
+        along, lateral, speed, cone, v_push = self._push_velocity(pos, dc, mc, need)
+        back, v_direct, blocked = self._approach_velocity(pos, com, yaw, dc, mc, speed)
+        v_orbit = self._orbit_velocity(pos, com, yaw, back, blocked, changed)
+        v = torch.where(cone, v_push, torch.where(blocked, v_orbit, v_direct))
+        # the chosen candidate and mode per world (0 push, 1 around the object, 2 straight approach), for debugging
+        self._info = {"mode": torch.where(cone, 0, torch.where(blocked, 1, 2))[:, 0],
+                      "along": along[:, 0], "lateral": lateral[:, 0],
+                      "omega": cand.omega.gather(1, choice[:, None])[:, 0], "force": cand.f.gather(1, idx)[:, 0],
+                      "point": cand.point.gather(1, idx)[:, 0] - com, "normal": cand.normal.gather(1, idx)[:, 0]}
+        return v
 
-        # Push: inside a narrow cone behind the contact, drive along the line (speed planned over the gap and the
-        # predicted remaining push, braking below the object's friction deceleration) and steer onto the line.
+    def _push_velocity(self, pos, dc, mc, need):
+        """Push along the chosen line, braking over the gap and the remaining push ``need``, steering onto it."""
+        nc = _perp(dc)
         rel = pos - mc
         along = (rel * dc).sum(-1, keepdim=True)
         lateral = (rel * nc).sum(-1, keepdim=True)
         gap = (-along).clamp_min(0.0)
-        need = amount.gather(1, choice[:, None]).clamp_min(0.0) + rest
-        speed = torch.sqrt(2 * self.push_brake * (need + gap - self.stop_at).clamp_min(0.0)).clamp(max=self.push_speed)
+        speed = torch.sqrt(2 * self.push_brake * (need + gap - self.stop_at).clamp_min(0.0)).clamp(
+            max=self.push_speed)
         cone = (along < self.overlap) & (lateral.abs() < self.lateral_tol + self.cone * gap)
         v_push = dc * speed - nc * (lateral * 15.0).clamp(-self.cruise, self.cruise)
+        return along, lateral, speed, cone, v_push
 
-        # Approach: straight to a point on the line behind the contact that is clear of the object ...
+    def _approach_velocity(self, pos, com, yaw, dc, mc, speed):
+        """Fly straight to a point behind the contact clear of the object (and whether the object blocks that)."""
         back = mc - dc * self.clearance
         for s in (0.03, 0.06, 0.1, 0.15, 0.22):
-            cand = mc - dc * s
+            farther = mc - dc * s
             back = torch.where((back == mc - dc * self.clearance).all(-1, keepdim=True)
-                               & ~self._clear(back, com, yaw, 0.5 * self.clearance)[:, None], cand, back)
+                               & ~self._clear(back, com, yaw, 0.5 * self.clearance)[:, None], farther, back)
         dvec = back - pos
         dist_b = dvec.norm(dim=-1, keepdim=True)
-        v_direct = _unit(dvec) * self._profile(dist_b, self.arrive_brake).clamp(max=self.cruise) + dc * self.engage * speed * (
-            1.0 - dist_b / 0.05).clamp(0.0, 1.0)
-        # ... unless that segment passes the object: then go around it on a circle at a clearance.
+        arrive = _unit(dvec) * self._profile(dist_b, self.arrive_brake).clamp(max=self.cruise)
+        v_direct = arrive + dc * self.engage * speed * (1.0 - dist_b / 0.05).clamp(0.0, 1.0)
+        # the segment passes the object: go around it instead
         t = ((com - pos) * dvec).sum(-1, keepdim=True) / (dist_b * dist_b).clamp_min(1e-9)
         closest = pos + t.clamp(0.0, 1.0) * dvec
         blocked = ~self._clear(closest, com, yaw, 0.5 * self.clearance)[:, None]
+        return back, v_direct, blocked
 
+    def _orbit_velocity(self, pos, com, yaw, back, blocked, changed) -> torch.Tensor:
+        """Go around the object toward ``back`` on a circle at a clearance, keeping the way round once chosen."""
         rel_o = pos - com
         r_o = rel_o.norm(dim=-1, keepdim=True).clamp_min(1e-6)
         e_r = rel_o / r_o
@@ -517,16 +590,12 @@ class PushHeuristic:
         sign = self._orbit_sign(com, theta, err, r_des)
         sign = torch.where(blocked & (self._way != 0) & ~changed[:, None], self._way, sign)
         self._way = torch.where(blocked, sign, torch.zeros_like(sign))
-        v_orbit = b.object_qvel[:, 0, :2] + v_rad + e_t * sign * self._profile(err.abs() * r_o, self.orbit_brake).clamp(max=self.cruise)
+        v_tan = e_t * sign * self._profile(err.abs() * r_o, self.orbit_brake).clamp(max=self.cruise)
+        return self.backend.object_qvel[:, 0, :2] + v_rad + v_tan
 
-        v = torch.where(cone, v_push, torch.where(blocked, v_orbit, v_direct))
-        # the chosen candidate and mode per world (0 push, 1 around the object, 2 straight approach), for debugging
-        self._info = {"mode": torch.where(cone, 0, torch.where(blocked, 1, 2))[:, 0],
-                      "along": along[:, 0], "lateral": lateral[:, 0],
-                      "omega": omega.gather(1, choice[:, None])[:, 0], "force": f.gather(1, idx)[:, 0],
-                      "point": point.gather(1, idx)[:, 0] - com, "normal": normal.gather(1, idx)[:, 0]}
-        v = torch.where(any_valid[:, None], v, torch.zeros_like(v))
-        # Settle: hold still once well inside the success threshold (the final state is scored).
+    def _settled(self, origin: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+        """Worlds whose goal is well inside the success threshold ``[N]`` (bool): the mover holds still there."""
+        env, b = self.env, self.backend
         if self.pose_goal:
             from magwarp.physics import coverage
 
@@ -535,12 +604,15 @@ class PushHeuristic:
             left = (env.max_episode_steps - env.num_steps).clamp_min(0).to(pose.dtype)
             margin = self.hold_coverage * (left / 8.0).clamp(0.1, 1.0)  # late in the episode, keep what is reached
             # the env's own shape table: each world's outline, and no device upload per call
-            done = coverage(pose, gpose, env.shapes, env.object_variant) >= (env.min_coverage + margin).clamp(max=0.99)
-        else:
-            ov = b.object_qvel[:, 0, :2]  # where the object will come to rest if let go now
-            rest_at = origin + ov * ov.norm(dim=-1, keepdim=True) / (2 * self.slide_decel)
-            done = (env.goal_xy - rest_at).norm(dim=-1) < self.settle * env.max_position_err
-        v = torch.where(done[:, None], torch.zeros_like(v), v)
+            covered = coverage(pose, gpose, env.shapes, env.object_variant)
+            return covered >= (env.min_coverage + margin).clamp(max=0.99)
+        ov = b.object_qvel[:, 0, :2]  # where the object will come to rest if let go now
+        rest_at = origin + ov * ov.norm(dim=-1, keepdim=True) / (2 * self.slide_decel)
+        return (env.goal_xy - rest_at).norm(dim=-1) < self.settle * env.max_position_err
+
+    def _action(self, pos: torch.Tensor, vel: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """The env action: mover 0 accelerates toward ``v`` (wall braking first), the other movers brake to rest."""
+        env, n = self.env, self.env.num_envs
         if self._obstacles is not None:
             v = self._wall_guard(pos, vel, v)
         v = self._wall_limit(pos, vel, v)
@@ -548,7 +620,7 @@ class PushHeuristic:
         out = torch.zeros(n, env.num_movers, 2, device=env.device)
         out[:, 0] = acc
         if env.num_movers > 1:  # helpers hold still
-            out[:, 1:] = (-b.mover_qvel[:, 1:, :2] / self.latency).clamp(-self.a_max, self.a_max)
+            out[:, 1:] = (-self.backend.mover_qvel[:, 1:, :2] / self.latency).clamp(-self.a_max, self.a_max)
         return out.reshape(n, -1)
 
     # ------------------------------------------------------------------ obstacles
