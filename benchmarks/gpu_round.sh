@@ -309,7 +309,8 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       NCU=$(command -v ncu || ls /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
       SECTIONS="--section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
         --section SchedulerStats --section ComputeWorkloadAnalysis --section InstructionStats \
-        --section MemoryWorkloadAnalysis --section SourceCounters"
+        --section MemoryWorkloadAnalysis --section SourceCounters \
+        --metrics regex:smsp__average_warps_issue_stalled_.*_per_issue_active\.ratio"  # every stall reason's cycles
       run_ncu() {  # name, kernel regex, driver args
         local name=$1 regex=$2; shift 2
         timeout 300 "$NCU" --profile-from-start off --clock-control none --kernel-name "regex:$regex" \
