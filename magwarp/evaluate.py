@@ -289,9 +289,10 @@ def _check_device(device) -> str:
     return "cuda:0" if device == "cuda" else device
 
 
-def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats: int = 10, *, device: str | None = None,
-             steps: int | None = None, makespan_goals: int = 5, max_worlds: int | None = None, seed: int = 0,
-             progress: bool | None = None, env_kwargs: dict | None = None, trusted: bool = False) -> EvalResult:
+def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats: int = 10, *,
+             device: str | None = None, steps: int | None = None, makespan_goals: int = 5,
+             max_worlds: int | None = None, seed: int = 0, progress: bool | None = None,
+             env_kwargs: dict | None = None, trusted: bool = False) -> EvalResult:
     """Evaluate ``policy`` on ``env_id``; see the module docstring. ``steps``: env steps per world (trajectory
     planning and swarms, default 10 s: 250 steps of 40 cycles; pushing: the episode length). ``max_worlds``:
     worlds simulated at once (default 65536 on a GPU, 2048 on the CPU).
@@ -304,11 +305,32 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
     with its own device: a batch holds at most ceil(repeats / N) repeats, rank r runs batches r, r + N, ..., and
     every rank returns the whole result, its repeats in batch order. A batch's seeds do not depend on the rank, so
     the table equals a one-process run whose ``max_worlds`` holds as many repeats per batch."""
-    import gymnasium as gym
-    from tqdm import tqdm
+    episodes, repeats, makespan_goals, steps, max_worlds, seed = _check_sizes(
+        episodes, repeats, makespan_goals, steps, max_worlds, seed)
+    env_id = resolve_env_id(env_id)
+    label, policy = policy, _pretrained_file(policy)
+    if policy != "scripted" and not os.path.isfile(policy) and ":" not in policy:
+        raise EvalError(f"policy {policy!r} is not 'scripted', an existing file, or module:callable")
+    from magwarp.training import distributed as dist
 
-    from magwarp.metrics import Metrics
+    device = _check_device(device)
+    rank, world = dist.rank(), dist.world_size()
+    with _cpu_threads(device):
+        max_worlds = max_worlds or (65536 if device.startswith("cuda") else 2048)
+        per_batch = max(1, min(repeats, max_worlds // episodes, math.ceil(repeats / world)))
+        num_batches = math.ceil(repeats / per_batch)
+        env, family, episodic, num_steps, metrics, act, energy = _make_env(
+            env_id, per_batch * episodes, device, seed, env_kwargs, steps, makespan_goals, policy, trusted)
+        mine = range(rank, num_batches, world)  # this rank's batches
+        done, wall_all = _run_batches(env, act, metrics, energy, mine, env_id, device, seed, num_steps, per_batch,
+                                      repeats, episodic, progress, rank)
+        values, process, wall_all = _gather_batches(dist, done, wall_all)
+        rows = _result_rows(metrics, env, values, process, episodic)
+        return EvalResult(env_id, label, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
 
+
+def _check_sizes(episodes, repeats, makespan_goals, steps, max_worlds, seed) -> tuple:
+    """The checked counts and seed (NaN, 2.5 or "3" are refused, not truncated), each as an :class:`EvalError`."""
     from magwarp._checks import as_count, as_seed
 
     def count(name, value):  # NaN, 2.5 or "3" are refused, not truncated
@@ -325,103 +347,114 @@ def evaluate(env_id: str, policy: str = "scripted", episodes: int = 100, repeats
         seed = as_seed(seed, "--seed")
     except (TypeError, ValueError) as e:
         raise EvalError(str(e)) from None
-    env_id = resolve_env_id(env_id)
-    label, policy = policy, _pretrained_file(policy)
-    if policy != "scripted" and not os.path.isfile(policy) and ":" not in policy:
-        raise EvalError(f"policy {policy!r} is not 'scripted', an existing file, or module:callable")
-    from magwarp.training import distributed as dist
+    return episodes, repeats, makespan_goals, steps, max_worlds, seed
 
-    device = _check_device(device)
-    rank, world = dist.rank(), dist.world_size()
-    with _cpu_threads(device):
-        max_worlds = max_worlds or (65536 if device.startswith("cuda") else 2048)
-        per_batch = max(1, min(repeats, max_worlds // episodes, math.ceil(repeats / world)))
-        num_batches = math.ceil(repeats / per_batch)
-        worlds = per_batch * episodes
 
-        family_kwargs = dict(env_kwargs or {})
-        try:
-            env = gym.make_vec(env_id, num_envs=worlds, device=device, check_inputs=False, seed=seed, **family_kwargs)
-        except TypeError as e:  # an option the env does not take
-            raise EvalError(f"env options {family_kwargs} do not fit {env_id}: {e}") from None
-        except ValueError as e:  # a bad option value (a config check, an impossible placement): one line
-            raise EvalError(f"env options {family_kwargs} for {env_id}: {_last_line(str(e))}") from None
-        env = env.unwrapped if hasattr(env, "unwrapped") else env
-        family = _family(env)
-        episodic = family not in ("trajectory", "swarm")  # one episode (one goal) per world
-        if episodic:
-            env.autoreset = False  # one episode per world; a finished world is frozen by the metrics
-            num_steps = int(steps or env.max_episode_steps)
-            metrics = Metrics(env)
-        else:
-            num_steps = int(steps or round(10_000 / env.num_cycles))  # 10 s of 1 ms cycles (250 steps of 40)
-            metrics = Metrics(env, makespan_goals=makespan_goals)
-        act = _checked(load_policy(policy, env, trusted=trusted), policy, env)
-        from magwarp.metrics.energy import CopperEnergy
+def _make_env(env_id, worlds, device, seed, env_kwargs, steps, makespan_goals, policy, trusted) -> tuple:
+    """The unwrapped env of ``worlds`` worlds, its family, step count, metrics, checked policy and copper energy."""
+    import gymnasium as gym
 
-        energy = CopperEnergy.attach(env)  # None unless the env runs the magnetic model (force_model="magnetic")
+    from magwarp.metrics import Metrics
 
-        mine = range(rank, num_batches, world)  # this rank's batches
-        done: list[tuple[int, dict[str, list[float]], float]] = []  # (batch, metric values, process time)
-        total = len(mine) * num_steps
-        bar = tqdm(total=total, desc=f"eval {env_id}", unit="step", leave=False,
-                   disable=rank > 0 or ((total < 100) if progress is None else not progress))
-        start_all = time.perf_counter()
-        with torch.no_grad():
-            # Warm-up: the first step compiles kernels and records the step graph; keep it out of the process time.
-            obs, _ = env.reset(seed=seed)
-            env.step(act(obs))
+    family_kwargs = dict(env_kwargs or {})
+    try:
+        env = gym.make_vec(env_id, num_envs=worlds, device=device, check_inputs=False, seed=seed, **family_kwargs)
+    except TypeError as e:  # an option the env does not take
+        raise EvalError(f"env options {family_kwargs} do not fit {env_id}: {e}") from None
+    except ValueError as e:  # a bad option value (a config check, an impossible placement): one line
+        raise EvalError(f"env options {family_kwargs} for {env_id}: {_last_line(str(e))}") from None
+    env = env.unwrapped if hasattr(env, "unwrapped") else env
+    family = _family(env)
+    episodic = family not in ("trajectory", "swarm")  # one episode (one goal) per world
+    if episodic:
+        env.autoreset = False  # one episode per world; a finished world is frozen by the metrics
+        num_steps = int(steps or env.max_episode_steps)
+        metrics = Metrics(env)
+    else:
+        num_steps = int(steps or round(10_000 / env.num_cycles))  # 10 s of 1 ms cycles (250 steps of 40)
+        metrics = Metrics(env, makespan_goals=makespan_goals)
+    act = _checked(load_policy(policy, env, trusted=trusted), policy, env)
+    from magwarp.metrics.energy import CopperEnergy
+
+    energy = CopperEnergy.attach(env)  # None unless the env runs the magnetic model (force_model="magnetic")
+    return env, family, episodic, num_steps, metrics, act, energy
+
+
+def _run_batches(env, act, metrics, energy, mine, env_id, device, seed, num_steps, per_batch, repeats, episodic,
+                 progress, rank) -> tuple[list[tuple[int, dict[str, list[float]], float]], float]:
+    """Warm up, then run this rank's batches: ([(batch, metric values, process time)], wall time of the run)."""
+    from tqdm import tqdm
+
+    done: list[tuple[int, dict[str, list[float]], float]] = []  # (batch, metric values, process time)
+    total = len(mine) * num_steps
+    bar = tqdm(total=total, desc=f"eval {env_id}", unit="step", leave=False,
+               disable=rank > 0 or ((total < 100) if progress is None else not progress))
+    start_all = time.perf_counter()
+    with torch.no_grad():
+        # Warm-up: the first step compiles kernels and records the step graph; keep it out of the process time.
+        obs, _ = env.reset(seed=seed)
+        env.step(act(obs))
+        act.raise_if_nonfinite()
+        for batch in mine:
+            obs, _ = env.reset(seed=seed + batch)
+            metrics.reset()
+            if energy is not None:
+                energy.reset()
+            _sync(device)
+            start = time.perf_counter()
+            for _ in range(num_steps):
+                obs, _, terminated, truncated, _ = env.step(act(obs))
+                if episodic:
+                    metrics.freeze(terminated | truncated)
+                bar.update(1)
+            if episodic:  # episodes cut short by --steps still count, as unfinished (not successful)
+                still = metrics.t["active"].bool()
+                metrics.t["episodes"] += still
+                metrics.freeze(still)
+            summary = metrics.summary(per_batch)
+            if energy is not None:
+                sim_s = num_steps * env.num_cycles * float(env.sim.model.limits.dt)
+                summary.update(energy.summary(per_batch, sim_s))
+            summary = {k: v.cpu().numpy() for k, v in summary.items()}  # one sync per batch
             act.raise_if_nonfinite()
-            for batch in mine:
-                obs, _ = env.reset(seed=seed + batch)
-                metrics.reset()
-                if energy is not None:
-                    energy.reset()
-                _sync(device)
-                start = time.perf_counter()
-                for _ in range(num_steps):
-                    obs, _, terminated, truncated, _ = env.step(act(obs))
-                    if episodic:
-                        metrics.freeze(terminated | truncated)
-                    bar.update(1)
-                if episodic:  # episodes cut short by --steps still count, as unfinished (not successful)
-                    still = metrics.t["active"].bool()
-                    metrics.t["episodes"] += still
-                    metrics.freeze(still)
-                summary = metrics.summary(per_batch)
-                if energy is not None:
-                    sim_s = num_steps * env.num_cycles * float(env.sim.model.limits.dt)
-                    summary.update(energy.summary(per_batch, sim_s))
-                summary = {k: v.cpu().numpy() for k, v in summary.items()}  # one sync per batch
-                act.raise_if_nonfinite()
-                wall = time.perf_counter() - start
-                keep = min(per_batch, repeats - batch * per_batch)
-                units = summary["episodes"].sum() if episodic else summary["goals_reached"].sum()
-                done.append((batch, {k: [float(x) for x in v[:keep]] for k, v in summary.items()},
-                             1000.0 * wall / max(float(units), 1.0)))
-        bar.close()
-        wall_all = time.perf_counter() - start_all
-        values: dict[str, list[float]] = {}
-        process: list[float] = []
-        ranks = dist.gather_objects((done, wall_all))  # every rank's batches (one process: its own)
-        for _, batch_values, ms in sorted((b for part, _ in ranks for b in part), key=lambda b: b[0]):
-            for k, v in batch_values.items():
-                values.setdefault(k, []).extend(v)
-            process.append(ms)
-        wall_all = max(w for _, w in ranks)
-        rows = _rows(metrics.ROWS, values, env.num_movers)
-        unit = "episode" if episodic else "goal"
-        count = values["episodes" if episodic else "goals_reached"]
-        if "copper_energy_j" in values:  # the magnetic model: the coils' physical energy
-            joules = np.asarray(values["copper_energy_j"]) / np.maximum(np.asarray(count, dtype=np.float64), 1.0)
-            watts = np.asarray(values["copper_power_w"])
-            rows.append(Row("copper_energy_j_per_goal", f"Copper Energy (J per {unit})", float(np.mean(count)),
-                            float(joules.mean()), float(joules.std()), [float(x) for x in joules]))
-            rows.append(Row("copper_power_w", "Copper Loss (W per mover, mean)", float(np.mean(count)),
-                            float(watts.mean()), float(watts.std()), [float(x) for x in watts]))
-        rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
-                        float(np.mean(process)), float(np.std(process)), process))
-        return EvalResult(env_id, label, family, device, int(episodes), int(repeats), num_steps, wall_all, rows)
+            wall = time.perf_counter() - start
+            keep = min(per_batch, repeats - batch * per_batch)
+            units = summary["episodes"].sum() if episodic else summary["goals_reached"].sum()
+            done.append((batch, {k: [float(x) for x in v[:keep]] for k, v in summary.items()},
+                         1000.0 * wall / max(float(units), 1.0)))
+    bar.close()
+    wall_all = time.perf_counter() - start_all
+    return done, wall_all
+
+
+def _gather_batches(dist, done, wall_all) -> tuple[dict[str, list[float]], list[float], float]:
+    """Every rank's batches in batch order: (metric values per repeat, process times per batch, slowest wall time)."""
+    values: dict[str, list[float]] = {}
+    process: list[float] = []
+    ranks = dist.gather_objects((done, wall_all))  # every rank's batches (one process: its own)
+    for _, batch_values, ms in sorted((b for part, _ in ranks for b in part), key=lambda b: b[0]):
+        for k, v in batch_values.items():
+            values.setdefault(k, []).extend(v)
+        process.append(ms)
+    wall_all = max(w for _, w in ranks)
+    return values, process, wall_all
+
+
+def _result_rows(metrics, env, values: dict[str, list[float]], process: list[float], episodic: bool) -> list[Row]:
+    """The table's rows: the family's metrics, copper energy and loss (magnetic model), and the process time."""
+    rows = _rows(metrics.ROWS, values, env.num_movers)
+    unit = "episode" if episodic else "goal"
+    count = values["episodes" if episodic else "goals_reached"]
+    if "copper_energy_j" in values:  # the magnetic model: the coils' physical energy
+        joules = np.asarray(values["copper_energy_j"]) / np.maximum(np.asarray(count, dtype=np.float64), 1.0)
+        watts = np.asarray(values["copper_power_w"])
+        rows.append(Row("copper_energy_j_per_goal", f"Copper Energy (J per {unit})", float(np.mean(count)),
+                        float(joules.mean()), float(joules.std()), [float(x) for x in joules]))
+        rows.append(Row("copper_power_w", "Copper Loss (W per mover, mean)", float(np.mean(count)),
+                        float(watts.mean()), float(watts.std()), [float(x) for x in watts]))
+    rows.append(Row("process_time_ms", f"Process Time (ms per {unit}, batched)", float(np.mean(count)),
+                    float(np.mean(process)), float(np.std(process)), process))
+    return rows
 
 
 def _pretrained_file(policy: str) -> str:
