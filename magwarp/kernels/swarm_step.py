@@ -223,9 +223,8 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
     if native and int(block_dim) > MAX_BLOCK:
         raise ValueError(f"the native exchange holds blocks of at most {MAX_BLOCK} threads, got {block_dim}")
     mover_cycle = _mover_cycle(force_fn, latency, nominal)
-    lowest_partner = make_lowest_partner(False)
-    lowest_native = make_lowest_partner(True)
     NATIVE = bool(native) and int(block_dim) > 0
+    lowest_partner = make_lowest_partner(NATIVE)  # (NATIVE: the other shapes' calls are static branches not taken)
     TILED = int(block_dim) > 0
     BLOCK = max(int(block_dim), 1)
     options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
@@ -335,16 +334,17 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
                 XY = xy
                 Wl = hit
                 hd = shape_heading(col, Q)
-                # Whether any mover left its travel budget, then the world's positions and headings of this cycle. The
-                # order matters: tile_assign writes without a barrier first, and the reduction's result (a shared tile
+                # Whether any mover left its travel budget, and the world's positions and headings of this cycle: one
+                # barrier (native, see share_poses) or, with tiles, the reduction then the tile. With tiles the order
+                # matters: tile_assign writes without a barrier first, and the reduction's result (a shared tile
                 # written with a barrier before, from the second cycle on) holds every lane there until all have read
                 # the last cycle's entries.
                 if wp.static(NATIVE):
                     buf = c % 2
                     any_far = share_poses(0, buf, lane, wp.vec4(P[0], P[1], hd[0], hd[1]), moved_far(P, start, travel))
                     every = any_far[0] != 0.0 or count > MAX_CANDIDATES
-                    Pr = lowest_native(buf, cand, count, every, m, M, col, radius, half_size, wr, wh,
-                                       c == last and live, w, world_pairs, pair_list)
+                    Pr = lowest_partner(buf, cand, count, every, m, M, col, radius, half_size, wr, wh,
+                                        c == last and live, w, world_pairs, pair_list)
                 else:
                     far = wp.tile_max(wp.tile(moved_far(P, start, travel)))
                     wp.tile_assign(movers, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
