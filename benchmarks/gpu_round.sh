@@ -12,7 +12,8 @@
 # branches (#24), magnetics_variants and magnetics_fast (#17), swarm_fused, swarm_obs, swarm_place and tests18
 # and place_scan (#18), compare (B0 env throughput of an older tree beside this one), configs (the env configs'
 # CUDA tests), swarm_load (#18: the step by action load), b0_check (B0 with and without randomisation), ncu (#18,
-# #24: Nsight Compute on the swarm step and B0's physics kernel), exchange and exchange_swarm (#18: the
+# #24: Nsight Compute on the swarm step and B0's physics kernel; ncu18, ncu17: the swarm step, the fast magnetic
+# cycle), exchange and exchange_swarm (#18: the
 # swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps),
 # swarm_vs_ref (#18: the swarm step against an older tree).
 set -u
@@ -302,30 +303,38 @@ r = R['$name']; print(r.env_id, json.dumps(r.eval_kwargs, separators=(',', ':'))
       for movers in 64 100 256; do
         FUSED_MOVERS=$movers FUSED_WORLDS=16384 bash "$0" swarm_fused
       done ;;
-    ncu)
-      # #18 and #24: Nsight Compute on the fused swarm step kernel (16,384 worlds of 64 / 100 / 256 movers) and on
-      # B0's physics kernel and reset firing at 65,536 envs (no randomisation / full): stall reasons, occupancy,
-      # pipe utilisation, instruction mix (benchmarks/ncu_target.py drives one env; only its profiled steps count)
+    ncu|ncu18|ncu17)
+      # Nsight Compute (benchmarks/ncu_target.py drives one env or cycle; only its profiled steps count): stall
+      # reasons, occupancy, pipe utilisation, instruction mix. ncu: #18's fused swarm step kernel (16,384 worlds of 64
+      # / 100 / 256 movers) and #24's B0 physics kernel and reset firing at 65,536 envs (no randomisation / full);
+      # ncu18: the swarm step only; ncu17: the fast magnetic cycle's two launches at 1M movers
       NCU=$(command -v ncu || ls /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
       SECTIONS="--section SpeedOfLight --section Occupancy --section LaunchStats --section WarpStateStats \
         --section SchedulerStats --section ComputeWorkloadAnalysis --section InstructionStats \
         --section MemoryWorkloadAnalysis --section SourceCounters \
         --metrics regex:smsp__average_warps_issue_stalled_.*_per_issue_active\.ratio"  # every stall reason's cycles
-      run_ncu() {  # name, kernel regex, driver args
-        local name=$1 regex=$2; shift 2
+      run_ncu() {  # name, kernel regex, launches, driver args
+        local name=$1 regex=$2 count=$3; shift 3
         timeout 300 "$NCU" --profile-from-start off --clock-control none --kernel-name "regex:$regex" \
-          --launch-count 1 $SECTIONS python3 benchmarks/ncu_target.py "$@" > "$OUT/ncu_$name.txt" 2>&1
+          --launch-count $count $SECTIONS python3 benchmarks/ncu_target.py "$@" > "$OUT/ncu_$name.txt" 2>&1
         echo "$name rc=$? $(grep -cE 'Section:' "$OUT/ncu_$name.txt") sections"
         grep -E "Duration|Registers Per|Achieved Occupancy|Theoretical Occupancy|Warp Cycles Per Issued|Issued Ipc|\
-Stall|Executed Instructions  |FP64|Block Limit Reg" "$OUT/ncu_$name.txt" | head -20
+Stall|Executed Instructions  |FP64|Block Limit Reg" "$OUT/ncu_$name.txt" | head -$((20 * count))
       }
-      for movers in ${NCU_MOVERS:-64 100 256}; do
-        run_ncu swarm_$movers swarm_step swarm --movers $movers --worlds 16384 --load ${NCU_LOAD:-seek}
-      done
-      for setting in off full; do
-        run_ncu b0_$setting fused_movers b0 --envs 65536 --setting $setting
-      done
-      run_ncu b0_fire fire_terms b0 --envs 65536 --setting full ;;
+      if [ "$stage" != ncu17 ]; then
+        for movers in ${NCU_MOVERS:-64 100 256}; do
+          run_ncu swarm_$movers swarm_step 1 swarm --movers $movers --worlds 16384 --load ${NCU_LOAD:-seek}
+        done
+      fi
+      if [ "$stage" = ncu ]; then
+        for setting in off full; do
+          run_ncu b0_$setting fused_movers 1 b0 --envs 65536 --setting $setting
+        done
+        run_ncu b0_fire fire_terms 1 b0 --envs 65536 --setting full
+      fi
+      if [ "$stage" = ncu17 ]; then
+        run_ncu mag_fast 'first_kernel|rest_kernel' 2 magnetics --movers ${NCU_MAG_MOVERS:-1000000}
+      fi ;;
     rand_gaps)
       # #24: B0's randomisation cost by setting at 16,384 and 65,536 envs: env step, graph replay alone, kernel time and
       # the gaps between kernels (full_nofire: full with the reset firing left out of the step)

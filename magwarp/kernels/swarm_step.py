@@ -78,6 +78,44 @@ def share_poses(op: int, buf: int, lane: int, v: wp.vec4, flag: int) -> wp.vec4:
     ...
 
 
+# The movers' collision sizes (radius, half x, half y) in shared memory for the native exchange, written once a step
+# by each lane before the block's first barrier (the start positions' tile) and read by every lane after it: the
+# partner checks then read no model row per candidate. ``op`` 0: write ``v`` at ``lane``; ``op`` 1: entry ``lane``.
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    __shared__ float share_sizes[SHARE_BLOCK * 3];
+    float* e = share_sizes + lane * 3;
+    if (op == 0) {
+        e[0] = v.c[0]; e[1] = v.c[1]; e[2] = v.c[2];
+        return v;
+    }
+    return wp::vec3(e[0], e[1], e[2]);
+#else
+    return v;
+#endif
+""".replace("SHARE_BLOCK", str(MAX_BLOCK)))
+def share_sizes(op: int, lane: int, v: wp.vec3) -> wp.vec3:
+    """The CUDA shared copy of the tiled step's collision sizes (see above; blocks of at most :data:`MAX_BLOCK`)."""
+    ...
+
+
+@functools.cache
+def make_size_of(native: bool = False):
+    """``size_of(radius, half_size, wr, wh, j)``: mover ``j``'s collision radius and half sizes as a vec3, from the
+    model's rows or, ``native``, from :func:`share_sizes`."""
+
+    @wp.func
+    def size_of(radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int,
+                j: int) -> wp.vec3:
+        if wp.static(native):
+            return share_sizes(1, j, wp.vec3())
+        else:
+            h = half_size[wh, j]
+            return wp.vec3(radius[wr, j], h[0], h[1])
+
+    return size_of
+
+
 @wp.func
 def bounding_radius(col: Collision, r: float, half: wp.vec2) -> float:
     """Radius of a circle about the mover centre that holds its collision shape grown by the safety margin."""
@@ -115,30 +153,40 @@ def moved_far(p: wp.vec3, start: wp.vec2, travel: float) -> int:
     return 0
 
 
-@wp.func
-def find_candidates(
-    starts: Any, m: int, num_movers: int, col: Collision, radius: wp.array2d(dtype=float),
-    half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, travel: float,
-):
-    """Mover ``m``'s candidates in ascending order (``starts[j]``: the step-start x/y of mover ``j``, from a tile or an
-    array row) and their count (more than ``MAX_CANDIDATES``: the list is incomplete)."""
-    cand = Candidates()
-    count = int(0)
-    start = starts[m]
-    for j in range(num_movers):
-        if j != m:
-            if is_candidate(col, start - starts[j], radius[wr, m], half_size[wh, m], radius[wr, j], half_size[wh, j],
-                            travel):
-                if count < MAX_CANDIDATES:
-                    cand[count] = j
-                count += 1
-    return cand, count
+@functools.cache
+def make_find_candidates(native: bool = False):
+    """:func:`find_candidates` with the partners' sizes from :func:`make_size_of` (``native``: shared memory)."""
+    size_of = make_size_of(native)
+
+    @wp.func
+    def find_candidates(
+        starts: Any, m: int, num_movers: int, col: Collision, radius: wp.array2d(dtype=float),
+        half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, travel: float, r: float, h: wp.vec2,
+    ):
+        """Mover ``m``'s candidates in ascending order (``starts[j]``: the step-start x/y of mover ``j``, from a tile
+        or an array row; ``r``, ``h``: mover ``m``'s own sizes) and their count (more than ``MAX_CANDIDATES``: the
+        list is incomplete)."""
+        cand = Candidates()
+        count = int(0)
+        start = starts[m]
+        for j in range(num_movers):
+            if j != m:
+                sj = size_of(radius, half_size, wr, wh, j)
+                if is_candidate(col, start - starts[j], r, h, sj[0], wp.vec2(sj[1], sj[2]), travel):
+                    if count < MAX_CANDIDATES:
+                        cand[count] = j
+                    count += 1
+        return cand, count
+
+    return find_candidates
 
 
 @functools.cache
 def make_lowest_partner(native: bool = False):
     """:func:`lowest_partner` reading the poses from an array row or a tile (``movers[j]``) or, ``native``, from the
-    CUDA exchange's buffer ``movers`` (an int: :func:`share_poses`)."""
+    CUDA exchange's buffer ``movers`` (an int: :func:`share_poses`), with the partners' sizes from
+    :func:`make_size_of`."""
+    size_of = make_size_of(native)
 
     @wp.func
     def pose_of(movers: Any, j: int) -> wp.vec4:
@@ -150,12 +198,13 @@ def make_lowest_partner(native: bool = False):
     @wp.func
     def lowest_partner(
         movers: Any, cand: Any, count: int, every: bool, m: int, num_movers: int, col: Collision,
-        radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, record: bool,
-        w: int, world_pairs: wp.array(dtype=wp.int32), pair_list: wp.array2d(dtype=wp.vec2i),
+        radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, r: float,
+        h: wp.vec2, record: bool, w: int, world_pairs: wp.array(dtype=wp.int32), pair_list: wp.array2d(dtype=wp.vec2i),
     ) -> int:
         """The lowest index colliding with mover ``m`` this cycle, -1 if none (``movers``: x, y and heading (cos, sin)
         of each mover, see :func:`pose_of`): among its ``count`` candidates ``cand``, or among every mover
-        (``every``). ``record``: list the pairs (from their lower index) and count them, as the last cycle does."""
+        (``every``); ``r``, ``h``: mover ``m``'s own sizes. ``record``: list the pairs (from their lower index) and
+        count them, as the last cycle does."""
         q = pose_of(movers, m)
         p = wp.vec2(q[0], q[1])
         hd = wp.vec2(q[2], q[3])
@@ -170,8 +219,8 @@ def make_lowest_partner(native: bool = False):
             if j != m:
                 o = pose_of(movers, j)
                 d = wp.vec2(p[0] - o[0], p[1] - o[1])
-                if movers_collide_cs(col, d, hd, radius[wr, m], half_size[wh, m], wp.vec2(o[2], o[3]), radius[wr, j],
-                                     half_size[wh, j]):
+                sj = size_of(radius, half_size, wr, wh, j)
+                if movers_collide_cs(col, d, hd, r, h, wp.vec2(o[2], o[3]), sj[0], wp.vec2(sj[1], sj[2])):
                     if partner < 0:  # in ascending order: the first hit is the lowest index
                         partner = j
                     if record:
@@ -225,6 +274,7 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
     mover_cycle = _mover_cycle(force_fn, latency, nominal)
     NATIVE = bool(native) and int(block_dim) > 0
     lowest_partner = make_lowest_partner(NATIVE)  # (NATIVE: the other shapes' calls are static branches not taken)
+    find_candidates = make_find_candidates(NATIVE)
     TILED = int(block_dim) > 0
     BLOCK = max(int(block_dim), 1)
     options = {**MODULE_OPTIONS, "block_dim": BLOCK} if TILED else MODULE_OPTIONS
@@ -312,8 +362,10 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
             starts = wp.tile_zeros(shape=BLOCK, dtype=wp.vec2, storage="shared")
             if wp.static(not NATIVE):
                 movers = wp.tile_zeros(shape=BLOCK, dtype=wp.vec4, storage="shared")
+            if wp.static(NATIVE):  # the sizes, published by the starts' barrier below
+                share_sizes(0, lane, wp.vec3(r, h[0], h[1]))
             wp.tile_assign(starts, wp.tile(start, preserve_type=True))
-            cand, count = find_candidates(starts, m, M, col, radius, half_size, wr, wh, travel)
+            cand, count = find_candidates(starts, m, M, col, radius, half_size, wr, wh, travel, r, h)
             F = int(0)
             Fa = int(0)
             Wl = int(0)
@@ -343,13 +395,13 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
                     buf = c % 2
                     any_far = share_poses(0, buf, lane, wp.vec4(P[0], P[1], hd[0], hd[1]), moved_far(P, start, travel))
                     every = any_far[0] != 0.0 or count > MAX_CANDIDATES
-                    Pr = lowest_partner(buf, cand, count, every, m, M, col, radius, half_size, wr, wh,
+                    Pr = lowest_partner(buf, cand, count, every, m, M, col, radius, half_size, wr, wh, r, h,
                                         c == last and live, w, world_pairs, pair_list)
                 else:
                     far = wp.tile_max(wp.tile(moved_far(P, start, travel)))
                     wp.tile_assign(movers, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
                     every = far[0] != 0 or count > MAX_CANDIDATES
-                    Pr = lowest_partner(movers, cand, count, every, m, M, col, radius, half_size, wr, wh,
+                    Pr = lowest_partner(movers, cand, count, every, m, M, col, radius, half_size, wr, wh, r, h,
                                         c == last and live, w, world_pairs, pair_list)
                 F = collision_flags(Pr, Wl)
                 Fa = Fa | F
@@ -388,7 +440,8 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
                 start_xy[w, m] = wp.vec2(pos[w, m][0], pos[w, m][1])
                 flags_any[w, m] = 0
             for m in range(M):
-                cm, nm = find_candidates(start_xy[w], m, M, col, radius, half_size, wr, wh, travel)
+                cm, nm = find_candidates(start_xy[w], m, M, col, radius, half_size, wr, wh, travel, radius[wr, m],
+                                         half_size[wh, m])
                 cand_list[w, m] = cm
                 cand_count[w, m] = nm
             last = num_cycles - 1
@@ -415,7 +468,8 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
                 for m in range(M):
                     every = far != 0 or cand_count[w, m] > MAX_CANDIDATES
                     pr = lowest_partner(snap[w], cand_list[w, m], cand_count[w, m], every, m, M, col, radius,
-                                        half_size, wr, wh, c == last, w, world_pairs, pair_list)
+                                        half_size, wr, wh, radius[wr, m], half_size[wh, m], c == last, w,
+                                        world_pairs, pair_list)
                     f = collision_flags(pr, wall[w, m])
                     flags[w, m] = f
                     flags_any[w, m] = flags_any[w, m] | f
