@@ -15,7 +15,8 @@
 # #24: Nsight Compute on the swarm step and B0's physics kernel; ncu18, ncu17: the swarm step, the fast magnetic
 # cycle), exchange and exchange_swarm (#18: the
 # swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps),
-# swarm_vs_ref (#18: the swarm step against an older tree).
+# swarm_vs_ref (#18: the swarm step against an older tree), mag_vs_ref (#17: the fast magnetic cycle against an
+# older tree).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -154,6 +155,15 @@ for stage in "$@"; do
             --movers ${LOAD_MOVERS:-64 100 256} --worlds 16384 --loads ${LOADS:-seek planner} \
             --json "$OUT/swarm_${name}_r${round}_gpu.json" 2>&1 | grep -v "^Module" | tail -7)
         done
+      done ;;
+    mag_vs_ref)
+      # #17: the fast magnetic cycle of this tree (its variants) and of an older one (REF) in the same run, at 1e5 and
+      # 1e6 movers (the wrench table is built once, on the first run, into the machine's cache)
+      for tree in . "${REF:-.devrun/old}"; do
+        name=$([ "$tree" = . ] && echo new || echo ref)
+        (cd "$tree" && PYTHONPATH=/tmp/site:$PWD timeout 300 python3 benchmarks/magnetics.py --device cuda:0 \
+          --fast-cycle-only --fast-cycle-sizes ${MAG_SIZES:-100000,1000000} \
+          --json "$OUT/magnetics_fast_${name}_gpu.json" 2>&1 | grep -v "^Module" | tail -8)
       done ;;
     b0_check)
       # B0's env step with and without full randomisation at 65,536 envs (no regression from the config refactor)

@@ -274,9 +274,10 @@ def table_variant_rows(args, device: str, params) -> list[dict]:
 
 
 #: The fast cycle's variants timed beside the block cycle (``--fast-cycle-sizes``): (name, FastCycle options, write
-#: coil ids and columns).
-FAST_VARIANTS = [("fast", {}, False), ("fast_ids_cols", {}, True), ("fast_r128", {"max_registers": 128}, False),
-                 ("fast_l16", {"lanes": 16}, False)]
+#: coil ids and columns). ``fast`` is the default (16 lanes on a GPU, the straight-line first kernel); ``fast_loop``
+#: runs the general mover stopped after its first solve in the first kernel (the default until 2026-12-07).
+FAST_VARIANTS = [("fast", {}, False), ("fast_ids_cols", {}, True), ("fast_loop", {"straight": False}, False),
+                 ("fast_l8", {"lanes": 8}, False)]
 
 
 def fast_cycle_rows(args, device: str, params) -> list[dict]:

@@ -101,6 +101,29 @@ def test_fast_cycle_matches_block_cycle_and_reference(model, rng, cpu_blocks, la
             np.testing.assert_allclose(fast.delivered.numpy()[m], wanted[m], atol=1e-9, err_msg=f"{rng} {m}")
 
 
+@pytest.mark.parametrize("lanes", [1, 8])
+def test_straight_first_kernel_matches_the_loop(model, rng, cpu_blocks, lanes):
+    """The split cycle's first kernel as straight-line code gives the general mover's bits (stopped after its first
+    solve): every output, and the same movers left to the active-set steps."""
+    n = 40
+    poses, wanted = movers(rng, n)
+    wanted[2:6, :2] = np.sign(wanted[2:6, :2]) * 500.0
+    pos, quat = model.as_arrays(poses)
+    w = wp.array(wanted, dtype=vec6d, device="cpu")
+    outs, rest = [], []
+    for straight in (False, True):
+        cyc = FastCycle(model, Commutation(model.coilset, device="cpu"), lanes=lanes, split=True, straight=straight)
+        count = wp.zeros(n, dtype=wp.int32, device="cpu")
+        outs.append((cyc.run(pos, quat, w, CommutationResult.zeros(n, model.max_active, "cpu"), count), count))
+        rest.append(cyc.rest_movers)
+    assert rest[0] == rest[1] and 5 <= rest[1] < n - 2, (rng, rest)
+    (a, ca), (b, cb) = outs
+    np.testing.assert_array_equal(ca.numpy(), cb.numpy())
+    for key in ("currents", "saturated", "delivered", "residual", "loss", "flags"):
+        np.testing.assert_array_equal(getattr(a, key).numpy(), getattr(b, key).numpy(), err_msg=f"{rng} {key}")
+    assert (b.flags.numpy()[:2] == FLAG_NO_COILS).all()
+
+
 def test_fast_cycle_options_and_errors(model):
     com = Commutation(model.coilset, device="cpu")
     with pytest.raises(MagneticsError, match="lanes must be one of .* got 3"):

@@ -190,7 +190,7 @@ def lean_solve(a: mat66d, rhs: vec6d, reg: wp.float64):
 
 
 @functools.cache
-def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: int = 0):
+def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: int = 0, straight: bool = True):
     """``(mover_func, kernel, first_kernel, rest_kernel)`` of the cycle for a window of ``slots`` slots with ``lanes``
     threads per mover (see the module docstring). ``tiles``: reduce over a block of ``lanes`` threads with
     ``wp.tile_sum`` (a CPU with ``warp.config.enable_cpu_blocks``; launch one block per mover) instead of warp shuffles.
@@ -202,7 +202,9 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
     a mover with a coil past its limit at the first solve is listed instead) then ``rest_kernel`` (the listed movers'
     whole cycle): the same results, and the register-hungry active-set loop (its columns, matrix and step state live
     across a loop) stays out of the kernel every mover runs (sm_90, 8 lanes, 255 registers: 360 B of stack against
-    1.9 KB). ``max_registers`` > 0 caps the registers per thread of the kernels (more threads per SM, more spills)."""
+    1.9 KB). ``max_registers`` > 0 caps the registers per thread of the kernels (more threads per SM, more spills).
+    ``straight``: the first kernel's fast path as straight-line code (no loop; the same bits), else the general mover
+    stopped after its first solve."""
     if lanes not in LANE_CHOICES:
         raise MagneticsError(f"lanes per mover must be one of {LANE_CHOICES}, got {lanes!r}")
     S = int(slots)
@@ -240,6 +242,93 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
             return out
         return group_sum_min(v, L)
 
+    @wp.func
+    def look_up(c: CycleParams, m: int, lane: int, x: float, y: float, z: float, yaw: float, o: ThreadOutputs):
+        """The lane's slots: their columns and coil ids (-1: none), and the mover's free-coil matrix (lower triangle,
+        the coil count in ``a[0, 5]``) summed over its lanes; whether ``z`` lies outside the table's heights. The ids
+        and columns are written when asked."""
+        cols = Cols()
+        ids = Ints()
+        a = mat66d()  # lower triangle: the free coils' matrix; a[0, 5]: the coil count
+        kz, fz, y0, fy, rot, out = column_context(c.table, z, yaw)
+        for s in range(P):
+            j = lane + s * L
+            k = int(-1)
+            if j < S:
+                k, l, dx, dy = slot_coil(c.table, c.slot_layer, c.slot_offset, j, x, y)
+                col = vec6f()
+                if k >= 0:
+                    col = table_column_at(c.table, l, dx, dy, kz, fz, y0, fy, rot)
+                    cols[s] = col
+                    a = add_outer_lower(a, as_vec6d(col), ONE / c.resistance[k])
+                    a[0, 5] = a[0, 5] + ONE
+                if o.store_ids != 0:
+                    o.coil_ids[m, j] = k
+                if o.store_gamma != 0:
+                    o.gamma[m, j] = col
+            ids[s] = k
+        return cols, ids, reduce_packed(a), out
+
+    @wp.func
+    def straight_first(c: CycleParams, m: int, lane: int, x: float, y: float, z: float, yaw: float, wanted: vec6d,
+                       o: ThreadOutputs):
+        """The fast path without the active-set loop: the first solve (every coil free) and its pass; a mover with a
+        coil past its limit (or no iteration allowed) returns the flag -1 with its outputs unwritten, as
+        ``make_mover(True)``'s does (the same arithmetic in the same order: the same bits). Straight-line code: the
+        matrix is dead after the solve, not carried around a loop."""
+        cols, ids, a, out = look_up(c, m, lane, x, y, z, yaw, o)
+        n = int(a[0, 5])
+        if n == 0:  # no coil: zero currents, the wanted wrench undelivered (the same on every lane of the mover)
+            for s in range(P):
+                if lane + s * L < S:
+                    o.currents[m, lane + s * L] = ZERO
+                    o.saturated[m, lane + s * L] = 0
+            if lane == 0:
+                o.count[m] = 0
+                o.delivered[m] = vec6d()
+                o.residual[m] = wanted
+                o.loss[m] = ZERO
+                o.flags[m] = FLAG_NO_COILS
+            return vec6d(), ZERO, FLAG_NO_COILS
+        if c.max_iter < 1:  # (the general mover's path: left to the rest kernel)
+            return vec6d(), ZERO, int(-1)
+        yv, regd = lean_solve(a, wanted, c.reg)
+        flag = int(0)
+        if regd:
+            flag = flag | FLAG_REGULARISED
+        part = vec8d()
+        part[7] = ONE
+        for s in range(P):
+            k = ids[s]
+            j = lane + s * L
+            if k >= 0:
+                g = as_vec6d(cols[s])
+                lim = c.limit[k]
+                t, reach = step_reach(g, yv, vec6d(), ONE / c.resistance[k], lim)
+                part[7] = wp.min(part[7], reach)
+                t = wp.clamp(t, -lim, lim)
+                for r in range(6):
+                    part[r] = part[r] + g[r] * t
+                part[6] = part[6] + c.resistance[k] * t * t
+                o.currents[m, j] = t
+                o.saturated[m, j] = 0
+            elif j < S:
+                o.currents[m, j] = ZERO
+                o.saturated[m, j] = 0
+        part = reduce_sum_min(part, lane)
+        if part[7] < ONE:
+            return vec6d(), ZERO, int(-1)
+        if out and lane == 0:  # as many look-ups outside the table's heights as the window's coils
+            wp.atomic_add(c.table.out_of_range, 0, n)
+        delivered = vec6d(part[0], part[1], part[2], part[3], part[4], part[5])
+        if lane == 0:
+            o.count[m] = n
+            o.delivered[m] = delivered
+            o.residual[m] = wanted - delivered
+            o.loss[m] = part[6]
+            o.flags[m] = flag
+        return delivered, part[6], flag
+
     def make_mover(first_only: bool):
         """The mover function; ``first_only``: stop after the first solve where a coil passes its limit (the
         mover's outputs are not written: the caller lists it for the full steps) and return the flag -1."""
@@ -248,28 +337,8 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
         def fast_mover(c: CycleParams, m: int, lane: int, x: float, y: float, z: float, yaw: float, wanted: vec6d,
                        o: ThreadOutputs):
             """Mover ``m``'s look-up and commutation by lane ``lane`` of its group (see the module docstring)."""
-            cols = Cols()
-            ids = Ints()
+            cols, ids, a, out = look_up(c, m, lane, x, y, z, yaw, o)
             sat = Ints()  # 0: free; +1 / -1: held at the limit with that sign
-            a = mat66d()  # lower triangle: the free coils' matrix; a[0, 5]: the coil count
-            kz, fz, y0, fy, rot, out = column_context(c.table, z, yaw)
-            for s in range(P):
-                j = lane + s * L
-                k = int(-1)
-                if j < S:
-                    k, l, dx, dy = slot_coil(c.table, c.slot_layer, c.slot_offset, j, x, y)
-                    col = vec6f()
-                    if k >= 0:
-                        col = table_column_at(c.table, l, dx, dy, kz, fz, y0, fy, rot)
-                        cols[s] = col
-                        a = add_outer_lower(a, as_vec6d(col), ONE / c.resistance[k])
-                        a[0, 5] = a[0, 5] + ONE
-                    if o.store_ids != 0:
-                        o.coil_ids[m, j] = k
-                    if o.store_gamma != 0:
-                        o.gamma[m, j] = col
-                ids[s] = k
-            a = reduce_packed(a)
             n = int(a[0, 5])
             flag = int(0)
             if n == 0:
@@ -377,7 +446,7 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
         return fast_mover
 
     fast_mover = make_mover(False)
-    first_mover = make_mover(True)
+    first_mover = straight_first if straight else make_mover(True)
 
     @wp.kernel(module="unique", module_options=options, **caps)
     def fast_cycle_kernel(
@@ -452,7 +521,7 @@ class FastCycle:
     counter's zeroing, no host sync: graph-capturable)."""
 
     def __init__(self, model: TableModel, commutation, lanes: int | None = None, split: bool | None = None,
-                 max_registers: int = 0):
+                 max_registers: int = 0, straight: bool = True):
         self.params = cycle_params(model, commutation)
         self.model, self.commutation = model, commutation
         dev = model.device
@@ -472,10 +541,11 @@ class FastCycle:
         #: Two launches (the fast path of every mover, then the full steps of those a limit stopped): see
         #: :func:`make_fast_cycle`.
         self.split = bool(split)
+        self.straight = bool(straight)
         if int(max_registers) != max_registers or max_registers < 0:
             raise MagneticsError(f"FastCycle max_registers must be a non-negative integer, got {max_registers!r}")
         self.mover_func, self.kernel, self.first_kernel, self.rest_kernel = make_fast_cycle(
-            model.max_active, self.lanes, self.tiles, int(max_registers))
+            model.max_active, self.lanes, self.tiles, int(max_registers), self.straight)
         self._rest = self._rest_count = None
 
     def reserve(self, n: int) -> "FastCycle":
