@@ -346,7 +346,7 @@ def fast_cycle_rows(args, device: str, params) -> list[dict]:
               f"{row['fast_max_current_diff_unregularised_a']:.1e} A, same flags {row['fast_same_flags']}, same "
               f"saturations {row['fast_same_saturated']}; {row.get('fast_rest_movers', '-')} movers to the active-set "
               f"steps, {row['saturated_movers']} saturated, {row['regularised_movers']} regularised)", flush=True)
-    print(f"\n  | movers | block cycle ms | " + " | ".join(f"{v[0]} ms" for v in variants) + " | speedup |")
+    print("\n  | movers | block cycle ms | " + " | ".join(f"{v[0]} ms" for v in variants) + " | speedup |")
     print("  |---" * (len(variants) + 3) + "|")
     for r in rows:
         print(f"  | {r['movers']:,} | {r['block_cycle_ms']:.3f} | "
