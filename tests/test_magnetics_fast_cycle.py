@@ -104,10 +104,12 @@ def test_fast_cycle_matches_block_cycle_and_reference(model, rng, cpu_blocks, la
 @pytest.mark.parametrize("lanes", [1, 8])
 def test_straight_first_kernel_matches_the_loop(model, rng, cpu_blocks, lanes):
     """The split cycle's first kernel as straight-line code gives the general mover's bits (stopped after its first
-    solve): every output, and the same movers left to the active-set steps."""
+    solve) for every output; it leaves to the active-set steps the same movers and those whose system needs
+    regularisation (here at the layout's edge, where few coils lie under the mover)."""
     n = 40
     poses, wanted = movers(rng, n)
     wanted[2:6, :2] = np.sign(wanted[2:6, :2]) * 500.0
+    poses[6:12, 0] = np.linspace(0.675, 0.72, 6)  # at the edge: regularised
     pos, quat = model.as_arrays(poses)
     w = wp.array(wanted, dtype=vec6d, device="cpu")
     outs, rest = [], []
@@ -116,8 +118,9 @@ def test_straight_first_kernel_matches_the_loop(model, rng, cpu_blocks, lanes):
         count = wp.zeros(n, dtype=wp.int32, device="cpu")
         outs.append((cyc.run(pos, quat, w, CommutationResult.zeros(n, model.max_active, "cpu"), count), count))
         rest.append(cyc.rest_movers)
-    assert rest[0] == rest[1] and 5 <= rest[1] < n - 2, (rng, rest)
     (a, ca), (b, cb) = outs
+    regd = int(((a.flags.numpy() & FLAG_REGULARISED) != 0).sum())
+    assert regd >= 3 and rest[0] <= rest[1] <= rest[0] + regd and 5 <= rest[0] < n - 2, (rng, rest, regd)
     np.testing.assert_array_equal(ca.numpy(), cb.numpy())
     for key in ("currents", "saturated", "delivered", "residual", "loss", "flags"):
         np.testing.assert_array_equal(getattr(a, key).numpy(), getattr(b, key).numpy(), err_msg=f"{rng} {key}")

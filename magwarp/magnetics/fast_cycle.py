@@ -156,21 +156,19 @@ def chol_scaled(a: mat66d, scale: vec6d, shift: wp.float64):
     return lo, piv
 
 @wp.func
-def lean_solve(a: mat66d, rhs: vec6d, reg: wp.float64):
-    """y with A y = rhs and whether it was regularised: :func:`~magwarp.magnetics.commutation.solve_scaled`'s
-    arithmetic (A's lower triangle scaled to a unit diagonal, Cholesky, + reg I when a pivot falls below reg), with
-    one reciprocal per pivot instead of a division per entry and every loop unrolled (126 registers on sm_90
-    against 178)."""
+def unit_scale(a: mat66d) -> vec6d:
+    """The scaling of A's rows and columns to a unit diagonal (1 where a diagonal entry is not positive)."""
     scale = vec6d()
     for r in range(6):
         scale[r] = ONE
         if a[r, r] > wp.float64(0.0):
             scale[r] = ONE / wp.sqrt(a[r, r])
-    lo, piv = chol_scaled(a, scale, wp.float64(0.0))
-    regd = bool(False)
-    if piv < reg:
-        lo, piv = chol_scaled(a, scale, reg)
-        regd = True
+    return scale
+
+
+@wp.func
+def chol_solve(lo: mat66d, scale: vec6d, rhs: vec6d) -> vec6d:
+    """x with A x = rhs from :func:`chol_scaled`'s factor of the scaled A (forward, then back substitution)."""
     y = vec6d()
     for r in range(6):
         t = rhs[r] * scale[r]
@@ -186,7 +184,33 @@ def lean_solve(a: mat66d, rhs: vec6d, reg: wp.float64):
             if k > r:
                 t = t - lo[k, r] * x[k]
         x[r] = t * lo[r, r]
-    return wp.cw_mul(x, scale), regd
+    return wp.cw_mul(x, scale)
+
+
+@wp.func
+def lean_solve(a: mat66d, rhs: vec6d, reg: wp.float64):
+    """y with A y = rhs and whether it was regularised: :func:`~magwarp.magnetics.commutation.solve_scaled`'s
+    arithmetic (A's lower triangle scaled to a unit diagonal, Cholesky, + reg I when a pivot falls below reg), with
+    one reciprocal per pivot instead of a division per entry and every loop unrolled (126 registers on sm_90
+    against 178)."""
+    scale = unit_scale(a)
+    lo, piv = chol_scaled(a, scale, wp.float64(0.0))
+    regd = bool(False)
+    if piv < reg:
+        lo, piv = chol_scaled(a, scale, reg)
+        regd = True
+    return chol_solve(lo, scale, rhs), regd
+
+
+@wp.func
+def plain_solve(a: mat66d, rhs: vec6d, reg: wp.float64):
+    """:func:`lean_solve` where no regularisation is needed (the same bits), and False (no answer) where it is: A is
+    dead once factorised, so its registers hold the factor."""
+    scale = unit_scale(a)
+    lo, piv = chol_scaled(a, scale, wp.float64(0.0))
+    if piv < reg:
+        return vec6d(), False
+    return chol_solve(lo, scale, rhs), True
 
 
 @functools.cache
@@ -272,10 +296,11 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
     @wp.func
     def straight_first(c: CycleParams, m: int, lane: int, x: float, y: float, z: float, yaw: float, wanted: vec6d,
                        o: ThreadOutputs):
-        """The fast path without the active-set loop: the first solve (every coil free) and its pass; a mover with a
-        coil past its limit (or no iteration allowed) returns the flag -1 with its outputs unwritten, as
-        ``make_mover(True)``'s does (the same arithmetic in the same order: the same bits). Straight-line code: the
-        matrix is dead after the solve, not carried around a loop."""
+        """The fast path without the active-set loop: the first solve (every coil free) and its pass. A mover with a
+        coil past its limit returns the flag -1 with its outputs unwritten, as ``make_mover(True)``'s does, and so does
+        one whose system needs regularisation or that may take no iteration (the rest kernel runs their whole cycle).
+        The others get the general mover's arithmetic in the same order (the same bits). Straight-line code: the
+        matrix is dead once factorised, not carried around a loop or kept for a regularised retry."""
         cols, ids, a, out = look_up(c, m, lane, x, y, z, yaw, o)
         n = int(a[0, 5])
         if n == 0:  # no coil: zero currents, the wanted wrench undelivered (the same on every lane of the mover)
@@ -292,10 +317,10 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
             return vec6d(), ZERO, FLAG_NO_COILS
         if c.max_iter < 1:  # (the general mover's path: left to the rest kernel)
             return vec6d(), ZERO, int(-1)
-        yv, regd = lean_solve(a, wanted, c.reg)
+        yv, ok = plain_solve(a, wanted, c.reg)
+        if not ok:  # a system that needs regularisation: left to the rest kernel (the same on every lane)
+            return vec6d(), ZERO, int(-1)
         flag = int(0)
-        if regd:
-            flag = flag | FLAG_REGULARISED
         part = vec8d()
         part[7] = ONE
         for s in range(P):
