@@ -277,7 +277,8 @@ def table_variant_rows(args, device: str, params) -> list[dict]:
 #: coil ids and columns). ``fast`` is the default (16 lanes on a GPU, the straight-line first kernel); ``fast_loop``
 #: runs the general mover stopped after its first solve in the first kernel (the default until 2026-12-07).
 FAST_VARIANTS = [("fast", {}, False), ("fast_ids_cols", {}, True), ("fast_loop", {"straight": False}, False),
-                 ("fast_l8", {"lanes": 8}, False)]
+                 ("fast_l8", {"lanes": 8}, False), ("fast_l32", {"lanes": 32}, False),
+                 ("fast_r128", {"max_registers": 128}, False)]
 
 
 def fast_cycle_rows(args, device: str, params) -> list[dict]:
