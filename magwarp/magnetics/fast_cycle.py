@@ -213,6 +213,20 @@ def plain_solve(a: mat66d, rhs: vec6d, reg: wp.float64):
     return chol_solve(lo, scale, rhs), True
 
 
+@wp.func
+def finish_mover(o: ThreadOutputs, m: int, lane: int, n: int, wanted: vec6d, sums: vec8d, flag: int) -> vec6d:
+    """Mover ``m``'s row of the outputs (by its lane 0) from its summed delivered wrench (``sums[0..5]``) and loss
+    (``sums[6]``); returns the delivered wrench."""
+    delivered = vec6d(sums[0], sums[1], sums[2], sums[3], sums[4], sums[5])
+    if lane == 0:
+        o.count[m] = n
+        o.delivered[m] = delivered
+        o.residual[m] = wanted - delivered
+        o.loss[m] = sums[6]
+        o.flags[m] = flag
+    return delivered
+
+
 @functools.cache
 def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: int = 0, straight: bool = True):
     """``(mover_func, kernel, first_kernel, rest_kernel)`` of the cycle for a window of ``slots`` slots with ``lanes``
@@ -308,13 +322,7 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
                 if lane + s * L < S:
                     o.currents[m, lane + s * L] = ZERO
                     o.saturated[m, lane + s * L] = 0
-            if lane == 0:
-                o.count[m] = 0
-                o.delivered[m] = vec6d()
-                o.residual[m] = wanted
-                o.loss[m] = ZERO
-                o.flags[m] = FLAG_NO_COILS
-            return vec6d(), ZERO, FLAG_NO_COILS
+            return finish_mover(o, m, lane, 0, wanted, vec8d(), FLAG_NO_COILS), ZERO, FLAG_NO_COILS
         if c.max_iter < 1:  # (the general mover's path: left to the rest kernel)
             return vec6d(), ZERO, int(-1)
         yv, ok = plain_solve(a, wanted, c.reg)
@@ -345,14 +353,7 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
             return vec6d(), ZERO, int(-1)
         if out and lane == 0:  # as many look-ups outside the table's heights as the window's coils
             wp.atomic_add(c.table.out_of_range, 0, n)
-        delivered = vec6d(part[0], part[1], part[2], part[3], part[4], part[5])
-        if lane == 0:
-            o.count[m] = n
-            o.delivered[m] = delivered
-            o.residual[m] = wanted - delivered
-            o.loss[m] = part[6]
-            o.flags[m] = flag
-        return delivered, part[6], flag
+        return finish_mover(o, m, lane, n, wanted, part, flag), part[6], flag
 
     def make_mover(first_only: bool):
         """The mover function; ``first_only``: stop after the first solve where a coil passes its limit (the
@@ -459,14 +460,7 @@ def make_fast_cycle(slots: int, lanes: int, tiles: bool = False, max_registers: 
                         o.currents[m, j] = i
                         o.saturated[m, j] = wp.where(sat[s] != 0, 1, 0)
                 sums = reduce_sum_min(part, lane)
-            delivered = vec6d(sums[0], sums[1], sums[2], sums[3], sums[4], sums[5])
-            if lane == 0:
-                o.count[m] = n
-                o.delivered[m] = delivered
-                o.residual[m] = wanted - delivered
-                o.loss[m] = sums[6]
-                o.flags[m] = flag
-            return delivered, sums[6], flag
+            return finish_mover(o, m, lane, n, wanted, sums, flag), sums[6], flag
 
         return fast_mover
 
