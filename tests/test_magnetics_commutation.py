@@ -82,8 +82,11 @@ def test_limits_match_reference_and_are_never_exceeded(rng, size):
     for m in range(64):
         act = ids[m] >= 0
         k = ids[m][act]
+        stats = {}
         cur, delivered, sat, regd, conv = ref.commutate(gamma[m][act].T, coils.resistance[k], coils.current_limit[k],
-                                                        wrench[m])
+                                                        wrench[m], stats=stats)
+        # each solve but a converged last one fixes at least one coil; one solve where none is fixed
+        assert (stats["solves"] == 1) == (not sat.any()) and stats["solves"] <= sat.sum() + 1, (rng, m, stats)
         # A regularised (nearly singular) system amplifies rounding: compare to 1e-6 of the limits there.
         atol = 1e-6 * coils.current_limit.max() if regd else 1e-12
         assert np.allclose(out["currents"][m][act], cur, rtol=1e-9, atol=atol), (rng, m)

@@ -21,9 +21,9 @@ Two launch shapes of one kernel (:func:`make_step_kernel`) with the same arithme
 
 * tiled (CUDA): one world per thread block, one thread per mover, its state in registers for the whole step; each
   cycle the world's positions and headings are exchanged through shared memory: by default with one
-  ``__syncthreads_or`` a cycle over two buffers (:func:`share_poses`, ``native``), or through a Warp tile and a tile
-  reduction for the travel guard (about four block barriers a cycle; also the shape the CPU tests run on Warp's
-  cooperative CPU blocks);
+  ``__syncthreads_or`` a cycle over two buffers (:func:`share_poses`, ``native``; the movers' collision sizes are
+  then read from shared memory too, :func:`share_sizes`), or through a Warp tile and a tile reduction for the travel
+  guard (about four block barriers a cycle; also the shape the CPU tests run on Warp's cooperative CPU blocks);
 * per world (CPU, where a tile block is one thread wide): one thread per world, looping over its movers, the state in
   memory.
 

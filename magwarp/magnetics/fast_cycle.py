@@ -32,11 +32,13 @@ loss, flags and count. On a GPU the cycle is split by default (:func:`make_fast_
 the active-set steps of the movers it listed (about 22% in ``benchmarks/magnetics.py``'s wrenches), so the
 register-hungry loop stays out of the kernel every mover runs.
 
-Status (2026-12-06): measured on an H100 (``bash benchmarks/gpu_round.sh magnetics_fast``,
-``benchmarks/results/magnetics_fast_cycle_s34_gpu.json``): 25.6 ms per cycle of 1M movers at 16 lanes (31.0 at 8)
-against the block cycle's 72.7 ms, 2.8 ms against 7.6 at 1e5 movers, with the same currents to 3e-8 A and the same
-flags and saturations; its seven CUDA tests pass. It is the magnetic drive's and the wrench-mode actuator's cycle on
-a GPU (``cycle="fast"``, :func:`resolve_cycle`); the issue's 2 ms per cycle of 1M movers stays missed by 13x.
+Status (2026-12-07): measured on an H100 (``bash benchmarks/gpu_round.sh mag_vs_ref``,
+``benchmarks/results/magnetics_fast_new_s41_gpu.json``): 24.3 ms per cycle of 1M movers at 16 lanes (the block cycle
+72.0 ms), 2.73 ms at 1e5 movers, with the block cycle's currents, flags and saturations; its CUDA tests pass. By
+Nsight Compute (``ncu17``) the first kernel (every mover) takes 8.1 ms, bound by the table's gathers (the default
+57 MB table misses the 50 MB L2: 63% hits), and the active-set steps of the 22% of movers that saturate 16.2 ms
+(about 6.6 solves each, 255 registers, spills). It is the magnetic drive's and the wrench-mode actuator's cycle on a
+GPU (``cycle="fast"``, :func:`resolve_cycle`); the issue's 2 ms per cycle of 1M movers stays missed by 12x.
 
 On a CPU the default is one lane per mover (no reduction at all). ``lanes > 1`` on a CPU emulates the GPU's lane
 groups with one block of ``lanes`` threads per mover and ``wp.tile_sum`` reductions (``warp.config.enable_cpu_blocks``
@@ -62,9 +64,9 @@ from magwarp.magnetics.thread_cycle import ThreadOutputs, thread_outputs
 
 __all__ = ["CYCLES", "FastCycle", "GPU_LANES", "LANE_CHOICES", "make_fast_cycle", "resolve_cycle"]
 
-#: Lanes per mover on a GPU (2 movers per warp; 2 or 3 of the default 42 slots per lane). On an H100 (2026-12-06,
-#: ``benchmarks/results/magnetics_fast_cycle_s34_gpu.json``) 16 lanes took 25.6 ms per cycle of 1M movers, 8 lanes
-#: 31.0 ms and the block cycle 72.7 ms; 0.32 / 0.38 / 0.44 ms at 1,000 movers.
+#: Lanes per mover on a GPU (2 movers per warp; 2 or 3 of the default 42 slots per lane). On an H100 (2026-12-07,
+#: ``benchmarks/results/magnetics_fast_new_s41_gpu.json``) 16 lanes took 24.3 ms per cycle of 1M movers, 8 lanes
+#: 29.2 ms, 32 lanes 28.2 ms and the block cycle 72.0 ms.
 GPU_LANES = 16
 #: The lane counts a cycle may use (a power of two: the groups are aligned within a warp).
 LANE_CHOICES = (1, 2, 4, 8, 16, 32)

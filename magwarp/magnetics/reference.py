@@ -163,23 +163,26 @@ def _cholesky(a, shift):
     return lo, piv
 
 
-def commutate(gamma, resistance, limit, wrench, max_iter: int = 64, reg: float = 1e-6):
+def commutate(gamma, resistance, limit, wrench, max_iter: int = 64, reg: float = 1e-6, stats: dict | None = None):
     """Least-copper-loss currents for one mover (float64): ``gamma (6, K)``, ``resistance (K,)``, ``limit (K,)``,
     ``wrench (6,)``. Mirrors :func:`magwarp.magnetics.commutation.make_commutation_kernel`: solve for the free coils,
     step from the current currents toward that optimum as far as the limits allow, fix the coils that reach their
     limit, repeat; at most ``max_iter`` solves.
     The unit-diagonal 6 x 6 system is regularised (+ reg I) when a Cholesky pivot falls below ``reg``.
-    Returns currents, delivered wrench, saturated mask, regularised flag, converged flag."""
+    Returns currents, delivered wrench, saturated mask, regularised flag, converged flag; ``stats`` (a dict), when
+    given, receives the number of solves (``"solves"``)."""
     gamma = np.asarray(gamma, dtype=np.float64)
     resistance, limit = np.asarray(resistance, dtype=np.float64), np.asarray(limit, dtype=np.float64)
     k = gamma.shape[1]
     sat = np.zeros(k, dtype=bool)
     cur = np.zeros(k)
     regularised, converged = False, k == 0
+    solves = 0
     for _ in range(max_iter):
         free = ~sat
         if converged or not free.any():
             break
+        solves += 1
         a = (gamma[:, free] / resistance[free]) @ gamma[:, free].T
         rhs = wrench - gamma[:, sat] @ cur[sat]
         diag = np.diag(a)
@@ -201,6 +204,8 @@ def commutate(gamma, resistance, limit, wrench, max_iter: int = 64, reg: float =
         cur[free] = new
         sat[np.nonzero(free)[0][hit]] = True
         converged = alpha >= 1.0
+    if stats is not None:
+        stats["solves"] = solves
     return cur, gamma @ cur, sat, regularised, converged
 
 
