@@ -16,7 +16,7 @@
 # cycle), exchange and exchange_swarm (#18: the
 # swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps),
 # swarm_vs_ref (#18: the swarm step against an older tree), mag_vs_ref (#17: the fast magnetic cycle against an
-# older tree).
+# older tree), mag_rest (#17: its active-set launch by block size).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -165,6 +165,12 @@ for stage in "$@"; do
           --fast-cycle-only --fast-cycle-sizes ${MAG_SIZES:-100000,1000000} \
           --json "$OUT/magnetics_fast_${name}_gpu.json" 2>&1 | grep -v "^Module" | tail -8)
       done ;;
+    mag_rest)
+      # #17: the fast magnetic cycle's active-set launch by threads per block (a block retires when its slowest mover
+      # is done) at 1M movers
+      timeout 280 python3 benchmarks/magnetics.py --device cuda:0 --fast-cycle-only --fast-cycle-sizes 1000000 \
+        --fast-variants fast_rb64,fast_rb32,fast_rb16 --json "$OUT/magnetics_rest_block_gpu.json" 2>&1 \
+        | grep -v "^Module" | grep -E "fast cycle|^  \|" ;;
     b0_check)
       # B0's env step with and without full randomisation at 65,536 envs (no regression from the config refactor)
       timeout 300 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 --steps 200 --settings off,full \

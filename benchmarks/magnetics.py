@@ -278,7 +278,8 @@ def table_variant_rows(args, device: str, params) -> list[dict]:
 #: runs the general mover stopped after its first solve in the first kernel (the default until 2026-12-07).
 FAST_VARIANTS = [("fast", {}, False), ("fast_ids_cols", {}, True), ("fast_loop", {"straight": False}, False),
                  ("fast_l8", {"lanes": 8}, False), ("fast_l32", {"lanes": 32}, False),
-                 ("fast_r128", {"max_registers": 128}, False)]
+                 ("fast_r128", {"max_registers": 128}, False), ("fast_rb64", {"rest_block": 64}, False),
+                 ("fast_rb32", {"rest_block": 32}, False), ("fast_rb16", {"rest_block": 16}, False)]
 
 
 def fast_cycle_rows(args, device: str, params) -> list[dict]:
@@ -299,6 +300,11 @@ def fast_cycle_rows(args, device: str, params) -> list[dict]:
     table = TableModel(Layout.grid(args.tiles, args.tiles), params, args.table_spec, device=device)
     com = Commutation(table.coilset, device=device)
     variants = FAST_VARIANTS if gpu else [v for v in FAST_VARIANTS if not v[1]]
+    if args.fast_variants:
+        unknown = sorted(set(args.fast_variants) - {v[0] for v in FAST_VARIANTS})
+        if unknown:
+            raise SystemExit(f"unknown --fast-variants {unknown}; known: {[v[0] for v in FAST_VARIANTS]}")
+        variants = [v for v in variants if v[0] in args.fast_variants or v[0] == "fast"]
     cycles = {name: FastCycle(table, com, **opts) for name, opts, _ in variants}
     block = ControlCycle(table, com)
     from magwarp.magnetics.cycle import cycle_kernel
@@ -673,6 +679,8 @@ def main(argv=None) -> int:
     parser.add_argument("--fast-cycle-sizes", type=sizes, default=sizes(""),
                         help="movers: the block cycle beside the fast cycle (magwarp/magnetics/fast_cycle.py)")
     parser.add_argument("--fast-cycle-only", action="store_true", help="only the --fast-cycle-sizes rows")
+    parser.add_argument("--fast-variants", type=lambda t: [v for v in t.split(",") if v], default=[],
+                        help="the fast cycle's variants beside the default one (default: all of FAST_VARIANTS)")
     parser.add_argument("--json", default=None, help="default: benchmarks/results/magnetics_<cpu|gpu>.json")
     args = parser.parse_args(argv)
 

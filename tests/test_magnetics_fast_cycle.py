@@ -127,6 +127,14 @@ def test_straight_first_kernel_matches_the_loop(model, rng, cpu_blocks, lanes):
     assert (b.flags.numpy()[:2] == FLAG_NO_COILS).all()
 
 
+def test_rest_block_is_checked(model, cpu_blocks):
+    com = Commutation(model.coilset, device="cpu")
+    for bad in (0, 12, 2048, 1.5, True):
+        with pytest.raises(MagneticsError, match=rf"rest_block must be a multiple of lanes=8 .* got {bad!r}"):
+            FastCycle(model, com, lanes=8, rest_block=bad)
+    assert FastCycle(model, com, lanes=8, rest_block=16).rest_block == 16
+
+
 def test_fast_cycle_options_and_errors(model):
     com = Commutation(model.coilset, device="cpu")
     with pytest.raises(MagneticsError, match="lanes must be one of .* got 3"):

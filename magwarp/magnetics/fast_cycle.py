@@ -62,12 +62,15 @@ from magwarp.magnetics.geometry import MagneticsError
 from magwarp.magnetics.table import TableModel, column_context, quat_yaw, slot_coil, table_column_at
 from magwarp.magnetics.thread_cycle import ThreadOutputs, thread_outputs
 
-__all__ = ["CYCLES", "FastCycle", "GPU_LANES", "LANE_CHOICES", "make_fast_cycle", "resolve_cycle"]
+__all__ = ["CYCLES", "FastCycle", "GPU_LANES", "LANE_CHOICES", "REST_BLOCK", "make_fast_cycle", "resolve_cycle"]
 
 #: Lanes per mover on a GPU (2 movers per warp; 2 or 3 of the default 42 slots per lane). On an H100 (2026-12-07,
 #: ``benchmarks/results/magnetics_fast_new_s41_gpu.json``) 16 lanes took 24.3 ms per cycle of 1M movers, 8 lanes
 #: 29.2 ms, 32 lanes 28.2 ms and the block cycle 72.0 ms.
 GPU_LANES = 16
+#: CUDA threads per block of the split cycle's active-set launch (``FastCycle(rest_block=)``): the movers it runs take
+#: 2 to 29 solves each, and a block holds its registers until its slowest mover is done.
+REST_BLOCK = 128
 #: The lane counts a cycle may use (a power of two: the groups are aligned within a warp).
 LANE_CHOICES = (1, 2, 4, 8, 16, 32)
 #: The control cycle's launch shapes (the magnetic drive's and the wrench-mode actuator's ``cycle``): ``"block"``
@@ -542,7 +545,7 @@ class FastCycle:
     counter's zeroing, no host sync: graph-capturable)."""
 
     def __init__(self, model: TableModel, commutation, lanes: int | None = None, split: bool | None = None,
-                 max_registers: int = 0, straight: bool = True):
+                 max_registers: int = 0, straight: bool = True, rest_block: int | None = None):
         self.params = cycle_params(model, commutation)
         self.model, self.commutation = model, commutation
         dev = model.device
@@ -565,6 +568,14 @@ class FastCycle:
         self.straight = bool(straight)
         if int(max_registers) != max_registers or max_registers < 0:
             raise MagneticsError(f"FastCycle max_registers must be a non-negative integer, got {max_registers!r}")
+        if rest_block is None:
+            rest_block = REST_BLOCK
+        if (isinstance(rest_block, bool) or int(rest_block) != rest_block or not 0 < rest_block <= 1024
+                or rest_block % self.lanes):
+            raise MagneticsError(f"FastCycle rest_block must be a multiple of lanes={self.lanes} in 1..1024, got "
+                                 f"{rest_block!r}")
+        #: CUDA threads per block of the active-set launch (a block retires when its slowest mover is done)
+        self.rest_block = int(rest_block)
         self.mover_func, self.kernel, self.first_kernel, self.rest_kernel = make_fast_cycle(
             model.max_active, self.lanes, self.tiles, int(max_registers), self.straight)
         self._rest = self._rest_count = None
@@ -608,7 +619,7 @@ class FastCycle:
         self._rest_count.zero_()
         wp.launch(self.first_kernel, dim=n * self.lanes, block_dim=block, device=dev,
                   inputs=[self.params, pos, quat, wanted], outputs=[o, self._rest, self._rest_count])
-        wp.launch(self.rest_kernel, dim=n * self.lanes, block_dim=block, device=dev,
+        wp.launch(self.rest_kernel, dim=n * self.lanes, block_dim=block if dev.is_cpu else self.rest_block, device=dev,
                   inputs=[self.params, pos, quat, wanted, self._rest, self._rest_count], outputs=[o])
         return out
 
