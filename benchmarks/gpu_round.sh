@@ -16,7 +16,7 @@
 # cycle), exchange and exchange_swarm (#18: the
 # swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps),
 # swarm_vs_ref (#18: the swarm step against an older tree), mag_vs_ref (#17: the fast magnetic cycle against an
-# older tree), mag_rest (#17: its active-set launch by block size).
+# older tree), mag_rest (#17: its active-set launch by block size), swarm_pack (#18: several worlds per block).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 for stage in "$@"; do
@@ -171,6 +171,20 @@ for stage in "$@"; do
       timeout 280 python3 benchmarks/magnetics.py --device cuda:0 --fast-cycle-only --fast-cycle-sizes 1000000 \
         --fast-variants fast_rb64,fast_rb32,fast_rb16 --json "$OUT/magnetics_rest_block_gpu.json" 2>&1 \
         | grep -v "^Module" | grep -E "fast cycle|^  \|" ;;
+    swarm_pack)
+      # #18: several worlds per block of the swarm step (MAGWARP_SWARM_WORLDS=auto: 2 worlds of 100 movers in 7 warps,
+      # 2 of 16 or 48 in 1 or 3 warps) against one world per block: the CUDA tests (bit for bit against the per-cycle
+      # path), then swarm_load at 16,384 worlds, alternated twice
+      timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
+        -k cuda > "$OUT/pytest_swarm_pack_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_pack_gpu.log" | tail -25
+      for round in $(seq ${ROUNDS:-2}); do
+        for k in 1 auto; do
+          MAGWARP_SWARM_WORLDS=$k timeout 200 python3 benchmarks/swarm_load.py --device cuda:0 \
+            --movers ${LOAD_MOVERS:-16 48 100} --worlds 16384 --loads ${LOADS:-seek planner} \
+            --json "$OUT/swarm_pack_${k}_r${round}_gpu.json" 2>&1 | grep -v "^Module" | tail -7
+        done
+      done ;;
     b0_check)
       # B0's env step with and without full randomisation at 65,536 envs (no regression from the config refactor)
       timeout 300 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 --steps 200 --settings off,full \

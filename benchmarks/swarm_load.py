@@ -49,7 +49,7 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     import torch
 
     from magwarp.swarm import SwarmEnv, SwarmPlanner
-    from magwarp.swarm.fused import exchange
+    from magwarp.swarm.fused import exchange, worlds_per_block
     from swarm import _layout
 
     env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
@@ -80,7 +80,7 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     agents = movers * worlds
     row = {"device": device, "movers": movers, "worlds": worlds, "agents": agents, "load": load, "warm": warm,
            "steps": steps, "env_ms": ms, "agent_steps_per_s": agents / (ms * 1e-3), "step_path": env.step_path,
-           "exchange": exchange() if cuda else "-"}
+           "exchange": exchange() if cuda else "-", "worlds_per_block": worlds_per_block(movers) if cuda else "-"}
     row.update({f"{k}_per_step": v / steps for k, v in counts.items()})
     row["pending_share"] = row["pending_per_step"] / agents
     return row

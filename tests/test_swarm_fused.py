@@ -101,6 +101,21 @@ def test_fused_matches_per_cycle_on_cuda(rng, monkeypatch, exchange):
     assert _run_both(rng, 2, 100, 3, device="cuda:0", occupancy=0.45) > 0
 
 
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("exchange", ["native", "tile"])
+def test_several_worlds_per_block_on_cuda(rng, monkeypatch, exchange):
+    """Worlds packed into blocks on CUDA (2 worlds of 100 movers in 7 warps; 2 of 16 in one warp; 3 of 36 with a
+    mirrored world in the last block), either exchange, against the per-cycle path bit for bit, a zero travel budget
+    included."""
+    monkeypatch.setenv("MAGWARP_SWARM_EXCHANGE", exchange)
+    monkeypatch.setenv("MAGWARP_SWARM_WORLDS", "auto")
+    assert _run_both(rng, 5, 100, 3, device="cuda:0") > 0
+    assert _run_both(rng, 7, 16, 3, device="cuda:0", occupancy=0.45) > 0
+    monkeypatch.setenv("MAGWARP_SWARM_WORLDS", "3")
+    monkeypatch.setattr(fused_mod, "TRAVEL_SLACK", 0.0)
+    assert _run_both(rng, 4, 36, 3, device="cuda:0", occupancy=0.45) > 0
+
+
 def test_swarm_exchange_option(monkeypatch):
     """MAGWARP_SWARM_EXCHANGE picks the CUDA kernel's pose exchange; an unknown value is an error that names it."""
     monkeypatch.delenv("MAGWARP_SWARM_EXCHANGE", raising=False)
@@ -150,6 +165,38 @@ def test_tiled_kernel_with_cooperative_cpu_blocks(rng, monkeypatch, movers, shap
 
     assert _run_both(rng, 2, movers, 5, scale=300.0 if jerk else 12.0, setup=setup, occupancy=0.45,
                      collision_shape=shape, learn_jerk=jerk) > 0
+
+
+@pytest.mark.parametrize("movers, worlds, per_block, shape", [(20, 5, "2", "circle"), (20, 5, "auto", "box"),
+                                                              (36, 3, "3", "circle")])
+def test_tiled_kernel_with_several_worlds_per_block(rng, monkeypatch, movers, worlds, per_block, shape):
+    """Several worlds in one block (lane l is mover l % M of the block's world l // M; the last block's missing
+    worlds and the lanes past them mirror a mover; the travel guard is the block's): the same results as the
+    per-cycle path, on Warp's cooperative CPU blocks."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    monkeypatch.setenv("MAGWARP_SWARM_WORLDS", per_block)
+    assert fused_mod.worlds_per_block(movers) == (fused_mod.pack_worlds(movers) if per_block == "auto"
+                                                  else int(per_block)) > 1
+
+    def setup(env):
+        if env.fused_step is not None:
+            env.fused_step.tiled = True
+            env.sim._graphs.clear()
+
+    assert _run_both(rng, worlds, movers, 4, setup=setup, occupancy=0.45, collision_shape=shape) > 0
+
+
+def test_worlds_per_block_option(monkeypatch):
+    """MAGWARP_SWARM_WORLDS: 'auto' packs the worlds that waste the fewest lanes; a bad value or too many movers for
+    a block is an error that names it."""
+    monkeypatch.delenv("MAGWARP_SWARM_WORLDS", raising=False)
+    assert fused_mod.worlds_per_block(100) == fused_mod.WORLDS_PER_BLOCK == 1
+    assert [fused_mod.pack_worlds(m) for m in (16, 48, 64, 100, 256)] == [2, 2, 1, 2, 1]
+    for value, match in (("0", "'auto' or an integer >= 1, got '0'"), ("two", "got 'two'"),
+                         ("3", "MAGWARP_SWARM_WORLDS=3 worlds of 100 movers exceed the 256 threads")):
+        monkeypatch.setenv("MAGWARP_SWARM_WORLDS", value)
+        with pytest.raises(ValueError, match=match):
+            fused_mod.worlds_per_block(100)
 
 
 def test_fused_default_and_options():

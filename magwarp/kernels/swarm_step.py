@@ -19,11 +19,12 @@ candidates checks every other mover too.
 
 Two launch shapes of one kernel (:func:`make_step_kernel`) with the same arithmetic:
 
-* tiled (CUDA): one world per thread block, one thread per mover, its state in registers for the whole step; each
-  cycle the world's positions and headings are exchanged through shared memory: by default with one
-  ``__syncthreads_or`` a cycle over two buffers (:func:`share_poses`, ``native``; the movers' collision sizes are
-  then read from shared memory too, :func:`share_sizes`), or through a Warp tile and a tile reduction for the travel
-  guard (about four block barriers a cycle; also the shape the CPU tests run on Warp's cooperative CPU blocks);
+* tiled (CUDA): one world per thread block (or several: ``worlds``), one thread per mover, its state in registers
+  for the whole step; each cycle the world's positions and headings are exchanged through shared memory: by default
+  with one ``__syncthreads_or`` a cycle over two buffers (:func:`share_poses`, ``native``; the movers' collision
+  sizes are then read from shared memory too, :func:`share_sizes`), or through a Warp tile and a tile reduction for
+  the travel guard (about four block barriers a cycle; also the shape the CPU tests run on Warp's cooperative CPU
+  blocks);
 * per world (CPU, where a tile block is one thread wide): one thread per world, looping over its movers, the state in
   memory.
 
@@ -101,14 +102,14 @@ def share_sizes(op: int, lane: int, v: wp.vec3) -> wp.vec3:
 
 @functools.cache
 def make_size_of(native: bool = False):
-    """``size_of(radius, half_size, wr, wh, j)``: mover ``j``'s collision radius and half sizes as a vec3, from the
-    model's rows or, ``native``, from :func:`share_sizes`."""
+    """``size_of(radius, half_size, wr, wh, base, j)``: mover ``j``'s collision radius and half sizes as a vec3,
+    from the model's rows or, ``native``, from :func:`share_sizes` (its world's entries from lane ``base``)."""
 
     @wp.func
-    def size_of(radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int,
+    def size_of(radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, base: int,
                 j: int) -> wp.vec3:
         if wp.static(native):
-            return share_sizes(1, j, wp.vec3())
+            return share_sizes(1, base + j, wp.vec3())
         else:
             h = half_size[wh, j]
             return wp.vec3(radius[wr, j], h[0], h[1])
@@ -160,19 +161,19 @@ def make_find_candidates(native: bool = False):
 
     @wp.func
     def find_candidates(
-        starts: Any, m: int, num_movers: int, col: Collision, radius: wp.array2d(dtype=float),
+        starts: Any, base: int, m: int, num_movers: int, col: Collision, radius: wp.array2d(dtype=float),
         half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, travel: float, r: float, h: wp.vec2,
     ):
-        """Mover ``m``'s candidates in ascending order (``starts[j]``: the step-start x/y of mover ``j``, from a tile
-        or an array row; ``r``, ``h``: mover ``m``'s own sizes) and their count (more than ``MAX_CANDIDATES``: the
-        list is incomplete)."""
+        """Mover ``m``'s candidates in ascending order (``starts[base + j]``: the step-start x/y of mover ``j``, from
+        a tile, where its world's entries start at ``base``, or an array row; ``r``, ``h``: mover ``m``'s own sizes)
+        and their count (more than ``MAX_CANDIDATES``: the list is incomplete)."""
         cand = Candidates()
         count = int(0)
-        start = starts[m]
+        start = starts[base + m]
         for j in range(num_movers):
             if j != m:
-                sj = size_of(radius, half_size, wr, wh, j)
-                if is_candidate(col, start - starts[j], r, h, sj[0], wp.vec2(sj[1], sj[2]), travel):
+                sj = size_of(radius, half_size, wr, wh, base, j)
+                if is_candidate(col, start - starts[base + j], r, h, sj[0], wp.vec2(sj[1], sj[2]), travel):
                     if count < MAX_CANDIDATES:
                         cand[count] = j
                     count += 1
@@ -197,15 +198,15 @@ def make_lowest_partner(native: bool = False):
 
     @wp.func
     def lowest_partner(
-        movers: Any, cand: Any, count: int, every: bool, m: int, num_movers: int, col: Collision,
+        movers: Any, base: int, cand: Any, count: int, every: bool, m: int, num_movers: int, col: Collision,
         radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, r: float,
         h: wp.vec2, record: bool, w: int, world_pairs: wp.array(dtype=wp.int32), pair_list: wp.array2d(dtype=wp.vec2i),
     ) -> int:
         """The lowest index colliding with mover ``m`` this cycle, -1 if none (``movers``: x, y and heading (cos, sin)
-        of each mover, see :func:`pose_of`): among its ``count`` candidates ``cand``, or among every mover
-        (``every``); ``r``, ``h``: mover ``m``'s own sizes. ``record``: list the pairs (from their lower index) and
-        count them, as the last cycle does."""
-        q = pose_of(movers, m)
+        of each mover, its world's from entry ``base``, see :func:`pose_of`): among its ``count`` candidates ``cand``,
+        or among every mover (``every``); ``r``, ``h``: mover ``m``'s own sizes. ``record``: list the pairs (from
+        their lower index) and count them, as the last cycle does."""
+        q = pose_of(movers, base + m)
         p = wp.vec2(q[0], q[1])
         hd = wp.vec2(q[2], q[3])
         partner = int(-1)
@@ -217,9 +218,9 @@ def make_lowest_partner(native: bool = False):
             if not every:
                 j = cand[k]
             if j != m:
-                o = pose_of(movers, j)
+                o = pose_of(movers, base + j)
                 d = wp.vec2(p[0] - o[0], p[1] - o[1])
-                sj = size_of(radius, half_size, wr, wh, j)
+                sj = size_of(radius, half_size, wr, wh, base, j)
                 if movers_collide_cs(col, d, hd, r, h, wp.vec2(o[2], o[3]), sj[0], wp.vec2(sj[1], sj[2])):
                     if partner < 0:  # in ascending order: the first hit is the lowest index
                         partner = j
@@ -259,7 +260,7 @@ def _mover_cycle(force_fn, latency: bool, nominal: bool):
 
 @functools.cache
 def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max_registers: int = 0,
-                     native: bool = False):
+                     native: bool = False, worlds: int = 1):
     """The fused swarm step for ``force_fn``. ``block_dim`` > 0: the CUDA shape,
     ``wp.launch_tiled(kernel, dim=num_worlds, block_dim=block_dim)`` with ``block_dim`` >= the movers per world; lanes
     past the last mover mirror it (same work, no writes) so that every lane reaches every tile operation.
@@ -268,9 +269,16 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
     ``cand_count`` (int32), all ``[W, M]``, are its scratch. ``max_registers`` > 0 (CUDA): a cap on the registers per
     thread (``__maxnreg__``; more blocks per SM, maybe spills; the same arithmetic), 0: the compiler's choice.
     ``native`` (CUDA, tiled): each cycle's poses and the travel guard go through :func:`share_poses` (one block
-    barrier a cycle) instead of a Warp tile and a tile reduction (about four barriers); the same arithmetic."""
+    barrier a cycle) instead of a Warp tile and a tile reduction (about four barriers); the same arithmetic.
+    ``worlds`` (tiled): worlds per block, ``block_dim >= worlds * movers``, launched as ``dim=ceil(num_worlds /
+    worlds)``: lane ``l`` is mover ``l % M`` of the block's world ``l // M``; lanes past ``worlds * M`` and the lanes
+    of worlds past the last one mirror a mover (the same work, no writes). The travel guard is then the block's: a
+    mover past its budget makes every world of its block check every pair (the same results, more work)."""
     if native and int(block_dim) > MAX_BLOCK:
         raise ValueError(f"the native exchange holds blocks of at most {MAX_BLOCK} threads, got {block_dim}")
+    K = int(worlds)
+    if K < 1 or (int(block_dim) > 0 and K > int(block_dim)):
+        raise ValueError(f"worlds per block must be in 1..block_dim={block_dim}, got {worlds!r}")
     mover_cycle = _mover_cycle(force_fn, latency, nominal)
     NATIVE = bool(native) and int(block_dim) > 0
     lowest_partner = make_lowest_partner(NATIVE)  # (NATIVE: the other shapes' calls are static branches not taken)
@@ -325,10 +333,14 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
         cand_count: wp.array2d(dtype=wp.int32),
     ):
         if wp.static(TILED):
-            w, lane = wp.tid()
+            blk, lane = wp.tid()
             M = pos.shape[1]
-            live = lane < M
-            m = wp.min(lane, M - 1)
+            slot = wp.min(lane // M, K - 1)  # the block's world of this lane (lanes past K * M: the last one's)
+            first = slot * M  # the world's first lane: its entries in the shared buffers
+            w_raw = blk * K + slot
+            w = wp.min(w_raw, pos.shape[0] - 1)  # worlds past the last one mirror it
+            m = wp.min(lane - first, M - 1)
+            live = lane < K * M and w_raw < pos.shape[0]
             col = world_collision(col_shared, margins, w)
             wr = model_row(radius.shape[0], w)
             wh = model_row(half_size.shape[0], w)
@@ -350,7 +362,7 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
             if wp.static(latency):
                 held = delay[w]
                 Up = prev_cmd[w, m]
-            if live and lane == 0:  # per-step accumulators (ordered before the adds below by the tiles' barriers)
+            if live and m == 0:  # per-step accumulators (ordered before the adds below by the tiles' barriers)
                 world_pairs[w] = 0
                 world_walls[w] = 0
                 halted[w] = 0
@@ -365,7 +377,7 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
             if wp.static(NATIVE):  # the sizes, published by the starts' barrier below
                 share_sizes(0, lane, wp.vec3(r, h[0], h[1]))
             wp.tile_assign(starts, wp.tile(start, preserve_type=True))
-            cand, count = find_candidates(starts, m, M, col, radius, half_size, wr, wh, travel, r, h)
+            cand, count = find_candidates(starts, first, m, M, col, radius, half_size, wr, wh, travel, r, h)
             F = int(0)
             Fa = int(0)
             Wl = int(0)
@@ -395,13 +407,13 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
                     buf = c % 2
                     any_far = share_poses(0, buf, lane, wp.vec4(P[0], P[1], hd[0], hd[1]), moved_far(P, start, travel))
                     every = any_far[0] != 0.0 or count > MAX_CANDIDATES
-                    Pr = lowest_partner(buf, cand, count, every, m, M, col, radius, half_size, wr, wh, r, h,
+                    Pr = lowest_partner(buf, first, cand, count, every, m, M, col, radius, half_size, wr, wh, r, h,
                                         c == last and live, w, world_pairs, pair_list)
                 else:
                     far = wp.tile_max(wp.tile(moved_far(P, start, travel)))
                     wp.tile_assign(movers, wp.tile(wp.vec4(P[0], P[1], hd[0], hd[1]), preserve_type=True))
                     every = far[0] != 0 or count > MAX_CANDIDATES
-                    Pr = lowest_partner(movers, cand, count, every, m, M, col, radius, half_size, wr, wh, r, h,
+                    Pr = lowest_partner(movers, first, cand, count, every, m, M, col, radius, half_size, wr, wh, r, h,
                                         c == last and live, w, world_pairs, pair_list)
                 F = collision_flags(Pr, Wl)
                 Fa = Fa | F
@@ -440,7 +452,7 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
                 start_xy[w, m] = wp.vec2(pos[w, m][0], pos[w, m][1])
                 flags_any[w, m] = 0
             for m in range(M):
-                cm, nm = find_candidates(start_xy[w], m, M, col, radius, half_size, wr, wh, travel, radius[wr, m],
+                cm, nm = find_candidates(start_xy[w], 0, m, M, col, radius, half_size, wr, wh, travel, radius[wr, m],
                                          half_size[wh, m])
                 cand_list[w, m] = cm
                 cand_count[w, m] = nm
@@ -467,7 +479,7 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
                     far = wp.max(far, moved_far(n.pos, start_xy[w, m], travel))
                 for m in range(M):
                     every = far != 0 or cand_count[w, m] > MAX_CANDIDATES
-                    pr = lowest_partner(snap[w], cand_list[w, m], cand_count[w, m], every, m, M, col, radius,
+                    pr = lowest_partner(snap[w], 0, cand_list[w, m], cand_count[w, m], every, m, M, col, radius,
                                         half_size, wr, wh, radius[wr, m], half_size[wh, m], c == last, w,
                                         world_pairs, pair_list)
                     f = collision_flags(pr, wall[w, m])

@@ -61,6 +61,40 @@ def exchange() -> str:
     return value
 
 
+#: Worlds per thread block of the tiled kernel: ``1`` (a block per world), ``"auto"`` (:func:`pack_worlds`: as many
+#: as waste the fewest lanes, e.g. 2 worlds of 100 movers in 7 warps instead of 8, or 2 of 16 in one warp instead of
+#: two) or a count. The same results (the travel guard becomes the block's: more checks, the same flags). 1 stays the
+#: default until the packed shape is timed on a GPU. ``MAGWARP_SWARM_WORLDS`` overrides it, for tuning.
+WORLDS_PER_BLOCK: int | str = 1
+
+
+def pack_worlds(num_movers: int) -> int:
+    """The worlds per block that waste the fewest warp lanes per world, within :data:`MAX_FUSED_MOVERS` threads (the
+    smallest such count on a tie)."""
+    m = int(num_movers)
+    best, best_warps = 1, world_block_dim(m) // 32
+    for k in range(2, MAX_FUSED_MOVERS // m + 1):
+        warps = world_block_dim(k * m) // 32
+        if warps * best < best_warps * k:  # warps / k < best_warps / best
+            best, best_warps = k, warps
+    return best
+
+
+def worlds_per_block(num_movers: int) -> int:
+    """The tiled kernel's worlds per block for worlds of ``num_movers`` (:data:`WORLDS_PER_BLOCK`, or
+    ``MAGWARP_SWARM_WORLDS``)."""
+    value = os.environ.get("MAGWARP_SWARM_WORLDS", "").strip() or str(WORLDS_PER_BLOCK)
+    if value == "auto":
+        return pack_worlds(num_movers)
+    if not value.isdigit() or int(value) < 1:
+        raise ValueError(f"MAGWARP_SWARM_WORLDS must be 'auto' or an integer >= 1, got {value!r}")
+    k = int(value)
+    if k * int(num_movers) > MAX_FUSED_MOVERS:
+        raise ValueError(f"MAGWARP_SWARM_WORLDS={k} worlds of {num_movers} movers exceed the {MAX_FUSED_MOVERS} "
+                         f"threads of a block")
+    return k
+
+
 def fused_applies(num_movers: int, on_collision: str) -> str | None:
     """None where the fused swarm step applies, else why not (for the error of an explicit ``fused=True``)."""
     if on_collision != "respawn":
@@ -116,11 +150,13 @@ class FusedSwarmStep:
                 raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks "
                                  f"(Warp's cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} "
                                  f"movers")
-            block = world_block_dim(sim.num_movers)
+            k = worlds_per_block(sim.num_movers)
+            block = world_block_dim(k * sim.num_movers)
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block,
                                           max_registers() if dev.is_cuda else 0,
-                                          native=dev.is_cuda and exchange() == "native")
-            wp.launch_tiled(kernel, dim=[sim.num_worlds], inputs=[*args, *self._scratch], block_dim=block, device=dev)
+                                          native=dev.is_cuda and exchange() == "native", worlds=k)
+            wp.launch_tiled(kernel, dim=[-(-sim.num_worlds // k)], inputs=[*args, *self._scratch], block_dim=block,
+                            device=dev)
         else:
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, 0)
             wp.launch(kernel, dim=sim.num_worlds, inputs=[*args, *self._scratch], device=dev)
