@@ -542,7 +542,10 @@ class FastCycle:
     options; not its threads per mover) with ``lanes`` threads per mover (default :data:`GPU_LANES` on a GPU, 1 on a
     CPU; more than 1 on a CPU needs ``warp.config.enable_cpu_blocks``), in one launch or (``split``, the default on a
     GPU) the fast path of every mover, then the active-set steps of the movers it left (3 launches with the
-    counter's zeroing, no host sync: graph-capturable)."""
+    counter's zeroing, no host sync: graph-capturable). ``max_registers``: a cap on the kernels' registers per thread
+    (0: the compiler's choice); ``straight``: the split cycle's first kernel as straight-line code (the default; False:
+    the general mover stopped after its first solve, the same results); ``rest_block``: CUDA threads per block of the
+    active-set launch (default :data:`REST_BLOCK`; a multiple of ``lanes``)."""
 
     def __init__(self, model: TableModel, commutation, lanes: int | None = None, split: bool | None = None,
                  max_registers: int = 0, straight: bool = True, rest_block: int | None = None):
