@@ -428,7 +428,6 @@ class GoalSeekingPlanner:
                        dim=2)
         cand = vel.unsqueeze(2) + dv
         cand = clip_norm(cand, self.v_max * 0.999)
-        K = cand.shape[2]
 
         tx, ty = self._trajectories(pos, vel, cand)  # (N, M, K, S) each
         S = tx.shape[-1]

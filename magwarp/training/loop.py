@@ -438,7 +438,7 @@ class Session:
         return self.timer.total >= float(target.reached["wall_s"]) + float(getattr(args, "past_target", 0.0) or 0.0)
 
     def _log(self, global_step: int, now: float, head: dict, tail: Callable[[], dict], log_now: bool) -> None:
-        args, timer = self.args, self.timer
+        timer = self.timer
         if log_now:
             self.stats = self.tracker.pop()
             sps = (global_step - self.steps_at_log) / max(now - self.last_log, 1e-9)

@@ -93,7 +93,7 @@ def main(argv=None) -> int:
         log.close()
         failed += rc != 0
         print(f"[{time.strftime('%H:%M:%S')}] {name} finished (exit {rc})", flush=True)
-    print(f"\n| run | env | env steps | wall (s) | train success | eval success | eval collisions/episode |")
+    print("\n| run | env | env steps | wall (s) | train success | eval success | eval collisions/episode |")
     print("|---|---|---|---|---|---|---|")
     for name in names:
         row = _summary(work / name)
