@@ -19,6 +19,18 @@
 # older tree), mag_rest (#17: its active-set launch by block size), swarm_pack (#18: several worlds per block).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
+# swarm_load at 16,384 worlds with the environment variable VAR set to each of VALUES in turn, the whole set ROUNDS
+# times (default 2); JSON "$OUT/swarm_NAME_VALUE_rROUND_gpu.json". Arguments: VAR NAME "VALUES" "MOVERS" "LOADS" LIMIT.
+swarm_load_by() {
+  local var=$1 name=$2 values=$3 movers=$4 loads=$5 limit=$6 round v
+  for round in $(seq ${ROUNDS:-2}); do
+    for v in $values; do
+      env "$var=$v" timeout "$limit" python3 benchmarks/swarm_load.py --device cuda:0 --movers $movers \
+        --worlds 16384 --loads $loads --json "$OUT/swarm_${name}_${v}_r${round}_gpu.json" 2>&1 | grep -v "^Module" \
+        | tail -8
+    done
+  done
+}
 for stage in "$@"; do
   log "$stage"
   case "$stage" in
@@ -121,13 +133,8 @@ for stage in "$@"; do
         tests/test_step_blocks.py tests/test_swarm_graph.py tests/test_graph_step.py > "$OUT/pytest_exchange_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_exchange_gpu.log" | tail -25 ;;
     exchange_swarm)
-      for round in 1 2; do
-        for ex in tile native; do
-          MAGWARP_SWARM_EXCHANGE=$ex timeout 300 python3 benchmarks/swarm_load.py --device cuda:0 \
-            --movers ${LOAD_MOVERS:-64 100 256} --worlds 16384 --loads ${LOADS:-seek still} \
-            --json "$OUT/swarm_exchange_${ex}_r${round}_gpu.json" 2>&1 | grep -v "^Module" | tail -8
-        done
-      done ;;
+      swarm_load_by MAGWARP_SWARM_EXCHANGE exchange "tile native" "${LOAD_MOVERS:-64 100 256}" "${LOADS:-seek still}" \
+        300 ;;
     caps)
       # #18, #24: register caps per thread (occupancy against spills) of the swarm step kernel with the native exchange
       # (MAGWARP_SWARM_MAX_REGISTERS, 16,384 worlds, seek and still) and of B0's movers kernel
@@ -178,13 +185,7 @@ for stage in "$@"; do
       timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
         -k cuda > "$OUT/pytest_swarm_pack_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_pack_gpu.log" | tail -25
-      for round in $(seq ${ROUNDS:-2}); do
-        for k in 1 auto; do
-          MAGWARP_SWARM_WORLDS=$k timeout 200 python3 benchmarks/swarm_load.py --device cuda:0 \
-            --movers ${LOAD_MOVERS:-16 48 100} --worlds 16384 --loads ${LOADS:-seek planner} \
-            --json "$OUT/swarm_pack_${k}_r${round}_gpu.json" 2>&1 | grep -v "^Module" | tail -7
-        done
-      done ;;
+      swarm_load_by MAGWARP_SWARM_WORLDS pack "1 auto" "${LOAD_MOVERS:-16 48 100}" "${LOADS:-seek planner}" 200 ;;
     b0_check)
       # B0's env step with and without full randomisation at 65,536 envs (no regression from the config refactor)
       timeout 300 python3 benchmarks/rand_gaps.py --device cuda:0 --num-envs 65536 --steps 200 --settings off,full \
