@@ -133,6 +133,8 @@ def test_rest_block_is_checked(model, cpu_blocks):
         with pytest.raises(MagneticsError, match=rf"rest_block must be a multiple of lanes=8 .* got {bad!r}"):
             FastCycle(model, com, lanes=8, rest_block=bad)
     assert FastCycle(model, com, lanes=8, rest_block=16).rest_block == 16
+    with pytest.raises(MagneticsError, match="straight must be True or False, got 'no'"):
+        FastCycle(model, com, straight="no")
 
 
 def test_fast_cycle_options_and_errors(model):

@@ -568,7 +568,9 @@ class FastCycle:
         #: Two launches (the fast path of every mover, then the full steps of those a limit stopped): see
         #: :func:`make_fast_cycle`.
         self.split = bool(split)
-        self.straight = bool(straight)
+        if not isinstance(straight, bool):
+            raise MagneticsError(f"FastCycle straight must be True or False, got {straight!r}")
+        self.straight = straight
         if int(max_registers) != max_registers or max_registers < 0:
             raise MagneticsError(f"FastCycle max_registers must be a non-negative integer, got {max_registers!r}")
         if rest_block is None:
