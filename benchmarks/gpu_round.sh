@@ -16,7 +16,8 @@
 # cycle), exchange and exchange_swarm (#18: the
 # swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps),
 # swarm_vs_ref (#18: the swarm step against an older tree), mag_vs_ref (#17: the fast magnetic cycle against an
-# older tree), mag_rest (#17: its active-set launch by block size), swarm_pack (#18: several worlds per block).
+# older tree), mag_rest (#17: its active-set launch by block size), swarm_pack (#18: several worlds per block),
+# swarm_sift (#18: the observation's sift).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 # swarm_load at 16,384 worlds with the environment variable VAR set to each of VALUES in turn, the whole set ROUNDS
@@ -178,6 +179,16 @@ for stage in "$@"; do
       timeout 280 python3 benchmarks/magnetics.py --device cuda:0 --fast-cycle-only --fast-cycle-sizes 1000000 \
         --fast-variants fast_rb64,fast_rb32,fast_rb16 --json "$OUT/magnetics_rest_block_gpu.json" 2>&1 \
         | grep -v "^Module" | grep -E "fast cycle|^  \|" ;;
+    swarm_sift)
+      # #18: the observation's sift (only the candidates within the radius merged into the slots): the CUDA tests of
+      # the observations (bit for bit against the grid), the kernel alone by variant (swarm_obs.py), then the env step
+      # with the sift off and on (MAGWARP_OBS_SIFT), alternated twice
+      timeout 240 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings \
+        tests/test_swarm_observations.py -k cuda > "$OUT/pytest_swarm_sift_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_sift_gpu.log" | tail -25
+      timeout 200 python3 benchmarks/swarm_obs.py --device cuda:0 --movers ${OBS_MOVERS:-100 256} \
+        --json "$OUT/swarm_obs_sift_gpu.json" 2>&1 | grep -v "^Module" | grep -E " full |no_rays|Error" | tail -24
+      swarm_load_by MAGWARP_OBS_SIFT sift "0 1" "${LOAD_MOVERS:-100 256}" "${LOADS:-planner}" 200 ;;
     swarm_pack)
       # #18: several worlds per block of the swarm step (MAGWARP_SWARM_WORLDS=auto: 2 worlds of 100 movers in 7 warps,
       # 2 of 16 or 48 in 1 or 3 warps) against one world per block: the CUDA tests (bit for bit against the per-cycle

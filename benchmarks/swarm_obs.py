@@ -10,13 +10,14 @@ ray range 1 m: the env's defaults). Variants (the rows of one part are compared 
 * ``world+rect``: the rays in closed form (:func:`~magwarp.kernels.neighbors.ray_to_rect`: the layout is full);
 * ``world+merge``: the branch-free merge of every candidate into the slots;
 * ``world+merge+rect``: both;
+* ``world+merge+rect+sift``: and only the candidates within the radius merged (a word of 32 at a time);
 * ``grid``: the grid search (binning included, three launches), the tile walk.
 
-Parts (``world`` and ``world+merge+rect`` only): ``full``; ``no_rays`` (num_rays 0); ``no_nbrs`` (k 0: own state
-and rays); ``own`` (k 0, no rays: the row writes and the launch, a floor). Each time is the median of 5 batches of
-``--calls`` back-to-back calls (one synchronisation per batch), per call; on CUDA also ``graph_ms``, the
-same call recorded as one CUDA graph and replayed back to back (the kernel's device time, without the host's
-per-call work that the eager time may be bound by).
+Parts (``world``, ``world+merge+rect`` and ``world+merge+rect+sift`` only): ``full``; ``no_rays`` (num_rays 0);
+``no_nbrs`` (k 0: own state and rays); ``own`` (k 0, no rays: the row writes and the launch, a floor). Each time is
+the median of 5 batches of ``--calls`` back-to-back calls (one synchronisation per batch), per call; on CUDA also
+``graph_ms``, the same call recorded as one CUDA graph and replayed back to back (the kernel's device time, without
+the host's per-call work that the eager time may be bound by).
 
     python benchmarks/swarm_obs.py --device cuda:0 --json benchmarks/results/swarm_obs_gpu.json   # 16,384 worlds
     python benchmarks/swarm_obs.py --device cpu                                                   # smoke: 8 worlds
@@ -36,15 +37,16 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from common import batched_ms, finish, start_run  # noqa: E402
 
 OCCUPANCY = 0.25  # movers per tile (benchmarks/swarm.py)
-VARIANTS = {  # name: (search, merge, rect)
-    "world": ("world", False, False),
-    "world+rect": ("world", False, True),
-    "world+merge": ("world", True, False),
-    "world+merge+rect": ("world", True, True),
-    "grid": ("grid", False, False),
+VARIANTS = {  # name: (search, merge, rect, sift)
+    "world": ("world", False, False, False),
+    "world+rect": ("world", False, True, False),
+    "world+merge": ("world", True, False, False),
+    "world+merge+rect": ("world", True, True, False),
+    "world+merge+rect+sift": ("world", True, True, True),
+    "grid": ("grid", False, False, False),
 }
 PARTS = {"full": (8, 8), "no_rays": (8, 0), "no_nbrs": (0, 8), "own": (0, 0)}  # (k, num_rays)
-PART_VARIANTS = ("world", "world+merge+rect")
+PART_VARIANTS = ("world", "world+merge+rect", "world+merge+rect+sift")
 
 
 def _layout(movers: int):
@@ -91,17 +93,17 @@ def bench(worlds: int, movers: int, device: str, calls: int) -> list[dict]:
     goals = torch.as_tensor(rng.random((worlds, movers, 2)) * ext, dtype=torch.float32, device=tdev)
     rows, ref = [], {}
     for part, (k, rays) in PARTS.items():
-        for name, (search, merge, rect) in VARIANTS.items():
+        for name, (search, merge, rect, sift) in VARIANTS.items():
             if part != "full" and name not in PART_VARIANTS:
                 continue
             if search == "grid" and part != "full":
                 continue
             obs = LocalObservations(layout, worlds, movers, k=k, num_rays=rays, radius=1.0, max_range=1.0,
                                     search=search, device=device)
-            obs.merge, obs.rect = merge, rect
+            obs.merge, obs.rect, obs.sift = merge, rect, sift
             out = torch.empty(worlds, movers, 4 + obs.dim, device=tdev)
 
-            def call():
+            def call(obs=obs, out=out):
                 obs.observe(pos_wp, vel_wp, out, goals=goals)
 
             ms = batched_ms(call, device, calls, warmup=3)

@@ -190,14 +190,17 @@ def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", unrolled
     return obs
 
 
-@pytest.mark.parametrize("search,tiled,unrolled,staged,device", [
-    ("world", False, False, False, "cpu"), ("world", True, True, False, "cpu"), ("world", True, False, True, "cpu"),
-    ("grid", False, True, False, "cpu"), ("world", True, None, False, "cuda:0"), ("world", True, None, True, "cuda:0"),
-    ("grid", True, False, False, "cuda:0")])  # tiled: the attribute (the grid ignores it)
-def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, staged, device):
+@pytest.mark.parametrize("search,tiled,unrolled,staged,device,sift", [
+    ("world", False, False, False, "cpu", None), ("world", True, True, False, "cpu", None),
+    ("world", True, False, True, "cpu", None), ("grid", False, True, False, "cpu", None),
+    ("world", True, None, False, "cuda:0", None), ("world", True, None, True, "cuda:0", False),
+    ("world", True, None, True, "cuda:0", True),
+    ("grid", True, False, False, "cuda:0", None)])  # tiled: the attribute (the grid ignores it); sift None: default
+def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, staged, device, sift):
     """Every search (the grid's cells; every mover of the world, per thread or a block per world with the positions in
     shared memory, its rows written directly or staged in shared memory) and either insertion into the sorted slots
-    (CUDA's unrolled chain, the CPU's shift) write the same rows bit for bit, which match the brute-force reference:
+    (CUDA's unrolled chain, the CPU's shift; on CUDA the merge, with or without the sift) write the same rows bit for
+    bit, which match the brute-force reference:
     clusters with more than k candidates, isolated movers with fewer than k (padded, masked), movers over holes and
     off the layout, a NaN mover (never a neighbour, its own row flagged), a world size that leaves idle lanes in the
     last warp. On CUDA (where present) against the grid kernel of the same build."""
@@ -226,6 +229,8 @@ def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled
     ref = _search_obs(layout, w, m, "grid", False, monkeypatch, **kw)
     obs = _search_obs(layout, w, m, search, tiled, monkeypatch, unrolled=unrolled, staged=staged, **kw)
     assert obs.search == search and obs.tiled == tiled
+    if sift is not None:
+        obs.sift = sift
     assert (ref.unrolled, obs.unrolled) == (device != "cpu", device != "cpu" if unrolled is None else unrolled)
     pos3, vel3 = _sim_arrays(xy_nan, vel, device)
     rows = [torch.full((w, m, 4 + ref.dim), 7.0, device=device) for _ in range(2)]
@@ -295,9 +300,11 @@ def test_search_option_errors():
         obs.compute(*_sim_arrays(np.zeros((1, 4, 2)), np.zeros((1, 4, 2))))
 
 
-@pytest.mark.parametrize("tiled,staged", [(False, False), (True, False), (True, True)])
-def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tiled, staged):
-    """The world search's branch-free merge into the slots and the closed-form rays of a full rectangle
+@pytest.mark.parametrize("tiled,staged,sift", [(False, False, False), (True, False, False), (True, True, False),
+                                               (False, False, True), (True, True, True)])
+def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tiled, staged, sift):
+    """The world search's branch-free merge into the slots (all candidates, or ``sift``: only those within the
+    radius, a word of 32 at a time) and the closed-form rays of a full rectangle
     (:func:`~magwarp.kernels.neighbors.ray_to_rect`) write the same rows bit for bit as the chain and the tile walk:
     movers on tile boundaries and the layout's edges, off the layout, a cluster, a NaN mover; rays shorter and
     longer than the layout; a hole turns the closed form off (and asking for it is an error)."""
@@ -324,7 +331,7 @@ def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tile
         ref.rect = False
         obs = _search_obs(layout, w, m, "world", tiled, monkeypatch, unrolled=True, staged=staged, **kw)
         assert obs.rect and not obs.merge  # CPU defaults: closed-form rays, the chain (CUDA: the merge)
-        obs.merge = True
+        obs.merge, obs.sift = True, sift
         rows = [torch.full((w, m, 4 + ref.dim), 7.0) for _ in range(2)]
         for o, out in zip((ref, obs), rows):
             o.observe(pos3, vel3, out, goals=goals)
@@ -343,3 +350,17 @@ def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tile
         obs.compute(*_sim_arrays(np.full((1, 4, 2), 0.1), np.zeros((1, 4, 2))))
     with pytest.raises(ValueError, match="radius squared"):
         LocalObservations(np.ones((3, 3)), 1, 4, radius=1e20, device="cpu")
+
+
+def test_sift_default_follows_the_environment(monkeypatch):
+    """``MAGWARP_OBS_SIFT`` picks the CUDA default of the sift (0 or 1); another value is an error naming it; the
+    CPU's default is off either way."""
+    from magwarp.kernels import neighbors as knb
+
+    for text, want in (("0", False), ("1", True), ("", knb.SIFT)):
+        monkeypatch.setenv("MAGWARP_OBS_SIFT", text)
+        assert knb.sift_default() is want
+        assert LocalObservations(np.ones((3, 3)), 1, 4, device="cpu").sift is False
+    monkeypatch.setenv("MAGWARP_OBS_SIFT", "yes")
+    with pytest.raises(ValueError, match="MAGWARP_OBS_SIFT must be 0 or 1, got 'yes'"):
+        knb.sift_default()

@@ -22,6 +22,7 @@ and a per-world flag for any non-finite entry.
 from __future__ import annotations
 
 import functools
+import os
 from typing import Any
 
 import warp as wp
@@ -33,6 +34,19 @@ from magwarp.types import Grid
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 BIG = 1.0e30
+
+
+# The lowest set bit's index of a non-zero word (the world search's sift walks a word of candidates by it).
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    return __ffs((int)x) - 1;
+#else
+    return __builtin_ctz(x);
+#endif
+""")
+def low_bit(x: wp.uint32) -> int:
+    """Index of the lowest set bit of ``x`` (``x`` != 0)."""
+    ...
 
 
 @wp.kernel
@@ -154,11 +168,21 @@ MAX_WORLD_SCAN_CPU = 128
 #: (``python benchmarks/swarm.py --device cuda:0 --fused-sweep --fused-movers 256 --fused-worlds 16384``,
 #: swarm_fused_s35_*_gpu.json); before the merge the grid won at 256 (7.13 against 4.28 ms, 2026-11-25).
 WORLD_SEARCH_CUDA = MAX_WORLD_BLOCK
+#: the world search's sift on CUDA by default (:class:`magwarp.swarm.LocalObservations` ``sift``): not yet timed
+SIFT = False
+
+
+def sift_default() -> bool:
+    """:data:`SIFT`, or ``MAGWARP_OBS_SIFT`` (``0`` or ``1``) where set."""
+    text = os.environ.get("MAGWARP_OBS_SIFT", "").strip()
+    if text not in ("", "0", "1"):
+        raise ValueError(f"MAGWARP_OBS_SIFT must be 0 or 1, got {text!r}")
+    return SIFT if text == "" else text == "1"
 
 
 @functools.cache
 def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, merge: bool = False,
-               rect: bool = False):
+               rect: bool = False, sift: bool = False):
     """The pieces of a mover's observation row (see :func:`make_observation_kernel`): ``own_state``, ``nearest``
     (the k nearest within the radius, by ``search``), ``write_slots`` and ``write_rays``."""
     K, R = int(k), int(num_rays)
@@ -169,7 +193,26 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, mer
     BASE = 4 * int(WITH_STATE) + 2 * int(WITH_ACC) + int(WITH_CARRY)
     GRID, UNROLLED = search == "grid", bool(unrolled)
     MERGE = bool(merge) and not GRID  # candidates come in index order: a branch-free merge (see nearest)
+    SIFT = MERGE and bool(sift)  # only the candidates within the radius reach the merge (see nearest)
     RECT = bool(rect)
+
+    @wp.func
+    def merge_in(D: Any, I: Any, key: float, j: int):
+        """Candidate ``(key, j)`` merged into the sorted slots with no branch (see :func:`nearest`); a NaN key
+        changes nothing."""
+        before = bool(False)  # the candidate goes before the slot above
+        up_d = float(0.0)
+        up_i = int(0)
+        for s in range(wp.static(KK)):
+            here = key < D[s]
+            old_d = D[s]
+            old_i = I[s]
+            D[s] = wp.where(here, wp.where(before, up_d, key), old_d)
+            I[s] = wp.where(here, wp.where(before, up_i, j), old_i)
+            before = here
+            up_d = old_d
+            up_i = old_i
+        return D, I
 
     @wp.func
     def own_state(
@@ -218,25 +261,38 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, mer
             for s in range(KK):
                 D[s] = wp.inf
                 I[s] = -1
+            if wp.static(SIFT):
+                # A word of 32 candidates at a time: first the bits of those within the radius (a compare each),
+                # then only those, lowest bit first (index order), through the merge. A warp merges as often as its
+                # lane with the most such bits in the word, not once per candidate: about 13 movers lie within the
+                # env's 1 m at 0.25 movers per tile. The same slots: a rejected candidate's merge changes nothing.
+                base = int(0)
+                while base < num_movers:
+                    bits = wp.uint32(0)
+                    for b in range(wp.min(32, num_movers - base)):
+                        j = base + b
+                        q = rows[j]
+                        ex = q[0] - p[0]
+                        ey = q[1] - p[1]
+                        d2 = ex * ex + ey * ey
+                        if d2 <= r2 and j != m:
+                            bits = bits | (wp.uint32(1) << wp.uint32(b))
+                    while bits != wp.uint32(0):
+                        j = base + low_bit(bits)
+                        bits = bits & (bits - wp.uint32(1))
+                        q = rows[j]
+                        ex = q[0] - p[0]
+                        ey = q[1] - p[1]
+                        D, I = merge_in(D, I, ex * ex + ey * ey, j)
+                    base += 32
+                return D, I
             nan = wp.nan
             for j in range(num_movers):
                 q = rows[j]
                 ex = q[0] - p[0]
                 ey = q[1] - p[1]
                 d2 = ex * ex + ey * ey
-                key = wp.where(d2 <= r2 and j != m, d2, nan)
-                before = bool(False)  # the candidate goes before the slot above
-                up_d = float(0.0)
-                up_i = int(0)
-                for s in range(wp.static(KK)):
-                    here = key < D[s]
-                    old_d = D[s]
-                    old_i = I[s]
-                    D[s] = wp.where(here, wp.where(before, up_d, key), old_d)
-                    I[s] = wp.where(here, wp.where(before, up_i, j), old_i)
-                    before = here
-                    up_d = old_d
-                    up_i = old_i
+                D, I = merge_in(D, I, wp.where(d2 <= r2 and j != m, d2, nan), j)
             return D, I
         for s in range(KK):
             D[s] = BIG
@@ -342,7 +398,8 @@ def _row_funcs(k: int, num_rays: int, own: int, search: str, unrolled: bool, mer
 
 @functools.cache
 def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid", block_dim: int = 0,
-                           unrolled: bool = True, staged: bool = False, merge: bool = False, rect: bool = False):
+                           unrolled: bool = True, staged: bool = False, merge: bool = False, rect: bool = False,
+                           sift: bool = False):
     """The fused observation kernel for fixed ``k``, ``num_rays`` and own-state parts ``own`` (bits of
     :data:`OWN_STATE`, :data:`OWN_ACC`, :data:`OWN_CARRY`). Row of a mover: its own state, then per neighbour slot
     (relative x, y, relative vx, vy, mask; nearest first, ties by the lower index; zeros in padded slots), then
@@ -367,7 +424,8 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
     the same slots either way. ``merge`` (world search only; the grid ignores it): every candidate (they come in
     index order) is merged into the slots with no branch (a compare and two selects per slot), instead of a branch to
     the chain or shift taken by whichever lane keeps it (on CUDA nearly every candidate for some lane of a warp); the
-    same slots while the radius squared is finite.
+    same slots while the radius squared is finite. ``sift`` (with ``merge``): only the candidates within the radius
+    are merged, a word of 32 at a time (their bits first, then the set bits in index order); the same slots.
 
     ``rect``: the layout has every tile of its rectangle (``tiles`` all ones): the rays by :func:`ray_to_rect` (no
     tile read, no walk), the same distances bit for bit."""
@@ -375,7 +433,7 @@ def make_observation_kernel(k: int, num_rays: int, own: int, search: str = "grid
         raise ValueError(f"search must be one of {SEARCHES}, got {search!r}")
     K, R = int(k), int(num_rays)
     own_state, nearest, write_slots, write_rays, DIM = _row_funcs(K, R, int(own), search, bool(unrolled),
-                                                                  bool(merge), bool(rect))
+                                                                  bool(merge), bool(rect), bool(sift))
     KK = max(K, 1)
     TILED = search == "world" and int(block_dim) > 0
     STAGED = TILED and bool(staged)

@@ -97,6 +97,10 @@ class LocalObservations:
         #: with the rays alone (0.81 against 1.67 at 100 movers; ``python benchmarks/swarm_obs.py --device cuda:0``,
         #: swarm_obs_s34_gpu.json, 2026-12-06); off on the CPU, where it was slower (0.40 against 0.30 ms at 8 x 64)
         self.merge = dev.is_cuda
+        #: with the merge, only the candidates within the radius are merged, a word of 32 at a time (their bits first,
+        #: then the set bits in index order); the same slots. Default: :data:`~magwarp.kernels.neighbors.SIFT` on CUDA
+        #: (``MAGWARP_OBS_SIFT=0|1`` overrides it, a tuning knob for benchmarks), off on the CPU
+        self.sift = dev.is_cuda and knb.sift_default()
         #: the layout has every tile of its rectangle: the wall rays in closed form (neighbors.ray_to_rect: each axis's
         #: exit as the tile walk's own running sum, no tile read), the same distances bit for bit; settable (off: the
         #: tile walk, which any layout may use)
@@ -201,7 +205,8 @@ class LocalObservations:
         if self.rect and not self._full:
             raise ValueError("rect rays need a layout with every tile of its rectangle")
         kernel = knb.make_observation_kernel(self.k, self.num_rays, bits, self.search, block, self.unrolled,
-                                              bool(block) and self.staged, bool(self.merge), bool(self.rect))
+                                              bool(block) and self.staged, bool(self.merge), bool(self.rect),
+                                              bool(self.merge and self.sift))
         with on_torch_stream(dev):
             self.nonfinite.zero_()
             if self.k > 0 and grid:
