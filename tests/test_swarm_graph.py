@@ -86,7 +86,7 @@ def test_graph_key_follows_every_launch_shape(monkeypatch):
                (env.placer, "search", "grid" if env.placer.search == "world" else "world"),
                (env.respawn_placer, "search", "grid" if env.respawn_placer.search == "world" else "world"),
                (env.local, "merge", not env.local.merge), (env.local, "staged", not env.local.staged),
-               (env.local, "unrolled", not env.local.unrolled)]
+               (env.local, "unrolled", not env.local.unrolled), (env.local, "sift", not env.local.sift)]
     for obj, name, value in changes:
         before, saved = env._graph_key(), getattr(obj, name)
         setattr(obj, name, value)

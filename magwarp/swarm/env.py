@@ -472,7 +472,7 @@ class SwarmEnv(MagwarpVecEnv):
 
     @staticmethod
     def _search_key(local: LocalObservations) -> tuple:
-        return (local.search, local.staged, local.tiled, local.unrolled, local.merge, local.rect)
+        return (local.search, local.staged, local.tiled, local.unrolled, local.merge, local.rect, local.sift)
 
     def _graph_step(self):
         """One step by graph replay (slot 0 and 1 alternate); a slot's first step runs eagerly, then is recorded."""
