@@ -17,7 +17,7 @@
 # swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps),
 # swarm_vs_ref (#18: the swarm step against an older tree), mag_vs_ref (#17: the fast magnetic cycle against an
 # older tree), mag_rest (#17: its active-set launch by block size), swarm_pack (#18: several worlds per block),
-# swarm_sift (#18: the observation's sift).
+# swarm_sift (#18: the observation's sift), swarm_abc (#18: an older tree, the sift off / on / on with packing).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 # swarm_load at 16,384 worlds with the environment variable VAR set to each of VALUES in turn, the whole set ROUNDS
@@ -189,6 +189,19 @@ for stage in "$@"; do
       timeout 200 python3 benchmarks/swarm_obs.py --device cuda:0 --movers ${OBS_MOVERS:-100 256} \
         --json "$OUT/swarm_obs_sift_gpu.json" 2>&1 | grep -v "^Module" | grep -E " full |no_rays|Error" | tail -24
       swarm_load_by MAGWARP_OBS_SIFT sift "0 1" "${LOAD_MOVERS:-100 256}" "${LOADS:-planner}" 200 ;;
+    swarm_abc)
+      # #18: the env step of an older tree (REF) beside this one with the observation's sift off, on, and on with
+      # several worlds per block (MAGWARP_SWARM_WORLDS=auto), at 16,384 worlds, the four alternated ROUNDS times
+      for round in $(seq ${ROUNDS:-2}); do
+        for cfg in ref nosift sift siftpack; do
+          tree=.; [ $cfg = ref ] && tree=${REF:-.devrun/old}
+          sift=$([ $cfg = nosift ] && echo 0 || echo 1); pack=$([ $cfg = siftpack ] && echo auto || echo 1)
+          (cd "$tree" && MAGWARP_OBS_SIFT=$sift MAGWARP_SWARM_WORLDS=$pack PYTHONPATH=/tmp/site:$PWD timeout 200 \
+            python3 benchmarks/swarm_load.py --device cuda:0 --movers ${LOAD_MOVERS:-100 256} --worlds 16384 \
+            --loads ${LOADS:-planner} --json "$OUT/swarm_${cfg}_r${round}_gpu.json" 2>&1 | grep -v "^Module" \
+            | tail -${TAIL:-4} | sed "s/^/$cfg r$round /")
+        done
+      done ;;
     swarm_pack)
       # #18: several worlds per block of the swarm step (MAGWARP_SWARM_WORLDS=auto: 2 worlds of 100 movers in 7 warps,
       # 2 of 16 or 48 in 1 or 3 warps) against one world per block: the CUDA tests (bit for bit against the per-cycle

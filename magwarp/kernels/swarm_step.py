@@ -79,44 +79,6 @@ def share_poses(op: int, buf: int, lane: int, v: wp.vec4, flag: int) -> wp.vec4:
     ...
 
 
-# The movers' collision sizes (radius, half x, half y) in shared memory for the native exchange, written once a step
-# by each lane before the block's first barrier (the start positions' tile) and read by every lane after it: the
-# partner checks then read no model row per candidate. ``op`` 0: write ``v`` at ``lane``; ``op`` 1: entry ``lane``.
-@wp.func_native("""
-#if defined(__CUDA_ARCH__)
-    __shared__ float share_sizes[SHARE_BLOCK * 3];
-    float* e = share_sizes + lane * 3;
-    if (op == 0) {
-        e[0] = v.c[0]; e[1] = v.c[1]; e[2] = v.c[2];
-        return v;
-    }
-    return wp::vec3(e[0], e[1], e[2]);
-#else
-    return v;
-#endif
-""".replace("SHARE_BLOCK", str(MAX_BLOCK)))
-def share_sizes(op: int, lane: int, v: wp.vec3) -> wp.vec3:
-    """The CUDA shared copy of the tiled step's collision sizes (see above; blocks of at most :data:`MAX_BLOCK`)."""
-    ...
-
-
-@functools.cache
-def make_size_of(native: bool = False):
-    """``size_of(radius, half_size, wr, wh, base, j)``: mover ``j``'s collision radius and half sizes as a vec3,
-    from the model's rows or, ``native``, from :func:`share_sizes` (its world's entries from lane ``base``)."""
-
-    @wp.func
-    def size_of(radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int, wh: int, base: int,
-                j: int) -> wp.vec3:
-        if wp.static(native):
-            return share_sizes(1, base + j, wp.vec3())
-        else:
-            h = half_size[wh, j]
-            return wp.vec3(radius[wr, j], h[0], h[1])
-
-    return size_of
-
-
 @wp.func
 def bounding_radius(col: Collision, r: float, half: wp.vec2) -> float:
     """Radius of a circle about the mover centre that holds its collision shape grown by the safety margin."""
@@ -125,11 +87,53 @@ def bounding_radius(col: Collision, r: float, half: wp.vec2) -> float:
     return wp.length(half + wp.vec2(col.margin, col.margin))
 
 
+# The movers' collision sizes (radius, half x, half y, bounding radius) in shared memory for the native exchange,
+# written once a step by each lane before the block's first barrier (the start positions' tile) and read by every lane
+# after it (one 16-byte load): the candidate search and the partner checks then read no model row per candidate, and
+# the search takes each partner's bounding radius as its owner computed it. ``op`` 0: write ``v`` at ``lane``;
+# ``op`` 1: entry ``lane``.
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    __shared__ __align__(16) float4 share_sizes[SHARE_BLOCK];
+    if (op == 0) {
+        share_sizes[lane] = make_float4(v.c[0], v.c[1], v.c[2], v.c[3]);
+        return v;
+    }
+    const float4 e = share_sizes[lane];
+    return wp::vec4(e.x, e.y, e.z, e.w);
+#else
+    return v;
+#endif
+""".replace("SHARE_BLOCK", str(MAX_BLOCK)))
+def share_sizes(op: int, lane: int, v: wp.vec4) -> wp.vec4:
+    """The CUDA shared copy of the tiled step's collision sizes (see above; blocks of at most :data:`MAX_BLOCK`)."""
+    ...
+
+
+@functools.cache
+def make_size_of(native: bool = False):
+    """``size_of(col, radius, half_size, wr, wh, base, j)``: mover ``j``'s collision radius, half sizes and bounding
+    radius (:func:`bounding_radius`) as a vec4, from the model's rows or, ``native``, from :func:`share_sizes` (its
+    world's entries from lane ``base``)."""
+
+    @wp.func
+    def size_of(col: Collision, radius: wp.array2d(dtype=float), half_size: wp.array2d(dtype=wp.vec2), wr: int,
+                wh: int, base: int, j: int) -> wp.vec4:
+        if wp.static(native):
+            return share_sizes(1, base + j, wp.vec4())
+        else:
+            h = half_size[wh, j]
+            r = radius[wr, j]
+            return wp.vec4(r, h[0], h[1], bounding_radius(col, r, h))
+
+    return size_of
+
+
 @wp.func
-def is_candidate(col: Collision, d0: wp.vec2, ri: float, hi: wp.vec2, rj: float, hj: wp.vec2, travel: float) -> bool:
-    """Can two movers whose step-start centres differ by ``d0`` collide in the step while each stays within
-    ``travel`` of its start?"""
-    reach = bounding_radius(col, ri, hi) + bounding_radius(col, rj, hj) + 2.0 * travel + CANDIDATE_SLACK
+def is_candidate(d0: wp.vec2, bi: float, bj: float, travel: float) -> bool:
+    """Can two movers whose step-start centres differ by ``d0`` (bounding radii ``bi``, ``bj``:
+    :func:`bounding_radius`) collide in the step while each stays within ``travel`` of its start?"""
+    reach = bi + bj + 2.0 * travel + CANDIDATE_SLACK
     return wp.dot(d0, d0) <= reach * reach
 
 
@@ -170,10 +174,11 @@ def make_find_candidates(native: bool = False):
         cand = Candidates()
         count = int(0)
         start = starts[base + m]
+        bm = bounding_radius(col, r, h)
         for j in range(num_movers):
             if j != m:
-                sj = size_of(radius, half_size, wr, wh, base, j)
-                if is_candidate(col, start - starts[base + j], r, h, sj[0], wp.vec2(sj[1], sj[2]), travel):
+                sj = size_of(col, radius, half_size, wr, wh, base, j)
+                if is_candidate(start - starts[base + j], bm, sj[3], travel):
                     if count < MAX_CANDIDATES:
                         cand[count] = j
                     count += 1
@@ -220,7 +225,7 @@ def make_lowest_partner(native: bool = False):
             if j != m:
                 o = pose_of(movers, base + j)
                 d = wp.vec2(p[0] - o[0], p[1] - o[1])
-                sj = size_of(radius, half_size, wr, wh, base, j)
+                sj = size_of(col, radius, half_size, wr, wh, base, j)
                 if movers_collide_cs(col, d, hd, r, h, wp.vec2(o[2], o[3]), sj[0], wp.vec2(sj[1], sj[2])):
                     if partner < 0:  # in ascending order: the first hit is the lowest index
                         partner = j
@@ -375,7 +380,7 @@ def make_step_kernel(force_fn, latency: bool, nominal: bool, block_dim: int, max
             if wp.static(not NATIVE):
                 movers = wp.tile_zeros(shape=BLOCK, dtype=wp.vec4, storage="shared")
             if wp.static(NATIVE):  # the sizes, published by the starts' barrier below
-                share_sizes(0, lane, wp.vec3(r, h[0], h[1]))
+                share_sizes(0, lane, wp.vec4(r, h[0], h[1], bounding_radius(col, r, h)))
             wp.tile_assign(starts, wp.tile(start, preserve_type=True))
             cand, count = find_candidates(starts, first, m, M, col, radius, half_size, wr, wh, travel, r, h)
             F = int(0)
