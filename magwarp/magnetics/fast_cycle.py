@@ -69,8 +69,10 @@ __all__ = ["CYCLES", "FastCycle", "GPU_LANES", "LANE_CHOICES", "REST_BLOCK", "ma
 #: 29.2 ms, 32 lanes 28.2 ms and the block cycle 72.0 ms.
 GPU_LANES = 16
 #: CUDA threads per block of the split cycle's active-set launch (``FastCycle(rest_block=)``): the movers it runs take
-#: 2 to 29 solves each, and a block holds its registers until its slowest mover is done.
-REST_BLOCK = 128
+#: 2 to 29 solves each, and a block holds its registers until its slowest mover is done. On an H100 (2026-12-07,
+#: ``benchmarks/results/magnetics_rest_block_s42_gpu.json``, 1M movers, 16 lanes) the cycle took 23.67 ms with 64
+#: threads, 23.78 with 32, 24.47 with 128 and 29.99 with 16, the same currents.
+REST_BLOCK = 64
 #: The lane counts a cycle may use (a power of two: the groups are aligned within a warp).
 LANE_CHOICES = (1, 2, 4, 8, 16, 32)
 #: The control cycle's launch shapes (the magnetic drive's and the wrench-mode actuator's ``cycle``): ``"block"``
