@@ -13,7 +13,9 @@ placement rounds retry them. Here the same env is timed under
 Each load runs ``--warm`` steps first (the planner's traffic settles, the respawn queue fills), then ``--steps``
 steps. The step's time is the device time between CUDA events recorded around ``env.step`` alone (the graph
 replay; on the CPU the wall clock), so the policy's time is never in it. Per load: ms per step, agent-steps/s, and
-per step the respawns asked (``info["respawn_pending"]`` and new collisions), goals reached and collisions.
+per step the respawns asked (``info["respawn_pending"]`` and new collisions), goals reached and collisions, and the
+ratio to the memory-bandwidth floor (``swarm.py``'s: the bytes an agent-step cannot avoid at the device's copy
+bandwidth, measured in the same run).
 
     python benchmarks/swarm_load.py --device cuda:0 --movers 64 256 --worlds 16384 --json out.json
     python benchmarks/swarm_load.py --device cpu --movers 64 --worlds 64 --steps 5       # smoke
@@ -50,7 +52,7 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
 
     from magwarp.swarm import SwarmEnv, SwarmPlanner
     from magwarp.swarm.fused import exchange, worlds_per_block
-    from swarm import _layout
+    from swarm import _layout, floor_bytes
 
     env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
     planner = SwarmPlanner(env) if load == "planner" else None
@@ -83,7 +85,17 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
            "exchange": exchange() if cuda else "-", "worlds_per_block": worlds_per_block(movers) if cuda else "-"}
     row.update({f"{k}_per_step": v / steps for k, v in counts.items()})
     row["pending_share"] = row["pending_per_step"] / agents
+    row["floor_bytes_per_agent_step"] = floor_bytes(env)
     return row
+
+
+def add_floor(rows: list[dict], bandwidth: float) -> None:
+    """Each row's ratio to the memory-bandwidth floor (``swarm.floor_bytes``: the simulator state read and written
+    once, the action read, the observation written per agent-step, at ``bandwidth`` bytes/s)."""
+    for row in rows:
+        row["bandwidth_gb_s"] = bandwidth / 1e9
+        row["floor_agent_steps_per_s"] = bandwidth / row["floor_bytes_per_agent_step"]
+        row["of_floor"] = row["agent_steps_per_s"] / row["floor_agent_steps_per_s"]
 
 
 def main(argv=None) -> None:
@@ -106,8 +118,12 @@ def main(argv=None) -> None:
                   f"({row['agent_steps_per_s']:.3g} agent-steps/s, {row['step_path']}); per step "
                   f"{row['pending_per_step']:.0f} waiting to respawn ({100 * row['pending_share']:.1f}%), "
                   f"{row['collided_per_step']:.0f} collided, {row['goals_per_step']:.0f} goals", flush=True)
+    from swarm import copy_bandwidth
+
+    add_floor(rows, copy_bandwidth(args.device))
     finish(rows, [("load", "load"), ("movers", "movers"), ("worlds", "worlds"), ("env_ms", "ms/step"),
-                  ("agent_steps_per_s", "agent-steps/s"), ("pending_share", "share waiting"),
+                  ("agent_steps_per_s", "agent-steps/s"), ("of_floor", "of the floor"),
+                  ("pending_share", "share waiting"),
                   ("collided_per_step", "collided/step"), ("goals_per_step", "goals/step")], info, args.json)
 
 
