@@ -17,7 +17,8 @@
 # swarm step's per-cycle exchange: tests, timing), caps (#18, #24: register caps),
 # swarm_vs_ref (#18: the swarm step against an older tree), mag_vs_ref (#17: the fast magnetic cycle against an
 # older tree), mag_rest (#17: its active-set launch by block size), swarm_pack (#18: several worlds per block),
-# swarm_sift (#18: the observation's sift), swarm_abc (#18: an older tree, the sift off / on / on with packing).
+# swarm_sift (#18: the observation's sift), swarm_abc (#18: an older tree, the sift off / on / on with packing),
+# swarm_pack_cap (#18: several worlds per block under a register cap).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 # swarm_load at 16,384 worlds with the environment variable VAR set to each of VALUES in turn, the whole set ROUNDS
@@ -200,6 +201,18 @@ for stage in "$@"; do
             python3 benchmarks/swarm_load.py --device cuda:0 --movers ${LOAD_MOVERS:-100 256} --worlds 16384 \
             --loads ${LOADS:-planner} --json "$OUT/swarm_${cfg}_r${round}_gpu.json" 2>&1 | grep -v "^Module" \
             | tail -${TAIL:-4} | sed "s/^/$cfg r$round /")
+        done
+      done ;;
+    swarm_pack_cap)
+      # #18: several worlds per block with a register cap (2 worlds of 100 movers in 224 threads: 2 blocks per SM at
+      # 128 registers, 3 at 96): worlds per block 1 or auto, cap 128 (the default) or 96, at 16,384 worlds of 100
+      # movers under the planner, the four alternated ROUNDS times
+      for round in $(seq ${ROUNDS:-2}); do
+        for cfg in 1:128 auto:128 auto:96 1:96; do
+          MAGWARP_SWARM_WORLDS=${cfg%:*} MAGWARP_SWARM_MAX_REGISTERS=${cfg#*:} timeout 200 python3 \
+            benchmarks/swarm_load.py --device cuda:0 --movers ${LOAD_MOVERS:-100} --worlds 16384 \
+            --loads ${LOADS:-planner} --json "$OUT/swarm_pack${cfg%:*}_cap${cfg#*:}_r${round}_gpu.json" 2>&1 \
+            | grep -v "^Module" | tail -${TAIL:-2} | sed "s/^/$cfg r$round /"
         done
       done ;;
     swarm_pack)
