@@ -190,17 +190,19 @@ def _search_obs(layout, w, m, search, tiled, monkeypatch, device="cpu", unrolled
     return obs
 
 
-@pytest.mark.parametrize("search,tiled,unrolled,staged,device,sift", [
-    ("world", False, False, False, "cpu", None), ("world", True, True, False, "cpu", None),
-    ("world", True, False, True, "cpu", None), ("grid", False, True, False, "cpu", None),
-    ("world", True, None, False, "cuda:0", None), ("world", True, None, True, "cuda:0", False),
-    ("world", True, None, True, "cuda:0", True),
-    ("grid", True, False, False, "cuda:0", None)])  # tiled: the attribute (the grid ignores it); sift None: default
-def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, staged, device, sift):
+@pytest.mark.parametrize("search,tiled,unrolled,staged,device,merge,sift", [
+    ("world", False, False, False, "cpu", False, False), ("world", True, True, False, "cpu", False, False),
+    ("world", True, False, True, "cpu", False, False), ("world", False, None, False, "cpu", None, None),
+    ("world", True, None, True, "cpu", None, None), ("grid", False, True, False, "cpu", None, None),
+    ("world", True, None, False, "cuda:0", None, None), ("world", True, None, True, "cuda:0", True, False),
+    ("world", True, None, True, "cuda:0", True, True), ("world", True, None, True, "cuda:0", False, False),
+    ("grid", True, False, False, "cuda:0", None, None)])  # tiled: the attribute (the grid ignores it); None: default
+def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled, unrolled, staged, device, merge,
+                                                 sift):
     """Every search (the grid's cells; every mover of the world, per thread or a block per world with the positions in
     shared memory, its rows written directly or staged in shared memory) and either insertion into the sorted slots
-    (CUDA's unrolled chain, the CPU's shift; on CUDA the merge, with or without the sift) write the same rows bit for
-    bit, which match the brute-force reference:
+    (the unrolled chain, the shift, the merge with or without the sift) write the same rows bit for bit, which match
+    the brute-force reference:
     clusters with more than k candidates, isolated movers with fewer than k (padded, masked), movers over holes and
     off the layout, a NaN mover (never a neighbour, its own row flagged), a world size that leaves idle lanes in the
     last warp. On CUDA (where present) against the grid kernel of the same build."""
@@ -229,8 +231,8 @@ def test_searches_match_reference_and_each_other(rng, monkeypatch, search, tiled
     ref = _search_obs(layout, w, m, "grid", False, monkeypatch, **kw)
     obs = _search_obs(layout, w, m, search, tiled, monkeypatch, unrolled=unrolled, staged=staged, **kw)
     assert obs.search == search and obs.tiled == tiled
-    if sift is not None:
-        obs.sift = sift
+    if merge is not None:
+        obs.merge, obs.sift = merge, sift
     assert (ref.unrolled, obs.unrolled) == (device != "cpu", device != "cpu" if unrolled is None else unrolled)
     pos3, vel3 = _sim_arrays(xy_nan, vel, device)
     rows = [torch.full((w, m, 4 + ref.dim), 7.0, device=device) for _ in range(2)]
@@ -330,7 +332,7 @@ def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tile
         ref = _search_obs(layout, w, m, "grid", False, monkeypatch, unrolled=True, **kw)
         ref.rect = False
         obs = _search_obs(layout, w, m, "world", tiled, monkeypatch, unrolled=True, staged=staged, **kw)
-        assert obs.rect and not obs.merge  # CPU defaults: closed-form rays, the chain (CUDA: the merge)
+        assert obs.rect and obs.merge and obs.sift  # the defaults: closed-form rays, the merge with the sift
         obs.merge, obs.sift = True, sift
         rows = [torch.full((w, m, 4 + ref.dim), 7.0) for _ in range(2)]
         for o, out in zip((ref, obs), rows):
@@ -353,14 +355,15 @@ def test_merge_and_rect_rays_match_the_chain_and_the_walk(rng, monkeypatch, tile
 
 
 def test_sift_default_follows_the_environment(monkeypatch):
-    """``MAGWARP_OBS_SIFT`` picks the CUDA default of the sift (0 or 1); another value is an error naming it; the
-    CPU's default is off either way."""
+    """``MAGWARP_OBS_SIFT`` picks the default of the sift (0 or 1); another value is an error naming it. On the CPU
+    the merge is on only with the sift (without it the merge is slower there than the shift)."""
     from magwarp.kernels import neighbors as knb
 
     for text, want in (("0", False), ("1", True), ("", knb.SIFT)):
         monkeypatch.setenv("MAGWARP_OBS_SIFT", text)
         assert knb.sift_default() is want
-        assert LocalObservations(np.ones((3, 3)), 1, 4, device="cpu").sift is False
+        obs = LocalObservations(np.ones((3, 3)), 1, 4, device="cpu")
+        assert obs.sift is want and obs.merge is want
     monkeypatch.setenv("MAGWARP_OBS_SIFT", "yes")
     with pytest.raises(ValueError, match="MAGWARP_OBS_SIFT must be 0 or 1, got 'yes'"):
         knb.sift_default()

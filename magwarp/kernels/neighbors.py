@@ -168,10 +168,10 @@ MAX_WORLD_SCAN_CPU = 128
 #: (``python benchmarks/swarm.py --device cuda:0 --fused-sweep --fused-movers 256 --fused-worlds 16384``,
 #: swarm_fused_s35_*_gpu.json); before the merge the grid won at 256 (7.13 against 4.28 ms, 2026-11-25).
 WORLD_SEARCH_CUDA = MAX_WORLD_BLOCK
-#: the world search's sift on CUDA by default (:class:`magwarp.swarm.LocalObservations` ``sift``): on the H100 the
+#: the world search's sift by default (:class:`magwarp.swarm.LocalObservations` ``sift``): on the H100 the
 #: observation of 16,384 worlds took 0.52 ms against 0.80 without it at 100 movers and 1.27 against 2.99 at 256, the
 #: same rows (``python benchmarks/swarm_obs.py --device cuda:0 --movers 100 256``, swarm_obs_sift_s42_gpu.json,
-#: 2026-12-07)
+#: 2026-12-07); faster on the CPU too, up to the 128 movers it scans whole worlds for (swarm_obs_sift_cpu.json)
 SIFT = True
 
 
