@@ -367,3 +367,17 @@ def test_sift_default_follows_the_environment(monkeypatch):
     monkeypatch.setenv("MAGWARP_OBS_SIFT", "yes")
     with pytest.raises(ValueError, match="MAGWARP_OBS_SIFT must be 0 or 1, got 'yes'"):
         knb.sift_default()
+
+
+@pytest.mark.parametrize("name", ["tiled", "unrolled", "staged", "merge", "sift", "rect"])
+def test_launch_switches_take_bools_only(name):
+    """Every launch choice is a bool: another value (a string, an int) is an error naming the attribute and the
+    value, and the setting is left as it was."""
+    obs = LocalObservations(np.ones((3, 3)), 1, 4, device="cpu")
+    before = getattr(obs, name)
+    for bad in ("yes", 1, None):
+        with pytest.raises(ValueError, match=rf"LocalObservations.{name} must be a bool, got {bad!r}"):
+            setattr(obs, name, bad)
+        assert getattr(obs, name) is before
+    setattr(obs, name, np.bool_(not before))
+    assert getattr(obs, name) is (not before)

@@ -52,11 +52,35 @@ def check_view_sizes(k, num_rays) -> None:
             raise ValueError(f"{name} must be an integer in [0, {MAX_SLOTS}], got {value!r}")
 
 
+class _Switch:
+    """A settable on/off launch choice of :class:`LocalObservations` (the rows are the same either way): a bool, or
+    a ValueError naming the attribute and the value."""
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, obj, objtype=None):
+        return self if obj is None else obj.__dict__[self.name]
+
+    def __set__(self, obj, value):
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"LocalObservations.{self.name} must be a bool, got {value!r}")
+        obj.__dict__[self.name] = bool(value)
+
+
 class LocalObservations:
     """Neighbour and wall observations for ``num_worlds`` worlds of ``num_movers`` movers on ``layout``. ``search``:
     ``"grid"``, ``"world"`` (up to 256 movers per world) or None (``"world"`` up to 256 movers per world on CUDA and
     128 on the CPU, where it was measured faster, else ``"grid"``): how the k nearest are found; the rows are the
-    same."""
+    same. The launch choices ``tiled``, ``unrolled``, ``staged``, ``merge``, ``sift`` and ``rect`` are settable bools
+    (documented where they are set)."""
+
+    tiled = _Switch()
+    unrolled = _Switch()
+    staged = _Switch()
+    merge = _Switch()
+    sift = _Switch()
+    rect = _Switch()
 
     def __init__(self, layout: Layout | np.ndarray, num_worlds: int, num_movers: int, *, k: int = 8,
                  radius: float = 1.0, num_rays: int = 8, max_range: float = 1.0, search: str | None = None,
