@@ -32,7 +32,7 @@ def test_null_viewer_runs_every_layer():
 
 
 def test_usd_export_written_and_read_back(tmp_path):
-    pxr = pytest.importorskip("pxr")
+    pytest.importorskip("pxr")
     from pxr import Usd, UsdGeom
 
     layout, m = benchmark_layout("B0")
@@ -102,15 +102,24 @@ def test_viser_page_shows_the_movers_in_headless_chromium(tmp_path):
         if chromium is None:
             pytest.skip("chromium not installed: page not checked")
         shot = tmp_path / "viser.png"
-        subprocess.run([chromium, "--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
-                        "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--window-size=960,600",
-                        "--virtual-time-budget=15000", f"--screenshot={shot}", f"http://127.0.0.1:{port}/"],
-                       capture_output=True, timeout=120)
-        image = iio.imread(shot)[..., :3].astype(int)
-        # Some pixels close to each mover's colour (lit, so allow shading).
-        for k in range(m):
-            c = np.array(colors.mover_color(k))
-            close = np.abs(image - c).sum(axis=-1) < 90
-            assert close.sum() > 30, f"mover {k}'s colour {tuple(c)} not on the page screenshot"
+
+        def missing(budget_ms: int) -> list:
+            """The movers whose colour is not on a screenshot taken after ``budget_ms`` of the page's virtual time
+            (some pixels close to each mover's colour: lit, so shading is allowed)."""
+            subprocess.run([chromium, "--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+                            "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--window-size=960,600",
+                            f"--virtual-time-budget={budget_ms}", f"--screenshot={shot}", f"http://127.0.0.1:{port}/"],
+                           capture_output=True, timeout=180)
+            image = iio.imread(shot)[..., :3].astype(int)
+            return [tuple(c) for c in (np.array(colors.mover_color(k)) for k in range(m))
+                    if (np.abs(image - c).sum(axis=-1) < 90).sum() <= 30]
+
+        # On a busy machine the scene can reach the page after the first screenshot (the server's threads share the
+        # CPU with the software renderer): a longer wait is tried before the check fails.
+        for budget in (15000, 45000):
+            lost = missing(budget)
+            if not lost:
+                break
+        assert not lost, f"movers' colours {lost} not on the page screenshot"
     finally:
         viewer.close()
