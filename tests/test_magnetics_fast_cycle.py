@@ -4,6 +4,8 @@ and 8 lanes emulated by CPU blocks) and, when there is one, on a GPU (8 lanes, w
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import warp as wp
@@ -129,9 +131,14 @@ def test_straight_first_kernel_matches_the_loop(model, rng, cpu_blocks, lanes):
 
 def test_rest_block_is_checked(model, cpu_blocks):
     com = Commutation(model.coilset, device="cpu")
-    for bad in (0, 12, 2048, 1.5, True):
-        with pytest.raises(MagneticsError, match=rf"rest_block must be a multiple of lanes=8 .* got {bad!r}"):
+    for bad in (0, 12, 2048, 1.5, True, float("nan"), float("inf"), "64"):
+        want = rf"rest_block must be a multiple of lanes=8 .* got {re.escape(repr(bad))}"
+        with pytest.raises(MagneticsError, match=want):
             FastCycle(model, com, lanes=8, rest_block=bad)
+    for bad in (-1, 2.5, float("nan"), "128"):
+        want = rf"max_registers must be a non-negative integer, got {re.escape(repr(bad))}"
+        with pytest.raises(MagneticsError, match=want):
+            FastCycle(model, com, lanes=8, max_registers=bad)
     assert FastCycle(model, com, lanes=8, rest_block=16).rest_block == 16
     with pytest.raises(MagneticsError, match="straight must be True or False, got 'no'"):
         FastCycle(model, com, straight="no")

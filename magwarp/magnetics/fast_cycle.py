@@ -49,6 +49,8 @@ must be set; the tests do, to run the lane logic without a GPU); on a GPU the gr
 # (no "from __future__ import annotations": the kernels annotate with types made in make_fast_cycle)
 
 import functools
+import math
+import numbers
 
 import warp as wp
 
@@ -232,6 +234,12 @@ def finish_mover(o: ThreadOutputs, m: int, lane: int, n: int, wanted: vec6d, sum
         o.loss[m] = sums[6]
         o.flags[m] = flag
     return delivered
+
+
+def _integral(value) -> bool:
+    """``value`` is a real number with an integer value (NaN, infinities and strings are not: ``int()`` would raise
+    on them with a message that names no option)."""
+    return isinstance(value, numbers.Real) and math.isfinite(value) and int(value) == value
 
 
 @functools.cache
@@ -573,11 +581,11 @@ class FastCycle:
         if not isinstance(straight, bool):
             raise MagneticsError(f"FastCycle straight must be True or False, got {straight!r}")
         self.straight = straight
-        if int(max_registers) != max_registers or max_registers < 0:
+        if not _integral(max_registers) or max_registers < 0:
             raise MagneticsError(f"FastCycle max_registers must be a non-negative integer, got {max_registers!r}")
         if rest_block is None:
             rest_block = REST_BLOCK
-        if (isinstance(rest_block, bool) or int(rest_block) != rest_block or not 0 < rest_block <= 1024
+        if (isinstance(rest_block, bool) or not _integral(rest_block) or not 0 < rest_block <= 1024
                 or rest_block % self.lanes):
             raise MagneticsError(f"FastCycle rest_block must be a multiple of lanes={self.lanes} in 1..1024, got "
                                  f"{rest_block!r}")
