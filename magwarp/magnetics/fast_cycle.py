@@ -34,7 +34,9 @@ register-hungry loop stays out of the kernel every mover runs.
 
 Status (2026-12-07): measured on an H100 (``bash benchmarks/gpu_round.sh mag_vs_ref``,
 ``benchmarks/results/magnetics_fast_new_s41_gpu.json``): 24.3 ms per cycle of 1M movers at 16 lanes (the block cycle
-72.0 ms), 2.73 ms at 1e5 movers, with the block cycle's currents, flags and saturations; its CUDA tests pass. By
+72.0 ms), 2.73 ms at 1e5 movers, with the block cycle's currents, flags and saturations; its CUDA tests pass. With
+the active-set launch at :data:`REST_BLOCK` = 64 threads per block, 23.7 ms at 1M movers
+(``magnetics_rest_block_s42_gpu.json``). By
 Nsight Compute (``ncu17``) the first kernel (every mover) takes 8.1 ms, bound by the table's gathers (the default
 57 MB table misses the 50 MB L2: 63% hits), and the active-set steps of the 22% of movers that saturate 16.2 ms
 (about 6.6 solves each, 255 registers, spills). It is the magnetic drive's and the wrench-mode actuator's cycle on a
