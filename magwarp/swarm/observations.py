@@ -121,14 +121,15 @@ class LocalObservations:
         #: with the rays alone (0.81 against 1.67 at 100 movers; ``python benchmarks/swarm_obs.py --device cuda:0``,
         #: swarm_obs_s34_gpu.json, 2026-12-06). On the CPU the merge of every candidate was slower (0.40 against 0.30
         #: ms at 8 x 64), so there it is on only with the sift (below).
-        self.merge = dev.is_cuda or knb.sift_default()
+        sift = knb.sift_default()
+        self.merge = dev.is_cuda or sift
         #: with the merge, only the candidates within the radius are merged, a word of 32 at a time (their bits first,
         #: then the set bits in index order); the same slots. On by default (:data:`~magwarp.kernels.neighbors.SIFT`;
         #: ``MAGWARP_OBS_SIFT=0|1`` overrides it, a tuning knob for benchmarks). On the H100 (16,384 worlds) 0.51
         #: against 0.78 ms without it at 100 movers, 1.25 against 2.97 at 256 (swarm_obs_sift_s42_gpu.json); on this
         #: project's CPU (64 worlds; the former CPU default: the shift, no merge) 0.22 against 0.28 ms at 16 movers,
         #: 1.09 against 1.58 at 64 and 3.05 against 3.47 at 128 (swarm_obs_sift_cpu.json, 2026-12-07)
-        self.sift = knb.sift_default()
+        self.sift = sift
         #: the layout has every tile of its rectangle: the wall rays in closed form (neighbors.ray_to_rect: each axis's
         #: exit as the tile walk's own running sum, no tile read), the same distances bit for bit; settable (off: the
         #: tile walk, which any layout may use)
