@@ -18,7 +18,8 @@
 # swarm_vs_ref (#18: the swarm step against an older tree), mag_vs_ref (#17: the fast magnetic cycle against an
 # older tree), mag_rest (#17: its active-set launch by block size), swarm_pack (#18: several worlds per block),
 # swarm_sift (#18: the observation's sift), swarm_abc (#18: an older tree, the sift off / on / on with packing),
-# swarm_pack_cap (#18: several worlds per block under a register cap).
+# swarm_pack_cap (#18: several worlds per block under a register cap), capture_gc (graph captures beside dropped
+# torch graphs), swarm_kernels (#18: the env step's kernels by time).
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 # swarm_load at 16,384 worlds with the environment variable VAR set to each of VALUES in turn, the whole set ROUNDS
@@ -215,6 +216,35 @@ for stage in "$@"; do
             | grep -v "^Module" | tail -${TAIL:-2} | sed "s/^/$cfg r$round /"
         done
       done ;;
+    capture_gc)
+      # graph captures with dropped torch CUDA graphs in reference cycles: the tests (gc_paused on), then the same
+      # with gc_paused switched off (it must fail: the test can fail), then the two test files whose order showed it
+      timeout 200 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_capture_gc.py \
+        > "$OUT/pytest_capture_gc_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_capture_gc_gpu.log" | tail -8
+      for what in simulator torch_graph; do
+        WHAT=$what timeout 120 python3 - <<'PY' 2>&1 | grep -v "^Module" | tail -3
+import contextlib, os, sys
+sys.path.insert(0, "tests")
+import magwarp.envs.step_graph as sg, magwarp.sim as sim
+sim.gc_paused = sg.gc_paused = lambda cuda=True: contextlib.nullcontext()
+import test_capture_gc as t
+what = os.environ["WHAT"]
+try:
+    t.test_captures_survive_dropped_cuda_graphs(what)
+    print(f"gc_paused off, {what}: passed (the test did not catch it)")
+except BaseException as e:
+    print(f"gc_paused off, {what}: failed as it should: {type(e).__name__}: {str(e)[:200]}")
+PY
+      done
+      timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings \
+        tests/test_swarm_observations.py tests/test_swarm_fused.py -k cuda > "$OUT/pytest_order_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_order_gpu.log" | tail -8 ;;
+    swarm_kernels)
+      # #18: the env step's device kernels by time (torch's profiler over 10 steps) at 16,384 worlds, per load
+      timeout 300 python3 benchmarks/swarm_load.py --device cuda:0 --movers ${LOAD_MOVERS:-64 100 256} --worlds 16384 \
+        --loads ${LOADS:-planner seek} --kernels 10 --json "$OUT/swarm_kernels_gpu.json" 2>&1 | grep -v "^Module" \
+        | tail -80 ;;
     swarm_pack)
       # #18: several worlds per block of the swarm step (MAGWARP_SWARM_WORLDS=auto: 2 worlds of 100 movers in 7 warps,
       # 2 of 16 or 48 in 1 or 3 warps) against one world per block: the CUDA tests (bit for bit against the per-cycle

@@ -47,7 +47,7 @@ def _actions(env, load: str, planner):
     return torch.zeros((env.num_envs, env.num_movers, 2), device=env.device)
 
 
-def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: int) -> dict:
+def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: int, profile_steps: int = 0) -> dict:
     import torch
 
     from magwarp.swarm import SwarmEnv, SwarmPlanner
@@ -86,7 +86,40 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     row.update({f"{k}_per_step": v / steps for k, v in counts.items()})
     row["pending_share"] = row["pending_per_step"] / agents
     row["floor_bytes_per_agent_step"] = floor_bytes(env)
+    if cuda and profile_steps:
+        row["kernels"] = kernel_times(env, load, planner, profile_steps)
+        for name, us, n in row["kernels"]:
+            print(f"    {us:9.1f} us/step  {n:5.2f} launches  {name}", flush=True)
     return row
+
+
+def kernel_times(env, load: str, planner, steps: int, top: int = 8) -> list[list]:
+    """The device kernels of ``steps`` env steps under ``load`` (torch's profiler; the planner's own kernels run
+    outside ``env.step`` but are on the trace too, so they are named and left in): ``[name, us per step, launches per
+    step]`` for the ``top`` kernels by time, and the rest summed as ``"other"``."""
+    import re
+
+    import torch
+    from torch.profiler import ProfilerActivity, profile
+
+    actions = [_actions(env, load, planner) for _ in range(steps)] if load != "planner" else None
+    with profile(activities=[ProfilerActivity.CUDA]) as prof:
+        for i in range(steps):
+            env.step(actions[i] if actions is not None else _actions(env, load, planner))
+        torch.cuda.synchronize()
+    cuda = torch.autograd.DeviceType.CUDA
+    totals: dict[str, list[float]] = {}
+    for e in prof.profiler.kineto_results.events():
+        if e.device_type() != cuda:
+            continue
+        name = re.sub(r"_[0-9a-f]{7,}", "", e.name())[:80]  # Warp's module hashes out
+        t = totals.setdefault(name, [0.0, 0])
+        t[0] += e.duration_ns() / 1e3 / steps
+        t[1] += 1 / steps
+    ranked = sorted(([k, round(v[0], 2), round(v[1], 2)] for k, v in totals.items()), key=lambda r: -r[1])
+    rest = ranked[top:]
+    return ranked[:top] + ([["other", round(sum(r[1] for r in rest), 2), round(sum(r[2] for r in rest), 2)]]
+                           if rest else [])
 
 
 def add_floor(rows: list[dict], bandwidth: float) -> None:
@@ -106,13 +139,15 @@ def main(argv=None) -> None:
     p.add_argument("--loads", nargs="+", default=list(LOADS), choices=LOADS)
     p.add_argument("--warm", type=int, default=30, help="steps before the timed ones")
     p.add_argument("--steps", type=int, default=30)
+    p.add_argument("--kernels", type=int, default=0, metavar="STEPS", help="CUDA: after the timing, the device "
+                   "kernels of STEPS more steps by time (torch's profiler), in the JSON row and printed")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     info, _ = start_run(args.device)
     rows = []
     for movers in args.movers:
         for load in args.loads:
-            row = bench(movers, args.worlds, args.device, load, args.warm, args.steps)
+            row = bench(movers, args.worlds, args.device, load, args.warm, args.steps, args.kernels)
             rows.append(row)
             print(f"  {args.device} {args.worlds} x {movers}, {load}: {row['env_ms']:.3f} ms/step "
                   f"({row['agent_steps_per_s']:.3g} agent-steps/s, {row['step_path']}); per step "

@@ -8,16 +8,23 @@ thus makes the capture's end fail ("Warp error: unknown capture stream"), and on
 registration that a long-lived wrapper (a simulator's) relies on. :func:`torch_stream` returns Warp's current stream
 when it is torch's (inside a capture, :func:`magwarp.envs.step_graph.record_cuda_graph` makes it so), else one cached
 wrapper per CUDA stream that lives as long as the process.
+
+:func:`gc_paused` wraps every graph capture: Python's cyclic garbage collector can run at any allocation, and when
+it frees an unreachable ``torch.cuda.CUDAGraph`` (of an env or trainer dropped earlier) while a capture is open, the
+graph's destructor calls CUDA's graph destroy on the capturing thread. CUDA refuses that ("operation not permitted
+when stream is capturing") and invalidates the capture, whose next launch then fails with error 901 ("operation
+failed due to a previous error during capture").
 """
 
 from __future__ import annotations
 
 import contextlib
+import gc
 
 import torch
 import warp as wp
 
-__all__ = ["SideBranch", "torch_stream"]
+__all__ = ["SideBranch", "gc_paused", "torch_stream"]
 
 _WRAPPERS: dict[tuple[int, int], wp.Stream] = {}
 
@@ -34,6 +41,25 @@ def torch_stream(device) -> wp.Stream:
     if wrapper is None:
         wrapper = _WRAPPERS[key] = wp.stream_from_torch(stream)
     return wrapper
+
+
+@contextlib.contextmanager
+def gc_paused(cuda: bool = True):
+    """Collect Python's cyclic garbage now (a graph dropped earlier is destroyed here, outside any capture), then keep
+    the collector off inside the block; it is switched on again on the way out (also when the block raises) unless it
+    was off before. With ``cuda=False`` (a capture on Warp's CPU device, which has no such trap) it does nothing: a
+    collection costs about 0.1 s."""
+    if not cuda:
+        yield
+        return
+    gc.collect()
+    was_on = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_on:
+            gc.enable()
 
 
 class SideBranch:

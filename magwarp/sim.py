@@ -23,7 +23,7 @@ import torch
 import warp as wp
 
 from magwarp._checks import as_count, as_finite, check_magnitude, init_warp, stiffness_limit, warp_device
-from magwarp._streams import torch_stream
+from magwarp._streams import gc_paused, torch_stream
 from magwarp.kernels import collision as kcol
 from magwarp.kernels import guard as kguard
 from magwarp.kernels import options as kernel_options
@@ -844,7 +844,7 @@ class Simulator:
         """Record ``launches()`` as a graph. CUDA cannot capture on torch's default (legacy) stream, so the capture
         runs on a stream of our own; the graph is replayed on torch's stream."""
         stream = wp.Stream(self.device) if self.device.is_cuda else None
-        with wp.ScopedStream(stream) if stream is not None else contextlib.nullcontext():
+        with gc_paused(stream is not None), wp.ScopedStream(stream) if stream is not None else contextlib.nullcontext():
             with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
                 launches()
         return capture.graph

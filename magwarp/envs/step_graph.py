@@ -31,6 +31,8 @@ from typing import Any, NamedTuple
 import torch
 import warp as wp
 
+from magwarp._streams import gc_paused
+
 __all__ = ["RecordedGraph", "TaskGraph", "clone_outputs", "continued_generator", "record_cuda_graph"]
 
 
@@ -87,7 +89,7 @@ def record_cuda_graph(fn: Callable[[], Any], device: torch.device, generators: S
     stream = torch.cuda.Stream(device)
     stream.wait_stream(torch.cuda.current_stream(device))
     wdev = wp.device_from_torch(device)
-    with torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
+    with gc_paused(), torch.cuda.graph(graph, stream=stream, capture_error_mode="thread_local"):
         wstream = wp.stream_from_torch(stream)
         wp.capture_begin(device=wdev, stream=wstream, external=True, force_module_load=False)
         try:

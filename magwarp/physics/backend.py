@@ -19,7 +19,7 @@ import torch
 import warp as wp
 
 from magwarp._checks import MAGNITUDE_MAX
-from magwarp._streams import torch_stream
+from magwarp._streams import gc_paused, torch_stream
 from magwarp.physics.control import (
     YawDrive,
     copy_rows_masked_kernel,
@@ -422,8 +422,9 @@ class MjwBackend:
                 launcher()
                 # CUDA cannot capture on torch's default (legacy) stream: capture on a stream of our own, replay
                 # on torch's.
-                capture_stream = wp.Stream(self.device) if self.device.is_cuda else None
-                with wp.ScopedStream(capture_stream) if capture_stream is not None else contextlib.nullcontext():
+                cuda = self.device.is_cuda
+                capture_stream = wp.Stream(self.device) if cuda else None
+                with gc_paused(cuda), wp.ScopedStream(capture_stream) if cuda else contextlib.nullcontext():
                     with wp.ScopedCapture(device=self.device, force_module_load=False) as cap:
                         launcher()
                 setattr(self, attr, cap.graph)

@@ -33,6 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from magwarp._streams import gc_paused
 from magwarp.training import distributed as dist
 from magwarp.training.common import (RunningMeanStd, autocast, configure_adam, flatten_obs, load_checkpoint,
                                      save_checkpoint, set_lr)
@@ -295,7 +296,7 @@ class PpoUpdate:
         torch.cuda.current_stream(self.device).wait_stream(side)
         self.optimizer.zero_grad(set_to_none=True)  # the capture allocates the gradients from the graph's pool
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
+        with gc_paused(), torch.cuda.graph(graph):
             static = self._step()
         self._graph = (graph, static)
         return out

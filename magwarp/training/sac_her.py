@@ -41,6 +41,7 @@ import time
 
 import torch
 
+from magwarp._streams import gc_paused
 from magwarp.training import distributed as dist
 from magwarp.training.common import (OBS_KEYS, PROCESS_START, RunningMeanStd, configure_adam, flatten_obs,
                                      load_checkpoint, save_checkpoint, set_lr)
@@ -449,7 +450,7 @@ class SacLearner:
             opt.zero_grad(set_to_none=True)
         self.cursor.zero_()
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
+        with gc_paused(), torch.cuda.graph(graph):
             out = self._update_unit()
         self._graph = (graph, out)
 
