@@ -491,9 +491,9 @@ def bench_fused_row(movers: int, worlds: int, device: str, steps: int, bandwidth
             row["fused_eager_env_ms"], row["fused_eager_env_std_ms"] = _time(step, device, steps)
         row[f"{key}_motion_ms"], _ = _time(lambda: env.sim.step(CYCLES), device, steps)
         if fused and device.startswith("cuda"):  # the motion alone without the tiled kernel's register cap
-            from magwarp.swarm.fused import max_registers
+            from magwarp.swarm.fused import launch_block
 
-            row["fused_max_registers"] = max_registers()
+            row["fused_max_registers"] = launch_block(movers)[2]
             saved = os.environ.get("MAGWARP_SWARM_MAX_REGISTERS")
             os.environ["MAGWARP_SWARM_MAX_REGISTERS"] = "0"
             env.sim._graphs.clear()  # recaptured with the uncapped kernel

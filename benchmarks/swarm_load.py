@@ -51,7 +51,7 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     import torch
 
     from magwarp.swarm import SwarmEnv, SwarmPlanner
-    from magwarp.swarm.fused import exchange, worlds_per_block
+    from magwarp.swarm.fused import exchange, launch_block, worlds_per_block
     from swarm import _layout, floor_bytes
 
     env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
@@ -82,7 +82,8 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     agents = movers * worlds
     row = {"device": device, "movers": movers, "worlds": worlds, "agents": agents, "load": load, "warm": warm,
            "steps": steps, "env_ms": ms, "agent_steps_per_s": agents / (ms * 1e-3), "step_path": env.step_path,
-           "exchange": exchange() if cuda else "-", "worlds_per_block": worlds_per_block(movers) if cuda else "-"}
+           "exchange": exchange() if cuda else "-", "worlds_per_block": worlds_per_block(movers) if cuda else "-",
+           "max_registers": launch_block(movers)[2] if cuda else "-"}
     row.update({f"{k}_per_step": v / steps for k, v in counts.items()})
     row["pending_share"] = row["pending_per_step"] / agents
     row["floor_bytes_per_agent_step"] = floor_bytes(env)
@@ -94,28 +95,29 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
 
 
 def kernel_times(env, load: str, planner, steps: int, top: int = 8) -> list[list]:
-    """The device kernels of ``steps`` env steps under ``load`` (torch's profiler; the planner's own kernels run
-    outside ``env.step`` but are on the trace too, so they are named and left in): ``[name, us per step, launches per
-    step]`` for the ``top`` kernels by time, and the rest summed as ``"other"``."""
+    """The device kernels of ``steps`` env steps under ``load`` (torch's profiler around ``env.step`` alone: each
+    step's action is computed and finished first, so the planner's kernels stay out): ``[name, us per step, launches
+    per step]`` for the ``top`` kernels by time, and the rest summed as ``"other"``."""
     import re
 
     import torch
     from torch.profiler import ProfilerActivity, profile
 
-    actions = [_actions(env, load, planner) for _ in range(steps)] if load != "planner" else None
-    with profile(activities=[ProfilerActivity.CUDA]) as prof:
-        for i in range(steps):
-            env.step(actions[i] if actions is not None else _actions(env, load, planner))
-        torch.cuda.synchronize()
     cuda = torch.autograd.DeviceType.CUDA
     totals: dict[str, list[float]] = {}
-    for e in prof.profiler.kineto_results.events():
-        if e.device_type() != cuda:
-            continue
-        name = re.sub(r"_[0-9a-f]{7,}", "", e.name())[:80]  # Warp's module hashes out
-        t = totals.setdefault(name, [0.0, 0])
-        t[0] += e.duration_ns() / 1e3 / steps
-        t[1] += 1 / steps
+    for _ in range(steps):
+        action = _actions(env, load, planner)
+        torch.cuda.synchronize()
+        with profile(activities=[ProfilerActivity.CUDA]) as prof:
+            env.step(action)
+            torch.cuda.synchronize()
+        for e in prof.profiler.kineto_results.events():
+            if e.device_type() != cuda:
+                continue
+            name = re.sub(r"_[0-9a-f]{7,}", "", e.name())[:80]  # Warp's module hashes out
+            t = totals.setdefault(name, [0.0, 0])
+            t[0] += e.duration_ns() / 1e3 / steps
+            t[1] += 1 / steps
     ranked = sorted(([k, round(v[0], 2), round(v[1], 2)] for k, v in totals.items()), key=lambda r: -r[1])
     rest = ranked[top:]
     return ranked[:top] + ([["other", round(sum(r[1] for r in rest), 2), round(sum(r[2] for r in rest), 2)]]

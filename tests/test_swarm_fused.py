@@ -199,6 +199,27 @@ def test_worlds_per_block_option(monkeypatch):
             fused_mod.worlds_per_block(100)
 
 
+def test_register_cap_by_block_size(monkeypatch):
+    """The tiled kernel's register cap is 96 where that fits more blocks of the launch's size on a multiprocessor
+    (65,536 registers) than 128, else 128; MAGWARP_SWARM_MAX_REGISTERS overrides it, and a bad value is an error that
+    names it."""
+    monkeypatch.delenv("MAGWARP_SWARM_MAX_REGISTERS", raising=False)
+    monkeypatch.delenv("MAGWARP_SWARM_WORLDS", raising=False)
+    blocks = (32, 64, 96, 128, 160, 192, 224, 256)
+    want = [96 if 65536 // (96 * b) > 65536 // (128 * b) else 128 for b in blocks]
+    assert [fused_mod.max_registers(b) for b in blocks] == want == [96] * 7 + [128]
+    assert [fused_mod.max_registers(b, worlds=2) for b in blocks] == [128] * 8  # packed blocks spill more
+    assert [fused_mod.launch_block(m) for m in (6, 64, 100, 160, 256)] == [
+        (1, 32, 96), (1, 64, 96), (1, 128, 96), (1, 160, 96), (1, 256, 128)]
+    monkeypatch.setenv("MAGWARP_SWARM_WORLDS", "auto")
+    assert fused_mod.launch_block(100) == (2, 224, 128)
+    monkeypatch.setenv("MAGWARP_SWARM_MAX_REGISTERS", "0")
+    assert fused_mod.max_registers(128) == 0
+    monkeypatch.setenv("MAGWARP_SWARM_MAX_REGISTERS", "ninety")
+    with pytest.raises(ValueError, match="got 'ninety'"):
+        fused_mod.max_registers(128)
+
+
 def test_fused_default_and_options():
     env = SwarmEnv(2, num_movers=8, device="cpu", seed=0)
     assert env.fused_step is not None and env.sim._motion is env.fused_step  # on by default for the respawn rule

@@ -14,7 +14,7 @@ import warp as wp
 from magwarp.kernels.swarm import finish_worlds
 from magwarp.layout import Layout
 from magwarp.swarm import SwarmEnv
-from magwarp.swarm.fused import exchange, max_registers
+from magwarp.swarm.fused import exchange, launch_block
 from magwarp.swarm.placement import Placer
 
 CUDA = torch.cuda.is_available() and wp.is_cuda_available()
@@ -98,7 +98,7 @@ def test_graph_key_follows_every_launch_shape(monkeypatch):
     env.placer._lanes = 1
     # the fused step kernel's tuning knobs (read at every kernel build)
     for var, value in (("MAGWARP_SWARM_EXCHANGE", "tile" if exchange() == "native" else "native"),
-                       ("MAGWARP_SWARM_MAX_REGISTERS", "96" if max_registers() != 96 else "0")):
+                       ("MAGWARP_SWARM_MAX_REGISTERS", "80" if launch_block(6)[2] != 80 else "0")):
         before = env._graph_key()
         monkeypatch.setenv(var, value)
         assert env._graph_key() != before, f"{var}={value} left the graph key unchanged"

@@ -22,25 +22,38 @@ import warp as wp
 from magwarp.kernels import swarm_step as kss
 from magwarp.kernels.options import world_block_dim
 
-__all__ = ["FusedSwarmStep", "fused_applies", "MAX_FUSED_MOVERS"]
+__all__ = ["FusedSwarmStep", "fused_applies", "launch_block", "max_registers", "MAX_FUSED_MOVERS"]
 
 MAX_FUSED_MOVERS = kss.MAX_BLOCK
 TRAVEL_SLACK = 1.01  # the travel budget's room over the speed cap's distance (rounding; the guard covers the rest)
-#: the tiled (CUDA) kernel's cap on registers per thread: the compiler's choice for sm_90 is 130, where 128 fit with
-#: no more spill (64 B of stack either way: the candidate list; ``benchmarks/kernel_registers.py --swarm``), so a
-#: multiprocessor (65,536 registers) holds 8 blocks of 64 movers instead of 7, 4 of 128 instead of 3 and 2 of 256
-#: instead of 1. The same arithmetic. ``MAGWARP_SWARM_MAX_REGISTERS`` overrides it (0: no cap), for tuning.
+#: the tiled (CUDA) kernel's register caps per thread: :func:`max_registers` takes :data:`LOW_REGISTERS` where it fits
+#: more blocks of the launch's size on a multiprocessor (65,536 registers) than :data:`MAX_REGISTERS` and the block
+#: holds one world, else :data:`MAX_REGISTERS`. The compiler's own choice for sm_90 is 130; at 128 the candidate list
+#: stays on the stack (64 B), and at 96 more of the state spills, which pays where it adds a block: blocks of 64
+#: threads 10 per SM instead of 8, of 128 threads 5 instead of 4, of 160 4 instead of 3, but of 256 still 2. Blocks of
+#: several worlds spill more (184 B of stack): 2 worlds of 100 movers in 224 threads, 3 blocks per SM at 96 against
+#: 2 at 128, took 3.71 ms against 3.55 (``swarm_pack*_s43_gpu.json``). On the H200 at 16,384 worlds
+#: (``benchmarks/results/swarm_cap*_s43_gpu.json``, 2026-12-07) the env step under the scripted planner / the seek
+#: load took: 64 movers 1.693 / 2.214 ms at 96 against 1.704 / 2.264 at 128; 100 movers 3.371 / 4.296 against
+#: 3.504 / 4.425 (80, 88, 104 and 112 registers: 3.50, 3.50, 3.61, 3.55); 160 movers 4.553 / 6.267 against 4.918 /
+#: 6.627; 256 movers 8.342 / 11.23 against 7.966 / 10.74. The same arithmetic and results (the CUDA tests ran at
+#: both). ``MAGWARP_SWARM_MAX_REGISTERS`` overrides both (0: no cap), for tuning.
 MAX_REGISTERS = 128
+LOW_REGISTERS = 96
+_SM_REGISTERS = 65536
 
 
-def max_registers() -> int:
-    """The tiled kernel's register cap (:data:`MAX_REGISTERS`, or ``MAGWARP_SWARM_MAX_REGISTERS``)."""
+def max_registers(block_dim: int, worlds: int = 1) -> int:
+    """The tiled kernel's register cap for blocks of ``block_dim`` threads holding ``worlds`` worlds (see
+    :data:`MAX_REGISTERS`), or ``MAGWARP_SWARM_MAX_REGISTERS``."""
     value = os.environ.get("MAGWARP_SWARM_MAX_REGISTERS", "").strip()
-    if not value:
-        return MAX_REGISTERS
-    if not value.isdigit():
-        raise ValueError(f"MAGWARP_SWARM_MAX_REGISTERS must be an integer >= 0, got {value!r}")
-    return int(value)
+    if value:
+        if not value.isdigit():
+            raise ValueError(f"MAGWARP_SWARM_MAX_REGISTERS must be an integer >= 0, got {value!r}")
+        return int(value)
+    b = max(int(block_dim), 1)
+    more_blocks = _SM_REGISTERS // (LOW_REGISTERS * b) > _SM_REGISTERS // (MAX_REGISTERS * b)
+    return LOW_REGISTERS if more_blocks and int(worlds) == 1 else MAX_REGISTERS
 
 
 #: how the tiled (CUDA) kernel exchanges each cycle's poses: ``"native"`` (one ``__syncthreads_or`` a cycle over two
@@ -98,6 +111,14 @@ def worlds_per_block(num_movers: int) -> int:
     return k
 
 
+def launch_block(num_movers: int) -> tuple[int, int, int]:
+    """The tiled kernel's launch for worlds of ``num_movers``: worlds per block (:func:`worlds_per_block`), threads
+    per block, and the register cap (:func:`max_registers`)."""
+    k = worlds_per_block(num_movers)
+    block = world_block_dim(k * int(num_movers))
+    return k, block, max_registers(block, k)
+
+
 def fused_applies(num_movers: int, on_collision: str) -> str | None:
     """None where the fused swarm step applies, else why not (for the error of an explicit ``fused=True``)."""
     if on_collision != "respawn":
@@ -153,10 +174,9 @@ class FusedSwarmStep:
                 raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks "
                                  f"(Warp's cooperative CPU blocks) or for worlds of one mover, got {sim.num_movers} "
                                  f"movers")
-            k = worlds_per_block(sim.num_movers)
-            block = world_block_dim(k * sim.num_movers)
+            k, block, cap = launch_block(sim.num_movers)
             kernel = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block,
-                                          max_registers() if dev.is_cuda else 0,
+                                          cap if dev.is_cuda else 0,
                                           native=dev.is_cuda and exchange() == "native", worlds=k)
             wp.launch_tiled(kernel, dim=[-(-sim.num_worlds // k)], inputs=[*args, *self._scratch], block_dim=block,
                             device=dev)
