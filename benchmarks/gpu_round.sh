@@ -19,7 +19,8 @@
 # older tree), mag_rest (#17: its active-set launch by block size), swarm_pack (#18: several worlds per block),
 # swarm_sift (#18: the observation's sift), swarm_abc (#18: an older tree, the sift off / on / on with packing),
 # swarm_pack_cap (#18: several worlds per block under a register cap), capture_gc (graph captures beside dropped
-# torch graphs), swarm_kernels (#18: the env step's kernels by time).
+# torch graphs), swarm_kernels (#18: the env step's kernels by time), swarm_cap_check (#18: the register cap rule at
+# sizes not yet measured). ncu18 with NCU_OBS=1 also profiles the observation kernel.
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 # swarm_load at 16,384 worlds with the environment variable VAR set to each of VALUES in turn, the whole set ROUNDS
@@ -245,6 +246,18 @@ PY
       timeout 300 python3 benchmarks/swarm_load.py --device cuda:0 --movers ${LOAD_MOVERS:-64 100 256} --worlds 16384 \
         --loads ${LOADS:-planner seek} --kernels 10 --json "$OUT/swarm_kernels_gpu.json" 2>&1 | grep -v "^Module" \
         | tail -80 ;;
+    swarm_cap_check)
+      # #18: the register cap rule (96 where it fits more one-world blocks per SM) at sizes not yet measured (200
+      # movers: 224 threads, 3 blocks against 2), against 128, planner and seek; then the 100-mover step's kernels
+      # under the planner (profiled around env.step alone) and the swarm CUDA tests at the default caps
+      ROUNDS=${ROUNDS:-1} swarm_load_by MAGWARP_SWARM_MAX_REGISTERS capE "96 128" "${LOAD_MOVERS:-200}" \
+        "${LOADS:-planner seek}" 250
+      timeout 200 python3 benchmarks/swarm_load.py --device cuda:0 --movers 100 --worlds 16384 --loads planner \
+        --kernels 10 --json "$OUT/swarm_kernels_planner_gpu.json" 2>&1 | grep -v "^Module" | tail -14
+      timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
+        tests/test_swarm_graph.py tests/test_capture_gc.py -k "cuda or graph or capture" \
+        > "$OUT/pytest_swarm_caps_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_caps_gpu.log" | tail -8 ;;
     swarm_pack)
       # #18: several worlds per block of the swarm step (MAGWARP_SWARM_WORLDS=auto: 2 worlds of 100 movers in 7 warps,
       # 2 of 16 or 48 in 1 or 3 warps) against one world per block: the CUDA tests (bit for bit against the per-cycle
@@ -422,6 +435,9 @@ Stall|Executed Instructions  |FP64|Block Limit Reg" "$OUT/ncu_$name.txt" | head 
       if [ "$stage" != ncu17 ]; then
         for movers in ${NCU_MOVERS:-64 100 256}; do
           run_ncu swarm_$movers swarm_step 1 swarm --movers $movers --worlds 16384 --load ${NCU_LOAD:-seek}
+          if [ -n "${NCU_OBS:-}" ]; then  # the observation kernel of the same step
+            run_ncu swarm_obs_$movers observe 1 swarm --movers $movers --worlds 16384 --load ${NCU_LOAD:-seek}
+          fi
         done
       fi
       if [ "$stage" = ncu ]; then
