@@ -215,9 +215,10 @@ def test_register_cap_by_block_size(monkeypatch):
     assert fused_mod.launch_block(100) == (2, 224, 128)
     monkeypatch.setenv("MAGWARP_SWARM_MAX_REGISTERS", "0")
     assert fused_mod.max_registers(128) == 0
-    monkeypatch.setenv("MAGWARP_SWARM_MAX_REGISTERS", "ninety")
-    with pytest.raises(ValueError, match="got 'ninety'"):
-        fused_mod.max_registers(128)
+    for bad in ("ninety", "8", "256", "-96"):
+        monkeypatch.setenv("MAGWARP_SWARM_MAX_REGISTERS", bad)
+        with pytest.raises(ValueError, match=f"got '{bad}'"):
+            fused_mod.max_registers(128)
 
 
 def test_fused_default_and_options():

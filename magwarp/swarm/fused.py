@@ -48,8 +48,8 @@ def max_registers(block_dim: int, worlds: int = 1) -> int:
     :data:`MAX_REGISTERS`), or ``MAGWARP_SWARM_MAX_REGISTERS``."""
     value = os.environ.get("MAGWARP_SWARM_MAX_REGISTERS", "").strip()
     if value:
-        if not value.isdigit():
-            raise ValueError(f"MAGWARP_SWARM_MAX_REGISTERS must be an integer >= 0, got {value!r}")
+        if not value.isdigit() or not (int(value) == 0 or 16 <= int(value) <= 255):
+            raise ValueError(f"MAGWARP_SWARM_MAX_REGISTERS must be 0 (no cap) or an integer in 16..255, got {value!r}")
         return int(value)
     b = max(int(block_dim), 1)
     more_blocks = _SM_REGISTERS // (LOW_REGISTERS * b) > _SM_REGISTERS // (MAX_REGISTERS * b)
