@@ -43,21 +43,28 @@ def torch_stream(device) -> wp.Stream:
     return wrapper
 
 
+_GC_DEPTH = [0]  # gc_paused blocks open (a nested one, inside an open capture, must not collect)
+
+
 @contextlib.contextmanager
 def gc_paused(cuda: bool = True):
     """Collect Python's cyclic garbage now (a graph dropped earlier is destroyed here, outside any capture), then keep
     the collector off inside the block; it is switched on again on the way out (also when the block raises) unless it
-    was off before. With ``cuda=False`` (a capture on Warp's CPU device, which has no such trap) it does nothing: a
-    collection costs about 0.1 s."""
+    was off before. A block nested in another collects nothing (the outer one's capture may be open). With
+    ``cuda=False`` (a capture on Warp's CPU device, which has no such trap) it does nothing: a collection costs about
+    0.1 s."""
     if not cuda:
         yield
         return
-    gc.collect()
+    if _GC_DEPTH[0] == 0:
+        gc.collect()
     was_on = gc.isenabled()
     gc.disable()
+    _GC_DEPTH[0] += 1
     try:
         yield
     finally:
+        _GC_DEPTH[0] -= 1
         if was_on:
             gc.enable()
 

@@ -56,6 +56,19 @@ def test_gc_paused_restores_the_collector_on_errors_and_leaves_it_off_if_it_was(
         gc.enable()
 
 
+def test_nested_gc_paused_collects_nothing():
+    """A block inside another (a capture inside an open one) must not collect: only the outer one does."""
+    _Cycle.freed.clear()
+    with gc_paused():
+        _Cycle("between")
+        with gc_paused():
+            assert _Cycle.freed == [] and not gc.isenabled()
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with gc_paused():
+        assert _Cycle.freed == ["between"]
+
+
 def test_gc_paused_off_for_the_cpu_collects_nothing():
     _Cycle.freed.clear()
     _Cycle("cpu")
