@@ -298,7 +298,24 @@ class SwarmEnv(MagwarpVecEnv):
         self.learn_jerk = as_flag(cfg.learn_jerk, "learn_jerk")
         self.num_cycles = int(cfg.num_cycles)
         self.max_episode_steps = cfg.max_episode_steps
-        wdev = self.sim.device
+        self._build_placement(mover, seed, respawn)
+        self._build_stops(respawn)
+        self._alloc_task_state()
+        self.stations = self._build_stations(mover, seed)
+        self._alloc_step_state()
+        # own state: velocity, goal relative to the mover, (acceleration), (carrying a job)
+        self.own_dim = (6 if self.learn_jerk else 4) + (1 if self.stations is not None else 0)
+        limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
+        self._set_spaces(gym.spaces.Box(-np.inf, np.inf, (m, self.own_dim + self.local.dim), np.float32),
+                         gym.spaces.Box(-limit, limit, (m, 2), np.float32))
+        # worlds end only by a collision in "end" mode or by the step limit: otherwise no reset work per step
+        self._can_end = not respawn or self.max_episode_steps is not None
+        self.reset(seed=seed)
+
+    # ------------------------------------------------------------------ construction, by part
+    def _build_placement(self, mover: MoverSpec, seed: int | None, respawn: bool) -> None:
+        """The start and goal placer, the respawn placer (respawn rule), the local observations and the shield."""
+        cfg, n, m, wdev = self.config, self.num_envs, self.num_movers, self.sim.device
         # the largest per-mover size: placement keeps every pair apart by the largest shape
         self.placer = Placer(self.layout, m, n, mover=mover, offset=cfg.collision_offset,
                              radius=float(self.sim._radii_np.max()), half_size=self.sim._half_np.max(axis=0),
@@ -315,7 +332,11 @@ class SwarmEnv(MagwarpVecEnv):
             self.shield_filter, self.shield_near = build_safety(
                 self, v_cap=float(cfg.shield_speed), what=("shield_speed", "commit_brake", "safe_margin", "safe_k"))
         self._shield_info: dict[str, torch.Tensor] = {}
-        self._stopped = wp.zeros((n, m), dtype=wp.int32, device=wdev)
+
+    def _build_stops(self, respawn: bool) -> None:
+        """The per-mover stop marks, and under the respawn rule the stop hook and the fused step."""
+        cfg, n, m = self.config, self.num_envs, self.num_movers
+        self._stopped = wp.zeros((n, m), dtype=wp.int32, device=self.sim.device)
         self.stopped = wp.to_torch(self._stopped)
         self.fused_step = None
         if respawn:
@@ -324,7 +345,10 @@ class SwarmEnv(MagwarpVecEnv):
                 # one launch per step; steps aside for the per-cycle path (this hook) while other hooks are attached
                 self.fused_step = FusedSwarmStep(self.sim, self._stopped, self._stop_hook)
                 self.sim.set_motion(self.fused_step)
-        dev = self.device
+
+    def _alloc_task_state(self) -> None:
+        """Goals, counters, pending respawns and goals, the reward rule and the goal distances."""
+        cfg, n, m, dev = self.config, self.num_envs, self.num_movers, self.device
         self.goals = torch.zeros(n, m, 2, device=dev)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=dev)
         self.collected_goals = torch.zeros(n, m, dtype=torch.int64, device=dev)
@@ -342,16 +366,24 @@ class SwarmEnv(MagwarpVecEnv):
         # the progress reward's d_before: each mover's goal distance at the step's start (refreshed only when on)
         self.goal_dist = torch.zeros(n, m, device=dev)
         self._goal_dist_wp = wp.from_torch(self.goal_dist)
-        self.stations = None
-        if cfg.stations is not None:
-            from magwarp.swarm.stations import Stations
 
-            if cfg.stations == "auto":
-                self.stations = Stations.auto(self.layout, mover, cfg.num_stations, offset=cfg.collision_offset,
-                                              device=wdev, seed=0 if seed is None else int(seed))
-            else:
-                self.stations = Stations(cfg.stations["pickup"], cfg.stations["dropoff"], self.layout, mover,
-                                         offset=cfg.collision_offset, device=wdev)
+    def _build_stations(self, mover: MoverSpec, seed: int | None):
+        """The material-flow stations (``stations`` option), or None."""
+        cfg, wdev = self.config, self.sim.device
+        if cfg.stations is None:
+            return None
+        from magwarp.swarm.stations import Stations
+
+        if cfg.stations == "auto":
+            return Stations.auto(self.layout, mover, cfg.num_stations, offset=cfg.collision_offset, device=wdev,
+                                 seed=0 if seed is None else int(seed))
+        return Stations(cfg.stations["pickup"], cfg.stations["dropoff"], self.layout, mover,
+                        offset=cfg.collision_offset, device=wdev)
+
+    def _alloc_step_state(self) -> None:
+        """Jobs, the step kernel's marks and Warp views, the step's fixed input, device counters and graph slots."""
+        cfg, n, m = self.config, self.num_envs, self.num_movers
+        dev, wdev = self.device, self.sim.device
         self.carrying = torch.zeros(n, m, dtype=torch.bool, device=dev)
         self.jobs = torch.zeros(n, m, dtype=torch.int64, device=dev)
         # what the step kernel marks for _end_step (a new goal, a respawn), and Warp views of the state it updates
@@ -372,14 +404,6 @@ class SwarmEnv(MagwarpVecEnv):
         self._graph_key_value = None
         self._slot = 0
         self._in_capture = False
-        # own state: velocity, goal relative to the mover, (acceleration), (carrying a job)
-        self.own_dim = (6 if self.learn_jerk else 4) + (1 if self.stations is not None else 0)
-        limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
-        self._set_spaces(gym.spaces.Box(-np.inf, np.inf, (m, self.own_dim + self.local.dim), np.float32),
-                         gym.spaces.Box(-limit, limit, (m, 2), np.float32))
-        # worlds end only by a collision in "end" mode or by the step limit: otherwise no reset work per step
-        self._can_end = not respawn or self.max_episode_steps is not None
-        self.reset(seed=seed)
 
     # ------------------------------------------------------------------ hooks of the simulator
     def _stop_hook(self, sim: Simulator) -> None:
