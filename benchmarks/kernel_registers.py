@@ -6,6 +6,7 @@ EIATTR_MIN_STACK_SIZE, 0x12: the per-thread stack frame, spills included).
     python benchmarks/kernel_registers.py --arch 90 --movers 3,8 --json kernel_registers.json
     python benchmarks/kernel_registers.py --randomize            # the randomisation firing kernels instead
     python benchmarks/kernel_registers.py --swarm                # the swarm env's step kernels (#18), register caps
+    python benchmarks/kernel_registers.py --swarm --swarm-step-only --swarm-caps 128,96 --swarm-blocks 64,128,160
     python benchmarks/kernel_registers.py --place                # the placement rounds (default and lane shapes)
 
 Shapes: ``registers`` (:func:`magwarp.kernels.step.make_register_kernel`, one thread per world, the register-row
@@ -149,7 +150,8 @@ def place_figures(arch: int, json_path: str | None) -> int:
     return finish(rows, ["arch", "kernel", "registers", ("stack", "stack B/thread")], info, json_path)
 
 
-def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
+def swarm_figures(arch: int, caps: list[int], json_path: str | None, blocks=(64, 128, 256), latencies=(False, True),
+                  with_others: bool = True) -> int:
     """Registers and stack of the swarm env's step kernels (#18): the fused step (tiled shape, 64/128/256 threads per
     block, without and with latency, under each register cap; 0: none), the staged observation kernel (with the
     merge and the closed-form rays, with its PTX block barriers) and the placement rounds."""
@@ -160,19 +162,22 @@ def swarm_figures(arch: int, caps: list[int], json_path: str | None) -> int:
     info, _ = start_run("cpu")
     sim = SwarmEnv(1, num_movers=8, device="cpu", seed=0, check_inputs=False).sim
     rows = []
-    for block in (64, 128, 256):
-        for latency in (False, True):
-            for cap in caps:
-                k = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block, cap)
+    for block in blocks:
+        for latency in latencies:
+            for cap in caps:  # the CUDA default's native exchange (one barrier a cycle)
+                k = kss.make_step_kernel(sim._force_model, latency, sim._nominal_body, block, cap, native=True)
                 rows.append({"kernel": f"swarm_step/{block}" + ("+latency" if latency else ""), "cap": cap,
                              **kernel_figures(k, arch)})
+        if not with_others:
+            continue
         rows.append({"kernel": f"observe_staged/{block}", "cap": 0,
                      **kernel_figures(knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True),
                                       arch)})
         k = knb.make_observation_kernel(8, 8, knb.OWN_STATE, "world", block, True, True, True, True)
         rows.append({"kernel": f"observe_staged_merge_rect/{block}", "cap": 0, **kernel_figures(k, arch),
                      "bar_sync": ptx_barriers(k, arch)})
-    rows += place_rows(arch)
+    if with_others:
+        rows += place_rows(arch)
     for r in rows:
         r["arch"] = f"sm_{arch}"
         bars = f", {r['bar_sync']} bar.sync" if "bar_sync" in r else ""
@@ -196,6 +201,9 @@ def main(argv=None) -> int:
     p.add_argument("--swarm", action="store_true", help="the swarm env's step kernels instead (#18), under the "
                    "register caps of --swarm-caps")
     p.add_argument("--swarm-caps", default="0,128,112,96", help="comma-separated register caps of the swarm step")
+    p.add_argument("--swarm-blocks", default="64,128,256", help="comma-separated threads per block of the swarm step")
+    p.add_argument("--swarm-step-only", action="store_true", help="--swarm: the step kernel without latency only "
+                   "(no observation or placement kernels)")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     if args.randomize:
@@ -203,7 +211,10 @@ def main(argv=None) -> int:
     if args.place:
         return place_figures(args.arch, args.json)
     if args.swarm:
-        return swarm_figures(args.arch, [int(c) for c in args.swarm_caps.split(",")], args.json)
+        return swarm_figures(args.arch, [int(c) for c in args.swarm_caps.split(",")], args.json,
+                             blocks=[int(b) for b in args.swarm_blocks.split(",")],
+                             latencies=(False,) if args.swarm_step_only else (False, True),
+                             with_others=not args.swarm_step_only)
     from magwarp.kernels import options as kernel_options
     from magwarp.kernels import step as kstep
     from magwarp.kernels import step_blocks

@@ -28,11 +28,12 @@ MAX_FUSED_MOVERS = kss.MAX_BLOCK
 TRAVEL_SLACK = 1.01  # the travel budget's room over the speed cap's distance (rounding; the guard covers the rest)
 #: the tiled (CUDA) kernel's register caps per thread: :func:`max_registers` takes :data:`LOW_REGISTERS` where it fits
 #: more blocks of the launch's size on a multiprocessor (65,536 registers) than :data:`MAX_REGISTERS` and the block
-#: holds one world, else :data:`MAX_REGISTERS`. The compiler's own choice for sm_90 is 130; at 128 the candidate list
-#: stays on the stack (64 B), and at 96 more of the state spills, which pays where it adds a block: blocks of 64
-#: threads 10 per SM instead of 8, of 128 threads 5 instead of 4, of 160 4 instead of 3, but of 256 still 2. Blocks of
-#: several worlds spill more (184 B of stack): 2 worlds of 100 movers in 224 threads, 3 blocks per SM at 96 against
-#: 2 at 128, took 3.71 ms against 3.55 (``swarm_pack*_s43_gpu.json``). On the H200 at 16,384 worlds
+#: holds one world, else :data:`MAX_REGISTERS`. The compiler's own choice for sm_90 is 128 registers and 64 B of stack
+#: (the candidate list); at a cap of 96 the stack is 184 B (spills; ``python benchmarks/kernel_registers.py --swarm
+#: --swarm-step-only``, the same at every block size), which pays where it adds a block: blocks of 64 threads 10 per SM
+#: instead of 8, of 128 threads 5 instead of 4, of 160 4 instead of 3, but of 256 still 2. Blocks of several worlds
+#: did not gain: 2 worlds of 100 movers in 224 threads, 3 blocks per SM at 96 against 2 at 128, took 3.71 ms against
+#: 3.55 (``swarm_pack*_s43_gpu.json``; their travel guard is the block's). On the H200 at 16,384 worlds
 #: (``benchmarks/results/swarm_cap*_s43_gpu.json``, 2026-12-07) the env step under the scripted planner / the seek
 #: load took: 64 movers 1.693 / 2.214 ms at 96 against 1.704 / 2.264 at 128; 100 movers 3.371 / 4.296 against
 #: 3.504 / 4.425 (80, 88, 104 and 112 registers: 3.50, 3.50, 3.61, 3.55); 160 movers 4.553 / 6.267 against 4.918 /
