@@ -135,7 +135,7 @@ def test_rest_block_is_checked(model, cpu_blocks):
         want = rf"rest_block must be a multiple of lanes=8 .* got {re.escape(repr(bad))}"
         with pytest.raises(MagneticsError, match=want):
             FastCycle(model, com, lanes=8, rest_block=bad)
-    for bad in (-1, 2.5, float("nan"), "128"):
+    for bad in (-1, 2.5, float("nan"), "128", True):
         want = rf"max_registers must be a non-negative integer, got {re.escape(repr(bad))}"
         with pytest.raises(MagneticsError, match=want):
             FastCycle(model, com, lanes=8, max_registers=bad)

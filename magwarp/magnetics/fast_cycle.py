@@ -51,11 +51,10 @@ must be set; the tests do, to run the lane logic without a GPU); on a GPU the gr
 # (no "from __future__ import annotations": the kernels annotate with types made in make_fast_cycle)
 
 import functools
-import math
-import numbers
 
 import warp as wp
 
+from magwarp._checks import as_count
 from magwarp.magnetics.commutation import (FLAG_NO_COILS, FLAG_NOT_CONVERGED, FLAG_REGULARISED, CommutationResult,
                                            add_fixed, add_outer_lower, as_vec6d, block_sum, fixed_of, mat66d,
                                            step_reach, vec6f)
@@ -238,10 +237,13 @@ def finish_mover(o: ThreadOutputs, m: int, lane: int, n: int, wanted: vec6d, sum
     return delivered
 
 
-def _integral(value) -> bool:
-    """``value`` is a real number with an integer value (NaN, infinities and strings are not: ``int()`` would raise
-    on them with a message that names no option)."""
-    return isinstance(value, numbers.Real) and math.isfinite(value) and int(value) == value
+def _count_or_none(value, minimum: int) -> int | None:
+    """``value`` as :func:`magwarp._checks.as_count` reads it (an integer >= ``minimum``; no bool, NaN, infinity,
+    string or fraction), or None where it refuses it: the caller raises its own error, which names the option."""
+    try:
+        return as_count(value, "value", minimum=minimum)
+    except (TypeError, ValueError):
+        return None
 
 
 @functools.cache
@@ -583,18 +585,19 @@ class FastCycle:
         if not isinstance(straight, bool):
             raise MagneticsError(f"FastCycle straight must be True or False, got {straight!r}")
         self.straight = straight
-        if not _integral(max_registers) or max_registers < 0:
+        regs = _count_or_none(max_registers, 0)
+        if regs is None:
             raise MagneticsError(f"FastCycle max_registers must be a non-negative integer, got {max_registers!r}")
         if rest_block is None:
             rest_block = REST_BLOCK
-        if (isinstance(rest_block, bool) or not _integral(rest_block) or not 0 < rest_block <= 1024
-                or rest_block % self.lanes):
+        block = _count_or_none(rest_block, 1)
+        if block is None or block > 1024 or block % self.lanes:
             raise MagneticsError(f"FastCycle rest_block must be a multiple of lanes={self.lanes} in 1..1024, got "
                                  f"{rest_block!r}")
         #: CUDA threads per block of the active-set launch (a block retires when its slowest mover is done)
-        self.rest_block = int(rest_block)
+        self.rest_block = block
         self.mover_func, self.kernel, self.first_kernel, self.rest_kernel = make_fast_cycle(
-            model.max_active, self.lanes, self.tiles, int(max_registers), self.straight)
+            model.max_active, self.lanes, self.tiles, regs, self.straight)
         self._rest = self._rest_count = None
 
     def reserve(self, n: int) -> "FastCycle":
