@@ -860,26 +860,33 @@ class Simulator:
         return int(min(256, max(32, 1 << (per_sm.bit_length() - 1))))
 
     def _launch_step(self, n: int) -> None:
-        self._launch_motion(n)
+        # the NaN guard: the step's number first (the record below, or a motion that checks its own movers, reads it)
         if self.nan_guard:
-            s = self.state
             wp.launch(kguard.count_step, dim=1, inputs=[self._steps], device=self.device)
+        checked = self._launch_motion(n)
+        if self.nan_guard and not checked:
+            s = self.state
             wp.launch(kguard.flag_nonfinite, dim=(self.num_worlds, self.num_movers), device=self.device,
                       inputs=[self._steps, s.pos, s.quat, s.vel, s.omega, self._nonfinite])
 
     def set_motion(self, motion: Callable[["Simulator", int], bool] | None) -> None:
         """Let ``motion(sim, n)`` launch the motion of a whole step of ``n`` cycles in place of the built-in kernels
         (e.g. the swarm env's fused step, :mod:`magwarp.swarm.fused`): it returns True where it did, False to let the
-        built-in launch shapes run. It runs inside the step graph, before the NaN guard, on the simulator's stream,
-        and must only launch device work. None: the built-in kernels only."""
+        built-in launch shapes run. It runs inside the step graph, before the NaN guard's record, on the simulator's
+        stream, and must only launch device work. A motion whose attribute ``checks_nonfinite`` is true also writes
+        the NaN guard's record where it ran (with :attr:`nan_guard` on: each world whose record ``sim._nonfinite`` is
+        still -1 and one of whose movers' pose or velocity is non-finite after the step gets ``sim._steps[0]``, the
+        step's number, already counted), and the separate check over every mover is left out. None: the built-in
+        kernels only."""
         if motion is not None and not callable(motion):
             raise TypeError(f"set_motion needs a callable motion(sim, num_cycles) or None, got {motion!r}")
         self._motion = motion
         self._graphs.clear()
 
-    def _launch_motion(self, n: int) -> None:
+    def _launch_motion(self, n: int) -> bool:
+        """The step's motion; True where a motion of :meth:`set_motion` ran and wrote the NaN guard's record."""
         if self._motion is not None and self._motion(self, n):
-            return
+            return bool(getattr(self._motion, "checks_nonfinite", False))
         m, s, dev = self.model, self.state, self.device
         W, M = self.num_worlds, self.num_movers
         if self._fused:  # the fused kernels clear their per-step accumulators themselves
@@ -891,9 +898,9 @@ class Simulator:
                 B = self._movers_block
                 wp.launch_tiled(self._fused_kernel, dim=[kblocks.num_blocks(W, M, B)], block_dim=B, device=dev,
                                 inputs=inputs)
-                return
+                return False
             wp.launch(self._fused_kernel, dim=W, device=dev, block_dim=self._block_dim(W), inputs=inputs)
-            return
+            return False
         wp.launch(kstep.begin_step, dim=(W, M), inputs=[s.flags_any, s.halted, s.cycles], device=dev)
         for c in range(n):
             for hook in self._pre_hooks:
@@ -903,6 +910,7 @@ class Simulator:
                 hook(self)
         if self._latency_bound is not None:
             wp.launch(kstep.hold_commands, dim=(W, M), inputs=[s.cmd, self._prev_cmd], device=dev)
+        return False
 
     def _launch_cycle(self, c: int) -> None:
         """Cycle ``c`` of a step on the per-cycle path: integrate (+ bin into the grid), then detect. Two or three

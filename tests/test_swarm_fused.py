@@ -13,7 +13,7 @@ import magwarp.swarm.fused as fused_mod
 from magwarp.swarm import SwarmConfig, SwarmEnv
 
 FIELDS = ("pos", "quat", "vel", "omega", "acc", "cmd", "flags", "flags_any", "partner", "world_pairs", "world_walls",
-          "halted", "cycles")
+          "halted", "cycles", "nonfinite_step")
 
 
 def _env(fused: bool, worlds: int, movers: int, seed: int, device: str = "cpu", **options) -> SwarmEnv:
@@ -184,6 +184,51 @@ def test_tiled_kernel_with_several_worlds_per_block(rng, monkeypatch, movers, wo
             env.sim._graphs.clear()
 
     assert _run_both(rng, worlds, movers, 4, setup=setup, occupancy=0.45, collision_shape=shape) > 0
+
+
+@pytest.mark.parametrize("tiled", [False, True])
+def test_fused_step_writes_the_nan_guard_record(rng, monkeypatch, tiled):
+    """The fused step writes the NaN guard's record itself (no separate check over every mover): a mover made
+    non-finite in a random world flags that world at the step's number, as the per-cycle path's check does, keeps the
+    first step, and leaves the other worlds at -1; per world and in the tiled shape (cooperative CPU blocks)."""
+    import magwarp.kernels.guard as kguard
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    worlds, movers = 4, 24
+    seed = int(rng.integers(1 << 30))
+    envs = [_env(False, worlds, movers, seed), _env(True, worlds, movers, seed)]
+    if tiled:
+        envs[1].fused_step.tiled = True
+    launched = []
+    real_launch = wp.launch
+
+    def spy(kernel, *args, **kwargs):
+        launched.append(kernel)
+        return real_launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(wp, "launch", spy)
+    bad_world, bad_mover = int(rng.integers(worlds)), int(rng.integers(movers))
+    field = ("vel", "omega", "pos")[int(rng.integers(3))]
+    for k in range(4):
+        if k == 1:  # before the second step: one mover's state turns non-finite in both envs
+            for env in envs:
+                getattr(env.sim, field)[bad_world, bad_mover, 0] = float("nan")
+        action = torch.as_tensor(rng.uniform(-5.0, 5.0, (worlds, movers, 2)), dtype=torch.float32)
+        for env in envs:
+            launched.clear()
+            env.step(action.clone())
+            # the per-cycle env checks every mover (launched, or replayed by the simulator's graph after its first
+            # step); the fused env never launches that check
+            if env.fused_step is not None:
+                assert kguard.flag_nonfinite not in launched, (rng, k)
+            elif k == 0:
+                assert kguard.flag_nonfinite in launched, (rng, k)
+        want = [-1] * worlds
+        if k >= 1:
+            want[bad_world] = 2  # the sim's second step, kept after it
+        for env in envs:
+            assert env.sim.nonfinite_step.tolist() == want, (rng, k, field, env.fused_step is not None)
+            assert env.sim.steps_taken == k + 1
 
 
 def test_worlds_per_block_option(monkeypatch):

@@ -19,6 +19,20 @@ def vec3_finite(v: wp.vec3) -> bool:
     return wp.isfinite(v[0]) and wp.isfinite(v[1]) and wp.isfinite(v[2])
 
 
+@wp.func
+def state_finite(pos: wp.vec3, quat: wp.quat, vel: wp.vec3, omega: wp.vec3) -> bool:
+    """Whether a mover's pose and velocity are all finite."""
+    ok = vec3_finite(pos) and vec3_finite(vel) and vec3_finite(omega)
+    return ok and wp.isfinite(quat[0]) and wp.isfinite(quat[1]) and wp.isfinite(quat[2]) and wp.isfinite(quat[3])
+
+
+@wp.func
+def flag_world(steps: wp.array(dtype=wp.int32), nonfinite_step: wp.array(dtype=wp.int32), w: int):
+    """Record step ``steps[0]`` for world ``w`` unless it holds an earlier one (every writer writes the same step)."""
+    if nonfinite_step[w] < 0:
+        nonfinite_step[w] = steps[0]
+
+
 @wp.kernel
 def count_step(
     # State out:
@@ -43,10 +57,7 @@ def flag_nonfinite(
     w, k = wp.tid()
     if nonfinite_step[w] >= 0:  # keep the first step at which the world went bad
         return
-    q = quat[w, k]
-    ok = vec3_finite(pos[w, k]) and vec3_finite(vel[w, k]) and vec3_finite(omega[w, k])
-    ok = ok and wp.isfinite(q[0]) and wp.isfinite(q[1]) and wp.isfinite(q[2]) and wp.isfinite(q[3])
-    if not ok:
+    if not state_finite(pos[w, k], quat[w, k], vel[w, k], omega[w, k]):
         nonfinite_step[w] = steps[0]
 
 

@@ -132,7 +132,10 @@ def fused_applies(num_movers: int, on_collision: str) -> str | None:
 class FusedSwarmStep:
     """The fused motion of a swarm simulator whose movers stop where they collide. ``stopped``: the env's ``[W, M]``
     int32 stop marks (read and written by the step); ``stop_hook``: the env's per-cycle stop hook, the only cycle hook
-    the fused step replaces."""
+    the fused step replaces. It writes the simulator's NaN guard record itself (``checks_nonfinite``, see
+    :meth:`magwarp.sim.Simulator.set_motion`)."""
+
+    checks_nonfinite = True
 
     def __init__(self, sim, stopped: wp.array, stop_hook: Callable):
         if sim.model.collision.stop_on_collision != 0:
@@ -169,7 +172,8 @@ class FusedSwarmStep:
         args = [num_cycles, self.travel(sim, num_cycles), m.limits, m.impedance, m.collision, m.tiles, m.body,
                 m.radius, m.half_size, m.margins, sim._delay, s.target_pos, s.target_quat, s.force_aux, s.cmd,
                 sim._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
-                s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list, self.stopped]
+                s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list, self.stopped,
+                int(bool(sim.nan_guard)), sim._steps, sim._nonfinite]
         if self.tiled:
             if not dev.is_cuda and sim.num_movers != 1 and not wp.config.enable_cpu_blocks:
                 raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks "
