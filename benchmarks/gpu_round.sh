@@ -20,7 +20,8 @@
 # swarm_sift (#18: the observation's sift), swarm_abc (#18: an older tree, the sift off / on / on with packing),
 # swarm_pack_cap (#18: several worlds per block under a register cap), capture_gc (graph captures beside dropped
 # torch graphs), swarm_kernels (#18: the env step's kernels by time), swarm_cap_check (#18: the register cap rule at
-# sizes not yet measured). ncu18 with NCU_OBS=1 also profiles the observation kernel.
+# sizes not yet measured), swarm_guard_check (#18: the NaN guard in the fused step against the separate check). ncu18
+# with NCU_OBS=1 also profiles the observation kernel.
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 # swarm_load at 16,384 worlds with the environment variable VAR set to each of VALUES in turn, the whole set ROUNDS
@@ -258,6 +259,14 @@ PY
         tests/test_swarm_graph.py tests/test_capture_gc.py -k "cuda or graph or capture" \
         > "$OUT/pytest_swarm_caps_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_caps_gpu.log" | tail -8 ;;
+    swarm_guard_check)
+      # #18: the NaN guard's record written by the fused swarm step (MAGWARP_SWARM_GUARD=fused, the default) against
+      # the simulator's separate check over every mover (separate), alternated twice, planner and seek; then the
+      # swarm CUDA tests (the guard's record on CUDA, bit for bit against the per-cycle path)
+      swarm_load_by MAGWARP_SWARM_GUARD guard "fused separate" "${LOAD_MOVERS:-64 100 160}" "${LOADS:-planner seek}" 280
+      timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
+        tests/test_swarm_graph.py -k "cuda or graph or guard" > "$OUT/pytest_swarm_guard_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_guard_gpu.log" | tail -8 ;;
     swarm_pack)
       # #18: several worlds per block of the swarm step (MAGWARP_SWARM_WORLDS=auto: 2 worlds of 100 movers in 7 warps,
       # 2 of 16 or 48 in 1 or 3 warps) against one world per block: the CUDA tests (bit for bit against the per-cycle

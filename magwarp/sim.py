@@ -109,7 +109,8 @@ class Simulator:
     counts all of them). check_inputs: validate commands (costs a device sync per command; turn off in tight loops
     that produce commands on the device). nan_guard: flag, inside the step graph, every world whose state turns
     non-finite (:attr:`nonfinite_step`, :meth:`nonfinite_worlds`, :meth:`dump_state`); on by default (two small
-    launches per step, no host sync).
+    launches per step, no host sync; one where the step's motion checks its own movers, as the swarm env's fused
+    step does).
 
     Physical limits are checked at construction: the held impedance axes must be stable at ``dt`` (the semi-implicit,
     critically damped law diverges above ``K = M (0.828 / dt)^2``, :func:`magwarp._checks.stiffness_limit`).

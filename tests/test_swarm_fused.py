@@ -186,17 +186,22 @@ def test_tiled_kernel_with_several_worlds_per_block(rng, monkeypatch, movers, wo
     assert _run_both(rng, worlds, movers, 4, setup=setup, occupancy=0.45, collision_shape=shape) > 0
 
 
-@pytest.mark.parametrize("tiled", [False, True])
-def test_fused_step_writes_the_nan_guard_record(rng, monkeypatch, tiled):
+@pytest.mark.parametrize("tiled, guard, device", [(False, "fused", "cpu"), (True, "fused", "cpu"),
+                                                  (True, "separate", "cpu"),
+                                                  pytest.param(True, "fused", "cuda:0", marks=pytest.mark.skipif(
+                                                      not wp.is_cuda_available(), reason="needs a CUDA device"))])
+def test_fused_step_writes_the_nan_guard_record(rng, monkeypatch, tiled, guard, device):
     """The fused step writes the NaN guard's record itself (no separate check over every mover): a mover made
     non-finite in a random world flags that world at the step's number, as the per-cycle path's check does, keeps the
-    first step, and leaves the other worlds at -1; per world and in the tiled shape (cooperative CPU blocks)."""
+    first step, and leaves the other worlds at -1; per world and in the tiled shape (cooperative CPU blocks). With
+    MAGWARP_SWARM_GUARD=separate the simulator's own check writes the same record."""
     import magwarp.kernels.guard as kguard
 
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    monkeypatch.setenv("MAGWARP_SWARM_GUARD", guard)
     worlds, movers = 4, 24
     seed = int(rng.integers(1 << 30))
-    envs = [_env(False, worlds, movers, seed), _env(True, worlds, movers, seed)]
+    envs = [_env(False, worlds, movers, seed, device), _env(True, worlds, movers, seed, device)]
     if tiled:
         envs[1].fused_step.tiled = True
     launched = []
@@ -213,13 +218,13 @@ def test_fused_step_writes_the_nan_guard_record(rng, monkeypatch, tiled):
         if k == 1:  # before the second step: one mover's state turns non-finite in both envs
             for env in envs:
                 getattr(env.sim, field)[bad_world, bad_mover, 0] = float("nan")
-        action = torch.as_tensor(rng.uniform(-5.0, 5.0, (worlds, movers, 2)), dtype=torch.float32)
+        action = torch.as_tensor(rng.uniform(-5.0, 5.0, (worlds, movers, 2)), dtype=torch.float32, device=device)
         for env in envs:
             launched.clear()
             env.step(action.clone())
             # the per-cycle env checks every mover (launched, or replayed by the simulator's graph after its first
             # step); the fused env never launches that check
-            if env.fused_step is not None:
+            if env.fused_step is not None and guard == "fused":
                 assert kguard.flag_nonfinite not in launched, (rng, k)
             elif k == 0:
                 assert kguard.flag_nonfinite in launched, (rng, k)
@@ -229,6 +234,16 @@ def test_fused_step_writes_the_nan_guard_record(rng, monkeypatch, tiled):
         for env in envs:
             assert env.sim.nonfinite_step.tolist() == want, (rng, k, field, env.fused_step is not None)
             assert env.sim.steps_taken == k + 1
+
+
+def test_guard_option(monkeypatch):
+    """MAGWARP_SWARM_GUARD: 'fused' (default) or 'separate'; anything else is an error naming the value."""
+    assert fused_mod.guard_in_step()
+    monkeypatch.setenv("MAGWARP_SWARM_GUARD", "separate")
+    assert not fused_mod.guard_in_step()
+    monkeypatch.setenv("MAGWARP_SWARM_GUARD", "both")
+    with pytest.raises(ValueError, match="'both'"):
+        fused_mod.guard_in_step()
 
 
 def test_worlds_per_block_option(monkeypatch):

@@ -107,7 +107,7 @@ from magwarp.kernels.swarm import (SwarmRewards, apply_respawns, command_unless_
                                    finish_worlds, goal_distances, stop_collided)
 from magwarp.layout import Layout, MoverSpec, benchmark_layout
 from magwarp.sim import Simulator
-from magwarp.swarm.fused import FusedSwarmStep, exchange, fused_applies, launch_block
+from magwarp.swarm.fused import FusedSwarmStep, exchange, fused_applies, guard_in_step, launch_block
 from magwarp.swarm.observations import LocalObservations, check_view_sizes
 from magwarp.swarm.placement import Placer, on_torch_stream
 from magwarp.swarm.safety import SAFE_SPEED, build_safety
@@ -487,7 +487,7 @@ class SwarmEnv(MagwarpVecEnv):
                 id(sim._delay), id(sim._prev_cmd), sim._latency_bound, sim.nan_guard, sim._fused,
                 id(sim._fused_kernel), id(sim._advance_kernel), id(m.body), id(m.radius), id(m.half_size),
                 id(m.margins),
-                None if fs is None else (fs.tiled, exchange(), launch_block(self.num_movers)),
+                None if fs is None else (fs.tiled, exchange(), launch_block(self.num_movers), guard_in_step()),
                 self.placer.shape,
                 None if rp is None else rp.shape, self._search_key(local), self.autoreset, self._can_end,
                 id(self._generator), self.num_cycles,

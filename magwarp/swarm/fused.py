@@ -22,7 +22,7 @@ import warp as wp
 from magwarp.kernels import swarm_step as kss
 from magwarp.kernels.options import world_block_dim
 
-__all__ = ["FusedSwarmStep", "fused_applies", "launch_block", "max_registers", "MAX_FUSED_MOVERS"]
+__all__ = ["FusedSwarmStep", "fused_applies", "guard_in_step", "launch_block", "max_registers", "MAX_FUSED_MOVERS"]
 
 MAX_FUSED_MOVERS = kss.MAX_BLOCK
 TRAVEL_SLACK = 1.01  # the travel budget's room over the speed cap's distance (rounding; the guard covers the rest)
@@ -73,6 +73,22 @@ def exchange() -> str:
     if value not in ("native", "tile"):
         raise ValueError(f"MAGWARP_SWARM_EXCHANGE must be 'native' or 'tile', got {value!r}")
     return value
+
+
+#: where the simulator's NaN guard checks the movers after a fused step: ``"fused"`` (the step kernel, from the final
+#: state in registers: no separate pass over every mover's pose and velocity, which took 33 us of a 3.4 ms step at
+#: 16,384 worlds of 100 movers on the H200, ``benchmarks/results/swarm_kernels_s43_gpu.json``) or ``"separate"`` (the
+#: simulator's own check, :func:`magwarp.kernels.guard.flag_nonfinite`). The same record. ``MAGWARP_SWARM_GUARD``
+#: overrides it, for measuring.
+GUARD = "fused"
+
+
+def guard_in_step() -> bool:
+    """Whether the fused step writes the NaN guard's record itself (:data:`GUARD`, or ``MAGWARP_SWARM_GUARD``)."""
+    value = os.environ.get("MAGWARP_SWARM_GUARD", "").strip() or GUARD
+    if value not in ("fused", "separate"):
+        raise ValueError(f"MAGWARP_SWARM_GUARD must be 'fused' or 'separate', got {value!r}")
+    return value == "fused"
 
 
 #: Worlds per thread block of the tiled kernel: ``1`` (a block per world), ``"auto"`` (:func:`pack_worlds`: as many
@@ -133,9 +149,11 @@ class FusedSwarmStep:
     """The fused motion of a swarm simulator whose movers stop where they collide. ``stopped``: the env's ``[W, M]``
     int32 stop marks (read and written by the step); ``stop_hook``: the env's per-cycle stop hook, the only cycle hook
     the fused step replaces. It writes the simulator's NaN guard record itself (``checks_nonfinite``, see
-    :meth:`magwarp.sim.Simulator.set_motion`)."""
+    :meth:`magwarp.sim.Simulator.set_motion`; :func:`guard_in_step`)."""
 
-    checks_nonfinite = True
+    @property
+    def checks_nonfinite(self) -> bool:
+        return guard_in_step()
 
     def __init__(self, sim, stopped: wp.array, stop_hook: Callable):
         if sim.model.collision.stop_on_collision != 0:
@@ -173,7 +191,7 @@ class FusedSwarmStep:
                 m.radius, m.half_size, m.margins, sim._delay, s.target_pos, s.target_quat, s.force_aux, s.cmd,
                 sim._prev_cmd, s.pos, s.quat, s.vel, s.omega, s.acc, s.planar, s.wall, s.flags, s.flags_any,
                 s.partner, s.world_pairs, s.world_walls, s.halted, s.cycles, s.pair_list, self.stopped,
-                int(bool(sim.nan_guard)), sim._steps, sim._nonfinite]
+                int(bool(sim.nan_guard) and guard_in_step()), sim._steps, sim._nonfinite]
         if self.tiled:
             if not dev.is_cuda and sim.num_movers != 1 and not wp.config.enable_cpu_blocks:
                 raise ValueError(f"the tiled swarm step runs on the CPU only with warp.config.enable_cpu_blocks "
