@@ -20,7 +20,7 @@
 # swarm_sift (#18: the observation's sift), swarm_abc (#18: an older tree, the sift off / on / on with packing),
 # swarm_pack_cap (#18: several worlds per block under a register cap), capture_gc (graph captures beside dropped
 # torch graphs), swarm_kernels (#18: the env step's kernels by time), swarm_cap_check (#18: the register cap rule at
-# sizes not yet measured), swarm_guard_check (#18: the NaN guard in the fused step against the separate check). ncu18
+# sizes not yet measured), swarm_small_check (#18: the NaN guard in the fused step, the placement's capped launches). ncu18
 # with NCU_OBS=1 also profiles the observation kernel.
 set -u
 source "$(dirname "$0")/gpu_common.sh"
@@ -259,14 +259,25 @@ PY
         tests/test_swarm_graph.py tests/test_capture_gc.py -k "cuda or graph or capture" \
         > "$OUT/pytest_swarm_caps_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_caps_gpu.log" | tail -8 ;;
-    swarm_guard_check)
-      # #18: the NaN guard's record written by the fused swarm step (MAGWARP_SWARM_GUARD=fused, the default) against
-      # the simulator's separate check over every mover (separate), alternated twice, planner and seek; then the
-      # swarm CUDA tests (the guard's record on CUDA, bit for bit against the per-cycle path)
-      swarm_load_by MAGWARP_SWARM_GUARD guard "fused separate" "${LOAD_MOVERS:-64 100 160}" "${LOADS:-planner seek}" 280
+    swarm_small_check)
+      # #18: the step's small launches: the NaN guard's record written by the fused step (MAGWARP_SWARM_GUARD=fused,
+      # the default) and the placement's index-walking launches capped at 8 blocks per SM (MAGWARP_PLACE_BLOCKS=8,
+      # the default), first the CUDA tests (bit for bit against the per-cycle path and the uncapped launches), then
+      # swarm_load with both on ("new") against both off ("old"), alternated twice, then each lever alone
       timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
-        tests/test_swarm_graph.py -k "cuda or graph or guard" > "$OUT/pytest_swarm_guard_gpu.log" 2>&1
-      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_guard_gpu.log" | tail -8 ;;
+        tests/test_swarm_graph.py tests/test_swarm_placement.py -k "cuda or graph or guard" \
+        > "$OUT/pytest_swarm_small_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_small_gpu.log" | tail -8
+      for round in 1 2; do
+        for v in new old; do
+          if [ "$v" = old ]; then knobs=(MAGWARP_SWARM_GUARD=separate MAGWARP_PLACE_BLOCKS=0); else knobs=(X=1); fi
+          env "${knobs[@]}" timeout 280 python3 benchmarks/swarm_load.py --device cuda:0 --movers ${LOAD_MOVERS:-64 100 160} \
+            --worlds 16384 --loads ${LOADS:-planner seek} --json "$OUT/swarm_small_${v}_r${round}_gpu.json" 2>&1 \
+            | grep -v "^Module" | tail -8
+        done
+      done
+      ROUNDS=1 swarm_load_by MAGWARP_SWARM_GUARD guard "separate" 100 "planner seek" 200
+      ROUNDS=1 swarm_load_by MAGWARP_PLACE_BLOCKS blocks "0 4 16" 100 "planner seek" 300 ;;
     swarm_pack)
       # #18: several worlds per block of the swarm step (MAGWARP_SWARM_WORLDS=auto: 2 worlds of 100 movers in 7 warps,
       # 2 of 16 or 48 in 1 or 3 warps) against one world per block: the CUDA tests (bit for bit against the per-cycle

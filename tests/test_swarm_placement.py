@@ -8,10 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+import warp as wp
 
 from magwarp import reference as ref
 from magwarp.layout import Layout, MoverSpec
 from magwarp.sim import Simulator
+from magwarp.swarm import placement
 from magwarp.swarm.placement import SCAN_SHAPES, Placer, PlacementError
 
 
@@ -189,6 +191,55 @@ def test_world_scan_places_as_the_grid_does(rng, devices, shape, tries):
         Placer(layout, 3, device="cpu", search="ring")
     with pytest.raises(ValueError, match="scan.*'yes'"):
         Placer(layout, 3, device="cpu", scan="yes")
+
+
+def test_blocks_option(monkeypatch):
+    """``blocks`` (CUDA blocks per SM of the launches that walk every mover index): 8 by default, 0 for no cap,
+    ``MAGWARP_PLACE_BLOCKS`` sets the default; bad values are errors naming them; part of the placer's shape (a
+    recorded step graph is recorded anew when it changes); no effect on the CPU."""
+    layout = Layout(np.ones((4, 4), dtype=np.int32))
+    placer = Placer(layout, 3, 2, device="cpu")
+    assert placer.blocks == placement.ROUND_BLOCKS_PER_SM == 8 and placer.shape[-1] == 8
+    assert placer._max_blocks() == 0  # the CPU: Warp's own launch
+    placer.blocks = 0
+    assert placer.shape[-1] == 0
+    for bad in (-1, 2.5, True, "8", 5000):
+        with pytest.raises((TypeError, ValueError), match="blocks"):
+            placer.blocks = bad
+    monkeypatch.setenv("MAGWARP_PLACE_BLOCKS", "2")
+    assert Placer(layout, 3, 2, device="cpu").blocks == 2
+    monkeypatch.setenv("MAGWARP_PLACE_BLOCKS", "many")
+    with pytest.raises(ValueError, match="'many'"):
+        Placer(layout, 3, 2, device="cpu")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available() or not wp.is_cuda_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("search", ["grid", "world"])
+def test_capped_blocks_place_the_same_spots_on_cuda(rng, monkeypatch, search):
+    """On CUDA the launches that walk every mover index in a few blocks (Warp's grid-stride loop: here one block of
+    256 threads for 20 x 30 indices, each thread taking two or three) place the same spots and leave the same movers
+    as one thread per index, bit for bit, over back-to-back calls with and without ``hold``."""
+    layout = random_layout(rng, 8, 8, holes=0.1)
+    seed = int(rng.integers(1 << 20))
+    runs = []
+    for blocks in (0, 8, "one"):
+        placer = Placer(layout, 30, 20, device="cuda:0", seed=seed, search=search, tries=2)
+        if blocks == "one":
+            monkeypatch.setattr(placer, "_max_blocks", lambda: 1)
+        else:
+            placer.blocks = blocks
+        xy = placer.sample()
+        out = [xy.cpu()]
+        calls = np.random.default_rng(seed)
+        for hold in (True, False, True):
+            mask = torch.from_numpy(calls.random((20, 30)) < 0.4).to("cuda:0")
+            left = placer.place_async(xy, mask, rounds=2, hold=hold)
+            out += [xy.cpu(), left.cpu()]
+        runs.append(out)
+    for run in runs[1:]:
+        assert all(torch.equal(a, b) for a, b in zip(runs[0], run)), f"{rng}: the capped launches placed differently"
+    left = torch.stack(runs[0][2::2])
+    assert left.any() and (~left).any(), f"{rng}: the test needs movers placed and movers left"
 
 
 def test_on_torch_stream_uses_the_shared_stream_wrapper(monkeypatch):

@@ -22,12 +22,14 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 
 import numpy as np
 import torch
 import warp as wp
 from scipy import ndimage
 
+from magwarp._checks import as_count
 from magwarp._streams import torch_stream as _torch_stream
 from magwarp.kernels import placement as kpl
 from magwarp.kernels.options import PLACE_SCAN
@@ -71,6 +73,26 @@ SCAN_CPU = "chunked" if PLACE_SCAN == "device" else PLACE_SCAN
 #: the threads of a round's launch in the lane shape (:class:`Placer`'s ``lanes``): its groups walk the list of movers
 #: to place (an H100 holds 132 * 2048 resident threads)
 LANE_GRID_THREADS = 1 << 18
+#: thread blocks per multiprocessor of a CUDA round's launches (:class:`Placer`'s ``blocks``): :func:`begin_todo`,
+#: the rounds' :func:`~magwarp.kernels.placement.propose` and :func:`~magwarp.kernels.placement.resolve`, and the
+#: grid search's binning walk their ``W * M`` indices with Warp's grid-stride loop in at most this many 256-thread
+#: blocks per SM (8: every thread resident at once), not one thread per index. The same work per index in the same
+#: order of indices, so the same spots bit for bit; a round with few movers to place (most threads past the list's
+#: count) no longer launches a block for every 256 movers of every world: at 16,384 worlds of 100 movers those empty
+#: launches took about 6 us each on the H200, 8 per env step (``benchmarks/results/swarm_kernels_still_cap96_s43_gpu
+#: .json``). ``MAGWARP_PLACE_BLOCKS`` sets the default (0: no cap, one thread per index), for measuring.
+ROUND_BLOCKS_PER_SM = 8
+
+
+def round_blocks_per_sm() -> int:
+    """The default of :class:`Placer`'s ``blocks`` per SM (:data:`ROUND_BLOCKS_PER_SM` or ``MAGWARP_PLACE_BLOCKS``)."""
+    value = os.environ.get("MAGWARP_PLACE_BLOCKS", "").strip()
+    if not value:
+        return ROUND_BLOCKS_PER_SM
+    if not value.isdigit() or int(value) > 1024:
+        raise ValueError(f"MAGWARP_PLACE_BLOCKS must be an integer from 0 (no cap) to 1024 (blocks per SM), got "
+                         f"{value!r}")
+    return int(value)
 
 
 class PlacementError(LayoutError):
@@ -120,14 +142,15 @@ class Placer:
     ``warp.config.enable_cpu_blocks`` (a block per group, ``wp.tile_sum`` votes). ``scan``: with ``search="world"``
     and ``lanes`` None, how a round's tries and winners are checked (:data:`SCAN_SHAPES`; the same spots, bit for bit;
     ``"chunked"`` takes ``tries`` up to :data:`~magwarp.kernels.placement.MAX_SCAN_TRIES`, more go serially);
-    None: :data:`SCAN_CUDA` on CUDA, :data:`SCAN_CPU` on the CPU. ``search``, ``lanes`` and ``scan`` are settable
-    between calls.
+    None: :data:`SCAN_CUDA` on CUDA, :data:`SCAN_CPU` on the CPU. ``blocks``: on CUDA the most thread blocks per SM of
+    the launches that walk every mover index (:data:`ROUND_BLOCKS_PER_SM`; 0: no cap; no effect on the CPU; the same
+    spots, bit for bit). ``search``, ``lanes``, ``scan`` and ``blocks`` are settable between calls.
     """
 
     def __init__(self, layout: Layout | np.ndarray, num_movers: int, num_worlds: int = 1, *,
                  mover: MoverSpec | None = None, offset: float = 0.0, radius: float | None = None,
                  half_size=None, tries: int = 8, device=None, seed: int = 0, search: str | None = None,
-                 lanes: int | None = None, scan: str | None = None):
+                 lanes: int | None = None, scan: str | None = None, blocks: int | None = None):
         self.layout = layout if isinstance(layout, Layout) else Layout(np.asarray(layout))
         self.mover = mover or MoverSpec()
         if int(num_movers) < 1 or int(num_worlds) < 1:
@@ -146,6 +169,7 @@ class Placer:
         self.search = search
         self.lanes = lanes
         self.scan = (SCAN_CUDA if self.device.is_cuda else SCAN_CPU) if scan is None else scan
+        self.blocks = round_blocks_per_sm() if blocks is None else blocks
         # the device counter [base seed, rounds since the reseed, rounds ever (claims of older rounds lose)]: the
         # rounds' kernels read their seeds and round numbers from it (kpl.round_seed), so that a call recorded in a
         # CUDA graph draws fresh numbers at every replay
@@ -228,10 +252,27 @@ class Placer:
         self._scan_shape = value
 
     @property
+    def blocks(self) -> int:
+        """CUDA thread blocks per SM of the launches that walk every mover index (0: no cap); settable between
+        calls."""
+        return self._blocks
+
+    @blocks.setter
+    def blocks(self, value: int) -> None:
+        value = as_count(value, "blocks", minimum=0)
+        if value > 1024:
+            raise ValueError(f"blocks must be at most 1024 per SM (0: no cap), got {value!r}")
+        self._blocks = value
+
+    def _max_blocks(self) -> int:
+        """The launches' ``max_blocks`` (0: Warp's default, a block per 256 indices)."""
+        return self._blocks * self.device.sm_count if self.device.is_cuda else 0
+
+    @property
     def shape(self) -> tuple:
-        """What the launches of a call depend on: ``(search, lanes, scan)`` (a recorded step graph holding this
-        placer's rounds is recorded anew when it changes)."""
-        return self.search, self._lanes, self.scan
+        """What the launches of a call depend on: ``(search, lanes, scan, blocks)`` (a recorded step graph holding
+        this placer's rounds is recorded anew when it changes)."""
+        return self.search, self._lanes, self.scan, self._blocks
 
     @property
     def lanes(self) -> int | None:
@@ -362,15 +403,18 @@ class Placer:
         self._grid_clean = False
         self._active.zero_()
         self._count.zero_()
+        blocks = self._max_blocks()
         wp.launch(kpl.begin_todo, dim=dim,
                   inputs=[int(advance), wp.from_torch(mask.to(torch.bool).contiguous(), dtype=wp.bool)],
-                  outputs=[self._todo, self._active, self._listed, self._count, self._counter], device=dev)
+                  outputs=[self._todo, self._active, self._listed, self._count, self._counter], device=dev,
+                  max_blocks=blocks)
         self._hold = int(hold)
         self._world_scan = int(self.search == "world")  # this call's search (the setter may change it before the next)
         if self._world_scan:  # no lists: the rounds scan the world's movers
             return pos
         wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo, self._active],
-                  outputs=[self._head, self._next, self._head_old, self._next_old, self._old_cell], device=dev)
+                  outputs=[self._head, self._next, self._head_old, self._next_old, self._old_cell], device=dev,
+                  max_blocks=blocks)
         return pos
 
     def _end(self, pos: wp.array) -> None:
@@ -378,7 +422,7 @@ class Placer:
         if not self._world_scan:
             wp.launch(kpl.unbin, dim=(self.num_worlds, self.num_movers), device=self.device,
                       inputs=[self.grid, pos, self._todo, self._active, self._old_cell],
-                      outputs=[self._head, self._head_old])
+                      outputs=[self._head, self._head_old], max_blocks=self._max_blocks())
         self._grid_clean = True
 
     def _rounds(self, pos: wp.array, rounds: int, advanced: bool = False) -> None:
@@ -388,6 +432,7 @@ class Placer:
         if not advanced:
             wp.launch(kpl.advance_counter, dim=1, inputs=[int(rounds)], outputs=[self._counter], device=dev)
         lanes = self._lanes if self._world_scan else None
+        blocks = self._max_blocks()
         if lanes is not None:
             propose, resolve, groups = self._lane_kernels()
             block = lanes if dev.is_cpu else 256  # a CPU block is a group (its votes); a CUDA warp holds 32 / lanes
@@ -407,17 +452,17 @@ class Placer:
                 wp.launch(kpl.make_scan_propose(self.tries), dim=dim, device=dev,
                           inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
                                   self._tile_list, self._hold, back, self._counter, pos, self._todo, self._listed,
-                                  self._count], outputs=[self._cand, self._cand_ok, self._claim])
+                                  self._count], outputs=[self._cand, self._cand_ok, self._claim], max_blocks=blocks)
             else:
                 wp.launch(kpl.propose, dim=dim, device=dev,
                           inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
                                   self._tile_list, self.tries, self._hold, back, self._world_scan, self._counter, pos,
                                   self._todo, self._head, self._next, self._head_old, self._next_old, self._listed,
-                                  self._count], outputs=[self._cand, self._cand_ok, self._claim])
+                                  self._count], outputs=[self._cand, self._cand_ok, self._claim], max_blocks=blocks)
             wp.launch(kpl.resolve, dim=dim, device=dev,
                       inputs=[g, back, self._world_scan * (1 if self.scan == "serial" else 2), self._counter,
                               self._cand, self._cand_ok, self._claim, self._listed, self._count, self._todo, pos,
-                              self._head, self._next])
+                              self._head, self._next], max_blocks=blocks)
 
     def place_async(self, xy: torch.Tensor, mask: torch.Tensor | None = None, rounds: int = 2, *,
                     hold: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
