@@ -152,6 +152,37 @@ class Simulator:
         if mover is not None and not isinstance(mover, MoverSpec):
             raise TypeError(f"mover must be a MoverSpec, got {type(mover).__name__}")
         self.mover = mover or MoverSpec()
+        num_worlds, num_movers, gravity, hold = self._check_options(num_worlds, num_movers, control, dt, v_max,
+                                                                     a_max, j_max, gravity, hold_mask)
+        fused_max_movers = as_count(fused_max_movers, "fused_max_movers", minimum=0)
+        max_pairs = as_count(max_pairs, "max_pairs")
+        from magwarp.magnetics.drive import resolve_force_model  # a name ("magnetic") or a MagneticModel
+
+        force_model, force_aux_dim, attach_drive = resolve_force_model(force_model,
+                                                                       as_count(force_aux_dim, "force_aux_dim"))
+        self.num_worlds = num_worlds
+        self.control = control
+        self.check_inputs = check_inputs
+        self._init_runtime(device, use_graph)
+
+        start = self._start_arrays(num_movers, start_xy, start_yaw, start_pose)
+        self.num_movers = m = start.shape[1]
+        self.max_pairs = min(int(max_pairs), max(1, m * (m - 1) // 2))
+        radii, half = self._collision_sizes(collision_radii, collision_half_sizes)
+        self._fused = m <= fused_max_movers
+        self.model = self._build_model(dt, v_max, a_max, j_max, gravity, stiffness_lin, stiffness_rot, hold,
+                                       stop_on_collision, radii, half)
+        self.state = self._alloc_state(force_aux_dim)
+        self._init_step_parts(nan_guard, force_model)
+        self._build_kernels()
+        self._init_starts(start, validate_starts)
+        self.magnetic_drive = attach_drive(self) if attach_drive is not None else None
+
+    # ------------------------------------------------------------------ construction parts
+    @staticmethod
+    def _check_options(num_worlds, num_movers, control, dt, v_max, a_max, j_max, gravity, hold_mask):
+        """The scalar options checked (each error names the bad value): ``(num_worlds, num_movers, gravity, hold)``
+        as the constructor uses them."""
         num_worlds = as_count(num_worlds, "num_worlds")
         if num_movers is not None:
             num_movers = as_count(num_movers, "num_movers")
@@ -164,16 +195,15 @@ class Simulator:
             raise ValueError(f"dt must be at least 1e-6 s (one microsecond; the real cycle is 1e-3 s), got {dt!r}")
         gravity = as_finite(gravity, "gravity")
         check_magnitude(v_max=v_max, a_max=a_max, j_max=j_max, gravity=gravity)
-        fused_max_movers = as_count(fused_max_movers, "fused_max_movers", minimum=0)
-        max_pairs = as_count(max_pairs, "max_pairs")
-        force_aux_dim = as_count(force_aux_dim, "force_aux_dim")
-        from magwarp.magnetics.drive import resolve_force_model  # a name ("magnetic") or a MagneticModel
+        hold_what = f"hold_mask must be six 0/1 flags (x, y, z, roll, pitch, yaw), got {hold_mask!r}"
+        hold = _host_array(hold_mask, "hold_mask", hold_what).reshape(-1)
+        if hold.shape != (6,) or not np.all(np.isin(hold, (0, 1))):
+            raise ValueError(hold_what)
+        return num_worlds, num_movers, gravity, hold
 
-        force_model, force_aux_dim, attach_drive = resolve_force_model(force_model, force_aux_dim)
-        self.num_worlds = num_worlds
+    def _init_runtime(self, device, use_graph: bool) -> None:
+        """The device, its stream, the step graphs and the hook lists (empty)."""
         self.device = warp_device(device)
-        self.control = control
-        self.check_inputs = check_inputs
         self._use_graph = use_graph
         self._hooks: list[Callable[[Simulator], None]] = []
         self._pre_hooks: list[Callable[[Simulator], None]] = []
@@ -184,20 +214,9 @@ class Simulator:
         # without any host synchronisation.
         self._stream = torch_stream(self.torch_device) if self.device.is_cuda else None
 
-        start = self._start_arrays(num_movers, start_xy, start_yaw, start_pose)
-        self.num_movers = start.shape[1]
-        m = self.num_movers
-        self.max_pairs = min(int(max_pairs), max(1, m * (m - 1) // 2))
-        radii, half = self._collision_sizes(collision_radii, collision_half_sizes)
-        self._fused = m <= fused_max_movers
-
-        hold_what = f"hold_mask must be six 0/1 flags (x, y, z, roll, pitch, yaw), got {hold_mask!r}"
-        hold = _host_array(hold_mask, "hold_mask", hold_what).reshape(-1)
-        if hold.shape != (6,) or not np.all(np.isin(hold, (0, 1))):
-            raise ValueError(hold_what)
-        self.model = self._build_model(dt, v_max, a_max, j_max, gravity, stiffness_lin, stiffness_rot, hold,
-                                       stop_on_collision, radii, half)
-        self.state = self._alloc_state(force_aux_dim)
+    def _init_step_parts(self, nan_guard: bool, force_model) -> None:
+        """What the step kernels take beside the model and state: the NaN guard's counter and record, the force
+        model, the in-step actuator (none), the nominal body rows and the action latency's placeholders (off)."""
         self.nan_guard = bool(nan_guard)
         # NaN guard: a device step counter and, per world, the step at which its state first held a NaN/inf (-1: none).
         self._steps = wp.zeros(1, dtype=wp.int32, device=self.device)
@@ -213,17 +232,18 @@ class Simulator:
         self._latency_bound: int | None = None
         self._prev_cmd = wp.zeros((1, 1), dtype=wp.vec2, device=self.device)
         self._delay = wp.zeros(1, dtype=wp.int32, device=self.device)
-        self._build_kernels()
 
-        # Start poses live on the device so that resets are a kernel, not a host round trip.
+    def _init_starts(self, start: np.ndarray, validate: bool) -> None:
+        """The start poses on the device (resets are a kernel, not a host round trip), then the first reset; with
+        ``validate``, start poses off the tiles or in collision are an error."""
+        m = self.num_movers
         self._init_pos = wp.zeros((self.num_worlds, m), dtype=wp.vec3, device=self.device)
         self._init_quat = wp.zeros((self.num_worlds, m), dtype=wp.quat, device=self.device)
         self._reset_mask = wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device)
         self._write_start_poses(start)
         self.reset()
-        if validate_starts:
+        if validate:
             self._raise_on_start_collisions()
-        self.magnetic_drive = attach_drive(self) if attach_drive is not None else None
 
     # ------------------------------------------------------------------ construction helpers
     def _build_kernels(self) -> None:
