@@ -156,6 +156,9 @@ def test_bad_inputs_raise_clear_errors(backend):
         ControlParams(num_cycles=0)
     with pytest.raises(PhysicsInputError, match="v_max"):
         ControlParams(v_max=float("nan"))
+    for worlds in (0, -2, 2.5, float("nan"), True, "3"):  # checked before any model is read or built
+        with pytest.raises(PhysicsInputError, match=f"num_worlds must be a positive integer, got {worlds!r}"):
+            MjwBackend("<mujoco/>", worlds, device="cpu")
 
 
 def _push_both_engines(xml: str, steps: int) -> tuple[np.ndarray, np.ndarray, MjwBackend]:

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from magwarp._checks import MAGNITUDE_MAX
+from magwarp._checks import MAGNITUDE_MAX, as_count
 from magwarp._streams import gc_paused, torch_stream
 from magwarp.physics.control import (
     YawDrive,
@@ -34,6 +34,15 @@ __all__ = ["CONTROL_CYCLE_S", "PHYSICS_DT_MAX", "PHYSICS_DT_MIN", "ControlParams
 
 class PhysicsInputError(ValueError):
     """An input (action, mask, state, option) that the backend cannot use."""
+
+
+def _yaw_drive(c: ControlParams) -> YawDrive:
+    """The yaw drive's kernel struct from the (frozen) control parameters."""
+    yaw = YawDrive()
+    yaw.enabled, yaw.jerk_mode = int(c.rotation), int(c.jerk)
+    yaw.v_max, yaw.a_max, yaw.j_max = float(c.v_max_c), float(c.a_max_c), float(c.j_max_c)
+    yaw.p_max = float(c.p_max_c) if c.p_max_c is not None else -1.0
+    return yaw
 
 
 #: The control cycle of MagBotSim and of the real system (s): envs count an env step in these cycles.
@@ -170,18 +179,14 @@ class MjwBackend:
         import mujoco_warp as mjw
 
         self._mjw = mjw
-        if int(num_worlds) != num_worlds or num_worlds < 1:
-            raise PhysicsInputError(f"num_worlds must be a positive integer, got {num_worlds!r}")
-        self.num_worlds = int(num_worlds)
+        try:
+            self.num_worlds = as_count(num_worlds, "num_worlds")
+        except (TypeError, ValueError) as e:
+            raise PhysicsInputError(f"num_worlds must be a positive integer, got {num_worlds!r}") from e
         self.control = control or ControlParams()
         if not isinstance(self.control, ControlParams):
             raise PhysicsInputError(f"control must be a ControlParams, got {type(self.control).__name__}")
-        c = self.control  # frozen: its yaw limits become the kernel's struct once
-        yaw = YawDrive()
-        yaw.enabled, yaw.jerk_mode = int(c.rotation), int(c.jerk)
-        yaw.v_max, yaw.a_max, yaw.j_max = float(c.v_max_c), float(c.a_max_c), float(c.j_max_c)
-        yaw.p_max = float(c.p_max_c) if c.p_max_c is not None else -1.0
-        self._yaw_drive = yaw
+        self._yaw_drive = _yaw_drive(self.control)
         self.device = wp.get_device(device)
         self.use_graph = bool(use_graph)
         # On CUDA, launch on torch's current stream so Warp kernels and torch ops on the views are ordered without
@@ -189,8 +194,23 @@ class MjwBackend:
         self._stream = (
             torch_stream(str(self.device)) if self.device.is_cuda else None
         )
-
         self.mjm = xml if isinstance(xml, mujoco.MjModel) else mujoco.MjModel.from_xml_string(xml)
+        mjd, mass, inertia = self._read_model(hover_z)
+        self._alloc_device(mjd, mass, inertia, int(nconmax), int(njmax))
+        self._cycle_hooks: list[Callable[[], None]] = []
+        self._step_hooks: list[Callable[[], None]] = []
+        self._record_stream = None  # set by recording(): launch into an outer capture instead of replaying graphs
+        self._step_graph = None
+        self._reset_graph = None
+        #: per-world model arrays made by :meth:`batch_model_fields` (name -> torch view ``[W, ...]``)
+        self.batched_fields: dict[str, torch.Tensor] = {}
+        self._make_torch_views()
+
+    # ------------------------------------------------------------------ construction parts
+    def _read_model(self, hover_z) -> tuple[mujoco.MjData, np.ndarray, np.ndarray]:
+        """The movers and objects of the MuJoCo model (bodies ``mover_i`` / ``object_i`` with free joints), its time
+        step and the movers' hover heights; returns the initial data (after ``mj_forward``), the mass riding on each
+        mover (its subtree) and the principal inertia of each mover body."""
         mjm = self.mjm
         self.dt = float(mjm.opt.timestep)
         mover_names = []
@@ -206,7 +226,6 @@ class MjwBackend:
 
         mjd = mujoco.MjData(mjm)
         mujoco.mj_forward(mjm, mjd)
-        # Mass of everything riding on the mover (its subtree); principal inertia of the mover body itself.
         mass = mjm.body_subtreemass[self.mover_body].astype(np.float64)
         inertia = mjm.body_inertia[self.mover_body].astype(np.float64)
         if hover_z is None:
@@ -216,16 +235,22 @@ class MjwBackend:
             if not np.all(np.isfinite(hz)):
                 raise PhysicsInputError(f"hover_z must be finite, got {hover_z!r}")
         self.hover_z = hz
+        return mjd, mass, inertia
 
+    def _alloc_device(self, mjd: mujoco.MjData, mass: np.ndarray, inertia: np.ndarray, nconmax: int,
+                      njmax: int) -> None:
+        """mujoco-warp's model and data for every world, the movers' drive parameters, commands and the start state
+        on the device."""
+        mjw, mjm, c = self._mjw, self.mjm, self.control
         with wp.ScopedDevice(self.device):
             self.model = mjw.put_model(mjm)
-            self.data = mjw.put_data(mjm, mjd, nworld=self.num_worlds, nconmax=int(nconmax), njmax=int(njmax))
+            self.data = mjw.put_data(mjm, mjd, nworld=self.num_worlds, nconmax=nconmax, njmax=njmax)
             W, M = self.num_worlds, self.num_movers
             self._qadr = wp.array(self.mover_qadr, dtype=int)
             self._dadr = wp.array(self.mover_dadr, dtype=int)
             self._mass = wp.array(mass.reshape(1, -1) if M else np.zeros((1, 1)), dtype=float)
             self._inertia = wp.array(inertia, dtype=wp.vec3)
-            self._hover_z = wp.array(hz, dtype=float)
+            self._hover_z = wp.array(self.hover_z, dtype=float)
             self._gains = wp.array(np.tile([c.k_lin[2], *c.k_rot], (1, max(M, 1), 1)), dtype=wp.vec4)
             self._limits = wp.array(np.tile([c.v_max, c.a_max, c.j_max], (1, max(M, 1), 1)), dtype=wp.vec3)
             self.cmd = wp.zeros((W, max(M, 1)), dtype=wp.vec2)
@@ -238,15 +263,6 @@ class MjwBackend:
             self.init_qvel = wp.array(np.tile(mjd.qvel, (W, 1)), dtype=float)
             self.init_mocap_pos = wp.array(np.tile(mjd.mocap_pos, (W, 1, 1)), dtype=wp.vec3) if mjm.nmocap else None
             self.init_mocap_quat = wp.array(np.tile(mjd.mocap_quat, (W, 1, 1)), dtype=wp.quat) if mjm.nmocap else None
-
-        self._cycle_hooks: list[Callable[[], None]] = []
-        self._step_hooks: list[Callable[[], None]] = []
-        self._record_stream = None  # set by recording(): launch into an outer capture instead of replaying graphs
-        self._step_graph = None
-        self._reset_graph = None
-        #: per-world model arrays made by :meth:`batch_model_fields` (name -> torch view ``[W, ...]``)
-        self.batched_fields: dict[str, torch.Tensor] = {}
-        self._make_torch_views()
 
     # ------------------------------------------------------------------ torch views
     def _make_torch_views(self):
