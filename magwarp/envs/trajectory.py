@@ -101,31 +101,50 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self.config = cfg
         num_envs = as_count(num_envs, "num_envs")
         self.fused = cfg.fused
-        layout_obj, _, self.layout_name = cfg.resolve_layout()
-        num_movers = cfg.movers
-        radii, halves = cfg.collision_sizes()
-        device = warp_device(device).alias
-        # The simulator is built with placeholder starts (every mover at the first tile centre) that are never
-        # validated nor simulated: the first reset below replaces them with sampled, collision-free starts, which
-        # are then checked with the simulator's own rule. (Tile-centre defaults overlap once the collision size
-        # exceeds half a tile, and need as many tiles as movers.)
-        placeholder = np.repeat(layout_obj.tile_centers()[:1], num_movers, axis=0)
-        self.sim = Simulator(
-            layout_obj, num_movers, num_envs, mover=cfg.make_mover(),
-            control="jerk" if cfg.learn_jerk else "acceleration", v_max=cfg.v_max, a_max=cfg.a_max, j_max=cfg.j_max,
-            device=device, check_inputs=False, start_xy=placeholder, validate_starts=False, collision_radii=radii,
-            collision_half_sizes=halves, force_model=cfg.force_model,
-        )
+        self.sim = self._build_sim(cfg, num_envs, device)
         super().__init__(num_envs, self.sim.torch_device, seed=seed, render_mode=render_mode, autoreset=autoreset,
                          check_inputs=check_inputs, nan_dump=nan_dump)
+        self._build_task(cfg, seed)
+        self._build_spaces(cfg)
+        self._fused_step = None
+        self._graph = cfg.graph
+        # before the first reset
+        self.randomizer = PlanarRandomizer(self, cfg.randomization) if cfg.randomization else None
+        self.reset()
+        # The sampled starts must satisfy the per-cycle rule (walls and mover-mover with the safety margin). Starts are
+        # sampled with the built sizes: collision sizes or margins drawn larger than those may make them collide (the
+        # randomisation module's doc says to build with the largest size drawn), so the check is the built sizes' only.
+        if self.randomizer is None or not any(f in SIZE_FIELDS for f in self.randomizer.values):
+            self.sim._raise_on_start_collisions()
+
+    # ------------------------------------------------------------------ construction parts
+    def _build_sim(self, cfg: TrajectoryConfig, num_envs: int, device) -> Simulator:
+        """The simulator of the config's layout, movers and limits (``layout``, ``layout_name``, ``num_movers``)."""
+        layout_obj, _, self.layout_name = cfg.resolve_layout()
         self.layout = layout_obj
-        self.num_movers = num_movers
+        self.num_movers = num_movers = cfg.movers
+        radii, halves = cfg.collision_sizes()
+        # The simulator is built with placeholder starts (every mover at the first tile centre) that are never
+        # validated nor simulated: the first reset replaces them with sampled, collision-free starts, which are then
+        # checked with the simulator's own rule. (Tile-centre defaults overlap once the collision size exceeds half a
+        # tile, and need as many tiles as movers.)
+        placeholder = np.repeat(layout_obj.tile_centers()[:1], num_movers, axis=0)
+        return Simulator(
+            layout_obj, num_movers, num_envs, mover=cfg.make_mover(),
+            control="jerk" if cfg.learn_jerk else "acceleration", v_max=cfg.v_max, a_max=cfg.a_max, j_max=cfg.j_max,
+            device=warp_device(device).alias, check_inputs=False, start_xy=placeholder, validate_starts=False,
+            collision_radii=radii, collision_half_sizes=halves, force_model=cfg.force_model,
+        )
+
+    def _build_task(self, cfg: TrajectoryConfig, seed: int | None) -> None:
+        """The task's options, its sensor and latency models, the start and goal sampler and the per-world task
+        state."""
         self.learn_jerk = cfg.learn_jerk
         self.std_noise = float(cfg.std_noise)
         self.num_cycles = cfg.num_cycles
         #: the key and clock of the sensor and latency models' counter-based draws (they leave the generator alone)
         self.draw_clock = DrawClock(0 if seed is None else int(seed), self.device)
-        self.sensors = SensorModel(cfg.sensor_config(), self.num_envs, num_movers, self.device, self.draw_clock)
+        self.sensors = SensorModel(cfg.sensor_config(), self.num_envs, self.num_movers, self.device, self.draw_clock)
         self.latency = Latency(cfg.actuation, self.sim, self.num_cycles, self.draw_clock)
         self.threshold_pos = float(cfg.threshold_pos)
         self.reward_success = float(cfg.reward_success)
@@ -139,15 +158,17 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
         self._pool_generator.manual_seed(0 if seed is None else int(seed))
         self.sampler = PoseSampler(self.sim, cfg.collision_offset, self._pool_generator)
         self.sampler.generator = self._generator
-
         n, m = self.num_envs, self.num_movers
         self.goals = torch.zeros(n, m, 2, device=self.device)
         self.num_steps = torch.zeros(n, dtype=torch.int64, device=self.device)
         self.last_goal_step = torch.zeros(n, dtype=torch.int64, device=self.device)
         self.collected_goals = torch.zeros(n, m, dtype=torch.int64, device=self.device)
 
+    def _build_spaces(self, cfg: TrajectoryConfig) -> None:
+        """The observation (a goal-env dict) and action (per-mover acceleration or jerk, flat) spaces."""
+        m = self.num_movers
         limit = cfg.j_max if cfg.learn_jerk else cfg.a_max
-        ext = np.array(layout_obj.extent * m, dtype=np.float32)
+        ext = np.array(self.layout.extent * m, dtype=np.float32)
         obs_dim = m * 2 * (2 if cfg.learn_jerk else 1)
         self._set_spaces(
             gym.spaces.Dict({
@@ -157,16 +178,6 @@ class TrajectoryPlanningEnv(ChosenEpisodes, MagwarpVecEnv):
             }),
             gym.spaces.Box(-limit, limit, (m * 2,), np.float32),
         )
-        self._fused_step = None
-        self._graph = cfg.graph
-        # before the first reset
-        self.randomizer = PlanarRandomizer(self, cfg.randomization) if cfg.randomization else None
-        self.reset()
-        # The sampled starts must satisfy the per-cycle rule (walls and mover-mover with the safety margin). Starts are
-        # sampled with the built sizes: collision sizes or margins drawn larger than those may make them collide (the
-        # randomisation module's doc says to build with the largest size drawn), so the check is the built sizes' only.
-        if self.randomizer is None or not any(f in SIZE_FIELDS for f in self.randomizer.values):
-            self.sim._raise_on_start_collisions()
 
     # ------------------------------------------------------------------ task hooks
     def _reseed(self, seed: int) -> None:
