@@ -76,9 +76,13 @@ def test_swarm_planner_beats_straight_seeking():
     assert c_plan * 5 < c_seek and g_plan > g_seek, results
 
 
-def test_solve_lines_finds_the_closest_feasible_velocity(rng):
-    """ORCA's incremental LP against a brute-force search over a fine grid of velocities in the speed disc."""
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_solve_lines_finds_the_closest_feasible_velocity(rng, dtype):
+    """ORCA's incremental LP against a brute-force search over a fine grid of velocities in the speed disc: the torch
+    form (float64) and the Warp kernel (float32, a thread per mover)."""
     from magwarp.swarm.planner import solve_lines
+
+    tol = 1e-9 if dtype == torch.float64 else 1e-5
 
     g = np.linspace(-1.0, 1.0, 401)
     grid = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
@@ -91,8 +95,9 @@ def test_solve_lines_finds_the_closest_feasible_velocity(rng):
         point = rng.uniform(-0.8, 0.8, (k, 2))
         live = rng.random(k) < 0.8
         v_pref = rng.uniform(-1.2, 1.2, 2)
-        lines = [(torch.tensor(point[i]), torch.tensor(direction[i]), torch.tensor(bool(live[i]))) for i in range(k)]
-        v, ok = solve_lines(lines, torch.tensor(v_pref), 1.0)
+        lines = [(torch.tensor(point[i], dtype=dtype), torch.tensor(direction[i], dtype=dtype),
+                  torch.tensor(bool(live[i]))) for i in range(k)]
+        v, ok = solve_lines(lines, torch.tensor(v_pref, dtype=dtype), 1.0)
         det = direction[:, 0, None] * (point[:, 1, None] - grid[None, :, 1]) - \
             direction[:, 1, None] * (point[:, 0, None] - grid[None, :, 0])
         feasible = grid[((det <= 0) | ~live[:, None]).all(axis=0)]
@@ -100,13 +105,40 @@ def test_solve_lines_finds_the_closest_feasible_velocity(rng):
             continue  # (the LP may still find a sliver the grid misses; nothing to compare)
         checked += 1
         assert bool(ok), f"{rng}: a feasible set was reported empty"
-        v = v.numpy()
+        v = v.double().numpy()
         best = np.linalg.norm(feasible - v_pref, axis=-1).min()
-        assert np.linalg.norm(v - v_pref) <= best + 1e-9, f"{rng}: not the closest feasible velocity"
-        assert np.linalg.norm(v) <= 1.0 + 1e-9
+        assert np.linalg.norm(v - v_pref) <= best + tol, f"{rng}: not the closest feasible velocity"
+        assert np.linalg.norm(v) <= 1.0 + tol
         vdet = direction[:, 0] * (point[:, 1] - v[1]) - direction[:, 1] * (point[:, 0] - v[0])
-        assert (vdet[live] <= 1e-9).all(), f"{rng}: the velocity violates a line"
+        assert (vdet[live] <= tol).all(), f"{rng}: the velocity violates a line"
     assert checked >= 10
+
+
+@pytest.mark.parametrize("skip", [False, True])
+def test_solve_lines_kernel_matches_the_torch_form(rng, skip):
+    """The Warp kernel (float32, a thread per mover) against the torch form on the same float32 lines: 2,000 movers,
+    each with 8 lines (walls, shields and ORCA lines alike: random, some dead, one parallel to an earlier one; about
+    a quarter of the programs feasible), with
+    and without dropping the lines that leave no room. The same velocities but for rounding (a few movers at a line's
+    boundary may step differently), the same feasibility."""
+    from magwarp.swarm.planner import solve_lines, solve_lines_torch
+
+    g = torch.Generator().manual_seed(int(rng.integers(1 << 30)))
+    rows, k = 2000, 8
+    ang = torch.rand(rows, k, generator=g) * 6.2832
+    ang[:, 5] = ang[:, 2]  # parallel to an earlier line
+    direction = torch.stack([ang.cos(), ang.sin()], -1)
+    point = (torch.rand(rows, k, 2, generator=g) - 0.5) * 1.6
+    live = torch.rand(rows, k, generator=g) < 0.8
+    v_pref = (torch.rand(rows, 2, generator=g) - 0.5) * 2.4
+    lines = [(point[:, i], direction[:, i], live[:, i]) for i in range(k)]
+    v, ok = solve_lines(lines, v_pref, 1.0, skip=skip)
+    v_ref, ok_ref = solve_lines_torch(lines, v_pref, 1.0, skip=skip)
+    close = (v - v_ref).norm(dim=-1) <= 1e-4
+    assert close.float().mean() >= 0.99 and (ok == ok_ref).float().mean() >= 0.99, \
+        f"{rng}: {int((~close).sum())} velocities, {int((ok != ok_ref).sum())} flags differ"
+    assert 0.05 < ok.float().mean() < 0.95, f"{rng}: the test needs feasible and infeasible programs"
+    assert (v.norm(dim=-1) <= 1.0 + 1e-5).all()
 
 
 def test_planner_options_keep_commands_within_limits():
@@ -178,3 +210,25 @@ def test_safe_planner_options_are_checked():
                 dict(safe_k=0)):
         with pytest.raises(ValueError):
             SwarmPlanner(env, cruise=0.8, **bad)
+
+
+def test_planner_kernels_command_as_the_torch_forms(rng):
+    """The planner with its Warp kernels (the linear program and the safety filter, a thread per mover) against the
+    same planner in torch ops, from the same states of a crowded world with holes (lanes off: every mover steers by
+    ORCA): the same commands but for float rounding at a boundary, for nearly every mover; both keep the movers
+    apart over the steps (no collision)."""
+    tiles = np.ones((12, 12))
+    tiles[rng.integers(0, 12, 4), rng.integers(0, 12, 4)] = 0
+    env = SwarmEnv(3, num_movers=40, layout=tiles, device="cpu", seed=int(rng.integers(1 << 20)))
+    fast, ref = SwarmPlanner(env), SwarmPlanner(env, kernels=False)
+    assert fast.kernels and fast.safety.kernel and not ref.kernels and not ref.safety.kernel
+    env.reset(seed=int(rng.integers(1 << 20)))
+    close = total = 0
+    for _ in range(12):
+        a, b = fast(), ref()
+        d = (a - b).norm(dim=-1)
+        close += int((d <= 1e-3).sum())
+        total += d.numel()
+        _, _, _, _, info = env.step(a)
+        assert not info["collided"].any(), f"{rng}: the planner's movers collided"
+    assert close >= 0.97 * total, f"{rng}: {total - close} of {total} commands differ"

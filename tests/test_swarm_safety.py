@@ -200,8 +200,8 @@ def test_bad_options_are_refused():
 
 
 def test_blocks_of_movers_choose_as_all_at_once(rng):
-    """For more movers than chunk_bytes holds, choose takes them a block at a time: the same velocities and passes
-    bit for bit (neighbours, walls and a leading [worlds, movers] shape)."""
+    """For more movers than chunk_bytes holds, the torch form takes them a block at a time: the same velocities and
+    passes bit for bit (neighbours, walls and a leading [worlds, movers] shape)."""
     tiles = np.ones((8, 6), dtype=bool)
     tiles[rng.integers(0, 8, 3), rng.integers(0, 6, 3)] = False
     f = SafetyFilter(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
@@ -214,10 +214,43 @@ def test_blocks_of_movers_choose_as_all_at_once(rng):
     rel_vel = torch.randn(w, m, k, 2, generator=g) * 0.5
     mask = torch.rand(w, m, k, generator=g) < 0.7
     pos = torch.rand(w, m, 2, generator=g) * torch.tensor([2.0, 1.5])
-    whole = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
+    whole = f.choose_torch(vel, wanted, rel_pos, rel_vel, mask, pos)
     walls = f.cell_offsets.shape[0]
     f.chunk_bytes = 4 * f.num_candidates * (k + walls) * 3  # three movers per block: 12 blocks, the last one short
-    blocks = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
+    blocks = f.choose_torch(vel, wanted, rel_pos, rel_vel, mask, pos)
     assert torch.equal(blocks[0], whole[0]) and torch.equal(blocks[1], whole[1]), str(rng)
     assert blocks[0].shape == (w, m, 2) and blocks[1].shape == (w, m)
     assert 0 < int(whole[1].sum()) < w * m, "the random states must mix passing and refused wishes"
+
+
+def test_kernel_chooses_as_the_torch_form(rng):
+    """The Warp kernel (a thread per mover) against the torch form on random crowds with holes: the same velocity
+    but for float rounding for nearly every mover (a candidate at a constraint's boundary, or two at the same cost,
+    may go either way) and the same passes; every velocity the kernel chooses is safe by the torch form's own
+    constraints and within its ball, and it is one of the torch form's candidates."""
+    tiles = np.ones((8, 6), dtype=bool)
+    tiles[rng.integers(0, 8, 3), rng.integers(0, 6, 3)] = False
+    f = SafetyFilter(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
+                     v_cap=CRUISE, tiles=tiles, tile_size=0.25)
+    w, m, k = 20, 50, 6
+    g = torch.Generator().manual_seed(int(rng.integers(1 << 30)))
+    vel = torch.randn(w, m, 2, generator=g) * 0.5
+    wanted = torch.randn(w, m, 2, generator=g)
+    rel_pos = torch.randn(w, m, k, 2, generator=g) * 0.4
+    rel_vel = torch.randn(w, m, k, 2, generator=g) * 0.5
+    mask = torch.rand(w, m, k, generator=g) < 0.7
+    mask[0, :5] = True  # some full lists (the ball)
+    pos = torch.rand(w, m, 2, generator=g) * torch.tensor([2.0, 1.5])
+    got, passes = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
+    want, passes_ref = f.choose_torch(vel, wanted, rel_pos, rel_vel, mask, pos)
+    close = (got - want).norm(dim=-1) <= 1e-5
+    assert close.float().mean() >= 0.98 and (passes == passes_ref).float().mean() >= 0.99, \
+        f"{rng}: {int((~close).sum())} velocities, {int((passes != passes_ref).sum())} passes differ"
+    assert 0.05 < passes.float().mean() < 0.95, f"{rng}: the test needs passing and refused wishes"
+    normals, base, ball = f.constraints(vel, rel_pos, rel_vel, mask, pos)
+    cand = f.candidates(vel, wanted)
+    assert ((cand - got[..., None, :]).norm(dim=-1).min(-1).values <= 1e-5).all(), f"{rng}: not a candidate"
+    violation = f.violation(got[..., None, :], normals, base)[..., 0]
+    brake = (got - f.braking(vel)).norm(dim=-1) <= 1e-6  # braking is safe by construction (no check)
+    assert ((violation <= 1e-5) | brake).all(), f"{rng}: an unsafe velocity ({float(violation.max())})"
+    assert ((f.path_reach_of(vel, got[..., None, :])[..., 0] <= ball + 1e-5) | brake).all(), f"{rng}: past the ball"

@@ -49,6 +49,7 @@ reached their first goal (the one drawn at reset) within 40 s while the goals st
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import torch
@@ -60,7 +61,7 @@ from magwarp.swarm.safety import (COMMIT_BRAKE, SAFE_K, SAFE_MARGIN, SAFE_SPEED,
                                   collision_distances)
 from magwarp.swarm.traffic import LaneField, lanes_fit
 
-__all__ = ["SwarmPlanner", "TRAFFIC", "orca_lines", "solve_lines", "stop_speed"]
+__all__ = ["SwarmPlanner", "TRAFFIC", "orca_lines", "solve_lines", "solve_lines_torch", "stop_speed"]
 
 TRAFFIC = ("auto", "lanes", "free")
 #: ``traffic="auto"`` takes the lanes on layouts without holes at least this many tiles a side (on smaller ones the
@@ -113,8 +114,41 @@ def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float,
     """The velocity closest to ``v_pref`` within speed ``max_speed`` that satisfies every half-plane of ``lines``
     (``(point, direction, live)`` triples, each ``[..., 2]``, ``[..., 2]``, ``[...]``): ORCA's incremental 2-D linear
     program (constraints added one by one; when the new one is violated, the best point on its line that keeps the
-    earlier ones). Where the lines have no common point, the last feasible velocity is kept and ``ok`` is false.
-    O(len(lines)^2) tensor operations, each over every mover at once."""
+    earlier ones). Where the lines have no common point, the last feasible velocity is kept and ``ok`` is false
+    (``skip``: and that line is dropped for the later ones). float32 inputs: one Warp launch, a thread per mover
+    (:func:`magwarp.kernels.orca.solve_lines`); else :func:`solve_lines_torch`, its reference."""
+    if not lines or v_pref.dtype != torch.float32 or any(p.dtype != torch.float32 or d.dtype != torch.float32
+                                                         for p, d, _ in lines):
+        return solve_lines_torch(lines, v_pref, max_speed, skip)
+    import warp as wp
+
+    from magwarp._streams import torch_stream
+    from magwarp.kernels import orca
+
+    lead, dev = v_pref.shape[:-1], v_pref.device
+    shape = (*lead, 2)
+    points = torch.stack([p.expand(shape) for p, _, _ in lines], -2).reshape(-1, len(lines), 2)
+    directions = torch.stack([d.expand(shape) for _, d, _ in lines], -2).reshape(-1, len(lines), 2)
+    live = torch.stack([lv.expand(lead).to(torch.bool) for _, _, lv in lines], -1).reshape(-1, len(lines))
+    rows = points.shape[0]
+    v = torch.empty(rows, 2, device=dev)
+    ok = torch.empty(rows, dtype=torch.bool, device=dev)
+    scratch = torch.empty_like(live)
+    wp.init()
+    wdev = wp.device_from_torch(dev)
+    vec = lambda t: wp.from_torch(t.contiguous(), dtype=wp.vec2)  # noqa: E731
+    with wp.ScopedStream(torch_stream(dev)) if dev.type == "cuda" else contextlib.nullcontext():
+        wp.launch(orca.solve_lines, dim=rows, device=wdev,
+                  inputs=[float(max_speed), int(bool(skip)), vec(points), vec(directions), wp.from_torch(live),
+                          vec(v_pref.reshape(rows, 2)), wp.from_torch(scratch)],
+                  outputs=[vec(v), wp.from_torch(ok)])
+    return v.reshape(shape), ok.reshape(lead)
+
+
+def solve_lines_torch(lines: list, v_pref: torch.Tensor, max_speed: float,
+                      skip: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`solve_lines` in torch ops (the kernel's reference; any float dtype): O(len(lines)^2) tensor operations,
+    each over every mover at once."""
     v = clip_norm(v_pref, max_speed)
     ok = torch.ones(v.shape[:-1], dtype=torch.bool, device=v.device)
     lines = list(lines)
@@ -163,14 +197,16 @@ class SwarmPlanner:
     2-5, the preferred velocity goes straight to the safety filter). With ``safe=True`` the filter finds its own
     ``safe_k`` nearest movers within ``safety.reach_radius`` (0.65 m at the default cruise of 1.5 m/s).
     Defaults with ``safe=True``: ``cruise=1.5``, ``buffer=0.02``, ``shield=0`` (the filter keeps the movers apart);
-    with ``safe=False``: ``cruise=1.0``, ``buffer=0.06``, ``shield=0.4``."""
+    with ``safe=False``: ``cruise=1.0``, ``buffer=0.06``, ``shield=0.4``. ``kernels`` (default True): the linear
+    program and the safety filter run as Warp kernels, a thread per mover (:mod:`magwarp.kernels.orca`,
+    :mod:`magwarp.kernels.safety`); False: their torch forms (the kernels' references; the same rule, slower)."""
 
     def __init__(self, env: SwarmEnv, *, cruise: float | None = None, a_brake: float = 4.0, horizon: float = 2.0,
                  buffer: float | None = None, yield_share: float = 0.5, shield: float | None = None,
                  margin: float = 0.005, greedy: bool = True, brake_factor: float = 0.5, separate: float = 0.3,
                  relax: float = 0.0, reachable: bool = False, orca: bool = True, safe: bool = True, patience: int = 5,
                  commit_brake: float = COMMIT_BRAKE, safe_margin: float = SAFE_MARGIN, safe_k: int = SAFE_K,
-                 traffic: str = "auto", lane_pitch: int = 4):
+                 traffic: str = "auto", lane_pitch: int = 4, kernels: bool = True):
         # defaults by mode: with the safety filter the steering may be bolder (measured on 64 movers at 25%, 2 seeds,
         # before the filter's slack sharing: 68 / 81 goals in 4 s against 45 / 64 with the unfiltered planner's
         # settings, none colliding)
@@ -195,6 +231,7 @@ class SwarmPlanner:
         self.yield_share, self.brake_factor = float(yield_share), float(brake_factor)
         self.shield, self.margin, self.greedy = float(shield), float(margin), bool(greedy)
         self.relax, self.reachable = float(relax), bool(reachable)
+        self.kernels = bool(kernels)
         sim = env.sim
         # the simulator's collision distance, and how close a centre may come to a wall (goals may lie this close to
         # a wall: no buffer)
@@ -210,6 +247,7 @@ class SwarmPlanner:
             # builds the same, :func:`~magwarp.swarm.safety.build_safety`)
             self.safety, self.near = build_safety(env, v_cap=self.cruise, commit_brake=commit_brake,
                                                   margin=safe_margin, k=safe_k)
+            self.safety.kernel = self.kernels
         self.rays = torch.as_tensor(ray_directions(max(env.local.num_rays, 1)), dtype=torch.float32, device=dev)
         self.index = torch.arange(env.num_movers, device=dev).view(1, -1, 1)
         if isinstance(patience, bool) or not isinstance(patience, int) or patience < 0:
@@ -287,11 +325,12 @@ class SwarmPlanner:
         return lines, slack
 
     def _solve(self, lines: list, v_pref: torch.Tensor, vel: torch.Tensor, skip: bool = False):
+        solve = solve_lines if self.kernels else solve_lines_torch
         if self.reachable:  # among the velocities reachable within one step (a disc around the velocity)
-            dv, ok = solve_lines([(p - vel, d, live) for p, d, live in lines], v_pref - vel,
-                                 self.a_max * self.step_time, skip=skip)
+            dv, ok = solve([(p - vel, d, live) for p, d, live in lines], v_pref - vel, self.a_max * self.step_time,
+                           skip=skip)
             return vel + dv, ok
-        return solve_lines(lines, v_pref, self.cruise, skip=skip)
+        return solve(lines, v_pref, self.cruise, skip=skip)
 
     def __call__(self, obs=None) -> torch.Tensor:
         env, sim = self.env, self.env.sim

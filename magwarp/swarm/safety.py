@@ -54,10 +54,12 @@ closest to the wanted velocity. O(k) tensor operations per mover, no host synchr
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import numpy as np
 import torch
+import warp as wp
 
 __all__ = ["SafetyFilter", "build_safety", "collision_distances", "segment_closest_points", "stop_length",
            "SAFE_SPEED", "COMMIT_BRAKE", "SAFE_MARGIN", "SAFE_K"]
@@ -164,7 +166,8 @@ class SafetyFilter:
     FRACTIONS = (1.0, 0.75, 0.5, 0.25)
 
     def __init__(self, *, contact: float, wall_reach: float, a_max: float, step: float, dt: float, a_brake: float,
-                 margin: float, v_cap: float, tiles=None, tile_size: float = 0.24, device=None):
+                 margin: float, v_cap: float, tiles=None, tile_size: float = 0.24, device=None,
+                 kernel: bool = True):
         for name, value in (("contact", contact), ("a_max", a_max), ("step", step), ("a_brake", a_brake),
                             ("v_cap", v_cap)):
             if not (math.isfinite(value) and value > 0):
@@ -198,6 +201,10 @@ class SafetyFilter:
         c, s = turns.cos(), turns.sin()
         self.rot = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # [R, 2, 2]
         self.fractions = torch.tensor(self.FRACTIONS, dtype=torch.float32, device=device)
+        #: choose with the Warp kernel (:func:`magwarp.kernels.safety.safe_choice`: a thread per mover) where the
+        #: inputs are float32, else (or False) with the torch form below, its reference
+        self.kernel = bool(kernel)
+        self._kernel_inputs: dict = {}
 
     def _gain(self, v1: torch.Tensor) -> torch.Tensor:
         """``T + dt/2 + |v1| / (2 a_brake)``: the factor of ``max(v1.n, 0)`` in the path bound."""
@@ -325,7 +332,72 @@ class SafetyFilter:
         """:meth:`__call__`'s safe velocity and ``[...]`` bool: where ``wanted`` itself passes, i.e. it is no faster
         than ``v_cap`` and its candidate (the first after braking: ``wanted``, moved within one step's reach of
         ``vel``, which is ``a_max T (1 - 1e-5)``) is safe; there the safe velocity is at least as close to ``wanted``
-        as that candidate.
+        as that candidate. With :attr:`kernel` (the default) and float32 inputs one Warp launch
+        (:func:`magwarp.kernels.safety.safe_choice`), else :meth:`choose_torch`."""
+        if self.kernel and all(t.dtype == torch.float32 for t in (vel, wanted, rel_pos, rel_vel)) and (
+                pos is None or pos.dtype == torch.float32):
+            return self._choose_kernel(vel, wanted, rel_pos, rel_vel, mask, pos)
+        return self.choose_torch(vel, wanted, rel_pos, rel_vel, mask, pos)
+
+    def _kernel_model(self, device: torch.device, walls: bool) -> tuple:
+        """The kernel's parameters (with or without the walls), tiles, cell offsets, turns and fractions on
+        ``device`` (made once per device and walls)."""
+        key = (str(device), bool(walls))
+        if key not in self._kernel_inputs:
+            from magwarp.kernels.safety import SafetyParams
+
+            p = SafetyParams()
+            for name in ("contact", "wall_reach", "a_max", "step", "dt", "a_brake", "margin", "v_cap", "reach_radius",
+                         "stop_cap", "share_min"):
+                setattr(p, name, float(getattr(self, name)))
+            p.share_floor = float(self.SHARE_FLOOR)
+            p.tile_size = float(getattr(self, "tile_size", 1.0))
+            p.walls = int(walls)
+            wp.init()
+            wdev = wp.device_from_torch(device)
+            tiles = self.tiles if self.tiles is not None else torch.zeros(1, 1, dtype=torch.bool)
+            offsets = self.cell_offsets if self.tiles is not None else torch.zeros(0, 2, dtype=torch.int64)
+            self._kernel_inputs[key] = (
+                p, wp.from_torch(tiles.to(device=device, dtype=torch.int32).contiguous()),
+                wp.from_torch(offsets.to(device=device, dtype=torch.int32).contiguous(), dtype=wp.vec2i),
+                wp.from_torch(self.rot.to(device).contiguous(), dtype=wp.mat22),
+                wp.from_torch(self.fractions.to(device).contiguous()), wdev)
+        return self._kernel_inputs[key]
+
+    def _choose_kernel(self, vel, wanted, rel_pos, rel_vel, mask, pos):
+        from magwarp._streams import torch_stream
+        from magwarp.kernels.safety import safe_choice
+
+        lead, k, dev = vel.shape[:-1], rel_pos.shape[-2], vel.device
+        rows = vel[..., 0].numel()
+        walls = pos is not None and self.tiles is not None
+        p, tiles, offsets, rot, fractions, wdev = self._kernel_model(dev, walls)
+        cells = offsets.shape[0] if walls else 0
+
+        def flat(t: torch.Tensor, *shape) -> wp.array:
+            t = t.reshape(*shape).contiguous()
+            return wp.from_torch(t, dtype=wp.vec2) if t.shape[-1] == 2 and t.dtype != torch.bool else wp.from_torch(t)
+
+        normals = torch.empty(rows, k + cells, 2, device=dev)
+        bases = torch.empty(rows, k + cells, device=dev)
+        turned = torch.empty(rows, self.rot.shape[0], 2, device=dev)
+        safe = torch.empty(rows, 2, device=dev)
+        passes = torch.empty(rows, dtype=torch.bool, device=dev)
+        pos_rows = flat(pos, rows, 2) if walls else wp.empty(0, dtype=wp.vec2, device=wdev)
+        inputs = [p, tiles, offsets, rot, fractions, flat(vel, rows, 2), flat(wanted, rows, 2),
+                  wp.from_torch(rel_pos.reshape(rows, k, 2).contiguous(), dtype=wp.vec2),
+                  wp.from_torch(rel_vel.reshape(rows, k, 2).contiguous(), dtype=wp.vec2),
+                  wp.from_torch(mask.reshape(rows, k).to(torch.bool).contiguous(), dtype=wp.bool), pos_rows,
+                  wp.from_torch(normals, dtype=wp.vec2), wp.from_torch(bases), wp.from_torch(turned, dtype=wp.vec2)]
+        with wp.ScopedStream(torch_stream(dev)) if dev.type == "cuda" else contextlib.nullcontext():
+            wp.launch(safe_choice, dim=rows, inputs=inputs, outputs=[wp.from_torch(safe, dtype=wp.vec2),
+                                                                     wp.from_torch(passes, dtype=wp.bool)],
+                      device=wdev)
+        return safe.reshape(*lead, 2), passes.reshape(lead)
+
+    def choose_torch(self, vel: torch.Tensor, wanted: torch.Tensor, rel_pos: torch.Tensor, rel_vel: torch.Tensor,
+                     mask: torch.Tensor, pos: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`choose` in torch ops (the kernel's reference; any float dtype).
 
         The candidates' constraint values are a ``[..., K, C]`` tensor (K candidates, C neighbour and wall
         constraints; about 4 KB per mover): for more movers than fit :attr:`chunk_bytes` (16,384 worlds of 256
