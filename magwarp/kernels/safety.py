@@ -109,7 +109,8 @@ def gain(p: SafetyParams, v1: wp.vec2) -> float:
 @wp.func
 def candidate(p: SafetyParams, i: int, v_b: wp.vec2, w: wp.array(dtype=wp.vec2), fractions: wp.array(dtype=float),
               turns: int) -> wp.vec2:
-    """Candidate ``i``: braking (0), then ``v_b + f (w_r - v_b)`` for fraction ``f`` and turn ``r`` (``1 + f R + r``)."""
+    """Candidate ``i``: braking (0), then ``v_b + f (w_r - v_b)`` for fraction ``f`` and turn ``r`` (at
+    ``1 + f R + r``)."""
     if i == 0:
         return v_b
     k = i - 1
