@@ -20,8 +20,9 @@
 # swarm_sift (#18: the observation's sift), swarm_abc (#18: an older tree, the sift off / on / on with packing),
 # swarm_pack_cap (#18: several worlds per block under a register cap), capture_gc (graph captures beside dropped
 # torch graphs), swarm_kernels (#18: the env step's kernels by time), swarm_cap_check (#18: the register cap rule at
-# sizes not yet measured), swarm_small_check (#18: the NaN guard in the fused step, the placement's capped launches). ncu18
-# with NCU_OBS=1 also profiles the observation kernel.
+# sizes not yet measured), swarm_small_check (#18: the NaN guard in the fused step, the placement's capped
+# launches), planner_cost (#18: the planner's kernels against their torch forms). ncu18 with NCU_OBS=1 also profiles
+# the observation kernel.
 set -u
 source "$(dirname "$0")/gpu_common.sh"
 # swarm_load at 16,384 worlds with the environment variable VAR set to each of VALUES in turn, the whole set ROUNDS
@@ -278,6 +279,15 @@ PY
       done
       ROUNDS=1 swarm_load_by MAGWARP_SWARM_GUARD guard "separate" 100 "planner seek" 200
       ROUNDS=1 swarm_load_by MAGWARP_PLACE_BLOCKS blocks "0 4 16" 100 "planner seek" 300 ;;
+    planner_cost)
+      # #18: the scripted planner's linear program and safety filter as Warp kernels against their torch forms: the
+      # CUDA tests (kernel against torch on random lines and crowds), then ms per planner call and per residual env
+      # step both ways (benchmarks/swarm_planner_cost.py)
+      timeout 200 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_planner.py \
+        tests/test_swarm_safety.py -k "kernel" > "$OUT/pytest_planner_kernels_gpu.log" 2>&1
+      grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_planner_kernels_gpu.log" | tail -8
+      timeout 400 python3 benchmarks/swarm_planner_cost.py --device cuda:0 --movers 64 256 1024 --worlds 256 \
+        --json "$OUT/swarm_planner_cost_gpu.json" 2>&1 | grep -v "^Module" | tail -10 ;;
     swarm_pack)
       # #18: several worlds per block of the swarm step (MAGWARP_SWARM_WORLDS=auto: 2 worlds of 100 movers in 7 warps,
       # 2 of 16 or 48 in 1 or 3 warps) against one world per block: the CUDA tests (bit for bit against the per-cycle

@@ -114,8 +114,9 @@ def test_solve_lines_finds_the_closest_feasible_velocity(rng, dtype):
     assert checked >= 10
 
 
-@pytest.mark.parametrize("skip", [False, True])
-def test_solve_lines_kernel_matches_the_torch_form(rng, skip):
+@pytest.mark.parametrize("skip, device", [(False, "cpu"), (True, "cpu"), pytest.param(
+    True, "cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device"))])
+def test_solve_lines_kernel_matches_the_torch_form(rng, skip, device):
     """The Warp kernel (float32, a thread per mover) against the torch form on the same float32 lines: 2,000 movers,
     each with 8 lines (walls, shields and ORCA lines alike: random, some dead, one parallel to an earlier one; about
     a quarter of the programs feasible), with
@@ -131,6 +132,7 @@ def test_solve_lines_kernel_matches_the_torch_form(rng, skip):
     point = (torch.rand(rows, k, 2, generator=g) - 0.5) * 1.6
     live = torch.rand(rows, k, generator=g) < 0.8
     v_pref = (torch.rand(rows, 2, generator=g) - 0.5) * 2.4
+    point, direction, live, v_pref = (t.to(device) for t in (point, direction, live, v_pref))
     lines = [(point[:, i], direction[:, i], live[:, i]) for i in range(k)]
     v, ok = solve_lines(lines, v_pref, 1.0, skip=skip)
     v_ref, ok_ref = solve_lines_torch(lines, v_pref, 1.0, skip=skip)

@@ -223,7 +223,9 @@ def test_blocks_of_movers_choose_as_all_at_once(rng):
     assert 0 < int(whole[1].sum()) < w * m, "the random states must mix passing and refused wishes"
 
 
-def test_kernel_chooses_as_the_torch_form(rng):
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="needs a CUDA device"))])
+def test_kernel_chooses_as_the_torch_form(rng, device):
     """The Warp kernel (a thread per mover) against the torch form on random crowds with holes: the same velocity
     but for float rounding for nearly every mover (a candidate at a constraint's boundary, or two at the same cost,
     may go either way) and the same passes; every velocity the kernel chooses is safe by the torch form's own
@@ -231,7 +233,7 @@ def test_kernel_chooses_as_the_torch_form(rng):
     tiles = np.ones((8, 6), dtype=bool)
     tiles[rng.integers(0, 8, 3), rng.integers(0, 6, 3)] = False
     f = SafetyFilter(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
-                     v_cap=CRUISE, tiles=tiles, tile_size=0.25)
+                     v_cap=CRUISE, tiles=tiles, tile_size=0.25, device=device)
     w, m, k = 20, 50, 6
     g = torch.Generator().manual_seed(int(rng.integers(1 << 30)))
     vel = torch.randn(w, m, 2, generator=g) * 0.5
@@ -241,6 +243,7 @@ def test_kernel_chooses_as_the_torch_form(rng):
     mask = torch.rand(w, m, k, generator=g) < 0.7
     mask[0, :5] = True  # some full lists (the ball)
     pos = torch.rand(w, m, 2, generator=g) * torch.tensor([2.0, 1.5])
+    vel, wanted, rel_pos, rel_vel, mask, pos = (t.to(device) for t in (vel, wanted, rel_pos, rel_vel, mask, pos))
     got, passes = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
     want, passes_ref = f.choose_torch(vel, wanted, rel_pos, rel_vel, mask, pos)
     close = (got - want).norm(dim=-1) <= 1e-5
