@@ -5,7 +5,9 @@ preferred one within a speed circle that satisfies every half-plane, the constra
 moves the velocity to the best point of its line within the earlier ones, and an infeasible one (no such point)
 keeps the velocity and clears ``ok`` (``skip``: and is dropped for the later lines). The torch form runs
 O(lines^2) tensor operations over every mover (about 4,000 small ones per planner call with 8 neighbours and 8 rays);
-here each thread runs its own lines in a loop. float32, with the same operations in the same order per mover.
+here each thread runs its own lines in a loop. float32, with the same operations in the same order per mover. On this
+project's 2-core CPU (16 worlds of 1,024 movers, 8 rays and 24 lines per mover with the env's 8 neighbours): 11.5 ms
+against 36.0 ms in torch, with the lines' stacking (``benchmarks/results/swarm_planner_cost_s44_cpu.json``).
 """
 
 from __future__ import annotations
