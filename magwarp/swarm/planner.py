@@ -27,8 +27,8 @@ radius, the wall rays), so a step costs O(k) per mover, on the device, for any s
    (ORCA's incremental 2-D linear program, :func:`solve_lines`: a Warp kernel, a thread per mover running its
    O((k + rays)^2) steps), taken in order of urgency: walls, shield, then the neighbours nearest first; a line that
    leaves no room with the earlier ones is dropped (``greedy``, the default), so a crowd keeps the most urgent
-   constraints and keeps moving instead of braking into a jam. ``greedy=False`` is the plain program with fallbacks (every
-   line; else lines relaxed by ``relax`` x their slack; else shield and walls alone; else brake to
+   constraints and keeps moving instead of braking into a jam. ``greedy=False`` is the plain program with fallbacks
+   (every line; else lines relaxed by ``relax`` x their slack; else shield and walls alone; else brake to
    ``brake_factor`` of the velocity); ``reachable`` solves within the velocities one step of ``a_max`` reaches.
    The command is the acceleration that reaches the new velocity within one env step, within ``a_max``.
 
