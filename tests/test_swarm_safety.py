@@ -199,21 +199,30 @@ def test_bad_options_are_refused():
                                    margin=MARGIN, v_cap=CRUISE, tiles=np.ones((2, 2))), **bad})
 
 
-def test_blocks_of_movers_choose_as_all_at_once(rng):
-    """For more movers than chunk_bytes holds, the torch form takes them a block at a time: the same velocities and
-    passes bit for bit (neighbours, walls and a leading [worlds, movers] shape)."""
+def random_crowd(rng, w: int, m: int, k: int, device: str = "cpu", full: int = 0):
+    """A filter on an 8 x 6 layout with 3 random holes and random states of ``[w, m]`` movers with ``k`` neighbour
+    slots (70% live; the first ``full`` movers of world 0 with every slot live): ``(filter, (vel, wanted, rel_pos,
+    rel_vel, mask, pos))`` on ``device``."""
     tiles = np.ones((8, 6), dtype=bool)
     tiles[rng.integers(0, 8, 3), rng.integers(0, 6, 3)] = False
     f = SafetyFilter(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
-                     v_cap=CRUISE, tiles=tiles, tile_size=0.25)
-    w, m, k = 5, 7, 4
+                     v_cap=CRUISE, tiles=tiles, tile_size=0.25, device=device)
     g = torch.Generator().manual_seed(int(rng.integers(1 << 30)))
     vel = torch.randn(w, m, 2, generator=g) * 0.5
     wanted = torch.randn(w, m, 2, generator=g)
     rel_pos = torch.randn(w, m, k, 2, generator=g) * 0.4
     rel_vel = torch.randn(w, m, k, 2, generator=g) * 0.5
     mask = torch.rand(w, m, k, generator=g) < 0.7
+    mask[0, :full] = True
     pos = torch.rand(w, m, 2, generator=g) * torch.tensor([2.0, 1.5])
+    return f, tuple(t.to(device) for t in (vel, wanted, rel_pos, rel_vel, mask, pos))
+
+
+def test_blocks_of_movers_choose_as_all_at_once(rng):
+    """For more movers than chunk_bytes holds, the torch form takes them a block at a time: the same velocities and
+    passes bit for bit (neighbours, walls and a leading [worlds, movers] shape)."""
+    w, m, k = 5, 7, 4
+    f, (vel, wanted, rel_pos, rel_vel, mask, pos) = random_crowd(rng, w, m, k)
     whole = f.choose_torch(vel, wanted, rel_pos, rel_vel, mask, pos)
     walls = f.cell_offsets.shape[0]
     f.chunk_bytes = 4 * f.num_candidates * (k + walls) * 3  # three movers per block: 12 blocks, the last one short
@@ -230,20 +239,8 @@ def test_kernel_chooses_as_the_torch_form(rng, device):
     but for float rounding for nearly every mover (a candidate at a constraint's boundary, or two at the same cost,
     may go either way) and the same passes; every velocity the kernel chooses is safe by the torch form's own
     constraints and within its ball, and it is one of the torch form's candidates."""
-    tiles = np.ones((8, 6), dtype=bool)
-    tiles[rng.integers(0, 8, 3), rng.integers(0, 6, 3)] = False
-    f = SafetyFilter(contact=CONTACT, wall_reach=0.11, a_max=A_MAX, step=T, dt=DT, a_brake=A_B, margin=MARGIN,
-                     v_cap=CRUISE, tiles=tiles, tile_size=0.25, device=device)
     w, m, k = 20, 50, 6
-    g = torch.Generator().manual_seed(int(rng.integers(1 << 30)))
-    vel = torch.randn(w, m, 2, generator=g) * 0.5
-    wanted = torch.randn(w, m, 2, generator=g)
-    rel_pos = torch.randn(w, m, k, 2, generator=g) * 0.4
-    rel_vel = torch.randn(w, m, k, 2, generator=g) * 0.5
-    mask = torch.rand(w, m, k, generator=g) < 0.7
-    mask[0, :5] = True  # some full lists (the ball)
-    pos = torch.rand(w, m, 2, generator=g) * torch.tensor([2.0, 1.5])
-    vel, wanted, rel_pos, rel_vel, mask, pos = (t.to(device) for t in (vel, wanted, rel_pos, rel_vel, mask, pos))
+    f, (vel, wanted, rel_pos, rel_vel, mask, pos) = random_crowd(rng, w, m, k, device, full=5)
     got, passes = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
     want, passes_ref = f.choose_torch(vel, wanted, rel_pos, rel_vel, mask, pos)
     close = (got - want).norm(dim=-1) <= 1e-5
