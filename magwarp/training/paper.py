@@ -228,8 +228,9 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                             ("--num-envs", "16")),
     # swarm_residual_1024_gate_ep fine-tuned in worlds that run for 400 s (max_episode_steps 10000): the shipped
     # policy falls behind the planner on one seed of three over 400 s as its world ages (RESULTS.md); with the planner
-    # as Warp kernels the CPU's residual env steps about 4.5x faster, so one world now lives through a few whole
-    # 400-s episodes within a run of 25 minutes
+    # as Warp kernels the CPU's residual env steps about 4.5x faster, so one world lives through 400-s episodes within
+    # a run of 25 minutes. CPU, 25 min, 17.2 M agent-steps: worse over 400 s than the shipped policy (0.91x / 0.74x
+    # the planner's goals on seeds 0 / 1, against 1.02x / 0.79x; RESULTS.md); not shipped
     "swarm_residual_1024_gate_long": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                               {**_SWARM_1024_GATE, "max_episode_steps": 10000},
                                               {"num_movers": 1024, "gate_speed": 0.3},
