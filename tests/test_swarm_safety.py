@@ -219,8 +219,8 @@ def random_crowd(rng, w: int, m: int, k: int, device: str = "cpu", full: int = 0
 
 
 def test_blocks_of_movers_choose_as_all_at_once(rng):
-    """For more movers than chunk_bytes holds, the torch form takes them a block at a time: the same velocities and
-    passes bit for bit (neighbours, walls and a leading [worlds, movers] shape)."""
+    """For more movers than chunk_bytes holds, the torch form takes them a block at a time, and the kernel a block per
+    launch: the same velocities and passes bit for bit (neighbours, walls and a leading [worlds, movers] shape)."""
     w, m, k = 5, 7, 4
     f, (vel, wanted, rel_pos, rel_vel, mask, pos) = random_crowd(rng, w, m, k)
     whole = f.choose_torch(vel, wanted, rel_pos, rel_vel, mask, pos)
@@ -230,6 +230,12 @@ def test_blocks_of_movers_choose_as_all_at_once(rng):
     assert torch.equal(blocks[0], whole[0]) and torch.equal(blocks[1], whole[1]), str(rng)
     assert blocks[0].shape == (w, m, 2) and blocks[1].shape == (w, m)
     assert 0 < int(whole[1].sum()) < w * m, "the random states must mix passing and refused wishes"
+    # the kernel's launches take a block of movers each within the same budget (its scratch): the same as one launch
+    f.chunk_bytes = 1 << 31
+    kernel_whole = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
+    f.chunk_bytes = (12 * (k + walls) + 8 * f.rot.shape[0]) * 4  # four movers per launch: 9 launches
+    kernel_blocks = f.choose(vel, wanted, rel_pos, rel_vel, mask, pos)
+    assert torch.equal(kernel_blocks[0], kernel_whole[0]) and torch.equal(kernel_blocks[1], kernel_whole[1]), str(rng)
 
 
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(

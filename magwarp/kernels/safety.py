@@ -134,7 +134,8 @@ def safe_choice(
     rel_vel: wp.array2d(dtype=wp.vec2),
     mask: wp.array2d(dtype=wp.bool),
     pos: wp.array(dtype=wp.vec2),
-    # Scratch (per mover: its constraints' normals and bases, its candidates' turned velocities):
+    row0: int,  # the first mover of this launch (thread i: mover row0 + i; scratch row i)
+    # Scratch (per thread: its mover's constraints' normals and bases, its candidates' turned velocities):
     normals: wp.array2d(dtype=wp.vec2),
     bases: wp.array2d(dtype=float),
     turned: wp.array2d(dtype=wp.vec2),
@@ -144,9 +145,10 @@ def safe_choice(
 ):
     """One mover: the safe velocity closest to ``wanted`` among the candidates (braking where no other is safe) and
     whether ``wanted``'s own candidate passes. ``pos`` with no rows: no walls."""
-    i = wp.tid()
+    i = wp.tid()  # scratch row
+    row = row0 + i  # mover
     T = p.step
-    v0 = vel[i]
+    v0 = vel[row]
     speed = wp.length(v0)
     seg_i = unit_or_zero(v0, speed) * stop_length(speed, p.a_brake, T)
     k = rel_pos.shape[1]
@@ -155,13 +157,13 @@ def safe_choice(
     all_live = bool(True)
     d_k = float(0.0)
     for s in range(k):
-        live = mask[i, s]
-        rp = rel_pos[i, s]
+        live = mask[row, s]
+        rp = rel_pos[row, s]
         if not live:
             all_live = False
             continue
         d_k = wp.max(d_k, wp.length(rp))
-        vel_j = v0 + rel_vel[i, s]
+        vel_j = v0 + rel_vel[row, s]
         speed_j = wp.length(vel_j)
         seg_j = unit_or_zero(vel_j, speed_j) * stop_length(speed_j, p.a_brake, T)
         st = segment_params(wp.vec2(0.0), seg_i, rp, seg_j)
@@ -183,7 +185,7 @@ def safe_choice(
         ball = p.share_min * (d_k - stop_length(speed, p.a_brake, T) - p.stop_cap - p.contact - p.margin)
     # walls: every cell off the tiles around the mover is a square obstacle
     if p.walls != 0:
-        a = pos[i]
+        a = pos[row]
         b = a + seg_i
         dd = wp.dot(seg_i, seg_i)
         size = p.tile_size
@@ -234,7 +236,7 @@ def safe_choice(
     # candidates: braking, then the wanted velocity (no faster than v_cap) and its turns, each within one step's
     # reach of the velocity, at each fraction of the way from braking
     v_b = v0 * wp.max(1.0 - p.a_brake * T / wp.max(speed, 1.0e-12), 0.0)
-    want = wanted[i]
+    want = wanted[row]
     w_speed = wp.length(want)
     w_cap = want
     if w_speed > p.v_cap:
@@ -270,5 +272,5 @@ def safe_choice(
             if cost < best_cost:
                 best_cost = cost
                 best = j
-    safe[i] = candidate(p, best, v_b, turned[i], fractions, R)
-    passes[i] = first_ok and w_speed <= p.v_cap
+    safe[row] = candidate(p, best, v_b, turned[i], fractions, R)
+    passes[row] = first_ok and w_speed <= p.v_cap

@@ -49,7 +49,8 @@ share, or misses it too and keeps to its own ball). Braking stays allowed (its p
 
 **The choice.** Among candidates ``v_b + a (w - v_b)`` (``v_b``: braking; ``w``: the wanted velocity and turns of it
 by +-45 and +-90 degrees, within one step's reach; ``a`` in 1, 3/4, 1/2, 1/4) and ``v_b`` itself, the safe one
-closest to the wanted velocity. O(k) tensor operations per mover, no host synchronisation.
+closest to the wanted velocity. One Warp kernel, a thread per mover (:mod:`magwarp.kernels.safety`; the torch
+form, :meth:`SafetyFilter.choose_torch`: O(k) tensor operations per mover), no host synchronisation.
 """
 
 from __future__ import annotations
@@ -378,21 +379,24 @@ class SafetyFilter:
             t = t.reshape(*shape).contiguous()
             return wp.from_torch(t, dtype=wp.vec2) if t.shape[-1] == 2 and t.dtype != torch.bool else wp.from_torch(t)
 
-        normals = torch.empty(rows, k + cells, 2, device=dev)
-        bases = torch.empty(rows, k + cells, device=dev)
-        turned = torch.empty(rows, self.rot.shape[0], 2, device=dev)
+        # the scratch holds a block of movers at a time (12 bytes per constraint, 8 per turn: within chunk_bytes)
+        block = max(1, min(rows, self.chunk_bytes // (12 * (k + cells) + 8 * self.rot.shape[0])))
+        normals = torch.empty(block, k + cells, 2, device=dev)
+        bases = torch.empty(block, k + cells, device=dev)
+        turned = torch.empty(block, self.rot.shape[0], 2, device=dev)
         safe = torch.empty(rows, 2, device=dev)
         passes = torch.empty(rows, dtype=torch.bool, device=dev)
         pos_rows = flat(pos, rows, 2) if walls else wp.empty(0, dtype=wp.vec2, device=wdev)
         inputs = [p, tiles, offsets, rot, fractions, flat(vel, rows, 2), flat(wanted, rows, 2),
                   wp.from_torch(rel_pos.reshape(rows, k, 2).contiguous(), dtype=wp.vec2),
                   wp.from_torch(rel_vel.reshape(rows, k, 2).contiguous(), dtype=wp.vec2),
-                  wp.from_torch(mask.reshape(rows, k).to(torch.bool).contiguous(), dtype=wp.bool), pos_rows,
-                  wp.from_torch(normals, dtype=wp.vec2), wp.from_torch(bases), wp.from_torch(turned, dtype=wp.vec2)]
+                  wp.from_torch(mask.reshape(rows, k).to(torch.bool).contiguous(), dtype=wp.bool), pos_rows]
+        scratch = [wp.from_torch(normals, dtype=wp.vec2), wp.from_torch(bases), wp.from_torch(turned, dtype=wp.vec2)]
+        outputs = [wp.from_torch(safe, dtype=wp.vec2), wp.from_torch(passes, dtype=wp.bool)]
         with wp.ScopedStream(torch_stream(dev)) if dev.type == "cuda" else contextlib.nullcontext():
-            wp.launch(safe_choice, dim=rows, inputs=inputs, outputs=[wp.from_torch(safe, dtype=wp.vec2),
-                                                                     wp.from_torch(passes, dtype=wp.bool)],
-                      device=wdev)
+            for row0 in range(0, rows, block):
+                wp.launch(safe_choice, dim=min(block, rows - row0), inputs=[*inputs, row0, *scratch],
+                          outputs=outputs, device=wdev)
         return safe.reshape(*lead, 2), passes.reshape(lead)
 
     def choose_torch(self, vel: torch.Tensor, wanted: torch.Tensor, rel_pos: torch.Tensor, rel_vel: torch.Tensor,
@@ -417,7 +421,8 @@ class SafetyFilter:
         safe = torch.cat([p[0] for p in parts]).reshape(*lead, 2)
         return safe, torch.cat([p[1] for p in parts]).reshape(lead)
 
-    #: the largest ``[..., K, C]`` constraint tensor (bytes) :meth:`choose` makes at once
+    #: the largest ``[..., K, C]`` constraint tensor (bytes) :meth:`choose_torch` makes at once, and the largest
+    #: scratch of the kernel's launches (a block of movers per launch)
     chunk_bytes = 1 << 31
 
     @property
