@@ -232,6 +232,7 @@ class SwarmPlanner:
         self.shield, self.margin, self.greedy = float(shield), float(margin), bool(greedy)
         self.relax, self.reachable = float(relax), bool(reachable)
         self.kernels = bool(kernels)
+        self._line_params = None  # the line kernel's constants, made on first use
         sim = env.sim
         # the simulator's collision distance, and how close a centre may come to a wall (goals may lie this close to
         # a wall: no buffer)
@@ -324,6 +325,48 @@ class SwarmPlanner:
             slack.append(room[..., r])
         return lines, slack
 
+    def _greedy_kernels(self, vel: torch.Tensor, v_pref: torch.Tensor) -> torch.Tensor:
+        """Steps 2 and 3 (greedy) as two Warp launches: :func:`magwarp.kernels.orca.build_lines` writes every mover's
+        wall, shield and ORCA lines (:meth:`_wall_lines`, :meth:`_neighbour_lines`), :func:`~magwarp.kernels.orca.
+        solve_lines` solves them; the torch path's numbers but for rounding."""
+        import warp as wp
+
+        from magwarp._streams import torch_stream
+        from magwarp.kernels import orca as korca
+
+        local, dev = self.env.local, vel.device
+        lead = vel.shape[:-1]
+        rows, k, R = vel[..., 0].numel(), local.k, local.num_rays
+        L = R + (k if self.shield > 0 else 0) + k
+        if self._line_params is None:
+            p = korca.LineParams()
+            p.step, p.horizon, p.separate, p.safe = self.step_time, self.horizon, self.separate, self.safe
+            p.contact, p.margin, p.yield_share, p.shield = self.contact, self.margin, self.yield_share, self.shield
+            p.a_max, p.a_brake, p.wall_reach = self.a_max, self.a_brake, self.wall_reach
+            wp.init()
+            self._line_params = (p, wp.from_torch(self.rays[:R].contiguous(), dtype=wp.vec2),
+                                 wp.device_from_torch(dev))
+        p, rays, wdev = self._line_params
+        points = torch.empty(rows, L, 2, device=dev)
+        directions = torch.empty(rows, L, 2, device=dev)
+        live = torch.empty(rows, L, dtype=torch.bool, device=dev)
+        kept = torch.empty_like(live)
+        v = torch.empty(rows, 2, device=dev)
+        ok = torch.empty(rows, dtype=torch.bool, device=dev)
+        vec = lambda t, *shape: wp.from_torch(t.reshape(*shape, 2).contiguous(), dtype=wp.vec2)  # noqa: E731
+        with wp.ScopedStream(torch_stream(dev)) if dev.type == "cuda" else contextlib.nullcontext():
+            wp.launch(korca.build_lines, dim=rows, device=wdev,
+                      inputs=[p, rays, self.env.num_movers, vec(vel, rows), vec(local.rel_pos, rows, k),
+                              vec(local.rel_vel, rows, k), wp.from_torch(local.mask.reshape(rows, k).contiguous()),
+                              wp.from_torch(local.index.reshape(rows, k).contiguous()),
+                              wp.from_torch(local.walls.reshape(rows, R).contiguous())],
+                      outputs=[vec(points, rows, L), vec(directions, rows, L), wp.from_torch(live)])
+            wp.launch(korca.solve_lines, dim=rows, device=wdev,
+                      inputs=[self.cruise, 1, vec(points, rows, L), vec(directions, rows, L), wp.from_torch(live),
+                              vec(v_pref, rows), wp.from_torch(kept)],
+                      outputs=[vec(v, rows), wp.from_torch(ok)])
+        return v.reshape(*lead, 2)
+
     def _solve(self, lines: list, v_pref: torch.Tensor, vel: torch.Tensor, skip: bool = False):
         solve = solve_lines if self.kernels else solve_lines_torch
         if self.reachable:  # among the velocities reachable within one step (a disc around the velocity)
@@ -353,10 +396,14 @@ class SwarmPlanner:
             escape = (self.stuck >= self.patience)[..., None]
             right = torch.stack([v_pref[..., 1], -v_pref[..., 0]], -1)
         # 2. lines: walls, the braking shield, the neighbours' ORCA lines (nearest first)
-        orca, slack, shield = self._neighbour_lines(vel) if local.k > 0 else ([], [], [])
-        walls, wall_slack = self._wall_lines(vel) if local.num_rays > 0 else ([], [])
+        fused = self.orca and self.greedy and self.kernels and not self.reachable and local.k + local.num_rays > 0
+        if not fused:
+            orca, slack, shield = self._neighbour_lines(vel) if local.k > 0 else ([], [], [])
+            walls, wall_slack = self._wall_lines(vel) if local.num_rays > 0 else ([], [])
         if self.orca is False:
             v = v_pref
+        elif fused:  # steps 2 and 3 in two launches: every line built on the device, then the program
+            v = self._greedy_kernels(vel, v_pref)
         elif self.greedy:
             # 3. a line that leaves no room with the earlier ones is dropped: the most urgent ones are kept
             v, _ = self._solve(walls + shield + orca, v_pref, vel, skip=True)
