@@ -1,9 +1,11 @@
 """The scripted swarm planner's cost per call with its Warp kernels against its torch forms (#18), in one run.
 
-:class:`~magwarp.swarm.SwarmPlanner` runs ORCA's linear program (:func:`magwarp.swarm.planner.solve_lines`) and the
-safety filter (:meth:`magwarp.swarm.safety.SafetyFilter.choose`) as Warp kernels, a thread per mover, by default;
+:class:`~magwarp.swarm.SwarmPlanner` builds its half-planes and runs ORCA's linear program
+(:func:`magwarp.kernels.orca.build_lines`, :func:`~magwarp.kernels.orca.solve_lines`) and the safety filter
+(:meth:`magwarp.swarm.safety.SafetyFilter.choose`) as Warp kernels, a thread per mover, by default;
 ``kernels=False`` runs their torch forms (the kernels' references). Per swarm size, from the same env state (after
-``--warm`` planner steps): ms per planner call and the two stages' share of it, both ways; then the residual env's
+``--warm`` planner steps): ms per planner call and the two stages' share of it, both ways (the lines and the linear
+program: two launches, or the torch lines and their solve; the safety filter); then the residual env's
 step (``magwarp/SwarmResidual-v0``: the planner and the env's shield inside every step, what residual training and
 ``swarm_study.py`` run) both ways. CPU: the wall clock, torch on one thread; CUDA: synchronised wall clock.
 
@@ -59,16 +61,25 @@ def planner_rows(movers: int, worlds: int, device: str, warm: int, calls: int) -
         planner = SwarmPlanner(env, kernels=kernels)
         planner()  # loads the kernels
         totals: collections.Counter = collections.Counter()
-        lp, choose = ("solve_lines", "choose") if kernels else ("solve_lines_torch", "choose_torch")
-        with timed(planner_mod, lp, totals, device), timed(planner.safety, choose, totals, device):
+        choose = "choose" if kernels else "choose_torch"
+        with contextlib.ExitStack() as stack:
+            # the lines and the program: two launches with the kernels, the torch ops and their solve without
+            if kernels:
+                stack.enter_context(timed(planner, "_greedy_kernels", totals, device))
+            else:
+                for obj, name in ((planner, "_neighbour_lines"), (planner, "_wall_lines"),
+                                  (planner_mod, "solve_lines_torch")):
+                    stack.enter_context(timed(obj, name, totals, device))
+            stack.enter_context(timed(planner.safety, choose, totals, device))
             sync_device(device)
             t = time.perf_counter()
             for _ in range(calls):
                 planner()
             sync_device(device)
             ms = 1e3 * (time.perf_counter() - t) / calls
+        lines = sum(v for name, v in totals.items() if name != choose)
         rows.append({"what": "planner call", "movers": movers, "worlds": worlds, "kernels": kernels, "ms": ms,
-                     "lp_ms": 1e3 * totals[lp] / calls, "filter_ms": 1e3 * totals[choose] / calls,
+                     "lines_lp_ms": 1e3 * lines / calls, "filter_ms": 1e3 * totals[choose] / calls,
                      "traffic": planner.traffic})
     return rows
 
@@ -120,7 +131,7 @@ def main(argv=None) -> int:
     for r in rows:
         if r["kernels"]:
             r["speedup"] = by[(r["what"], r["movers"], False)]["ms"] / r["ms"]
-    return finish(rows, ["what", "movers", "worlds", "kernels", "ms", "lp_ms", "filter_ms", "speedup",
+    return finish(rows, ["what", "movers", "worlds", "kernels", "ms", "lines_lp_ms", "filter_ms", "speedup",
                          "agent_steps_per_s"], info, args.json)
 
 

@@ -1,13 +1,16 @@
-"""ORCA's incremental 2-D linear program as one Warp kernel: a thread per mover (:func:`solve_lines`).
+"""ORCA's incremental 2-D linear program as one Warp kernel, a thread per mover (:func:`solve_lines`), and the
+planner's half-planes as another (:func:`build_lines`).
 
 The same program as :func:`magwarp.swarm.planner.solve_lines_torch` (its reference): the velocity closest to the
 preferred one within a speed circle that satisfies every half-plane, the constraints added one by one; a violated one
 moves the velocity to the best point of its line within the earlier ones, and an infeasible one (no such point)
 keeps the velocity and clears ``ok`` (``skip``: and is dropped for the later lines). The torch form runs
 O(lines^2) tensor operations over every mover (about 4,000 small ones per planner call with 8 neighbours and 8 rays);
-here each thread runs its own lines in a loop. float32, with the same operations in the same order per mover. On this
-project's 2-core CPU (16 worlds of 1,024 movers, 8 rays and 24 lines per mover with the env's 8 neighbours): 11.5 ms
-against 36.0 ms in torch, with the lines' stacking (``benchmarks/results/swarm_planner_cost_s44_cpu.json``).
+here each thread runs its own lines in a loop. float32, with the same operations in the same order per mover.
+:func:`build_lines` writes the planner's lines themselves (walls, braking shield, ORCA: its greedy path), so the two
+steps are two launches. On this project's 2-core CPU (16 worlds of 1,024 movers, 8 rays and 8 neighbours: 16 lines
+per mover): 14.2 ms for both launches against 49.0 ms for the torch lines and their solve
+(``benchmarks/results/swarm_planner_cost_lines_s44_cpu.json``).
 """
 
 from __future__ import annotations

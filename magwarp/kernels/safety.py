@@ -11,9 +11,9 @@ candidate at a constraint's boundary or two candidates at the same cost may be c
 
 The torch form builds ``[..., K, C]`` tensors (21 candidates by 24 neighbours and 25 cells per mover) and every cell's
 six point pairs; here each thread loops over them, and skips the cells on the tiles at once. On this project's 2-core
-CPU (torch on one thread, 16 worlds of 1,024 movers, the planner's filter): 11.8 ms against 289 ms in torch
+CPU (torch on one thread, 16 worlds of 1,024 movers, the planner's filter): 11.5 ms against 268 ms in torch
 (``python benchmarks/swarm_planner_cost.py --device cpu --movers 64 256 1024 --worlds 16``,
-``benchmarks/results/swarm_planner_cost_s44_cpu.json``, 2026-12-07).
+``benchmarks/results/swarm_planner_cost_lines_s44_cpu.json``, 2026-12-07).
 """
 
 from __future__ import annotations
