@@ -197,9 +197,10 @@ class SwarmPlanner:
     2-5, the preferred velocity goes straight to the safety filter). With ``safe=True`` the filter finds its own
     ``safe_k`` nearest movers within ``safety.reach_radius`` (0.65 m at the default cruise of 1.5 m/s).
     Defaults with ``safe=True``: ``cruise=1.5``, ``buffer=0.02``, ``shield=0`` (the filter keeps the movers apart);
-    with ``safe=False``: ``cruise=1.0``, ``buffer=0.06``, ``shield=0.4``. ``kernels`` (default True): the linear
-    program and the safety filter run as Warp kernels, a thread per mover (:mod:`magwarp.kernels.orca`,
-    :mod:`magwarp.kernels.safety`); False: their torch forms (the kernels' references; the same rule, slower)."""
+    with ``safe=False``: ``cruise=1.0``, ``buffer=0.06``, ``shield=0.4``. ``kernels`` (default True): the half-planes
+    (greedy), the linear program and the safety filter run as Warp kernels, a thread per mover
+    (:mod:`magwarp.kernels.orca`, :mod:`magwarp.kernels.safety`); False: their torch forms (the kernels' references;
+    the same rule, slower)."""
 
     def __init__(self, env: SwarmEnv, *, cruise: float | None = None, a_brake: float = 4.0, horizon: float = 2.0,
                  buffer: float | None = None, yield_share: float = 0.5, shield: float | None = None,
