@@ -238,6 +238,16 @@ PAPER_RUNS: dict[str, PaperRun] = {
                                               ("--num-envs", "16", "--init-policy",
                                                "pretrained:swarm_residual_1024_gate_ep", "--critic-warmup", "10",
                                                "--lr", "3e-5")),
+    # swarm_residual_1024_gate_ep trained on (from the shipped policy, a fresh critic) in the same 80-s worlds, with the
+    # planner's kernels: 25 more minutes on the CPU, 17.9 M agent-steps more. Worse: 0.90x / 1.00x / 0.95x the
+    # planner's goals over 80 s (seeds 0-2; the shipped policy 1.02x / 1.08x / 1.03x) and 0.54x over 400 s on seed 1
+    # (RESULTS.md); not shipped
+    "swarm_residual_1024_gate_ep2": PaperRun("magwarp/SwarmResidual-v0", "ppo",
+                                             {**_SWARM_1024_GATE, "max_episode_steps": 2000},
+                                             {"num_movers": 1024, "gate_speed": 0.3},
+                                             "no paper row; the scripted planner (the zero correction)",
+                                             ("--num-envs", "16", "--init-policy",
+                                              "pretrained:swarm_residual_1024_gate_ep", "--critic-warmup", "10")),
     # Levitation (issue 17; no paper row): a residual on the PD + commutation baseline (a zero action is the PD),
     # compared with the PD on energy at equal tracking error by benchmarks/levitation_policy.py
     "lev_residual": PaperRun("magwarp/LevitationResidual-v0", "ppo", {"failure_reward": -1000.0},
