@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from magwarp.kernels.dynamics import clip_norm2
 from magwarp.kernels.options import MODULE_OPTIONS
 
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
@@ -45,10 +46,7 @@ def solve_lines(
 ):
     i = wp.tid()
     pref = v_pref[i]
-    v = pref
-    n = wp.length(pref)
-    if n > max_speed:
-        v = pref * (max_speed / wp.max(n, 1.0e-9))
+    v = clip_norm2(pref, max_speed)
     ok = bool(True)
     L = points.shape[1]
     for a in range(L):

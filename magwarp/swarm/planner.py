@@ -49,12 +49,13 @@ reached their first goal (the one drawn at reset) within 40 s while the goals st
 
 from __future__ import annotations
 
-import contextlib
 import math
 
 import torch
+import warp as wp
 
 from magwarp.swarm.env import SwarmEnv
+from magwarp.swarm.placement import on_torch_stream
 from magwarp.swarm.observations import ray_directions
 from magwarp._vectors import clip_norm
 from magwarp.swarm.safety import (COMMIT_BRAKE, SAFE_K, SAFE_MARGIN, SAFE_SPEED, build_safety,
@@ -120,29 +121,42 @@ def solve_lines(lines: list, v_pref: torch.Tensor, max_speed: float,
     if not lines or v_pref.dtype != torch.float32 or any(p.dtype != torch.float32 or d.dtype != torch.float32
                                                          for p, d, _ in lines):
         return solve_lines_torch(lines, v_pref, max_speed, skip)
-    import warp as wp
-
-    from magwarp._streams import torch_stream
-    from magwarp.kernels import orca
-
-    lead, dev = v_pref.shape[:-1], v_pref.device
+    lead = v_pref.shape[:-1]
     shape = (*lead, 2)
     points = torch.stack([p.expand(shape) for p, _, _ in lines], -2).reshape(-1, len(lines), 2)
     directions = torch.stack([d.expand(shape) for _, d, _ in lines], -2).reshape(-1, len(lines), 2)
     live = torch.stack([lv.expand(lead).to(torch.bool) for _, _, lv in lines], -1).reshape(-1, len(lines))
-    rows = points.shape[0]
+    v, ok = _solve_rows(points, directions, live, v_pref.reshape(-1, 2), max_speed, skip)
+    return v.reshape(shape), ok.reshape(lead)
+
+
+def _solve_rows(points: torch.Tensor, directions: torch.Tensor, live: torch.Tensor, v_pref: torch.Tensor,
+                max_speed: float, skip: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """One launch of :func:`magwarp.kernels.orca.solve_lines` over ``rows`` movers: ``points`` and ``directions``
+    ``[rows, L, 2]``, ``live`` ``[rows, L]`` bool, ``v_pref`` ``[rows, 2]`` (float32, on one device); returns the
+    velocities ``[rows, 2]`` and ``ok`` ``[rows]``."""
+    from magwarp.kernels import orca
+
+    rows, dev = points.shape[0], points.device
     v = torch.empty(rows, 2, device=dev)
     ok = torch.empty(rows, dtype=torch.bool, device=dev)
-    scratch = torch.empty_like(live)
-    wp.init()
-    wdev = wp.device_from_torch(dev)
-    vec = lambda t: wp.from_torch(t.contiguous(), dtype=wp.vec2)  # noqa: E731
-    with wp.ScopedStream(torch_stream(dev)) if dev.type == "cuda" else contextlib.nullcontext():
+    wdev = _warp_device(dev)
+    with on_torch_stream(wdev):
         wp.launch(orca.solve_lines, dim=rows, device=wdev,
-                  inputs=[float(max_speed), int(bool(skip)), vec(points), vec(directions), wp.from_torch(live),
-                          vec(v_pref.reshape(rows, 2)), wp.from_torch(scratch)],
-                  outputs=[vec(v), wp.from_torch(ok)])
-    return v.reshape(shape), ok.reshape(lead)
+                  inputs=[float(max_speed), int(bool(skip)), _vec2(points), _vec2(directions),
+                          wp.from_torch(live.contiguous()), _vec2(v_pref), wp.from_torch(torch.empty_like(live))],
+                  outputs=[_vec2(v), wp.from_torch(ok)])
+    return v, ok
+
+
+def _warp_device(device: torch.device):
+    wp.init()
+    return wp.device_from_torch(device)
+
+
+def _vec2(t: torch.Tensor) -> wp.array:
+    """A float32 torch tensor ``[..., 2]`` as a Warp vec2 array (contiguous; a copy where it was not)."""
+    return wp.from_torch(t.contiguous(), dtype=wp.vec2)
 
 
 def solve_lines_torch(lines: list, v_pref: torch.Tensor, max_speed: float,
@@ -330,9 +344,6 @@ class SwarmPlanner:
         """Steps 2 and 3 (greedy) as two Warp launches: :func:`magwarp.kernels.orca.build_lines` writes every mover's
         wall, shield and ORCA lines (:meth:`_wall_lines`, :meth:`_neighbour_lines`), :func:`~magwarp.kernels.orca.
         solve_lines` solves them; the torch path's numbers but for rounding."""
-        import warp as wp
-
-        from magwarp._streams import torch_stream
         from magwarp.kernels import orca as korca
 
         local, dev = self.env.local, vel.device
@@ -344,28 +355,20 @@ class SwarmPlanner:
             p.step, p.horizon, p.separate, p.safe = self.step_time, self.horizon, self.separate, self.safe
             p.contact, p.margin, p.yield_share, p.shield = self.contact, self.margin, self.yield_share, self.shield
             p.a_max, p.a_brake, p.wall_reach = self.a_max, self.a_brake, self.wall_reach
-            wp.init()
-            self._line_params = (p, wp.from_torch(self.rays[:R].contiguous(), dtype=wp.vec2),
-                                 wp.device_from_torch(dev))
+            self._line_params = (p, _vec2(self.rays[:R]), _warp_device(dev))
         p, rays, wdev = self._line_params
         points = torch.empty(rows, L, 2, device=dev)
         directions = torch.empty(rows, L, 2, device=dev)
         live = torch.empty(rows, L, dtype=torch.bool, device=dev)
-        kept = torch.empty_like(live)
-        v = torch.empty(rows, 2, device=dev)
-        ok = torch.empty(rows, dtype=torch.bool, device=dev)
-        vec = lambda t, *shape: wp.from_torch(t.reshape(*shape, 2).contiguous(), dtype=wp.vec2)  # noqa: E731
-        with wp.ScopedStream(torch_stream(dev)) if dev.type == "cuda" else contextlib.nullcontext():
+        with on_torch_stream(wdev):
             wp.launch(korca.build_lines, dim=rows, device=wdev,
-                      inputs=[p, rays, self.env.num_movers, vec(vel, rows), vec(local.rel_pos, rows, k),
-                              vec(local.rel_vel, rows, k), wp.from_torch(local.mask.reshape(rows, k).contiguous()),
+                      inputs=[p, rays, self.env.num_movers, _vec2(vel.reshape(rows, 2)),
+                              _vec2(local.rel_pos.reshape(rows, k, 2)), _vec2(local.rel_vel.reshape(rows, k, 2)),
+                              wp.from_torch(local.mask.reshape(rows, k).contiguous()),
                               wp.from_torch(local.index.reshape(rows, k).contiguous()),
                               wp.from_torch(local.walls.reshape(rows, R).contiguous())],
-                      outputs=[vec(points, rows, L), vec(directions, rows, L), wp.from_torch(live)])
-            wp.launch(korca.solve_lines, dim=rows, device=wdev,
-                      inputs=[self.cruise, 1, vec(points, rows, L), vec(directions, rows, L), wp.from_torch(live),
-                              vec(v_pref, rows), wp.from_torch(kept)],
-                      outputs=[vec(v, rows), wp.from_torch(ok)])
+                      outputs=[_vec2(points), _vec2(directions), wp.from_torch(live)])
+        v, _ = _solve_rows(points, directions, live, v_pref.reshape(rows, 2), self.cruise, True)
         return v.reshape(*lead, 2)
 
     def _solve(self, lines: list, v_pref: torch.Tensor, vel: torch.Tensor, skip: bool = False):

@@ -55,12 +55,13 @@ form, :meth:`SafetyFilter.choose_torch`: O(k) tensor operations per mover), no h
 
 from __future__ import annotations
 
-import contextlib
 import math
 
 import numpy as np
 import torch
 import warp as wp
+
+from magwarp.swarm.placement import on_torch_stream
 
 __all__ = ["SafetyFilter", "build_safety", "collision_distances", "segment_closest_points", "stop_length",
            "SAFE_SPEED", "COMMIT_BRAKE", "SAFE_MARGIN", "SAFE_K"]
@@ -366,7 +367,6 @@ class SafetyFilter:
         return self._kernel_inputs[key]
 
     def _choose_kernel(self, vel, wanted, rel_pos, rel_vel, mask, pos):
-        from magwarp._streams import torch_stream
         from magwarp.kernels.safety import safe_choice
 
         lead, k, dev = vel.shape[:-1], rel_pos.shape[-2], vel.device
@@ -375,9 +375,8 @@ class SafetyFilter:
         p, tiles, offsets, rot, fractions, wdev = self._kernel_model(dev, walls)
         cells = offsets.shape[0] if walls else 0
 
-        def flat(t: torch.Tensor, *shape) -> wp.array:
-            t = t.reshape(*shape).contiguous()
-            return wp.from_torch(t, dtype=wp.vec2) if t.shape[-1] == 2 and t.dtype != torch.bool else wp.from_torch(t)
+        def vec2(t: torch.Tensor, *shape) -> wp.array:
+            return wp.from_torch(t.reshape(*shape, 2).contiguous(), dtype=wp.vec2)
 
         # the scratch holds a block of movers at a time (12 bytes per constraint, 8 per turn: within chunk_bytes)
         block = max(1, min(rows, self.chunk_bytes // (12 * (k + cells) + 8 * self.rot.shape[0])))
@@ -386,14 +385,12 @@ class SafetyFilter:
         turned = torch.empty(block, self.rot.shape[0], 2, device=dev)
         safe = torch.empty(rows, 2, device=dev)
         passes = torch.empty(rows, dtype=torch.bool, device=dev)
-        pos_rows = flat(pos, rows, 2) if walls else wp.empty(0, dtype=wp.vec2, device=wdev)
-        inputs = [p, tiles, offsets, rot, fractions, flat(vel, rows, 2), flat(wanted, rows, 2),
-                  wp.from_torch(rel_pos.reshape(rows, k, 2).contiguous(), dtype=wp.vec2),
-                  wp.from_torch(rel_vel.reshape(rows, k, 2).contiguous(), dtype=wp.vec2),
-                  wp.from_torch(mask.reshape(rows, k).to(torch.bool).contiguous(), dtype=wp.bool), pos_rows]
+        pos_rows = vec2(pos, rows) if walls else wp.empty(0, dtype=wp.vec2, device=wdev)
+        inputs = [p, tiles, offsets, rot, fractions, vec2(vel, rows), vec2(wanted, rows), vec2(rel_pos, rows, k),
+                  vec2(rel_vel, rows, k), wp.from_torch(mask.reshape(rows, k).to(torch.bool).contiguous()), pos_rows]
         scratch = [wp.from_torch(normals, dtype=wp.vec2), wp.from_torch(bases), wp.from_torch(turned, dtype=wp.vec2)]
         outputs = [wp.from_torch(safe, dtype=wp.vec2), wp.from_torch(passes, dtype=wp.bool)]
-        with wp.ScopedStream(torch_stream(dev)) if dev.type == "cuda" else contextlib.nullcontext():
+        with on_torch_stream(wdev):
             for row0 in range(0, rows, block):
                 wp.launch(safe_choice, dim=min(block, rows - row0), inputs=[*inputs, row0, *scratch],
                           outputs=outputs, device=wdev)
