@@ -67,12 +67,17 @@ def max_registers(block_dim: int, worlds: int = 1) -> int:
 EXCHANGE = "native"
 
 
+def _env_choice(variable: str, default: str, choices: tuple[str, str]) -> str:
+    """The environment variable ``variable`` if set (one of ``choices``, else an error naming it), else ``default``."""
+    value = os.environ.get(variable, "").strip() or default
+    if value not in choices:
+        raise ValueError(f"{variable} must be {choices[0]!r} or {choices[1]!r}, got {value!r}")
+    return value
+
+
 def exchange() -> str:
     """The tiled kernel's pose exchange on CUDA (:data:`EXCHANGE`, or ``MAGWARP_SWARM_EXCHANGE``)."""
-    value = os.environ.get("MAGWARP_SWARM_EXCHANGE", "").strip() or EXCHANGE
-    if value not in ("native", "tile"):
-        raise ValueError(f"MAGWARP_SWARM_EXCHANGE must be 'native' or 'tile', got {value!r}")
-    return value
+    return _env_choice("MAGWARP_SWARM_EXCHANGE", EXCHANGE, ("native", "tile"))
 
 
 #: where the simulator's NaN guard checks the movers after a fused step: ``"fused"`` (the step kernel, from the final
@@ -85,10 +90,7 @@ GUARD = "fused"
 
 def guard_in_step() -> bool:
     """Whether the fused step writes the NaN guard's record itself (:data:`GUARD`, or ``MAGWARP_SWARM_GUARD``)."""
-    value = os.environ.get("MAGWARP_SWARM_GUARD", "").strip() or GUARD
-    if value not in ("fused", "separate"):
-        raise ValueError(f"MAGWARP_SWARM_GUARD must be 'fused' or 'separate', got {value!r}")
-    return value == "fused"
+    return _env_choice("MAGWARP_SWARM_GUARD", GUARD, ("fused", "separate")) == "fused"
 
 
 #: Worlds per thread block of the tiled kernel: ``1`` (a block per world), ``"auto"`` (:func:`pack_worlds`: as many

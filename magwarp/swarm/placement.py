@@ -82,6 +82,8 @@ LANE_GRID_THREADS = 1 << 18
 #: launches took about 6 us each on the H200, 8 per env step (``benchmarks/results/swarm_kernels_still_cap96_s43_gpu
 #: .json``). ``MAGWARP_PLACE_BLOCKS`` sets the default (0: no cap, one thread per index), for measuring.
 ROUND_BLOCKS_PER_SM = 8
+#: the most blocks per SM ``blocks`` takes
+MAX_ROUND_BLOCKS = 1024
 
 
 def round_blocks_per_sm() -> int:
@@ -89,9 +91,9 @@ def round_blocks_per_sm() -> int:
     value = os.environ.get("MAGWARP_PLACE_BLOCKS", "").strip()
     if not value:
         return ROUND_BLOCKS_PER_SM
-    if not value.isdigit() or int(value) > 1024:
-        raise ValueError(f"MAGWARP_PLACE_BLOCKS must be an integer from 0 (no cap) to 1024 (blocks per SM), got "
-                         f"{value!r}")
+    if not value.isdigit() or int(value) > MAX_ROUND_BLOCKS:
+        raise ValueError(f"MAGWARP_PLACE_BLOCKS must be an integer from 0 (no cap) to {MAX_ROUND_BLOCKS} (blocks per "
+                         f"SM), got {value!r}")
     return int(value)
 
 
@@ -260,8 +262,8 @@ class Placer:
     @blocks.setter
     def blocks(self, value: int) -> None:
         value = as_count(value, "blocks", minimum=0)
-        if value > 1024:
-            raise ValueError(f"blocks must be at most 1024 per SM (0: no cap), got {value!r}")
+        if value > MAX_ROUND_BLOCKS:
+            raise ValueError(f"blocks must be at most {MAX_ROUND_BLOCKS} per SM (0: no cap), got {value!r}")
         self._blocks = value
 
     def _max_blocks(self) -> int:
