@@ -213,6 +213,37 @@ def test_blocks_option(monkeypatch):
         Placer(layout, 3, 2, device="cpu")
 
 
+@pytest.mark.parametrize("search", ["grid", "world"])
+def test_capped_launches_use_grid_stride_kernels(rng, monkeypatch, search):
+    """Every kernel the placer launches with ``max_blocks`` compiles with a grid-stride loop: Warp refuses a capped
+    launch of a lean kernel on CUDA only (the magwarp modules default to lean kernels; a placer on the GPU once
+    failed at its first call), so the CPU launches are checked here with a cap forced on, and place the same spots."""
+    layout = random_layout(rng, 6, 6, holes=0.1)
+    seed = int(rng.integers(1 << 20))
+    capped, launch = [], wp.launch
+
+    def recording_launch(kernel, *args, max_blocks=0, **kwargs):
+        out = launch(kernel, *args, max_blocks=max_blocks, **kwargs)
+        if max_blocks:
+            capped.append((kernel.key, kernel.grid_stride))
+        return out
+
+    runs = []
+    for cap in (0, 1):
+        placer = Placer(layout, 12, 3, device="cpu", seed=seed, search=search, tries=2)
+        monkeypatch.setattr(placer, "_max_blocks", lambda cap=cap: cap)
+        monkeypatch.setattr(wp, "launch", recording_launch)
+        xy = placer.sample()
+        mask = torch.from_numpy(np.random.default_rng(seed).random((3, 12)) < 0.5)
+        left = placer.place_async(xy, mask, rounds=2, hold=True)
+        monkeypatch.setattr(wp, "launch", launch)
+        runs.append((xy.clone(), left.clone()))
+    assert {k for k, _ in capped} >= {"begin_todo", "resolve"}, capped
+    lean = sorted({k for k, stride in capped if not stride})
+    assert not lean, f"capped launches of kernels without a grid-stride loop: {lean}"
+    assert torch.equal(runs[0][0], runs[1][0]) and torch.equal(runs[0][1], runs[1][1])
+
+
 @pytest.mark.skipif(not torch.cuda.is_available() or not wp.is_cuda_available(), reason="needs a CUDA device")
 @pytest.mark.parametrize("search", ["grid", "world"])
 def test_capped_blocks_place_the_same_spots_on_cuda(rng, monkeypatch, search):

@@ -147,7 +147,7 @@ def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32
     claim[i] = wp.int64(NO_CLAIM)
 
 
-@wp.kernel
+@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
 def begin_todo(
     # Model:
     advance: int,
@@ -184,7 +184,7 @@ def listed_mover(i: int, listed: wp.array(dtype=wp.int32), num_movers: int):
     return w, wm - w * num_movers
 
 
-@wp.kernel
+@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
 def bin_fixed(
     # Model:
     g: PlaceGrid,
@@ -216,7 +216,7 @@ def bin_fixed(
     old_cell[w, m] = oc
 
 
-@wp.kernel
+@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
 def unbin(
     # Model:
     g: PlaceGrid,
@@ -284,7 +284,7 @@ def claim_candidate(g: PlaceGrid, w: int, m: int, p: wp.vec2, round_id: wp.int64
     wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
 
 
-@wp.kernel
+@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
 def propose(
     # Model:
     g: PlaceGrid,
@@ -389,7 +389,7 @@ def make_scan_propose(tries: int):
                         clear = False
         return clear
 
-    @wp.kernel(module="unique", module_options=opts)
+    @wp.kernel(module="unique", module_options=opts, grid_stride=True)  # launched with max_blocks
     def propose_scan(
         # Model:
         g: PlaceGrid,
@@ -447,7 +447,7 @@ def make_scan_propose(tries: int):
     return propose_scan
 
 
-@wp.kernel
+@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
 def resolve(
     # Model:
     g: PlaceGrid,
