@@ -25,6 +25,12 @@ from magwarp.kernels.options import MODULE_OPTIONS
 wp.set_module_options({"enable_backward": False, **MODULE_OPTIONS})
 
 INF = wp.constant(float("inf"))
+#: m: closest points of two paths (or of a path and a cell) nearer than this take the centre line as their normal.
+#: Below it the points' difference can be float32 rounding and its direction as good as random (the kernel and the
+#: torch form would then choose from different constraints): positions of order 1 m round at about 1e-7 m, and paths
+#: that cross at a shallow angle move their crossing point by that over the angle (3e-6 m at 1e-3 rad, seen)
+TOUCH_GAP = 1.0e-5
+_TOUCH_GAP = wp.constant(TOUCH_GAP)
 
 
 @wp.struct
@@ -171,7 +177,7 @@ def safe_choice(
         sep = rp + st[1] * seg_j - q_i
         gap = wp.length(sep)
         n = unit_or_zero(rp, wp.length(rp))
-        if gap > 1.0e-9:
+        if gap > _TOUCH_GAP:
             n = sep / wp.max(gap, 1.0e-12)
         v0n = wp.dot(v0, n)
         toward_i = wp.max(v0n, 0.0) + p.share_floor
@@ -227,7 +233,7 @@ def safe_choice(
             gap = best_d
             centre = 0.5 * (lo + hi) - a
             n = unit_or_zero(centre, wp.length(centre))
-            if gap > 1.0e-9:
+            if gap > _TOUCH_GAP:
                 n = (q_o - q_i) / wp.max(gap, 1.0e-12)
             budget = wp.max(gap - p.wall_reach - p.margin, 0.0)
             normals[i, count] = n

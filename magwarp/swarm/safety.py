@@ -61,6 +61,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp.kernels.safety import TOUCH_GAP
 from magwarp.swarm.placement import on_torch_stream
 
 __all__ = ["SafetyFilter", "build_safety", "collision_distances", "segment_closest_points", "stop_length",
@@ -241,7 +242,7 @@ class SafetyFilter:
         q_i, q_o = pick(q_seg), pick(q_box)
         gap = dist.gather(-1, best).squeeze(-1)
         centre = 0.5 * (lo + hi) - a
-        n = torch.where((gap > 1e-9)[..., None], (q_o - q_i) / gap.clamp_min(1e-12)[..., None],
+        n = torch.where((gap > TOUCH_GAP)[..., None], (q_o - q_i) / gap.clamp_min(1e-12)[..., None],
                         centre / centre.norm(dim=-1, keepdim=True).clamp_min(1e-12))
         budget = (gap - self.wall_reach - self.margin).clamp_min(0.0)
         base = _dot(a - q_i, n) + 0.5 * self.step * _dot(vel[..., None, :], n).clamp_min(0.0) - budget
@@ -265,9 +266,10 @@ class SafetyFilter:
         q_j = rel_pos + t[..., None] * seg_j
         sep = q_j - q_i
         gap = sep.norm(dim=-1)
-        # touching paths (the invariant was broken from outside, e.g. a respawn): the centre line as the normal
+        # touching or crossing paths (the invariant was broken from outside, e.g. a respawn; closest points nearer
+        # than TOUCH_GAP, where their difference is rounding): the centre line as the normal
         centre = rel_pos / rel_pos.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        n = torch.where((gap > 1e-9)[..., None], sep / gap.clamp_min(1e-12)[..., None], centre)
+        n = torch.where((gap > TOUCH_GAP)[..., None], sep / gap.clamp_min(1e-12)[..., None], centre)
         v0n = _dot(vel[..., None, :], n)
         # the pair's slack, shared in proportion to how fast each heads into it now (both movers compute the same
         # split: a follower may close up on a leader moving away); a pair closer than contact + margin (e.g. placed
