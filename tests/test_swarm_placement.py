@@ -218,7 +218,7 @@ def test_capped_launches_use_grid_stride_kernels(rng, monkeypatch, search):
     """Every kernel the placer launches with ``max_blocks`` compiles with a grid-stride loop: Warp refuses a capped
     launch of a lean kernel on CUDA only (the magwarp modules default to lean kernels; a placer on the GPU once
     failed at its first call), so the CPU launches are checked here with a cap forced on, and place the same spots."""
-    layout = random_layout(rng, 6, 6, holes=0.1)
+    layout = random_layout(rng, 8, 8, holes=0.1)  # 12 movers on at least ~45 tiles: always placeable
     seed = int(rng.integers(1 << 20))
     capped, launch = [], wp.launch
 
