@@ -262,23 +262,16 @@ PY
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_caps_gpu.log" | tail -8 ;;
     swarm_small_check)
       # #18: the step's small launches: the NaN guard's record written by the fused step (MAGWARP_SWARM_GUARD=fused,
-      # the default) and the placement's index-walking launches capped at 8 blocks per SM (MAGWARP_PLACE_BLOCKS=8,
-      # the default), first the CUDA tests (bit for bit against the per-cycle path and the uncapped launches), then
-      # swarm_load with both on ("new") against both off ("old"), alternated twice, then each lever alone
+      # the default, against separate) and the placement's launches capped at 4 or 8 blocks per SM through their
+      # grid-stride twins (MAGWARP_PLACE_BLOCKS; 0, the default: the lean kernels uncapped), first the CUDA tests (bit
+      # for bit against the per-cycle path and the uncapped launches), then swarm_load with each setting, alternated
+      # twice in one call (one card: 2026-12-08's two H100s differed by more than the levers)
       timeout 300 python3 -X faulthandler -m pytest -p no:cacheprovider -p no:warnings tests/test_swarm_fused.py \
         tests/test_swarm_graph.py tests/test_swarm_placement.py -k "cuda or graph or guard" \
         > "$OUT/pytest_swarm_small_gpu.log" 2>&1
       grep -E "FAIL|ERROR|Error|Fatal|Segmentation|passed|failed" "$OUT/pytest_swarm_small_gpu.log" | tail -8
-      for round in 1 2; do
-        for v in new old; do
-          if [ "$v" = old ]; then knobs=(MAGWARP_SWARM_GUARD=separate MAGWARP_PLACE_BLOCKS=0); else knobs=(X=1); fi
-          env "${knobs[@]}" timeout 280 python3 benchmarks/swarm_load.py --device cuda:0 --movers ${LOAD_MOVERS:-64 100 160} \
-            --worlds 16384 --loads ${LOADS:-planner seek} --json "$OUT/swarm_small_${v}_r${round}_gpu.json" 2>&1 \
-            | grep -v "^Module" | tail -8
-        done
-      done
-      ROUNDS=1 swarm_load_by MAGWARP_SWARM_GUARD guard "separate" 100 "planner seek" 200
-      ROUNDS=1 swarm_load_by MAGWARP_PLACE_BLOCKS blocks "0 4 16" 100 "planner seek" 300 ;;
+      ROUNDS=2 swarm_load_by MAGWARP_PLACE_BLOCKS blocks "0 8 4" "${LOAD_MOVERS:-100}" "planner seek" 300
+      ROUNDS=2 swarm_load_by MAGWARP_SWARM_GUARD guard "fused separate" "${LOAD_MOVERS:-100}" "planner seek" 200 ;;
     planner_cost)
       # #18: the scripted planner's linear program and safety filter as Warp kernels against their torch forms: the
       # CUDA tests (kernel against torch on random lines and crowds), then ms per planner call and per residual env

@@ -147,7 +147,7 @@ def clear_grid(head: wp.array(dtype=wp.int32), head_old: wp.array(dtype=wp.int32
     claim[i] = wp.int64(NO_CLAIM)
 
 
-@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
+@wp.kernel
 def begin_todo(
     # Model:
     advance: int,
@@ -184,7 +184,7 @@ def listed_mover(i: int, listed: wp.array(dtype=wp.int32), num_movers: int):
     return w, wm - w * num_movers
 
 
-@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
+@wp.kernel
 def bin_fixed(
     # Model:
     g: PlaceGrid,
@@ -216,7 +216,7 @@ def bin_fixed(
     old_cell[w, m] = oc
 
 
-@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
+@wp.kernel
 def unbin(
     # Model:
     g: PlaceGrid,
@@ -284,7 +284,7 @@ def claim_candidate(g: PlaceGrid, w: int, m: int, p: wp.vec2, round_id: wp.int64
     wp.atomic_max(claim, cell_index(g, w, place_cell(g, p)), claim_of(round_id, m))
 
 
-@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
+@wp.kernel
 def propose(
     # Model:
     g: PlaceGrid,
@@ -355,13 +355,14 @@ SCAN_CHUNK = 4
 
 
 @functools.cache
-def make_scan_propose(tries: int):
+def make_scan_propose(tries: int, grid_stride: bool = False):
     """:func:`propose` with ``scan`` (``search="world"``), its reads of the world's movers grouped: the same spots, bit
     for bit. The round's ``tries`` candidates are drawn first (the same draws as :func:`propose`'s tries, in the same
     order) and checked against the walls; then one try after another is checked against the world's movers, read
     :data:`SCAN_CHUNK` at a time (the loads issued together, then checked), each try stopping at the chunk that
     holds its first conflict. The first valid candidate wins, as the first valid try of :func:`propose` does.
-    ``tries`` at most :data:`MAX_SCAN_TRIES`. (:class:`~magwarp.swarm.Placer` pairs it with :func:`resolve`'s
+    ``tries`` at most :data:`MAX_SCAN_TRIES`; ``grid_stride``: compiled with Warp's grid-stride loop (a launch capped
+    with ``max_blocks``, :func:`strided`). (:class:`~magwarp.swarm.Placer` pairs it with :func:`resolve`'s
     ``scan=2``, which reads the lower-indexed winners a chunk at a time too.) The kernel takes :func:`propose`'s
     inputs less ``tries``, ``scan`` and the cell lists.
 
@@ -389,7 +390,7 @@ def make_scan_propose(tries: int):
                         clear = False
         return clear
 
-    @wp.kernel(module="unique", module_options=opts, grid_stride=True)  # launched with max_blocks
+    @wp.kernel(module="unique", module_options=opts, grid_stride=bool(grid_stride))
     def propose_scan(
         # Model:
         g: PlaceGrid,
@@ -447,7 +448,7 @@ def make_scan_propose(tries: int):
     return propose_scan
 
 
-@wp.kernel(grid_stride=True)  # launched with max_blocks (Placer.blocks)
+@wp.kernel
 def resolve(
     # Model:
     g: PlaceGrid,
@@ -522,6 +523,19 @@ def resolve(
     pos[w, m] = p
     todo[w, m] = 0
     next_in_cell[w, m] = wp.atomic_exch(head, own, m)
+
+
+@functools.cache
+def strided(kernel: wp.Kernel) -> wp.Kernel:
+    """``kernel`` (:func:`begin_todo`, :func:`bin_fixed`, :func:`unbin`, :func:`propose` or :func:`resolve`) compiled
+    with Warp's grid-stride loop, as a kernel of its own module (``<name>_strided``, compiled at its first launch):
+    what a launch capped with ``max_blocks`` needs (:class:`~magwarp.swarm.Placer`'s ``blocks``), since Warp refuses
+    a capped launch of a lean kernel on CUDA. The same work per index, so the same spots bit for bit. The uncapped
+    launches keep the lean kernels: one H100 run with every placement kernel grid-stride (2026-12-08) stepped the
+    swarm 8% slower under the planner and 37% under ``seek`` than another H100 had with the lean ones, the two
+    causes (card or kernels) not separated."""
+    return wp.kernel(kernel.func, name=f"{kernel.key}_strided", module="unique",
+                     module_options={"enable_backward": False, **MODULE_OPTIONS}, grid_stride=True)
 
 
 @wp.kernel

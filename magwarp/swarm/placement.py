@@ -73,15 +73,20 @@ SCAN_CPU = "chunked" if PLACE_SCAN == "device" else PLACE_SCAN
 #: the threads of a round's launch in the lane shape (:class:`Placer`'s ``lanes``): its groups walk the list of movers
 #: to place (an H100 holds 132 * 2048 resident threads)
 LANE_GRID_THREADS = 1 << 18
-#: thread blocks per multiprocessor of a CUDA round's launches (:class:`Placer`'s ``blocks``): :func:`begin_todo`,
-#: the rounds' :func:`~magwarp.kernels.placement.propose` and :func:`~magwarp.kernels.placement.resolve`, and the
-#: grid search's binning walk their ``W * M`` indices with Warp's grid-stride loop in at most this many 256-thread
-#: blocks per SM (8: every thread resident at once), not one thread per index. The same work per index in the same
-#: order of indices, so the same spots bit for bit; a round with few movers to place (most threads past the list's
-#: count) no longer launches a block for every 256 movers of every world: at 16,384 worlds of 100 movers those empty
-#: launches took about 6 us each on the H200, 8 per env step (``benchmarks/results/swarm_kernels_still_cap96_s43_gpu
-#: .json``). ``MAGWARP_PLACE_BLOCKS`` sets the default (0: no cap, one thread per index), for measuring.
-ROUND_BLOCKS_PER_SM = 8
+#: the default thread blocks per multiprocessor of a CUDA round's launches (:class:`Placer`'s ``blocks``; 0: no
+#: cap, a thread per index). With ``blocks`` > 0, :func:`begin_todo`, the rounds'
+#: :func:`~magwarp.kernels.placement.propose` and :func:`~magwarp.kernels.placement.resolve`, and the grid search's
+#: binning walk their ``W * M`` indices with Warp's grid-stride loop (their
+#: :func:`~magwarp.kernels.placement.strided` twins) in at most that many 256-thread blocks per SM (8: every thread
+#: resident at once), not one thread per index: the same work per index in the same order, so the same spots bit for
+#: bit, and a round with few movers to place no longer launches a block for every 256 movers of every world (at
+#: 16,384 worlds of 100 movers those near-empty launches took about 6 us each on the H200, 8 per env step,
+#: ``benchmarks/results/swarm_kernels_still_cap96_s43_gpu.json``). Measured on an H100 (2026-12-08, 16,384 worlds
+#: of 100 movers, ``swarm_small_{new,old}_s45_gpu.json``) 8 blocks per SM stepped the swarm 1.0% faster than
+#: grid-stride kernels uncapped, but that run was 8-37% slower than the lean kernels uncapped on another H100 the same
+#: night: the default stays the lean launch until one run on one card compares them. ``MAGWARP_PLACE_BLOCKS`` sets
+#: the default, for measuring.
+ROUND_BLOCKS_PER_SM = 0
 #: the most blocks per SM ``blocks`` takes
 MAX_ROUND_BLOCKS = 1024
 
@@ -145,8 +150,8 @@ class Placer:
     and ``lanes`` None, how a round's tries and winners are checked (:data:`SCAN_SHAPES`; the same spots, bit for bit;
     ``"chunked"`` takes ``tries`` up to :data:`~magwarp.kernels.placement.MAX_SCAN_TRIES`, more go serially);
     None: :data:`SCAN_CUDA` on CUDA, :data:`SCAN_CPU` on the CPU. ``blocks``: on CUDA the most thread blocks per SM of
-    the launches that walk every mover index (:data:`ROUND_BLOCKS_PER_SM`; 0: no cap; no effect on the CPU; the same
-    spots, bit for bit). ``search``, ``lanes``, ``scan`` and ``blocks`` are settable between calls.
+    the launches that walk every mover index (:data:`ROUND_BLOCKS_PER_SM`; 0: no cap, the default; no effect on the
+    CPU; the same spots, bit for bit). ``search``, ``lanes``, ``scan`` and ``blocks`` are settable between calls.
     """
 
     def __init__(self, layout: Layout | np.ndarray, num_movers: int, num_worlds: int = 1, *,
@@ -269,6 +274,10 @@ class Placer:
     def _max_blocks(self) -> int:
         """The launches' ``max_blocks`` (0: Warp's default, a block per 256 indices)."""
         return self._blocks * self.device.sm_count if self.device.is_cuda else 0
+
+    def _walk(self, kernel: wp.Kernel) -> wp.Kernel:
+        """``kernel`` for a launch with :meth:`_max_blocks`: its grid-stride twin where that caps the blocks."""
+        return kpl.strided(kernel) if self._max_blocks() else kernel
 
     @property
     def shape(self) -> tuple:
@@ -406,7 +415,7 @@ class Placer:
         self._active.zero_()
         self._count.zero_()
         blocks = self._max_blocks()
-        wp.launch(kpl.begin_todo, dim=dim,
+        wp.launch(self._walk(kpl.begin_todo), dim=dim,
                   inputs=[int(advance), wp.from_torch(mask.to(torch.bool).contiguous(), dtype=wp.bool)],
                   outputs=[self._todo, self._active, self._listed, self._count, self._counter], device=dev,
                   max_blocks=blocks)
@@ -414,7 +423,7 @@ class Placer:
         self._world_scan = int(self.search == "world")  # this call's search (the setter may change it before the next)
         if self._world_scan:  # no lists: the rounds scan the world's movers
             return pos
-        wp.launch(kpl.bin_fixed, dim=dim, inputs=[self.grid, int(hold), pos, self._todo, self._active],
+        wp.launch(self._walk(kpl.bin_fixed), dim=dim, inputs=[self.grid, int(hold), pos, self._todo, self._active],
                   outputs=[self._head, self._next, self._head_old, self._next_old, self._old_cell], device=dev,
                   max_blocks=blocks)
         return pos
@@ -422,7 +431,7 @@ class Placer:
     def _end(self, pos: wp.array) -> None:
         """Empty the cells this call filled (the next call finds the grid clean without clearing every cell)."""
         if not self._world_scan:
-            wp.launch(kpl.unbin, dim=(self.num_worlds, self.num_movers), device=self.device,
+            wp.launch(self._walk(kpl.unbin), dim=(self.num_worlds, self.num_movers), device=self.device,
                       inputs=[self.grid, pos, self._todo, self._active, self._old_cell],
                       outputs=[self._head, self._head_old], max_blocks=self._max_blocks())
         self._grid_clean = True
@@ -451,17 +460,17 @@ class Placer:
                                   self._count, groups], outputs=[self._todo, pos])
                 continue
             if self._world_scan and self.scan != "serial" and self.tries <= kpl.MAX_SCAN_TRIES:
-                wp.launch(kpl.make_scan_propose(self.tries), dim=dim, device=dev,
+                wp.launch(kpl.make_scan_propose(self.tries, blocks > 0), dim=dim, device=dev,
                           inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
                                   self._tile_list, self._hold, back, self._counter, pos, self._todo, self._listed,
                                   self._count], outputs=[self._cand, self._cand_ok, self._claim], max_blocks=blocks)
             else:
-                wp.launch(kpl.propose, dim=dim, device=dev,
+                wp.launch(self._walk(kpl.propose), dim=dim, device=dev,
                           inputs=[g, self._tiles, self.col, self.foot_radius, wp.vec2(*self.foot_half),
                                   self._tile_list, self.tries, self._hold, back, self._world_scan, self._counter, pos,
                                   self._todo, self._head, self._next, self._head_old, self._next_old, self._listed,
                                   self._count], outputs=[self._cand, self._cand_ok, self._claim], max_blocks=blocks)
-            wp.launch(kpl.resolve, dim=dim, device=dev,
+            wp.launch(self._walk(kpl.resolve), dim=dim, device=dev,
                       inputs=[g, back, self._world_scan * (1 if self.scan == "serial" else 2), self._counter,
                               self._cand, self._cand_ok, self._claim, self._listed, self._count, self._todo, pos,
                               self._head, self._next], max_blocks=blocks)
