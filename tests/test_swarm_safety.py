@@ -246,7 +246,7 @@ def test_crossing_paths_take_the_centre_line_in_both_forms(rng):
     respawn): both forms take the centre line as the pair's normal (the points' difference is float32 noise: TOUCH_GAP),
     so the kernel's choice is safe by the torch form's constraints and the same as the torch form's. A float32 gap of
     1e-9 m once sent the two forms' normals different ways and the kernel's choice broke the torch form's constraint
-    by 0.23 m/s."""
+    by 0.014 m/s."""
     n = 400
     f = make_filter()
     g = torch.Generator().manual_seed(int(rng.integers(1 << 30)))
