@@ -127,11 +127,13 @@ def randomize_figures(arch: int, json_path: str | None) -> int:
 
 
 def place_rows(arch: int) -> list[dict]:
-    """Registers and stack of the placement rounds' kernels: the default shape and the lane shape
+    """Registers and stack of the placement rounds' kernels: the default shape, lean and grid-stride
+    (:func:`magwarp.kernels.placement.strided`: the launches capped by ``Placer.blocks``), and the lane shape
     (:func:`magwarp.kernels.placement.make_lane_kernels`) at 64, 100 and 256 movers per world."""
     from magwarp.kernels import placement as kpl
 
-    rows = [{"kernel": k.key, "cap": 0, **kernel_figures(k, arch)} for k in (kpl.propose, kpl.resolve)]
+    rows = [{"kernel": k.key, "cap": 0, **kernel_figures(k, arch)}
+            for base in (kpl.begin_todo, kpl.propose, kpl.resolve) for k in (base, kpl.strided(base))]
     for movers in (64, 100, 256):
         for lanes in kpl.LANE_CHOICES:
             per_lane = -(-movers // lanes)
