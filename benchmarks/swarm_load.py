@@ -51,7 +51,7 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     import torch
 
     from magwarp.swarm import SwarmEnv, SwarmPlanner
-    from magwarp.swarm.fused import exchange, launch_block, worlds_per_block
+    from magwarp.swarm.fused import exchange, guard_in_step, launch_block, worlds_per_block
     from swarm import _layout, floor_bytes
 
     env = SwarmEnv(worlds, num_movers=movers, layout=_layout(movers), device=device, seed=0, check_inputs=False)
@@ -83,7 +83,9 @@ def bench(movers: int, worlds: int, device: str, load: str, warm: int, steps: in
     row = {"device": device, "movers": movers, "worlds": worlds, "agents": agents, "load": load, "warm": warm,
            "steps": steps, "env_ms": ms, "agent_steps_per_s": agents / (ms * 1e-3), "step_path": env.step_path,
            "exchange": exchange() if cuda else "-", "worlds_per_block": worlds_per_block(movers) if cuda else "-",
-           "max_registers": launch_block(movers)[2] if cuda else "-"}
+           "max_registers": launch_block(movers)[2] if cuda else "-",
+           "guard": "fused" if guard_in_step() else "separate",
+           "place_blocks": env.placer.blocks}
     row.update({f"{k}_per_step": v / steps for k, v in counts.items()})
     row["pending_share"] = row["pending_per_step"] / agents
     row["floor_bytes_per_agent_step"] = floor_bytes(env)
