@@ -13,6 +13,9 @@ import os
 # step from 31.9 to 22.3 us and 16384 worlds x 3 movers x 40 cycles from 109 to 66 us; lean launches (no grid-stride
 # loop) shave another 1-3%. The kernels need neither IEEE-exact division nor denormals: their results are compared
 # with float64 references under tolerances, and CPU and GPU builds agree within them.
+# Trap: a launch capped with ``max_blocks`` needs a kernel compiled with the grid-stride loop. Warp refuses it for a
+# lean kernel on CUDA only (the CPU ignores ``max_blocks``, so no CPU test sees it; every swarm placement on the GPU
+# once failed so): compile such a kernel with ``grid_stride=True``, as :func:`magwarp.kernels.placement.strided`.
 DEFAULT_OPTIONS: dict[str, bool] = {"fast_math": True, "default_grid_stride": False}
 
 
