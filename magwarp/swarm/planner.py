@@ -54,12 +54,13 @@ import math
 import torch
 import warp as wp
 
+from magwarp._checks import warp_device
 from magwarp.swarm.env import SwarmEnv
 from magwarp.swarm.placement import on_torch_stream
 from magwarp.swarm.observations import ray_directions
 from magwarp._vectors import clip_norm
 from magwarp.swarm.safety import (COMMIT_BRAKE, SAFE_K, SAFE_MARGIN, SAFE_SPEED, build_safety,
-                                  collision_distances)
+                                  collision_distances, vec2_array)
 from magwarp.swarm.traffic import LaneField, lanes_fit
 
 __all__ = ["SwarmPlanner", "TRAFFIC", "orca_lines", "solve_lines", "solve_lines_torch", "stop_speed"]
@@ -140,23 +141,13 @@ def _solve_rows(points: torch.Tensor, directions: torch.Tensor, live: torch.Tens
     rows, dev = points.shape[0], points.device
     v = torch.empty(rows, 2, device=dev)
     ok = torch.empty(rows, dtype=torch.bool, device=dev)
-    wdev = _warp_device(dev)
+    wdev = warp_device(dev)
     with on_torch_stream(wdev):
         wp.launch(orca.solve_lines, dim=rows, device=wdev,
-                  inputs=[float(max_speed), int(bool(skip)), _vec2(points), _vec2(directions),
-                          wp.from_torch(live.contiguous()), _vec2(v_pref), wp.from_torch(torch.empty_like(live))],
-                  outputs=[_vec2(v), wp.from_torch(ok)])
+                  inputs=[float(max_speed), int(bool(skip)), vec2_array(points), vec2_array(directions),
+                          wp.from_torch(live.contiguous()), vec2_array(v_pref), wp.from_torch(torch.empty_like(live))],
+                  outputs=[vec2_array(v), wp.from_torch(ok)])
     return v, ok
-
-
-def _warp_device(device: torch.device):
-    wp.init()
-    return wp.device_from_torch(device)
-
-
-def _vec2(t: torch.Tensor) -> wp.array:
-    """A float32 torch tensor ``[..., 2]`` as a Warp vec2 array (contiguous; a copy where it was not)."""
-    return wp.from_torch(t.contiguous(), dtype=wp.vec2)
 
 
 def solve_lines_torch(lines: list, v_pref: torch.Tensor, max_speed: float,
@@ -355,19 +346,19 @@ class SwarmPlanner:
             p.step, p.horizon, p.separate, p.safe = self.step_time, self.horizon, self.separate, self.safe
             p.contact, p.margin, p.yield_share, p.shield = self.contact, self.margin, self.yield_share, self.shield
             p.a_max, p.a_brake, p.wall_reach = self.a_max, self.a_brake, self.wall_reach
-            self._line_params = (p, _vec2(self.rays[:R]), _warp_device(dev))
+            self._line_params = (p, vec2_array(self.rays[:R]), warp_device(dev))
         p, rays, wdev = self._line_params
         points = torch.empty(rows, L, 2, device=dev)
         directions = torch.empty(rows, L, 2, device=dev)
         live = torch.empty(rows, L, dtype=torch.bool, device=dev)
         with on_torch_stream(wdev):
             wp.launch(korca.build_lines, dim=rows, device=wdev,
-                      inputs=[p, rays, self.env.num_movers, _vec2(vel.reshape(rows, 2)),
-                              _vec2(local.rel_pos.reshape(rows, k, 2)), _vec2(local.rel_vel.reshape(rows, k, 2)),
+                      inputs=[p, rays, self.env.num_movers, vec2_array(vel, rows),
+                              vec2_array(local.rel_pos, rows, k), vec2_array(local.rel_vel, rows, k),
                               wp.from_torch(local.mask.reshape(rows, k).contiguous()),
                               wp.from_torch(local.index.reshape(rows, k).contiguous()),
                               wp.from_torch(local.walls.reshape(rows, R).contiguous())],
-                      outputs=[_vec2(points), _vec2(directions), wp.from_torch(live)])
+                      outputs=[vec2_array(points), vec2_array(directions), wp.from_torch(live)])
         v, _ = _solve_rows(points, directions, live, v_pref.reshape(rows, 2), self.cruise, True)
         return v.reshape(*lead, 2)
 

@@ -61,6 +61,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from magwarp._checks import warp_device
 from magwarp.kernels.safety import TOUCH_GAP
 from magwarp.swarm.placement import on_torch_stream
 
@@ -109,6 +110,14 @@ def segment_closest_points(p1: torch.Tensor, d1: torch.Tensor, p2: torch.Tensor,
     t = torch.where(a_ok, t, (f / safe_e).clamp(0.0, 1.0))
     s = torch.where(a_ok, s, torch.zeros_like(s))
     return s, t
+
+
+def vec2_array(t: torch.Tensor, *shape: int) -> wp.array:
+    """A float32 torch tensor as a Warp vec2 array, reshaped to ``[*shape, 2]`` first where ``shape`` is given
+    (contiguous: a copy where it was not). What the filter's and the planner's kernel launches take."""
+    if shape:
+        t = t.reshape(*shape, 2)
+    return wp.from_torch(t.contiguous(), dtype=wp.vec2)
 
 
 def collision_distances(sim) -> tuple[float, float]:
@@ -357,8 +366,7 @@ class SafetyFilter:
             p.share_floor = float(self.SHARE_FLOOR)
             p.tile_size = float(getattr(self, "tile_size", 1.0))
             p.walls = int(walls)
-            wp.init()
-            wdev = wp.device_from_torch(device)
+            wdev = warp_device(device)
             tiles = self.tiles if self.tiles is not None else torch.zeros(1, 1, dtype=torch.bool)
             offsets = self.cell_offsets if self.tiles is not None else torch.zeros(0, 2, dtype=torch.int64)
             self._kernel_inputs[key] = (
@@ -377,9 +385,6 @@ class SafetyFilter:
         p, tiles, offsets, rot, fractions, wdev = self._kernel_model(dev, walls)
         cells = offsets.shape[0] if walls else 0
 
-        def vec2(t: torch.Tensor, *shape) -> wp.array:
-            return wp.from_torch(t.reshape(*shape, 2).contiguous(), dtype=wp.vec2)
-
         # the scratch holds a block of movers at a time (12 bytes per constraint, 8 per turn: within chunk_bytes)
         block = max(1, min(rows, self.chunk_bytes // (12 * (k + cells) + 8 * self.rot.shape[0])))
         normals = torch.empty(block, k + cells, 2, device=dev)
@@ -387,9 +392,10 @@ class SafetyFilter:
         turned = torch.empty(block, self.rot.shape[0], 2, device=dev)
         safe = torch.empty(rows, 2, device=dev)
         passes = torch.empty(rows, dtype=torch.bool, device=dev)
-        pos_rows = vec2(pos, rows) if walls else wp.empty(0, dtype=wp.vec2, device=wdev)
-        inputs = [p, tiles, offsets, rot, fractions, vec2(vel, rows), vec2(wanted, rows), vec2(rel_pos, rows, k),
-                  vec2(rel_vel, rows, k), wp.from_torch(mask.reshape(rows, k).to(torch.bool).contiguous()), pos_rows]
+        pos_rows = vec2_array(pos, rows) if walls else wp.empty(0, dtype=wp.vec2, device=wdev)
+        inputs = [p, tiles, offsets, rot, fractions, vec2_array(vel, rows), vec2_array(wanted, rows),
+                  vec2_array(rel_pos, rows, k), vec2_array(rel_vel, rows, k),
+                  wp.from_torch(mask.reshape(rows, k).to(torch.bool).contiguous()), pos_rows]
         scratch = [wp.from_torch(normals, dtype=wp.vec2), wp.from_torch(bases), wp.from_torch(turned, dtype=wp.vec2)]
         outputs = [wp.from_torch(safe, dtype=wp.vec2), wp.from_torch(passes, dtype=wp.bool)]
         with on_torch_stream(wdev):
