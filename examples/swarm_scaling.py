@@ -61,6 +61,25 @@ def policy_env_options(policy: str, traffic: str) -> tuple[str, dict]:
     return env_id, options
 
 
+def policy_env(policy: str, movers: int, side: int, device: str | None, seed: int, traffic: str = "auto",
+               env_kwargs: dict | None = None):
+    """``policy`` (a ``policy.pt``, run folder or ``pretrained:NAME``) loaded onto one world of the env it was trained
+    on (:func:`policy_env_options`, then ``env_kwargs`` over them), ``movers`` movers on ``side`` x ``side`` tiles:
+    ``(env, net)``."""
+    import gymnasium as gym
+
+    from magwarp.training.policy import load_policy
+    from magwarp.training.pretrained import resolve_policy
+
+    policy = resolve_policy(policy)  # pretrained:NAME -> the shipped file
+    env_id, options = policy_env_options(policy, traffic)
+    options.update(env_kwargs or {})
+    print(f"policy {policy}: on {env_id} with {options or 'its default options'}", flush=True)
+    env = gym.make_vec(env_id, num_envs=1, device=device, seed=seed, check_inputs=False, num_movers=movers,
+                       layout=Layout.grid(side, side), **options).unwrapped
+    return env, load_policy(policy, env.device)
+
+
 def study(movers: list[int], occupancy: float, seconds: float, device: str | None, policy: str | None = None,
           traffic: str = "auto", window: float = 0.0, env_kwargs: dict | None = None, seed: int = 0,
           planner: bool = True) -> list[dict]:
@@ -69,20 +88,10 @@ def study(movers: list[int], occupancy: float, seconds: float, device: str | Non
     the worlds' seed (the same for every controller: the same starts and goal streams until they part); ``planner``:
     also the planner's row (False: the policy's alone, e.g. when the planner's row of that seed is at hand)."""
     rows = []
-    net = None
     if policy is not None:
-        from magwarp.training.pretrained import resolve_policy
-
-        policy = resolve_policy(policy)  # pretrained:NAME -> the shipped file
-        import gymnasium as gym
         import torch
 
         from magwarp.envs.residual import ResidualAction
-        from magwarp.training.policy import load_policy
-
-        env_id, options = policy_env_options(policy, traffic)
-        options.update(env_kwargs or {})
-        print(f"policy {policy}: on {env_id} with {options or 'its default options'}", flush=True)
     for m in movers:
         side = int(math.ceil(math.sqrt(m / occupancy)))
         env = SwarmEnv(1, num_movers=m, layout=Layout.grid(side, side), device=device, seed=seed, check_inputs=False)
@@ -91,9 +100,7 @@ def study(movers: list[int], occupancy: float, seconds: float, device: str | Non
         controllers = [("planner", SwarmPlanner(env, traffic=traffic), env)] if planner else []
         if policy is not None:
             # the env the policy was trained on, with the planner row's size, layout and seed: the same worlds
-            penv = gym.make_vec(env_id, num_envs=1, device=device, seed=seed, check_inputs=False, num_movers=m,
-                                layout=Layout.grid(side, side), **options).unwrapped
-            net = net or load_policy(policy, penv.device)
+            penv, net = policy_env(policy, m, side, device, seed, traffic, env_kwargs)
             controllers.append(("residual" if isinstance(penv, ResidualAction) else "policy", net, penv))
         for name, ctrl, env in controllers:
             t = time.perf_counter()

@@ -37,3 +37,34 @@ def test_run_counts_every_goal_once_and_maps_every_mover():
 def test_x_first_routes_need_the_lanes():
     with pytest.raises(ValueError, match="needs the planner's lanes"):
         swarm_jam.run(16, 0.25, 0.2, 0.1, "cpu", "x", seed=0)
+
+
+def test_slow_pairs_match_a_pair_by_pair_count():
+    gen = np.random.default_rng(11)
+    xy = torch.as_tensor(gen.uniform(0.0, 2.0, (60, 2)), dtype=torch.float32)
+    goals = torch.as_tensor(gen.uniform(0.0, 2.0, (60, 2)), dtype=torch.float32)
+    slow = torch.as_tensor(gen.random(60) < 0.5)
+    got = swarm_jam.slow_pairs(xy, goals, slow, radius=0.5)
+    idx = np.flatnonzero(slow.numpy())
+    p, g = xy.numpy().astype(float)[idx], goals.numpy().astype(float)[idx]
+    u = (g - p) / np.linalg.norm(g - p, axis=1, keepdims=True)
+    paired = opposed = aligned = 0
+    for i in range(len(idx)):
+        nb = [j for j in range(len(idx)) if j != i and np.linalg.norm(p[i] - p[j]) < 0.5]
+        paired += bool(nb)
+        opposed += any(u[i] @ u[j] < -0.5 for j in nb)
+        aligned += any(u[i] @ u[j] > 0.5 for j in nb)
+    assert got["slow"] == len(idx) and got["with_slow_neighbour"] == paired > 0
+    assert got["opposed_share"] == pytest.approx(opposed / paired) and got["aligned_share"] == pytest.approx(
+        aligned / paired)
+    assert 0.0 < got["opposed_share"] < 1.0  # the draw has both kinds of pair
+
+
+def test_a_trained_policy_runs_in_place_of_the_planner():
+    row = swarm_jam.run(16, 0.25, 0.4, 0.2, "cpu", "outer", seed=3, policy="pretrained:swarm_residual_1024_gate_ep")
+    planner = swarm_jam.run(16, 0.25, 0.4, 0.2, "cpu", "outer", seed=3)
+    assert row["policy"] == "pretrained:swarm_residual_1024_gate_ep" and planner["policy"] is None
+    assert row["goals"] == sum(w["goals"] for w in row["windows"]) and len(row["windows"]) == 2
+    assert np.sum(row["movers_map"]) == 16 and row["slow_pairs"]["slow"] == row["slow_at_end"]
+    # the same starts (the seed), another controller: the gated correction acts once the movers run
+    assert row["windows"][0]["mean_speed"] != planner["windows"][0]["mean_speed"]
