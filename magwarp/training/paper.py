@@ -220,7 +220,10 @@ PAPER_RUNS: dict[str, PaperRun] = {
     # the same, its training worlds cut every 80 s (max_episode_steps 2000, the evaluation's horizon): a world that
     # runs on jams as it ages (benchmarks/swarm_jam.py), so the uncut run learns mostly in jammed worlds. CPU, 25 min,
     # 7.9 M agent-steps: 1.072x / 1.061x / 1.036x the planner over 80 s at 1,024 movers, seeds 0-2, and 1.255x /
-    # 0.878x / 1.149x over 400 s, no collisions (RESULTS.md); shipped as pretrained:swarm_residual_1024_gate_ep
+    # 0.878x / 1.149x over 400 s, no collisions (RESULTS.md); shipped as pretrained:swarm_residual_1024_gate_ep. At
+    # main on 2026-12-08 (the planner's kernels; a 400-s world's total is chaotic): 1.062x over 80 s (seeds 0-2) and
+    # 0.868x over 400 s (seeds 0-5); the same recipe trained again there (7.86 M agent-steps): 1.036x and 0.894x
+    # (seeds 0-2), not shipped
     "swarm_residual_1024_gate_ep": PaperRun("magwarp/SwarmResidual-v0", "ppo",
                                             {**_SWARM_1024_GATE, "max_episode_steps": 2000},
                                             {"num_movers": 1024, "gate_speed": 0.3},
