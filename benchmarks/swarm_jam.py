@@ -100,7 +100,9 @@ def run(movers: int, occupancy: float, seconds: float, window: float, device: st
     side_tiles = int(math.ceil(math.sqrt(movers / occupancy)))
     env, act, planner = controller(movers, side_tiles, device, seed, policy)
     if route == "x":
-        if planner is None or planner.lanes is None:
+        if planner is None:
+            raise ValueError(f"--route x sets the planner's routes, and policy {policy!r} runs on no planner")
+        if planner.lanes is None:
             raise ValueError(f"--route x needs the planner's lanes (layouts of 32+ tiles a side), got {side_tiles}")
         planner.lanes.outer = False
     dt = env.num_cycles * float(env.sim.model.limits.dt)

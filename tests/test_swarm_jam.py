@@ -68,3 +68,16 @@ def test_a_trained_policy_runs_in_place_of_the_planner():
     assert np.sum(row["movers_map"]) == 16 and row["slow_pairs"]["slow"] == row["slow_at_end"]
     # the same starts (the seed), another controller: the gated correction acts once the movers run
     assert row["windows"][0]["mean_speed"] != planner["windows"][0]["mean_speed"]
+
+
+def test_x_first_routes_need_a_planner(monkeypatch):
+    """A policy that runs on no planner (a plain swarm policy, not a residual) has no routes to set."""
+    real = swarm_jam.controller
+
+    def no_planner(*args):
+        env, act, _ = real(16, 8, "cpu", 0, None)
+        return env, act, None
+
+    monkeypatch.setattr(swarm_jam, "controller", no_planner)
+    with pytest.raises(ValueError, match="'plain.pt' runs on no planner"):
+        swarm_jam.run(16, 0.25, 0.2, 0.1, "cpu", "x", seed=0, policy="plain.pt")
